@@ -1,0 +1,78 @@
+"""Physical constants and the SWIm reference parameters, in SI units.
+
+Sources: Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020
+(referred to as "the paper"); Bodhaine et al. (1999), J. Atmos. Oceanic Technol. 16, 1854-1861.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The three SWIm reference wavelengths (red, green, blue) [nm] (paper, Sect. 3).
+WAVELENGTHS_NM = np.array([615.0, 546.0, 450.0])
+#: Same in metres.
+WAVELENGTHS_M = WAVELENGTHS_NM * 1e-9
+
+#: Mean earth radius of the spherical earth used everywhere [m].
+EARTH_RADIUS_M = 6_371_000.0
+#: Top of the model atmosphere for the clear-sky step (Step 2) [m] (paper, Sect. 3.3).
+ATMOSPHERE_TOP_M = 100_000.0
+#: Total solar irradiance at 1 AU [W m-2] (paper, Sect. 3.1).
+SOLAR_CONSTANT_W_M2 = 1362.0
+#: Angular radius of the solar disk seen from 1 AU [rad].
+SUN_ANGULAR_RADIUS_RAD = np.deg2rad(0.2665)
+#: Standard gravity [m s-2].
+STANDARD_GRAVITY = 9.80665
+#: Specific gas constant of dry air [J kg-1 K-1].
+R_DRY_AIR = 287.05
+#: Ratio of the gas constants of dry air and water vapour (R_d / R_v) [-].
+EPSILON_WATER_VAPOUR = 0.622
+#: Reference pressure of the potential temperature [Pa].
+P0_POTENTIAL_TEMPERATURE = 100_000.0
+#: Poisson exponent R_d / c_p for dry air [-].
+KAPPA_DRY_AIR = 0.2857
+
+#: Hydrometeor species of the canonical scene, in the order used by the ray-tracing kernels.
+SPECIES = ("cloud_liquid", "cloud_ice", "rain", "snow", "graupel")
+
+#: Backscatter fraction b per species for Eqs. 4-6 and 24 (paper, Sect. 3.4 and 3.4.3; graupel 0.30
+#: "anticipated" in Sect. 3.4.3; aerosol 0.125 in Sect. 3.4).
+BACKSCATTER_FRACTION = {
+    "cloud_liquid": 0.063,
+    "cloud_ice": 0.14,
+    "rain": 0.063,
+    "snow": 0.14,
+    "graupel": 0.30,
+    "aerosol": 0.125,
+}
+
+#: Bulk density of the hydrometeor material r_h in Eq. 7 [kg m-3]. Snow and graupel are low-density
+#: aggregates / rimed particles; the values are those commonly assumed by bulk microphysics schemes
+#: (e.g. Thompson et al. 2008: snow 100, graupel 500 kg m-3).
+HYDROMETEOR_DENSITY = {
+    "cloud_liquid": 1000.0,
+    "cloud_ice": 917.0,
+    "rain": 1000.0,
+    "snow": 100.0,
+    "graupel": 500.0,
+}
+
+#: Default effective radii [m] where the scene gives none (issue 2; cloud liquid rises with content,
+#: see :func:`swim.optics.hydrometeors.effective_radius_liquid_martin1994`).
+DEFAULT_EFFECTIVE_RADIUS = {
+    "cloud_liquid": 10e-6,
+    "cloud_ice": 34e-6,
+    "rain": 750e-6,
+    "snow": 4e-3,
+    "graupel": 10e-3,
+}
+
+#: Default background aerosol: optical depth at 550 nm, scale height [m], Angstrom exponent,
+#: single-scattering albedo and Henyey-Greenstein asymmetry parameter (issue 2).
+DEFAULT_AEROSOL = {
+    "aod_550": 0.05,
+    "scale_height_m": 1500.0,
+    "angstrom_exponent": 1.3,
+    "ssa": 0.95,
+    "g": 0.70,
+}
