@@ -1,6 +1,9 @@
 """SWIm: Simulated Weather Imagery, a fast visible-light 3D radiative transfer renderer for NWP output.
 
 Physics after Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020.
+
+Public API: :func:`open_scene`, :func:`default_scene`, :func:`scene_from_arrays`, :func:`render`,
+:func:`write_png`, :func:`write_netcdf`.
 """
 
 import logging
@@ -8,3 +11,26 @@ import logging
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+_API = {
+    "open_scene": "swim.io.scene",
+    "scene_from_arrays": "swim.io.scene",
+    "validate_scene": "swim.io.scene",
+    "default_scene": "swim.io.default_scene",
+    "read_wrf": "swim.io.wrf",
+    "read_shdom_les": "swim.io.les",
+    "render": "swim.pipeline",
+    "write_png": "swim.pipeline",
+    "write_netcdf": "swim.pipeline",
+}
+
+__all__ = sorted(_API) + ["__version__"]
+
+
+def __getattr__(name):
+    # Lazy imports keep `import swim` light (JAX is loaded only when rendering).
+    if name in _API:
+        import importlib
+
+        return getattr(importlib.import_module(_API[name]), name)
+    raise AttributeError(f"module 'swim' has no attribute {name!r}")

@@ -83,7 +83,7 @@ def enu_basis_ecef(lat, lon):
     la, lo = np.broadcast_arrays(la, lo)
     east = np.stack([-np.sin(lo), np.cos(lo), np.zeros_like(lo)], axis=-1)
     north = np.stack([-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)], axis=-1)
-    up = _unit_earth_centred(la, lo)
+    up = np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=-1)  # la, lo in rad
     return np.stack([east, north, up], axis=-2)
 
 

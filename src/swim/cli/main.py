@@ -1,0 +1,104 @@
+"""Command-line interface: a thin layer over :func:`swim.render` (``swim render --help``)."""
+
+from __future__ import annotations
+
+import logging
+from enum import Enum
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.logging import RichHandler
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from ..errors import SwimInputError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="SWIm: render what a camera sees in NWP output (Albers et al. 2020).")
+console = Console(stderr=True)
+
+
+class CameraKind(str, Enum):
+    allsky = "allsky"
+    panorama = "panorama"
+    perspective = "perspective"
+
+
+@app.callback()
+def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the stages.")):
+    """SWIm command-line interface."""
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[RichHandler(console=console, show_path=False)])
+
+
+@app.command()
+def render(
+    scene: Optional[Path] = typer.Argument(None, help="Scene file (WRF wrfout netCDF, canonical netCDF, SHDOM LES .txt); "
+                                                      "default: the built-in scene."),
+    time: Optional[str] = typer.Option(None, help="UTC time, ISO 8601 (default: the scene's time)."),
+    lat: Optional[float] = typer.Option(None, help="Observer latitude [deg] (default: domain centre)."),
+    lon: Optional[float] = typer.Option(None, help="Observer longitude [deg] (default: domain centre)."),
+    height: float = typer.Option(2.0, help="Observer height above the ground [m]."),
+    camera: CameraKind = typer.Option(CameraKind.allsky, help="Camera kind."),
+    size: int = typer.Option(511, help="All-sky image size [pixels]."),
+    width: int = typer.Option(1024, help="Panorama / perspective width [pixels]."),
+    image_height: int = typer.Option(512, "--image-height", help="Panorama / perspective height [pixels]."),
+    fov: Optional[float] = typer.Option(None, help="Perspective horizontal field of view [deg]."),
+    view_azimuth: Optional[float] = typer.Option(None, help="Perspective view azimuth [deg from north]."),
+    view_zenith: Optional[float] = typer.Option(None, help="Perspective view zenith angle [deg]."),
+    look_at: Optional[str] = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'."),
+    sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
+    sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
+    white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure)."),
+    steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
+    out: Path = typer.Option(Path("swim.png"), help="PNG output path."),
+    netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here."),
+):
+    """Render an all-sky, panorama or perspective image of a scene."""
+    from .. import default_scene, open_scene
+    from ..color import DEFAULT_WHITE_LEVEL
+    from ..pipeline import render as render_image, write_netcdf, write_png
+    from ..rt.march import MarchSettings
+
+    try:
+        ds = default_scene() if scene is None else open_scene(scene, time=time)
+        options = {"allsky": {"size": size},
+                   "panorama": {"width": width, "height": image_height},
+                   "perspective": {"width": width, "height": image_height}}[camera.value]
+        if camera is CameraKind.perspective:
+            if fov is not None:
+                options["fov_deg"] = fov
+            elif view_azimuth is not None or look_at is not None:
+                options["fov_deg"] = 60.0
+            if view_azimuth is not None:
+                options.update(view_azimuth_deg=view_azimuth, view_zenith_deg=90.0 if view_zenith is None else view_zenith)
+        target = None
+        if look_at is not None:
+            try:
+                target = tuple(float(v) for v in look_at.split(","))
+                assert len(target) == 3
+            except (ValueError, AssertionError):
+                raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
+        with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                      TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
+            task = bar.add_task("render", total=1.0)
+            image = render_image(
+                ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
+                sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target,
+                settings=MarchSettings(n_grid=steps),
+                white_level=DEFAULT_WHITE_LEVEL if white_level is None else white_level,
+                progress=lambda done, total: bar.update(task, completed=done / total),
+            )
+        write_png(image, out)
+        if netcdf is not None:
+            write_netcdf(image, netcdf)
+    except SwimInputError as exc:
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(code=2) from None
+    console.print(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
+                  + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

@@ -1,0 +1,316 @@
+"""The thin orchestrator: scene -> optics -> geometry -> tracing -> composition -> colour -> outputs.
+
+Each stage is a function between xarray objects or small dataclasses; :func:`render` only wires them.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from . import __version__
+from .color import DEFAULT_WHITE_LEVEL, solar_relative_to_srgb8
+from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD, WAVELENGTHS_NM
+from .errors import SwimInputError
+from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
+from .geometry.cameras import PerspectiveCamera, fov_to_fit, look_at_angles, make_camera
+from .geometry.sun import SunPosition, sun_from_angles, sun_position
+from .io.scene import validate_scene
+from .optics.phase import henyey_greenstein
+from .optics.rayleigh import rayleigh_phase_function
+from .optics.volume import build_optical_volume
+from .rt.gas import AerosolBackground, build_gas_tables
+from .rt.march import MarchSettings, grid_geometry, kernel_constants, trace_rays
+from .rt.solar import solar_transmittance
+
+log = logging.getLogger(__name__)
+
+#: Above this height [m] a perspective camera without a look-at point looks straight down.
+SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
+
+
+def _terrain_at(volume, lat, lon):
+    """Terrain height [m] under (lat, lon) by bilinear interpolation; 0 (sea level) outside the domain."""
+    geometry = grid_geometry(volume)
+    p = geodetic_to_scene(lat, lon, 0.0, volume.attrs["reference_lat"], volume.attrs["reference_lon"])
+    i, j = geometry.inverse @ (p[:2] - geometry.origin)
+    _, ny, nx = geometry.shape
+    if not (0 <= i <= nx - 1 and 0 <= j <= ny - 1):
+        return 0.0, (i, j)
+    terrain = volume["terrain_height"].values
+    i0, j0 = min(int(i), nx - 2), min(int(j), ny - 2)
+    fi, fj = i - i0, j - j0
+    value = (terrain[j0, i0] * (1 - fi) * (1 - fj) + terrain[j0, i0 + 1] * fi * (1 - fj)
+             + terrain[j0 + 1, i0] * (1 - fi) * fj + terrain[j0 + 1, i0 + 1] * fi * fj)
+    return float(value), (i, j)
+
+
+def _check_observer_reach(volume, indices, height_asl):
+    """Raise if the model domain lies wholly below the observer's horizon."""
+    geometry = grid_geometry(volume)
+    _, ny, nx = geometry.shape
+    i, j = indices
+    outside = np.hypot(max(0.0, -i, i - (nx - 1)), max(0.0, -j, j - (ny - 1)))
+    spacing = float(np.sqrt(abs(np.linalg.det(geometry.matrix))))
+    distance = outside * spacing
+    horizon = np.sqrt(2 * EARTH_RADIUS_M * max(height_asl, 0.0)) + np.sqrt(2 * EARTH_RADIUS_M * max(geometry.top, 0.0))
+    if distance > horizon:
+        raise SwimInputError(
+            f"observer is {distance / 1e3:.0f} km outside the model domain, beyond the {horizon / 1e3:.0f} km "
+            "at which any of it rises above the horizon: choose lat/lon inside or near the domain"
+        )
+
+
+def resolve_sun(time, scene, sun_zenith=None, sun_azimuth=None) -> SunPosition:
+    """Sun position at the scene's reference point from the time or from explicit angles [deg]."""
+    if (sun_zenith is None) != (sun_azimuth is None):
+        raise SwimInputError("give both sun_zenith and sun_azimuth [deg] to override the sun, or neither")
+    lat0, lon0 = float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"])
+    if sun_zenith is not None:
+        return sun_from_angles(sun_zenith, sun_azimuth)
+    if time is None:
+        if "time" not in scene.coords:
+            raise SwimInputError("no time given and the scene has no 'time' coordinate: pass time (ISO 8601, UTC)")
+        time = pd.Timestamp(scene["time"].values)
+    return sun_position(time, lat0, lon0)
+
+
+def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
+    """Solar-relative radiance (3, ny, nx) of the sun's disk, spreading 4 pi T_direct over the disk's pixels."""
+    row, col = camera.pixel_of_direction(np.asarray(sun_enu)[None, :])
+    disk = np.zeros((3,) + dirs_enu.shape[:2])
+    if not (np.isfinite(row[0]) and np.isfinite(col[0])):
+        return disk
+    ny, nx = dirs_enu.shape[:2]
+    r = int(np.clip(np.rint(row[0]), 0, ny - 1))
+    c = int(np.clip(np.rint(col[0]), 0, nx - 1))
+    neighbour = dirs_enu[r, c + 1] if c + 1 < nx else dirs_enu[r, c - 1]
+    pitch = float(np.arccos(np.clip(np.dot(dirs_enu[r, c], neighbour), -1, 1))) if valid[r, c] else 0.0
+    if not np.isfinite(pitch) or pitch <= 0:
+        return disk
+    radius = max(SUN_ANGULAR_RADIUS_RAD, 0.75 * pitch)
+    cos_angle = np.einsum("yxc,c->yx", np.nan_to_num(dirs_enu), sun_enu)
+    inside = valid & (cos_angle >= np.cos(radius))
+    count = int(inside.sum())
+    if count == 0:
+        return disk
+    disk[:, inside] = (4 * np.pi * np.asarray(transmittance) / (count * pitch**2))[:, None]
+    return disk
+
+
+def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
+           camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
+           aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
+           white_level=DEFAULT_WHITE_LEVEL, progress=None) -> xr.Dataset:
+    """Render what a camera at a vantage point sees in a scene.
+
+    Parameters
+    ----------
+    scene : xarray.Dataset
+        Canonical scene (docs/scene-format.md), e.g. from :func:`swim.open_scene`.
+    time : str, datetime or pandas.Timestamp, optional
+        UTC time; default: the scene's ``time`` coordinate. Not needed with ``sun_zenith``/``sun_azimuth``.
+    lat, lon : float, optional
+        Observer position [deg]; default: the scene's reference point.
+    height : float
+        Observer height above the ground [m] (above the terrain or sea surface under it).
+    camera : {"allsky", "panorama", "perspective"}
+        Camera kind (docs/frames.md); ``camera_options`` are passed to its constructor (e.g. ``size``,
+        ``width``, ``height``, ``fov_deg``, ``view_azimuth_deg``, ``view_zenith_deg``).
+    sun_zenith, sun_azimuth : float, optional
+        Override the ephemeris [deg].
+    look_at : tuple of float, optional
+        (lat [deg], lon [deg], height [m above sea level]) for a perspective camera. Without it (and
+        without view angles) a camera above 100 km looks straight down and fits the domain in its field
+        of view, and a lower one looks at the horizon towards the north.
+    aerosol : AerosolBackground, optional
+        Background 1-D aerosol; default AOD 0.05 at 550 nm, or none where the scene has a 3-D
+        ``aerosol_extinction``.
+    settings : MarchSettings
+        Ray-marching step counts.
+    white_level : float
+        Solar-relative radiance shown as display white (docs/colour.md).
+    progress : callable, optional
+        Called with (rays done, rays total).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``radiance`` (wavelength, y, x) [1]: solar-relative spectral radiance L' (Eq. 2) at 615/546/450 nm;
+        ``rgb`` (y, x, channel) uint8 sRGB; ``view_azimuth``, ``view_zenith`` (y, x) [deg] in the observer's
+        frame; ``tau_hydrometeor`` (y, x); ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``;
+        attributes with the sun, observer, time and camera.
+
+    Raises
+    ------
+    SwimInputError
+        Bad scene, observer below the terrain or out of reach, bad camera options or time.
+    """
+    scene = validate_scene(scene)
+    lat0, lon0 = float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"])
+    lat = lat0 if lat is None else float(lat)
+    lon = lon0 if lon is None else float(lon)
+    if not (-90 <= lat <= 90):
+        raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
+    if height is None or not np.isfinite(height) or height < 0:
+        raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
+
+    volume = build_optical_volume(scene)
+    terrain, indices = _terrain_at(volume, lat, lon)
+    height_asl = terrain + float(height)
+    _check_observer_reach(volume, indices, height_asl)
+
+    sun = resolve_sun(time, scene, sun_zenith, sun_azimuth)
+    if sun.zenith_deg > 90:
+        log.warning("sun is %.1f deg below the horizon: twilight/night sky (no moon, stars or city lights)",
+                    sun.zenith_deg - 90)
+    sun_scene = np.asarray(sun.direction_enu, dtype=float)
+
+    options = dict(camera_options or {})
+    if camera == "perspective" and "view_azimuth_deg" not in options:
+        options.update(_default_perspective_view(volume, lat, lon, height_asl, look_at, options))
+    cam = make_camera(camera, **options)
+    dirs_enu, valid = cam.directions()
+    rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
+    dirs_scene = np.nan_to_num(dirs_enu.reshape(-1, 3)) @ rotation
+    dirs_scene /= np.maximum(np.linalg.norm(dirs_scene, axis=1, keepdims=True), 1e-12)
+    observer = geodetic_to_scene(lat, lon, height_asl, lat0, lon0)
+    sun_enu_observer = sun_scene @ rotation.T
+
+    transmittance = solar_transmittance(volume, sun_scene)
+    if aerosol is None:
+        aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene else AerosolBackground()
+    gas = build_gas_tables(aerosol)
+    consts = kernel_constants(volume, transmittance, gas, sun_scene)
+    geometry = grid_geometry(volume)
+
+    # One extra ray towards the sun gives the direct-beam transmittance for the sun's disk.
+    all_dirs = np.vstack([dirs_scene, sun_scene[None]])
+    origins = np.broadcast_to(observer, all_dirs.shape)
+    cos_theta = all_dirs @ sun_scene
+    ray_phase = {
+        "cos_theta": cos_theta,
+        "cos_view_zenith": all_dirs[:, 2],
+        "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
+        "p_aerosol": np.asarray(henyey_greenstein(cos_theta, aerosol.g)),
+    }
+    log.info("tracing %d rays (%s camera %s)", len(all_dirs), camera, cam.shape)
+    out = trace_rays(origins, all_dirs, consts, geometry, ray_phase, settings, progress)
+
+    ny, nx = cam.shape
+    t_direct = np.exp(-(out["tau_clear"][-1] + out["tau_hydrometeor"][-1]))
+    if out["surface"][-1]:
+        t_direct = np.zeros(3)
+    mask = valid[None]
+
+    def image(key):
+        a = out[key][:-1]
+        a = a.reshape(ny, nx, -1).transpose(2, 0, 1) if a.ndim == 2 else a.reshape(ny, nx)[None]
+        return np.where(mask, a, np.nan)
+
+    disk = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
+    radiance = image("radiance") + disk
+    rgb = solar_relative_to_srgb8(radiance, white_level=white_level)
+    view_az, view_zen = azimuth_zenith_from_enu(np.where(valid[..., None], dirs_enu, np.nan))
+    sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
+
+    wl = ("wavelength", WAVELENGTHS_NM, {"units": "nm", "long_name": "wavelength"})
+    dims3 = ("wavelength", "y", "x")
+    data = {
+        "radiance": (dims3, radiance.astype(np.float32), {
+            "units": "1", "long_name": "solar-relative spectral radiance L' = 4 pi L / E_TOA (Albers et al. 2020, Eq. 2)"}),
+        "radiance_clear": (dims3, image("radiance_clear").astype(np.float32), {"units": "1", "long_name": "gas and aerosol part of L'"}),
+        "radiance_cloud": (dims3, image("radiance_cloud").astype(np.float32), {"units": "1", "long_name": "hydrometeor part of L'"}),
+        "radiance_surface": (dims3, image("radiance_surface").astype(np.float32), {"units": "1", "long_name": "ground part of L'"}),
+        "tau_hydrometeor": (("y", "x"), image("tau_hydrometeor")[0].astype(np.float32), {
+            "units": "1", "long_name": "hydrometeor optical depth along the line of sight"}),
+        "rgb": (("y", "x", "channel"), rgb, {"long_name": "true-colour image, 8-bit sRGB"}),
+        "view_azimuth": (("y", "x"), view_az.astype(np.float32), {"units": "degree", "long_name": "view azimuth, clockwise from north"}),
+        "view_zenith": (("y", "x"), view_zen.astype(np.float32), {"units": "degree", "long_name": "view zenith angle"}),
+    }
+    attrs = {
+        "title": f"SWIm {camera} image",
+        "institution": "swim-imagery",
+        "source": f"swim {__version__}",
+        "references": "Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020",
+        "history": f"{datetime.now(timezone.utc).isoformat(timespec='seconds')} rendered by swim {__version__}",
+        "scene_title": str(scene.attrs.get("title", "")),
+        "scene_source": str(scene.attrs.get("source", "")),
+        "time": "" if sun.time is None else pd.Timestamp(sun.time).isoformat(),
+        "sun_zenith_deg": float(sun_zen_obs),
+        "sun_azimuth_deg": float(sun_az_obs),
+        "sun_zenith_reference_deg": float(sun.zenith_deg),
+        "sun_azimuth_reference_deg": float(sun.azimuth_deg),
+        "sun_source": sun.source,
+        "earth_sun_distance_au": float(sun.earth_sun_distance_au),
+        "direct_transmittance": np.asarray(t_direct, dtype=float),
+        "observer_lat": lat,
+        "observer_lon": lon,
+        "observer_height_above_ground_m": float(height),
+        "observer_height_asl_m": float(height_asl),
+        "reference_lat": lat0,
+        "reference_lon": lon0,
+        "white_level": float(white_level),
+        "camera": camera,
+        "Conventions": "CF-1.8",
+    }
+    attrs.update({f"camera_{k}": v for k, v in cam.to_attrs().items()})
+    return xr.Dataset(data, coords={"wavelength": wl, "channel": ["R", "G", "B"]}, attrs=attrs)
+
+
+def _default_perspective_view(volume, lat, lon, height_asl, look_at, options):
+    """View angles (and a fitting field of view) for a perspective camera without explicit angles."""
+    lat0, lon0 = volume.attrs["reference_lat"], volume.attrs["reference_lon"]
+    geometry = grid_geometry(volume)
+    _, ny, nx = geometry.shape
+    half_extent = 0.5 * float(np.hypot(*(geometry.matrix @ [nx - 1, ny - 1])))
+    view = {}
+    if look_at is not None:
+        az, zen = look_at_angles(lat, lon, height_asl, *look_at)
+        view.update(view_azimuth_deg=az, view_zenith_deg=zen)
+    elif height_asl > SPACE_VIEW_HEIGHT_M:
+        az, zen = look_at_angles(lat, lon, height_asl, lat0, lon0, 0.0)
+        view.update(view_azimuth_deg=az, view_zenith_deg=zen)
+        if "fov_deg" not in options:
+            distance = np.linalg.norm(geodetic_to_scene(lat, lon, height_asl, lat0, lon0) - [0, 0, EARTH_RADIUS_M])
+            view["fov_deg"] = fov_to_fit(distance, half_extent)
+    else:
+        view.update(view_azimuth_deg=0.0, view_zenith_deg=90.0)
+    return view
+
+
+def _atomic_write(path: Path, writer):
+    """Write through a temporary file in the same folder and rename, so no half-written file remains."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    os.close(fd)
+    try:
+        writer(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def write_png(image: xr.Dataset, path) -> Path:
+    """Write the ``rgb`` of a rendered image as an 8-bit sRGB PNG (atomically)."""
+    from PIL import Image
+
+    _atomic_write(Path(path), lambda tmp: Image.fromarray(np.asarray(image["rgb"].values, dtype=np.uint8), "RGB").save(tmp, format="PNG"))
+    return Path(path)
+
+
+def write_netcdf(image: xr.Dataset, path) -> Path:
+    """Write a rendered image as CF-style netCDF-4 (atomically); radiance is compressed float32."""
+    encoding = {name: {"zlib": True, "complevel": 4} for name in image.data_vars}
+    _atomic_write(Path(path), lambda tmp: image.to_netcdf(tmp, format="NETCDF4", encoding=encoding))
+    return Path(path)
