@@ -1,0 +1,291 @@
+"""From CIE XYZ to display RGB and 8-bit sRGB (paper, Sect. 3.8, steps 2 and 3).
+
+Chain (per pixel):
+
+1. ``XYZ`` from :func:`swim.color.spectrum.solar_relative_to_XYZ` (``Y = 1`` for a spectrally flat
+   ``L' = 1``, i.e. sunlight).
+2. Sun-white display RGB: von Kries chromatic adaptation (Bradford) from the sun's white point
+   (the XYZ of a flat ``L'``) to D65, then the IEC 61966-2-1 sRGB matrix, then division by the
+   exposure ``white_level``. A spectrally flat ``L' = white_level`` maps to ``RGB = (1, 1, 1)``
+   exactly (a per-channel renormalisation of at most 1.6e-4 absorbs the 4-digit rounding of the sRGB
+   matrix). This replaces the paper's Eq. 36 matrix (see :data:`PAPER_EQ36_MATRIX`).
+3. Gamut mapping into [0, 1]^3 (default ``"preserve_hue"``, see :func:`XYZ_to_display_rgb`).
+4. sRGB opto-electronic transfer function (the paper's "gamma 2.2", step 3) and 8-bit quantisation.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from swim.color._tables import colour
+from swim.color.spectrum import solar_relative_to_XYZ
+from swim.errors import SwimInputError
+
+__all__ = [
+    "DEFAULT_WHITE_LEVEL",
+    "CHROMATIC_ADAPTATION_TRANSFORM",
+    "PAPER_EQ36_MATRIX",
+    "GAMUT_MAPPINGS",
+    "sun_white_XYZ",
+    "display_matrix",
+    "XYZ_to_display_rgb",
+    "oetf_srgb",
+    "encode_srgb8",
+    "solar_relative_to_srgb8",
+]
+
+#: Exposure: the solar-relative radiance ``L'`` [-] of a spectrally flat (sun-coloured) scene that is
+#: shown as display white ``RGB = (1, 1, 1)``. Displayed linear brightness is ``L' / DEFAULT_WHITE_LEVEL``
+#: (paper Sect. 3.8: displayed brightness proportional to scene brightness). 2.5 puts sunlit cloud
+#: tops (L' ~ 2-4) at or near white, cloud bases (L' ~ 0.5-1.5) in mid greys and the clear sky
+#: (L' ~ 0.07-0.25) in darker blues. A white Lambertian surface facing the sun has L' = 4 (Eq. 2).
+DEFAULT_WHITE_LEVEL = 2.5
+
+#: Chromatic adaptation transform (colour-science name) from the sun's white point to D65.
+CHROMATIC_ADAPTATION_TRANSFORM = "Bradford"
+
+#: The paper's Eq. 36 XYZ -> monitor RGB matrix (kept for comparison only; not used). Its primaries
+#: are within 0.01 in xy of the sRGB/Rec. 709 primaries, and RGB = (1, 1, 1) corresponds to
+#: xy = (0.3292, 0.3449), CCT ~ 5640 K (see docs/colour.md).
+PAPER_EQ36_MATRIX = np.array(
+    [
+        [3.1894, -1.5755, -0.4948],
+        [-0.9735, 1.8951, 0.0376],
+        [0.0635, -0.2160, 1.2244],
+    ]
+)
+PAPER_EQ36_MATRIX.flags.writeable = False
+
+#: Accepted values of the ``gamut`` argument of :func:`XYZ_to_display_rgb`.
+GAMUT_MAPPINGS = ("preserve_hue", "clip", "none")
+
+
+def sun_white_XYZ() -> np.ndarray:
+    """XYZ of a spectrally flat solar-relative radiance ``L' = 1``: the sun's white point.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+        ``X, Y, Z`` with ``Y = 1``; chromaticity xy ~ (0.3234, 0.3327) for the ASTM G173-03
+        extraterrestrial spectrum (CCT ~ 6090 K; the paper quotes 5780 K as the sun's approximate
+        colour temperature).
+    """
+    return solar_relative_to_XYZ(np.ones(3))
+
+
+@functools.lru_cache(maxsize=4)
+def _display_matrix(transform: str) -> np.ndarray:
+    srgb = colour.RGB_COLOURSPACES["sRGB"]
+    xyz_sun = sun_white_XYZ()
+    xyz_d65 = colour.xy_to_XYZ(srgb.whitepoint)  # Y = 1
+    cat = colour.adaptation.matrix_chromatic_adaptation_VonKries(xyz_sun, xyz_d65, transform=transform)
+    m = np.asarray(srgb.matrix_XYZ_to_RGB) @ cat
+    m = m / (m @ xyz_sun)[:, None]  # sun white -> exactly (1, 1, 1)
+    m.flags.writeable = False
+    return m
+
+
+def display_matrix(transform: str = CHROMATIC_ADAPTATION_TRANSFORM) -> np.ndarray:
+    """The 3x3 matrix from XYZ (``Y = 1`` for sunlight) to linear sRGB with the sun as white.
+
+    ``M = diag(1 / (M0 @ XYZ_sun)) @ M0`` with ``M0 = M_XYZ->sRGB @ CAT(XYZ_sun -> D65)``.
+
+    Parameters
+    ----------
+    transform : str, optional
+        colour-science chromatic adaptation transform name ("Bradford", "CAT02", "Von Kries", ...).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        ``rgb = M @ XYZ``; ``M @ sun_white_XYZ() = (1, 1, 1)``.
+
+    Raises
+    ------
+    SwimInputError
+        If ``transform`` is not a colour-science chromatic adaptation transform.
+    """
+    if transform not in colour.CHROMATIC_ADAPTATION_TRANSFORMS:
+        raise SwimInputError(
+            f"transform must be one of {sorted(colour.CHROMATIC_ADAPTATION_TRANSFORMS)}; got {transform!r}"
+        )
+    return np.array(_display_matrix(transform))
+
+
+def _check_white_level(white_level) -> float:
+    try:
+        w = float(white_level)
+    except (TypeError, ValueError):
+        raise SwimInputError(
+            f"white_level must be a positive number (solar-relative L' [-]); got {white_level!r}"
+        ) from None
+    if not np.isfinite(w) or w <= 0.0:
+        raise SwimInputError(
+            f"white_level must be a positive finite solar-relative radiance L' [-]; got {white_level!r}"
+        )
+    return w
+
+
+def XYZ_to_display_rgb(
+    XYZ,
+    white_level=DEFAULT_WHITE_LEVEL,
+    *,
+    gamut: str = "preserve_hue",
+    transform: str = CHROMATIC_ADAPTATION_TRANSFORM,
+) -> np.ndarray:
+    """Linear display RGB in sRGB primaries with the sun as white (paper, Sect. 3.8, step 2).
+
+    ``rgb = display_matrix() @ XYZ / white_level``, followed by gamut mapping.
+
+    Parameters
+    ----------
+    XYZ : array_like, shape (..., 3)
+        CIE 1931 tristimulus values normalised as in :func:`swim.color.solar_relative_to_XYZ`
+        (``Y = 1`` for a spectrally flat ``L' = 1``).
+    white_level : float, optional
+        Exposure: the flat ``L'`` [-] shown as ``RGB = (1, 1, 1)``; default
+        :data:`DEFAULT_WHITE_LEVEL` (2.5).
+    gamut : {"preserve_hue", "clip", "none"}, optional
+        Mapping of out-of-range values into [0, 1]:
+
+        - ``"preserve_hue"`` (default): a pixel with a negative channel (chromaticity outside the
+          sRGB triangle) is desaturated towards the neutral grey of the same luminance until its
+          smallest channel is 0 (hue and luminance kept); then a pixel whose largest channel
+          exceeds 1 is scaled down by that channel (chromaticity kept, brightness saturates).
+          Pixels with luminance <= 0 become black.
+        - ``"clip"``: each channel clipped to [0, 1] independently (over-exposed colours shift
+          towards white/yellow as on a camera sensor).
+        - ``"none"``: no mapping; values may be negative or exceed 1.
+    transform : str, optional
+        Chromatic adaptation transform (colour-science name); default "Bradford".
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3)
+        Linear R, G, B [-] in [0, 1] (unless ``gamut="none"``). NaN input gives NaN.
+
+    Raises
+    ------
+    SwimInputError
+        If ``XYZ`` has no trailing axis of length 3, ``white_level`` is not a positive finite
+        number, or ``gamut`` / ``transform`` are unknown.
+    """
+    w = _check_white_level(white_level)
+    if gamut not in GAMUT_MAPPINGS:
+        raise SwimInputError(f"gamut must be one of {GAMUT_MAPPINGS}; got {gamut!r}")
+    xyz = np.asarray(XYZ, dtype=float)
+    if xyz.ndim < 1 or xyz.shape[-1] != 3:
+        raise SwimInputError(f"XYZ must have the X, Y, Z components on the last axis (..., 3); got shape {xyz.shape}")
+    m = display_matrix(transform)
+    rgb = xyz @ (m.T / w)
+    if gamut == "none":
+        return rgb
+    if gamut == "clip":
+        return np.clip(rgb, 0.0, 1.0)
+    # preserve_hue: work on the (few) offending pixels only
+    flat = rgb.reshape(-1, 3)
+    lum = np.linalg.inv(m)[1]  # luminance Y / Y_white from rgb; the coefficients sum to 1
+    neg = np.flatnonzero(flat.min(axis=1) < 0.0)
+    if neg.size:
+        sub = flat[neg]
+        y = (sub @ lum)[:, None]
+        lo = sub.min(axis=1, keepdims=True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mixed = y + (y / (y - lo)) * (sub - y)  # smallest channel -> 0, luminance kept
+        flat[neg] = np.where(y > 0.0, np.maximum(mixed, 0.0), 0.0)
+    over = np.flatnonzero(flat.max(axis=1) > 1.0)
+    if over.size:
+        flat[over] /= flat[over].max(axis=1, keepdims=True)
+    rgb = flat.reshape(rgb.shape)
+    return rgb
+
+
+def oetf_srgb(rgb_linear) -> np.ndarray:
+    """sRGB opto-electronic transfer function (IEC 61966-2-1), the paper's "gamma 2.2" (step 3).
+
+    ``V = 12.92 L`` for ``L <= 0.0031308``, else ``V = 1.055 L^(1/2.4) - 0.055`` (colour-science
+    :func:`colour.models.eotf_inverse_sRGB`).
+
+    Parameters
+    ----------
+    rgb_linear : array_like, any shape
+        Linear values [-], nominally in [0, 1].
+
+    Returns
+    -------
+    numpy.ndarray, same shape
+        Encoded values [-]; [0, 1] maps onto [0, 1].
+    """
+    return np.asarray(colour.models.eotf_inverse_sRGB(np.asarray(rgb_linear, dtype=float)), dtype=float)
+
+
+def encode_srgb8(rgb_linear) -> np.ndarray:
+    """Encode linear RGB as 8-bit sRGB.
+
+    Values are clipped to [0, 1] (NaN -> 0), passed through :func:`oetf_srgb` and rounded to the
+    nearest of 0..255.
+
+    Parameters
+    ----------
+    rgb_linear : array_like, any shape (typically (..., 3))
+        Linear display values [-].
+
+    Returns
+    -------
+    numpy.ndarray of uint8, same shape
+        sRGB code values.
+    """
+    v = np.nan_to_num(np.asarray(rgb_linear, dtype=float), nan=0.0, posinf=1.0, neginf=0.0)
+    v = oetf_srgb(np.clip(v, 0.0, 1.0))
+    return np.rint(v * 255.0).astype(np.uint8)
+
+
+def solar_relative_to_srgb8(
+    radiance,
+    white_level=DEFAULT_WHITE_LEVEL,
+    *,
+    gamut: str = "preserve_hue",
+    wavelengths_nm=None,
+) -> np.ndarray:
+    """The whole colour stage: solar-relative radiance to 8-bit sRGB (paper, Sect. 3.8).
+
+    :func:`~swim.color.spectrum.solar_relative_to_XYZ` -> :func:`XYZ_to_display_rgb` ->
+    :func:`encode_srgb8`.
+
+    Parameters
+    ----------
+    radiance : array_like, shape (n, ...)
+        Solar-relative spectral radiance ``L'`` [-] (paper Eq. 2), wavelength axis first (default
+        615, 546, 450 nm). A pixel with NaN in any channel (e.g. outside the fisheye circle) is
+        rendered black.
+    white_level : float, optional
+        Exposure: the flat ``L'`` shown as white; default :data:`DEFAULT_WHITE_LEVEL`.
+    gamut : {"preserve_hue", "clip", "none"}, optional
+        See :func:`XYZ_to_display_rgb` (``"none"`` behaves as ``"clip"`` here, via the encoder).
+    wavelengths_nm : array_like, shape (n,), optional
+        Wavelengths of ``radiance`` [nm]; default :data:`swim.constants.WAVELENGTHS_NM`.
+
+    Returns
+    -------
+    numpy.ndarray of uint8, shape (..., 3)
+        sRGB code values (R, G, B on the last axis).
+
+    Raises
+    ------
+    SwimInputError
+        If the radiance shape does not match the wavelengths, it contains +-inf, or
+        ``white_level`` / ``gamut`` are invalid.
+    """
+    w = _check_white_level(white_level)
+    r = np.asarray(radiance, dtype=float)
+    if np.isinf(r).any():
+        raise SwimInputError("radiance (solar-relative L') contains infinite values; use NaN to mark invalid pixels")
+    invalid = np.isnan(r).any(axis=0) if r.ndim >= 1 else np.isnan(r)
+    if invalid.any():
+        r = np.where(invalid, 0.0, r)
+    rgb = XYZ_to_display_rgb(solar_relative_to_XYZ(r, wavelengths_nm), w, gamut=gamut)
+    out = encode_srgb8(rgb)
+    out[invalid] = 0
+    return out

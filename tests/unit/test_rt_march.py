@@ -1,0 +1,113 @@
+"""The JAX ray march against the slow NumPy reference and against analytic clear-sky limits."""
+
+import numpy as np
+import pytest
+
+from swim.constants import EARTH_RADIUS_M
+from swim.frames import enu_from_azimuth_zenith
+from swim.io.scene import scene_from_arrays
+from swim.optics.phase import henyey_greenstein
+from swim.optics.rayleigh import rayleigh_phase_function
+from swim.optics.volume import build_optical_volume
+from swim.rt.gas import AerosolBackground, build_gas_tables
+from swim.rt.march import MarchSettings, grid_geometry, kernel_constants, ray_segments, trace_rays
+from swim.rt.reference import reference_trace_ray
+from swim.rt.solar import solar_transmittance
+
+
+def _tiny_scene():
+    rng = np.random.default_rng(3)
+    n, spacing = 12, 400.0
+    x = (np.arange(n) - n / 2 + 0.5) * spacing
+    z = np.arange(0.0, 5000.0, 250.0) + 125.0
+    zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
+    blob = np.exp(-(((xx - 300) / 900) ** 2 + ((yy + 200) / 700) ** 2 + ((zz - 2500) / 600) ** 2))
+    liquid = 6e-4 * blob * (1 + 0.3 * rng.random(blob.shape))
+    ice = 2e-5 * np.exp(-((zz - 4200) / 300) ** 2) * (xx > 0)
+    terrain = 600.0 * np.exp(-(((xx[0] + 1500) / 800) ** 2 + ((yy[0] - 1000) / 800) ** 2))
+    return scene_from_arrays(x=x, y=x, z=z, reference_lat=30.0, reference_lon=10.0, terrain_height=terrain,
+                             cloud_liquid_content=liquid, cloud_ice_content=ice, land_mask=1.0)
+
+
+def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), settings=MarchSettings(n_grid=400, n_after=200)):
+    volume = build_optical_volume(scene)
+    transmittance = solar_transmittance(volume, sun)
+    gas = build_gas_tables(aerosol)
+    consts = kernel_constants(volume, transmittance, gas, sun)
+    cos_theta = directions @ sun
+    phase = {"cos_theta": cos_theta, "cos_view_zenith": directions[:, 2],
+             "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
+             "p_aerosol": np.asarray(henyey_greenstein(cos_theta, aerosol.g))}
+    out = trace_rays(origins, directions, consts, grid_geometry(volume), phase, settings)
+    return out, (volume, transmittance, gas, phase)
+
+
+def test_kernel_matches_numpy_reference_on_a_tiny_grid():
+    scene = _tiny_scene()
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    ground = np.array([0.0, 0.0, EARTH_RADIUS_M + 5.0])
+    aircraft = np.array([-2000.0, 1500.0, EARTH_RADIUS_M + 6000.0])
+    origins, dirs = [], []
+    for origin, az, zen in [(ground, 0, 0), (ground, 60, 30), (ground, 300, 60), (ground, 200, 85),
+                            (aircraft, 120, 120), (aircraft, 150, 150), (aircraft, 90, 100), (aircraft, 315, 170)]:
+        origins.append(origin)
+        dirs.append(enu_from_azimuth_zenith(az, zen))
+    origins, dirs = np.array(origins), np.array(dirs)
+    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun)
+    assert out["tau_hydrometeor"].max() > 1.0, "the test rays must cross cloud"
+    assert out["surface"].sum() >= 3, "some rays must reach the ground"
+    for n in range(len(dirs)):
+        ref = reference_trace_ray(origins[n], dirs[n], volume, transmittance, gas, sun,
+                                  phase["p_rayleigh"][n], phase["p_aerosol"][n], step_m=20.0)
+        assert out["surface"][n] == ref["surface"]
+        assert out["tau_hydrometeor"][n] == pytest.approx(ref["tau_hydrometeor"], rel=0.03, abs=1e-3)
+        np.testing.assert_allclose(out["tau_clear"][n], ref["tau_clear"], rtol=0.03)
+        np.testing.assert_allclose(out["radiance"][n], ref["radiance"], rtol=0.04, atol=2e-4)
+
+
+def _plane_parallel_single_scattering(tau, mu0, mu, phase):
+    """Downwelling single-scattering L' at the bottom of a homogeneous plane-parallel layer (omega = 1)."""
+    return phase * mu0 / (mu0 - mu) * (np.exp(-tau / mu0) - np.exp(-tau / mu))
+
+
+@pytest.mark.parametrize("sun_zenith", [30.0, 60.0])
+def test_clear_sky_matches_plane_parallel_single_scattering(sun_zenith):
+    """Pure Rayleigh sky: zenith radiance against the analytic single-scattering solution.
+
+    An exponential atmosphere and a homogeneous layer give the same single-scattering radiance at the
+    bottom for a view and sun not too far from the zenith (the integrand depends on the optical depth
+    above the scattering point only); the spherical earth changes it by < 0.5 % at these angles.
+    """
+    scene = _tiny_scene().copy()
+    for name in ("cloud_liquid_content", "cloud_ice_content"):
+        scene[name] = scene[name] * 0.0
+    sun = enu_from_azimuth_zenith(180.0, sun_zenith)
+    view = np.array([[0.0, 0.0, 1.0], enu_from_azimuth_zenith(0.0, 20.0)])
+    origins = np.array([[1500.0, -1500.0, EARTH_RADIUS_M + 1.0]] * 2)  # 1 m above sea level, away from the hill
+    out, (_, _, gas, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(aod_550=0.0))
+    tau = np.trapezoid(gas.beta_rayleigh, dx=gas.dh, axis=0)  # column optical depth per wavelength
+    for n in range(2):
+        mu = view[n, 2]
+        expected = _plane_parallel_single_scattering(tau, np.cos(np.deg2rad(sun_zenith)), mu, phase["p_rayleigh"][n])
+        np.testing.assert_allclose(out["radiance"][n], expected, rtol=0.01)
+
+
+def test_ray_segments_for_ground_and_space_observers():
+    scene = _tiny_scene()
+    geometry = grid_geometry(build_optical_volume(scene))
+    up = np.array([0.0, 0.0, 1.0])
+    ground = np.array([0.0, 0.0, EARTH_RADIUS_M + 2.0])
+    space = np.array([0.0, 0.0, EARTH_RADIUS_M + 36_000e3])
+    seg = ray_segments(np.array([ground, space, space]), np.array([up, -up, up]), geometry)
+    # Ground looking up: starts at the observer inside the grid, leaves the grid at its top, ends at 100 km.
+    assert seg["valid"][0] and not seg["ends_on_ground"][0]
+    assert seg["bounds"][0, 0] == 0.0
+    assert seg["bounds"][0, 1] == pytest.approx(geometry.top - 2.0, abs=1.0)
+    assert seg["bounds"][0, 2] == pytest.approx(100e3 - 2.0, abs=1.0)
+    # Space looking down: enters the atmosphere at 100 km, the grid at its top, ends on the sea.
+    assert seg["valid"][1] and seg["ends_on_ground"][1]
+    assert seg["bounds"][1, 0] == pytest.approx(100e3 - geometry.top, abs=1.0)
+    assert seg["bounds"][1, 2] == pytest.approx(100e3, abs=1.0)
+    assert seg["start"][1, 2] == pytest.approx(100e3, abs=1e-3)
+    # Space looking away from the earth misses the atmosphere.
+    assert not seg["valid"][2]
