@@ -1,1 +1,20 @@
-"""swim.io"""
+"""swim.io: scene input.
+
+The canonical scene format (``docs/scene-format.md``), its validation, readers for WRF output and SHDOM-style
+LES text files, a numpy-array helper and the built-in default scene.
+"""
+
+from .default_scene import default_scene
+from .les import read_shdom_les
+from .scene import layer_thickness, open_scene, scene_from_arrays, validate_scene
+from .wrf import read_wrf
+
+__all__ = [
+    "default_scene",
+    "layer_thickness",
+    "open_scene",
+    "read_shdom_les",
+    "read_wrf",
+    "scene_from_arrays",
+    "validate_scene",
+]

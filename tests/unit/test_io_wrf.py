@@ -1,0 +1,143 @@
+"""Unit tests of swim.io.wrf on a small synthetic wrfout-like dataset."""
+
+import logging
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from swim.constants import DEFAULT_EFFECTIVE_RADIUS, R_DRY_AIR, STANDARD_GRAVITY
+from swim.errors import SwimInputError
+from swim.io import open_scene, read_wrf
+from swim.io.wrf import wrf_times
+
+NT, NZ, NY, NX = 2, 4, 3, 5
+
+
+def _wrf(**drop_or_set):
+    """A tiny wrfout-like dataset: flat terrain at 100 m, w-levels every 500 m, isothermal theta = 300 K."""
+    z_w = 100.0 + 500.0 * np.arange(NZ + 1)
+    ph_total = np.broadcast_to((z_w * STANDARD_GRAVITY)[None, :, None, None], (NT, NZ + 1, NY, NX))
+    p = np.broadcast_to(np.linspace(95000.0, 80000.0, NZ)[None, :, None, None], (NT, NZ, NY, NX)).copy()
+    qc = np.zeros((NT, NZ, NY, NX))
+    qc[:, 1, 1, 2] = 1e-3
+    qc[:, 0, 0, 0] = -1e-15
+    lat = np.broadcast_to(np.linspace(39.9, 40.1, NY)[None, :, None], (NT, NY, NX))
+    lon = np.broadcast_to(np.linspace(-105.2, -104.8, NX)[None, None, :], (NT, NY, NX))
+    d4 = ("Time", "bottom_top", "south_north", "west_east")
+    d4w = ("Time", "bottom_top_stag", "south_north", "west_east")
+    d3 = ("Time", "south_north", "west_east")
+    ds = xr.Dataset(
+        {
+            "Times": ("Time", np.array([b"2020-07-01_12:00:00", b"2020-07-01_13:00:00"])),
+            "PH": (d4w, np.zeros((NT, NZ + 1, NY, NX)), {"units": "m2 s-2"}),
+            "PHB": (d4w, ph_total.copy(), {"units": "m2 s-2"}),
+            "P": (d4, np.zeros((NT, NZ, NY, NX)), {"units": "Pa"}),
+            "PB": (d4, p, {"units": "Pa"}),
+            "T": (d4, np.zeros((NT, NZ, NY, NX)), {"units": "K"}),
+            "QVAPOR": (d4, np.full((NT, NZ, NY, NX), 0.01), {"units": "kg kg-1"}),
+            "QCLOUD": (d4, qc, {"units": "kg kg-1"}),
+            "RE_CLOUD": (d4, np.where(qc > 0, 12.0, 0.0), {"units": "um"}),
+            "HGT": (d3, np.full((NT, NY, NX), 100.0), {"units": "m"}),
+            "XLAT": (d3, lat.copy(), {"units": "degree_north"}),
+            "XLONG": (d3, lon.copy(), {"units": "degree_east"}),
+            "XLAND": (d3, np.where(np.arange(NX)[None, None, :] < 2, 2.0, 1.0) * np.ones((NT, NY, NX))),
+            "ALBEDO": (d3, np.full((NT, NY, NX), 18.0), {"units": "%"}),
+        },
+        attrs={"TITLE": " OUTPUT FROM WRF V4.5 MODEL", "CEN_LAT": 10.0, "CEN_LON": 10.0, "DX": 1000.0},
+    )
+    for key, value in drop_or_set.items():
+        if value is None:
+            ds = ds.drop_vars(key)
+        else:
+            ds[key] = value
+    return ds
+
+
+def test_heights_density_contents():
+    s = read_wrf(_wrf())
+    np.testing.assert_allclose(s["height"].values[:, 0, 0], [350.0, 850.0, 1350.0, 1850.0])
+    p = np.linspace(95000.0, 80000.0, NZ)[1]
+    t = 300.0 * (p / 1e5) ** 0.2857
+    rho = p / (R_DRY_AIR * t * (1 + 0.608 * 0.01))
+    assert s["cloud_liquid_content"].values[1, 1, 2] == pytest.approx(1e-3 * rho, rel=1e-12)
+    assert s["cloud_liquid_content"].values.min() == 0.0  # the -1e-15 mixing ratio was clipped
+    assert s["cloud_liquid_effective_radius"].values[1, 1, 2] == pytest.approx(12e-6)
+    assert s["cloud_liquid_effective_radius"].values[0, 0, 0] == DEFAULT_EFFECTIVE_RADIUS["cloud_liquid"]
+    assert s.get("rain_content") is None
+    np.testing.assert_array_equal(s["land_mask"].values[0], [0, 0, 1, 1, 1])
+    np.testing.assert_allclose(s["surface_albedo"].values, 0.18)
+    assert s.attrs["reference_lat"] == pytest.approx(40.0, abs=1e-3)  # grid centre, not CEN_LAT
+    assert s.attrs["reference_lon"] == pytest.approx(-105.0, abs=1e-3)
+    assert s.attrs["wrf_dx"] == 1000.0
+
+
+def test_no_qvapor_uses_temperature(caplog):
+    with caplog.at_level(logging.INFO, logger="swim.io.wrf"):
+        s = read_wrf(_wrf(QVAPOR=None))
+    p = np.linspace(95000.0, 80000.0, NZ)[1]
+    rho = p / (R_DRY_AIR * 300.0 * (p / 1e5) ** 0.2857)
+    assert s["cloud_liquid_content"].values[1, 1, 2] == pytest.approx(1e-3 * rho, rel=1e-12)
+    assert "QVAPOR" in caplog.text
+
+
+def test_radius_zero_in_cloud_gets_default():
+    ds = _wrf()
+    ds["RE_CLOUD"] = ds["RE_CLOUD"] * 0.0
+    s = read_wrf(ds)
+    assert s["cloud_liquid_effective_radius"].values[1, 1, 2] == DEFAULT_EFFECTIVE_RADIUS["cloud_liquid"]
+
+
+def test_radius_bad_units():
+    ds = _wrf()
+    ds["RE_CLOUD"].attrs["units"] = "furlong"
+    with pytest.raises(SwimInputError, match="RE_CLOUD"):
+        read_wrf(ds)
+
+
+def test_landmask_preferred_and_xtime_fallback():
+    ds = _wrf(Times=None)
+    ds["LANDMASK"] = (("Time", "south_north", "west_east"), np.ones((NT, NY, NX)))
+    ds["XTIME"] = ("Time", np.array([720.0, 780.0]), {"description": "minutes since 2020-07-01 00:00:00"})
+    assert wrf_times(ds) == [np.datetime64("2020-07-01T12:00"), np.datetime64("2020-07-01T13:00")]
+    s = read_wrf(ds, time="2020-07-01T13:00")
+    assert s["time"].values == np.datetime64("2020-07-01T13:00")
+    assert np.all(s["land_mask"].values == 1)
+
+
+def test_simulation_start_xtime():
+    ds = _wrf(Times=None)
+    ds["XTIME"] = ("Time", np.array([0.0, 90.0]), {"description": "minutes since simulation start"})
+    ds.attrs["SIMULATION_START_DATE"] = "2020-07-01_12:00:00"
+    assert wrf_times(ds)[1] == np.datetime64("2020-07-01T13:30")
+
+
+def test_time_errors():
+    with pytest.raises(SwimInputError, match="available times"):
+        read_wrf(_wrf(), time="2020-07-01T16:00")
+    with pytest.raises(SwimInputError, match="out of range"):
+        read_wrf(_wrf(), time=5)
+    with pytest.raises(SwimInputError, match="no Times"):
+        read_wrf(_wrf(Times=None), time="2020-07-01T12:00")
+    assert "time" not in read_wrf(_wrf(Times=None)).coords
+
+
+def test_missing_and_bad_fields():
+    with pytest.raises(SwimInputError, match="XLAT"):
+        read_wrf(_wrf(XLAT=None))
+    ds = _wrf()
+    ds["QCLOUD"][0, 2, 2, 2] = np.nan
+    with pytest.raises(SwimInputError, match="QCLOUD.*non-finite"):
+        read_wrf(ds)
+    ds = _wrf()
+    ds["QCLOUD"] = ds["QCLOUD"] * 1000.0  # g/kg given as kg/kg
+    with pytest.raises(SwimInputError, match="cloud_liquid_content.*g m-3 or g kg-1"):
+        read_wrf(ds)
+
+
+def test_open_scene_dispatches_wrf(tmp_path):
+    path = tmp_path / "wrfout_d01_2020-07-01_12:00:00"
+    _wrf().to_netcdf(path)
+    s = open_scene(path, time=1)
+    assert s["time"].values == np.datetime64("2020-07-01T13:00")
+    assert s["height"].shape == (NZ, NY, NX)
