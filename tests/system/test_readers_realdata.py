@@ -42,7 +42,15 @@ def test_katrina_shapes_variables_units(katrina):
     assert s["height"].dims == ("z", "y", "x")
     assert s["lat"].dims == ("y", "x")
     assert "cloud_liquid_content" in s and "rain_content" in s
-    for absent in ("cloud_ice_content", "snow_content", "graupel_content", "surface_albedo", "land_mask"):
+    # WSM3 (MP_PHYSICS=3) keeps ice in QCLOUD and snow in QRAIN below 0 degC: the reader splits them.
+    assert s.attrs.get("wrf_mp_physics", 3) == 3
+    frozen = s["height"] > 5500.0  # well above the tropical melting level (~4.9 km)
+    assert float(s["snow_content"].where(frozen).max()) > 1e-4
+    # (the hurricane's warm core keeps a few cells above 0 degC even there)
+    assert int(((s["rain_content"] > 0) & frozen).sum()) < 0.2 * int(((s["snow_content"] > 0) & frozen).sum())
+    warm = s["height"] < 3000.0
+    assert float(s["snow_content"].where(warm, 0).max()) == 0.0
+    for absent in ("graupel_content", "surface_albedo", "land_mask"):
         assert s.get(absent) is None
     assert s["cloud_liquid_content"].attrs["units"] == "kg m-3"
     assert s["height"].attrs["units"] == "m"

@@ -225,6 +225,26 @@ def read_wrf(path_or_dataset, time=None) -> xr.Dataset:
         return _read_wrf_dataset(ds, time, f"WRF file {p.name}", str(p))
 
 
+#: WRF microphysics schemes whose QCLOUD/QRAIN hold ice/snow below freezing (WSM3 "simple ice", Hong et al.
+#: 2004, doi:10.1175/1520-0493(2004)132<0103:ARATIM>2.0.CO;2): the phase follows the temperature.
+SIMPLE_ICE_SCHEMES = {3: "WSM3"}
+FREEZING_K = 273.15
+
+
+def _split_simple_ice(ds: xr.Dataset, contents: dict, temperature: np.ndarray, label: str) -> None:
+    """For simple-ice schemes, move QCLOUD/QRAIN below 0 degC into cloud ice/snow (in place)."""
+    scheme = SIMPLE_ICE_SCHEMES.get(int(ds.attrs.get("MP_PHYSICS", -1)))
+    if scheme is None:
+        return
+    frozen = temperature < FREEZING_K
+    for liquid, ice in (("cloud_liquid", "cloud_ice"), ("rain", "snow")):
+        if liquid in contents and ice not in contents:
+            contents[ice] = np.where(frozen, contents[liquid], 0.0)
+            contents[liquid] = np.where(frozen, 0.0, contents[liquid])
+    logger.info("read_wrf: %s uses %s simple ice: QCLOUD/QRAIN below 0 degC read as cloud ice/snow (%d cells)",
+                label, scheme, int(frozen.sum()))
+
+
 def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str) -> xr.Dataset:
     missing = [v for v in _REQUIRED if v not in ds.variables]
     if missing:
@@ -280,6 +300,14 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str) -> xr.Datas
         contents[species] = q * rho
         data[f"{species}_content"] = xr.DataArray(contents[species], dims=dims3, attrs={"units": "kg m-3"})
 
+    _split_simple_ice(ds, contents, temperature, label)
+    for species in ("cloud_ice", "snow"):
+        if species in contents and f"{species}_content" not in data:
+            data[f"{species}_content"] = xr.DataArray(contents[species], dims=dims3, attrs={"units": "kg m-3"})
+    for species in ("cloud_liquid", "rain"):
+        if species in contents:
+            data[f"{species}_content"] = xr.DataArray(contents[species], dims=dims3, attrs={"units": "kg m-3"})
+
     for species, var in WRF_RADII.items():
         if var not in ds.variables or species not in contents:
             continue
@@ -326,7 +354,7 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str) -> xr.Datas
         "title": f"{title}" + (f", {pd.Timestamp(valid_time).strftime('%Y-%m-%d %H:%M UTC')}" if valid_time is not None else ""),
         "source": f"{source} read by swim.io.wrf.read_wrf (Time index {itime})",
     }
-    for key, out in (("DX", "wrf_dx"), ("DY", "wrf_dy"), ("MAP_PROJ", "wrf_map_proj")):
+    for key, out in (("DX", "wrf_dx"), ("DY", "wrf_dy"), ("MAP_PROJ", "wrf_map_proj"), ("MP_PHYSICS", "wrf_mp_physics")):
         if key in ds.attrs:
             attrs[out] = ds.attrs[key].item() if hasattr(ds.attrs[key], "item") else ds.attrs[key]
     scene = xr.Dataset(data, coords=coords, attrs=attrs)

@@ -36,6 +36,7 @@ import numpy as np
 from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
 from ..optics.phase import (
+    G_LIQUID,
     anisotropic_reflectance_factor_kokhanovsky2004,
     cloud_albedo_stephens1978,
     effective_phase_function,
@@ -44,8 +45,8 @@ from .gas import GasTables
 
 log = logging.getLogger(__name__)
 
-#: Asymmetry parameters g_lambda of the thin liquid-cloud phase function at 615/546/450 nm (Eq. 16).
-G_LIQUID = (0.945, 0.950, 0.955)
+
+
 #: Channel layout of the packed volume: 5 species extinctions, 3-D aerosol extinction, Step 1a T.
 N_CHANNELS = len(SPECIES) + 2
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
@@ -283,6 +284,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         weight = jnp.maximum(jnp.exp(-t0) - jnp.exp(-jnp.minimum(t1, 2.0)), 0.0)
         i_nogas = st["i_nogas"] + irradiance * weight[:, None]
         i_gas = st["i_gas"] + irradiance * jnp.exp(-st["tau_clear"]) * weight[:, None]
+        i_cloud_t = st["i_cloud_t"] + t_cloud * weight
         hit_s = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
         return {
             "tau_clear": st["tau_clear"] + beta_clear * ds_eff[:, None],
@@ -291,6 +293,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             "l_clear": l_clear,
             "i_nogas": i_nogas,
             "i_gas": i_gas,
+            "i_cloud_t": i_cloud_t,
             "alive": st["alive"] & ~hit_now,
             "hit": st["hit"] | hit_now,
             "hit_s": hit_s,
@@ -307,7 +310,7 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     state = {
         "tau_clear": zeros3, "tau_h": jnp.zeros(n, jnp.float32),
         "tau_species": jnp.zeros((n, len(SPECIES)), jnp.float32),
-        "l_clear": zeros3, "i_nogas": zeros3, "i_gas": zeros3,
+        "l_clear": zeros3, "i_nogas": zeros3, "i_gas": zeros3, "i_cloud_t": jnp.zeros(n, jnp.float32),
         "alive": valid, "hit": jnp.zeros(n, bool), "hit_s": jnp.zeros(n, jnp.float32),
         "gap": jnp.full(n, 1e9, jnp.float32),
     }
@@ -335,10 +338,13 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     norm = -jnp.expm1(-jnp.minimum(tau, 2.0))
     safe = jnp.maximum(norm, 1e-12)
     e_mean = state["i_nogas"] / safe[:, None]
+    # How directly the visible cloud is lit, for c1 and c3 (Eqs. 14, 22): the cloud transmittance T of
+    # Step 1a, not E/E_TOA with the gas extinction (docs/rendering.md).
+    t_mean = jnp.clip(state["i_cloud_t"] / safe, 0.0, 1.0)
     weights = state["tau_species"] / jnp.maximum(tau, 1e-12)[:, None]
     cos_theta = rays["cos_theta"]
     cos_view_zenith = rays["cos_view_zenith"]
-    phase = effective_phase_function(cos_theta[:, None], cos_view_zenith[:, None], tau[:, None], e_mean,
+    phase = effective_phase_function(cos_theta[:, None], cos_view_zenith[:, None], tau[:, None], t_mean[:, None],
                                      weights[:, None, :], consts["g_liquid"][None, :])
     l_12 = phase * (-jnp.expm1(-tau) / safe)[:, None] * state["i_gas"]
     mu_view_down = -cos_view_zenith

@@ -67,82 +67,78 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     s0 = max(t1, 0.0)
     s1 = t2
     g1, _ = ray_sphere_intersections(o, d, radius)
-    sea = np.isfinite(g1) and 0 < g1 < s1
+    sea = bool(np.isfinite(g1) and 0 < g1 < s1)
     if sea:
         s1 = g1
     n = max(int(np.ceil((s1 - s0) / step_m)), 1)
     ds = (s1 - s0) / n
+    s = s0 + (np.arange(n) + 0.5) * ds
 
     def at(s):
-        p = o + s * d
-        r = np.linalg.norm(p)
+        p = o + np.atleast_1d(s)[:, None] * d
+        r = np.linalg.norm(p, axis=1)
         h = r - radius
-        x, y = radius * p[:2] / r - geo.origin
-        i, j = geo.inverse @ np.array([x, y])
+        xy = radius * p[:, :2] / r[:, None] - geo.origin
+        i, j = (xy @ geo.inverse.T).T
         k = (h - geo.z_bottom) / geo.dz
-        mu_s = p @ sun / r
-        return h, mu_s, k, j, i
+        return h, p @ sun / r, k, j, i
 
     def gas_at(h, mu_s):
         hh = np.clip(h, 0, gas.top_m)
-        br = np.array([np.interp(hh, heights, gas.beta_rayleigh[:, c]) for c in range(3)])
-        ba = np.array([np.interp(hh, heights, gas.beta_aerosol[:, c]) for c in range(3)])
-        point = [[np.sqrt(hh / gas.top_m), np.clip(mu_s, -1, 1)]]
-        return br, ba, t_sun_interp(point)[0], diffuse_interp(point)[0]
+        br = np.stack([np.interp(hh, heights, gas.beta_rayleigh[:, c]) for c in range(3)], axis=-1)
+        ba = np.stack([np.interp(hh, heights, gas.beta_aerosol[:, c]) for c in range(3)], axis=-1)
+        point = np.stack([np.sqrt(hh / gas.top_m), np.clip(mu_s, -1, 1)], axis=-1)
+        return br, ba, t_sun_interp(point), diffuse_interp(point)
 
-    tau_c = np.zeros(3)
-    tau_sp = np.zeros(len(SPECIES))
-    l_clear = np.zeros(3)
-    i_gas = np.zeros(3)
-    i_nogas = np.zeros(3)
+    # Sample everything along the ray at once, then accumulate step by step with cumulative sums.
+    h, mu_s, k, j, i = at(s)
+    inside = (i >= 0) & (i <= nx - 1) & (j >= 0) & (j <= ny - 1)
+    terrain = np.where(inside, interp_terrain(np.stack([np.clip(j, 0, ny - 1), np.clip(i, 0, nx - 1)], axis=-1)), 0.0)
+    gap = h - terrain
+    below = np.flatnonzero(inside & (gap < 0))
     surface = sea
     s_end = s1
-    prev_gap = None
-    for m in range(n):
-        s = s0 + (m + 0.5) * ds
-        h, mu_s, k, j, i = at(s)
-        inside = 0 <= i <= nx - 1 and 0 <= j <= ny - 1
-        terrain = float(interp_terrain([[np.clip(j, 0, ny - 1), np.clip(i, 0, nx - 1)]])[0]) if inside else 0.0
-        gap = h - terrain
-        frac = 1.0
-        if inside and gap < 0:
-            frac = np.clip(prev_gap / (prev_gap - gap), 0, 1) if prev_gap is not None else 0.5
-            surface = True
-            s_end = s - 0.5 * ds + frac * ds
-        prev_gap = gap
-        point = [[k, j, i]]
-        beta = np.array([f(point)[0] for f in interp_ext])
-        beta_sp = beta[:-1]
-        br, ba, t_sun, _ = gas_at(h, mu_s)
-        beta_a3 = beta[-1] * gas.angstrom_factor
-        e = t_sun * float(interp_t(point)[0])
-        beta_clear = br + ba + beta_a3
-        beta_h = beta_sp.sum()
-        step = ds * frac
-        # Exact attenuation within the step for a constant extinction.
-        x = (beta_clear + beta_h) * step
-        mean = np.where(x > 1e-8, -np.expm1(-x) / np.maximum(x, 1e-300), 1.0)
-        t_obs = np.exp(-(tau_c + tau_sp.sum()))
-        l_clear += t_obs * (br * p_rayleigh + (ba + beta_a3) * gas.aerosol.ssa * p_aerosol) * e * step * mean
-        t0 = tau_sp.sum()
-        t1_ = t0 + beta_h * step
-        w = max(np.exp(-t0) - np.exp(-min(t1_, 2.0)), 0.0)
-        i_nogas += e * w
-        i_gas += e * np.exp(-tau_c) * w
-        tau_c += beta_clear * step
-        tau_sp += beta_sp * step
-        if surface and s_end < s1:
-            break
+    step = np.full(n, ds)
+    if below.size:
+        m = below[0]
+        frac = np.clip(gap[m - 1] / (gap[m - 1] - gap[m]), 0, 1) if m > 0 else 0.5
+        surface = True
+        s_end = s[m] - 0.5 * ds + frac * ds
+        step[m] *= frac
+        step[m + 1:] = 0.0
+    points = np.stack([k, j, i], axis=-1)
+    beta = np.stack([f(points) for f in interp_ext], axis=-1)
+    beta_sp = beta[:, :-1]
+    br, ba, t_sun, _ = gas_at(h, mu_s)
+    beta_a3 = beta[:, -1:] * gas.angstrom_factor[None, :]
+    e = t_sun * interp_t(points)[:, None]
+    beta_clear = br + ba + beta_a3
+    beta_h = beta_sp.sum(axis=1)
+    x = (beta_clear + beta_h[:, None]) * step[:, None]
+    mean = np.where(x > 1e-8, -np.expm1(-x) / np.maximum(x, 1e-300), 1.0)
+    d_tau_c = beta_clear * step[:, None]
+    d_tau_h = beta_h * step
+    tau_c_before = np.cumsum(d_tau_c, axis=0) - d_tau_c
+    tau_h_before = np.cumsum(d_tau_h) - d_tau_h
+    t_obs = np.exp(-(tau_c_before + tau_h_before[:, None]))
+    source = (br * p_rayleigh + (ba + beta_a3) * gas.aerosol.ssa * p_aerosol) * e
+    l_clear = np.sum(t_obs * source * step[:, None] * mean, axis=0)
+    w = np.maximum(np.exp(-tau_h_before) - np.exp(-np.minimum(tau_h_before + d_tau_h, 2.0)), 0.0)
+    i_nogas = np.sum(e * w[:, None], axis=0)
+    i_gas = np.sum(e * np.exp(-tau_c_before) * w[:, None], axis=0)
+    i_cloud_t = np.sum(interp_t(points) * w)
+    tau_c = d_tau_c.sum(axis=0)
+    tau_sp = (beta_sp * step[:, None]).sum(axis=0)
 
     tau = tau_sp.sum()
     l_surface = np.zeros(3)
     if surface:
         h, mu_s, k, j, i = at(s_end)
         _, _, t_sun, diffuse = gas_at(h, mu_s)
-        t_cloud = float(interp_t([[k + 1.0, j, i]])[0])
+        t_cloud = float(interp_t([[k[0] + 1.0, j[0], i[0]]])[0])
         rho = np.array([RegularGridInterpolator(axes[1:], albedo[c], bounds_error=False, fill_value=None)(
-            [[np.clip(j, 0, ny - 1), np.clip(i, 0, nx - 1)]])[0] for c in range(3)])
-        e_h = (max(mu_s, 0.0) * t_sun + diffuse) * t_cloud
+            [[np.clip(j[0], 0, ny - 1), np.clip(i[0], 0, nx - 1)]])[0] for c in range(3)])
+        e_h = (max(mu_s[0], 0.0) * t_sun[0] + diffuse[0]) * t_cloud
         l_surface = 4 * rho * e_h * np.exp(-(tau_c + tau))
 
     l_cloud = np.zeros(3)
@@ -151,8 +147,9 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         e_mean = i_nogas / norm
         weights = tau_sp / tau
         cos_theta = float(d @ sun)
+        t_mean = np.clip(i_cloud_t / norm, 0, 1)
         phase = np.asarray(effective_phase_function(np.array([cos_theta]), np.array([d[2]]), np.array([tau]),
-                                                    e_mean[None], weights[None, None, :], np.asarray(G_LIQUID)[None]))[0]
+                                                    np.array([[t_mean]]), weights[None, None, :], np.asarray(G_LIQUID)[None]))[0]
         l_12 = phase * (-np.expm1(-tau) / norm) * i_gas
         mu_down = -d[2]
         mu0 = sun[2]

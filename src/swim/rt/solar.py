@@ -73,29 +73,49 @@ def _bilinear_zero_outside(field, jj, ii):
     return jnp.where(inside, v, 0.0)
 
 
-@functools.partial(jax.jit, static_argnames=("n_sub",))
-def _sweep(fields, di, dj, path_per_level, n_sub):
-    """Sweep (C, nk, ny, nx) extinction fields along the sun; returns optical depths of the same shape."""
-    _, nk, ny, nx = fields.shape
+#: Levels integrated directly before the optical depth of a higher level is reused (bounds the numerical
+#: diffusion of the semi-Lagrangian sweep: one bilinear interpolation per block instead of per level).
+DIRECT_LEVELS = 16
+
+
+@functools.partial(jax.jit, static_argnames=("n_sub", "block"))
+def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
+    """Sweep (C, nk, ny, nx) extinction fields along the sun; returns optical depths of the same shape.
+
+    tau(k) = integral of the extinction from level k up to level min(k + block, top) along the sun ray
+    (sampled directly, n_sub points per level) + tau of that level, bilinearly interpolated where the
+    ray crosses it.
+    """
+    c, nk, ny, nx = fields.shape
     jj, ii = jnp.meshgrid(jnp.arange(ny, dtype=jnp.float32), jnp.arange(nx, dtype=jnp.float32), indexing="ij")
     ts = (jnp.arange(n_sub, dtype=jnp.float32) + 0.5) / n_sub
 
-    def level(tau_above, k):
-        lower = fields[:, k]
-        upper = fields[:, k + 1]
+    def level(k, taus):
+        def one_level(m, acc):
+            lo = jnp.minimum(k + m, nk - 2)
+            lower = jax.lax.dynamic_index_in_dim(fields, lo, axis=1, keepdims=False)
+            upper = jax.lax.dynamic_index_in_dim(fields, lo + 1, axis=1, keepdims=False)
+            active = (k + m + 1) <= (nk - 1)
 
-        def sub(acc, t):
-            a = _bilinear_zero_outside(lower, jj + t * dj, ii + t * di)
-            b = _bilinear_zero_outside(upper, jj + t * dj, ii + t * di)
-            return acc + (1 - t) * a + t * b, None
+            def sub(a, t):
+                shift = m + t
+                lo_v = _bilinear_zero_outside(lower, jj + shift * dj, ii + shift * di)
+                up_v = _bilinear_zero_outside(upper, jj + shift * dj, ii + shift * di)
+                return a + (1 - t) * lo_v + t * up_v, None
 
-        seg, _ = jax.lax.scan(sub, jnp.zeros_like(tau_above), ts)
-        tau = _bilinear_zero_outside(tau_above, jj + dj, ii + di) + seg * (path_per_level / n_sub)
-        return tau, tau
+            seg, _ = jax.lax.scan(sub, jnp.zeros_like(acc), ts)
+            return acc + jnp.where(active, seg, 0.0)
 
-    top = jnp.zeros((fields.shape[0], ny, nx), fields.dtype)
-    _, taus = jax.lax.scan(level, top, jnp.arange(nk - 2, -1, -1))
-    return jnp.concatenate([taus[::-1], top[None]], axis=0).transpose(1, 0, 2, 3)
+        direct = jax.lax.fori_loop(0, block, one_level, jnp.zeros((c, ny, nx), fields.dtype))
+        top = jnp.minimum(k + block, nk - 1)
+        above = jax.lax.dynamic_index_in_dim(taus, top, axis=0, keepdims=False)
+        n_levels = (top - k).astype(jnp.float32)
+        tau = _bilinear_zero_outside(above, jj + n_levels * dj, ii + n_levels * di) + direct * (path_per_level / n_sub)
+        return jax.lax.dynamic_update_index_in_dim(taus, tau, k, axis=0)
+
+    taus = jnp.zeros((nk, c, ny, nx), fields.dtype)
+    taus = jax.lax.fori_loop(0, nk - 1, lambda n, t: level(nk - 2 - n, t), taus)
+    return taus.transpose(1, 0, 2, 3)
 
 
 def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
@@ -137,7 +157,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
     b_weighted = (b * beta).sum(axis=0) + BACKSCATTER_FRACTION["aerosol"] * aerosol
     levels = volume["level"].values
     terrain = volume["terrain_height"].values
-    occupancy = np.clip((terrain[None] - levels[:, None, None]) / dz + 0.5, 0.0, 1.0) * (TERRAIN_OPACITY_PER_CELL / dz)
+    # Zero at and above the surface (a sunlit slope does not shade itself), 1 a full level below it.
+    occupancy = np.clip((terrain[None] - levels[:, None, None]) / dz, 0.0, 1.0) * (TERRAIN_OPACITY_PER_CELL / dz)
     fields = jnp.asarray(np.stack([total, b_weighted, occupancy]).astype(np.float32))
 
     taus = np.asarray(_sweep(fields, float(di), float(dj), float(path_per_level), n_sub))

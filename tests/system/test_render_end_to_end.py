@@ -1,0 +1,123 @@
+"""End-to-end renders on real and built-in scenes: geometry invariants, colour, outputs, bad input."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+from typer.testing import CliRunner
+
+import swim
+from swim.cli.main import app
+from swim.errors import SwimInputError
+from swim.frames import enu_from_azimuth_zenith
+from swim.geometry.cameras import AllSkyCamera
+
+SMALL = {"size": 95}
+
+
+@pytest.fixture(scope="module")
+def katrina(shared_data):
+    return swim.open_scene(shared_data / "wrf_katrina" / "ci_test_file.nc", time="2005-08-28T18:00")
+
+
+@pytest.fixture(scope="module")
+def katrina_allsky(katrina):
+    return swim.render(katrina, time="2005-08-28T18:00", lat=24.7, lon=-88.6, height=2.0, camera="allsky",
+                       camera_options=SMALL)
+
+
+def test_katrina_allsky_sun_where_the_ephemeris_puts_it(katrina_allsky):
+    image = katrina_allsky
+    zen, az = image.attrs["sun_zenith_deg"], image.attrs["sun_azimuth_deg"]
+    # pvlib: 2005-08-28 18 UTC at 24.7 N 88.6 W is ~1 h before local solar noon, sun high in the south-east.
+    assert 10 < zen < 35 and 90 < az < 200
+    camera = AllSkyCamera(**SMALL)
+    row, col = camera.pixel_of_direction(enu_from_azimuth_zenith(az, zen)[None])
+    green = image["radiance"].sel(wavelength=546).values
+    brightest = np.unravel_index(np.nanargmax(green), green.shape)
+    assert abs(brightest[0] - row[0]) <= 1 and abs(brightest[1] - col[0]) <= 1
+
+
+def test_katrina_allsky_physical_ranges(katrina_allsky):
+    radiance = katrina_allsky["radiance"].values
+    valid = np.isfinite(radiance[1])
+    assert valid.sum() > 0.7 * valid.size
+    assert np.all(radiance[:, valid] >= 0)
+    # Outside the sun's disk L' stays below a white Lambertian surface facing the sun (4, Eq. 2) x ARF.
+    sky = radiance[:, valid & (katrina_allsky["view_zenith"].values < 80)]
+    assert np.percentile(sky, 99) < 6.0
+    # Hurricane clouds: a large part of the sky has optical depth > 1.
+    assert np.mean(katrina_allsky["tau_hydrometeor"].values[valid] > 1) > 0.2
+
+
+def test_clear_sky_is_blue_and_clouds_are_grey(katrina_allsky):
+    radiance = katrina_allsky["radiance"].values
+    tau = katrina_allsky["tau_hydrometeor"].values
+    zenith = katrina_allsky["view_zenith"].values
+    clear = (tau < 0.01) & (zenith < 70)
+    cloudy = (tau > 20) & (zenith < 70)
+    if clear.sum() > 10:
+        assert np.median(radiance[2][clear] / radiance[0][clear]) > 2.0  # Rayleigh blue: 450 nm >> 615 nm
+    assert cloudy.sum() > 10
+    ratio = radiance[2][cloudy] / radiance[0][cloudy]
+    assert 0.8 < np.median(ratio) < 1.6  # thick cloud: near neutral
+
+
+def test_netcdf_and_png_outputs(katrina_allsky, tmp_path):
+    nc = swim.write_netcdf(katrina_allsky, tmp_path / "a.nc")
+    png = swim.write_png(katrina_allsky, tmp_path / "a.png")
+    with xr.open_dataset(nc) as back:
+        assert back["radiance"].attrs["units"] == "1"
+        assert list(back["wavelength"].values) == [615.0, 546.0, 450.0]
+        assert back.attrs["sun_source"] == "pvlib-spa"
+        np.testing.assert_allclose(back["radiance"].values, katrina_allsky["radiance"].values)
+    from PIL import Image
+
+    assert Image.open(png).size == (SMALL["size"], SMALL["size"])
+    assert not list(tmp_path.glob(".*"))  # no temporary files left behind
+
+
+def test_space_view_sees_the_hurricane(katrina):
+    image = swim.render(katrina, time="2005-08-28T18:00", height=36_000e3, camera="perspective",
+                        camera_options={"width": 64, "height": 64})
+    radiance = image["radiance"].sel(wavelength=615).values
+    tau = image["tau_hydrometeor"].values
+    assert np.isfinite(radiance).all()
+    # Thick cloud tops are far brighter than the open sea.
+    assert np.median(radiance[tau > 20]) > 4 * np.median(radiance[tau < 0.1])
+
+
+def test_default_scene_renders_with_no_file():
+    image = swim.render(swim.default_scene(), camera="allsky", camera_options={"size": 63})
+    rgb = image["rgb"].values
+    assert rgb.dtype == np.uint8 and rgb.shape == (63, 63, 3)
+    assert rgb.max() > 100
+
+
+def test_observer_under_terrain_or_out_of_reach_is_rejected():
+    scene = swim.default_scene()
+    with pytest.raises(SwimInputError, match="height"):
+        swim.render(scene, height=-5.0, camera_options=SMALL)
+    with pytest.raises(SwimInputError, match="outside the model domain"):
+        swim.render(scene, lat=10.0, lon=20.0, camera_options=SMALL)
+
+
+def test_night_renders_dark_instead_of_failing():
+    image = swim.render(swim.default_scene(), sun_zenith=120.0, sun_azimuth=0.0, camera_options={"size": 63})
+    assert np.nanmax(image["radiance"].values) < 1e-3
+
+
+def test_cli_renders_and_leaves_no_partial_file_on_error(tmp_path):
+    runner = CliRunner()
+    out = tmp_path / "sky.png"
+    result = runner.invoke(app, ["render", "--size", "63", "--out", str(out), "--netcdf", str(tmp_path / "sky.nc")])
+    assert result.exit_code == 0, result.output
+    assert out.exists() and (tmp_path / "sky.nc").exists()
+    bad = tmp_path / "bad.png"
+    result = runner.invoke(app, ["render", "--size", "63", "--height", "-3", "--out", str(bad)])
+    assert result.exit_code == 2
+    assert "height" in result.output
+    assert not bad.exists()
+    missing = runner.invoke(app, ["render", str(tmp_path / "nope.nc"), "--out", str(bad)])
+    assert missing.exit_code == 2 and not bad.exists()
