@@ -31,7 +31,13 @@ def views(data: Path):
         "katrina_allsky": dict(scene=lambda: swim.open_scene(katrina, time=KATRINA_TIME), time=KATRINA_TIME,
                                lat=24.7, lon=-88.6, height=2.0, camera="allsky", camera_options={"size": 511},
                                caption="Katrina (WRF, 2005-08-28 18 UTC): all-sky from the sea surface at 24.7 N, 88.6 W; "
-                                       "north up, east left; the hurricane's clouds to the north-east."),
+                                       "north up, east left. A veil of stratiform snow at 4.5-5.6 km (WSM3 QRAIN below "
+                                       "0 degC, vertical optical depth ~0.7) covers this spot: a milky sky with a bright "
+                                       "aureole, and the hurricane's thick clouds on the north-eastern horizon."),
+        "katrina_allsky_clear": dict(scene=lambda: swim.open_scene(katrina, time=KATRINA_TIME), time=KATRINA_TIME,
+                                     lat=26.0, lon=-90.66, height=2.0, camera="allsky", camera_options={"size": 511},
+                                     caption="Katrina: all-sky from a cloud-free spot north-west of the hurricane "
+                                             "(26.0 N, 90.66 W); its thick clouds ~50 km to the east, low on the horizon (left)."),
         "katrina_panorama": dict(scene=lambda: swim.open_scene(katrina, time=KATRINA_TIME), time=KATRINA_TIME,
                                  lat=24.2, lon=-89.0, height=3000.0, camera="panorama",
                                  camera_options={"width": 1024, "height": 512},

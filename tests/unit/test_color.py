@@ -255,9 +255,13 @@ def test_flat_white_level_maps_to_display_white(white_level):
     np.testing.assert_array_equal(sc.solar_relative_to_srgb8(np.full(3, white_level), white_level), [255, 255, 255])
 
 
-def test_default_white_level():
-    assert sc.DEFAULT_WHITE_LEVEL == 2.5
-    np.testing.assert_array_equal(sc.solar_relative_to_srgb8(np.full(3, 2.5)), [255, 255, 255])
+def test_default_exposure_shows_sky_blue_unsaturated_and_sunlit_cloud_white():
+    # A white Lambertian surface facing the sun has L' = 4 (Eq. 2): it must be display white.
+    np.testing.assert_array_equal(sc.solar_relative_to_srgb8(np.full(3, 4.0)), [255, 255, 255])
+    # A single-scattering clear-sky zenith at 30 deg solar zenith (Rayleigh tau 0.06/0.10/0.22):
+    # blue, unsaturated, neither black nor white.
+    r, g, b = sc.solar_relative_to_srgb8(np.array([0.07, 0.12, 0.25])).astype(int)
+    assert b > g > r and 60 < b < 250
 
 
 @pytest.mark.parametrize("level", [0.01, 0.1, 0.5, 1.0, 2.0])

@@ -52,6 +52,8 @@ def render(
     sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
     white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure)."),
     steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
+    scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
+    scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
     out: Path = typer.Option(Path("swim.png"), help="PNG output path."),
     netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here."),
 ):
@@ -62,7 +64,12 @@ def render(
     from ..rt.march import MarchSettings
 
     try:
-        ds = default_scene() if scene is None else open_scene(scene, time=time)
+        place = {}
+        if scene_lat is not None or scene_lon is not None:
+            if scene is None or scene.suffix.lower() not in (".txt", ".lwc", ".dat"):
+                raise SwimInputError("--scene-lat/--scene-lon place LES text scenes only; other scenes carry coordinates")
+            place = {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
+        ds = default_scene() if scene is None else open_scene(scene, time=time, **place)
         options = {"allsky": {"size": size},
                    "panorama": {"width": width, "height": image_height},
                    "perspective": {"width": width, "height": image_height}}[camera.value]

@@ -41,7 +41,7 @@ __all__ = [
 #: (paper Sect. 3.8: displayed brightness proportional to scene brightness). 2.5 puts sunlit cloud
 #: tops (L' ~ 2-4) at or near white, cloud bases (L' ~ 0.5-1.5) in mid greys and the clear sky
 #: (L' ~ 0.07-0.25) in darker blues. A white Lambertian surface facing the sun has L' = 4 (Eq. 2).
-DEFAULT_WHITE_LEVEL = 2.5
+DEFAULT_WHITE_LEVEL = 1.5
 
 #: Chromatic adaptation transform (colour-science name) from the sun's white point to D65.
 CHROMATIC_ADAPTATION_TRANSFORM = "Bradford"
