@@ -25,7 +25,7 @@ from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.scene import validate_scene
 from .optics.phase import henyey_greenstein
 from .optics.rayleigh import rayleigh_phase_function
-from .optics.volume import build_optical_volume
+from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, build_gas_tables
 from .rt.march import MarchSettings, grid_geometry, kernel_constants, trace_rays
 from .rt.solar import solar_transmittance
@@ -40,7 +40,7 @@ def _terrain_at(volume, lat, lon):
     """Terrain height [m] under (lat, lon) by bilinear interpolation; 0 (sea level) outside the domain."""
     geometry = grid_geometry(volume)
     p = geodetic_to_scene(lat, lon, 0.0, volume.attrs["reference_lat"], volume.attrs["reference_lon"])
-    i, j = geometry.inverse @ (p[:2] - geometry.origin)
+    i, j = (float(v) for v in grid_indices(volume.attrs, p[0], p[1]))
     _, ny, nx = geometry.shape
     if not (0 <= i <= nx - 1 and 0 <= j <= ny - 1):
         return 0.0, (i, j)

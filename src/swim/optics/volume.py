@@ -61,6 +61,52 @@ def fit_grid_affine(x, y):
     return coef[0], coef[1:].T.copy(), float(residual.max())
 
 
+def polynomial_features(u, v, xp=np):
+    """The 10 monomials of a cubic in (u, v), stacked on the last axis (``xp`` is numpy or jax.numpy)."""
+    return xp.stack([xp.ones_like(u), u, v, u * u, u * v, v * v, u * u * u, u * u * v, u * v * v, v * v * v], axis=-1)
+
+
+def fit_grid_index_map(x, y):
+    """Least-squares cubic map from horizontal coordinates (x, y) [m] to fractional grid indices (i, j).
+
+    Map-projected grids (Mercator, Lambert, polar stereographic) are not affine in the orthographic
+    coordinates of :mod:`swim.frames`; a cubic in normalised coordinates follows them closely (it is exact
+    for regular grids).
+
+    Parameters
+    ----------
+    x, y : numpy.ndarray
+        Shape (ny, nx): horizontal coordinates [m] of the grid columns.
+
+    Returns
+    -------
+    centre : numpy.ndarray
+        Shape (2,) [m]; ``scale`` : float [m]; the map takes ``u = (x - centre_x) / scale``, likewise v.
+    coefficients : numpy.ndarray
+        Shape (2, 10): i and j as cubics in (u, v) (:func:`polynomial_features`).
+    max_residual : float
+        Largest index error of the fit [grid cells].
+    """
+    ny, nx = x.shape
+    jj, ii = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
+    centre = np.array([x.mean(), y.mean()])
+    scale = float(max(np.ptp(x), np.ptp(y), 1.0) / 2)
+    features = polynomial_features((x.ravel() - centre[0]) / scale, (y.ravel() - centre[1]) / scale)
+    target = np.stack([ii.ravel(), jj.ravel()], axis=1).astype(float)
+    coef, *_ = np.linalg.lstsq(features, target, rcond=None)
+    residual = np.abs(features @ coef - target).max()
+    return centre, scale, coef.T.copy(), float(residual)
+
+
+def grid_indices(attrs, x, y, xp=np):
+    """Fractional grid indices (i, j) of horizontal coordinates (x, y) [m] with the map stored in ``attrs``."""
+    cx, cy = attrs["index_map_centre"]
+    scale = attrs["index_map_scale"]
+    coef = xp.asarray(attrs["index_map_coefficients"]).reshape(2, 10)
+    features = polynomial_features((x - cx) / scale, (y - cy) / scale, xp)
+    return features @ coef[0], features @ coef[1]
+
+
 def _regular_levels(height, terrain, dz=None, max_levels=160):
     """Bottom, spacing and count of the regular levels that cover the model column heights."""
     bottom = float(min(np.min(terrain), np.min(height[0])))
@@ -140,7 +186,8 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
         ``terrain_height`` (y, x) [m]; ``surface_albedo`` (wavelength, y, x) [-]; ``grid_x``, ``grid_y``
         (y, x) [m]; coordinate ``level`` [m above sea level]. Attributes: ``reference_lat``,
         ``reference_lon`` [deg], ``z_bottom``, ``dz`` [m], ``affine_origin`` (2,) [m], ``affine_matrix``
-        (4,) [m] (row-major 2x2, columns d/di and d/dj), ``affine_max_residual_m``.
+        (4,) [m] (row-major 2x2, columns d/di and d/dj), ``affine_max_residual_m``; the cubic index map ``index_map_centre``, ``index_map_scale``,
+        ``index_map_coefficients`` (20,) and ``index_map_max_residual_cells`` (:func:`grid_indices`).
 
     Raises
     ------
@@ -162,11 +209,12 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     gx, gy = orthographic_xy(scene["lat"].values, scene["lon"].values, lat0, lon0)
     origin, matrix, residual = fit_grid_affine(gx, gy)
     spacing = float(np.sqrt(abs(np.linalg.det(matrix))))
-    if residual > 0.5 * spacing:
-        log.warning("grid columns deviate up to %.0f m from a regular grid (spacing %.0f m); positions are approximate",
-                    residual, spacing)
-    else:
-        log.info("grid fits a regular grid to %.1f m (spacing %.0f m)", residual, spacing)
+    centre, scale, coefficients, index_residual = fit_grid_index_map(gx, gy)
+    log.info("grid: affine fit within %.0f m, cubic index map within %.3f cells (spacing %.0f m)",
+             residual, index_residual, spacing)
+    if index_residual > 0.25:
+        log.warning("grid columns deviate up to %.2f cells from a smooth map; cloud positions are approximate",
+                    index_residual)
 
     bottom, dz, nk = _regular_levels(height, terrain, dz, max_levels)
     levels = bottom + dz * np.arange(nk)
@@ -213,5 +261,9 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
             "affine_origin": origin,
             "affine_matrix": matrix.ravel(),
             "affine_max_residual_m": residual,
+            "index_map_centre": centre,
+            "index_map_scale": scale,
+            "index_map_coefficients": coefficients.ravel(),
+            "index_map_max_residual_cells": index_residual,
         },
     )

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
+from ..optics.volume import grid_indices
 from ..optics.phase import (
     G_LIQUID,
     anisotropic_reflectance_factor_kokhanovsky2004,
@@ -47,6 +48,9 @@ log = logging.getLogger(__name__)
 
 
 
+#: Scalar irradiance of isotropic diffuse light from the upper hemisphere per unit horizontal irradiance
+#: (2 pi L against pi L).
+SKYLIGHT_SCALAR_FACTOR = 2.0
 #: Channel layout of the packed volume: 5 species extinctions, 3-D aerosol extinction, Step 1a T.
 N_CHANNELS = len(SPECIES) + 2
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
@@ -87,6 +91,7 @@ class GridGeometry:
     dz: float
     shape: tuple  # (nk, ny, nx)
     top: float
+    affine_residual_cells: float = 0.0
 
 
 def grid_geometry(volume) -> GridGeometry:
@@ -95,8 +100,10 @@ def grid_geometry(volume) -> GridGeometry:
     nk, ny, nx = volume["aerosol_extinction"].shape
     z_bottom = float(volume.attrs["z_bottom"])
     dz = float(volume.attrs["dz"])
+    spacing = float(np.sqrt(abs(np.linalg.det(matrix))))
     return GridGeometry(np.asarray(volume.attrs["affine_origin"], dtype=float), matrix, np.linalg.inv(matrix),
-                        z_bottom, dz, (nk, ny, nx), z_bottom + dz * (nk - 1))
+                        z_bottom, dz, (nk, ny, nx), z_bottom + dz * (nk - 1),
+                        float(volume.attrs.get("affine_max_residual_m", 0.0)) / spacing)
 
 
 def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, radius=EARTH_RADIUS_M):
@@ -133,7 +140,8 @@ def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, rad
     shell_in = np.where(np.isfinite(k1), np.maximum(k1, 0.0), np.inf)
     shell_out = np.where(np.isfinite(k2), k2, -np.inf)
     _, ny, nx = geometry.shape
-    margin = 1.0 + geometry.top / radius * max(nx, ny)
+    # The affine bounds are widened by the affine fit's error and the height-dependent scale of (x, y).
+    margin = 1.0 + geometry.top / radius * max(nx, ny) + geometry.affine_residual_cells
     ij0 = (o[:, :2] - geometry.origin) @ geometry.inverse.T
     dij = d[:, :2] @ geometry.inverse.T
     lo = np.full(len(o), -np.inf)
@@ -222,11 +230,7 @@ def _point_geometry(q, consts):
     h = (q[:, 0] ** 2 + q[:, 1] ** 2 + q[:, 2] ** 2 + 2 * radius * q[:, 2]) / (r + radius)
     sun = consts["sun"]
     mu_s = (q[:, 0] * sun[0] + q[:, 1] * sun[1] + pz * sun[2]) / r
-    x = radius * q[:, 0] / r - consts["origin"][0]
-    y = radius * q[:, 1] / r - consts["origin"][1]
-    inv = consts["inverse"]
-    i = inv[0, 0] * x + inv[0, 1] * y
-    j = inv[1, 0] * x + inv[1, 1] * y
+    i, j = grid_indices(consts["index_map"], radius * q[:, 0] / r, radius * q[:, 1] / r, jnp)
     k = (h - consts["z_bottom"]) / consts["dz"]
     return h, mu_s, k, j, i
 
@@ -252,7 +256,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         s = s0 + (m + 0.5) * ds
         q = start + s[:, None] * direction
         h, mu_s, k, j, i = _point_geometry(q, consts)
-        beta_r, beta_a, t_sun, _, _ = _gas_at(h, mu_s, consts)
+        beta_r, beta_a, t_sun, fu, fm = _gas_at(h, mu_s, consts)
         if in_grid:
             v = trilinear(consts["volume"], k, j, i, outside)
             beta_sp = v[:, : len(SPECIES)]
@@ -269,7 +273,14 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             hit_now = jnp.zeros(q.shape[0], bool)
             frac = jnp.ones(q.shape[0], jnp.float32)
         ds_eff = ds * frac * st["alive"]
-        irradiance = t_sun * t_cloud[:, None]  # E / E_TOA (Eq. 8)
+        irradiance = t_sun * t_cloud[:, None]  # direct beam / E_TOA, lights the gas and aerosol (Eq. 3)
+        if in_grid:
+            # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors: the direct beam
+            # plus the clear-sky diffuse light, both through the clouds above (T of Step 1a).
+            skylight = SKYLIGHT_SCALAR_FACTOR * _bilinear_table(consts["diffuse"], fu, fm)
+            irradiance_h = (t_sun + skylight) * t_cloud[:, None]
+        else:
+            irradiance_h = irradiance
         beta_clear = beta_r + beta_a + beta_a3
         beta_h = beta_sp.sum(axis=1)
         x = (beta_clear + beta_h[:, None]) * ds_eff[:, None]
@@ -282,8 +293,8 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         t0 = st["tau_h"]
         t1 = t0 + beta_h * ds_eff
         weight = jnp.maximum(jnp.exp(-t0) - jnp.exp(-jnp.minimum(t1, 2.0)), 0.0)
-        i_nogas = st["i_nogas"] + irradiance * weight[:, None]
-        i_gas = st["i_gas"] + irradiance * jnp.exp(-st["tau_clear"]) * weight[:, None]
+        i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
+        i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
         i_cloud_t = st["i_cloud_t"] + t_cloud * weight
         hit_s = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
         return {
@@ -386,8 +397,7 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
         "volume": f32(packed),
         "terrain": f32(volume["terrain_height"].values[..., None]),
         "albedo": f32(volume["surface_albedo"].transpose("y", "x", "wavelength").values),
-        "origin": f32(geometry.origin),
-        "inverse": f32(geometry.inverse),
+        "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients")},
         "z_bottom": f32(geometry.z_bottom),
         "dz": f32(geometry.dz),
         "radius": f32(radius),

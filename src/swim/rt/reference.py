@@ -17,7 +17,8 @@ from ..optics.phase import (
     cloud_albedo_stephens1978,
     effective_phase_function,
 )
-from .march import FROM_ABOVE_BLEND, G_LIQUID, grid_geometry
+from ..optics.volume import grid_indices
+from .march import FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, grid_geometry
 
 
 def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_rayleigh, p_aerosol,
@@ -78,8 +79,7 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         p = o + np.atleast_1d(s)[:, None] * d
         r = np.linalg.norm(p, axis=1)
         h = r - radius
-        xy = radius * p[:, :2] / r[:, None] - geo.origin
-        i, j = (xy @ geo.inverse.T).T
+        i, j = grid_indices(volume.attrs, radius * p[:, 0] / r, radius * p[:, 1] / r)
         k = (h - geo.z_bottom) / geo.dz
         return h, p @ sun / r, k, j, i
 
@@ -109,9 +109,11 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     points = np.stack([k, j, i], axis=-1)
     beta = np.stack([f(points) for f in interp_ext], axis=-1)
     beta_sp = beta[:, :-1]
-    br, ba, t_sun, _ = gas_at(h, mu_s)
+    br, ba, t_sun, diffuse_sky = gas_at(h, mu_s)
     beta_a3 = beta[:, -1:] * gas.angstrom_factor[None, :]
     e = t_sun * interp_t(points)[:, None]
+    in_grid = ((k >= 0) & (k <= nk - 1) & inside)[:, None]
+    e_h = np.where(in_grid, (t_sun + SKYLIGHT_SCALAR_FACTOR * diffuse_sky) * interp_t(points)[:, None], e)
     beta_clear = br + ba + beta_a3
     beta_h = beta_sp.sum(axis=1)
     x = (beta_clear + beta_h[:, None]) * step[:, None]
@@ -124,8 +126,8 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     source = (br * p_rayleigh + (ba + beta_a3) * gas.aerosol.ssa * p_aerosol) * e
     l_clear = np.sum(t_obs * source * step[:, None] * mean, axis=0)
     w = np.maximum(np.exp(-tau_h_before) - np.exp(-np.minimum(tau_h_before + d_tau_h, 2.0)), 0.0)
-    i_nogas = np.sum(e * w[:, None], axis=0)
-    i_gas = np.sum(e * np.exp(-tau_c_before) * w[:, None], axis=0)
+    i_nogas = np.sum(e_h * w[:, None], axis=0)
+    i_gas = np.sum(e_h * np.exp(-tau_c_before) * w[:, None], axis=0)
     i_cloud_t = np.sum(interp_t(points) * w)
     tau_c = d_tau_c.sum(axis=0)
     tau_sp = (beta_sp * step[:, None]).sum(axis=0)
