@@ -135,6 +135,17 @@ def _multiple_scattering_order(tau_o):
     return jnp.maximum(jnp.asarray(tau_o), 1.0)
 
 
+def _thin_lobes(mu, tp, forward, g_forward, middle, g_middle, isotropic, back, g_back):
+    """Common form of Eqs. 18 and B1-B3: two HG lobes broadened as g^τ', an isotropic term (p(θ, 0) = 1) and a
+    fixed back lobe: ``forward p(g_forward^τ') + middle p(g_middle^τ') + isotropic + back p(g_back)``."""
+    return (
+        forward * henyey_greenstein(mu, jnp.asarray(g_forward) ** tp)
+        + middle * henyey_greenstein(mu, g_middle**tp)
+        + isotropic
+        + back * henyey_greenstein(mu, g_back)
+    )
+
+
 def phase_thin_cloud_liquid(cos_theta, tau_o, g_lambda):
     """Effective phase function of an optically thin liquid cloud (paper Eqs. 16-18, as interpreted).
 
@@ -168,12 +179,7 @@ def phase_thin_cloud_liquid(cos_theta, tau_o, g_lambda):
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
     f1 = 0.8**tp
-    return (
-        f1 * henyey_greenstein(mu, jnp.asarray(g_lambda) ** tp)
-        + (1.06 - f1) * henyey_greenstein(mu, 0.6**tp)
-        + 0.02 * henyey_greenstein(mu, -0.6)
-        - 0.08  # p(θ, 0) = 1
-    )
+    return _thin_lobes(mu, tp, f1, g_lambda, 1.06 - f1, 0.6, -0.08, 0.02, -0.6)
 
 
 def phase_thin_rain(cos_theta, tau_o):
@@ -200,12 +206,7 @@ def phase_thin_rain(cos_theta, tau_o):
     """
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
-    return (
-        0.10 * henyey_greenstein(mu, 0.99**tp)
-        + 1.05 * henyey_greenstein(mu, 0.75**tp)
-        - 0.35
-        + 0.20 * henyey_greenstein(mu, -0.2)
-    )
+    return _thin_lobes(mu, tp, 0.10, 0.99, 1.05, 0.75, -0.35, 0.20, -0.2)
 
 
 def phase_thin_cloud_ice(cos_theta, tau_o):
@@ -238,12 +239,7 @@ def phase_thin_cloud_ice(cos_theta, tau_o):
     """
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
-    return (
-        0.50 * henyey_greenstein(mu, 0.999**tp)
-        + 0.21 * henyey_greenstein(mu, 0.991**tp)
-        + 0.25
-        + 0.04 * henyey_greenstein(mu, -0.2)
-    )
+    return _thin_lobes(mu, tp, 0.50, 0.999, 0.21, 0.991, 0.25, 0.04, -0.2)
 
 
 def phase_thin_snow(cos_theta, tau_o):
@@ -266,12 +262,7 @@ def phase_thin_snow(cos_theta, tau_o):
     """
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
-    return (
-        0.50 * henyey_greenstein(mu, 0.999**tp)
-        + 0.45 * henyey_greenstein(mu, 0.991**tp)
-        + 0.03
-        + 0.02 * henyey_greenstein(mu, -0.2)
-    )
+    return _thin_lobes(mu, tp, 0.50, 0.999, 0.45, 0.991, 0.03, 0.02, -0.2)
 
 
 def phase_thin_graupel(cos_theta, tau_o):

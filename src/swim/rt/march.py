@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import functools
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import jax
 import jax.numpy as jnp
@@ -443,6 +443,10 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         ``tau_clear`` (n, 3); ``surface`` (n,) bool; ``distance`` (n,) [m] to the ground or NaN.
     """
     seg = ray_segments(origins, directions, geometry, top=float(consts["top"]))
+    # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
+    lengths = np.diff(np.concatenate([np.zeros((len(origins), 1)), seg["bounds"]], axis=1), axis=1)
+    settings = replace(settings, **{name: 0 for name, length in zip(("n_before", "n_grid", "n_after"), lengths.T)
+                                    if not np.any(length > 0)})
     n = len(origins)
     chunk = min(settings.chunk, max(n, 1))
     outputs = []
