@@ -19,6 +19,7 @@ Table layout (all float32 for the kernels):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,6 +137,13 @@ def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengt
     Albers et al. (2020), Eqs. 3 and 8; Bodhaine et al. (1999), doi:10.1175/1520-0426(1999)016<1854:ORODC>2.0.CO;2;
     US Standard Atmosphere (1976).
     """
+    wl = tuple(float(w) for w in np.atleast_1d(wavelengths_nm))
+    return _build_gas_tables_cached(aerosol, wl, float(dh), int(n_u), int(n_mu), float(radius))
+
+
+@functools.lru_cache(maxsize=8)
+def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius) -> GasTables:
+    """Cached worker of :func:`build_gas_tables` (the tables depend only on these arguments)."""
     wl = np.asarray(wavelengths_nm, dtype=float)
     heights = np.arange(0.0, ATMOSPHERE_TOP_M + dh / 2, dh)
     _, _, number_density = us_standard_atmosphere_1976(heights)
