@@ -16,7 +16,7 @@ import pandas as pd
 import xarray as xr
 
 from . import __version__
-from .color import DEFAULT_WHITE_LEVEL, solar_relative_to_srgb8
+from .color import DEFAULT_WHITE_LEVEL, SPACE_WHITE_LEVEL, solar_relative_to_srgb8
 from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD, WAVELENGTHS_NM
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
@@ -108,7 +108,7 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
            aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
-           white_level=DEFAULT_WHITE_LEVEL, progress=None) -> xr.Dataset:
+           white_level=None, progress=None) -> xr.Dataset:
     """Render what a camera at a vantage point sees in a scene.
 
     Parameters
@@ -135,8 +135,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         ``aerosol_extinction``.
     settings : MarchSettings
         Ray-marching step counts.
-    white_level : float
-        Solar-relative radiance shown as display white (docs/colour.md).
+    white_level : float, optional
+        Solar-relative radiance shown as display white (docs/colour.md); default 1.5 for observers in the
+        atmosphere (a camera's exposure) and 4.0 above 100 km (reflectance 1 is white, as in satellite
+        imagery).
     progress : callable, optional
         Called with (rays done, rays total).
 
@@ -215,6 +217,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         a = a.reshape(ny, nx, -1).transpose(2, 0, 1) if a.ndim == 2 else a.reshape(ny, nx)[None]
         return np.where(mask, a, np.nan)
 
+    if white_level is None:
+        white_level = SPACE_WHITE_LEVEL if height_asl > SPACE_VIEW_HEIGHT_M else DEFAULT_WHITE_LEVEL
     disk = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
     radiance = image("radiance") + disk
     rgb = solar_relative_to_srgb8(radiance, white_level=white_level)

@@ -50,7 +50,8 @@ def render(
     look_at: Optional[str] = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'."),
     sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
     sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
-    white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure)."),
+    white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
+                                                             "4 above 100 km)."),
     steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
     scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
     scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
@@ -59,7 +60,6 @@ def render(
 ):
     """Render an all-sky, panorama or perspective image of a scene."""
     from .. import default_scene, open_scene
-    from ..color import DEFAULT_WHITE_LEVEL
     from ..pipeline import render as render_image, write_netcdf, write_png
     from ..rt.march import MarchSettings
 
@@ -94,7 +94,7 @@ def render(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target,
                 settings=MarchSettings(n_grid=steps),
-                white_level=DEFAULT_WHITE_LEVEL if white_level is None else white_level,
+                white_level=white_level,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )
         write_png(image, out)

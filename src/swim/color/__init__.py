@@ -17,6 +17,7 @@ from swim.color._tables import (
 from swim.color.display import (
     CHROMATIC_ADAPTATION_TRANSFORM,
     DEFAULT_WHITE_LEVEL,
+    SPACE_WHITE_LEVEL,
     GAMUT_MAPPINGS,
     PAPER_EQ36_MATRIX,
     XYZ_to_display_rgb,
@@ -38,6 +39,7 @@ __all__ = [
     "solar_irradiance_on_grid",
     "CHROMATIC_ADAPTATION_TRANSFORM",
     "DEFAULT_WHITE_LEVEL",
+    "SPACE_WHITE_LEVEL",
     "GAMUT_MAPPINGS",
     "PAPER_EQ36_MATRIX",
     "XYZ_to_display_rgb",

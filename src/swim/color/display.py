@@ -42,6 +42,9 @@ __all__ = [
 #: tops (L' ~ 2-4) at or near white, cloud bases (L' ~ 0.5-1.5) in mid greys and the clear sky
 #: (L' ~ 0.07-0.25) in darker blues. A white Lambertian surface facing the sun has L' = 4 (Eq. 2).
 DEFAULT_WHITE_LEVEL = 1.5
+#: White level for views from space (observer above 100 km): L' of a white Lambertian surface facing the
+#: sun (Eq. 2), so that reflectance 1 is display white as in satellite imagery.
+SPACE_WHITE_LEVEL = 4.0
 
 #: Chromatic adaptation transform (colour-science name) from the sun's white point to D65.
 CHROMATIC_ADAPTATION_TRANSFORM = "Bradford"
