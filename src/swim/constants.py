@@ -67,12 +67,10 @@ DEFAULT_EFFECTIVE_RADIUS = {
     "graupel": 10e-3,
 }
 
-#: Default background aerosol: optical depth at 550 nm, scale height [m], Angstrom exponent,
-#: single-scattering albedo and Henyey-Greenstein asymmetry parameter (issue 2).
+#: Default background aerosol: optical depth at 550 nm, scale height [m] (issue 2) and type
+#: (docs/aerosols.md).
 DEFAULT_AEROSOL = {
     "aod_550": 0.05,
     "scale_height_m": 1500.0,
-    "angstrom_exponent": 1.3,
-    "ssa": 0.95,
-    "g": 0.70,
+    "type": "continental",
 }

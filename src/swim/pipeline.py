@@ -23,7 +23,6 @@ from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_
 from .geometry.cameras import PerspectiveCamera, fov_to_fit, look_at_angles, make_camera
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.scene import validate_scene
-from .optics.phase import henyey_greenstein
 from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, build_gas_tables
@@ -130,9 +129,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         (lat [deg], lon [deg], height [m above sea level]) for a perspective camera. Without it (and
         without view angles) a camera above 100 km looks straight down and fits the domain in its field
         of view, and a lower one looks at the horizon towards the north.
-    aerosol : AerosolBackground, optional
-        Background 1-D aerosol; default AOD 0.05 at 550 nm, or none where the scene has a 3-D
-        ``aerosol_extinction``.
+    aerosol : AerosolBackground or str, optional
+        Background 1-D aerosol and the type of all aerosol (a type name alone keeps the default profile,
+        docs/aerosols.md); default: type "continental", AOD 0.05 at 550 nm, or no background where the
+        scene has a 3-D ``aerosol_extinction``.
     settings : MarchSettings
         Ray-marching step counts.
     white_level : float, optional
@@ -189,6 +189,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     transmittance = solar_transmittance(volume, sun_scene)
     if aerosol is None:
         aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene else AerosolBackground()
+    elif isinstance(aerosol, str):
+        aerosol = AerosolBackground(type_name=aerosol)
     gas = build_gas_tables(aerosol)
     consts = kernel_constants(volume, transmittance, gas, sun_scene)
     geometry = grid_geometry(volume)
@@ -201,7 +203,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "cos_theta": cos_theta,
         "cos_view_zenith": all_dirs[:, 2],
         "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
-        "p_aerosol": np.asarray(henyey_greenstein(cos_theta, aerosol.g)),
+        "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta)),
     }
     log.info("tracing %d rays (%s camera %s)", len(all_dirs), camera, cam.shape)
     out = trace_rays(origins, all_dirs, consts, geometry, ray_phase, settings, progress)
@@ -262,6 +264,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "reference_lat": lat0,
         "reference_lon": lon0,
         "white_level": float(white_level),
+        "aerosol_type": aerosol.type_name,
+        "aerosol_optical_depth_550": float(aerosol.aod_550),
         "camera": camera,
         "Conventions": "CF-1.8",
     }

@@ -6,7 +6,6 @@ import pytest
 from swim.constants import EARTH_RADIUS_M
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
-from swim.optics.phase import henyey_greenstein
 from swim.optics.rayleigh import rayleigh_phase_function
 from swim.optics.volume import build_optical_volume
 from swim.rt.gas import AerosolBackground, build_gas_tables
@@ -29,15 +28,16 @@ def _tiny_scene():
                              cloud_liquid_content=liquid, cloud_ice_content=ice, land_mask=1.0)
 
 
-def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), settings=MarchSettings(n_grid=400, n_after=200)):
+def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), settings=MarchSettings(n_grid=400, n_after=200),
+           rayleigh_scattering=True):
     volume = build_optical_volume(scene)
     transmittance = solar_transmittance(volume, sun)
     gas = build_gas_tables(aerosol)
     consts = kernel_constants(volume, transmittance, gas, sun)
     cos_theta = directions @ sun
     phase = {"cos_theta": cos_theta, "cos_view_zenith": directions[:, 2],
-             "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
-             "p_aerosol": np.asarray(henyey_greenstein(cos_theta, aerosol.g))}
+             "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)) * rayleigh_scattering,
+             "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta))}
     out = trace_rays(origins, directions, consts, grid_geometry(volume), phase, settings)
     return out, (volume, transmittance, gas, phase)
 
@@ -111,3 +111,23 @@ def test_ray_segments_for_ground_and_space_observers():
     assert seg["start"][1, 2] == pytest.approx(100e3, abs=1e-3)
     # Space looking away from the earth misses the atmosphere.
     assert not seg["valid"][2]
+
+
+@pytest.mark.parametrize("type_name", ["colorado_dust", "smoke"])
+def test_aerosol_sky_radiance_follows_its_phase_function(type_name):
+    """Views at equal zenith angle share the path geometry in a horizontally uniform atmosphere, so the
+    single-scattering radiance of the aerosol (Rayleigh scattering switched off, its extinction kept)
+    differs only through P_A(theta): the ratio is exact."""
+    scene = _tiny_scene().copy()
+    for name in ("cloud_liquid_content", "cloud_ice_content"):
+        scene[name] = scene[name] * 0.0
+    sun = enu_from_azimuth_zenith(180.0, 40.0)
+    view = np.array([enu_from_azimuth_zenith(180.0, 50.0), enu_from_azimuth_zenith(0.0, 50.0)])  # theta 10, 90 deg
+    origins = np.array([[1500.0, -1500.0, EARTH_RADIUS_M + 1.0]] * 2)
+    out, (_, _, _, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(0.1, type_name=type_name),
+                                   rayleigh_scattering=False)
+    radiance = out["radiance"]
+    assert np.all(radiance > 0)
+    np.testing.assert_allclose(radiance[0] / radiance[1], phase["p_aerosol"][0] / phase["p_aerosol"][1], rtol=0.01)
+    # Forward scattering dominates for aerosol: the view 10 deg from the sun is far brighter.
+    assert np.all(radiance[0] > 3 * radiance[1])

@@ -50,6 +50,10 @@ def render(
     look_at: Optional[str] = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'."),
     sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
     sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
+    aerosol: str = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
+                                                    "sea_salt (docs/aerosols.md)."),
+    aod: Optional[float] = typer.Option(None, help="Background aerosol optical depth at 550 nm (default 0.05; 0 "
+                                                   "where the scene has a 3-D aerosol field)."),
     white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
                                                              "4 above 100 km)."),
     steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
@@ -61,6 +65,7 @@ def render(
     """Render an all-sky, panorama or perspective image of a scene."""
     from .. import default_scene, open_scene
     from ..pipeline import render as render_image, write_netcdf, write_png
+    from ..rt.gas import AerosolBackground
     from ..rt.march import MarchSettings
 
     try:
@@ -80,6 +85,12 @@ def render(
                 options["fov_deg"] = 60.0
             if view_azimuth is not None:
                 options.update(view_azimuth_deg=view_azimuth, view_zenith_deg=90.0 if view_zenith is None else view_zenith)
+        if aod is not None:
+            background = AerosolBackground(aod_550=aod, type_name=aerosol)
+        elif "aerosol_extinction" in ds:
+            background = AerosolBackground(aod_550=0.0, type_name=aerosol)
+        else:
+            background = AerosolBackground(type_name=aerosol)
         target = None
         if look_at is not None:
             try:
@@ -92,7 +103,7 @@ def render(
             task = bar.add_task("render", total=1.0)
             image = render_image(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
-                sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target,
+                sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                 settings=MarchSettings(n_grid=steps),
                 white_level=white_level,
                 progress=lambda done, total: bar.update(task, completed=done / total),

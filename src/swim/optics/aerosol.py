@@ -78,7 +78,7 @@ def exponential_aerosol_extinction(
     return aod / sh * np.exp(-h / sh)
 
 
-def angstrom_extinction(beta_550, wavelength_nm, angstrom_exponent=DEFAULT_AEROSOL["angstrom_exponent"]):
+def angstrom_extinction(beta_550, wavelength_nm, angstrom_exponent=1.3):
     """Aerosol extinction at another wavelength from the Ångström law.
 
     Parameters

@@ -25,34 +25,53 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..constants import ATMOSPHERE_TOP_M, DEFAULT_AEROSOL, EARTH_RADIUS_M, WAVELENGTHS_NM
-from ..optics.aerosol import angstrom_extinction, exponential_aerosol_extinction
+from ..optics.aerosol import exponential_aerosol_extinction
+from ..errors import SwimInputError
+from ..optics.aerosol_types import aerosol_type
 from ..optics.atmosphere import us_standard_atmosphere_1976
 from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio
 
 
 @dataclass(frozen=True)
 class AerosolBackground:
-    """Horizontally uniform 1-D aerosol (issue 2 default: AOD 0.05 at 550 nm, scale height 1.5 km).
+    """Horizontally uniform 1-D aerosol of a named type (issue 2 default: AOD 0.05 at 550 nm, 1.5 km).
 
     Attributes
     ----------
     aod_550 : float
-        Aerosol optical depth at 550 nm [-].
+        Aerosol optical depth at 550 nm [-], >= 0.
     scale_height_m : float
-        Exponential scale height [m].
-    angstrom_exponent : float
-        Angstrom exponent alpha [-]: tau ~ lambda^-alpha.
-    ssa : float
-        Single-scattering albedo omega [-].
-    g : float
-        Henyey-Greenstein asymmetry parameter [-].
+        Exponential scale height [m], > 0.
+    type_name : str
+        Aerosol type (:data:`swim.optics.aerosol_types.AEROSOL_TYPES`): phase function (Eq. 28), spectral
+        single-scattering albedo and Angstrom exponent; also used for a scene's 3-D aerosol field.
+
+    Raises
+    ------
+    SwimInputError
+        Negative AOD, non-positive scale height or an unknown type.
     """
 
     aod_550: float = DEFAULT_AEROSOL["aod_550"]
     scale_height_m: float = DEFAULT_AEROSOL["scale_height_m"]
-    angstrom_exponent: float = DEFAULT_AEROSOL["angstrom_exponent"]
-    ssa: float = DEFAULT_AEROSOL["ssa"]
-    g: float = DEFAULT_AEROSOL["g"]
+    type_name: str = DEFAULT_AEROSOL["type"]
+
+    def __post_init__(self):
+        if not (np.isfinite(self.aod_550) and self.aod_550 >= 0):
+            raise SwimInputError(f"aerosol optical depth at 550 nm must be >= 0, got {self.aod_550}")
+        if not (np.isfinite(self.scale_height_m) and self.scale_height_m > 0):
+            raise SwimInputError(f"aerosol scale height must be > 0 m, got {self.scale_height_m}")
+        object.__setattr__(self, "type_name", aerosol_type(self.type_name).name)
+
+    @property
+    def type(self):
+        """The :class:`swim.optics.aerosol_types.AerosolType`."""
+        return aerosol_type(self.type_name)
+
+    @property
+    def ssa(self):
+        """Single-scattering albedo (3,) at 615/546/450 nm [-]."""
+        return np.asarray(self.type.ssa, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -103,8 +122,8 @@ def diffuse_horizontal_estimate(mu_s, tau_rayleigh, tau_aerosol, aerosol_ssa):
         Cosine of the solar zenith angle [-]; no diffuse light for mu_s <= 0.
     tau_rayleigh, tau_aerosol : numpy.ndarray
         Vertical optical depths above the point [-], broadcastable with mu_s.
-    aerosol_ssa : float
-        Aerosol single-scattering albedo [-].
+    aerosol_ssa : float or numpy.ndarray
+        Aerosol single-scattering albedo [-] (per wavelength on the last axis).
     """
     mu = np.maximum(mu_s, 1e-3)
     d = mu * (0.5 * (1 - np.exp(-tau_rayleigh / mu)) + 0.75 * aerosol_ssa * (1 - np.exp(-tau_aerosol / mu)))
@@ -149,7 +168,7 @@ def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius) -> 
     _, _, number_density = us_standard_atmosphere_1976(heights)
     sigma = np.asarray(rayleigh_cross_section_bodhaine1999(wl))
     beta_r = number_density[:, None] * sigma[None, :]
-    factor = np.asarray(angstrom_extinction(1.0, wl, aerosol.angstrom_exponent))
+    factor = np.asarray(aerosol.type.extinction_factor(wl), dtype=float)
     beta_a = np.asarray(exponential_aerosol_extinction(heights, aerosol.aod_550, aerosol.scale_height_m))[:, None] * factor[None, :]
     beta = beta_r + beta_a
 

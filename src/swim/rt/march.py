@@ -289,7 +289,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         step_mean = jnp.where(x > 1e-4, -jnp.expm1(-x) / jnp.maximum(x, 1e-30), 1.0 - 0.5 * x)
         t_obs = jnp.exp(-(st["tau_clear"] + st["tau_h"][:, None]))
         source = (beta_r * rays["p_rayleigh"][:, None]
-                  + (beta_a + beta_a3) * consts["aerosol_ssa"] * rays["p_aerosol"][:, None]) * irradiance
+                  + (beta_a + beta_a3) * consts["aerosol_ssa"] * rays["p_aerosol"]) * irradiance
         l_clear = st["l_clear"] + t_obs * source * (ds_eff[:, None] * step_mean)
         # Eq. 12 integrand over the first two optical depths of hydrometeors.
         t0 = st["tau_h"]
@@ -431,8 +431,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     geometry : GridGeometry
     ray_phase : dict
         Per-ray arrays (n,): ``cos_theta`` (cosine of the scattering angle), ``cos_view_zenith`` (view
-        direction dotted with the local up at the reference point), ``p_rayleigh`` and ``p_aerosol``
-        (phase functions, mean 1 over the sphere).
+        direction dotted with the local up at the reference point), ``p_rayleigh`` (phase function,
+        mean 1 over the sphere); and ``p_aerosol`` (n, 3), the aerosol phase function per wavelength.
     settings : MarchSettings
     progress : callable, optional
         Called with (rays done, rays total) after each chunk.

@@ -34,8 +34,10 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     gas : swim.rt.gas.GasTables
     sun : array_like
         Shape (3,): unit vector towards the sun (scene frame).
-    p_rayleigh, p_aerosol : float
-        Phase functions at this ray's scattering angle (mean 1 over the sphere).
+    p_rayleigh : float
+        Rayleigh phase function at this ray's scattering angle (mean 1 over the sphere).
+    p_aerosol : array_like
+        Shape (3,): aerosol phase function per wavelength at this ray's scattering angle.
     step_m : float
         Step length [m].
 
