@@ -84,7 +84,8 @@ def test_clear_sky_matches_plane_parallel_single_scattering(sun_zenith):
     sun = enu_from_azimuth_zenith(180.0, sun_zenith)
     view = np.array([[0.0, 0.0, 1.0], enu_from_azimuth_zenith(0.0, 20.0)])
     origins = np.array([[1500.0, -1500.0, EARTH_RADIUS_M + 1.0]] * 2)  # 1 m above sea level, away from the hill
-    out, (_, _, gas, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(aod_550=0.0))
+    out, (_, _, gas, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(aod_550=0.0),
+                                     settings=MarchSettings(n_grid=400, n_after=200, multiple_scattering=False))
     tau = np.trapezoid(gas.beta_rayleigh, dx=gas.dh, axis=0)  # column optical depth per wavelength
     for n in range(2):
         mu = view[n, 2]
@@ -125,7 +126,8 @@ def test_aerosol_sky_radiance_follows_its_phase_function(type_name):
     view = np.array([enu_from_azimuth_zenith(180.0, 50.0), enu_from_azimuth_zenith(0.0, 50.0)])  # theta 10, 90 deg
     origins = np.array([[1500.0, -1500.0, EARTH_RADIUS_M + 1.0]] * 2)
     out, (_, _, _, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(0.1, type_name=type_name),
-                                   rayleigh_scattering=False)
+                                   rayleigh_scattering=False,
+                                   settings=MarchSettings(n_grid=400, n_after=200, multiple_scattering=False))
     radiance = out["radiance"]
     assert np.all(radiance > 0)
     np.testing.assert_allclose(radiance[0] / radiance[1], phase["p_aerosol"][0] / phase["p_aerosol"][1], rtol=0.01)

@@ -74,12 +74,16 @@ class MarchSettings:
         Rays per kernel call. Small chunks keep the kernel's working set in the CPU caches: on a 2-core
         machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096 or 8192, 4.2 s
         with 2048 and 6.1 s with 1024 (benchmarks/, docs/rendering.md).
+    multiple_scattering : bool
+        Add the isotropic-diffuse estimate of higher scattering orders to the clear-sky source
+        (docs/rendering.md); False gives pure single scattering (Eq. 3).
     """
 
     n_before: int = 48
     n_grid: int = 256
     n_after: int = 96
     chunk: int = 4096
+    multiple_scattering: bool = True
 
 
 @dataclass(frozen=True)
@@ -249,7 +253,7 @@ def _gas_at(h, mu_s, consts):
     return beta_r, beta_a, t_sun, fu, fm
 
 
-def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts):
+def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts, multiple_scattering):
     """Accumulate one ray segment with n_steps midpoint steps (see module docstring)."""
     outside = jnp.concatenate([jnp.zeros(N_CHANNELS - 1), jnp.ones(1)]).astype(jnp.float32)
 
@@ -276,13 +280,11 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             frac = jnp.ones(q.shape[0], jnp.float32)
         ds_eff = ds * frac * st["alive"]
         irradiance = t_sun * t_cloud[:, None]  # direct beam / E_TOA, lights the gas and aerosol (Eq. 3)
-        if in_grid:
-            # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors: the direct beam
-            # plus the clear-sky diffuse light, both through the clouds above (T of Step 1a).
-            skylight = SKYLIGHT_SCALAR_FACTOR * _bilinear_table(consts["diffuse"], fu, fm)
-            irradiance_h = (t_sun + skylight) * t_cloud[:, None]
-        else:
-            irradiance_h = irradiance
+        if in_grid or multiple_scattering:
+            # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a).
+            skylight = SKYLIGHT_SCALAR_FACTOR * _bilinear_table(consts["diffuse"], fu, fm) * t_cloud[:, None]
+        # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors.
+        irradiance_h = irradiance + skylight if in_grid else irradiance
         beta_clear = beta_r + beta_a + beta_a3
         beta_h = beta_sp.sum(axis=1)
         x = (beta_clear + beta_h[:, None]) * ds_eff[:, None]
@@ -290,6 +292,10 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         t_obs = jnp.exp(-(st["tau_clear"] + st["tau_h"][:, None]))
         source = (beta_r * rays["p_rayleigh"][:, None]
                   + (beta_a + beta_a3) * consts["aerosol_ssa"] * rays["p_aerosol"]) * irradiance
+        if multiple_scattering:
+            # Higher orders: the diffuse field taken as isotropic, so the phase function averages to 1 and
+            # the source is the scattering coefficient times the diffuse scalar irradiance (L' units).
+            source = source + (beta_r + (beta_a + beta_a3) * consts["aerosol_ssa"]) * skylight
         l_clear = st["l_clear"] + t_obs * source * (ds_eff[:, None] * step_mean)
         # Eq. 12 integrand over the first two optical depths of hydrometeors.
         t0 = st["tau_h"]
@@ -328,9 +334,12 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         "gap": jnp.full(n, 1e9, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)
-    state = _march_segment(state, start, direction, zero, bounds[:, 0], settings.n_before, False, rays, consts)
-    state = _march_segment(state, start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, True, rays, consts)
-    state = _march_segment(state, start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after, False, rays, consts)
+    ms = settings.multiple_scattering
+    state = _march_segment(state, start, direction, zero, bounds[:, 0], settings.n_before, False, rays, consts, ms)
+    state = _march_segment(state, start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, True, rays,
+                           consts, ms)
+    state = _march_segment(state, start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after, False,
+                           rays, consts, ms)
 
     # ---- ground: Lambertian, direct + diffuse (Eq. 35 with ARF = 1) ----
     surface = state["hit"] | (ends_on_ground & state["alive"])

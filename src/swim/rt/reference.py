@@ -22,7 +22,7 @@ from .march import FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, grid_geom
 
 
 def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_rayleigh, p_aerosol,
-                        step_m=50.0, radius=EARTH_RADIUS_M):
+                        step_m=50.0, radius=EARTH_RADIUS_M, multiple_scattering=True):
     """Trace one ray with fine uniform steps; returns the same quantities as the kernel (float64).
 
     Parameters
@@ -40,6 +40,8 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         Shape (3,): aerosol phase function per wavelength at this ray's scattering angle.
     step_m : float
         Step length [m].
+    multiple_scattering : bool
+        As :class:`swim.rt.march.MarchSettings`.
 
     Returns
     -------
@@ -126,6 +128,8 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     tau_h_before = np.cumsum(d_tau_h) - d_tau_h
     t_obs = np.exp(-(tau_c_before + tau_h_before[:, None]))
     source = (br * p_rayleigh + (ba + beta_a3) * gas.aerosol.ssa * p_aerosol) * e
+    if multiple_scattering:
+        source = source + (br + (ba + beta_a3) * gas.aerosol.ssa) * SKYLIGHT_SCALAR_FACTOR * diffuse_sky * interp_t(points)[:, None]
     l_clear = np.sum(t_obs * source * step[:, None] * mean, axis=0)
     w = np.maximum(np.exp(-tau_h_before) - np.exp(-np.minimum(tau_h_before + d_tau_h, 2.0)), 0.0)
     i_nogas = np.sum(e_h * w[:, None], axis=0)

@@ -1,0 +1,17 @@
+"""Validation against independent reference solvers (issue 3): DISORT plane-parallel clear sky."""
+
+from .disort import (
+    clear_sky_layers,
+    disort_clear_sky_irradiance,
+    disort_clear_sky_radiance,
+    phase_function_legendre_moments,
+    rayleigh_legendre_moments,
+)
+
+__all__ = [
+    "clear_sky_layers",
+    "disort_clear_sky_irradiance",
+    "disort_clear_sky_radiance",
+    "phase_function_legendre_moments",
+    "rayleigh_legendre_moments",
+]
