@@ -31,6 +31,8 @@ Conventions (verified in ``tests/validation/test_clear_sky_disort.py``)
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..constants import ATMOSPHERE_TOP_M, WAVELENGTHS_NM
@@ -92,7 +94,7 @@ def phase_function_legendre_moments(phase_function, n_moments, n_quad=None):
         Shape (n_moments + 1,) or (n_moments + 1, k); chi_0 is 1 for a normalised P.
     """
     n_quad = int(n_quad or max(4 * n_moments, 2048))
-    x, w = np.polynomial.legendre.leggauss(n_quad)
+    x, w = _gauss_legendre(n_quad)
     p = np.asarray(phase_function(x), dtype=float)
     # Legendre polynomials by the three-term recurrence, P_l(x) for l = 0..n_moments
     pl = np.empty((n_moments + 1, n_quad))
@@ -103,6 +105,17 @@ def phase_function_legendre_moments(phase_function, n_moments, n_quad=None):
         pl[l + 1] = ((2 * l + 1) * x * pl[l] - l * pl[l - 1]) / (l + 1)
     wp = p * w[:, None] if p.ndim == 2 else p * w
     return 0.5 * (pl @ wp)
+
+
+@functools.lru_cache(maxsize=4)
+def _gauss_legendre(n):
+    """Gauss-Legendre nodes and weights on [-1, 1] (SciPy's O(n) algorithm; numpy's leggauss is O(n^3))."""
+    from scipy.special import roots_legendre
+
+    x, w = roots_legendre(int(n))
+    x.flags.writeable = False
+    w.flags.writeable = False
+    return x, w
 
 
 def _layer_edges(n_layers, top=ATMOSPHERE_TOP_M):
@@ -302,3 +315,124 @@ def disort_clear_sky_irradiance(sun_zenith_deg, aerosol: AerosolBackground = Aer
         direct[c] = np.asarray(res.flux_direct_beam)[-1]
         diffuse[c] = np.asarray(res.flux_down)[-1]
     return {"direct": direct, "diffuse": diffuse}
+
+
+# --------------------------------------------------------------------------------------------------------
+# swim against DISORT for a ground observer
+# --------------------------------------------------------------------------------------------------------
+def sky_dome_directions(zenith_step_deg=10.0, azimuth_step_deg=15.0, max_zenith_deg=85.0):
+    """Look directions over the sky dome: zenith 5, 15, ... <= max_zenith_deg by azimuth 0, 15, ... [deg].
+
+    Returns
+    -------
+    zenith, azimuth : numpy.ndarray
+        Flat arrays [deg] (azimuth clockwise from north), zenith included once.
+    """
+    zen = np.arange(zenith_step_deg / 2.0, max_zenith_deg + 1e-9, zenith_step_deg)
+    az = np.arange(0.0, 360.0, azimuth_step_deg)
+    z, a = np.meshgrid(zen, az, indexing="ij")
+    return z.ravel(), a.ravel()
+
+
+def clear_scene(surface_albedo=0.06):
+    """A small cloud-free sea scene (zero hydrometeor contents, land_mask 0) for clear-sky renders."""
+    from ..io.scene import scene_from_arrays
+
+    x = np.linspace(-2000.0, 2000.0, 5)
+    z = np.array([50.0, 250.0, 500.0, 1000.0, 2000.0])
+    zero = np.zeros((z.size, x.size, x.size))
+    return scene_from_arrays(x=x, y=x, z=z, reference_lat=40.0, reference_lon=-105.0,
+                             cloud_liquid_content=zero, surface_albedo=surface_albedo, land_mask=0.0,
+                             title="clear sea scene (DISORT validation)")
+
+
+def render_settings_variants():
+    """Renderer settings to compare: ``{"default": MarchSettings()}``, plus ``"single scattering"`` (the
+    renderer with ``multiple_scattering=False``) where :class:`swim.rt.march.MarchSettings` has that field."""
+    import dataclasses
+
+    from ..rt.march import MarchSettings
+
+    variants = {"default": MarchSettings()}
+    if "multiple_scattering" in {f.name for f in dataclasses.fields(MarchSettings)}:
+        default_ms = MarchSettings().multiple_scattering
+        other = dataclasses.replace(MarchSettings(), multiple_scattering=not default_ms)
+        variants["multiple scattering off" if default_ms else "multiple scattering on"] = other
+    return variants
+
+
+def compare_ground_sky(sun_zenith_deg, aerosol: AerosolBackground = AerosolBackground(), surface_albedo=0.06,
+                       sun_azimuth_deg=135.0, settings=None, camera_size=121, sun_exclusion_deg=5.0,
+                       n_streams=32, n_layers=60, zenith_step_deg=10.0, azimuth_step_deg=15.0,
+                       max_zenith_deg=85.0, scene=None):
+    """Render the clear sky with swim and compare it with DISORT over the sky dome (ground observer).
+
+    swim renders an all-sky image of a cloud-free sea scene (:func:`clear_scene`) with the sun set by
+    ``sun_zenith``/``sun_azimuth``; the sky-dome directions of :func:`sky_dome_directions` are mapped to
+    their nearest pixels (``camera.pixel_of_direction``) and DISORT is evaluated at the exact view
+    directions of those pixels. Pixels within ``sun_exclusion_deg`` of the sun are dropped.
+
+    Returns
+    -------
+    dict
+        ``swim``, ``disort`` (n, 3) L'; ``rel_err`` (n, 3) = swim / DISORT - 1; ``view_zenith``,
+        ``view_azimuth``, ``scattering_angle`` (n,) [deg]; ``median_abs``, ``p90_abs``, ``bias``
+        (median signed), ``pearson_r`` (3,); ``diffuse_horizontal_swim``, ``diffuse_horizontal_disort`` (3,)
+        diffuse irradiance on a horizontal surface / E_TOA (swim: integral of its all-sky image).
+    """
+    from ..geometry.cameras import AllSkyCamera
+    from ..pipeline import render
+    from ..rt.march import MarchSettings
+
+    settings = MarchSettings() if settings is None else settings
+    scene = clear_scene(surface_albedo) if scene is None else scene
+    ds = render(scene, camera="allsky", camera_options={"size": int(camera_size)}, sun_zenith=float(sun_zenith_deg),
+                sun_azimuth=float(sun_azimuth_deg), aerosol=aerosol, settings=settings, height=0.0)
+    cam = AllSkyCamera(size=int(camera_size))
+    zen, az = sky_dome_directions(zenith_step_deg, azimuth_step_deg, max_zenith_deg)
+    th, ph = np.radians(zen), np.radians(az)
+    dirs = np.stack([np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
+    row, col = cam.pixel_of_direction(dirs)
+    rc = np.unique(np.stack([np.rint(row), np.rint(col)], axis=-1).astype(int), axis=0)
+    r, c = rc[:, 0], rc[:, 1]
+    # swim's sky radiance without the sun's disk: the sum of its components
+    sky = (ds["radiance_clear"] + ds["radiance_cloud"].fillna(0) + ds["radiance_surface"].fillna(0)).values
+    vz = ds["view_zenith"].values[r, c].astype(float)
+    va = ds["view_azimuth"].values[r, c].astype(float)
+    sz, sa = float(ds.attrs["sun_zenith_deg"]), float(ds.attrs["sun_azimuth_deg"])
+    look = np.stack([np.sin(np.radians(vz)) * np.sin(np.radians(va)), np.sin(np.radians(vz)) * np.cos(np.radians(va)),
+                     np.cos(np.radians(vz))], axis=-1)
+    sun = np.array([np.sin(np.radians(sz)) * np.sin(np.radians(sa)), np.sin(np.radians(sz)) * np.cos(np.radians(sa)),
+                    np.cos(np.radians(sz))])
+    scat = np.degrees(np.arccos(np.clip(look @ sun, -1.0, 1.0)))
+    keep = (scat > sun_exclusion_deg) & (vz <= max_zenith_deg + 1.0)
+    r, c, vz, va, scat = r[keep], c[keep], vz[keep], va[keep], scat[keep]
+    l_swim = sky[:, r, c].T.astype(float)
+    l_ref = disort_clear_sky_radiance(sz, vz, va - sa, aerosol=aerosol, surface_albedo=surface_albedo,
+                                      observer="ground", n_streams=n_streams, n_layers=n_layers)
+    rel = l_swim / l_ref - 1.0
+
+    # diffuse horizontal irradiance / E_TOA: (1 / 4 pi) sum L' cos(theta) dOmega over the image
+    vz_img = np.radians(ds["view_zenith"].values.astype(float))
+    k = np.radians(cam.max_zenith_deg) / (cam.size / 2.0)
+    d_omega = k**2 * np.sinc(vz_img / np.pi)  # equidistant fisheye: sin(theta) / theta per pixel^2
+    wgt = np.where(np.isfinite(vz_img) & (vz_img < np.pi / 2), np.cos(vz_img) * d_omega, 0.0)
+    e_swim = np.nansum(np.nan_to_num(sky) * wgt[None], axis=(1, 2)) / (4 * np.pi)
+    e_ref = disort_clear_sky_irradiance(sz, aerosol=aerosol, surface_albedo=surface_albedo,
+                                        n_streams=n_streams, n_layers=n_layers)["diffuse"]
+    return {
+        "swim": l_swim,
+        "disort": l_ref,
+        "rel_err": rel,
+        "view_zenith": vz,
+        "view_azimuth": va,
+        "scattering_angle": scat,
+        "median_abs": np.median(np.abs(rel), axis=0),
+        "p90_abs": np.percentile(np.abs(rel), 90, axis=0),
+        "bias": np.median(rel, axis=0),
+        "pearson_r": np.array([np.corrcoef(l_swim[:, i], l_ref[:, i])[0, 1] for i in range(3)]),
+        "diffuse_horizontal_swim": e_swim,
+        "diffuse_horizontal_disort": e_ref,
+        "sun_zenith": sz,
+        "sun_azimuth": sa,
+    }

@@ -1,0 +1,180 @@
+"""swim's clear sky against DISORT (issue 3, item 4): adapter sanity, then swim vs the reference.
+
+Measured numbers (docs/validation.md, scripts/make_validation_table.py) with the renderer's defaults at the
+time of writing: median |swim / DISORT - 1| 12-24 % over the six cases and three wavelengths (swim too
+dark: bias -12 to -24 %), 90th percentile 18-34 %. The issue's goal (median <= 5 %) is NOT met; the
+ceilings below are the measured values plus a small margin, so they catch regressions without pretending.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+pytest.importorskip("disortpp")
+
+from swim.optics.rayleigh import rayleigh_phase_function  # noqa: E402
+from swim.rt.gas import AerosolBackground, build_gas_tables  # noqa: E402
+from swim.rt.march import MarchSettings  # noqa: E402
+from swim.validation.disort import (  # noqa: E402
+    clear_sky_layers,
+    compare_ground_sky,
+    disort_clear_sky_radiance,
+    phase_function_legendre_moments,
+    rayleigh_legendre_moments,
+)
+
+pytestmark = pytest.mark.validation
+
+RAYLEIGH = AerosolBackground(aod_550=0.0)
+
+
+def _look(vz, az):
+    th, ph = np.radians(vz), np.radians(az)
+    return np.stack([np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# (a) the adapter
+# ---------------------------------------------------------------------------------------------------------
+def test_rayleigh_moments_reproduce_swim_phase_function():
+    rho = build_gas_tables(RAYLEIGH).depolarization
+    mu = np.linspace(-1, 1, 41)
+    chi = rayleigh_legendre_moments(rho, 4)
+    series = np.polynomial.legendre.legval(mu, (2 * np.arange(5) + 1) * chi)
+    np.testing.assert_allclose(series, np.asarray(rayleigh_phase_function(mu, rho)), rtol=1e-6)
+    # and the quadrature gives the same moments
+    chi_q = phase_function_legendre_moments(lambda x: np.asarray(rayleigh_phase_function(x, rho), dtype=float), 4)
+    np.testing.assert_allclose(chi_q, chi, atol=1e-6)
+
+
+def test_aerosol_moments_normalised_and_asymmetry():
+    t = AerosolBackground(aod_550=0.1).type
+    chi = phase_function_legendre_moments(lambda x: np.asarray(t.phase_function(x), dtype=float), 256)
+    np.testing.assert_allclose(chi[0], 1.0, atol=2e-3)  # float32 phase function
+    np.testing.assert_allclose(chi[1], t.asymmetry_parameter(), atol=3e-3)
+    assert np.all(np.abs(chi[-1]) < 1e-3)  # series converged at 256 moments
+
+
+@pytest.mark.parametrize("observer", ["ground", "toa"])
+def test_thin_rayleigh_single_scattering_limit(observer):
+    """tau x 0.01: DISORT L' = 4 pi I must equal the single-scattering formula (units and azimuth)."""
+    sz = 30.0
+    vz, ra = np.meshgrid([0.0, 20.0, 40.0, 60.0, 80.0], [0.0, 45.0, 90.0, 180.0, 270.0])
+    vz, ra = vz.ravel(), ra.ravel()
+    if observer == "toa":
+        vz = 180.0 - vz
+    lay = clear_sky_layers(RAYLEIGH, tau_scale=0.01)
+    tau = lay["tau_rayleigh"]
+    got = disort_clear_sky_radiance(sz, vz, ra, aerosol=RAYLEIGH, surface_albedo=0.0, observer=observer,
+                                    tau_scale=0.01, n_streams=16)
+    mu0 = np.cos(np.radians(sz))
+    sun = _look(sz, 0.0)
+    p = np.asarray(rayleigh_phase_function(_look(vz, ra) @ sun, lay["depolarization"]))[:, None]
+    mu = np.abs(np.cos(np.radians(vz)))[:, None]
+    if observer == "ground":
+        ss = p * mu0 / (mu0 - mu) * (np.exp(-tau / mu0) - np.exp(-tau / mu))
+    else:
+        ss = p * mu0 / (mu0 + mu) * (1 - np.exp(-tau / mu0 - tau / mu))
+    np.testing.assert_allclose(got, ss, rtol=0.01)
+
+
+def test_azimuth_convention_and_symmetry():
+    aer = AerosolBackground(aod_550=0.3)
+    got = disort_clear_sky_radiance(60.0, [50.0, 50.0, 50.0, 50.0], [0.0, 180.0, 70.0, -70.0], aerosol=aer,
+                                    n_streams=16)
+    # relative azimuth 0 looks towards the sun's azimuth: the forward-scattering aureole side is brighter
+    assert np.all(got[0] > 5 * got[1])
+    np.testing.assert_allclose(got[2], got[3], rtol=1e-6)
+
+
+def test_toa_reciprocity():
+    """Plane-parallel reciprocity: L'(mu_v; mu_0) / mu_0 = L'(mu_0; mu_v) / mu_v at the top."""
+    aer = AerosolBackground(aod_550=0.2)
+    a = disort_clear_sky_radiance(30.0, 180.0 - 60.0, 40.0, aerosol=aer, surface_albedo=0.1, observer="toa",
+                                  n_streams=16)
+    b = disort_clear_sky_radiance(60.0, 180.0 - 30.0, 40.0, aerosol=aer, surface_albedo=0.1, observer="toa",
+                                  n_streams=16)
+    np.testing.assert_allclose(a / np.cos(np.radians(30.0)), b / np.cos(np.radians(60.0)), rtol=2e-3)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# (b) swim against DISORT
+# ---------------------------------------------------------------------------------------------------------
+CASES = {  # (aod, sun zenith): ceilings on median and p90 |rel. error| per wavelength (615, 546, 450)
+    # measured with the defaults (multiple_scattering=True): median / p90 [%]
+    (0.0, 30.0): ((14.7, 17.0, 22.1), (22.5, 23.7, 28.3)),
+    (0.0, 60.0): ((14.4, 17.2, 22.9), (18.3, 20.7, 26.6)),
+    (0.1, 30.0): ((12.3, 15.0, 20.8), (26.5, 28.2, 29.4)),
+    (0.1, 60.0): ((15.5, 18.3, 23.5), (26.1, 27.9, 29.8)),
+    (0.5, 30.0): ((12.2, 14.2, 17.7), (24.2, 26.0, 27.0)),
+    (0.5, 60.0): ((15.3, 15.7, 15.0), (28.8, 30.4, 34.3)),
+}
+MARGIN_MEDIAN_PCT = 2.0  # percentage points above the measured value
+MARGIN_P90_PCT = 4.0
+_results = {}
+
+
+def _case(aod, sz):
+    if (aod, sz) not in _results:
+        _results[(aod, sz)] = compare_ground_sky(sz, AerosolBackground(aod_550=aod, type_name="continental"),
+                                                 settings=MarchSettings(), n_streams=32)
+    return _results[(aod, sz)]
+
+
+@pytest.mark.parametrize("aod, sz", list(CASES))
+def test_swim_against_disort_ground(aod, sz):
+    r = _case(aod, sz)
+    med, p90 = 100 * r["median_abs"], 100 * r["p90_abs"]
+    print(f"\nAOD {aod} sun {sz}: n={len(r['rel_err'])} median |err| {np.round(med, 1)} % p90 {np.round(p90, 1)} % "
+          f"bias {np.round(100 * r['bias'], 1)} % r {np.round(r['pearson_r'], 3)}; goal median <= 5 %: "
+          f"{'met' if np.all(med <= 5) else 'NOT met'}")
+    assert len(r["rel_err"]) >= 150
+    ceil_med = np.asarray(CASES[(aod, sz)][0]) + MARGIN_MEDIAN_PCT
+    ceil_p90 = np.asarray(CASES[(aod, sz)][1]) + MARGIN_P90_PCT
+    assert np.all(med <= ceil_med), (med, ceil_med)
+    assert np.all(p90 <= ceil_p90), (p90, ceil_p90)
+    assert np.all(r["pearson_r"] > 0.97)  # the sky's angular structure (paper's camera metric)
+
+
+@pytest.mark.xfail(reason="issue 3 goal (median |err| <= 5 % against DISORT) not met yet: measured 12-24 %, "
+                          "docs/validation.md", strict=False)
+def test_issue_goal_median_5_percent():
+    worst = max(float(np.max(_case(aod, sz)["median_abs"])) for aod, sz in CASES)
+    assert worst <= 0.05, f"worst median |err| {100 * worst:.1f} %"
+
+
+def test_swim_single_scattering_matches_plane_parallel_single_scattering():
+    """With multiple_scattering=False swim must equal the single-scattering integral over the same profiles
+    (plane-parallel; the spherical atmosphere differs only towards the horizon)."""
+    fields = {f.name for f in dataclasses.fields(MarchSettings)}
+    if "multiple_scattering" not in fields:
+        pytest.skip("renderer has no multiple_scattering switch")
+    aer = AerosolBackground(aod_550=0.1, type_name="continental")
+    sz = 60.0
+    r = compare_ground_sky(sz, aer, settings=MarchSettings(multiple_scattering=False), n_streams=8,
+                           zenith_step_deg=20.0, azimuth_step_deg=30.0)
+    gas = build_gas_tables(aer)
+    br, ba = np.asarray(gas.beta_rayleigh, float), np.asarray(gas.beta_aerosol, float)
+    dz = gas.dh
+    tau_above = np.cumsum(((br + ba) * dz)[::-1], axis=0)[::-1] - 0.5 * (br + ba) * dz  # at cell centres
+    tau0 = (br + ba).sum(axis=0) * dz
+    mu0 = np.cos(np.radians(sz))
+    mu = np.cos(np.radians(r["view_zenith"]))
+    cth = np.cos(np.radians(r["scattering_angle"]))
+    pr = np.asarray(rayleigh_phase_function(cth, gas.depolarization), float)  # (n,)
+    pa = np.asarray(aer.type.phase_function(cth), float)  # (n, 3)
+    ss = np.empty_like(r["swim"])
+    for c in range(3):
+        att = np.exp(-tau_above[None, :, c] / mu0 - (tau0[c] - tau_above[None, :, c]) / mu[:, None])  # (n, h)
+        ss[:, c] = (pr * (att * br[None, :, c]).sum(1) + aer.ssa[c] * pa[:, c] * (att * ba[None, :, c]).sum(1)) \
+            * dz / mu
+    err = r["swim"] / ss - 1
+    low = r["view_zenith"] <= 70.0
+    print(f"\nswim SS vs plane-parallel SS: median {np.round(100 * np.median(np.abs(err), 0), 2)} %, "
+          f"max (view zenith <= 70) {np.round(100 * np.abs(err[low]).max(0), 2)} %")
+    # measured: median 1.6 / 1.2 / 0.4 %, max (view zenith <= 70°) 2.6 / 2.4 / 1.8 %
+    assert np.all(np.median(np.abs(err), axis=0) < 0.025)
+    assert np.all(np.abs(err[low]) < 0.04)
