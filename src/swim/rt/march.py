@@ -242,15 +242,18 @@ def _point_geometry(q, consts):
 
 
 def _gas_at(h, mu_s, consts):
-    """Gas + background-aerosol extinction (n, 3) each and sun transmittance (n, 3) at heights h."""
-    fh = h / consts["dh"]
-    beta_r = _lerp_table(consts["beta_rayleigh"], fh)
-    beta_a = _lerp_table(consts["beta_aerosol"], fh)
-    nu, nmu = consts["sun_transmittance"].shape[:2]
+    """Clear-atmosphere quantities at heights h [m] and local solar-zenith cosines mu_s.
+
+    Returns the Rayleigh and background-aerosol extinction (n, 3) [m-1] (one lookup in a joint height
+    table), and the sun transmittance and horizontal diffuse irradiance / E_TOA (n, 3) each (one
+    bilinear lookup in the joint (height, mu_s) table).
+    """
+    beta = _lerp_table(consts["beta_gas"], h / consts["dh"])
+    nu, nmu = consts["sky"].shape[:2]
     fu = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (nu - 1)
     fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
-    t_sun = _bilinear_table(consts["sun_transmittance"], fu, fm)
-    return beta_r, beta_a, t_sun, fu, fm
+    sky = _bilinear_table(consts["sky"], fu, fm)
+    return beta[:, :3], beta[:, 3:], sky[:, :3], sky[:, 3:]
 
 
 def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts, multiple_scattering):
@@ -262,7 +265,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         s = s0 + (m + 0.5) * ds
         q = start + s[:, None] * direction
         h, mu_s, k, j, i = _point_geometry(q, consts)
-        beta_r, beta_a, t_sun, fu, fm = _gas_at(h, mu_s, consts)
+        beta_r, beta_a, t_sun, diffuse = _gas_at(h, mu_s, consts)
         if in_grid:
             v = trilinear(consts["volume"], k, j, i, outside)
             beta_sp = v[:, : len(SPECIES)]
@@ -282,7 +285,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         irradiance = t_sun * t_cloud[:, None]  # direct beam / E_TOA, lights the gas and aerosol (Eq. 3)
         if in_grid or multiple_scattering:
             # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a).
-            skylight = SKYLIGHT_SCALAR_FACTOR * _bilinear_table(consts["diffuse"], fu, fm) * t_cloud[:, None]
+            skylight = SKYLIGHT_SCALAR_FACTOR * diffuse * t_cloud[:, None]
         # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors.
         irradiance_h = irradiance + skylight if in_grid else irradiance
         beta_clear = beta_r + beta_a + beta_a3
@@ -346,8 +349,7 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     s_hit = jnp.where(state["hit"], state["hit_s"], bounds[:, 2])
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
-    _, _, t_sun, fu, fm = _gas_at(h, mu_s, consts)
-    diffuse = _bilinear_table(consts["diffuse"], fu, fm)
+    _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
     outside_t = jnp.ones(1, jnp.float32)
     t_cloud = trilinear(consts["volume"][..., -1:], k + 1.0, j, i, outside_t)[:, 0]
     albedo = bilinear_clamped(consts["albedo"], j, i)
@@ -416,10 +418,8 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
         "mu0": f32(sun[2]),
         "dh": f32(gas.dh),
         "top": f32(gas.top_m),
-        "beta_rayleigh": f32(gas.beta_rayleigh),
-        "beta_aerosol": f32(gas.beta_aerosol),
-        "sun_transmittance": f32(gas.sun_transmittance),
-        "diffuse": f32(gas.diffuse_horizontal),
+        "beta_gas": f32(np.concatenate([gas.beta_rayleigh, gas.beta_aerosol], axis=-1)),
+        "sky": f32(np.concatenate([gas.sun_transmittance, gas.diffuse_horizontal], axis=-1)),
         "angstrom": f32(gas.angstrom_factor),
         "aerosol_ssa": f32(gas.aerosol.ssa),
         "g_liquid": f32(G_LIQUID),
