@@ -20,7 +20,7 @@ from .color import DEFAULT_WHITE_LEVEL, SPACE_WHITE_LEVEL, solar_relative_to_srg
 from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD, WAVELENGTHS_NM
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
-from .geometry.cameras import PerspectiveCamera, fov_to_fit, look_at_angles, make_camera
+from .geometry.cameras import fov_to_fit, look_at_angles, make_camera
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.scene import validate_scene
 from .optics.rayleigh import rayleigh_phase_function

@@ -1,6 +1,5 @@
 """End-to-end renders on real and built-in scenes: geometry invariants, colour, outputs, bad input."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -62,7 +62,10 @@ def fit_grid_affine(x, y):
 
 
 def polynomial_features(u, v, xp=np):
-    """The 10 monomials of a cubic in (u, v), stacked on the last axis (``xp`` is numpy or jax.numpy)."""
+    """The 10 monomials of a cubic in (u, v) [-]: shape ``broadcast(u, v).shape + (10,)``.
+
+    ``xp`` is numpy or jax.numpy, so the same map serves the host and the kernels.
+    """
     return xp.stack([xp.ones_like(u), u, v, u * u, u * v, v * v, u * u * u, u * u * v, u * v * v, v * v * v], axis=-1)
 
 
