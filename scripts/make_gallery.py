@@ -54,6 +54,14 @@ def views(data: Path):
                            camera_options={"width": 512, "height": 512, "fov_deg": 40.0,
                                            "view_azimuth_deg": 0.0, "view_zenith_deg": 180.0},
                            caption="RICO cumulus seen from above: nadir view from 4 km, 40° field of view (north up)."),
+        "volcanic_twilight": dict(scene=lambda: swim.default_scene(), camera="panorama",
+                                  camera_options={"width": 1024, "height": 512}, sun_zenith=86.0, sun_azimuth=270.0,
+                                  aerosol=swim.AerosolBackground(stratospheric_aod_550=0.15),
+                                  caption="Built-in scene at sunset (sun 4° above the western horizon) under a volcanic "
+                                          "stratospheric sulfate layer of AOD 0.15 at 20 km (docs/aerosols.md, §7)."),
+        "clear_sky_sunset": dict(scene=lambda: swim.default_scene(), camera="panorama",
+                                 camera_options={"width": 1024, "height": 512}, sun_zenith=86.0, sun_azimuth=270.0,
+                                 caption="The same sunset without the stratospheric layer, for comparison."),
     }
 
 

@@ -3,7 +3,8 @@
 Physics after Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020.
 
 Public API: :func:`open_scene`, :func:`default_scene`, :func:`scene_from_arrays`, :func:`render`,
-:func:`write_png`, :func:`write_netcdf`.
+:func:`write_png`, :func:`write_netcdf`, :class:`AerosolBackground` (1-D and stratospheric aerosol),
+:class:`MarchSettings`, :func:`sky_irradiance` (GHI/DHI/DNI from an all-sky image).
 """
 
 import logging
@@ -22,6 +23,9 @@ _API = {
     "render": "swim.pipeline",
     "write_png": "swim.pipeline",
     "write_netcdf": "swim.pipeline",
+    "AerosolBackground": "swim.rt.gas",
+    "MarchSettings": "swim.rt.march",
+    "sky_irradiance": "swim.diagnostics.irradiance",
 }
 
 __all__ = sorted(_API) + ["__version__"]

@@ -191,7 +191,13 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene else AerosolBackground()
     elif isinstance(aerosol, str):
         aerosol = AerosolBackground(type_name=aerosol)
-    gas = build_gas_tables(aerosol)
+    # The scene-mean albedo reflects light back into the sky in the multiple-scattering table.
+    mean_albedo = volume["surface_albedo"].mean(dim=[d for d in volume["surface_albedo"].dims if d != "wavelength"])
+    # The mean column of a 3-D aerosol field joins the background aerosol in the multiple-scattering table.
+    aer3d = volume["aerosol_extinction"].mean(dim=("y", "x")).values.astype(float)
+    levels = float(volume.attrs["z_bottom"]) + float(volume.attrs["dz"]) * np.arange(aer3d.size)
+    gas = build_gas_tables(aerosol, surface_albedo=np.asarray(mean_albedo.values, dtype=float),
+                           scene_aerosol_profile=(levels, aer3d) if np.any(aer3d > 0) else None)
     consts = kernel_constants(volume, transmittance, gas, sun_scene)
     geometry = grid_geometry(volume)
 
@@ -204,6 +210,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "cos_view_zenith": all_dirs[:, 2],
         "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
         "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta)),
+        "p_stratospheric": np.asarray(aerosol.stratospheric.phase_function(cos_theta)),
     }
     log.info("tracing %d rays (%s camera %s)", len(all_dirs), camera, cam.shape)
     out = trace_rays(origins, all_dirs, consts, geometry, ray_phase, settings, progress)

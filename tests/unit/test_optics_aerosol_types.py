@@ -121,6 +121,7 @@ CLIMATOLOGY = {
     "smoke": ((0.60, 0.65), (0.85, 0.90), (1.8, 2.0)),  # Dubovik et al. 2002, biomass burning
     "continental": ((0.65, 0.70), (0.93, 0.97), (1.3, 1.5)),  # Dubovik 2002 urban-industrial; OPAC continental
     "sea_salt": ((0.75, 0.80), (0.99, 1.00), (0.3, 0.5)),  # Dubovik 2002 oceanic; Smirnov 2002; OPAC maritime
+    "stratospheric_sulfate": ((0.65, 0.75), (0.99, 1.00), (0.5, 1.5)),  # Russell et al. 1996 (Pinatubo)
 }
 
 
@@ -186,7 +187,7 @@ def test_lookup_names():
         assert t.name == name and t.reference and t.description
 
 
-@pytest.mark.parametrize("bad", ["volcanic", "", None, 3])
+@pytest.mark.parametrize("bad", ["volcanic_ash", "", None, 3])
 def test_unknown_name_lists_valid_names(bad):
     with pytest.raises(SwimInputError) as err:
         aerosol_type(bad)

@@ -280,3 +280,17 @@ def test_arf_conserves_energy_of_a_non_absorbing_cloud(mu0, lo, hi):
         r = np.asarray(jph.anisotropic_reflectance_factor_kokhanovsky2004(m, mu0, cos_theta))
     albedo = np.sum(r.mean(axis=1) * 2.0 * np.pi * mu * 0.5 * wm) / np.pi
     assert lo < albedo < hi
+
+
+def test_effective_phase_function_is_the_blend_of_the_thin_mixture_and_the_thick_function():
+    mu = np.linspace(-1.0, 1.0, 7)
+    tau, t, up = 3.0, 0.7, 0.5
+    weights = np.array([0.6, 0.1, 0.2, 0.1, 0.0])
+    c1 = float(jph.blend_coefficient(tau, t))
+    thin = np.asarray(jph.phase_thin_mixture(mu, tau, weights, 0.95))
+    expected = c1 * thin + (1 - c1) * np.asarray(jph.phase_thick(mu, up, c1))
+    got = np.asarray(jph.effective_phase_function(mu, up, tau, t, weights, 0.95))
+    np.testing.assert_allclose(got, expected, rtol=1e-5)
+    # a pure species gives its own thin function
+    liquid = np.asarray(jph.phase_thin_mixture(mu, tau, np.eye(5)[0], 0.95))
+    np.testing.assert_allclose(liquid, np.asarray(jph.phase_thin_cloud_liquid(mu, tau, 0.95)), rtol=1e-6)

@@ -37,7 +37,8 @@ def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), setting
     cos_theta = directions @ sun
     phase = {"cos_theta": cos_theta, "cos_view_zenith": directions[:, 2],
              "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)) * rayleigh_scattering,
-             "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta))}
+             "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta)),
+             "p_stratospheric": np.asarray(aerosol.stratospheric.phase_function(cos_theta))}
     out = trace_rays(origins, directions, consts, grid_geometry(volume), phase, settings)
     return out, (volume, transmittance, gas, phase)
 
@@ -53,12 +54,15 @@ def test_kernel_matches_numpy_reference_on_a_tiny_grid():
         origins.append(origin)
         dirs.append(enu_from_azimuth_zenith(az, zen))
     origins, dirs = np.array(origins), np.array(dirs)
-    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun)
+    # with a stratospheric aerosol layer, so that its extinction, source and diffuse source are compared too
+    aerosol = AerosolBackground(stratospheric_aod_550=0.2)
+    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun, aerosol=aerosol)
     assert out["tau_hydrometeor"].max() > 1.0, "the test rays must cross cloud"
     assert out["surface"].sum() >= 3, "some rays must reach the ground"
     for n in range(len(dirs)):
         ref = reference_trace_ray(origins[n], dirs[n], volume, transmittance, gas, sun,
-                                  phase["p_rayleigh"][n], phase["p_aerosol"][n], step_m=20.0)
+                                  phase["p_rayleigh"][n], phase["p_aerosol"][n], step_m=20.0,
+                                  p_stratospheric=phase["p_stratospheric"][n])
         assert out["surface"][n] == ref["surface"], f"ray {n}"
         assert out["tau_hydrometeor"][n] == pytest.approx(ref["tau_hydrometeor"], rel=0.03, abs=1e-3)
         np.testing.assert_allclose(out["tau_clear"][n], ref["tau_clear"], rtol=0.03)
@@ -133,3 +137,18 @@ def test_aerosol_sky_radiance_follows_its_phase_function(type_name):
     np.testing.assert_allclose(radiance[0] / radiance[1], phase["p_aerosol"][0] / phase["p_aerosol"][1], rtol=0.01)
     # Forward scattering dominates for aerosol: the view 10 deg from the sun is far brighter.
     assert np.all(radiance[0] > 3 * radiance[1])
+
+
+def test_stratospheric_layer_adds_its_optical_depth_and_light():
+    """A zenith ray through a stratospheric layer of AOD 0.2 gains exactly 0.2 x (lambda / 550)^-alpha of
+    optical depth (Gaussian profile normalised to the column), and the sky gets brighter."""
+    scene = _tiny_scene()
+    ground = np.array([[0.0, -3000.0, EARTH_RADIUS_M + 1.0]])
+    up = np.array([[0.0, 0.0, 1.0]])
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    base, _ = _trace(scene, ground, up, sun, aerosol=AerosolBackground())
+    strat = AerosolBackground(stratospheric_aod_550=0.2)
+    layer, _ = _trace(scene, ground, up, sun, aerosol=strat)
+    expected = 0.2 * strat.stratospheric.extinction_factor(np.array([615.0, 546.0, 450.0]))
+    np.testing.assert_allclose(layer["tau_clear"][0] - base["tau_clear"][0], expected, rtol=0.01)
+    assert np.all(layer["radiance_clear"][0] > base["radiance_clear"][0] * 1.1)

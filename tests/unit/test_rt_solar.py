@@ -7,7 +7,8 @@ from swim.constants import BACKSCATTER_FRACTION, HYDROMETEOR_DENSITY
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
-from swim.rt.solar import solar_transmittance, transmittance_stephens1978
+from swim.rt.solar import (ONE_MINUS_G_PER_BACKSCATTER, solar_transmittance, transmittance_delta_eddington,
+                            transmittance_stephens1978)
 
 RADIUS = 10e-6  # effective radius given explicitly so the extinction is known exactly (Eq. 7)
 
@@ -51,6 +52,50 @@ def test_transmittance_equations_4_to_6():
     t2 = 1 - b_tau * mu0 / (1 + b_tau * mu0)
     np.testing.assert_allclose(t, np.maximum(t1, t2 * mu0), rtol=1e-6)
     assert t[0] == 1.0
+
+
+# DISORT (32 streams) total transmittance T = (direct + diffuse down) / mu0 of a conservative Henyey-Greenstein
+# layer, g = 0.85, over a black surface: {(tau_vertical, mu0): T} (docs/rendering.md, "Overcast accuracy").
+DISORT_HG085 = {(1.0, 1.0): 0.9577, (5.0, 1.0): 0.7621, (20.0, 1.0): 0.3828, (50.0, 1.0): 0.1899,
+                (5.0, 0.866): 0.7113, (20.0, 0.866): 0.3513, (50.0, 0.866): 0.1742,
+                (1.0, 0.5): 0.8351, (5.0, 0.5): 0.5387, (20.0, 0.5): 0.2616, (50.0, 0.5): 0.1297}
+
+
+@pytest.mark.parametrize("tau_v,mu0", sorted(DISORT_HG085))
+def test_delta_eddington_transmittance_against_disort(tau_v, mu0):
+    tau_s = tau_v / mu0
+    b = BACKSCATTER_FRACTION["cloud_liquid"]
+    t = float(transmittance_delta_eddington(tau_s, b * tau_s, mu0))
+    assert t == pytest.approx(DISORT_HG085[(tau_v, mu0)], rel=0.06)
+
+
+def test_delta_eddington_transmittance_limits_and_sun_angle_dependence():
+    b = BACKSCATTER_FRACTION["cloud_liquid"]
+    tau_s = np.array([0.0, 0.01, 0.1, 1.0, 10.0, 100.0, 1000.0])
+    for mu0 in (1.0, 0.866, 0.5, 0.2, 0.01):
+        t = np.asarray(transmittance_delta_eddington(tau_s, b * tau_s, mu0))
+        assert t[0] == 1.0
+        assert np.all(t <= 1.0) and np.all(t > 0.0) and np.all(np.diff(t) < 0)
+    # thick layer: T -> (1/2 + 3 mu0/4) / ((3/4)(1 - g) tau_v), with 1 - g = (7/3) b, i.e. Eq. 4's
+    # mu0 / (b tau_v) at mu0 = 1/2 and (1/2 + 3 mu0/4) / (7 b tau_v / 4) elsewhere
+    tau_v = 1e4
+    for mu0 in (1.0, 0.5, 0.2):
+        t = float(transmittance_delta_eddington(tau_v / mu0, b * tau_v / mu0, mu0))
+        assert t == pytest.approx((0.5 + 0.75 * mu0) / (0.75 * ONE_MINUS_G_PER_BACKSCATTER * b * tau_v), rel=1e-3)
+    t_eq4 = float(transmittance_stephens1978(b * tau_v / 0.5, 0.5))
+    assert float(transmittance_delta_eddington(tau_v / 0.5, b * tau_v / 0.5, 0.5)) == pytest.approx(t_eq4, rel=1e-3)
+
+
+def test_solar_transmittance_is_the_delta_eddington_t_of_the_swept_depths():
+    scene, _ = _slab_scene()
+    volume = build_optical_volume(scene, dz=100.0)
+    zenith = 30.0
+    result = solar_transmittance(volume, enu_from_azimuth_zenith(200.0, zenith))
+    tau = result["tau_sun"].isel(level=2, y=20, x=20).values
+    b_tau = result["b_tau_sun"].isel(level=2, y=20, x=20).values
+    expected = float(transmittance_delta_eddington(tau, b_tau, np.cos(np.deg2rad(zenith))))
+    assert float(result["transmittance"].isel(level=2, y=20, x=20)) == pytest.approx(expected, rel=1e-5)
+    assert float(result["transmittance"].isel(level=-1, y=20, x=20)) == 1.0
 
 
 def test_isolated_cloud_shadow_falls_along_the_sun_direction():

@@ -19,6 +19,8 @@ from swim.optics.rayleigh import rayleigh_phase_function  # noqa: E402
 from swim.rt.gas import AerosolBackground, build_gas_tables  # noqa: E402
 from swim.rt.march import MarchSettings  # noqa: E402
 from swim.validation.disort import (  # noqa: E402
+    aerosol_layer_scene,
+    compare_space_clear,
     clear_sky_layers,
     compare_ground_sky,
     disort_clear_sky_radiance,
@@ -104,16 +106,17 @@ def test_toa_reciprocity():
 # (b) swim against DISORT
 # ---------------------------------------------------------------------------------------------------------
 CASES = {  # (aod, sun zenith): ceilings on median and p90 |rel. error| per wavelength (615, 546, 450)
-    # measured with the defaults (multiple_scattering=True): median / p90 [%]
-    (0.0, 30.0): ((14.7, 17.0, 22.1), (22.5, 23.7, 28.3)),
-    (0.0, 60.0): ((14.4, 17.2, 22.9), (18.3, 20.7, 26.6)),
-    (0.1, 30.0): ((12.3, 15.0, 20.8), (26.5, 28.2, 29.4)),
-    (0.1, 60.0): ((15.5, 18.3, 23.5), (26.1, 27.9, 29.8)),
-    (0.5, 30.0): ((12.2, 14.2, 17.7), (24.2, 26.0, 27.0)),
-    (0.5, 60.0): ((15.3, 15.7, 15.0), (28.8, 30.4, 34.3)),
+    # measured with the defaults (multiple scattering from the successive-orders table): median / p90 [%];
+    # the p90 of the thin red Rayleigh sky is the plane-parallel reference's horizon (docs/validation.md)
+    (0.0, 30.0): ((0.1, 0.1, 0.2), (6.5, 5.4, 2.8)),
+    (0.0, 60.0): ((0.1, 0.1, 0.1), (6.5, 5.5, 2.7)),
+    (0.1, 30.0): ((0.5, 0.5, 0.6), (2.5, 1.5, 1.0)),
+    (0.1, 60.0): ((0.4, 0.3, 0.3), (2.2, 1.8, 0.7)),
+    (0.5, 30.0): ((1.7, 1.9, 2.2), (4.6, 5.1, 5.4)),
+    (0.5, 60.0): ((0.5, 0.5, 0.4), (2.0, 2.1, 2.0)),
 }
-MARGIN_MEDIAN_PCT = 2.0  # percentage points above the measured value
-MARGIN_P90_PCT = 4.0
+MARGIN_MEDIAN_PCT = 1.0  # percentage points above the measured value
+MARGIN_P90_PCT = 2.0
 _results = {}
 
 
@@ -139,11 +142,32 @@ def test_swim_against_disort_ground(aod, sz):
     assert np.all(r["pearson_r"] > 0.97)  # the sky's angular structure (paper's camera metric)
 
 
-@pytest.mark.xfail(reason="issue 3 goal (median |err| <= 5 % against DISORT) not met yet: measured 12-24 %, "
-                          "docs/validation.md", strict=False)
 def test_issue_goal_median_5_percent():
+    """Issue 3 goal: median |relative error| of the clear sky <= 5 % at each wavelength."""
     worst = max(float(np.max(_case(aod, sz)["median_abs"])) for aod, sz in CASES)
     assert worst <= 0.05, f"worst median |err| {100 * worst:.1f} %"
+
+
+@pytest.mark.parametrize("aod, sz", list(CASES))
+def test_irradiance_within_3_percent(aod, sz):
+    """Issue 3 goal: GHI within 3 %. GHI from swim's all-sky image (exact pixel solid angles, direct beam
+    explicit) against DISORT's direct + diffuse flux; the diffuse part alone too (measured 0.3-1.4 %)."""
+    r = _case(aod, sz)
+    err = r["diffuse_horizontal_swim"] / r["diffuse_horizontal_disort"] - 1
+    assert np.all(np.abs(err) < 0.03), err
+    ghi_err = r["ghi_swim"] / r["ghi_disort"] - 1
+    assert np.all(np.abs(ghi_err) < 0.03), ghi_err
+
+
+def test_stratospheric_sulfate_layer_against_disort():
+    """A volcanic stratospheric layer (AOD 0.2 at 20 km) over the background aerosol: Step 2's 1-D
+    stratospheric variable (paper Sect. 3.3) against DISORT with the same layer."""
+    aer = AerosolBackground(aod_550=0.05, type_name="continental", stratospheric_aod_550=0.2)
+    r = compare_ground_sky(60.0, aer, n_streams=32)
+    print(f"\nstratospheric layer: median |err| {np.round(100 * r['median_abs'], 1)} % "
+          f"p90 {np.round(100 * r['p90_abs'], 1)} % GHI {np.round(100 * (r['ghi_swim'] / r['ghi_disort'] - 1), 2)} %")
+    assert np.all(r["median_abs"] < 0.05)
+    assert np.all(np.abs(r["ghi_swim"] / r["ghi_disort"] - 1) < 0.03)
 
 
 def test_swim_single_scattering_matches_plane_parallel_single_scattering():
@@ -178,3 +202,28 @@ def test_swim_single_scattering_matches_plane_parallel_single_scattering():
     # measured: median 1.6 / 1.2 / 0.4 %, max (view zenith <= 70°) 2.6 / 2.4 / 1.8 %
     assert np.all(np.median(np.abs(err), axis=0) < 0.025)
     assert np.all(np.abs(err[low]) < 0.04)
+
+
+@pytest.mark.parametrize("aod, sz", [(0.0, 30.0), (0.5, 60.0)])
+def test_swim_against_disort_from_space(aod, sz):
+    """Top-of-atmosphere radiance of the clear sea scene, nadir and 30°/60° off-nadir in three azimuths
+    (measured: max |error| 0.3 % Rayleigh, 1.3 % with AOD 0.5)."""
+    r = compare_space_clear(sz, AerosolBackground(aod_550=aod, type_name="continental"))
+    print(f"\nfrom space, AOD {aod} sun {sz}: median |err| {np.round(100 * r['median_abs'], 2)} % "
+          f"max {np.round(100 * r['max_abs'], 2)} %")
+    assert np.all(r["max_abs"] < 0.025)
+    assert np.all(r["median_abs"] < 0.015)
+
+
+def test_uniform_3d_smoke_layer_against_disort():
+    """A scene's 3-D aerosol field (smoke, AOD 1, uniform over 600 km) against DISORT with the same 1-D
+    aerosol: the kernel's single scattering lit through e^{-tau} of the 3-D aerosol towards the sun plus the
+    successive-orders table of the mean column (measured: median 0.4-0.7 %, GHI 0.2 %, space 0.6 %)."""
+    aer = AerosolBackground(aod_550=1.0, type_name="smoke")
+    scene = aerosol_layer_scene(aer)
+    no_background = AerosolBackground(aod_550=0.0, type_name="smoke")
+    r = compare_ground_sky(45.0, aer, scene=scene, render_aerosol=no_background, n_streams=32)
+    assert np.all(r["median_abs"] < 0.02)
+    assert np.all(np.abs(r["ghi_swim"] / r["ghi_disort"] - 1) < 0.02)
+    s = compare_space_clear(45.0, aer, scene=scene, render_aerosol=no_background, views=((0.0, 0.0), (60.0, 180.0)))
+    assert np.all(s["max_abs"] < 0.02)

@@ -51,9 +51,12 @@ def render(
     sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
     sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
     aerosol: str = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
-                                                    "sea_salt (docs/aerosols.md)."),
+                                                    "sea_salt, stratospheric_sulfate (docs/aerosols.md)."),
     aod: Optional[float] = typer.Option(None, help="Background aerosol optical depth at 550 nm (default 0.05; 0 "
                                                    "where the scene has a 3-D aerosol field)."),
+    strat_aod: float = typer.Option(0.0, "--strat-aod", help="Optical depth at 550 nm of a stratospheric "
+                                                             "(volcanic sulfate) aerosol layer at 20 km."),
+    strat_height: float = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km]."),
     white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
                                                              "4 above 100 km)."),
     steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
@@ -85,12 +88,13 @@ def render(
                 options["fov_deg"] = 60.0
             if view_azimuth is not None:
                 options.update(view_azimuth_deg=view_azimuth, view_zenith_deg=90.0 if view_zenith is None else view_zenith)
+        strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height}
         if aod is not None:
-            background = AerosolBackground(aod_550=aod, type_name=aerosol)
+            background = AerosolBackground(aod_550=aod, type_name=aerosol, **strat)
         elif "aerosol_extinction" in ds:
-            background = AerosolBackground(aod_550=0.0, type_name=aerosol)
+            background = AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
         else:
-            background = AerosolBackground(type_name=aerosol)
+            background = AerosolBackground(type_name=aerosol, **strat)
         target = None
         if look_at is not None:
             try:

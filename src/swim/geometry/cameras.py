@@ -283,6 +283,79 @@ class AllSkyCamera(Camera):
         col = np.where(ok, c - r_over_h * d[..., 0], np.nan)
         return row, col
 
+    def pixel_solid_angles(self, cosine_weighted: bool = False, upper_hemisphere: bool = False) -> np.ndarray:
+        """Exact solid angle of every pixel (the part of the pixel square inside the image circle).
+
+        In the image plane the equidistant projection has the solid-angle density
+        ``dOmega = k sin(k r) / r du dv`` (``k`` = :attr:`radians_per_pixel`, ``r`` the distance from the centre
+        in pixels), which is the exterior derivative of the 1-form ``(1 - cos(k r)) dphi``. By Stokes' theorem
+        the solid angle of a pixel square is the line integral of ``(1 - cos(k min(r, R))) dphi`` round its
+        edges (``R = size / 2``: the rim); the integral along every pixel edge is evaluated with Gauss-Legendre
+        quadrature, split where the edge crosses the rim (where the integrand has a kink), so the result is
+        exact to rounding, and because neighbouring pixels share edges the image sums to the solid angle of
+        the whole disc, ``2 pi (1 - cos(max_zenith))``. With ``cosine_weighted`` the 1-form is
+        ``sin^2(k min(r, R)) / 2 dphi`` and the result is the projected solid angle ``int cos(zenith) dOmega``
+        (the image sums to ``pi sin^2(max_zenith)``).
+
+        Parameters
+        ----------
+        cosine_weighted : bool, default False
+            Return ``int_pixel cos(zenith) dOmega`` [sr] instead of ``int_pixel dOmega`` [sr].
+        upper_hemisphere : bool, default False
+            Count only the part of each pixel above the horizon (zenith <= 90 deg); matters only for
+            ``max_zenith_deg > 90``.
+
+        Returns
+        -------
+        numpy.ndarray
+            float64, shape ``(size, size)`` [sr]; 0 for pixels wholly outside the image circle (or below the
+            horizon with ``upper_hemisphere``). Sums to 2 pi for the default camera (the upper hemisphere) and
+            to pi with ``cosine_weighted``.
+        """
+        k = self.radians_per_pixel
+        rim = self.size / 2.0
+        if upper_hemisphere or cosine_weighted:
+            # cos(zenith) dOmega is not a density below the horizon: the projected solid angle stops there.
+            rim = min(rim, (math.pi / 2.0) / k)
+
+        if cosine_weighted:
+            def g_over_r2(r):  # sin^2(k min(r, rim)) / 2 / r^2, finite at r = 0
+                rr = np.minimum(r, rim)
+                return 0.5 * np.where(r > 0, np.sin(k * rr) ** 2 / np.where(r > 0, r, 1.0) ** 2, k * k)
+        else:
+            def g_over_r2(r):  # (1 - cos(k min(r, rim))) / r^2 = 2 sin^2(k min(r, rim) / 2) / r^2
+                rr = np.minimum(r, rim)
+                return np.where(r > 0, 2.0 * np.sin(0.5 * k * rr) ** 2 / np.where(r > 0, r, 1.0) ** 2, 0.5 * k * k)
+
+        nodes, weights = np.polynomial.legendre.leggauss(16)
+        c = self.centre
+        lines = np.arange(self.size + 1, dtype=float) - 0.5 - c  # edge coordinates (pixels from the centre)
+        lo, hi = lines[:-1], lines[1:]
+
+        def edge_integrals(v):
+            """H[m, j] = int_{lo_j}^{hi_j} g(r) v_m / r^2 du along the lines v = v_m (shape (n + 1, n))."""
+            v = v[:, None]
+            a = np.broadcast_to(lo[None, :], (v.shape[0], lo.size))
+            b = np.broadcast_to(hi[None, :], (v.shape[0], hi.size))
+            # split points where the edge crosses the rim (|u| = sqrt(rim^2 - v^2))
+            s = np.sqrt(np.maximum(rim * rim - v * v, 0.0))
+            cuts = [a, np.clip(-s, a, b), np.clip(s, a, b), b]
+            total = np.zeros(a.shape)
+            for p, q in zip(cuts[:-1], cuts[1:]):
+                half = 0.5 * (q - p)
+                mid = 0.5 * (q + p)
+                u = mid[..., None] + half[..., None] * nodes
+                r = np.hypot(u, v[..., None])
+                total += half * np.sum(weights * g_over_r2(r) * v[..., None], axis=-1)
+            return total
+
+        h = edge_integrals(lines)  # horizontal edges: rows of lines (v), columns of pixels (u)
+        # Counter-clockwise in (u = col - c, v = row - c): the 1-form g dphi with dphi = (u dv - v du) / r^2.
+        # Horizontal edge v = const from u = a to b contributes -int g v / r^2 du; vertical edge u = const from
+        # v = a to b contributes +int g u / r^2 dv, which is h with the roles of u and v exchanged (h.T).
+        omega = (h[1:, :] - h[:-1, :]) + (h.T[:, 1:] - h.T[:, :-1])
+        return np.maximum(omega, 0.0)
+
     def to_attrs(self) -> dict[str, Any]:
         """See :meth:`Camera.to_attrs`."""
         attrs = self._base_attrs()
@@ -398,6 +471,33 @@ class PanoramaCamera(Camera):
         if self.azimuth_span_deg < 360.0:
             ok &= col <= self.width - 0.5 + eps
         return np.where(ok, row, np.nan), np.where(ok, col, np.nan)
+
+    def pixel_solid_angles(self, cosine_weighted: bool = False, upper_hemisphere: bool = False) -> np.ndarray:
+        """Exact solid angle of every pixel: ``dAz (sin el_top - sin el_bottom)`` [sr].
+
+        Parameters
+        ----------
+        cosine_weighted : bool, default False
+            Return the projected solid angle ``int_pixel cos(zenith) dOmega = dAz (sin^2 el_top -
+            sin^2 el_bottom) / 2`` [sr], counted above the horizon only.
+        upper_hemisphere : bool, default False
+            Count only the part of each pixel above the horizon (elevation >= 0).
+
+        Returns
+        -------
+        numpy.ndarray
+            float64, shape ``(height, width)`` [sr]; a full panorama sums to 4 pi (2 pi above the horizon, pi
+            cosine-weighted).
+        """
+        rows = np.arange(self.height + 1, dtype=float)
+        el = np.radians(self.elevation_max_deg - rows * self._deg_per_row)  # row edges, top to bottom
+        if upper_hemisphere or cosine_weighted:
+            el = np.maximum(el, 0.0)
+        if cosine_weighted:
+            band = 0.5 * (np.sin(el[:-1]) ** 2 - np.sin(el[1:]) ** 2)
+        else:
+            band = np.sin(el[:-1]) - np.sin(el[1:])
+        return np.repeat((band * math.radians(self._deg_per_col))[:, None], self.width, axis=1)
 
     def to_attrs(self) -> dict[str, Any]:
         """See :meth:`Camera.to_attrs`."""
@@ -540,6 +640,25 @@ class PerspectiveCamera(Camera):
         ok &= (row >= -0.5 - eps) & (row <= self.height - 0.5 + eps)
         ok &= (col >= -0.5 - eps) & (col <= self.width - 0.5 + eps)
         return np.where(ok, row, np.nan), np.where(ok, col, np.nan)
+
+    def pixel_solid_angles(self) -> np.ndarray:
+        """Exact solid angle of every pixel [sr].
+
+        A rectangle ``[x0, x1] x [y0, y1]`` on the image plane at focal distance ``F`` (pixels) subtends
+        ``S(x1, y1) - S(x0, y1) - S(x1, y0) + S(x0, y0)`` with ``S(x, y) = atan(x y / (F sqrt(F^2 + x^2 + y^2)))``
+        (the solid angle of a rectangle with a corner on the axis).
+
+        Returns
+        -------
+        numpy.ndarray
+            float64, shape ``(height, width)`` [sr].
+        """
+        fpx = self.focal_length_px
+        x = np.arange(self.width + 1, dtype=float) - 0.5 - (self.width - 1) / 2.0
+        y = np.arange(self.height + 1, dtype=float) - 0.5 - (self.height - 1) / 2.0
+        yy, xx = np.meshgrid(y, x, indexing="ij")
+        s = np.arctan(xx * yy / (fpx * np.sqrt(fpx * fpx + xx * xx + yy * yy)))
+        return np.abs(s[1:, 1:] - s[1:, :-1] - s[:-1, 1:] + s[:-1, :-1])
 
     def to_attrs(self) -> dict[str, Any]:
         """See :meth:`Camera.to_attrs`."""

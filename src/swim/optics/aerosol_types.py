@@ -252,6 +252,22 @@ _TYPES = (
         reference=f"AERONET urban-industrial climatology, {_DUBOVIK2002}; OPAC continental models, {_OPAC}",
     ),
     AerosolType(
+        name="stratospheric_sulfate",
+        g1=(0.69, 0.70, 0.71),
+        g2=(0.69, 0.70, 0.71),
+        fc=(1.0, 1.0, 1.0),
+        fb=(0.55, 0.55, 0.55),
+        ssa=(1.0, 1.0, 1.0),
+        angstrom_exponent=1.0,
+        description=(
+            "Stratospheric sulfuric-acid droplets of a volcanic (Junge) layer, effective radius ~0.4 um: single "
+            "DHG with g 0.70 at 546 nm, non-absorbing at visible wavelengths (omega 1), alpha 1.0. The default "
+            "type of the stratospheric 1-D aerosol of Step 2. Alias 'volcanic'."
+        ),
+        reference=("Russell et al. (1996), J. Geophys. Res. 101, 18745 (Pinatubo aerosol size and optics); "
+                   "Stenchikov et al. (1998), J. Geophys. Res. 103, 13837"),
+    ),
+    AerosolType(
         name="sea_salt",
         g1=(0.59, 0.60, 0.61),
         g2=(0.895, 0.900, 0.905),
@@ -277,6 +293,8 @@ AEROSOL_TYPE_ALIASES: dict[str, str] = {
     "maritime": "sea_salt",
     "marine": "sea_salt",
     "biomass_burning": "smoke",
+    "volcanic": "stratospheric_sulfate",
+    "sulfate": "stratospheric_sulfate",
 }
 
 

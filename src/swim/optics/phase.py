@@ -38,6 +38,9 @@ THICK_HIGH_NUMERATOR = 1.94
 KOKHANOVSKY_B1, KOKHANOVSKY_B2 = 1.48, 7.76
 #: Floor on cos z + cos z0 in the reflectance factor, to keep it finite at grazing sun and view [-].
 ARF_MIN_MU_SUM = 1e-3
+#: Floor on mu0 in :func:`diffuse_transmission_factor`: at low sun the skylight, whose transmitted flux does
+#: not scale with mu0, is ~10-20 % of the scalar irradiance (D / (t + 2D) with the clear-sky tables) [-].
+DIFFUSE_TRANSMISSION_MIN_MU0 = 0.15
 
 
 def henyey_greenstein(cos_theta, g):
@@ -404,7 +407,38 @@ def blend_coefficient(tau_o, irradiance_ratio):
     return jnp.exp(-((tau / 10.0) ** 2)) * jnp.clip(jnp.asarray(irradiance_ratio), 0.0, 1.0)
 
 
-def phase_thick(cos_theta, cos_view_zenith, c3):
+def diffuse_transmission_factor(cos_sun_zenith):
+    """Factor turning the Step 1a irradiance of a cloud base into its diffusely transmitted radiance (Eq. 21, c4 term).
+
+    Parameters
+    ----------
+    cos_sun_zenith : array_like
+        mu0 = cos z0 of the sun [-].
+
+    Returns
+    -------
+    jax.Array
+        (9/7) max(mu0, :data:`DIFFUSE_TRANSMISSION_MIN_MU0`) [-]: 1.11 at z0 = 30°, 0.64 at 60°.
+
+    Notes
+    -----
+    T of Eqs. 4-6 is Stephens' (1978) *flux* transmittance: the cloud passes the horizontal flux
+    F = mu0 T E_TOA (direct + diffuse; the ground term of the renderer uses it so). Below a thick cloud the
+    diffuse light leaves the base with the angular distribution of the escape function,
+    K(mu) = (3/7)(1 + 2 mu), normalised to 2 int K mu dmu = 1 (the (1 + 2 cos z)/3 of Eq. 20 is exactly this
+    shape), so L' = 4 pi I / E_TOA = 4 (F / E_TOA) K(mu) = 4 [(9/7) mu0 T] (1 + 2 cos z)/3. Eq. 21 as printed
+    multiplies 4 P_thick,l(z) by E/E_TOA ~ T instead, i.e. without the factor (9/7) mu0: 56 % too bright at
+    z0 = 60° and 11 % too dark at z0 = 30° against DISORT under a uniform stratus (docs/rendering.md,
+    "Overcast accuracy"; the paper's own overcast GHI was ~50 % too high). The skylight share of the
+    illumination does not scale with mu0; the floor keeps cloud bases lit at low sun.
+
+    Source: escape function of the asymptotic theory of thick layers (e.g. van de Hulst 1980, Multiple Light
+    Scattering, Vol. 2; Kokhanovsky 2006, Cloud Optics, Sect. 4); Stephens (1978), J. Atmos. Sci. 35, 2123.
+    """
+    return (9.0 / 7.0) * jnp.maximum(jnp.asarray(cos_sun_zenith), DIFFUSE_TRANSMISSION_MIN_MU0)
+
+
+def phase_thick(cos_theta, cos_view_zenith, c3, low_irradiance_factor=1.0):
     """Effective phase function of an optically thick cloud (paper Eq. 21).
 
     Parameters
@@ -415,19 +449,24 @@ def phase_thick(cos_theta, cos_view_zenith, c3):
         cos z of the view direction at the observer [-].
     c3 : array_like
         Weight of the sunlit part, :func:`blend_coefficient` [-], 0 ... 1.
+    low_irradiance_factor : array_like, optional
+        Multiplies the indirectly lit term, e.g. :func:`diffuse_transmission_factor` for views from below
+        [-]; default 1 (Eq. 21 as printed).
 
     Returns
     -------
     jax.Array
-        P_thick = 2 c3 P_thick,h(θ) + 4 (1 - c3) P_thick,l(z), broadcast shape.
+        P_thick = 2 c3 P_thick,h(θ) + 4 (1 - c3) f P_thick,l(z), broadcast shape.
 
     Source: paper Eqs. 21-23.
     """
     c3 = jnp.asarray(c3)
-    return 2.0 * c3 * phase_thick_high(cos_theta) + 4.0 * (1.0 - c3) * phase_thick_low(cos_view_zenith)
+    low = 4.0 * (1.0 - c3) * jnp.asarray(low_irradiance_factor) * phase_thick_low(cos_view_zenith)
+    return 2.0 * c3 * phase_thick_high(cos_theta) + low
 
 
-def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio, species_weights, g_liquid):
+def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio, species_weights, g_liquid,
+                             low_irradiance_factor=1.0):
     """Effective (multiple-scattering) phase function of a hydrometeor mixture (paper Eq. 13).
 
     Parameters
@@ -445,6 +484,8 @@ def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio
         (cloud_liquid, cloud_ice, rain, snow, graupel); they sum to 1 where there is cloud.
     g_liquid : array_like
         Cloud-liquid forward-peak asymmetry parameter at the wavelength (:data:`G_LIQUID`).
+    low_irradiance_factor : array_like, optional
+        Passed to :func:`phase_thick` (default 1: Eq. 21 as printed).
 
     Returns
     -------
@@ -464,6 +505,31 @@ def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio
     mu = jnp.asarray(cos_theta)
     tau = jnp.asarray(tau_o)
     c1 = blend_coefficient(tau, irradiance_ratio)
+    p_thin = phase_thin_mixture(mu, tau, species_weights, g_liquid)
+    return c1 * p_thin + (1.0 - c1) * phase_thick(mu, cos_view_zenith, c1, low_irradiance_factor)
+
+
+def phase_thin_mixture(cos_theta, tau_o, species_weights, g_liquid):
+    """τ-weighted mean of the per-species thin-cloud phase functions (Eqs. 18 and B1-B3), P_thin of Eq. 13.
+
+    Parameters
+    ----------
+    cos_theta, tau_o : array_like
+        cos θ [-] and the optical thickness along the backward ray [-], broadcastable (shape S).
+    species_weights : array_like
+        Shape S + (5,): τ-weighted species fractions in the order of :data:`swim.constants.SPECIES`.
+    g_liquid : array_like
+        Cloud-liquid forward-peak asymmetry parameter (:data:`G_LIQUID`).
+
+    Returns
+    -------
+    jax.Array
+        Σ_s w_s P_thin,s(θ, τ_o), shape S; mean 1 over the sphere where the weights sum to 1.
+
+    Source: paper Eqs. 13, 18 and B1-B3 (see :func:`effective_phase_function`).
+    """
+    mu = jnp.asarray(cos_theta)
+    tau = jnp.asarray(tau_o)
     thin_by_species = {
         "cloud_liquid": lambda: phase_thin_cloud_liquid(mu, tau, g_liquid),
         "cloud_ice": lambda: phase_thin_cloud_ice(mu, tau),
@@ -472,8 +538,7 @@ def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio
         "graupel": lambda: phase_thin_graupel(mu, tau),
     }
     thin = jnp.stack(jnp.broadcast_arrays(*[thin_by_species[s]() for s in SPECIES]), axis=-1)
-    p_thin = jnp.sum(jnp.asarray(species_weights) * thin, axis=-1)
-    return c1 * p_thin + (1.0 - c1) * phase_thick(mu, cos_view_zenith, c1)
+    return jnp.sum(jnp.asarray(species_weights) * thin, axis=-1)
 
 
 def cloud_albedo_stephens1978(tau, b):

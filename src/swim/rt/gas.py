@@ -10,11 +10,15 @@ that meets the earth has zero transmittance).
 
 Table layout (all float32 for the kernels):
 
-* ``beta_rayleigh``, ``beta_aerosol`` (n_h, 3) [m-1] on uniform heights ``0 .. 100 km`` (step ``dh``);
+* ``beta_rayleigh``, ``beta_aerosol``, ``beta_stratospheric`` (n_h, 3) [m-1] on uniform heights
+  ``0 .. 100 km`` (step ``dh``): molecules, the background aerosol and the stratospheric aerosol layer;
 * ``sun_transmittance`` (n_u, n_mu, 3) [-] on ``u = sqrt(h / H_top)`` (finer near the ground) and ``mu``
   uniform in [-1, 1];
 * ``diffuse_horizontal`` (n_u, n_mu, 3) [-]: diffuse sky irradiance on a horizontal surface relative to
-  E_TOA (a two-stream style single-scattering estimate, see :func:`diffuse_horizontal_estimate`).
+  E_TOA, all orders of scattering, from the successive-orders solution of
+  :mod:`swim.rt.multiple_scattering`;
+* ``diffuse_source``: that module's :class:`~swim.rt.multiple_scattering.DiffuseSourceTable`, the
+  directional source of the higher scattering orders that the ray march adds to Eq. 3.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import jax
 import numpy as np
 
 from ..constants import ATMOSPHERE_TOP_M, DEFAULT_AEROSOL, EARTH_RADIUS_M, WAVELENGTHS_NM
@@ -29,7 +34,8 @@ from ..optics.aerosol import exponential_aerosol_extinction
 from ..errors import SwimInputError
 from ..optics.aerosol_types import aerosol_type
 from ..optics.atmosphere import us_standard_atmosphere_1976
-from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio
+from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio, rayleigh_phase_function
+from .multiple_scattering import DiffuseSourceTable, diffuse_source_table
 
 
 @dataclass(frozen=True)
@@ -45,23 +51,43 @@ class AerosolBackground:
     type_name : str
         Aerosol type (:data:`swim.optics.aerosol_types.AEROSOL_TYPES`): phase function (Eq. 28), spectral
         single-scattering albedo and Angstrom exponent; also used for a scene's 3-D aerosol field.
+    stratospheric_aod_550 : float
+        Optical depth at 550 nm of the stratospheric aerosol layer [-], >= 0 (paper Sect. 3.3: "a 1D
+        stratospheric variable" for Step 2). Default 0 (background stratosphere neglected).
+    stratospheric_height_m : float
+        Height of the layer's peak [m], 10-50 km (default 20 km, the Junge layer).
+    stratospheric_width_m : float
+        Gaussian standard deviation of the layer [m], 0.5-15 km (default 3 km).
+    stratospheric_type : str
+        Aerosol type of the layer (default ``stratospheric_sulfate``).
 
     Raises
     ------
     SwimInputError
-        Negative AOD, non-positive scale height or an unknown type.
+        Negative AOD, non-positive scale height, a stratospheric layer out of range or an unknown type.
     """
 
     aod_550: float = DEFAULT_AEROSOL["aod_550"]
     scale_height_m: float = DEFAULT_AEROSOL["scale_height_m"]
     type_name: str = DEFAULT_AEROSOL["type"]
+    stratospheric_aod_550: float = 0.0
+    stratospheric_height_m: float = 20_000.0
+    stratospheric_width_m: float = 3_000.0
+    stratospheric_type: str = "stratospheric_sulfate"
 
     def __post_init__(self):
         if not (np.isfinite(self.aod_550) and self.aod_550 >= 0):
             raise SwimInputError(f"aerosol optical depth at 550 nm must be >= 0, got {self.aod_550}")
         if not (np.isfinite(self.scale_height_m) and self.scale_height_m > 0):
             raise SwimInputError(f"aerosol scale height must be > 0 m, got {self.scale_height_m}")
+        if not (np.isfinite(self.stratospheric_aod_550) and self.stratospheric_aod_550 >= 0):
+            raise SwimInputError(f"stratospheric aerosol optical depth at 550 nm must be >= 0, got {self.stratospheric_aod_550}")
+        if not (10_000.0 <= self.stratospheric_height_m <= 50_000.0):
+            raise SwimInputError(f"stratospheric aerosol peak height must be 10000-50000 m, got {self.stratospheric_height_m}")
+        if not (500.0 <= self.stratospheric_width_m <= 15_000.0):
+            raise SwimInputError(f"stratospheric aerosol layer width must be 500-15000 m, got {self.stratospheric_width_m}")
         object.__setattr__(self, "type_name", aerosol_type(self.type_name).name)
+        object.__setattr__(self, "stratospheric_type", aerosol_type(self.stratospheric_type).name)
 
     @property
     def type(self):
@@ -73,6 +99,24 @@ class AerosolBackground:
         """Single-scattering albedo (3,) at 615/546/450 nm [-]."""
         return np.asarray(self.type.ssa, dtype=float)
 
+    @property
+    def stratospheric(self):
+        """The :class:`swim.optics.aerosol_types.AerosolType` of the stratospheric layer."""
+        return aerosol_type(self.stratospheric_type)
+
+    def stratospheric_extinction(self, heights_m, wavelengths_nm=WAVELENGTHS_NM):
+        """Extinction coefficient of the stratospheric layer (n_h, C) [m-1] at heights [m].
+
+        A Gaussian in height whose integral over 0-100 km is ``stratospheric_aod_550``, scaled to the
+        wavelengths with the type's Angstrom exponent.
+        """
+        h = np.asarray(heights_m, dtype=float)
+        shape = np.exp(-0.5 * ((h - self.stratospheric_height_m) / self.stratospheric_width_m) ** 2)
+        fine = np.linspace(0.0, ATMOSPHERE_TOP_M, 20001)
+        norm = np.trapezoid(np.exp(-0.5 * ((fine - self.stratospheric_height_m) / self.stratospheric_width_m) ** 2), fine)
+        factor = np.asarray(self.stratospheric.extinction_factor(np.asarray(wavelengths_nm, float)), dtype=float)
+        return (self.stratospheric_aod_550 * shape / norm)[:, None] * factor[None, :]
+
 
 @dataclass(frozen=True)
 class GasTables:
@@ -81,6 +125,7 @@ class GasTables:
     dh: float
     beta_rayleigh: np.ndarray
     beta_aerosol: np.ndarray
+    beta_stratospheric: np.ndarray
     n_u: int
     n_mu: int
     sun_transmittance: np.ndarray
@@ -88,6 +133,8 @@ class GasTables:
     depolarization: float
     aerosol: AerosolBackground
     angstrom_factor: np.ndarray
+    diffuse_source: DiffuseSourceTable
+    surface_albedo: tuple
     top_m: float = ATMOSPHERE_TOP_M
 
 
@@ -109,29 +156,28 @@ def _slant_optical_depth(h, mu, heights, beta, top, radius, n_steps=400):
     return tau
 
 
-def diffuse_horizontal_estimate(mu_s, tau_rayleigh, tau_aerosol, aerosol_ssa):
-    """Clear-sky diffuse horizontal irradiance relative to E_TOA [-], a single-scattering estimate.
+@functools.partial(jax.jit, static_argnums=0)
+def _aerosol_phase(aerosol_type, cos_theta):
+    """The aerosol type's Eq. 28 phase function, compiled once per type and input shape."""
+    return aerosol_type.phase_function(cos_theta)
 
-    Half of the Rayleigh-scattered and ~75 % of the (forward-peaked) aerosol-scattered direct beam reach
-    the ground: ``mu_s [0.5 (1 - e^{-tau_R/mu_s}) + 0.75 omega (1 - e^{-tau_A/mu_s})]``. Used only to light
-    the ground (Eq. 35 with ARF = 1); multiple scattering is left to issue 3.
 
-    Parameters
-    ----------
-    mu_s : numpy.ndarray
-        Cosine of the solar zenith angle [-]; no diffuse light for mu_s <= 0.
-    tau_rayleigh, tau_aerosol : numpy.ndarray
-        Vertical optical depths above the point [-], broadcastable with mu_s.
-    aerosol_ssa : float or numpy.ndarray
-        Aerosol single-scattering albedo [-] (per wavelength on the last axis).
-    """
-    mu = np.maximum(mu_s, 1e-3)
-    d = mu * (0.5 * (1 - np.exp(-tau_rayleigh / mu)) + 0.75 * aerosol_ssa * (1 - np.exp(-tau_aerosol / mu)))
-    return np.where(mu_s > 0, d, 0.0)
+@jax.jit
+def _rayleigh_phase(cos_theta, depolarization):
+    return rayleigh_phase_function(cos_theta, depolarization)
+
+
+def _surface_albedo3(surface_albedo):
+    """(3,) tuple of albedos rounded to 0.005 (the cache key of the tables)."""
+    a = np.broadcast_to(np.asarray(surface_albedo, dtype=float), (3,))
+    if not np.all(np.isfinite(a)) or np.any(a < 0) or np.any(a > 1):
+        raise SwimInputError(f"surface albedo for the clear-sky tables must be in [0, 1]; got {a}")
+    return tuple(float(x) for x in np.round(a / 0.005) * 0.005)
 
 
 def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengths_nm=WAVELENGTHS_NM,
-                     dh=100.0, n_u=96, n_mu=512, radius=EARTH_RADIUS_M) -> GasTables:
+                     dh=100.0, n_u=96, n_mu=512, radius=EARTH_RADIUS_M, surface_albedo=0.1,
+                     scene_aerosol_profile=None) -> GasTables:
     """Build the Step 2 clear-atmosphere tables.
 
     Parameters
@@ -146,10 +192,23 @@ def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengt
         Size of the transmittance tables in sqrt-height and mu.
     radius : float
         Earth radius [m].
+    surface_albedo : float or array_like
+        Lambertian albedo of the ground (scalar or (3,), the scene mean) that reflects light back into the
+        sky in the multiple-scattering solution [-], in [0, 1]; rounded to 0.005.
+    scene_aerosol_profile : tuple of numpy.ndarray, optional
+        (heights [m], extinction at 550 nm [m-1]) of the horizontal mean of the scene's 3-D aerosol field.
+        It joins the background aerosol in the multiple-scattering solution only (the kernel has the 3-D
+        field itself), so that the diffuse light of a hazy or smoky scene is that of its mean aerosol
+        column. Rounded to 3 significant digits (the cache key).
 
     Returns
     -------
     GasTables
+
+    Raises
+    ------
+    SwimInputError
+        Albedo outside [0, 1].
 
     References
     ----------
@@ -157,11 +216,27 @@ def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengt
     US Standard Atmosphere (1976).
     """
     wl = tuple(float(w) for w in np.atleast_1d(wavelengths_nm))
-    return _build_gas_tables_cached(aerosol, wl, float(dh), int(n_u), int(n_mu), float(radius))
+    return _build_gas_tables_cached(aerosol, wl, float(dh), int(n_u), int(n_mu), float(radius),
+                                    _surface_albedo3(surface_albedo), _profile_key(scene_aerosol_profile))
+
+
+def _profile_key(profile):
+    """Hashable, rounded (heights, extinction) of a mean aerosol profile; None when absent or all zero."""
+    if profile is None:
+        return None
+    h, beta = (np.asarray(a, dtype=float).ravel() for a in profile)
+    if h.shape != beta.shape or h.size < 2 or np.any(~np.isfinite(h)) or np.any(np.diff(h) <= 0):
+        raise SwimInputError("scene_aerosol_profile must be (heights [m] increasing, extinction [m-1]) of equal length")
+    if np.any(~np.isfinite(beta)) or np.any(beta < 0):
+        raise SwimInputError("scene aerosol extinction profile must be finite and >= 0 [m-1]")
+    if not np.any(beta > 0):
+        return None
+    return tuple(float(x) for x in np.round(h, 1)), tuple(float(f"{x:.3g}") for x in beta)
 
 
 @functools.lru_cache(maxsize=8)
-def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius) -> GasTables:
+def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_albedo,
+                             scene_profile=None) -> GasTables:
     """Cached worker of :func:`build_gas_tables` (the tables depend only on these arguments)."""
     wl = np.asarray(wavelengths_nm, dtype=float)
     heights = np.arange(0.0, ATMOSPHERE_TOP_M + dh / 2, dh)
@@ -170,7 +245,8 @@ def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius) -> 
     beta_r = number_density[:, None] * sigma[None, :]
     factor = np.asarray(aerosol.type.extinction_factor(wl), dtype=float)
     beta_a = np.asarray(exponential_aerosol_extinction(heights, aerosol.aod_550, aerosol.scale_height_m))[:, None] * factor[None, :]
-    beta = beta_r + beta_a
+    beta_s = aerosol.stratospheric_extinction(heights, wl)
+    beta = beta_r + beta_a + beta_s
 
     u = np.linspace(0.0, 1.0, n_u)
     hu = ATMOSPHERE_TOP_M * u**2
@@ -179,22 +255,45 @@ def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius) -> 
     tau = _slant_optical_depth(H, M, heights, beta, ATMOSPHERE_TOP_M, radius)
     transmittance = np.exp(-tau)
 
-    # Vertical optical depths above each table height, for the diffuse estimate.
-    col_r = np.cumsum((beta_r * dh)[::-1], axis=0)[::-1]
-    col_a = np.cumsum((beta_a * dh)[::-1], axis=0)[::-1]
-    tr = np.stack([np.interp(hu, heights, col_r[:, c]) for c in range(3)], axis=-1)
-    ta = np.stack([np.interp(hu, heights, col_a[:, c]) for c in range(3)], axis=-1)
-    diffuse = diffuse_horizontal_estimate(M[..., None], tr[:, None, :], ta[:, None, :], aerosol.ssa)
+    # Multiple scattering: successive orders in the plane-parallel equivalent of this atmosphere.
+    depolarization = float(np.mean(rayleigh_depolarization_ratio(wl)))
+    beta_a_ms = beta_a
+    if scene_profile is not None:
+        mean3d = np.interp(heights, scene_profile[0], scene_profile[1], left=0.0, right=0.0)
+        beta_a_ms = beta_a + mean3d[:, None] * factor[None, :]
+    source = diffuse_source_table(
+        heights, [beta_r, beta_a_ms, beta_s], [np.ones(3), aerosol.ssa, np.asarray(aerosol.stratospheric.ssa, float)],
+        [lambda c: _rayleigh_phase(np.asarray(c, np.float32), depolarization),
+         lambda c: _aerosol_phase(aerosol.type, np.asarray(c, np.float32)),
+         lambda c: _aerosol_phase(aerosol.stratospheric, np.asarray(c, np.float32))],
+        surface_albedo, ATMOSPHERE_TOP_M)
+    # Its downward diffuse irradiance on the transmittance grid (bilinear in u and sqrt(mu_s); 0 below the horizon).
+    fu = np.interp(u, source.u, np.arange(source.u.size))
+    fs = np.interp(np.sqrt(np.clip(mu, 0.0, 1.0)), source.t_s, np.arange(source.t_s.size))
+    diffuse = np.stack([_bilinear(source.diffuse_down[..., c], fu, fs) for c in range(3)], axis=-1)
 
     return GasTables(
         dh=dh,
         beta_rayleigh=beta_r.astype(np.float32),
         beta_aerosol=beta_a.astype(np.float32),
+        beta_stratospheric=beta_s.astype(np.float32),
         n_u=n_u,
         n_mu=n_mu,
         sun_transmittance=transmittance.astype(np.float32),
         diffuse_horizontal=diffuse.astype(np.float32),
-        depolarization=float(np.mean(rayleigh_depolarization_ratio(wl))),
+        depolarization=depolarization,
         aerosol=aerosol,
         angstrom_factor=factor.astype(np.float32),
+        diffuse_source=source,
+        surface_albedo=surface_albedo,
     )
+
+
+def _bilinear(table, fu, fv):
+    """table (n_u, n_v) at fractional indices fu (n,) x fv (m,) -> (n, m)."""
+    u0 = np.clip(np.floor(fu).astype(int), 0, table.shape[0] - 2)
+    v0 = np.clip(np.floor(fv).astype(int), 0, table.shape[1] - 2)
+    a = (fu - u0)[:, None]
+    b = (fv - v0)[None, :]
+    return (table[u0][:, v0] * (1 - a) * (1 - b) + table[u0 + 1][:, v0] * a * (1 - b)
+            + table[u0][:, v0 + 1] * (1 - a) * b + table[u0 + 1][:, v0 + 1] * a * b)

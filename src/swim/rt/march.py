@@ -4,10 +4,11 @@ Each pixel's ray is marched once, from where it enters the atmosphere (or the ob
 leaves the atmosphere (100 km) or meets the ground, in three segments with fixed step counts: clear air
 before the model grid, the grid, and clear air after it. Along the way the kernel accumulates
 
-* the clear-sky single-scattering radiance of the gas and the aerosol (Step 2, Eq. 3), lit by the sun
+* the clear-sky radiance of the gas and the aerosol: single scattering (Step 2, Eq. 3), lit by the sun
   through the spherical atmosphere (tabulated, :mod:`swim.rt.gas`) and through the clouds (T of Step 1a,
-  so cloud shadows fall on the air as well), and attenuated towards the observer by gas, aerosol *and*
-  hydrometeors;
+  so cloud shadows fall on the air as well), plus the higher orders from the precomputed directional
+  diffuse source (:mod:`swim.rt.multiple_scattering`), attenuated towards the observer by gas, aerosol
+  *and* hydrometeors;
 * for the hydrometeors (Step 1b): the optical depth tau_o per species and the integral of Eq. 12,
   ``int_0^l (E/E_TOA) e^{-tau_o} dtau_o`` with l = min(2, tau_o), both with and without the gas
   attenuation between the observer and the cloud;
@@ -39,10 +40,13 @@ from ..optics.volume import grid_indices
 from ..optics.phase import (
     G_LIQUID,
     anisotropic_reflectance_factor_kokhanovsky2004,
-    cloud_albedo_stephens1978,
+    blend_coefficient,
+    diffuse_transmission_factor,
     effective_phase_function,
+    phase_thin_mixture,
 )
 from .gas import GasTables
+from .solar import transmittance_delta_eddington
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +55,9 @@ log = logging.getLogger(__name__)
 #: Scalar irradiance of isotropic diffuse light from the upper hemisphere per unit horizontal irradiance
 #: (2 pi L against pi L).
 SKYLIGHT_SCALAR_FACTOR = 2.0
-#: Channel layout of the packed volume: 5 species extinctions, 3-D aerosol extinction, Step 1a T.
-N_CHANNELS = len(SPECIES) + 2
+#: Channel layout of the packed volume: 5 species extinctions, 3-D aerosol extinction, the 3-D aerosol's
+#: optical depth towards the sun (550 nm), Step 1a T (last).
+N_CHANNELS = len(SPECIES) + 3
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
 #: "seen from above" (Eq. 26) treatment of clouds.
 FROM_ABOVE_BLEND = 0.1
@@ -75,8 +80,8 @@ class MarchSettings:
         machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096 or 8192, 4.2 s
         with 2048 and 6.1 s with 1024 (benchmarks/, docs/rendering.md).
     multiple_scattering : bool
-        Add the isotropic-diffuse estimate of higher scattering orders to the clear-sky source
-        (docs/rendering.md); False gives pure single scattering (Eq. 3).
+        Add the directional source of the higher scattering orders (:mod:`swim.rt.multiple_scattering`)
+        to the clear-sky source (docs/rendering.md); False gives pure single scattering (Eq. 3).
     """
 
     n_before: int = 48
@@ -244,20 +249,69 @@ def _point_geometry(q, consts):
 def _gas_at(h, mu_s, consts):
     """Clear-atmosphere quantities at heights h [m] and local solar-zenith cosines mu_s.
 
-    Returns the Rayleigh and background-aerosol extinction (n, 3) [m-1] (one lookup in a joint height
-    table), and the sun transmittance and horizontal diffuse irradiance / E_TOA (n, 3) each (one
-    bilinear lookup in the joint (height, mu_s) table).
+    Returns the Rayleigh, background-aerosol and stratospheric-aerosol extinction (n, 3) [m-1] (one
+    lookup in a joint height table), and the sun transmittance and horizontal diffuse irradiance / E_TOA
+    (n, 3) each (one bilinear lookup in the joint (height, mu_s) table).
     """
     beta = _lerp_table(consts["beta_gas"], h / consts["dh"])
     nu, nmu = consts["sky"].shape[:2]
     fu = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (nu - 1)
     fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
     sky = _bilinear_table(consts["sky"], fu, fm)
-    return beta[:, :3], beta[:, 3:], sky[:, :3], sky[:, 3:]
+    return beta[:, :3], beta[:, 3:6], beta[:, 6:], sky[:, :3], sky[:, 3:]
 
 
-def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts, multiple_scattering):
-    """Accumulate one ray segment with n_steps midpoint steps (see module docstring)."""
+def diffuse_source_profiles(start, direction, bounds, consts):
+    """Per-ray height profiles of the diffuse (multiple-scattering) source, (n, n_u, 9).
+
+    The table of :mod:`swim.rt.multiple_scattering` depends on the local sun and view cosines and the
+    relative azimuth, which change along a ray only through the curvature of the earth. Each ray takes them
+    at its lowest point in the atmosphere (the observer for upward views, the ground for downward ones, the
+    tangent point for limb views), where most of its scattering happens, and keeps the height dependence.
+    """
+    radius = consts["radius"]
+    pz = start[:, 2] + radius
+    # Distance to the ray's closest approach to the earth's centre, clipped to the traced segment.
+    s_low = jnp.clip(-(start[:, 0] * direction[:, 0] + start[:, 1] * direction[:, 1] + pz * direction[:, 2]),
+                     0.0, bounds[:, 2])
+    q = jnp.stack([start[:, 0] + s_low * direction[:, 0], start[:, 1] + s_low * direction[:, 1],
+                   pz + s_low * direction[:, 2]], axis=1)
+    up = q / jnp.linalg.norm(q, axis=1, keepdims=True)
+    sun = consts["sun"]
+    mu_v = jnp.sum(up * direction, axis=1)
+    mu_s = up @ sun
+    cos_phi = (direction @ sun - mu_v * mu_s) / jnp.sqrt(jnp.maximum((1 - mu_v**2) * (1 - mu_s**2), 1e-12))
+    table = consts["ms_source"]  # (n_s, n_v, n_phi, n_u, 9)
+    n_s, n_v, n_phi = table.shape[:3]
+    fs = jnp.clip(jnp.sqrt(jnp.clip(mu_s, 0.0, 1.0)) * (n_s - 1), 0.0, n_s - 1.001)
+    fv = jnp.clip((mu_v + 1.0) * 0.5 * (n_v - 1), 0.0, n_v - 1.001)
+    fp = jnp.clip(jnp.arccos(jnp.clip(cos_phi, -1.0, 1.0)) / jnp.pi * (n_phi - 1), 0.0, n_phi - 1.001)
+    s0, v0, p0 = (jnp.floor(f).astype(jnp.int32) for f in (fs, fv, fp))
+    ws, wv, wp = ((f - jnp.floor(f))[:, None, None] for f in (fs, fv, fp))
+    profile = 0.0
+    for ds, a in ((0, 1 - ws), (1, ws)):
+        for dv, b in ((0, 1 - wv), (1, wv)):
+            for dp, c in ((0, 1 - wp), (1, wp)):
+                profile = profile + table[s0 + ds, v0 + dv, p0 + dp] * (a * b * c)
+    return profile
+
+
+def _profile_at(profile, h, consts):
+    """Linear interpolation of per-ray profiles (n, n_u, C) on u = sqrt(h / H_top) at heights h (n,)."""
+    n_u = profile.shape[1]
+    f = jnp.clip(jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (n_u - 1), 0.0, n_u - 1.001)
+    i0 = jnp.floor(f).astype(jnp.int32)
+    w = (f - i0)[:, None]
+    rows = jnp.arange(profile.shape[0])
+    return profile[rows, i0] * (1 - w) + profile[rows, i0 + 1] * w
+
+
+def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts, ms_profile):
+    """Accumulate one ray segment with n_steps midpoint steps (see module docstring).
+
+    ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only.
+    """
+    multiple_scattering = ms_profile is not None
     outside = jnp.concatenate([jnp.zeros(N_CHANNELS - 1), jnp.ones(1)]).astype(jnp.float32)
 
     def body(m, st):
@@ -265,12 +319,14 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         s = s0 + (m + 0.5) * ds
         q = start + s[:, None] * direction
         h, mu_s, k, j, i = _point_geometry(q, consts)
-        beta_r, beta_a, t_sun, diffuse = _gas_at(h, mu_s, consts)
+        beta_r, beta_a, beta_s, t_sun, diffuse = _gas_at(h, mu_s, consts)
         if in_grid:
             v = trilinear(consts["volume"], k, j, i, outside)
             beta_sp = v[:, : len(SPECIES)]
             beta_a3 = v[:, len(SPECIES) : len(SPECIES) + 1] * consts["angstrom"][None, :]
             t_cloud = v[:, -1]
+            # Direct beam through the 3-D aerosol towards the sun (Angstrom-scaled from 550 nm).
+            t_aerosol = jnp.exp(-v[:, len(SPECIES) + 1 : len(SPECIES) + 2] * consts["angstrom"][None, :])
             gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
             hit_now = st["alive"] & (gap < 0)
             frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
@@ -278,27 +334,32 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             beta_sp = jnp.zeros((q.shape[0], len(SPECIES)), jnp.float32)
             beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
             t_cloud = jnp.ones(q.shape[0], jnp.float32)
+            t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
             gap = st["gap"]
             hit_now = jnp.zeros(q.shape[0], bool)
             frac = jnp.ones(q.shape[0], jnp.float32)
         ds_eff = ds * frac * st["alive"]
-        irradiance = t_sun * t_cloud[:, None]  # direct beam / E_TOA, lights the gas and aerosol (Eq. 3)
-        if in_grid or multiple_scattering:
+        # direct beam / E_TOA, lights the gas and aerosol (Eq. 3): gas, hydrometeors (T), 3-D aerosol
+        irradiance = t_sun * t_cloud[:, None] * t_aerosol
+        if in_grid:
             # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a).
             skylight = SKYLIGHT_SCALAR_FACTOR * diffuse * t_cloud[:, None]
         # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors.
         irradiance_h = irradiance + skylight if in_grid else irradiance
-        beta_clear = beta_r + beta_a + beta_a3
+        beta_clear = beta_r + beta_a + beta_a3 + beta_s
         beta_h = beta_sp.sum(axis=1)
         x = (beta_clear + beta_h[:, None]) * ds_eff[:, None]
         step_mean = jnp.where(x > 1e-4, -jnp.expm1(-x) / jnp.maximum(x, 1e-30), 1.0 - 0.5 * x)
         t_obs = jnp.exp(-(st["tau_clear"] + st["tau_h"][:, None]))
-        source = (beta_r * rays["p_rayleigh"][:, None]
-                  + (beta_a + beta_a3) * consts["aerosol_ssa"] * rays["p_aerosol"]) * irradiance
+        scat_a = (beta_a + beta_a3) * consts["aerosol_ssa"]
+        scat_s = beta_s * consts["stratospheric_ssa"]
+        source = (beta_r * rays["p_rayleigh"][:, None] + scat_a * rays["p_aerosol"]
+                  + scat_s * rays["p_stratospheric"]) * irradiance
         if multiple_scattering:
-            # Higher orders: the diffuse field taken as isotropic, so the phase function averages to 1 and
-            # the source is the scattering coefficient times the diffuse scalar irradiance (L' units).
-            source = source + (beta_r + (beta_a + beta_a3) * consts["aerosol_ssa"]) * skylight
+            # Orders >= 2: the diffuse source of the successive-orders table (molecules, aerosol,
+            # stratospheric aerosol), dimmed under clouds by their transmittance like the skylight.
+            j = _profile_at(ms_profile, h, consts)
+            source = source + (beta_r * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * t_cloud[:, None]
         l_clear = st["l_clear"] + t_obs * source * (ds_eff[:, None] * step_mean)
         # Eq. 12 integrand over the first two optical depths of hydrometeors.
         t0 = st["tau_h"]
@@ -337,7 +398,7 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         "gap": jnp.full(n, 1e9, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)
-    ms = settings.multiple_scattering
+    ms = diffuse_source_profiles(start, direction, bounds, consts) if settings.multiple_scattering else None
     state = _march_segment(state, start, direction, zero, bounds[:, 0], settings.n_before, False, rays, consts, ms)
     state = _march_segment(state, start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, True, rays,
                            consts, ms)
@@ -349,12 +410,23 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     s_hit = jnp.where(state["hit"], state["hit_s"], bounds[:, 2])
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
-    _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
-    outside_t = jnp.ones(1, jnp.float32)
-    t_cloud = trilinear(consts["volume"][..., -1:], k + 1.0, j, i, outside_t)[:, 0]
+    _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
+    outside_t = jnp.array([0.0, 1.0], jnp.float32)
+    above = trilinear(consts["volume"][..., -2:], k + 1.0, j, i, outside_t)
+    t_cloud = above[:, 1]
+    t_aerosol = jnp.exp(-above[:, :1] * consts["angstrom"][None, :])
     albedo = bilinear_clamped(consts["albedo"], j, i)
-    e_horizontal = (jnp.maximum(mu_s, 0.0)[:, None] * t_sun + diffuse) * t_cloud[:, None]
-    transmit = jnp.exp(-(state["tau_clear"] + state["tau_h"][:, None]))
+    e_horizontal = (jnp.maximum(mu_s, 0.0)[:, None] * t_sun * t_aerosol + diffuse) * t_cloud[:, None]
+    # Seen from above, the Lambertian ground under a cloud layer shines through the layer's total (direct +
+    # diffuse) transmittance at the view angle (reciprocity), the same delta-Eddington T as in Step 1a;
+    # rays that do not look down (blend as for the clouds) keep the direct e^{-tau} (docs/rendering.md,
+    # "Overcast accuracy").
+    mu_down_ground = -rays["cos_view_zenith"]
+    w_above_ground = jnp.clip(mu_down_ground / FROM_ABOVE_BLEND, 0.0, 1.0)
+    tau_hydro = state["tau_h"]
+    t_hydro = (1 - w_above_ground) * jnp.exp(-tau_hydro) + w_above_ground * transmittance_delta_eddington(
+        tau_hydro, state["tau_species"] @ consts["backscatter"], jnp.maximum(mu_down_ground, FROM_ABOVE_BLEND))
+    transmit = jnp.exp(-state["tau_clear"]) * t_hydro[:, None]
     l_surface = jnp.where(surface[:, None], 4.0 * albedo * e_horizontal * transmit, 0.0)
 
     # ---- clouds: Eq. 12 with the effective phase function of Eq. 13, blended with Eqs. 24-26 ----
@@ -368,19 +440,38 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     weights = state["tau_species"] / jnp.maximum(tau, 1e-12)[:, None]
     cos_theta = rays["cos_theta"]
     cos_view_zenith = rays["cos_view_zenith"]
-    phase = effective_phase_function(cos_theta[:, None], cos_view_zenith[:, None], tau[:, None], t_mean[:, None],
-                                     weights[:, None, :], consts["g_liquid"][None, :])
-    l_12 = phase * (-jnp.expm1(-tau) / safe)[:, None] * state["i_gas"]
     mu_view_down = -cos_view_zenith
     mu0 = consts["mu0"]
-    b_eff = weights @ consts["backscatter"]
-    tau_sun_equivalent = tau * jnp.maximum(mu_view_down, 0.0) / jnp.maximum(mu0, 0.05)
-    albedo_cloud = cloud_albedo_stephens1978(tau_sun_equivalent, b_eff)
-    arf = anisotropic_reflectance_factor_kokhanovsky2004(jnp.maximum(mu_view_down, 1e-3), jnp.maximum(mu0, 1e-3), cos_theta)
-    gas_to_cloud = state["i_gas"] / jnp.maximum(state["i_nogas"], 1e-30)
-    l_top = 4.0 * jnp.maximum(mu0, 0.0) * arf[:, None] * e_mean * gas_to_cloud
-    l_above = (1 - albedo_cloud)[:, None] * l_12 + albedo_cloud[:, None] * l_top
     w_above = jnp.clip(mu_view_down / FROM_ABOVE_BLEND, 0.0, 1.0)[:, None]
+    # Seen from below, the indirectly lit (c4) term of Eq. 21 is the diffusely transmitted light: 4 x the
+    # transmitted flux mu0 T x the escape function, i.e. the factor (9/7) mu0 (docs/rendering.md, "Overcast
+    # accuracy"); rays looking down keep Eq. 21 as printed.
+    low_factor = (1 - w_above) * diffuse_transmission_factor(mu0) + w_above
+    phase = effective_phase_function(cos_theta[:, None], cos_view_zenith[:, None], tau[:, None], t_mean[:, None],
+                                     weights[:, None, :], consts["g_liquid"][None, :], low_factor)
+    eq12 = (-jnp.expm1(-tau) / safe)[:, None] * state["i_gas"]
+    l_12 = phase * eq12
+    # Seen from above (docs/rendering.md, "Overcast accuracy"): the thin part of Eq. 13 (c1 P_thin, Eq. 12)
+    # plus, in place of its thick part (Eqs. 19-21, cloud sides and bases), the cloud-top reflection of
+    # Eqs. 24-26, (1 - c1) a 4 mu0 ARF E_top: the albedo a = 1 - T of the layer seen (delta-Eddington, as in
+    # Step 1a, along the sun path tau_s = tau mu_view / mu0) and the irradiance incident on the cloud top,
+    # E_top = E / T_self (Eq. 12's mean E over the top two optical depths already carries the cloud's own
+    # extinction, which the reflection function ARF includes).
+    b_eff = weights @ consts["backscatter"]
+    mu_down = jnp.maximum(mu_view_down, FROM_ABOVE_BLEND)
+    mu0_top = jnp.maximum(mu0, 0.05)
+    tau_s = tau * mu_down / mu0_top
+    albedo_cloud = 1.0 - transmittance_delta_eddington(tau_s, b_eff * tau_s, mu0_top)
+    lim = jnp.minimum(tau, 2.0)
+    depth = (1.0 - (1.0 + lim) * jnp.exp(-lim)) / safe  # Eq. 12's e^{-tau_o}-weighted mean tau_o
+    depth_s = depth * mu_down / mu0_top
+    t_self = jnp.maximum(transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top), 0.05)
+    arf = anisotropic_reflectance_factor_kokhanovsky2004(mu_down, jnp.maximum(mu0, 1e-3), cos_theta)
+    gas_to_cloud = state["i_gas"] / jnp.maximum(state["i_nogas"], 1e-30)
+    l_top = 4.0 * jnp.maximum(mu0, 0.0) * arf[:, None] * (e_mean / t_self[:, None]) * gas_to_cloud
+    c1 = blend_coefficient(tau, t_mean)
+    p_thin = phase_thin_mixture(cos_theta[:, None], tau[:, None], weights[:, None, :], consts["g_liquid"][None, :])
+    l_above = c1[:, None] * p_thin * eq12 + ((1 - c1) * albedo_cloud)[:, None] * l_top
     l_cloud = jnp.where(tau[:, None] > 1e-6, (1 - w_above) * l_12 + w_above * l_above, 0.0)
 
     radiance = state["l_clear"] + l_cloud + l_surface
@@ -402,7 +493,8 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     geometry = grid_geometry(volume)
     ext = volume["extinction"].values.transpose(1, 2, 3, 0)
     packed = np.concatenate(
-        [ext, volume["aerosol_extinction"].values[..., None], transmittance["transmittance"].values[..., None]], axis=-1
+        [ext, volume["aerosol_extinction"].values[..., None], transmittance["aerosol_tau_sun"].values[..., None],
+         transmittance["transmittance"].values[..., None]], axis=-1
     ).astype(np.float32)
     sun = np.asarray(sun_direction_scene, dtype=float)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
@@ -418,10 +510,12 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
         "mu0": f32(sun[2]),
         "dh": f32(gas.dh),
         "top": f32(gas.top_m),
-        "beta_gas": f32(np.concatenate([gas.beta_rayleigh, gas.beta_aerosol], axis=-1)),
+        "beta_gas": f32(np.concatenate([gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric], axis=-1)),
         "sky": f32(np.concatenate([gas.sun_transmittance, gas.diffuse_horizontal], axis=-1)),
+        "ms_source": f32(gas.diffuse_source.source),
         "angstrom": f32(gas.angstrom_factor),
         "aerosol_ssa": f32(gas.aerosol.ssa),
+        "stratospheric_ssa": f32(gas.aerosol.stratospheric.ssa),
         "g_liquid": f32(G_LIQUID),
         "backscatter": f32([BACKSCATTER_FRACTION[s] for s in SPECIES]),
     }
@@ -441,7 +535,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     ray_phase : dict
         Per-ray arrays (n,): ``cos_theta`` (cosine of the scattering angle), ``cos_view_zenith`` (view
         direction dotted with the local up at the reference point), ``p_rayleigh`` (phase function,
-        mean 1 over the sphere); and ``p_aerosol`` (n, 3), the aerosol phase function per wavelength.
+        mean 1 over the sphere); ``p_aerosol`` and ``p_stratospheric`` (n, 3), the phase functions of the
+        background and the stratospheric aerosol per wavelength.
     settings : MarchSettings
     progress : callable, optional
         Called with (rays done, rays total) after each chunk.

@@ -14,15 +14,39 @@ from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
 from ..optics.phase import (
     anisotropic_reflectance_factor_kokhanovsky2004,
-    cloud_albedo_stephens1978,
+    blend_coefficient,
+    diffuse_transmission_factor,
     effective_phase_function,
+    phase_thin_mixture,
 )
 from ..optics.volume import grid_indices
 from .march import FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, grid_geometry
+from .solar import transmittance_delta_eddington
+
+
+def _diffuse_source(o, d, s0, s1, heights, gas, sun):
+    """Diffuse source (n, 9) of :mod:`swim.rt.multiple_scattering` at the ray's heights.
+
+    Local sun/view angles are taken at the ray's lowest point between s0 and s1 (as the kernel does);
+    4-D linear interpolation of the table with SciPy.
+    """
+    table = gas.diffuse_source
+    s_low = float(np.clip(-(o @ d), s0, s1))
+    up = o + s_low * d
+    up = up / np.linalg.norm(up)
+    mu_v = float(up @ d)
+    mu_s = float(up @ sun)
+    cos_phi = (float(d @ sun) - mu_v * mu_s) / np.sqrt(max((1 - mu_v**2) * (1 - mu_s**2), 1e-12))
+    phi = np.degrees(np.arccos(np.clip(cos_phi, -1, 1)))
+    axes = (table.t_s, table.mu_v, table.phi_deg, table.u)
+    u = np.sqrt(np.clip(heights / gas.top_m, 0, 1))
+    points = np.stack(np.broadcast_arrays(np.sqrt(np.clip(mu_s, 0, 1)), mu_v, phi, u), axis=-1)
+    return np.stack([RegularGridInterpolator(axes, table.source[..., c].astype(float))(points)
+                     for c in range(table.source.shape[-1])], axis=-1)
 
 
 def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_rayleigh, p_aerosol,
-                        step_m=50.0, radius=EARTH_RADIUS_M, multiple_scattering=True):
+                        step_m=50.0, radius=EARTH_RADIUS_M, multiple_scattering=True, p_stratospheric=None):
     """Trace one ray with fine uniform steps; returns the same quantities as the kernel (float64).
 
     Parameters
@@ -40,6 +64,9 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         Shape (3,): aerosol phase function per wavelength at this ray's scattering angle.
     step_m : float
         Step length [m].
+    p_stratospheric : array_like, optional
+        Shape (3,): phase function of the stratospheric aerosol at this ray's scattering angle (needed when
+        the atmosphere has a stratospheric layer).
     multiple_scattering : bool
         As :class:`swim.rt.march.MarchSettings`.
 
@@ -58,6 +85,8 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     ext = np.concatenate([volume["extinction"].values, volume["aerosol_extinction"].values[None]], axis=0)
     interp_ext = [RegularGridInterpolator(axes, ext[c].astype(float), bounds_error=False, fill_value=0.0) for c in range(ext.shape[0])]
     interp_t = RegularGridInterpolator(axes, transmittance["transmittance"].values.astype(float), bounds_error=False, fill_value=1.0)
+    interp_tau_aer = RegularGridInterpolator(axes, transmittance["aerosol_tau_sun"].values.astype(float), bounds_error=False,
+                                             fill_value=0.0)
     interp_terrain = RegularGridInterpolator(axes[1:], volume["terrain_height"].values.astype(float), bounds_error=False, fill_value=None)
     albedo = volume["surface_albedo"].values.astype(float)
     heights = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
@@ -91,8 +120,9 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         hh = np.clip(h, 0, gas.top_m)
         br = np.stack([np.interp(hh, heights, gas.beta_rayleigh[:, c]) for c in range(3)], axis=-1)
         ba = np.stack([np.interp(hh, heights, gas.beta_aerosol[:, c]) for c in range(3)], axis=-1)
+        bs = np.stack([np.interp(hh, heights, gas.beta_stratospheric[:, c]) for c in range(3)], axis=-1)
         point = np.stack([np.sqrt(hh / gas.top_m), np.clip(mu_s, -1, 1)], axis=-1)
-        return br, ba, t_sun_interp(point), diffuse_interp(point)
+        return br, ba, bs, t_sun_interp(point), diffuse_interp(point)
 
     # Sample everything along the ray at once, then accumulate step by step with cumulative sums.
     h, mu_s, k, j, i = at(s)
@@ -113,12 +143,13 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     points = np.stack([k, j, i], axis=-1)
     beta = np.stack([f(points) for f in interp_ext], axis=-1)
     beta_sp = beta[:, :-1]
-    br, ba, t_sun, diffuse_sky = gas_at(h, mu_s)
+    br, ba, bs, t_sun, diffuse_sky = gas_at(h, mu_s)
     beta_a3 = beta[:, -1:] * gas.angstrom_factor[None, :]
-    e = t_sun * interp_t(points)[:, None]
+    t_aer = np.exp(-interp_tau_aer(points)[:, None] * gas.angstrom_factor[None, :])
+    e = t_sun * t_aer * interp_t(points)[:, None]
     in_grid = ((k >= 0) & (k <= nk - 1) & inside)[:, None]
-    e_h = np.where(in_grid, (t_sun + SKYLIGHT_SCALAR_FACTOR * diffuse_sky) * interp_t(points)[:, None], e)
-    beta_clear = br + ba + beta_a3
+    e_h = np.where(in_grid, (t_sun * t_aer + SKYLIGHT_SCALAR_FACTOR * diffuse_sky) * interp_t(points)[:, None], e)
+    beta_clear = br + ba + beta_a3 + bs
     beta_h = beta_sp.sum(axis=1)
     x = (beta_clear + beta_h[:, None]) * step[:, None]
     mean = np.where(x > 1e-8, -np.expm1(-x) / np.maximum(x, 1e-300), 1.0)
@@ -127,9 +158,13 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     tau_c_before = np.cumsum(d_tau_c, axis=0) - d_tau_c
     tau_h_before = np.cumsum(d_tau_h) - d_tau_h
     t_obs = np.exp(-(tau_c_before + tau_h_before[:, None]))
-    source = (br * p_rayleigh + (ba + beta_a3) * gas.aerosol.ssa * p_aerosol) * e
+    scat_a = (ba + beta_a3) * gas.aerosol.ssa
+    scat_s = bs * np.asarray(gas.aerosol.stratospheric.ssa, float)
+    p_strat = np.zeros(3) if p_stratospheric is None else np.asarray(p_stratospheric, float)
+    source = (br * p_rayleigh + scat_a * p_aerosol + scat_s * p_strat) * e
     if multiple_scattering:
-        source = source + (br + (ba + beta_a3) * gas.aerosol.ssa) * SKYLIGHT_SCALAR_FACTOR * diffuse_sky * interp_t(points)[:, None]
+        j = _diffuse_source(o, d, s0, s1, h, gas, sun)
+        source = source + (br * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * interp_t(points)[:, None]
     l_clear = np.sum(t_obs * source * step[:, None] * mean, axis=0)
     w = np.maximum(np.exp(-tau_h_before) - np.exp(-np.minimum(tau_h_before + d_tau_h, 2.0)), 0.0)
     i_nogas = np.sum(e_h * w[:, None], axis=0)
@@ -139,15 +174,21 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     tau_sp = (beta_sp * step[:, None]).sum(axis=0)
 
     tau = tau_sp.sum()
+    backscatter = np.array([BACKSCATTER_FRACTION[s] for s in SPECIES])
     l_surface = np.zeros(3)
     if surface:
         h, mu_s, k, j, i = at(s_end)
-        _, _, t_sun, diffuse = gas_at(h, mu_s)
+        _, _, _, t_sun, diffuse = gas_at(h, mu_s)
         t_cloud = float(interp_t([[k[0] + 1.0, j[0], i[0]]])[0])
         rho = np.array([RegularGridInterpolator(axes[1:], albedo[c], bounds_error=False, fill_value=None)(
             [[np.clip(j[0], 0, ny - 1), np.clip(i[0], 0, nx - 1)]])[0] for c in range(3)])
-        e_h = (max(mu_s[0], 0.0) * t_sun[0] + diffuse[0]) * t_cloud
-        l_surface = 4 * rho * e_h * np.exp(-(tau_c + tau))
+        t_aer_ground = np.exp(-float(interp_tau_aer([[k[0] + 1.0, j[0], i[0]]])[0]) * gas.angstrom_factor)
+        e_h = (max(mu_s[0], 0.0) * t_sun[0] * t_aer_ground + diffuse[0]) * t_cloud
+        # seen from above: the ground through the total transmittance of the hydrometeors (reciprocity)
+        w_g = np.clip(-d[2] / FROM_ABOVE_BLEND, 0, 1)
+        t_h = (1 - w_g) * np.exp(-tau) + w_g * float(transmittance_delta_eddington(
+            tau, float(tau_sp @ backscatter), max(-d[2], FROM_ABOVE_BLEND)))
+        l_surface = 4 * rho * e_h * np.exp(-tau_c) * t_h
 
     l_cloud = np.zeros(3)
     if tau > 1e-6:
@@ -156,17 +197,32 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         weights = tau_sp / tau
         cos_theta = float(d @ sun)
         t_mean = np.clip(i_cloud_t / norm, 0, 1)
-        phase = np.asarray(effective_phase_function(np.array([cos_theta]), np.array([d[2]]), np.array([tau]),
-                                                    np.array([[t_mean]]), weights[None, None, :], np.asarray(G_LIQUID)[None]))[0]
-        l_12 = phase * (-np.expm1(-tau) / norm) * i_gas
         mu_down = -d[2]
         mu0 = sun[2]
-        b_eff = weights @ np.array([BACKSCATTER_FRACTION[s] for s in SPECIES])
-        a = float(cloud_albedo_stephens1978(tau * max(mu_down, 0) / max(mu0, 0.05), b_eff))
-        arf = float(anisotropic_reflectance_factor_kokhanovsky2004(max(mu_down, 1e-3), max(mu0, 1e-3), cos_theta))
-        l_top = 4 * max(mu0, 0) * arf * e_mean * (i_gas / np.maximum(i_nogas, 1e-300))
         w_above = np.clip(mu_down / FROM_ABOVE_BLEND, 0, 1)
-        l_cloud = (1 - w_above) * l_12 + w_above * ((1 - a) * l_12 + a * l_top)
+        # from below: the c4 term of Eq. 21 as diffusely transmitted light (docs/rendering.md, "Overcast accuracy")
+        low_factor = (1 - w_above) * float(diffuse_transmission_factor(mu0)) + w_above
+        phase = np.asarray(effective_phase_function(np.array([cos_theta]), np.array([d[2]]), np.array([tau]),
+                                                    np.array([[t_mean]]), weights[None, None, :], np.asarray(G_LIQUID)[None],
+                                                    low_factor))[0]
+        eq12 = (-np.expm1(-tau) / norm) * i_gas
+        l_12 = phase * eq12
+        # from above: c1 P_thin (Eq. 12) + (1 - c1) a 4 mu0 ARF E_top (docs/rendering.md, "Overcast accuracy")
+        b_eff = float(weights @ backscatter)
+        m_down = max(mu_down, FROM_ABOVE_BLEND)
+        m0 = max(mu0, 0.05)
+        tau_s = tau * m_down / m0
+        a = 1.0 - float(transmittance_delta_eddington(tau_s, b_eff * tau_s, m0))
+        lim = min(tau, 2.0)
+        depth_s = (1.0 - (1.0 + lim) * np.exp(-lim)) / norm * m_down / m0
+        t_self = max(float(transmittance_delta_eddington(depth_s, b_eff * depth_s, m0)), 0.05)
+        arf = float(anisotropic_reflectance_factor_kokhanovsky2004(m_down, max(mu0, 1e-3), cos_theta))
+        l_top = 4 * max(mu0, 0) * arf * (e_mean / t_self) * (i_gas / np.maximum(i_nogas, 1e-300))
+        c1 = float(blend_coefficient(tau, t_mean))
+        p_thin = np.asarray(phase_thin_mixture(np.array([[cos_theta]]), np.array([[tau]]), weights[None, None, :],
+                                               np.asarray(G_LIQUID)[None]))[0]
+        l_above = c1 * p_thin * eq12 + (1 - c1) * a * l_top
+        l_cloud = (1 - w_above) * l_12 + w_above * l_above
     return {
         "radiance": l_clear + l_cloud + l_surface,
         "radiance_clear": l_clear,

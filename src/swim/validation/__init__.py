@@ -1,8 +1,11 @@
-"""Validation against independent reference solvers (issue 3): DISORT plane-parallel clear sky."""
+"""Validation against independent reference solvers (issue 3): DISORT plane-parallel clear sky and stratus."""
 
 from .disort import (
     clear_sky_layers,
+    cloud_layer_layers,
     disort_clear_sky_irradiance,
+    disort_cloud_layer_irradiance,
+    disort_cloud_layer_radiance,
     disort_clear_sky_radiance,
     phase_function_legendre_moments,
     rayleigh_legendre_moments,
@@ -10,6 +13,9 @@ from .disort import (
 
 __all__ = [
     "clear_sky_layers",
+    "cloud_layer_layers",
+    "disort_cloud_layer_irradiance",
+    "disort_cloud_layer_radiance",
     "disort_clear_sky_irradiance",
     "disort_clear_sky_radiance",
     "phase_function_legendre_moments",

@@ -1,0 +1,147 @@
+"""Successive orders of scattering (swim.rt.multiple_scattering): analytic limits and conservation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from swim.rt.multiple_scattering import (
+    _direction_grid,
+    _kernel,
+    diffuse_source_table,
+    successive_orders_plane_parallel,
+    tabulated_phase_function,
+)
+
+
+def rayleigh(c):
+    return 0.75 * (1.0 + np.asarray(c) ** 2)
+
+
+def henyey_greenstein(g):
+    def p(c):
+        c = np.asarray(c)
+        return (1 - g**2) / (1 + g**2 - 2 * g * c) ** 1.5
+    return p
+
+
+def _fluxes(sol, mu0, tau_total):
+    mu, w, rad = sol["mu"], sol["weight"], sol["radiance"]
+    up = mu > 0
+    reflected = np.einsum("q,qsc->sc", (w * mu / (4 * np.pi))[up], rad[0, up])
+    transmitted = np.einsum("q,qsc->sc", (w * -mu / (4 * np.pi))[~up], rad[-1, ~up])
+    direct = mu0[:, None] * np.exp(-tau_total / mu0[:, None])
+    return reflected, transmitted, direct
+
+
+@pytest.mark.parametrize("n_half, n_phi", [(6, 8), (10, 12)])
+def test_quadrature_weights_cover_the_sphere(n_half, n_phi):
+    mu, phi, w = _direction_grid(n_half, n_phi)
+    assert mu.size == 2 * n_half * n_phi
+    np.testing.assert_allclose(w.sum(), 4 * np.pi, rtol=1e-12)
+    # second moment of mu over the sphere: 4 pi / 3
+    np.testing.assert_allclose((w * mu**2).sum(), 4 * np.pi / 3, rtol=1e-12)
+    assert np.all(mu[: mu.size // 2] < 0) and np.all(mu[mu.size // 2:] > 0)
+
+
+@pytest.mark.parametrize("g", [0.0, 0.7, 0.9])
+def test_kernel_rows_conserve_energy(g):
+    mu, phi, w = _direction_grid(8, 12)
+    k = _kernel(henyey_greenstein(g), mu, phi, mu, phi, w)
+    np.testing.assert_allclose(k.sum(axis=1), 1.0, rtol=1e-12)
+    assert np.all(k >= 0)
+
+
+@pytest.mark.parametrize("g", [0.0, 0.85])
+@pytest.mark.parametrize("tau", [0.1, 1.0, 5.0])
+def test_conservative_slab_conserves_flux(tau, g):
+    """omega = 1, black ground: reflected + transmitted diffuse + direct = mu0 (the incident flux)."""
+    n_l = 20
+    d_tau = np.full((n_l, 1), tau / n_l)
+    mu0 = np.array([1.0, 0.5, 0.2])
+    ones = np.ones((n_l, 1))
+    sol = successive_orders_plane_parallel(d_tau, ones, ones[None], mu0, [0.0], [henyey_greenstein(g)],
+                                           tolerance=1e-7, max_orders=400)
+    r, t, direct = _fluxes(sol, mu0, tau)
+    np.testing.assert_allclose(r + t + direct, mu0[:, None], rtol=2e-3)
+    # the slab reflects more the thicker it is, and a forward-peaked phase function reflects less
+    assert np.all(r > 0) and np.all(t > 0)
+
+
+def test_white_ground_under_conservative_layer_returns_everything():
+    """omega = 1 over a white Lambertian ground: all incident flux leaves the top again."""
+    n_l = 10
+    d_tau = np.full((n_l, 1), 0.05)
+    mu0 = np.array([0.7])
+    ones = np.ones((n_l, 1))
+    sol = successive_orders_plane_parallel(d_tau, ones, ones[None], mu0, [1.0], [rayleigh], tolerance=1e-8,
+                                           max_orders=2000)
+    mu, w, rad = sol["mu"], sol["weight"], sol["radiance"]
+    up = mu > 0
+    reflected = (w * mu / (4 * np.pi))[up] @ rad[0, up, 0, 0]
+    np.testing.assert_allclose(reflected, 0.7, rtol=5e-3)
+
+
+def test_absorbing_slab_loses_energy():
+    n_l = 10
+    d_tau = np.full((n_l, 1), 0.1)
+    mu0 = np.array([0.8])
+    sol = successive_orders_plane_parallel(d_tau, np.full((n_l, 1), 0.8), np.ones((1, n_l, 1)), mu0, [0.0],
+                                           [rayleigh])
+    r, t, direct = _fluxes(sol, mu0, 1.0)
+    assert float((r + t + direct)[0, 0]) < 0.8 - 0.05
+
+
+@pytest.mark.parametrize("mu_view", [0.3, 0.6, 1.0])
+def test_thin_layer_matches_single_scattering_formula(mu_view):
+    """tau = 1e-3: the diffuse radiance is single scattering, L' = omega P mu0 / (mu0 - mu)(e^-tau/mu0 - e^-tau/mu)
+    below (looking up) and P mu0 / (mu0 + mu)(1 - e^(-tau/mu0 - tau/mu)) above (paper Eq. 3 in a slab)."""
+    tau, mu0 = 1e-3, 0.6
+    n_l = 4
+    # two components (molecules and an isotropic scatterer) sharing the scattering
+    sol = successive_orders_plane_parallel(np.full((n_l, 1), tau / n_l), np.ones((n_l, 1)),
+                                           np.full((2, n_l, 1), 0.5), np.array([mu0]), [0.0],
+                                           [rayleigh, lambda c: np.ones_like(np.asarray(c, float))])
+    mu, phi, rad = sol["mu"], sol["phi"], sol["radiance"]
+    # grid direction closest to the requested view cosine
+    down = np.flatnonzero(mu < 0)
+    q = down[np.argmin(np.abs(-mu[down] - mu_view))]
+    m = -mu[q]
+    cos_theta = mu[q] * -mu0 + np.sqrt(1 - mu[q] ** 2) * np.sqrt(1 - mu0**2) * np.cos(phi[q])
+    p = 0.5 * rayleigh(cos_theta) + 0.5
+    expected = p * mu0 / (mu0 - m) * (np.exp(-tau / mu0) - np.exp(-tau / m)) if abs(mu0 - m) > 1e-6 else \
+        p * tau / mu0 * np.exp(-tau / mu0)
+    # the column normalisation of the direct-beam phase function is within 1e-3 of 1 on this grid
+    np.testing.assert_allclose(rad[-1, q, 0, 0], expected, rtol=3e-3)
+
+
+def test_tabulated_phase_function_is_accurate():
+    hg = henyey_greenstein(0.9)
+    tab = tabulated_phase_function(lambda c: hg(c))
+    c = np.cos(np.radians(np.linspace(0, 180, 997)))
+    np.testing.assert_allclose(tab(c), hg(c), rtol=2e-3)
+
+
+def test_diffuse_source_table_shapes_and_limits():
+    heights = np.linspace(0, 100e3, 1001)
+    beta_r = 1.2e-5 * np.exp(-heights / 8000.0)[:, None] * np.array([0.6, 1.0, 2.2])
+    beta_a = np.zeros_like(beta_r)
+    tab = diffuse_source_table(heights, [beta_r, beta_a], [[1.0] * 3, [0.9] * 3],
+                               [rayleigh, lambda c: henyey_greenstein(0.7)(c)[..., None] * np.ones(3)], [0.1] * 3,
+                               100e3, n_u=11, n_s=5, n_v=9, n_phi=7, n_half=6, n_phi_quad=8)
+    assert tab.source.shape == (5, 9, 7, 11, 6)
+    assert np.all(tab.source[0] == 0)  # sun on the horizon: no plane-parallel diffuse light
+    assert np.all(tab.source[1:, ..., :3] > 0)
+    assert np.all(tab.source[..., 3:] == 0)  # no aerosol extinction: that component is skipped
+    # more Rayleigh scattering at shorter wavelengths: bluer diffuse light at the ground
+    d = tab.diffuse_down[0, -1]
+    assert d[2] > d[1] > d[0] > 0
+    # the diffuse light dims with height (less air above to scatter downwards)
+    assert np.all(np.diff(tab.diffuse_down[:, -1, 1]) < 0)
+
+
+def test_symmetric_kernel_conserves_energy_both_ways():
+    mu, phi, w = _direction_grid(8, 12)
+    k = _kernel(henyey_greenstein(0.9), mu, phi, mu, phi, w, symmetric=True)
+    np.testing.assert_allclose(k.sum(axis=1), 1.0, rtol=1e-9)
+    np.testing.assert_allclose(w @ k, w, rtol=1e-6)
