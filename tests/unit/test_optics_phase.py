@@ -294,3 +294,30 @@ def test_effective_phase_function_is_the_blend_of_the_thin_mixture_and_the_thick
     # a pure species gives its own thin function
     liquid = np.asarray(jph.phase_thin_mixture(mu, tau, np.eye(5)[0], 0.95))
     np.testing.assert_allclose(liquid, np.asarray(jph.phase_thin_cloud_liquid(mu, tau, 0.95)), rtol=1e-6)
+
+
+def test_delta_scaled_path_factor_limits():
+    """(1 - e^{-(1-f)tau})/(1-f): tau for thin paths, 1/(1-f) for thick ones, Eq. 12's factor at f = 0."""
+    from swim.optics.phase import delta_scaled_path_factor
+
+    assert float(delta_scaled_path_factor(1e-4, 0.5)) == pytest.approx(1e-4, rel=1e-3)
+    assert float(delta_scaled_path_factor(100.0, 0.5)) == pytest.approx(2.0, rel=1e-6)
+    assert float(delta_scaled_path_factor(1.0, 0.0)) == pytest.approx(1 - np.exp(-1.0), rel=1e-6)
+    assert float(delta_scaled_path_factor(1.0)) == pytest.approx(2 * (1 - np.exp(-0.5)), rel=1e-6)
+
+
+def test_forward_peak_mixture_is_the_first_lobe():
+    """Liquid: f1 p(g^tau') with f1 = 0.8^tau'; ice: 0.50 p(0.999^tau'); below P_thin everywhere."""
+    from swim.optics.phase import forward_peak_mixture, henyey_greenstein, phase_thin_mixture
+
+    mu = np.cos(np.radians(np.array([0.0, 10.0, 30.0, 90.0, 180.0])))
+    for tau in (0.5, 1.0, 3.0):
+        liquid = np.eye(5)[0]
+        tp = max(tau, 1.0)
+        np.testing.assert_allclose(forward_peak_mixture(mu, tau, liquid, 0.95),
+                                   0.8**tp * henyey_greenstein(mu, 0.95**tp), rtol=1e-5)
+        ice = np.eye(5)[1]
+        np.testing.assert_allclose(forward_peak_mixture(mu, tau, ice, 0.95), 0.5 * henyey_greenstein(mu, 0.999**tp),
+                                   rtol=1e-5)
+        for w in (liquid, ice, np.full(5, 0.2)):
+            assert np.all(np.asarray(forward_peak_mixture(mu, tau, w, 0.95)) < np.asarray(phase_thin_mixture(mu, tau, w, 0.95)))

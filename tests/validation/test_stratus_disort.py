@@ -49,8 +49,8 @@ def test_disort_cloud_conserves_energy():
 def test_overcast_ground_floors(tau, sun_zenith):
     res = _compare(tau, sun_zenith)
     assert np.all(np.abs(res["ghi_err"]) < 0.17), res["ghi_err"]  # tau 50, z0 60, 450 nm: -15 %
-    assert np.all(np.abs(res["zenith_err"]) < 0.40), res["zenith_err"]  # tau 5, z0 30: -33 %
-    assert np.all(res["median_abs"] < 0.30), res["median_abs"]
+    assert np.all(np.abs(res["zenith_err"]) < 0.27), res["zenith_err"]  # tau 5, z0 30: -23 % (was -33 %)
+    assert np.all(res["median_abs"] < 0.23), res["median_abs"]  # tau 5, z0 30: 19 % (was 24 %)
     assert np.all(res["pearson_r"] > 0.6), res["pearson_r"]
 
 
@@ -62,7 +62,7 @@ def test_thick_overcast_ghi_at_high_and_low_sun(tau, sun_zenith):
     res = _compare(tau, sun_zenith)
     assert np.all(np.abs(res["ghi_err"]) < 0.17), res["ghi_err"]
     assert np.all(np.abs(res["dhi_err"]) < 0.17), res["dhi_err"]
-    assert abs(res["ghi_err"][1]) < 0.09, res["ghi_err"]  # 546 nm: +1 ... -8 %
+    assert abs(res["ghi_err"][1]) < 0.09, res["ghi_err"]  # 546 nm: +4.7 ... -7.8 %
     assert abs(res["zenith_err"][1]) < 0.15, res["zenith_err"]
 
 

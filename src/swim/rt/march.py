@@ -41,8 +41,10 @@ from ..optics.phase import (
     G_LIQUID,
     anisotropic_reflectance_factor_kokhanovsky2004,
     blend_coefficient,
+    delta_scaled_path_factor,
     diffuse_transmission_factor,
     effective_phase_function,
+    forward_peak_mixture,
     phase_thin_mixture,
 )
 from .gas import GasTables
@@ -450,7 +452,13 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     phase = effective_phase_function(cos_theta[:, None], cos_view_zenith[:, None], tau[:, None], t_mean[:, None],
                                      weights[:, None, :], consts["g_liquid"][None, :], low_factor)
     eq12 = (-jnp.expm1(-tau) / safe)[:, None] * state["i_gas"]
-    l_12 = phase * eq12
+    # Thin-cloud term (c1 P_thin) with the forward (diffraction) peak kept in the beam: Eq. 12's 1 - e^{-tau}
+    # delta-scaled to (1 - e^{-(1 - f) tau}) / (1 - f) (docs/rendering.md, "Overcast accuracy").
+    eq12_thin = (delta_scaled_path_factor(tau) / safe)[:, None] * state["i_gas"]
+    c1 = blend_coefficient(tau, t_mean)
+    p_thin = phase_thin_mixture(cos_theta[:, None], tau[:, None], weights[:, None, :], consts["g_liquid"][None, :])
+    p_rest = p_thin - forward_peak_mixture(cos_theta[:, None], tau[:, None], weights[:, None, :], consts["g_liquid"][None, :])
+    l_12 = phase * eq12 + c1[:, None] * p_rest * (eq12_thin - eq12)
     # Seen from above (docs/rendering.md, "Overcast accuracy"): the thin part of Eq. 13 (c1 P_thin, Eq. 12)
     # plus, in place of its thick part (Eqs. 19-21, cloud sides and bases), the cloud-top reflection of
     # Eqs. 24-26, (1 - c1) a 4 mu0 ARF E_top: the albedo a = 1 - T of the layer seen (delta-Eddington, as in
@@ -469,8 +477,6 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     arf = anisotropic_reflectance_factor_kokhanovsky2004(mu_down, jnp.maximum(mu0, 1e-3), cos_theta)
     gas_to_cloud = state["i_gas"] / jnp.maximum(state["i_nogas"], 1e-30)
     l_top = 4.0 * jnp.maximum(mu0, 0.0) * arf[:, None] * (e_mean / t_self[:, None]) * gas_to_cloud
-    c1 = blend_coefficient(tau, t_mean)
-    p_thin = phase_thin_mixture(cos_theta[:, None], tau[:, None], weights[:, None, :], consts["g_liquid"][None, :])
     l_above = c1[:, None] * p_thin * eq12 + ((1 - c1) * albedo_cloud)[:, None] * l_top
     l_cloud = jnp.where(tau[:, None] > 1e-6, (1 - w_above) * l_12 + w_above * l_above, 0.0)
 

@@ -15,8 +15,10 @@ from ..frames import ray_sphere_intersections
 from ..optics.phase import (
     anisotropic_reflectance_factor_kokhanovsky2004,
     blend_coefficient,
+    delta_scaled_path_factor,
     diffuse_transmission_factor,
     effective_phase_function,
+    forward_peak_mixture,
     phase_thin_mixture,
 )
 from ..optics.volume import grid_indices
@@ -206,7 +208,14 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
                                                     np.array([[t_mean]]), weights[None, None, :], np.asarray(G_LIQUID)[None],
                                                     low_factor))[0]
         eq12 = (-np.expm1(-tau) / norm) * i_gas
-        l_12 = phase * eq12
+        # thin term: Eq. 12 with the forward peak kept in the beam outside the peak lobe (delta scaling)
+        c1 = float(blend_coefficient(tau, t_mean))
+        p_thin = np.asarray(phase_thin_mixture(np.array([[cos_theta]]), np.array([[tau]]), weights[None, None, :],
+                                               np.asarray(G_LIQUID)[None]))[0]
+        p_rest = p_thin - np.asarray(forward_peak_mixture(np.array([[cos_theta]]), np.array([[tau]]),
+                                                          weights[None, None, :], np.asarray(G_LIQUID)[None]))[0]
+        eq12_thin = (float(delta_scaled_path_factor(tau)) / norm) * i_gas
+        l_12 = phase * eq12 + c1 * p_rest * (eq12_thin - eq12)
         # from above: c1 P_thin (Eq. 12) + (1 - c1) a 4 mu0 ARF E_top (docs/rendering.md, "Overcast accuracy")
         b_eff = float(weights @ backscatter)
         m_down = max(mu_down, FROM_ABOVE_BLEND)
@@ -218,9 +227,6 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         t_self = max(float(transmittance_delta_eddington(depth_s, b_eff * depth_s, m0)), 0.05)
         arf = float(anisotropic_reflectance_factor_kokhanovsky2004(m_down, max(mu0, 1e-3), cos_theta))
         l_top = 4 * max(mu0, 0) * arf * (e_mean / t_self) * (i_gas / np.maximum(i_nogas, 1e-300))
-        c1 = float(blend_coefficient(tau, t_mean))
-        p_thin = np.asarray(phase_thin_mixture(np.array([[cos_theta]]), np.array([[tau]]), weights[None, None, :],
-                                               np.asarray(G_LIQUID)[None]))[0]
         l_above = c1 * p_thin * eq12 + (1 - c1) * a * l_top
         l_cloud = (1 - w_above) * l_12 + w_above * l_above
     return {
