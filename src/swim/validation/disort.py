@@ -284,17 +284,7 @@ def disort_clear_sky_radiance(sun_zenith_deg, view_zenith_deg, relative_azimuth_
     mu0 = float(np.cos(np.radians(sun_zenith_deg)))
     if not (0.0 < mu0 <= 1.0):
         raise SwimInputError(f"sun_zenith_deg must be in [0, 90); got {sun_zenith_deg}")
-    vz, ra = np.broadcast_arrays(np.atleast_1d(np.asarray(view_zenith_deg, dtype=float)),
-                                 np.atleast_1d(np.asarray(relative_azimuth_deg, dtype=float)))
-    vz, ra = vz.ravel(), ra.ravel()
-    if observer == "ground":
-        if np.any(~(vz >= 0) | ~(vz < 90)):
-            raise SwimInputError("a ground observer looks up: view_zenith_deg must be in [0, 90)")
-    elif observer == "toa":
-        if np.any(~(vz > 90) | ~(vz <= 180)):
-            raise SwimInputError("an observer at the top of the atmosphere looks down: view_zenith_deg in (90, 180]")
-    else:
-        raise SwimInputError(f"observer must be 'ground' or 'toa'; got {observer!r}")
+    vz, ra = _views(view_zenith_deg, relative_azimuth_deg, observer)
     albedo = _albedo3(surface_albedo)
     n_moments = int(n_moments or max(2 * int(n_streams), 256))
     layers = clear_sky_layers(aerosol, n_layers=n_layers, n_moments=n_moments, tau_scale=tau_scale)
@@ -608,6 +598,7 @@ def cloud_layer_layers(cloud_tau, cloud_base_m=1000.0, cloud_top_m=1500.0, cloud
 
 
 def _views(view_zenith_deg, relative_azimuth_deg, observer):
+    """Flat, checked view zenith and relative azimuth arrays [deg] for a ground or TOA observer."""
     vz, ra = np.broadcast_arrays(np.atleast_1d(np.asarray(view_zenith_deg, dtype=float)),
                                  np.atleast_1d(np.asarray(relative_azimuth_deg, dtype=float)))
     vz, ra = vz.ravel(), ra.ravel()
