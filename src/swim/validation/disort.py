@@ -284,24 +284,12 @@ def disort_clear_sky_radiance(sun_zenith_deg, view_zenith_deg, relative_azimuth_
     mu0 = float(np.cos(np.radians(sun_zenith_deg)))
     if not (0.0 < mu0 <= 1.0):
         raise SwimInputError(f"sun_zenith_deg must be in [0, 90); got {sun_zenith_deg}")
-    vz, ra = _views(view_zenith_deg, relative_azimuth_deg, observer)
-    albedo = _albedo3(surface_albedo)
+    _views(view_zenith_deg, relative_azimuth_deg, observer)  # check the angles before building layers
     n_moments = int(n_moments or max(2 * int(n_streams), 256))
     layers = clear_sky_layers(aerosol, n_layers=n_layers, n_moments=n_moments, tau_scale=tau_scale)
-
-    # DISORT: mu = cosine of the propagation direction (positive up) = -cos(look zenith).
-    mu = np.round(-np.cos(np.radians(vz)), 12)
-    phi = np.mod(ra, 360.0)
-    mu_u, mu_idx = np.unique(mu, return_inverse=True)
-    phi_u, phi_idx = np.unique(np.round(phi, 9), return_inverse=True)
-    out = np.empty((vz.size, 3))
-    for c in range(3):
-        tau_user = [float(layers["dtau"][:, c].sum())] if observer == "ground" else [0.0]
-        res = _solve(layers, c, mu0, albedo, n_streams, mu_u, phi_u, tau_user,
-                     intensity_correction=intensity_correction)
-        inten = np.asarray(res.intensity, dtype=float)[0]  # (n_mu, n_phi)
-        out[:, c] = 4.0 * np.pi * inten[mu_idx, phi_idx]
-    return out
+    return disort_layers_radiance(layers, sun_zenith_deg, view_zenith_deg, relative_azimuth_deg,
+                                  surface_albedo=surface_albedo, observer=observer, n_streams=n_streams,
+                                  intensity_correction=intensity_correction)
 
 
 def disort_clear_sky_irradiance(sun_zenith_deg, aerosol: AerosolBackground = AerosolBackground(),
@@ -628,6 +616,7 @@ def disort_layers_radiance(layers, sun_zenith_deg, view_zenith_deg, relative_azi
         raise SwimInputError(f"sun_zenith_deg must be in [0, 90); got {sun_zenith_deg}")
     vz, ra = _views(view_zenith_deg, relative_azimuth_deg, observer)
     albedo = _albedo3(surface_albedo)
+    # DISORT: mu = cosine of the propagation direction (positive up) = -cos(look zenith).
     mu = np.round(-np.cos(np.radians(vz)), 12)
     phi = np.mod(ra, 360.0)
     mu_u, mu_idx = np.unique(mu, return_inverse=True)
