@@ -15,6 +15,7 @@ import pytest
 
 pytest.importorskip("disortpp")
 
+from swim.frames import enu_from_azimuth_zenith  # noqa: E402
 from swim.optics.rayleigh import rayleigh_phase_function  # noqa: E402
 from swim.rt.gas import AerosolBackground, build_gas_tables  # noqa: E402
 from swim.rt.march import MarchSettings  # noqa: E402
@@ -34,8 +35,7 @@ RAYLEIGH = AerosolBackground(aod_550=0.0)
 
 
 def _look(vz, az):
-    th, ph = np.radians(vz), np.radians(az)
-    return np.stack([np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
+    return enu_from_azimuth_zenith(az, vz)
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -59,12 +59,27 @@ def allsky_camera_of(image: xr.Dataset) -> AllSkyCamera:
     return AllSkyCamera(size=size, max_zenith_deg=max_zenith)
 
 
+_COMPONENTS = ("radiance_clear", "radiance_cloud", "radiance_surface")
+
+
+def radiance_without_sun_disk(image: xr.Dataset) -> np.ndarray:
+    """Radiance L' of a :func:`swim.render` image without the sun's disk, shape (3, ny, nx) [-], NaN -> 0.
+
+    The sum of the clear-sky, cloud and surface components, which carry no sun disk (:func:`swim.render`
+    adds the disk to ``radiance`` only).
+
+    Raises
+    ------
+    KeyError
+        If the image lacks one of the components.
+    """
+    return np.asarray(sum(image[k].fillna(0) for k in _COMPONENTS).values, dtype=float)
+
+
 def _diffuse_sky(image: xr.Dataset, sun_exclusion_deg):
     """Sky radiance without the sun's disk (3, ny, nx), NaN -> 0."""
-    if all(k in image for k in ("radiance_clear", "radiance_cloud", "radiance_surface")):
-        # the components of swim.render carry no sun disk (it is added to "radiance" only)
-        sky = image["radiance_clear"].fillna(0) + image["radiance_cloud"].fillna(0) + image["radiance_surface"].fillna(0)
-        return np.asarray(sky.values, dtype=float)
+    if all(k in image for k in _COMPONENTS):
+        return radiance_without_sun_disk(image)
     # Only the total: replace the pixels of the disk by the median of a ring around it.
     sky = np.nan_to_num(np.asarray(image["radiance"].values, dtype=float))
     sz, sa = np.radians(float(image.attrs["sun_zenith_deg"])), np.radians(float(image.attrs["sun_azimuth_deg"]))

@@ -36,7 +36,9 @@ import functools
 import numpy as np
 
 from ..constants import ATMOSPHERE_TOP_M, WAVELENGTHS_NM
+from ..diagnostics.irradiance import radiance_without_sun_disk, sky_irradiance
 from ..errors import SwimInputError
+from ..frames import enu_from_azimuth_zenith
 from ..rt.gas import AerosolBackground, build_gas_tables
 
 __all__ = [
@@ -413,21 +415,14 @@ def compare_ground_sky(sun_zenith_deg, aerosol: AerosolBackground = AerosolBackg
                 settings=settings, height=0.0)
     cam = AllSkyCamera(size=int(camera_size))
     zen, az = sky_dome_directions(zenith_step_deg, azimuth_step_deg, max_zenith_deg)
-    th, ph = np.radians(zen), np.radians(az)
-    dirs = np.stack([np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
-    row, col = cam.pixel_of_direction(dirs)
+    row, col = cam.pixel_of_direction(enu_from_azimuth_zenith(az, zen))
     rc = np.unique(np.stack([np.rint(row), np.rint(col)], axis=-1).astype(int), axis=0)
     r, c = rc[:, 0], rc[:, 1]
-    # swim's sky radiance without the sun's disk: the sum of its components
-    sky = (ds["radiance_clear"] + ds["radiance_cloud"].fillna(0) + ds["radiance_surface"].fillna(0)).values
+    sky = radiance_without_sun_disk(ds)
     vz = ds["view_zenith"].values[r, c].astype(float)
     va = ds["view_azimuth"].values[r, c].astype(float)
     sz, sa = float(ds.attrs["sun_zenith_deg"]), float(ds.attrs["sun_azimuth_deg"])
-    look = np.stack([np.sin(np.radians(vz)) * np.sin(np.radians(va)), np.sin(np.radians(vz)) * np.cos(np.radians(va)),
-                     np.cos(np.radians(vz))], axis=-1)
-    sun = np.array([np.sin(np.radians(sz)) * np.sin(np.radians(sa)), np.sin(np.radians(sz)) * np.cos(np.radians(sa)),
-                    np.cos(np.radians(sz))])
-    scat = np.degrees(np.arccos(np.clip(look @ sun, -1.0, 1.0)))
+    scat = np.degrees(np.arccos(np.clip(enu_from_azimuth_zenith(va, vz) @ enu_from_azimuth_zenith(sa, sz), -1.0, 1.0)))
     keep = (scat > sun_exclusion_deg) & (vz <= max_zenith_deg + 1.0)
     r, c, vz, va, scat = r[keep], c[keep], vz[keep], va[keep], scat[keep]
     l_swim = sky[:, r, c].T.astype(float)
@@ -436,8 +431,6 @@ def compare_ground_sky(sun_zenith_deg, aerosol: AerosolBackground = AerosolBackg
     rel = l_swim / l_ref - 1.0
 
     # Irradiances / E_TOA: swim's from its all-sky image (exact pixel solid angles, direct beam explicit).
-    from ..diagnostics.irradiance import sky_irradiance
-
     irr = sky_irradiance(ds)
     e_swim = np.asarray(irr["dhi"].values, dtype=float)
     ref_irr = disort_clear_sky_irradiance(sz, aerosol=aerosol, surface_albedo=surface_albedo,

@@ -87,7 +87,9 @@ from pathlib import Path
 import numpy as np
 
 from ..constants import ATMOSPHERE_TOP_M, SPECIES, WAVELENGTHS_NM
+from ..diagnostics.irradiance import radiance_without_sun_disk
 from ..errors import SwimInputError
+from ..frames import enu_from_azimuth_zenith
 from ..optics.rayleigh import rayleigh_phase_function
 from ..rt.gas import AerosolBackground, build_gas_tables
 
@@ -338,7 +340,7 @@ def build_mitsuba_scene(volume, sun_zenith_deg, sun_azimuth_deg, aerosol: Aeroso
     scene_dict = {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 1 << 30},
-        "sun": {"type": "directional", "direction": mi.ScalarVector3f(*(-_enu(sun_zenith_deg, sun_azimuth_deg))),
+        "sun": {"type": "directional", "direction": mi.ScalarVector3f(*(-enu_from_azimuth_zenith(sun_azimuth_deg, sun_zenith_deg))),
                 "irradiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
         "ground": {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo.tolist()}},
                    "to_world": mi.ScalarTransform4f().translate(mi.ScalarPoint3f(*off)) @ mi.ScalarTransform4f().scale(mi.ScalarPoint3f(w, w, 1.0))},
@@ -425,14 +427,9 @@ def build_mitsuba_scene(volume, sun_zenith_deg, sun_azimuth_deg, aerosol: Aeroso
             "cloud_g": cloud_g, "channel": channel, "variant": mi.variant()}
 
 
-def _enu(zenith_deg, azimuth_deg):
-    th, ph = np.radians(zenith_deg), np.radians(azimuth_deg)
-    return np.stack([np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
-
-
 def directions_from_angles(view_zenith_deg, view_azimuth_deg):
     """Unit view directions (n, 3) (east, north, up) from zenith and azimuth [deg] (docs/frames.md)."""
-    return _enu(np.asarray(view_zenith_deg, dtype=float), np.asarray(view_azimuth_deg, dtype=float))
+    return enu_from_azimuth_zenith(view_azimuth_deg, view_zenith_deg)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -645,11 +642,11 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
     ds = render(scene, camera=camera, camera_options=options, sun_zenith=float(sun_zenith_deg),
                 sun_azimuth=float(cfg["sun_azimuth"]), aerosol=aerosol, height=height,
                 settings=MarchSettings() if march_settings is None else march_settings)
-    sky = (ds["radiance_clear"] + ds["radiance_cloud"].fillna(0) + ds["radiance_surface"].fillna(0)).values.astype(float)
+    sky = radiance_without_sun_disk(ds)
     vz = ds["view_zenith"].values.astype(float)
     va = ds["view_azimuth"].values.astype(float)
     d = directions_from_angles(vz, va)
-    sun = _enu(float(ds.attrs["sun_zenith_deg"]), float(ds.attrs["sun_azimuth_deg"]))
+    sun = enu_from_azimuth_zenith(float(ds.attrs["sun_azimuth_deg"]), float(ds.attrs["sun_zenith_deg"]))
     scat = np.degrees(np.arccos(np.clip(np.nan_to_num(d) @ sun, -1.0, 1.0)))
     mask = np.isfinite(vz) & np.all(np.isfinite(sky), axis=0) & (scat > float(cfg["sun_exclusion_deg"]))
     if view == "ground":

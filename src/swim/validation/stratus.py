@@ -22,7 +22,9 @@ import logging
 
 import numpy as np
 
+from ..diagnostics.irradiance import radiance_without_sun_disk as _sky
 from ..errors import SwimInputError
+from ..frames import enu_from_azimuth_zenith
 from ..rt.gas import AerosolBackground
 from .disort import (
     CLOUD_HG_ASYMMETRY,
@@ -132,15 +134,6 @@ def _disort_radiances(layers, sun_zenith_deg, ground_views, space_views, surface
     return out[: gz.size], out[gz.size:]
 
 
-def _sky(ds):
-    """Sky radiance without the sun's disk (3, ny, nx)."""
-    return (ds["radiance_clear"].fillna(0) + ds["radiance_cloud"].fillna(0) + ds["radiance_surface"].fillna(0)).values
-
-
-def _look(zenith_deg, azimuth_deg):
-    th, ph = np.radians(zenith_deg), np.radians(azimuth_deg)
-    return np.stack([np.sin(th) * np.sin(ph), np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
-
 
 def render_space_views(scene, sun_zenith_deg, sun_azimuth_deg, views=DEFAULT_SPACE_VIEWS, settings=None,
                        target_height_m=1250.0, aerosol=None):
@@ -160,7 +153,7 @@ def render_space_views(scene, sun_zenith_deg, sun_azimuth_deg, views=DEFAULT_SPA
     out = []
     for theta, rel_az in views:
         look_az = float(sun_azimuth_deg) + float(rel_az)
-        towards_observer = _look(theta, look_az + 180.0)
+        towards_observer = enu_from_azimuth_zenith(look_az + 180.0, theta)
         target = np.array([0.0, 0.0, 6_371_000.0 + target_height_m])
         lat, lon, h = scene_to_geodetic(target + _SPACE_DISTANCE_M * towards_observer, _LAT0, _LON0)
         ds = render(scene, lat=float(lat), lon=float(lon), height=float(h), camera="perspective",
@@ -231,12 +224,12 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
 
     # sky-dome views: nearest pixels of the dome directions, DISORT at their exact directions
     zen, az = sky_dome_directions(zenith_step_deg, azimuth_step_deg, max_zenith_deg)
-    row, col = cam.pixel_of_direction(_look(zen, az))
+    row, col = cam.pixel_of_direction(enu_from_azimuth_zenith(az, zen))
     rc = np.unique(np.stack([np.rint(row), np.rint(col)], axis=-1).astype(int), axis=0)
     r, c = rc[:, 0], rc[:, 1]
     vz = ds["view_zenith"].values[r, c].astype(float)
     va = ds["view_azimuth"].values[r, c].astype(float)
-    scat = np.degrees(np.arccos(np.clip(_look(vz, va) @ _look(sz, sa), -1.0, 1.0)))
+    scat = np.degrees(np.arccos(np.clip(enu_from_azimuth_zenith(va, vz) @ enu_from_azimuth_zenith(sa, sz), -1.0, 1.0)))
     keep = (scat > sun_exclusion_deg) & (vz <= max_zenith_deg + 1.0)
     r, c, vz, va = r[keep], c[keep], vz[keep], va[keep]
     centre = (int(camera_size) - 1) // 2
