@@ -109,6 +109,21 @@ class AerosolBackground:
 
         A Gaussian in height whose integral over 0-100 km is ``stratospheric_aod_550``, scaled to the
         wavelengths with the type's Angstrom exponent.
+
+        Parameters
+        ----------
+        heights_m : array_like
+            Shape (n_h,): heights [m].
+        wavelengths_nm : array_like
+            Shape (C,): wavelengths [nm].
+
+        Returns
+        -------
+        numpy.ndarray
+            Shape (n_h, C): extinction coefficient [m-1].
+
+        Source: Albers et al. (2020), Sect. 3.3 (the 1-D stratospheric variable of Step 2); the profile is a
+        project choice (docs/aerosols.md, §7).
         """
         h = np.asarray(heights_m, dtype=float)
         shape = np.exp(-0.5 * ((h - self.stratospheric_height_m) / self.stratospheric_width_m) ** 2)

@@ -270,6 +270,10 @@ def diffuse_source_profiles(start, direction, bounds, consts):
     relative azimuth, which change along a ray only through the curvature of the earth. Each ray takes them
     at its lowest point in the atmosphere (the observer for upward views, the ground for downward ones, the
     tangent point for limb views), where most of its scattering happens, and keeps the height dependence.
+
+    Inputs are the chunk's rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3) and ``bounds`` (n, 3) [m]
+    of :func:`ray_segments`; the result holds J of molecules, aerosol and stratospheric aerosol at
+    615/546/450 nm [-] (solar-relative radiance per unit scattering optical depth) on the table's heights.
     """
     radius = consts["radius"]
     pz = start[:, 2] + radius
