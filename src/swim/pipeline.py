@@ -25,8 +25,8 @@ from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.scene import validate_scene
 from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
-from .rt.gas import AerosolBackground, build_gas_tables
-from .rt.march import MarchSettings, grid_geometry, kernel_constants, trace_rays
+from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
+from .rt.march import MarchSettings, aerosol_column_optical_depth, grid_geometry, kernel_constants, trace_rays
 from .rt.solar import solar_transmittance
 
 log = logging.getLogger(__name__)
@@ -196,8 +196,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     # The mean column of a 3-D aerosol field joins the background aerosol in the multiple-scattering table.
     aer3d = volume["aerosol_extinction"].mean(dim=("y", "x")).values.astype(float)
     levels = float(volume.attrs["z_bottom"]) + float(volume.attrs["dz"]) * np.arange(aer3d.size)
+    # A non-uniform field gets one table per class of column optical depth (Eqs. 30-31, docs/aerosols.md §8).
+    classes = aerosol_column_classes(aerosol_column_optical_depth(volume).values) if np.any(aer3d > 0) else None
     gas = build_gas_tables(aerosol, surface_albedo=np.asarray(mean_albedo.values, dtype=float),
-                           scene_aerosol_profile=(levels, aer3d) if np.any(aer3d > 0) else None)
+                           scene_aerosol_profile=(levels, aer3d) if np.any(aer3d > 0) else None,
+                           aerosol_class_aod=classes)
     consts = kernel_constants(volume, transmittance, gas, sun_scene)
     geometry = grid_geometry(volume)
 

@@ -8,13 +8,20 @@ from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
 from swim.optics.rayleigh import rayleigh_phase_function
 from swim.optics.volume import build_optical_volume
-from swim.rt.gas import AerosolBackground, build_gas_tables
-from swim.rt.march import MarchSettings, grid_geometry, kernel_constants, ray_segments, trace_rays
+from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
+from swim.rt.march import (
+    MarchSettings,
+    aerosol_column_optical_depth,
+    grid_geometry,
+    kernel_constants,
+    ray_segments,
+    trace_rays,
+)
 from swim.rt.reference import reference_trace_ray
 from swim.rt.solar import solar_transmittance
 
 
-def _tiny_scene():
+def _tiny_scene(aerosol_plume=False):
     rng = np.random.default_rng(3)
     n, spacing = 12, 400.0
     x = (np.arange(n) - n / 2 + 0.5) * spacing
@@ -24,15 +31,24 @@ def _tiny_scene():
     liquid = 6e-4 * blob * (1 + 0.3 * rng.random(blob.shape))
     ice = 2e-5 * np.exp(-((zz - 4200) / 300) ** 2) * (xx > 0)
     terrain = 600.0 * np.exp(-(((xx[0] + 1500) / 800) ** 2 + ((yy[0] - 1000) / 800) ** 2))
+    # A smoke plume (column AOD ~1.5) over the western half: several column classes of the tables.
+    aerosol = 6e-4 * np.exp(-zz / 1500.0) * np.clip((600.0 - xx) / 1200.0, 0.0, 1.0) if aerosol_plume else None
     return scene_from_arrays(x=x, y=x, z=z, reference_lat=30.0, reference_lon=10.0, terrain_height=terrain,
-                             cloud_liquid_content=liquid, cloud_ice_content=ice, land_mask=1.0)
+                             cloud_liquid_content=liquid, cloud_ice_content=ice, land_mask=1.0,
+                             aerosol_extinction=aerosol)
 
 
 def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), settings=MarchSettings(n_grid=400, n_after=200),
            rayleigh_scattering=True):
     volume = build_optical_volume(scene)
     transmittance = solar_transmittance(volume, sun)
-    gas = build_gas_tables(aerosol)
+    aer3d = volume["aerosol_extinction"].mean(dim=("y", "x")).values.astype(float)
+    profile, classes = None, None
+    if np.any(aer3d > 0):
+        levels = float(volume.attrs["z_bottom"]) + float(volume.attrs["dz"]) * np.arange(aer3d.size)
+        profile = (levels, aer3d)
+        classes = aerosol_column_classes(aerosol_column_optical_depth(volume).values)
+    gas = build_gas_tables(aerosol, scene_aerosol_profile=profile, aerosol_class_aod=classes)
     consts = kernel_constants(volume, transmittance, gas, sun)
     cos_theta = directions @ sun
     phase = {"cos_theta": cos_theta, "cos_view_zenith": directions[:, 2],
@@ -43,8 +59,9 @@ def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), setting
     return out, (volume, transmittance, gas, phase)
 
 
-def test_kernel_matches_numpy_reference_on_a_tiny_grid():
-    scene = _tiny_scene()
+@pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
+def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume):
+    scene = _tiny_scene(aerosol_plume)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     ground = np.array([0.0, 0.0, EARTH_RADIUS_M + 20.0])  # terrain here is ~6 m
     aircraft = np.array([-2000.0, 1500.0, EARTH_RADIUS_M + 6000.0])
@@ -57,6 +74,8 @@ def test_kernel_matches_numpy_reference_on_a_tiny_grid():
     # with a stratospheric aerosol layer, so that its extinction, source and diffuse source are compared too
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
     out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun, aerosol=aerosol)
+    if aerosol_plume:
+        assert gas.aerosol_class_aod.size >= 3, "the plume must give several column classes"
     assert out["tau_hydrometeor"].max() > 1.0, "the test rays must cross cloud"
     assert out["surface"].sum() >= 3, "some rays must reach the ground"
     for n in range(len(dirs)):

@@ -5,9 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from swim.errors import SwimInputError
+from swim.rt.gas import aerosol_column_classes
 from swim.rt.multiple_scattering import (
     _direction_grid,
     _kernel,
+    aerosol_layer_albedo,
     diffuse_source_table,
     successive_orders_plane_parallel,
     tabulated_phase_function,
@@ -145,3 +148,42 @@ def test_symmetric_kernel_conserves_energy_both_ways():
     k = _kernel(henyey_greenstein(0.9), mu, phi, mu, phi, w, symmetric=True)
     np.testing.assert_allclose(k.sum(axis=1), 1.0, rtol=1e-9)
     np.testing.assert_allclose(w @ k, w, rtol=1e-6)
+
+
+def test_aerosol_layer_albedo_limits_of_eqs_30_31():
+    """omega' (Eq. 31) tends to omega for a thin layer (Eq. 30), is 1 without absorption, and falls with tau
+    while the albedo a rises towards its semi-infinite value."""
+    hg = henyey_greenstein(0.7)
+    ssa = np.array([0.8, 0.9, 1.0])
+    thin = aerosol_layer_albedo(0.001, ssa, hg, 0.6)
+    np.testing.assert_allclose(thin["omega_prime"], ssa, rtol=0.003)
+    assert thin["omega_prime"][2] == pytest.approx(1.0, abs=1e-9)
+    # single scattering: a = omega tau / mu0 x (backscattered share of the beam), small
+    assert np.all(thin["albedo"] < 0.001 / 0.6)
+    # the second order (absorption on the way out) grows with tau: omega' departs from omega
+    assert np.all(aerosol_layer_albedo(0.01, ssa[:2], hg, 0.6)["omega_prime"] < thin["omega_prime"][:2])
+    taus = [0.3, 1.0, 3.0, 8.0]
+    rows = [aerosol_layer_albedo(t, ssa[:2], hg, 0.6) for t in taus]
+    omega_prime = np.array([r["omega_prime"] for r in rows])
+    albedo = np.array([r["albedo"] for r in rows])
+    assert np.all(np.diff(omega_prime, axis=0) < 0)
+    assert np.all(np.diff(albedo, axis=0) > 0)
+    assert np.all(albedo[:, 0] < albedo[:, 1])  # more absorption, darker
+    with pytest.raises(ValueError, match="single-scattering albedo"):
+        aerosol_layer_albedo(1.0, 1.2, hg, 0.6)
+    with pytest.raises(ValueError, match="mu0"):
+        aerosol_layer_albedo(1.0, 0.9, hg, 0.0)
+
+
+@pytest.mark.parametrize("shape", [(7,), (4, 5)])
+def test_aerosol_column_classes(shape):
+    rng = np.random.default_rng(1)
+    column = rng.uniform(0.2, 2.0, shape)
+    classes = aerosol_column_classes(column)
+    assert classes[0] == pytest.approx(column.min(), rel=2e-3)
+    assert classes[-1] == pytest.approx(column.max(), rel=2e-3)
+    assert np.all(np.diff(classes) > 0) and len(classes) == 5
+    assert aerosol_column_classes(np.full(shape, 0.7)) is None  # uniform: the mean column serves
+    assert aerosol_column_classes(np.zeros(shape)) is None
+    with pytest.raises(SwimInputError, match="column aerosol optical depth"):
+        aerosol_column_classes(-column)

@@ -19,6 +19,13 @@ Table layout (all float32 for the kernels):
   :mod:`swim.rt.multiple_scattering`;
 * ``diffuse_source``: that module's :class:`~swim.rt.multiple_scattering.DiffuseSourceTable`, the
   directional source of the higher scattering orders that the ray march adds to Eq. 3.
+
+A scene's 3-D aerosol field enters the multiple-scattering solution by *column classes* (the project's
+form of the paper's Eqs. 30-31, absorbing aerosol layers and their multiple-scattering albedo omega'): one
+successive-orders table per class of column aerosol optical depth (``aerosol_class_aod``), each for the
+scene's mean aerosol profile scaled to that column; the kernel interpolates between the two classes that
+bracket the column of each ray (docs/aerosols.md, §8). Absorption inside the plume then darkens its
+multiply scattered light exactly as in a plane-parallel column of the same optical depth and omega.
 """
 
 from __future__ import annotations
@@ -151,6 +158,13 @@ class GasTables:
     diffuse_source: DiffuseSourceTable
     surface_albedo: tuple
     top_m: float = ATMOSPHERE_TOP_M
+    #: Column optical depth at 550 nm of the scene's 3-D aerosol in each class (n_class,) [-]; [0] without
+    #: a 3-D field, (mean,) when the field has a single class.
+    aerosol_class_aod: np.ndarray | None = None
+    #: One :class:`DiffuseSourceTable` per class (``diffuse_source`` is the class nearest the mean column).
+    diffuse_sources: tuple = ()
+    #: ``diffuse_horizontal`` of each class, (n_class, n_u, n_mu, 3) [-].
+    diffuse_horizontal_classes: np.ndarray | None = None
 
 
 def _slant_optical_depth(h, mu, heights, beta, top, radius, n_steps=400):
@@ -190,9 +204,47 @@ def _surface_albedo3(surface_albedo):
     return tuple(float(x) for x in np.round(a / 0.005) * 0.005)
 
 
+def aerosol_column_classes(column_aod, fractions=(0.0, 0.125, 0.25, 0.5, 1.0)):
+    """Classes of column aerosol optical depth for the multiple-scattering tables of a 3-D aerosol field.
+
+    Parameters
+    ----------
+    column_aod : array_like
+        Column optical depth at 550 nm of the scene's 3-D aerosol, any shape (usually (y, x)) [-], >= 0.
+    fractions : sequence of float
+        Class positions between the smallest and the largest column, 0 and 1 included (denser towards thin
+        columns, where the diffuse source changes fastest with the optical depth).
+
+    Returns
+    -------
+    tuple of float or None
+        Increasing class optical depths rounded to 3 significant digits; None when the field is empty or so
+        uniform (spread <= 5 % of the largest column + 0.005) that the mean column serves every ray.
+
+    Raises
+    ------
+    SwimInputError
+        Negative or non-finite column optical depths.
+
+    References
+    ----------
+    Albers et al. (2020), Sect. 3.5.4, Eqs. 30-31 (absorbing aerosol layers; docs/aerosols.md, §8).
+    """
+    a = np.asarray(column_aod, dtype=float)
+    if a.size == 0:
+        return None
+    if np.any(~np.isfinite(a)) or np.any(a < 0):
+        raise SwimInputError("column aerosol optical depth of the 3-D aerosol field must be finite and >= 0 [-]")
+    lo, hi = float(a.min()), float(a.max())
+    if hi <= 0 or hi - lo <= 0.05 * hi + 0.005:
+        return None
+    values = sorted({float(f"{lo + (hi - lo) * f:.3g}") for f in fractions})
+    return tuple(values)
+
+
 def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengths_nm=WAVELENGTHS_NM,
                      dh=100.0, n_u=96, n_mu=512, radius=EARTH_RADIUS_M, surface_albedo=0.1,
-                     scene_aerosol_profile=None) -> GasTables:
+                     scene_aerosol_profile=None, aerosol_class_aod=None) -> GasTables:
     """Build the Step 2 clear-atmosphere tables.
 
     Parameters
@@ -215,6 +267,10 @@ def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengt
         It joins the background aerosol in the multiple-scattering solution only (the kernel has the 3-D
         field itself), so that the diffuse light of a hazy or smoky scene is that of its mean aerosol
         column. Rounded to 3 significant digits (the cache key).
+    aerosol_class_aod : sequence of float, optional
+        Column optical depths at 550 nm [-] of the classes of :func:`aerosol_column_classes`: one table per
+        class, for ``scene_aerosol_profile`` scaled to that column (needs the profile). None: one table for
+        the mean column.
 
     Returns
     -------
@@ -231,8 +287,16 @@ def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengt
     US Standard Atmosphere (1976).
     """
     wl = tuple(float(w) for w in np.atleast_1d(wavelengths_nm))
+    profile = _profile_key(scene_aerosol_profile)
+    classes = None
+    if aerosol_class_aod is not None:
+        classes = tuple(float(f"{float(c):.3g}") for c in np.atleast_1d(aerosol_class_aod))
+        if len(classes) < 2 or np.any(np.diff(classes) <= 0) or classes[0] < 0:
+            raise SwimInputError(f"aerosol_class_aod must hold >= 2 increasing column optical depths >= 0; got {classes}")
+        if profile is None:
+            raise SwimInputError("aerosol_class_aod needs scene_aerosol_profile (the 3-D field's mean profile)")
     return _build_gas_tables_cached(aerosol, wl, float(dh), int(n_u), int(n_mu), float(radius),
-                                    _surface_albedo3(surface_albedo), _profile_key(scene_aerosol_profile))
+                                    _surface_albedo3(surface_albedo), profile, classes)
 
 
 def _profile_key(profile):
@@ -251,7 +315,7 @@ def _profile_key(profile):
 
 @functools.lru_cache(maxsize=8)
 def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_albedo,
-                             scene_profile=None) -> GasTables:
+                             scene_profile=None, classes=None) -> GasTables:
     """Cached worker of :func:`build_gas_tables` (the tables depend only on these arguments)."""
     wl = np.asarray(wavelengths_nm, dtype=float)
     heights = np.arange(0.0, ATMOSPHERE_TOP_M + dh / 2, dh)
@@ -272,20 +336,31 @@ def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, sur
 
     # Multiple scattering: successive orders in the plane-parallel equivalent of this atmosphere.
     depolarization = float(np.mean(rayleigh_depolarization_ratio(wl)))
-    beta_a_ms = beta_a
+    # The 3-D aerosol of the scene: its mean profile, or that profile scaled to each column class.
+    profiles_3d, class_aod, column = [np.zeros_like(heights)], np.zeros(1), 0.0
     if scene_profile is not None:
         mean3d = np.interp(heights, scene_profile[0], scene_profile[1], left=0.0, right=0.0)
-        beta_a_ms = beta_a + mean3d[:, None] * factor[None, :]
-    source = diffuse_source_table(
-        heights, [beta_r, beta_a_ms, beta_s], [np.ones(3), aerosol.ssa, np.asarray(aerosol.stratospheric.ssa, float)],
-        [lambda c: _rayleigh_phase(np.asarray(c, np.float32), depolarization),
-         lambda c: _aerosol_phase(aerosol.type, np.asarray(c, np.float32)),
-         lambda c: _aerosol_phase(aerosol.stratospheric, np.asarray(c, np.float32))],
-        surface_albedo, ATMOSPHERE_TOP_M)
-    # Its downward diffuse irradiance on the transmittance grid (bilinear in u and sqrt(mu_s); 0 below the horizon).
-    fu = np.interp(u, source.u, np.arange(source.u.size))
-    fs = np.interp(np.sqrt(np.clip(mu, 0.0, 1.0)), source.t_s, np.arange(source.t_s.size))
-    diffuse = np.stack([_bilinear(source.diffuse_down[..., c], fu, fs) for c in range(3)], axis=-1)
+        column = float(np.trapezoid(mean3d, heights))
+        if classes is None:
+            profiles_3d, class_aod = [mean3d], np.array([column])
+        else:
+            profiles_3d = [mean3d * (c / column) for c in classes]
+            class_aod = np.asarray(classes, dtype=float)
+    sources = []
+    for beta_3d in profiles_3d:
+        sources.append(diffuse_source_table(
+            heights, [beta_r, beta_a + beta_3d[:, None] * factor[None, :], beta_s],
+            [np.ones(3), aerosol.ssa, np.asarray(aerosol.stratospheric.ssa, float)],
+            [lambda c: _rayleigh_phase(np.asarray(c, np.float32), depolarization),
+             lambda c: _aerosol_phase(aerosol.type, np.asarray(c, np.float32)),
+             lambda c: _aerosol_phase(aerosol.stratospheric, np.asarray(c, np.float32))],
+            surface_albedo, ATMOSPHERE_TOP_M))
+    # Their downward diffuse irradiance on the transmittance grid (bilinear in u and sqrt(mu_s); 0 below the horizon).
+    fu = np.interp(u, sources[0].u, np.arange(sources[0].u.size))
+    fs = np.interp(np.sqrt(np.clip(mu, 0.0, 1.0)), sources[0].t_s, np.arange(sources[0].t_s.size))
+    diffuse = np.stack([np.stack([_bilinear(src.diffuse_down[..., c], fu, fs) for c in range(3)], axis=-1)
+                        for src in sources]).astype(np.float32)
+    nearest = int(np.argmin(np.abs(class_aod - column)))
 
     return GasTables(
         dh=dh,
@@ -295,12 +370,15 @@ def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, sur
         n_u=n_u,
         n_mu=n_mu,
         sun_transmittance=transmittance.astype(np.float32),
-        diffuse_horizontal=diffuse.astype(np.float32),
+        diffuse_horizontal=diffuse[nearest],
         depolarization=depolarization,
         aerosol=aerosol,
         angstrom_factor=factor.astype(np.float32),
-        diffuse_source=source,
+        diffuse_source=sources[nearest],
         surface_albedo=surface_albedo,
+        aerosol_class_aod=class_aod,
+        diffuse_sources=tuple(sources),
+        diffuse_horizontal_classes=diffuse,
     )
 
 

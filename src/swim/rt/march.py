@@ -263,42 +263,95 @@ def _gas_at(h, mu_s, consts):
     return beta[:, :3], beta[:, 3:6], beta[:, 6:], sky[:, :3], sky[:, 3:]
 
 
-def diffuse_source_profiles(start, direction, bounds, consts):
+def lowest_point(start, direction, bounds, consts):
+    """The point of each ray closest to the earth's centre, clipped to the traced segment (n, 3).
+
+    Rebased like ``start`` (scene frame minus (0, 0, R)): the observer for upward views, the ground for
+    downward ones, the tangent point for limb views. Inputs: the chunk's rebased ``start`` (n, 3) [m], unit
+    ``direction`` (n, 3) and ``bounds`` (n, 3) [m] of :func:`ray_segments`.
+    """
+    radius = consts["radius"]
+    pz = start[:, 2] + radius
+    s_low = jnp.clip(-(start[:, 0] * direction[:, 0] + start[:, 1] * direction[:, 1] + pz * direction[:, 2]),
+                     0.0, bounds[:, 2])
+    return start + s_low[:, None] * direction
+
+
+def aerosol_class_weights(point, consts):
+    """Class of the 3-D aerosol column at rebased points (n, 3): lower class index (n,) and weight (n, 1).
+
+    Linear in the column optical depth between the classes of :func:`swim.rt.gas.aerosol_column_classes`
+    (clamped at both ends); index 0 and weight 0 when the tables have a single class.
+    """
+    class_aod = consts["class_aod"]
+    n_class = class_aod.shape[0]
+    if n_class == 1:
+        return jnp.zeros(point.shape[0], jnp.int32), jnp.zeros((point.shape[0], 1), jnp.float32)
+    _, _, _, j, i = _point_geometry(point, consts)
+    column = bilinear_clamped(consts["aerosol_column"], j, i)[:, 0]
+    f = jnp.clip(jnp.interp(column, class_aod, jnp.arange(n_class, dtype=jnp.float32)), 0.0, n_class - 1.001)
+    c0 = jnp.floor(f).astype(jnp.int32)
+    return c0, (f - c0)[:, None]
+
+
+def diffuse_at(h, mu_s, aerosol_class, consts):
+    """Downward diffuse irradiance on a horizontal surface / E_TOA (n, 3) of the ray's aerosol class."""
+    table = consts["diffuse_classes"]
+    n_class, nu, nmu = table.shape[:3]
+    fu = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (nu - 1)
+    fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
+    if n_class == 1:
+        return _bilinear_table(table[0], fu, fm)
+    c0, wc = aerosol_class
+    fu = jnp.clip(fu, 0.0, nu - 1.001)
+    fm = jnp.clip(fm, 0.0, nmu - 1.001)
+    u0 = jnp.floor(fu).astype(jnp.int32)
+    m0 = jnp.floor(fm).astype(jnp.int32)
+    a = (fu - u0)[:, None]
+    b = (fm - m0)[:, None]
+    out = 0.0
+    for dc, w in ((0, 1 - wc), (1, wc)):
+        out = out + w * (table[c0 + dc, u0, m0] * (1 - a) * (1 - b) + table[c0 + dc, u0 + 1, m0] * a * (1 - b)
+                         + table[c0 + dc, u0, m0 + 1] * (1 - a) * b + table[c0 + dc, u0 + 1, m0 + 1] * a * b)
+    return out
+
+
+def diffuse_source_profiles(point, direction, aerosol_class, consts):
     """Per-ray height profiles of the diffuse (multiple-scattering) source, (n, n_u, 9).
 
     The table of :mod:`swim.rt.multiple_scattering` depends on the local sun and view cosines and the
     relative azimuth, which change along a ray only through the curvature of the earth. Each ray takes them
-    at its lowest point in the atmosphere (the observer for upward views, the ground for downward ones, the
-    tangent point for limb views), where most of its scattering happens, and keeps the height dependence.
+    at its lowest point in the atmosphere (:func:`lowest_point`: the observer for upward views, the ground
+    for downward ones, the tangent point for limb views), where most of its scattering happens, and keeps
+    the height dependence; with a 3-D aerosol field it takes the table of the aerosol column there
+    (:func:`aerosol_class_weights`, the project's form of Eqs. 30-31).
 
-    Inputs are the chunk's rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3) and ``bounds`` (n, 3) [m]
-    of :func:`ray_segments`; the result holds J of molecules, aerosol and stratospheric aerosol at
-    615/546/450 nm [-] (solar-relative radiance per unit scattering optical depth) on the table's heights.
+    Inputs are the rebased ``point`` (n, 3) [m] of :func:`lowest_point`, the unit ``direction`` (n, 3) and
+    the class of :func:`aerosol_class_weights`; the result holds J of molecules, aerosol and stratospheric
+    aerosol at 615/546/450 nm [-] (solar-relative radiance per unit scattering optical depth) on the table's
+    heights.
     """
-    radius = consts["radius"]
-    pz = start[:, 2] + radius
-    # Distance to the ray's closest approach to the earth's centre, clipped to the traced segment.
-    s_low = jnp.clip(-(start[:, 0] * direction[:, 0] + start[:, 1] * direction[:, 1] + pz * direction[:, 2]),
-                     0.0, bounds[:, 2])
-    q = jnp.stack([start[:, 0] + s_low * direction[:, 0], start[:, 1] + s_low * direction[:, 1],
-                   pz + s_low * direction[:, 2]], axis=1)
+    q = point + jnp.array([0.0, 0.0, 1.0], jnp.float32) * consts["radius"]
     up = q / jnp.linalg.norm(q, axis=1, keepdims=True)
     sun = consts["sun"]
     mu_v = jnp.sum(up * direction, axis=1)
     mu_s = up @ sun
     cos_phi = (direction @ sun - mu_v * mu_s) / jnp.sqrt(jnp.maximum((1 - mu_v**2) * (1 - mu_s**2), 1e-12))
-    table = consts["ms_source"]  # (n_s, n_v, n_phi, n_u, 9)
-    n_s, n_v, n_phi = table.shape[:3]
+    table = consts["ms_source"]  # (n_class, n_s, n_v, n_phi, n_u, 9)
+    n_s, n_v, n_phi = table.shape[1:4]
     fs = jnp.clip(jnp.sqrt(jnp.clip(mu_s, 0.0, 1.0)) * (n_s - 1), 0.0, n_s - 1.001)
     fv = jnp.clip((mu_v + 1.0) * 0.5 * (n_v - 1), 0.0, n_v - 1.001)
     fp = jnp.clip(jnp.arccos(jnp.clip(cos_phi, -1.0, 1.0)) / jnp.pi * (n_phi - 1), 0.0, n_phi - 1.001)
     s0, v0, p0 = (jnp.floor(f).astype(jnp.int32) for f in (fs, fv, fp))
     ws, wv, wp = ((f - jnp.floor(f))[:, None, None] for f in (fs, fv, fp))
+    c0, wc = aerosol_class
+    classes = ((0, 1.0),) if table.shape[0] == 1 else ((0, 1 - wc[:, :, None]), (1, wc[:, :, None]))
     profile = 0.0
-    for ds, a in ((0, 1 - ws), (1, ws)):
-        for dv, b in ((0, 1 - wv), (1, wv)):
-            for dp, c in ((0, 1 - wp), (1, wp)):
-                profile = profile + table[s0 + ds, v0 + dv, p0 + dp] * (a * b * c)
+    for dc, w in classes:
+        for ds, a in ((0, 1 - ws), (1, ws)):
+            for dv, b in ((0, 1 - wv), (1, wv)):
+                for dp, c in ((0, 1 - wp), (1, wp)):
+                    profile = profile + table[c0 + dc, s0 + ds, v0 + dv, p0 + dp] * (a * b * c * w)
     return profile
 
 
@@ -312,10 +365,11 @@ def _profile_at(profile, h, consts):
     return profile[rows, i0] * (1 - w) + profile[rows, i0 + 1] * w
 
 
-def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts, ms_profile):
+def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts, ms_profile, aerosol_class):
     """Accumulate one ray segment with n_steps midpoint steps (see module docstring).
 
-    ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only.
+    ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only;
+    ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
     """
     multiple_scattering = ms_profile is not None
     outside = jnp.concatenate([jnp.zeros(N_CHANNELS - 1), jnp.ones(1)]).astype(jnp.float32)
@@ -348,7 +402,10 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         # direct beam / E_TOA, lights the gas and aerosol (Eq. 3): gas, hydrometeors (T), 3-D aerosol
         irradiance = t_sun * t_cloud[:, None] * t_aerosol
         if in_grid:
-            # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a).
+            # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a); with
+            # aerosol column classes, that of the ray's class.
+            if consts["class_aod"].shape[0] > 1:
+                diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
             skylight = SKYLIGHT_SCALAR_FACTOR * diffuse * t_cloud[:, None]
         # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors.
         irradiance_h = irradiance + skylight if in_grid else irradiance
@@ -404,12 +461,15 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         "gap": jnp.full(n, 1e9, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)
-    ms = diffuse_source_profiles(start, direction, bounds, consts) if settings.multiple_scattering else None
-    state = _march_segment(state, start, direction, zero, bounds[:, 0], settings.n_before, False, rays, consts, ms)
-    state = _march_segment(state, start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, True, rays,
-                           consts, ms)
+    low = lowest_point(start, direction, bounds, consts)
+    aerosol_class = aerosol_class_weights(low, consts)
+    ms = diffuse_source_profiles(low, direction, aerosol_class, consts) if settings.multiple_scattering else None
+    args = (rays, consts, ms, aerosol_class)
+    state = _march_segment(state, start, direction, zero, bounds[:, 0], settings.n_before, False, *args)
+    state = _march_segment(state, start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, True,
+                           *args)
     state = _march_segment(state, start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after, False,
-                           rays, consts, ms)
+                           *args)
 
     # ---- ground: Lambertian, direct + diffuse (Eq. 35 with ARF = 1) ----
     surface = state["hit"] | (ends_on_ground & state["alive"])
@@ -417,6 +477,8 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
     _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
+    if consts["class_aod"].shape[0] > 1:
+        diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
     outside_t = jnp.array([0.0, 1.0], jnp.float32)
     above = trilinear(consts["volume"][..., -2:], k + 1.0, j, i, outside_t)
     t_cloud = above[:, 1]
@@ -498,6 +560,12 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     }
 
 
+def aerosol_column_optical_depth(volume):
+    """Column optical depth at 550 nm of the optical volume's 3-D aerosol (y, x) [-] (sum over its levels)."""
+    aer = volume["aerosol_extinction"]
+    return (aer.sum("level") * float(volume.attrs["dz"])).rename("aerosol_column_optical_depth")
+
+
 def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
     """Device arrays and scalars shared by all chunks of a render."""
     geometry = grid_geometry(volume)
@@ -522,7 +590,10 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
         "top": f32(gas.top_m),
         "beta_gas": f32(np.concatenate([gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric], axis=-1)),
         "sky": f32(np.concatenate([gas.sun_transmittance, gas.diffuse_horizontal], axis=-1)),
-        "ms_source": f32(gas.diffuse_source.source),
+        "ms_source": f32(np.stack([t.source for t in gas.diffuse_sources])),
+        "diffuse_classes": f32(gas.diffuse_horizontal_classes),
+        "class_aod": f32(gas.aerosol_class_aod),
+        "aerosol_column": f32(aerosol_column_optical_depth(volume).values[..., None]),
         "angstrom": f32(gas.angstrom_factor),
         "aerosol_ssa": f32(gas.aerosol.ssa),
         "stratospheric_ssa": f32(gas.aerosol.stratospheric.ssa),

@@ -40,7 +40,7 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DiffuseSourceTable", "diffuse_source_table", "successive_orders_plane_parallel"]
+__all__ = ["DiffuseSourceTable", "aerosol_layer_albedo", "diffuse_source_table", "successive_orders_plane_parallel"]
 
 
 @dataclass(frozen=True)
@@ -345,3 +345,78 @@ def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_
     log.debug("diffuse source table: %d orders, tau = %s", sol["orders"], d_tau.sum(axis=0))
     return DiffuseSourceTable(u=u, t_s=t_s, mu_v=mu_v, phi_deg=phi_deg, source=source.astype(np.float32),
                               diffuse_down=diffuse_down, scalar_diffuse=scalar, orders=sol["orders"])
+
+
+def aerosol_layer_albedo(tau, ssa, phase_function, mu0, n_layers=None, n_half=24, max_orders=400):
+    """Plane albedo of an isolated aerosol layer and its multiple-scattering albedo omega' (Eqs. 30-31).
+
+    The layer (no gas, black ground) is solved by successive orders of scattering; its albedo a is the
+    reflected flux over the incident flux mu0 E. Eq. 31 writes a = omega' b tau / (1 + b tau), where
+    b tau / (1 + b tau) is the albedo of the same layer without absorption (Eq. 6); omega' is therefore the
+    ratio of the absorbing layer's albedo to the conservative one's. It tends to omega for a thin layer
+    (Eq. 30: absorption acts once per scattering) and falls as tau grows (each of the more numerous
+    scatterings may absorb), while a itself tends to the albedo of a semi-infinite layer, 0.3-0.5 for smoke
+    and dust according to the paper.
+
+    The renderer does not use this function: it gets the same physics, per column, from the
+    successive-orders tables of :func:`swim.rt.gas.build_gas_tables` (column classes); this is the
+    diagnostic that reports a and omega' for a layer (docs/aerosols.md §8).
+
+    Parameters
+    ----------
+    tau : float
+        Optical depth of the layer [-], > 0.
+    ssa : array_like
+        Shape (C,) or scalar: single-scattering albedo omega [-], in (0, 1].
+    phase_function : callable
+        cos θ -> P(θ), mean 1 over the sphere, grey or with a last axis of C channels.
+    mu0 : float
+        Cosine of the solar zenith angle [-], in (0, 1].
+    n_layers : int, optional
+        Sub-layers (thinner at the top, where the single-scattering source varies fastest); default
+        4 tau, at least 24 and at most 120.
+    n_half : int
+        Gauss cosines per hemisphere (24 resolves the forward peak of dust, g ~ 0.86, to ~1 % of DISORT's
+        flux; the renderer's tables use 10).
+    max_orders : int
+        Orders of scattering at most (a geometric tail is added on convergence).
+
+    Returns
+    -------
+    dict
+        ``albedo`` (C,): plane albedo a [-]; ``albedo_conservative`` (C,): the same layer with omega = 1;
+        ``omega_prime`` (C,): a / albedo_conservative [-] (Eq. 31).
+
+    Raises
+    ------
+    ValueError
+        tau <= 0, ssa outside (0, 1] or mu0 outside (0, 1].
+
+    References
+    ----------
+    Albers et al. (2020), Sect. 3.5.4, Eqs. 30-31, doi:10.5194/amt-13-3235-2020.
+    """
+    ssa = np.atleast_1d(np.asarray(ssa, dtype=float))
+    if not (np.isfinite(tau) and tau > 0):
+        raise ValueError(f"aerosol layer optical depth must be > 0, got {tau}")
+    if np.any(~(ssa > 0)) or np.any(ssa > 1):
+        raise ValueError(f"single-scattering albedo must be in (0, 1], got {ssa}")
+    if not (0 < mu0 <= 1):
+        raise ValueError(f"mu0 must be in (0, 1], got {mu0}")
+    n_c = ssa.size
+    n_layers = int(np.clip(np.ceil(4 * tau), 24, 120)) if n_layers is None else int(n_layers)
+    edges = tau * np.linspace(0.0, 1.0, n_layers + 1) ** 2  # top first, thin layers near the top
+    d_tau = np.repeat(np.diff(edges)[:, None], n_c, axis=1)
+    phase = tabulated_phase_function(phase_function)
+
+    def albedo(omega):
+        sol = successive_orders_plane_parallel(d_tau, np.broadcast_to(omega, d_tau.shape), np.ones((1,) + d_tau.shape),
+                                               np.array([mu0]), np.zeros(n_c), [phase], n_half=n_half,
+                                               max_orders=max_orders)
+        up = sol["mu"] > 0
+        flux = np.einsum("q,qc->c", (sol["weight"] * sol["mu"] / (4 * np.pi))[up], sol["radiance"][0, up, 0])
+        return flux / mu0
+
+    a = albedo(ssa)
+    a_cons = albedo(np.ones(n_c))
+    return {"albedo": a, "albedo_conservative": a_cons, "omega_prime": a / a_cons}

@@ -22,17 +22,34 @@ from ..optics.phase import (
     phase_thin_mixture,
 )
 from ..optics.volume import grid_indices
-from .march import FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, grid_geometry
+from .march import FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, aerosol_column_optical_depth, grid_geometry
 from .solar import transmittance_delta_eddington
 
 
-def _diffuse_source(o, d, s0, s1, heights, gas, sun):
+def _class_weights(o, d, s0, s1, volume, gas, radius):
+    """[(class index, weight)] of the 3-D aerosol column at the ray's lowest point (as the kernel)."""
+    class_aod = np.asarray(gas.aerosol_class_aod, float)
+    if class_aod.size == 1:
+        return [(0, 1.0)]
+    p = o + float(np.clip(-(o @ d), s0, s1)) * d
+    r = np.linalg.norm(p)
+    i, j = grid_indices(volume.attrs, radius * p[0] / r, radius * p[1] / r)
+    column = aerosol_column_optical_depth(volume).values.astype(float)
+    ny, nx = column.shape
+    value = float(RegularGridInterpolator((np.arange(ny), np.arange(nx)), column)(
+        [[np.clip(float(j), 0, ny - 1), np.clip(float(i), 0, nx - 1)]])[0])
+    f = float(np.interp(value, class_aod, np.arange(class_aod.size)))
+    c0 = min(int(np.floor(f)), class_aod.size - 2)
+    return [(c0, 1.0 - (f - c0)), (c0 + 1, f - c0)]
+
+
+def _diffuse_source(o, d, s0, s1, heights, gas, sun, classes):
     """Diffuse source (n, 9) of :mod:`swim.rt.multiple_scattering` at the ray's heights.
 
-    Local sun/view angles are taken at the ray's lowest point between s0 and s1 (as the kernel does);
-    4-D linear interpolation of the table with SciPy.
+    Local sun/view angles are taken at the ray's lowest point between s0 and s1 (as the kernel does), the
+    table(s) of its aerosol column class ``classes`` (:func:`_class_weights`); 4-D linear interpolation
+    with SciPy.
     """
-    table = gas.diffuse_source
     s_low = float(np.clip(-(o @ d), s0, s1))
     up = o + s_low * d
     up = up / np.linalg.norm(up)
@@ -40,11 +57,15 @@ def _diffuse_source(o, d, s0, s1, heights, gas, sun):
     mu_s = float(up @ sun)
     cos_phi = (float(d @ sun) - mu_v * mu_s) / np.sqrt(max((1 - mu_v**2) * (1 - mu_s**2), 1e-12))
     phi = np.degrees(np.arccos(np.clip(cos_phi, -1, 1)))
-    axes = (table.t_s, table.mu_v, table.phi_deg, table.u)
     u = np.sqrt(np.clip(heights / gas.top_m, 0, 1))
-    points = np.stack(np.broadcast_arrays(np.sqrt(np.clip(mu_s, 0, 1)), mu_v, phi, u), axis=-1)
-    return np.stack([RegularGridInterpolator(axes, table.source[..., c].astype(float))(points)
-                     for c in range(table.source.shape[-1])], axis=-1)
+    out = 0.0
+    for c, w in classes:
+        table = gas.diffuse_sources[c]
+        axes = (table.t_s, table.mu_v, table.phi_deg, table.u)
+        points = np.stack(np.broadcast_arrays(np.sqrt(np.clip(mu_s, 0, 1)), mu_v, phi, u), axis=-1)
+        out = out + w * np.stack([RegularGridInterpolator(axes, table.source[..., k].astype(float))(points)
+                                  for k in range(table.source.shape[-1])], axis=-1)
+    return out
 
 
 def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_rayleigh, p_aerosol,
@@ -95,7 +116,6 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     u_axis = np.linspace(0, 1, gas.n_u)
     mu_axis = np.linspace(-1, 1, gas.n_mu)
     t_sun_interp = RegularGridInterpolator((u_axis, mu_axis), gas.sun_transmittance.astype(float))
-    diffuse_interp = RegularGridInterpolator((u_axis, mu_axis), gas.diffuse_horizontal.astype(float))
 
     t1, t2 = ray_sphere_intersections(o, d, radius + gas.top_m)
     if not np.isfinite(t2) or t2 <= 0:
@@ -106,6 +126,13 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     sea = bool(np.isfinite(g1) and 0 < g1 < s1)
     if sea:
         s1 = g1
+    classes = _class_weights(o, d, s0, s1, volume, gas, radius)
+    diffuse_tables = [(RegularGridInterpolator((u_axis, mu_axis), gas.diffuse_horizontal_classes[c].astype(float)), w)
+                      for c, w in classes]
+
+    def diffuse_interp(point):
+        return sum(w * f(point) for f, w in diffuse_tables)
+
     n = max(int(np.ceil((s1 - s0) / step_m)), 1)
     ds = (s1 - s0) / n
     s = s0 + (np.arange(n) + 0.5) * ds
@@ -165,7 +192,7 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     p_strat = np.zeros(3) if p_stratospheric is None else np.asarray(p_stratospheric, float)
     source = (br * p_rayleigh + scat_a * p_aerosol + scat_s * p_strat) * e
     if multiple_scattering:
-        j = _diffuse_source(o, d, s0, s1, h, gas, sun)
+        j = _diffuse_source(o, d, s0, s1, h, gas, sun, classes)
         source = source + (br * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * interp_t(points)[:, None]
     l_clear = np.sum(t_obs * source * step[:, None] * mean, axis=0)
     w = np.maximum(np.exp(-tau_h_before) - np.exp(-np.minimum(tau_h_before + d_tau_h, 2.0)), 0.0)

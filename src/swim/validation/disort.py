@@ -366,6 +366,31 @@ def aerosol_layer_scene(aerosol: AerosolBackground, surface_albedo=0.06, half_wi
                              title=f"uniform 3-D {aerosol.type_name} aerosol layer (DISORT validation)")
 
 
+def aerosol_plume_scene(aerosol: AerosolBackground, edge_x_m=200e3, spacing_m=50e3, half_width_m=450e3,
+                        surface_albedo=0.06, top_m=12_000.0, n_levels=49):
+    """A cloud-free sea scene whose 3-D aerosol is ``aerosol``'s column for x <= ``edge_x_m`` and clear beyond.
+
+    The reference point (x = 0) lies inside the plume for ``edge_x_m > 0`` and in the clear air for
+    ``edge_x_m < 0``, at least |edge_x_m| from the edge, so a ground observer's sky views and the line of
+    sight of a view from space at the reference point stay in air of one column, which DISORT sees as
+    ``aerosol`` (inside) or no aerosol (outside); render with ``AerosolBackground(aod_550=0,
+    type_name=aerosol.type_name)``. The mean column of the scene is neither, so the test exercises the
+    renderer's per-column treatment of a heterogeneous, absorbing aerosol (Eqs. 30-31, docs/aerosols.md §8).
+    """
+    from ..io.scene import scene_from_arrays
+    from ..optics.aerosol import exponential_aerosol_extinction
+
+    x = np.arange(-half_width_m, half_width_m + spacing_m / 2, spacing_m)
+    z = top_m * np.linspace(0.0, 1.0, n_levels) ** 2
+    beta = np.asarray(exponential_aerosol_extinction(z, aerosol.aod_550, aerosol.scale_height_m), dtype=float)
+    inside = (x <= edge_x_m).astype(float)
+    field = beta[:, None, None] * np.broadcast_to(inside[None, None, :], (1, x.size, x.size))
+    return scene_from_arrays(x=x, y=x, z=z, reference_lat=40.0, reference_lon=-105.0,
+                             cloud_liquid_content=np.zeros_like(field), aerosol_extinction=field,
+                             surface_albedo=surface_albedo, land_mask=0.0,
+                             title=f"{aerosol.type_name} plume, AOD {aerosol.aod_550}, edge at x = {edge_x_m / 1e3:g} km")
+
+
 def render_settings_variants():
     """Renderer settings to compare: ``{"default": MarchSettings()}``, plus ``"single scattering"`` (the
     renderer with ``multiple_scattering=False``) where :class:`swim.rt.march.MarchSettings` has that field."""
