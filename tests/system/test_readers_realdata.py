@@ -1,4 +1,4 @@
-"""Readers on the real data in ../shared/data (WRF Katrina and Tibet; RICO and stratocumulus LES).
+"""Readers on the real data in ../shared/data (WRF Katrina and Tibet; WPS geo_em/met_em; RICO and stratocumulus LES).
 
 Reference numbers from ../shared/data/README.md.
 """
@@ -9,12 +9,16 @@ import xarray as xr
 
 from swim.errors import SwimInputError
 from swim.frames import orthographic_xy
-from swim.io import layer_thickness, open_scene, read_shdom_les, read_wrf, validate_scene
+from swim.io import layer_thickness, open_scene, read_shdom_les, read_wps_geogrid, read_wrf, validate_scene
+from swim.surface.albedo import visible_mean
+from swim.surface.landuse import landuse_classes
 
 pytestmark = pytest.mark.realdata
 
 KATRINA = "wrf_katrina/ci_test_file.nc"
 TIBET = "wrf_tibet/wrf_d01_allvars_cropped.nc"
+MET_EM = "wrf_geo/met_em.d01.2005-08-28_12_00_00.nc"
+GEO_EM = ("wrf_geo/geo_em_d01_polarstereo.nc", "wrf_geo/geo_em_d02_polarstereo.nc")
 SPECIES_CONTENTS = ("cloud_liquid_content", "cloud_ice_content", "rain_content", "snow_content", "graupel_content")
 
 
@@ -144,8 +148,7 @@ def test_tibet_terrain_surface_time(tibet):
     assert s["surface_albedo"].dims == ("wavelength", "y", "x")
     np.testing.assert_array_equal(s["wavelength"].values, [615.0, 546.0, 450.0])
     alb = s["surface_albedo"].values
-    assert 0.07 < alb.min() and alb.max() < 0.24
-    np.testing.assert_array_equal(alb[0], alb[2])
+    assert 0.0 < alb.min() and alb.max() < 0.24
     assert set(np.unique(s["land_mask"].values)) <= {0, 1}
     assert s["time"].values == np.datetime64("2005-09-21T00:00")
     assert 29.0 < s.attrs["reference_lat"] < 31.0 and 85.5 < s.attrs["reference_lon"] < 88.5
@@ -156,6 +159,119 @@ def test_tibet_time_selection(shared_data):
     assert s["time"].values == np.datetime64("2005-09-21T09:00")
     with pytest.raises(SwimInputError, match="available times"):
         read_wrf(shared_data / TIBET, time="2005-09-20T12:00")
+
+
+def test_tibet_snow_wind_and_spectral_albedo(shared_data, tibet):
+    s = tibet
+    with xr.open_dataset(shared_data / TIBET) as ds:
+        snowc = ds["SNOWC"].values[0]
+        u10, v10 = ds["U10"].values[0], ds["V10"].values[0]
+        albbck = ds["ALBBCK"].values[0]
+        lu = ds["LU_INDEX"].values
+        assert ds.attrs["MMINLU"] == "USGS"
+    snow = s["snow_cover"].values
+    assert snow.min() >= 0.0 and snow.max() <= 1.0
+    np.testing.assert_allclose(snow, snowc)  # SNOWC max 0.007 (README)
+    np.testing.assert_allclose(s["wind_speed_10m"].values, np.hypot(u10, v10), rtol=1e-6)
+    assert s["wind_speed_10m"].attrs["units"] == "m s-1"
+    # snow-free cells: ALBBCK with the spectral shape of the USGS class, a = a_c ALBBCK / A_c
+    alb = s["surface_albedo"].values
+    free = snowc == 0
+    assert free.sum() > 20
+    classes = landuse_classes("USGS")
+    table = np.array([classes[int(c)].albedo for c in lu[free]]).T
+    sw = np.array([classes[int(c)].shortwave_albedo for c in lu[free]])
+    np.testing.assert_allclose(alb[:, free], table * albbck[free] / sw, rtol=1e-6)
+    # the lake cell (LU 16, LANDMASK 0): water is bluer than it is red; grassland (LU 7) the opposite
+    assert lu[7, 0] == 16 and s["land_mask"].values[7, 0] == 0
+    assert alb[2, 7, 0] > alb[0, 7, 0]
+    grass = free & (lu == 7)
+    assert np.all(alb[0, grass] > alb[2, grass])
+
+
+def test_katrina_wind(shared_data, katrina):
+    with xr.open_dataset(shared_data / KATRINA) as ds:
+        speed = np.hypot(ds["U10"].values[0], ds["V10"].values[0])
+    np.testing.assert_allclose(katrina["wind_speed_10m"].values, speed, rtol=1e-6)
+    assert katrina["wind_speed_10m"].values.max() > 30.0  # a category-5 hurricane's eyewall
+    assert katrina.get("snow_cover") is None
+
+
+# ----------------------------------------------------------------------------------------------------- WPS
+
+
+@pytest.fixture(scope="module")
+def met_em(shared_data):
+    return read_wps_geogrid(shared_data / MET_EM)
+
+
+def test_met_em_grid_terrain_and_mask(shared_data, met_em):
+    s = met_em
+    assert (s.sizes["z"], s.sizes["y"], s.sizes["x"]) == (20, 42, 42)
+    with xr.open_dataset(shared_data / MET_EM) as ds:
+        hgt = ds["HGT_M"].values[0]
+        landmask = ds["LANDMASK"].values[0]
+        lat = ds["XLAT_M"].values[0]
+    np.testing.assert_array_equal(s["terrain_height"].values, hgt)
+    assert s["terrain_height"].values.min() == pytest.approx(2995.0, abs=1.0)  # README: HGT_M 2995-3267 m
+    assert s["terrain_height"].values.max() == pytest.approx(3267.0, abs=1.0)
+    np.testing.assert_array_equal(s["land_mask"].values, landmask)
+    assert np.all(s["land_mask"].values == 1)
+    np.testing.assert_array_equal(s["lat"].values, lat)
+    assert np.all(s["height"].values[0] > s["terrain_height"].values)
+    assert s["time"].values == np.datetime64("2005-08-28T12:00")
+    assert 39.69 < s.attrs["reference_lat"] < 39.72 and -107.32 < s.attrs["reference_lon"] < -107.26
+    for name in ("cloud_liquid_content", "cloud_ice_content", "rain_content"):
+        assert s.get(name) is None  # clear sky
+    xr.testing.assert_identical(validate_scene(s), s)
+
+
+def test_met_em_albedo_from_albedo12m_august(shared_data, met_em):
+    with xr.open_dataset(shared_data / MET_EM) as ds:
+        august = ds["ALBEDO12M"].values[0, 7] / 100.0  # percent
+        assert ds["LU_INDEX"].values.min() == ds["LU_INDEX"].values.max() == 14  # all evergreen needleleaf
+    assert 0.13 < august.mean() < 0.14
+    forest = landuse_classes("USGS")[14]
+    alb = met_em["surface_albedo"].values
+    # the forest's spectral shape, scaled so that its shortwave albedo is ALBEDO12M of August
+    np.testing.assert_allclose(alb, np.array(forest.albedo)[:, None, None] * august / forest.shortwave_albedo)
+    vis = visible_mean(alb)
+    assert 0.05 < vis.min() and vis.max() < 0.07  # a conifer forest is dark in the visible
+    assert "month 8" in met_em.attrs["albedo_source"]
+    # matched as the visible mean instead: the visible broadband mean is ALBEDO12M itself
+    visible = read_wps_geogrid(shared_data / MET_EM, albedo_band="visible")
+    v = visible_mean(visible["surface_albedo"].values)
+    np.testing.assert_allclose(v, august)
+    assert 0.11 < v.min() and v.max() < 0.17
+    # snow: SNOW = 0 everywhere
+    assert np.all(met_em["snow_cover"].values == 0.0)
+
+
+def test_met_em_surface_wind(shared_data, met_em):
+    with xr.open_dataset(shared_data / MET_EM) as ds:
+        assert float(ds["PRES"].values[0, 0, 0, 0]) == pytest.approx(float(ds["PSFC"].values[0, 0, 0]))
+        uu = ds["UU"].values[0, 0]
+        vv = ds["VV"].values[0, 0]
+    speed = np.hypot(0.5 * (uu[:, 1:] + uu[:, :-1]), 0.5 * (vv[1:] + vv[:-1]))
+    np.testing.assert_allclose(met_em["wind_speed_10m"].values, speed)
+    assert met_em["wind_speed_10m"].values.max() < 5.0
+
+
+@pytest.mark.parametrize("name, shape, hmax", [(GEO_EM[0], (199, 199), 3217.4), (GEO_EM[1], (350, 250), 3232.1)])
+def test_geo_em_greenland(shared_data, name, shape, hmax):
+    s = open_scene(shared_data / name)  # dispatch by HGT_M / XLAT_M / XLONG_M
+    assert (s.sizes["y"], s.sizes["x"]) == shape and s.sizes["z"] == 20
+    with xr.open_dataset(shared_data / name) as ds:
+        hgt = ds["HGT_M"].values[0]
+    np.testing.assert_array_equal(s["terrain_height"].values, hgt)
+    assert s["terrain_height"].values.min() == 0.0
+    assert s["terrain_height"].values.max() == pytest.approx(hmax, abs=0.1)
+    np.testing.assert_array_equal(s["land_mask"].values, (hgt > 0).astype(np.int8))
+    assert 0.45 < s["land_mask"].values.mean() < 0.75  # README: half the d01 domain is ocean
+    assert s.get("surface_albedo") is None  # no albedo information: the renderer's default
+    assert "time" not in s.coords
+    assert s["lon"].values.min() >= -180.0 and s["lon"].values.max() < 180.0
+    assert np.all(np.diff(s["height"].values, axis=0) > 0)
 
 
 # ----------------------------------------------------------------------------------------------------- LES

@@ -292,6 +292,57 @@ def test_layer_thickness_sums_to_column_depth():
     np.testing.assert_allclose(dz[:, 0, 0], [100.0, 125.0, 150.0])
 
 
+# ----------------------------------------------------------------------------------------------- snow, wind
+
+
+def test_snow_cover_and_wind_from_arrays():
+    snow = np.zeros((NY, NX))
+    snow[0, :2] = [0.25, 1.0]
+    out = _scene(snow_cover=snow, wind_speed_10m=7.5)
+    np.testing.assert_array_equal(out["snow_cover"].values, snow)
+    np.testing.assert_array_equal(out["wind_speed_10m"].values, np.full((NY, NX), 7.5))
+    assert out["snow_cover"].dims == ("y", "x") and out["wind_speed_10m"].dims == ("y", "x")
+    assert out["snow_cover"].attrs["units"] == "1"
+    assert out["wind_speed_10m"].attrs["units"] == "m s-1"
+    assert "snow" in out["snow_cover"].attrs["long_name"]
+    xr.testing.assert_identical(validate_scene(out), out)
+    # absent by default (snow cover 0, the renderer's default wind)
+    plain = _scene()
+    assert plain.get("snow_cover") is None and plain.get("wind_speed_10m") is None
+
+
+@pytest.mark.parametrize("bad, match", [(1.5, r"snow_cover.*\[0, 1\]"), (-0.1, r"snow_cover.*\[0, 1\]"),
+                                        (40.0, r"snow_cover.*percent")])
+def test_snow_cover_out_of_range(bad, match):
+    ds = _scene(snow_cover=0.5)
+    ds["snow_cover"][0, 0] = bad
+    with pytest.raises(SwimInputError, match=match):
+        validate_scene(ds)
+
+
+def test_wind_speed_errors():
+    ds = _scene(wind_speed_10m=3.0)
+    ds["wind_speed_10m"][1, 1] = -2.0
+    with pytest.raises(SwimInputError, match=r"wind_speed_10m.*negative.*m s-1"):
+        validate_scene(ds)
+    ds = _scene(wind_speed_10m=3.0)
+    ds["wind_speed_10m"][1, 1] = 120.0
+    with pytest.raises(SwimInputError, match=r"wind_speed_10m.*75 m s-1"):
+        validate_scene(ds)
+    ds = _scene(wind_speed_10m=3.0)
+    ds["wind_speed_10m"].attrs["units"] = "km/h"
+    with pytest.raises(SwimInputError, match=r"wind_speed_10m.*divide by 3.6"):
+        validate_scene(ds)
+    ds["wind_speed_10m"].attrs["units"] = "m/s"
+    assert validate_scene(ds)["wind_speed_10m"].attrs["units"] == "m s-1"
+    ds = _scene(snow_cover=0.5)
+    ds["snow_cover"][0, 0] = np.nan
+    with pytest.raises(SwimInputError, match="snow_cover.*1 non-finite"):
+        validate_scene(ds)
+    with pytest.raises(SwimInputError, match="wind_speed_10m"):
+        _scene(wind_speed_10m=np.zeros((NY + 1, NX)))
+
+
 # ----------------------------------------------------------------------------------------------- open_scene
 
 

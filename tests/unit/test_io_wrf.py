@@ -141,3 +141,103 @@ def test_open_scene_dispatches_wrf(tmp_path):
     s = open_scene(path, time=1)
     assert s["time"].values == np.datetime64("2020-07-01T13:00")
     assert s["height"].shape == (NZ, NY, NX)
+
+
+# ----------------------------------------------------------------------------------------------------- surface
+
+
+def _wrf_surface(**extra):
+    """The tiny dataset with land use (USGS), a snow-free background albedo, snow cover and 10 m wind."""
+    d3 = ("Time", "south_north", "west_east")
+    ds = _wrf()
+    lu = np.full((NY, NX), 14.0)  # evergreen needleleaf forest
+    lu[:, :2] = 16.0  # water where XLAND = 2
+    ds["LU_INDEX"] = (("south_north", "west_east"), lu)  # no Time dim, as in the Tibet sample
+    ds["ALBBCK"] = (d3, np.full((NT, NY, NX), 0.12), {"units": "-"})
+    snowc = np.zeros((NT, NY, NX))
+    snowc[:, 2, 4] = 1.0
+    snowc[:, 2, 3] = 0.5
+    ds["SNOWC"] = (d3, snowc)
+    ds["U10"] = (d3, np.full((NT, NY, NX), 3.0), {"units": "m s-1"})
+    ds["V10"] = (d3, np.full((NT, NY, NX), -4.0), {"units": "m s-1"})
+    ds.attrs["MMINLU"] = "USGS"
+    for key, value in extra.items():
+        ds[key] = value
+    return ds
+
+
+def test_surface_albedo_spectral_shape_snow_and_wind():
+    from swim.surface.albedo import visible_mean
+    from swim.surface.landuse import landuse_classes
+
+    s = read_wrf(_wrf_surface())
+    a = s["surface_albedo"].values
+    forest = landuse_classes("USGS")[14]
+    # snow-free ALBBCK (shortwave) with the forest's spectral shape: a = a_forest * 0.12 / A_forest, also under snow
+    expect = np.array(forest.albedo) * 0.12 / forest.shortwave_albedo
+    for j, i in ((0, 3), (2, 3), (2, 4)):
+        np.testing.assert_allclose(a[:, j, i], expect)
+    assert a[2, 0, 3] < a[1, 0, 3]  # forest: darker in the blue
+    water = landuse_classes("USGS")[16]
+    np.testing.assert_allclose(a[:, 0, 0], np.array(water.albedo) * 0.12 / water.shortwave_albedo)
+    assert a[2, 0, 0] > a[0, 0, 0]  # water: bluer than red
+    np.testing.assert_array_equal(s["snow_cover"].values[2, 3:], [0.5, 1.0])  # SNOWC, no SNOALB
+    assert s["snow_cover"].values[0, 0] == 0.0
+    np.testing.assert_allclose(s["wind_speed_10m"].values, 5.0)
+    assert s["wind_speed_10m"].attrs["units"] == "m s-1"
+    # albedo_band="visible": the visible mean of the result equals ALBBCK
+    v = read_wrf(_wrf_surface(), albedo_band="visible")
+    assert visible_mean(v["surface_albedo"].values)[0, 3] == pytest.approx(0.12)
+
+
+def test_albedo_with_snow_included_is_taken_out():
+    from swim.surface.albedo import DEFAULT_SNOW_SHORTWAVE_ALBEDO
+    from swim.surface.landuse import landuse_classes
+
+    ds = _wrf_surface().drop_vars("ALBBCK")
+    albedo = np.full((NT, NY, NX), 0.12)
+    albedo[:, 2, 3] = 0.5 * 0.12 + 0.5 * DEFAULT_SNOW_SHORTWAVE_ALBEDO  # half snow on a 0.12 background
+    albedo[:, 2, 4] = 0.6  # full snow: the background is hidden
+    ds["ALBEDO"] = (("Time", "south_north", "west_east"), albedo, {"units": "-"})
+    s = read_wrf(ds)
+    a = s["surface_albedo"].values
+    np.testing.assert_allclose(a[:, 2, 3], a[:, 1, 3])
+    np.testing.assert_allclose(a[:, 2, 4], landuse_classes("USGS")[14].albedo)
+
+
+def test_snoalb_reduces_the_visible_snow_cover():
+    snoalb = np.full((NT, NY, NX), 0.4)  # snow under a conifer canopy
+    s = read_wrf(_wrf_surface(SNOALB=(("Time", "south_north", "west_east"), snoalb)))
+    f = s["snow_cover"].values
+    assert 0.0 < f[2, 4] < 0.6 and 0.0 < f[2, 3] < f[2, 4]
+    assert f[0, 0] == 0.0
+
+
+def test_unknown_landuse_scheme_gives_flat_albedo(caplog):
+    ds = _wrf_surface().drop_vars(["SNOWC"])
+    ds.attrs["MMINLU"] = "NLCD40"
+    with caplog.at_level(logging.WARNING, logger="swim.surface.landuse"):
+        s = read_wrf(ds)
+    assert "NLCD40" in caplog.text
+    np.testing.assert_allclose(s["surface_albedo"].values, 0.12)
+
+
+def test_bad_landuse_index_names_variable():
+    lu = np.full((NY, NX), 99.0)
+    with pytest.raises(SwimInputError, match="LU_INDEX"):
+        read_wrf(_wrf_surface(LU_INDEX=(("south_north", "west_east"), lu)))
+
+
+def test_snow_from_swe_and_sea_ice():
+    d3 = ("Time", "south_north", "west_east")
+    swe = np.zeros((NT, NY, NX))
+    swe[:, 1, 4] = 100.0  # deep snow: full cover
+    ice = np.zeros((NT, NY, NX))
+    ice[:, 0, 0] = 0.7
+    ds = _wrf_surface().drop_vars("SNOWC")
+    ds["SNOW"] = (d3, swe, {"units": "kg m-2"})
+    ds["SEAICE"] = (d3, ice)
+    s = read_wrf(ds)
+    assert s["snow_cover"].values[1, 4] == 1.0
+    assert s["snow_cover"].values[0, 0] == pytest.approx(0.7)
+    assert s["snow_cover"].values[1, 3] == 0.0

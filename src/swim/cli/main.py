@@ -34,7 +34,8 @@ def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the st
 
 @app.command()
 def render(
-    scene: Optional[Path] = typer.Argument(None, help="Scene file (WRF wrfout netCDF, canonical netCDF, SHDOM LES .txt); "
+    scene: Optional[Path] = typer.Argument(None, help="Scene file (WRF wrfout netCDF, WPS geo_em/met_em netCDF, canonical "
+                                           "netCDF, SHDOM LES .txt); "
                                                       "default: the built-in scene."),
     time: Optional[str] = typer.Option(None, help="UTC time, ISO 8601 (default: the scene's time)."),
     lat: Optional[float] = typer.Option(None, help="Observer latitude [deg] (default: domain centre)."),
@@ -60,6 +61,8 @@ def render(
     white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
                                                              "4 above 100 km)."),
     steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
+    surface: str = typer.Option("brdf", help="Ground reflectance: brdf (land hot spot, snow, sun glint on water) "
+                                "or lambertian (docs/surfaces.md)."),
     scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
     scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
     out: Path = typer.Option(Path("swim.png"), help="PNG output path."),
@@ -108,7 +111,7 @@ def render(
             image = render_image(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                settings=MarchSettings(n_grid=steps),
+                settings=MarchSettings(n_grid=steps, surface=surface),
                 white_level=white_level,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )

@@ -35,6 +35,8 @@ __all__ = [
     "RADIUS_VARIABLES",
     "MAX_CONTENT_KG_M3",
     "NEGATIVE_NOISE_KG_M3",
+    "WIND_SPEED_RANGE_M_S",
+    "DEFAULT_WIND_SPEED_M_S",
     "validate_scene",
     "scene_from_arrays",
     "open_scene",
@@ -57,6 +59,11 @@ RADIUS_RANGE_M = (1e-7, 0.1)
 MAX_AEROSOL_EXTINCTION_M1 = 0.05
 #: Plausible range of terrain height [m].
 TERRAIN_RANGE_M = (-500.0, 9000.0)
+#: Plausible range of the 10 m wind speed [m s-1] (the strongest measured gusts are about 113 m s-1, but a
+#: grid-cell mean 10 m wind above 75 m s-1 means wrong units).
+WIND_SPEED_RANGE_M_S = (0.0, 75.0)
+#: 10 m wind speed [m s-1] the renderer assumes where the scene has no ``wind_speed_10m``.
+DEFAULT_WIND_SPEED_M_S = 5.0
 
 _LONG_NAMES = {
     "height": "height above sea level of the mass points",
@@ -76,6 +83,8 @@ _LONG_NAMES = {
     "aerosol_extinction": "aerosol extinction coefficient at 550 nm",
     "surface_albedo": "surface spectral albedo",
     "land_mask": "land mask (1 land, 0 water)",
+    "snow_cover": "fraction of the surface covered by snow or ice",
+    "wind_speed_10m": "wind speed at 10 m above the surface",
     "x": "grid x (east) of the column in the scene frame",
     "y": "grid y (north) of the column in the scene frame",
     "wavelength": "wavelength",
@@ -90,6 +99,8 @@ _UNITS = {
     "aerosol_extinction": "m-1",
     "surface_albedo": "1",
     "land_mask": "1",
+    "snow_cover": "1",
+    "wind_speed_10m": "m s-1",
     "x": "m",
     "y": "m",
     "wavelength": "nm",
@@ -103,7 +114,7 @@ _CANONICAL_VARIABLES = (
     ("height", "lat", "lon", "terrain_height")
     + CONTENT_VARIABLES
     + RADIUS_VARIABLES
-    + ("aerosol_extinction", "surface_albedo", "land_mask")
+    + ("aerosol_extinction", "surface_albedo", "land_mask", "snow_cover", "wind_speed_10m")
 )
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -125,6 +136,7 @@ _ACCEPTED_UNITS = {
     "degrees_east": {"degrees_east", "degree_east", "degrees_e", "degree_e", "degreeseast", "degrees", "degree", "deg", "°e", "°"},
     "1": {"1", "", "-", "fraction", "dimensionless", "none", "0-1"},
     "nm": {"nm", "nanometer", "nanometers", "nanometre", "nanometres"},
+    "m s-1": {"ms-1", "m/s", "mps"},
 }
 
 _UNIT_HINTS = {
@@ -143,6 +155,13 @@ _UNIT_HINTS = {
     "km-1": "per kilometre: multiply by 1e-3",
     "1/km": "per kilometre: multiply by 1e-3",
     "%": "percent: divide by 100",
+    "percent": "percent: divide by 100",
+    "kmh-1": "km h-1: divide by 3.6",
+    "km/h": "km h-1: divide by 3.6",
+    "kt": "knots: multiply by 0.514444",
+    "kts": "knots: multiply by 0.514444",
+    "knot": "knots: multiply by 0.514444",
+    "knots": "knots: multiply by 0.514444",
 }
 
 
@@ -314,7 +333,9 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
         Candidate scene with dims ``z, y, x``: ``height`` (z, y, x) [m above sea level], ``lat``, ``lon``
         (y, x) [deg], ``terrain_height`` (y, x) [m], optional ``<species>_content`` (z, y, x) [kg m-3],
         ``<species>_effective_radius`` (z, y, x) [m], ``aerosol_extinction`` (z, y, x) [m-1 at 550 nm],
-        ``surface_albedo`` (wavelength, y, x) or (y, x) [-], ``land_mask`` (y, x) [1 land, 0 water], attrs
+        ``surface_albedo`` (wavelength, y, x) or (y, x) [-], ``land_mask`` (y, x) [1 land, 0 water],
+        ``snow_cover`` (y, x) [fraction 0-1; absent means 0], ``wind_speed_10m`` (y, x) [m s-1; absent means the
+        renderer's default :data:`DEFAULT_WIND_SPEED_M_S`], attrs
         ``reference_lat``/``reference_lon`` [deg], ``title``, ``source`` and a scalar coordinate ``time``.
         See ``docs/scene-format.md``.
 
@@ -338,8 +359,9 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
         attribute that is not a spelling of the canonical unit; on an effective radius outside [1e-7, 0.1] m
         (or non-finite) where the content is positive ("expected metres"), or without its content variable;
         on latitudes outside [-90, 90] or longitudes outside [-360, 360]; on albedo outside [0, 1]; on a land
-        mask other than 0/1; on terrain outside [-500, 9000] m; on aerosol extinction < 0 or > 0.05 m-1; on a
-        ``time`` that is not a single time.
+        mask other than 0/1; on ``snow_cover`` outside [0, 1]; on ``wind_speed_10m`` outside [0, 75] m s-1; on
+        terrain outside [-500, 9000] m; on aerosol extinction < 0 or > 0.05 m-1; on a ``time`` that is not a
+        single time.
     """
     if not isinstance(ds, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(ds).__name__}")
@@ -485,6 +507,29 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
                 f"land_mask: values must be 1 (land) or 0 (water); got values in [{values.min():.3g}, {values.max():.3g}]"
             )
         out["land_mask"] = xr.DataArray(values.astype(np.int8), dims=_2D, attrs=_new_attrs("land_mask", da.attrs))
+    if "snow_cover" in ds.variables:
+        da, values = _horizontal("snow_cover")
+        if values.min() < 0.0 or values.max() > 1.0:
+            hint = " (percent must be divided by 100)" if values.max() <= 100.0 and values.min() >= 0.0 else ""
+            raise SwimInputError(
+                f"snow_cover: range [{values.min():.4g}, {values.max():.4g}] is outside [0, 1]; expected the fraction "
+                f"of the surface covered by snow or ice (units 1){hint}"
+            )
+        out["snow_cover"] = xr.DataArray(values, dims=_2D, attrs=_new_attrs("snow_cover", da.attrs))
+    if "wind_speed_10m" in ds.variables:
+        da, values = _horizontal("wind_speed_10m")
+        lo, hi = WIND_SPEED_RANGE_M_S
+        if values.min() < lo:
+            raise SwimInputError(
+                f"wind_speed_10m: {int((values < lo).sum())} negative value(s) (min {values.min():.4g}); expected the "
+                f"10 m wind speed in [{lo:g}, {hi:g}] m s-1 (a speed sqrt(u10^2 + v10^2), not a wind component)"
+            )
+        if values.max() > hi:
+            raise SwimInputError(
+                f"wind_speed_10m: max {values.max():.4g} exceeds {hi:g} m s-1; expected m s-1 in [{lo:g}, {hi:g}] "
+                "(km h-1 must be divided by 3.6, knots multiplied by 0.514444)"
+            )
+        out["wind_speed_10m"] = xr.DataArray(values, dims=_2D, attrs=_new_attrs("wind_speed_10m", da.attrs))
 
     # ---- attributes
     attrs = {k: v for k, v in ds.attrs.items()}
@@ -625,6 +670,8 @@ def scene_from_arrays(
     aerosol_extinction=None,
     surface_albedo=None,
     land_mask=None,
+    snow_cover=None,
+    wind_speed_10m=None,
     time=None,
     title: str = "swim scene from arrays",
     source: str = "swim.io.scene.scene_from_arrays",
@@ -651,9 +698,17 @@ graupel_effective_radius : array_like, optional
     aerosol_extinction : array_like, optional
         Shape (nz, ny, nx) [m-1 at 550 nm].
     surface_albedo : array_like, optional
-        Shape (3, ny, nx) for [615, 546, 450] nm, (ny, nx), (3,) or scalar [-], broadcast to (3, ny, nx).
+        Shape (3, ny, nx) for [615, 546, 450] nm, (ny, nx), (3,) or scalar [-], broadcast to (3, ny, nx):
+        the snow-free albedo.
     land_mask : array_like, optional
         Shape (ny, nx) or scalar: 1 land, 0 water.
+    snow_cover : array_like, optional
+        Shape (ny, nx) or scalar: fraction [0-1] of the surface covered by snow or ice; absent means 0.
+        ``surface_albedo`` stays the snow-free albedo; the renderer blends the snow in
+        (``docs/surfaces.md``).
+    wind_speed_10m : array_like, optional
+        Shape (ny, nx) or scalar: 10 m wind speed [m s-1] in [0, 75]; absent: the renderer's default
+        (:data:`DEFAULT_WIND_SPEED_M_S`).
     time : str, datetime or numpy.datetime64, optional
         Valid time (UTC); stored as the scalar coordinate ``time``.
     title, source : str
@@ -734,6 +789,10 @@ graupel_effective_radius : array_like, optional
         coords["wavelength"] = xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs={"units": "nm"})
     if land_mask is not None:
         data["land_mask"] = _field("land_mask", land_mask, (ny, nx), _2D)
+    if snow_cover is not None:
+        data["snow_cover"] = _field("snow_cover", snow_cover, (ny, nx), _2D)
+    if wind_speed_10m is not None:
+        data["wind_speed_10m"] = _field("wind_speed_10m", wind_speed_10m, (ny, nx), _2D)
     if time is not None:
         coords["time"] = xr.DataArray(to_utc_datetime64(time))
     attrs = {"reference_lat": float(reference_lat), "reference_lon": float(reference_lon), "title": title, "source": source}
@@ -752,21 +811,28 @@ def _is_wrf(ds: xr.Dataset) -> bool:
     return ("WRF" in title.upper() and "PH" in ds.variables) or {"PH", "PHB", "Times"} <= set(ds.variables)
 
 
+def _is_wps(ds: xr.Dataset) -> bool:
+    """WPS geogrid (``geo_em``) or metgrid (``met_em``) output: terrain and lat/lon on the mass grid."""
+    return {"HGT_M", "XLAT_M", "XLONG_M"} <= set(ds.variables)
+
+
 def open_scene(path, **kwargs) -> xr.Dataset:
     """Open a scene file of any supported kind and return the validated canonical scene.
 
     Dispatch: a netCDF file with WRF variables/attributes (``PH``, ``PHB``, ``Times`` or a WRF ``TITLE``) goes to
-    :func:`swim.io.wrf.read_wrf`; a netCDF file that already holds ``height``/``lat``/``lon`` is validated with
+    :func:`swim.io.wrf.read_wrf`; a WPS ``geo_em``/``met_em`` file (``HGT_M``, ``XLAT_M``, ``XLONG_M``) to
+    :func:`swim.io.wps.read_wps_geogrid` (a clear-sky scene); a netCDF file that already holds ``height``/``lat``/``lon`` is validated with
     :func:`validate_scene`; a ``.txt`` (or ``.lwc``, ``.dat``) SHDOM-style LES file goes to
-    :func:`swim.io.les.read_shdom_les`. A file without a suffix (e.g. ``wrfout_d01_2005-08-28_00:00:00``) is
-    tried as netCDF.
+    :func:`swim.io.les.read_shdom_les`. A file without a suffix (e.g. ``wrfout_d01_2005-08-28_00:00:00``), and
+    a name containing "wrf" or starting with "geo_em"/"met_em", is tried as netCDF.
 
     Parameters
     ----------
     path : str or os.PathLike
         File to open.
     **kwargs
-        Passed to the reader (``time=`` for WRF; ``reference_lat=``, ``reference_lon=``, ``time=`` for LES).
+        Passed to the reader (``time=`` for WRF; ``time=``, ``month=``, ``albedo_band=``, ``snow_above_m=`` for
+        WPS files; ``reference_lat=``, ``reference_lon=``, ``time=`` for LES).
         A canonical netCDF scene takes ``time=`` only to check it against the file's time (1.5 h tolerance).
 
     Returns
@@ -787,7 +853,8 @@ def open_scene(path, **kwargs) -> xr.Dataset:
         from .les import read_shdom_les
 
         return read_shdom_les(p, **kwargs)
-    if suffix and suffix not in _NETCDF_SUFFIXES and not suffix[1:].isdigit() and "wrf" not in p.name.lower():
+    wrf_like = "wrf" in p.name.lower() or p.name.lower().startswith(("geo_em", "met_em"))
+    if suffix and suffix not in _NETCDF_SUFFIXES and not suffix[1:].isdigit() and not wrf_like:
         raise SwimInputError(
             f"scene file {p.name}: unknown kind '{suffix}'; expected netCDF (.nc: WRF output or a canonical scene) or "
             "an SHDOM-style LES text file (.txt)"
@@ -802,6 +869,11 @@ def open_scene(path, **kwargs) -> xr.Dataset:
 
             ds.load()
             return read_wrf(ds, **kwargs)
+        if _is_wps(ds) and not {"height", "lat", "lon"} <= set(ds.variables):
+            from .wps import read_wps_geogrid
+
+            ds.load()
+            return read_wps_geogrid(ds, source=str(p), **kwargs)
         if {"height", "lat", "lon"} <= set(ds.variables):
             time = kwargs.pop("time", None)
             if kwargs:
@@ -818,5 +890,6 @@ def open_scene(path, **kwargs) -> xr.Dataset:
                 scene.attrs["source"] = str(p)
             return scene
     raise SwimInputError(
-        f"scene file {p.name} is netCDF but neither WRF output (PH, PHB, Times) nor a canonical scene (height, lat, lon)"
+        f"scene file {p.name} is netCDF but neither WRF output (PH, PHB, Times), WPS geo_em/met_em output (HGT_M, "
+        "XLAT_M, XLONG_M) nor a canonical scene (height, lat, lon)"
     )

@@ -36,7 +36,7 @@ from .scene import RADIUS_RANGE_M, domain_centre, to_utc_datetime64, validate_sc
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["read_wrf", "wrf_times", "WRF_SPECIES", "WRF_RADII", "TIME_TOLERANCE"]
+__all__ = ["read_wrf", "wrf_times", "wrf_surface_fields", "WRF_SPECIES", "WRF_RADII", "TIME_TOLERANCE"]
 
 #: WRF mixing-ratio variable [kg kg-1] for each canonical species.
 WRF_SPECIES = {
@@ -167,7 +167,107 @@ def _radius_to_metres(ds: xr.Dataset, name: str, values: np.ndarray) -> np.ndarr
     raise SwimInputError(f"WRF variable {name} has units '{units}'; expected m (or um) for an effective radius")
 
 
-def read_wrf(path_or_dataset, time=None) -> xr.Dataset:
+def _units(ds: xr.Dataset, name: str):
+    units = ds[name].attrs.get("units")
+    return None if units is None else str(units)
+
+
+def wrf_surface_fields(ds: xr.Dataset, itime: int, label: str, albedo_band: str = "shortwave") -> dict[str, np.ndarray]:
+    """Surface fields of the canonical scene from WRF output: snow-free spectral albedo, snow cover, 10 m wind.
+
+    * ``surface_albedo`` (3, ny, nx), snow-free: ``ALBBCK`` (the background albedo), else ``ALBEDO`` with the
+      snow taken out (``(ALBEDO - f A_snow) / (1 - f)``), given the spectral shape of the ``LU_INDEX`` class of
+      the ``MMINLU`` scheme (:func:`swim.surface.albedo.surface_from_model_fields`). Without
+      ``LU_INDEX``/``MMINLU`` the broadband albedo is used at all three wavelengths. Left out without
+      ``ALBBCK``/``ALBEDO``.
+    * ``snow_cover`` [0-1]: ``SNOWC``, else the Noah depletion curve of ``SNOW`` [kg m-2]
+      (:func:`swim.surface.albedo.snow_cover_from_swe`); over sea ice the larger of that and ``SEAICE``; with
+      ``SNOALB`` reduced to the fraction that appears as snow (:func:`swim.surface.albedo.effective_snow_cover`).
+      Left out when the file has neither ``SNOWC`` nor ``SNOW`` nor sea ice.
+    * ``wind_speed_10m`` [m s-1]: ``hypot(U10, V10)`` (grid-relative components; the speed does not depend on
+      the rotation).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        WRF output.
+    itime : int
+        Index along ``Time``.
+    label : str
+        Used in messages.
+    albedo_band : {"shortwave", "visible"}
+        What the broadband albedo is a mean over (see :func:`swim.surface.albedo.surface_from_model_fields`).
+
+    Returns
+    -------
+    dict
+        Name -> numpy array, for the variables that could be built.
+
+    Raises
+    ------
+    SwimInputError
+        On non-finite or out-of-range albedos, fractions or winds, or bad class numbers.
+    """
+    from ..surface.albedo import snow_cover_from_swe, surface_from_model_fields
+    from ..surface.landuse import scheme_from_attrs
+
+    out: dict[str, np.ndarray] = {}
+    snow = None
+    if "SNOWC" in ds.variables:
+        snow = _field(ds, "SNOWC", itime)
+        if not np.all(np.isfinite(snow)):
+            raise SwimInputError(f"{label}: SNOWC has non-finite values; expected a snow cover fraction in [0, 1]")
+        snow = np.clip(snow, 0.0, 1.0)
+    elif "SNOW" in ds.variables:
+        snow = snow_cover_from_swe(np.clip(_field(ds, "SNOW", itime), 0.0, None))
+    if "SEAICE" in ds.variables:
+        ice = np.clip(np.nan_to_num(_field(ds, "SEAICE", itime)), 0.0, 1.0)
+        if np.any(ice > 0):
+            snow = ice if snow is None else np.maximum(snow, ice)
+
+    scheme = lu = None
+    if "LU_INDEX" in ds.variables:
+        scheme = scheme_from_attrs(ds.attrs, label)
+        lu = _field(ds, "LU_INDEX", itime) if scheme is not None else None
+    if "ALBBCK" in ds.variables:
+        name, includes_snow = "ALBBCK", False
+    elif "ALBEDO" in ds.variables:
+        name, includes_snow = "ALBEDO", True
+    else:
+        name, includes_snow = None, False
+    snoalb = _field(ds, "SNOALB", itime) if "SNOALB" in ds.variables else None
+    try:
+        albedo, snow = surface_from_model_fields(
+            None if name is None else _field(ds, name, itime),
+            lu_index=lu,
+            scheme=scheme,
+            snow_cover=snow,
+            snow_broadband=snoalb,
+            includes_snow=includes_snow,
+            band=albedo_band,
+            units=None if name is None else _units(ds, name),
+            snow_units=None if snoalb is None else _units(ds, "SNOALB"),
+        )
+    except SwimInputError as exc:
+        raise SwimInputError(f"{label}: {exc}") from exc
+    if name is not None and albedo is not None:
+        out["surface_albedo"] = albedo
+        logger.info(
+            "%s: snow-free surface albedo from %s%s", label, name,
+            f" shaped by LU_INDEX ({scheme})" if lu is not None else " (no land use: flat spectrum)",
+        )
+    if snow is not None:
+        out["snow_cover"] = snow
+
+    if "U10" in ds.variables and "V10" in ds.variables:
+        u, v = _field(ds, "U10", itime), _field(ds, "V10", itime)
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
+            raise SwimInputError(f"{label}: U10/V10 have non-finite values [m s-1]")
+        out["wind_speed_10m"] = np.hypot(u, v)
+    return out
+
+
+def read_wrf(path_or_dataset, time=None, albedo_band: str = "shortwave") -> xr.Dataset:
     """Read one time of a WRF output file into the canonical scene.
 
     Parameters
@@ -176,11 +276,15 @@ def read_wrf(path_or_dataset, time=None) -> xr.Dataset:
         A ``wrfout`` netCDF file or a dataset opened from one. Needs ``PH``, ``PHB`` (bottom_top_stag)
         [m2 s-2], ``P``, ``PB`` [Pa], ``T`` (perturbation potential temperature) [K], ``HGT`` [m], ``XLAT``,
         ``XLONG`` [deg]; uses, when present, ``QVAPOR``, ``QCLOUD``, ``QICE``, ``QRAIN``, ``QSNOW``, ``QGRAUP``
-        [kg kg-1], ``RE_CLOUD``, ``RE_ICE``, ``RE_SNOW`` [m], ``LANDMASK`` (or ``XLAND``), ``ALBEDO`` [-],
-        ``Times``/``XTIME``.
+        [kg kg-1], ``RE_CLOUD``, ``RE_ICE``, ``RE_SNOW`` [m], ``LANDMASK`` (or ``XLAND``), ``ALBBCK`` or
+        ``ALBEDO`` [-], ``LU_INDEX`` with the ``MMINLU`` attribute, ``SNOWC`` (or ``SNOW`` [kg m-2]),
+        ``SEAICE``, ``SNOALB``, ``U10``/``V10`` [m s-1], ``Times``/``XTIME``.
     time : None, int, str, datetime or numpy.datetime64, optional
         None: the first time in the file; an int: that index along ``Time``; otherwise the nearest time in
         ``Times``/``XTIME``, which must lie within 1.5 h.
+    albedo_band : {"shortwave", "visible"}
+        How the broadband ``ALBBCK``/``ALBEDO`` is given a spectral shape: as the class's shortwave broadband
+        albedo (default; WRF's albedos are shortwave) or as its visible mean (:func:`wrf_surface_fields`).
 
     Returns
     -------
@@ -189,7 +293,8 @@ def read_wrf(path_or_dataset, time=None) -> xr.Dataset:
         south_north, west_east): ``height`` [m] of the mass levels, ``lat``/``lon`` [deg] (of the selected time),
         ``terrain_height`` [m], ``<species>_content`` [kg m-3] for the species whose mixing ratio is in the file
         (absent species are zero and left out), effective radii [m] from ``RE_*``, ``land_mask``,
-        ``surface_albedo`` (``ALBEDO`` at all three wavelengths), the scalar coordinate ``time`` and attrs
+        ``surface_albedo`` (wavelength, y, x; snow-free), ``snow_cover``, ``wind_speed_10m``
+        (:func:`wrf_surface_fields`; each left out when the file lacks its fields), the scalar coordinate ``time`` and attrs
         ``reference_lat``/``reference_lon`` (the centre of the grid, see below), ``title``, ``source``,
         ``wrf_dx``/``wrf_dy`` [m] and ``wrf_map_proj`` where the file has them.
 
@@ -213,7 +318,7 @@ def read_wrf(path_or_dataset, time=None) -> xr.Dataset:
         ds = path_or_dataset
         label = "the WRF dataset"
         source = str(ds.encoding.get("source", "xarray.Dataset"))
-        return _read_wrf_dataset(ds, time, label, source)
+        return _read_wrf_dataset(ds, time, label, source, albedo_band)
     p = Path(path_or_dataset)
     if not p.is_file():
         raise SwimInputError(f"WRF file not found: {p}")
@@ -222,7 +327,7 @@ def read_wrf(path_or_dataset, time=None) -> xr.Dataset:
     except Exception as exc:  # noqa: BLE001 - any backend failure means "not a readable netCDF file"
         raise SwimInputError(f"WRF file {p} cannot be read as netCDF: {exc}") from exc
     with opened as ds:
-        return _read_wrf_dataset(ds, time, f"WRF file {p.name}", str(p))
+        return _read_wrf_dataset(ds, time, f"WRF file {p.name}", str(p), albedo_band)
 
 
 #: WRF microphysics schemes whose QCLOUD/QRAIN hold ice/snow below freezing (WSM3 "simple ice", Hong et al.
@@ -245,7 +350,7 @@ def _split_simple_ice(ds: xr.Dataset, contents: dict, temperature: np.ndarray, l
                 label, scheme, int(frozen.sum()))
 
 
-def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str) -> xr.Dataset:
+def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str, albedo_band: str = "shortwave") -> xr.Dataset:
     missing = [v for v in _REQUIRED if v not in ds.variables]
     if missing:
         raise SwimInputError(
@@ -335,13 +440,10 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str) -> xr.Datas
         data["land_mask"] = xr.DataArray((np.rint(_field(ds, "XLAND", itime)) == 1).astype(np.int8), dims=dims2)
 
     coords = {}
-    if "ALBEDO" in ds.variables:
-        albedo = _field(ds, "ALBEDO", itime)
-        if str(ds["ALBEDO"].attrs.get("units", "")).strip() == "%":
-            albedo = albedo / 100.0
-        data["surface_albedo"] = xr.DataArray(
-            np.broadcast_to(albedo, (WAVELENGTHS_NM.size,) + albedo.shape).copy(), dims=("wavelength",) + dims2
-        )
+    surface = wrf_surface_fields(ds, itime, label, albedo_band=albedo_band)
+    for name, values in surface.items():
+        data[name] = xr.DataArray(values, dims=(("wavelength",) + dims2) if values.ndim == 3 else dims2)
+    if "surface_albedo" in surface:
         coords["wavelength"] = xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs={"units": "nm"})
     if valid_time is not None:
         coords["time"] = xr.DataArray(valid_time)

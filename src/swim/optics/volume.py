@@ -26,6 +26,7 @@ import xarray as xr
 from ..constants import HYDROMETEOR_DENSITY, SPECIES, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import orthographic_xy
+from ..io.scene import DEFAULT_WIND_SPEED_M_S
 from .hydrometeors import effective_radius, extinction_coefficient_stephens1978
 
 log = logging.getLogger(__name__)
@@ -33,6 +34,34 @@ log = logging.getLogger(__name__)
 #: Default surface albedo at 615/546/450 nm over land (mixed vegetation and soil) and water.
 DEFAULT_LAND_ALBEDO = (0.17, 0.13, 0.08)
 DEFAULT_WATER_ALBEDO = (0.04, 0.05, 0.07)
+
+
+def terrain_slope(terrain, grid_x, grid_y):
+    """Gradient of the terrain height with respect to the grid's horizontal coordinates.
+
+    Parameters
+    ----------
+    terrain : numpy.ndarray
+        Shape (ny, nx): terrain height [m].
+    grid_x, grid_y : numpy.ndarray
+        Shape (ny, nx): horizontal coordinates of the columns [m] (any smooth, non-degenerate grid).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (2, ny, nx): dh/dx and dh/dy [-] (central differences in index space, converted to metres with
+        the local Jacobian of the grid, one-sided at the edges).
+    """
+    h = np.asarray(terrain, dtype=float)
+    dh_dj, dh_di = np.gradient(h)
+    dx_dj, dx_di = np.gradient(np.asarray(grid_x, dtype=float))
+    dy_dj, dy_di = np.gradient(np.asarray(grid_y, dtype=float))
+    det = dx_di * dy_dj - dx_dj * dy_di
+    det = np.where(np.abs(det) > 0, det, np.inf)
+    # [dh/dx, dh/dy] = J^-T [dh/di, dh/dj] with J = [[dx/di, dx/dj], [dy/di, dy/dj]]
+    dh_dx = (dy_dj * dh_di - dy_di * dh_dj) / det
+    dh_dy = (-dx_dj * dh_di + dx_di * dh_dj) / det
+    return np.stack([dh_dx, dh_dy])
 
 
 def fit_grid_affine(x, y):
@@ -186,8 +215,10 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     xarray.Dataset
         ``extinction`` (species, level, y, x) [m-1] for the hydrometeor species of
         :data:`swim.constants.SPECIES`; ``aerosol_extinction`` (level, y, x) [m-1 at 550 nm];
-        ``terrain_height`` (y, x) [m]; ``surface_albedo`` (wavelength, y, x) [-]; ``grid_x``, ``grid_y``
-        (y, x) [m]; coordinate ``level`` [m above sea level]. Attributes: ``reference_lat``,
+        ``terrain_height`` (y, x) [m]; ``surface_albedo`` (wavelength, y, x) [-]; ``land_fraction`` (y, x)
+        [-] (the scene's ``land_mask``, else terrain > 0.5 m); ``snow_cover`` (y, x) [-] (default 0);
+        ``wind_speed_10m`` (y, x) [m s-1] (default :data:`swim.io.scene.DEFAULT_WIND_SPEED_M_S`); ``terrain_slope``
+        (component, y, x) [-] (:func:`terrain_slope`); ``grid_x``, ``grid_y`` (y, x) [m]; coordinate ``level`` [m above sea level]. Attributes: ``reference_lat``,
         ``reference_lon`` [deg], ``z_bottom``, ``dz`` [m], ``affine_origin`` (2,) [m], ``affine_matrix``
         (4,) [m] (row-major 2x2, columns d/di and d/dj), ``affine_max_residual_m``; the cubic index map ``index_map_centre``, ``index_map_scale``,
         ``index_map_coefficients`` (20,) and ``index_map_max_residual_cells`` (:func:`grid_indices`).
@@ -240,11 +271,14 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     else:
         aerosol = np.zeros((nk, ny, nx))
 
+    land = scene["land_mask"].values.astype(float) if "land_mask" in scene else (terrain > 0.5).astype(float)
     if "surface_albedo" in scene:
         albedo = scene["surface_albedo"].transpose("wavelength", "y", "x").values.astype(float)
     else:
-        land = scene["land_mask"].values if "land_mask" in scene else (terrain > 0.5).astype(float)
         albedo = default_surface_albedo(land)
+    snow = scene["snow_cover"].values.astype(float) if "snow_cover" in scene else np.zeros((ny, nx))
+    wind = (scene["wind_speed_10m"].values.astype(float) if "wind_speed_10m" in scene
+            else np.full((ny, nx), DEFAULT_WIND_SPEED_M_S))
 
     return xr.Dataset(
         {
@@ -252,6 +286,11 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
             "aerosol_extinction": (("level", "y", "x"), aerosol.astype(np.float32), {"units": "m-1", "long_name": "aerosol extinction coefficient at 550 nm"}),
             "terrain_height": (("y", "x"), terrain, {"units": "m"}),
             "surface_albedo": (("wavelength", "y", "x"), albedo, {"units": "1"}),
+            "land_fraction": (("y", "x"), land, {"units": "1", "long_name": "land fraction (1 land, 0 water)"}),
+            "snow_cover": (("y", "x"), snow, {"units": "1", "long_name": "snow-covered fraction of the land"}),
+            "wind_speed_10m": (("y", "x"), wind, {"units": "m s-1", "long_name": "wind speed at 10 m (sun glint)"}),
+            "terrain_slope": (("component", "y", "x"), terrain_slope(terrain, gx, gy),
+                              {"units": "1", "long_name": "terrain gradient dh/dx, dh/dy"}),
             "grid_x": (("y", "x"), gx, {"units": "m"}),
             "grid_y": (("y", "x"), gy, {"units": "m"}),
         },

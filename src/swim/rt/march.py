@@ -12,12 +12,13 @@ before the model grid, the grid, and clear air after it. Along the way the kerne
 * for the hydrometeors (Step 1b): the optical depth tau_o per species and the integral of Eq. 12,
   ``int_0^l (E/E_TOA) e^{-tau_o} dtau_o`` with l = min(2, tau_o), both with and without the gas
   attenuation between the observer and the cloud;
-* the first intersection with the terrain (refined linearly between steps) or the sea-level sphere.
+* the first intersection with the terrain (bilinear height field, refined linearly between steps; beyond
+  the grid the terrain continues at its edge heights) or the sea-level sphere.
 
 After the march the cloud radiance follows Eq. 12 with the effective phase function of Eq. 13
 (:func:`swim.optics.phase.effective_phase_function`), blended with the cloud-top reflection of Eqs. 24-26
-for rays that look down on clouds; the ground is a Lambertian reflector lit by direct and diffuse light
-(Eq. 35, ARF = 1). Step 3 (Eqs. 32-34) is realised by the compositing itself: gas in front of a cloud adds
+for rays that look down on clouds; the ground reflects direct and diffuse light on its tilted terrain facet
+(Eq. 35; BRDFs, sun glint and slopes in :mod:`swim.surface.lighting`). Step 3 (Eqs. 32-34) is realised by the compositing itself: gas in front of a cloud adds
 unattenuated, the cloud is seen through the gas in front of it (the e^{-tau_1} of Eq. 33), and the sky
 and ground behind it are attenuated by its optical depth. docs/rendering.md states the interpretation.
 
@@ -47,6 +48,8 @@ from ..optics.phase import (
     forward_peak_mixture,
     phase_thin_mixture,
 )
+from ..errors import SwimInputError
+from ..surface.lighting import SURFACE_MODELS, surface_radiance
 from .gas import GasTables
 from .solar import transmittance_delta_eddington
 
@@ -84,6 +87,9 @@ class MarchSettings:
     multiple_scattering : bool
         Add the directional source of the higher scattering orders (:mod:`swim.rt.multiple_scattering`)
         to the clear-sky source (docs/rendering.md); False gives pure single scattering (Eq. 3).
+    surface : {"brdf", "lambertian"}
+        Reflectance of the ground (:func:`swim.surface.lighting.surface_radiance`): land, snow and water
+        BRDFs with sun glint, or Lambertian (what plane-parallel reference solvers assume).
     """
 
     n_before: int = 48
@@ -91,6 +97,11 @@ class MarchSettings:
     n_after: int = 96
     chunk: int = 4096
     multiple_scattering: bool = True
+    surface: str = "brdf"
+
+    def __post_init__(self):
+        if self.surface not in SURFACE_MODELS:
+            raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
 
 
 @dataclass(frozen=True)
@@ -395,9 +406,11 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
             t_cloud = jnp.ones(q.shape[0], jnp.float32)
             t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
-            gap = st["gap"]
-            hit_now = jnp.zeros(q.shape[0], bool)
-            frac = jnp.ones(q.shape[0], jnp.float32)
+            # Beyond the grid the terrain continues at its edge heights (clamped), so that mountains at the
+            # domain's edge do not end in a cliff down to the sea-level sphere and a plateau's horizon is flat.
+            gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
+            hit_now = st["alive"] & (gap < 0)
+            frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
         ds_eff = ds * frac * st["alive"]
         # direct beam / E_TOA, lights the gas and aerosol (Eq. 3): gas, hydrometeors (T), 3-D aerosol
         irradiance = t_sun * t_cloud[:, None] * t_aerosol
@@ -471,7 +484,7 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     state = _march_segment(state, start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after, False,
                            *args)
 
-    # ---- ground: Lambertian, direct + diffuse (Eq. 35 with ARF = 1) ----
+    # ---- ground: Eq. 35 on the terrain facet, direct (BRDF) + diffuse (ARF = 1) ----
     surface = state["hit"] | (ends_on_ground & state["alive"])
     s_hit = jnp.where(state["hit"], state["hit_s"], bounds[:, 2])
     q = start + s_hit[:, None] * direction
@@ -483,19 +496,27 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     above = trilinear(consts["volume"][..., -2:], k + 1.0, j, i, outside_t)
     t_cloud = above[:, 1]
     t_aerosol = jnp.exp(-above[:, :1] * consts["angstrom"][None, :])
-    albedo = bilinear_clamped(consts["albedo"], j, i)
-    e_horizontal = (jnp.maximum(mu_s, 0.0)[:, None] * t_sun * t_aerosol + diffuse) * t_cloud[:, None]
-    # Seen from above, the Lambertian ground under a cloud layer shines through the layer's total (direct +
-    # diffuse) transmittance at the view angle (reciprocity), the same delta-Eddington T as in Step 1a;
-    # rays that do not look down (blend as for the clouds) keep the direct e^{-tau} (docs/rendering.md,
-    # "Overcast accuracy").
+    ny, nx = consts["terrain"].shape[:2]
+    in_grid = (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
+    # albedo (3), land, snow, wind, slope (2); beyond the grid the mean of its edge (no streaks of edge
+    # values), flat
+    fields = jnp.where(in_grid[:, None], bilinear_clamped(consts["surface"], j, i), consts["surface_outside"][None, :])
+    slope = fields[:, 6:8]
+    up = q + jnp.array([0.0, 0.0, 1.0], jnp.float32) * consts["radius"]
+    up = up / jnp.linalg.norm(up, axis=1, keepdims=True)
+    l_ground = surface_radiance(up, -direction, consts["sun"], slope, fields[:, :3], fields[:, 3], fields[:, 4],
+                                fields[:, 5], t_sun * t_aerosol * t_cloud[:, None], diffuse * t_cloud[:, None],
+                                model=settings.surface)
+    # Seen from above, the ground under a cloud layer shines through the layer's total (direct + diffuse)
+    # transmittance at the view angle (reciprocity), the same delta-Eddington T as in Step 1a; rays that do
+    # not look down (blend as for the clouds) keep the direct e^{-tau} (docs/rendering.md, "Overcast accuracy").
     mu_down_ground = -rays["cos_view_zenith"]
     w_above_ground = jnp.clip(mu_down_ground / FROM_ABOVE_BLEND, 0.0, 1.0)
     tau_hydro = state["tau_h"]
     t_hydro = (1 - w_above_ground) * jnp.exp(-tau_hydro) + w_above_ground * transmittance_delta_eddington(
         tau_hydro, state["tau_species"] @ consts["backscatter"], jnp.maximum(mu_down_ground, FROM_ABOVE_BLEND))
     transmit = jnp.exp(-state["tau_clear"]) * t_hydro[:, None]
-    l_surface = jnp.where(surface[:, None], 4.0 * albedo * e_horizontal * transmit, 0.0)
+    l_surface = jnp.where(surface[:, None], l_ground * transmit, 0.0)
 
     # ---- clouds: Eq. 12 with the effective phase function of Eq. 13, blended with Eqs. 24-26 ----
     tau = state["tau_h"]
@@ -560,6 +581,25 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     }
 
 
+def surface_fields(volume):
+    """The ground's fields packed for one bilinear lookup, (ny, nx, 8): spectral albedo (3) [-], land fraction
+    [-], snow cover [-], wind speed at 10 m [m s-1] and terrain gradient dh/dx, dh/dy [-]."""
+    return np.concatenate([
+        volume["surface_albedo"].transpose("y", "x", "wavelength").values,
+        volume["land_fraction"].values[..., None], volume["snow_cover"].values[..., None],
+        volume["wind_speed_10m"].values[..., None], volume["terrain_slope"].transpose("y", "x", "component").values,
+    ], axis=-1)
+
+
+def surface_fields_outside(volume):
+    """The ground beyond the grid (8,): :func:`surface_fields` averaged over the grid's edge cells, flat."""
+    fields = surface_fields(volume)
+    ring = np.concatenate([fields[0], fields[-1], fields[1:-1, 0], fields[1:-1, -1]])
+    out = ring.mean(axis=0)
+    out[6:8] = 0.0
+    return out
+
+
 def aerosol_column_optical_depth(volume):
     """Column optical depth at 550 nm of the optical volume's 3-D aerosol (y, x) [-] (sum over its levels)."""
     aer = volume["aerosol_extinction"]
@@ -579,7 +619,8 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     return {
         "volume": f32(packed),
         "terrain": f32(volume["terrain_height"].values[..., None]),
-        "albedo": f32(volume["surface_albedo"].transpose("y", "x", "wavelength").values),
+        "surface": f32(surface_fields(volume)),
+        "surface_outside": f32(surface_fields_outside(volume)),
         "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients")},
         "z_bottom": f32(geometry.z_bottom),
         "dz": f32(geometry.dz),

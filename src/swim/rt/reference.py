@@ -22,7 +22,10 @@ from ..optics.phase import (
     phase_thin_mixture,
 )
 from ..optics.volume import grid_indices
+from ..surface.lighting import surface_radiance
 from .march import FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, aerosol_column_optical_depth, grid_geometry
+from .march import surface_fields as march_surface_fields
+from .march import surface_fields_outside as march_surface_fields_outside
 from .solar import transmittance_delta_eddington
 
 
@@ -69,7 +72,8 @@ def _diffuse_source(o, d, s0, s1, heights, gas, sun, classes):
 
 
 def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_rayleigh, p_aerosol,
-                        step_m=50.0, radius=EARTH_RADIUS_M, multiple_scattering=True, p_stratospheric=None):
+                        step_m=50.0, radius=EARTH_RADIUS_M, multiple_scattering=True, p_stratospheric=None,
+                        surface_model="brdf"):
     """Trace one ray with fine uniform steps; returns the same quantities as the kernel (float64).
 
     Parameters
@@ -92,6 +96,8 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         the atmosphere has a stratospheric layer).
     multiple_scattering : bool
         As :class:`swim.rt.march.MarchSettings`.
+    surface_model : {"brdf", "lambertian"}
+        ``MarchSettings.surface`` (the same :func:`swim.surface.lighting.surface_radiance`).
 
     Returns
     -------
@@ -111,7 +117,7 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     interp_tau_aer = RegularGridInterpolator(axes, transmittance["aerosol_tau_sun"].values.astype(float), bounds_error=False,
                                              fill_value=0.0)
     interp_terrain = RegularGridInterpolator(axes[1:], volume["terrain_height"].values.astype(float), bounds_error=False, fill_value=None)
-    albedo = volume["surface_albedo"].values.astype(float)
+    surface_fields = [np.asarray(f, dtype=float) for f in np.moveaxis(march_surface_fields(volume), -1, 0)]
     heights = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
     u_axis = np.linspace(0, 1, gas.n_u)
     mu_axis = np.linspace(-1, 1, gas.n_mu)
@@ -156,9 +162,10 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     # Sample everything along the ray at once, then accumulate step by step with cumulative sums.
     h, mu_s, k, j, i = at(s)
     inside = (i >= 0) & (i <= nx - 1) & (j >= 0) & (j <= ny - 1)
-    terrain = np.where(inside, interp_terrain(np.stack([np.clip(j, 0, ny - 1), np.clip(i, 0, nx - 1)], axis=-1)), 0.0)
+    # the terrain continues beyond the grid at its edge heights (clamped), as in the kernel
+    terrain = interp_terrain(np.stack([np.clip(j, 0, ny - 1), np.clip(i, 0, nx - 1)], axis=-1))
     gap = h - terrain
-    below = np.flatnonzero(inside & (gap < 0))
+    below = np.flatnonzero(gap < 0)
     surface = sea
     s_end = s1
     step = np.full(n, ds)
@@ -209,15 +216,21 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         h, mu_s, k, j, i = at(s_end)
         _, _, _, t_sun, diffuse = gas_at(h, mu_s)
         t_cloud = float(interp_t([[k[0] + 1.0, j[0], i[0]]])[0])
-        rho = np.array([RegularGridInterpolator(axes[1:], albedo[c], bounds_error=False, fill_value=None)(
-            [[np.clip(j[0], 0, ny - 1), np.clip(i[0], 0, nx - 1)]])[0] for c in range(3)])
+        in_grid = (0 <= j[0] <= ny - 1) and (0 <= i[0] <= nx - 1)
+        fields = (np.array([RegularGridInterpolator(axes[1:], f)([[j[0], i[0]]])[0] for f in surface_fields])
+                  if in_grid else march_surface_fields_outside(volume))
         t_aer_ground = np.exp(-float(interp_tau_aer([[k[0] + 1.0, j[0], i[0]]])[0]) * gas.angstrom_factor)
-        e_h = (max(mu_s[0], 0.0) * t_sun[0] * t_aer_ground + diffuse[0]) * t_cloud
+        p_ground = o + s_end * d
+        up = p_ground / np.linalg.norm(p_ground)
+        l_ground = np.asarray(surface_radiance(
+            up[None], -d[None], sun, fields[6:8][None], fields[:3][None],
+            fields[3:4], fields[4:5], fields[5:6], (t_sun[0] * t_aer_ground * t_cloud)[None],
+            (diffuse[0] * t_cloud)[None], model=surface_model), dtype=float)[0]
         # seen from above: the ground through the total transmittance of the hydrometeors (reciprocity)
         w_g = np.clip(-d[2] / FROM_ABOVE_BLEND, 0, 1)
         t_h = (1 - w_g) * np.exp(-tau) + w_g * float(transmittance_delta_eddington(
             tau, float(tau_sp @ backscatter), max(-d[2], FROM_ABOVE_BLEND)))
-        l_surface = 4 * rho * e_h * np.exp(-tau_c) * t_h
+        l_surface = l_ground * np.exp(-tau_c) * t_h
 
     l_cloud = np.zeros(3)
     if tau > 1e-6:

@@ -391,6 +391,16 @@ def aerosol_plume_scene(aerosol: AerosolBackground, edge_x_m=200e3, spacing_m=50
                              title=f"{aerosol.type_name} plume, AOD {aerosol.aod_550}, edge at x = {edge_x_m / 1e3:g} km")
 
 
+def reference_settings(settings=None):
+    """Renderer settings for comparisons with the reference solvers: ``settings`` (default
+    ``MarchSettings()``) with a Lambertian ground, which is what DISORT and the Mitsuba scenes assume."""
+    import dataclasses
+
+    from ..rt.march import MarchSettings
+
+    return dataclasses.replace(MarchSettings() if settings is None else settings, surface="lambertian")
+
+
 def render_settings_variants():
     """Renderer settings to compare: ``{"default": MarchSettings()}``, plus ``"single scattering"`` (the
     renderer with ``multiple_scattering=False``) where :class:`swim.rt.march.MarchSettings` has that field."""
@@ -398,10 +408,10 @@ def render_settings_variants():
 
     from ..rt.march import MarchSettings
 
-    variants = {"default": MarchSettings()}
+    variants = {"default": reference_settings()}
     if "multiple_scattering" in {f.name for f in dataclasses.fields(MarchSettings)}:
         default_ms = MarchSettings().multiple_scattering
-        other = dataclasses.replace(MarchSettings(), multiple_scattering=not default_ms)
+        other = dataclasses.replace(reference_settings(), multiple_scattering=not default_ms)
         variants["multiple scattering off" if default_ms else "multiple scattering on"] = other
     return variants
 
@@ -431,9 +441,8 @@ def compare_ground_sky(sun_zenith_deg, aerosol: AerosolBackground = AerosolBackg
     """
     from ..geometry.cameras import AllSkyCamera
     from ..pipeline import render
-    from ..rt.march import MarchSettings
 
-    settings = MarchSettings() if settings is None else settings
+    settings = reference_settings(settings)
     scene = clear_scene(surface_albedo) if scene is None else scene
     ds = render(scene, camera="allsky", camera_options={"size": int(camera_size)}, sun_zenith=float(sun_zenith_deg),
                 sun_azimuth=float(sun_azimuth_deg), aerosol=aerosol if render_aerosol is None else render_aerosol,

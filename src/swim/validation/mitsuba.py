@@ -92,6 +92,7 @@ from ..errors import SwimInputError
 from ..frames import enu_from_azimuth_zenith
 from ..optics.rayleigh import rayleigh_phase_function
 from ..rt.gas import AerosolBackground, build_gas_tables
+from .disort import reference_settings
 
 log = logging.getLogger(__name__)
 
@@ -622,7 +623,7 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
         along the line of sight; ``dataset`` the rendered :class:`xarray.Dataset`.
     """
     from ..pipeline import render
-    from ..rt.march import MarchSettings
+
 
     cfg = dict(RICO_SETTINGS, **(settings or {}))
     aerosol = AerosolBackground(aod_550=float(cfg["aod_550"]))
@@ -641,7 +642,7 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
         raise SwimInputError(f"view must be 'ground' or 'space'; got {view!r}")
     ds = render(scene, camera=camera, camera_options=options, sun_zenith=float(sun_zenith_deg),
                 sun_azimuth=float(cfg["sun_azimuth"]), aerosol=aerosol, height=height,
-                settings=MarchSettings() if march_settings is None else march_settings)
+                settings=reference_settings(march_settings))
     sky = radiance_without_sun_disk(ds)
     vz = ds["view_zenith"].values.astype(float)
     va = ds["view_azimuth"].values.astype(float)

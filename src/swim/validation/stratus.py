@@ -32,6 +32,7 @@ from .disort import (
     _solve,
     cloud_layer_layers,
     disort_layers_irradiance,
+    reference_settings,
     sky_dome_directions,
 )
 
@@ -147,9 +148,9 @@ def render_space_views(scene, sun_zenith_deg, sun_azimuth_deg, views=DEFAULT_SPA
     """
     from ..frames import scene_to_geodetic
     from ..pipeline import render
-    from ..rt.march import MarchSettings
 
-    settings = MarchSettings() if settings is None else settings
+
+    settings = reference_settings(settings)
     out = []
     for theta, rel_az in views:
         look_az = float(sun_azimuth_deg) + float(rel_az)
@@ -211,9 +212,9 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
     from ..diagnostics.irradiance import sky_irradiance
     from ..geometry.cameras import AllSkyCamera
     from ..pipeline import render
-    from ..rt.march import MarchSettings
 
-    settings = MarchSettings() if settings is None else settings
+
+    settings = reference_settings(settings)
     aerosol = AerosolBackground() if aerosol is None else aerosol
     scene = stratus_scene(tau, surface_albedo=surface_albedo)
     profile = stratus_column_profile(scene)
