@@ -381,3 +381,30 @@ def test_image_file_to_scene_albedo(tmp_path):
     with pytest.raises(SwimInputError, match="not found"):
         load_image(tmp_path / "missing.png")
     assert WAVELENGTHS_NM.tolist() == [615.0, 546.0, 450.0]
+
+
+def test_scene_albedo_from_image_and_cli(tmp_path):
+    """A user's RGB image replaces the scene albedo (library and `swim render --albedo-image`)."""
+    from PIL import Image
+    from typer.testing import CliRunner
+
+    from swim.cli.main import app
+    from swim.io.scene import scene_from_arrays
+    from swim.surface.albedo import scene_with_albedo_from_image, spectral_albedo_from_rgb
+
+    rgb = np.zeros((90, 180, 3), dtype=np.uint8)
+    rgb[:, :] = (120, 160, 60)  # uniform green
+    path = tmp_path / "earth.png"
+    Image.fromarray(rgb).save(path)
+    x = np.linspace(-20e3, 20e3, 5)
+    scene = scene_from_arrays(x=x, y=x, z=np.linspace(100.0, 5000.0, 6), reference_lat=40.0, reference_lon=-105.0,
+                              land_mask=1.0)
+    out = scene_with_albedo_from_image(scene, path, scale=0.5)
+    expected = spectral_albedo_from_rgb(np.array([120, 160, 60]) / 255.0, scale=0.5)
+    np.testing.assert_allclose(out["surface_albedo"].values, np.broadcast_to(expected[:, None, None], (3, 5, 5)),
+                               rtol=1e-6)
+    assert out["surface_albedo"].values[1, 0, 0] > out["surface_albedo"].values[0, 0, 0]  # green > red
+    result = CliRunner().invoke(app, ["render", "--albedo-image", str(path), "--albedo-image-bounds", "0,1,0,1",
+                                      "--out", str(tmp_path / "x.png")])
+    assert result.exit_code == 2 and "albedo" in result.output.lower()
+    assert not (tmp_path / "x.png").exists()

@@ -61,6 +61,12 @@ def render(
     white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
                                                              "4 above 100 km)."),
     steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
+    albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
+                                                "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
+    albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
+                                            help="'west,east,south,north' [deg] covered by --albedo-image."),
+    albedo_image_scale: float = typer.Option(1.0, "--albedo-image-scale", help="Albedo of a white pixel of "
+                                             "--albedo-image [-]."),
     surface: str = typer.Option("brdf", help="Ground reflectance: brdf (land hot spot, snow, sun glint on water) "
                                 "or lambertian (docs/surfaces.md)."),
     scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
@@ -81,6 +87,16 @@ def render(
                 raise SwimInputError("--scene-lat/--scene-lon place LES text scenes only; other scenes carry coordinates")
             place = {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
         ds = default_scene() if scene is None else open_scene(scene, time=time, **place)
+        if albedo_image is not None:
+            from ..surface.albedo import scene_with_albedo_from_image
+
+            try:
+                bounds = tuple(float(v) for v in albedo_image_bounds.split(","))
+                assert len(bounds) == 4
+            except (ValueError, AssertionError):
+                raise SwimInputError("--albedo-image-bounds must be 'west,east,south,north' [deg], got "
+                                     f"{albedo_image_bounds!r}") from None
+            ds = scene_with_albedo_from_image(ds, albedo_image, bounds=bounds, scale=albedo_image_scale)
         options = {"allsky": {"size": size},
                    "panorama": {"width": width, "height": image_height},
                    "perspective": {"width": width, "height": image_height}}[camera.value]

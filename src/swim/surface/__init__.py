@@ -9,6 +9,7 @@
 
 from .albedo import (
     blend_snow,
+    scene_with_albedo_from_image,
     spectral_albedo_from_broadband,
     spectral_albedo_from_image,
     spectral_albedo_from_landuse,
@@ -41,6 +42,7 @@ __all__ = [
     "reflectance_factor_lambertian",
     "reflectance_factor_rpv1993",
     "reflectance_factor_snow_kokhanovsky2004",
+    "scene_with_albedo_from_image",
     "slope_variance_cox_munk1954",
     "specular_direction",
     "spectral_albedo_from_broadband",

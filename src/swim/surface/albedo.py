@@ -63,6 +63,7 @@ __all__ = [
     "load_image",
     "regrid_image_to_scene",
     "spectral_albedo_from_image",
+    "scene_with_albedo_from_image",
 ]
 
 #: Weights of the albedos at (615, 546, 450) nm in the *visible* broadband mean (:func:`visible_mean`): the
@@ -875,3 +876,49 @@ def spectral_albedo_from_image(image, lat, lon, bounds=(-180.0, 180.0, -90.0, 90
     unit = _image_unit_range(image)
     sampled = regrid_image_to_scene(unit, lat, lon, bounds=bounds, geotransform=geotransform, method=method)
     return spectral_albedo_from_rgb(np.clip(sampled, 0.0, 1.0), scale=scale, encoding=encoding)
+
+
+def scene_with_albedo_from_image(scene, image, bounds=(-180.0, 180.0, -90.0, 90.0), scale=1.0,
+                                 method: str = "bilinear"):
+    """A copy of a canonical scene whose ``surface_albedo`` comes from an equirectangular RGB image.
+
+    The paper's Blue Marble route (Sect. 3.7; docs/surfaces.md §3): the image is sampled at the scene's column
+    latitudes/longitudes and converted with :func:`spectral_albedo_from_rgb`. Over water the renderer uses its
+    own water model, so only the land albedo matters.
+
+    Parameters
+    ----------
+    scene : xarray.Dataset
+        Canonical scene with ``lat``, ``lon`` (y, x) [deg].
+    image : array_like or str or os.PathLike
+        RGB image (rows, cols, 3) or a file (:func:`load_image`), north up.
+    bounds : tuple of float
+        (west, east, south, north) [deg] covered by the image (default: the whole globe).
+    scale : float
+        Albedo of a white (255) pixel [-] (:func:`spectral_albedo_from_rgb`).
+    method : {"bilinear", "nearest"}
+        Sampling (:func:`regrid_image_to_scene`).
+
+    Returns
+    -------
+    xarray.Dataset
+        The validated scene with ``surface_albedo`` (wavelength, y, x) [-] replaced.
+
+    Raises
+    ------
+    SwimInputError
+        A missing or unreadable image, scene points outside ``bounds``, or what
+        :func:`swim.io.scene.validate_scene` rejects.
+    """
+    from ..io.scene import validate_scene
+
+    try:
+        albedo = spectral_albedo_from_image(image, scene["lat"].values, scene["lon"].values, bounds=tuple(bounds),
+                                            method=method, scale=scale)
+    except SwimInputError as exc:
+        raise SwimInputError(f"surface albedo from an RGB image: {exc}") from None
+    out = scene.drop_vars("surface_albedo", errors="ignore").copy()
+    out["surface_albedo"] = (("wavelength", "y", "x"), np.clip(albedo, 0.0, 1.0),
+                             {"units": "1", "long_name": "surface spectral albedo", "source": "RGB image"})
+    out = out.assign_coords(wavelength=("wavelength", np.asarray(WAVELENGTHS_NM, dtype=float), {"units": "nm"}))
+    return validate_scene(out)
