@@ -11,7 +11,8 @@ direct light and ARF = 1 for the diffuse light. swim evaluates it on the *tilted
   albedo lit by the horizontal global irradiance);
 * the direct part uses the bidirectional reflectance factor R of :mod:`swim.surface.brdf` (RPV land with its
   hot spot, Kokhanovsky snow with its forward peak, Cox-Munk sun glint over water plus the water-leaving
-  term), the diffuse part the hemispherical (diffuse) albedo (ARF = 1, Eq. 35); ``model="lambertian"`` gives
+  term), the diffuse part the hemispherical (diffuse) albedo (ARF = 1, Eq. 35), except that water mirrors
+  the sky with the Fresnel reflectance of the view angle (bright towards the horizon); ``model="lambertian"`` gives
   R = a everywhere (the plane-parallel references of the validation suite assume it).
 
 All inputs are per ray (the ground point of each ray); the function is written in ``jax.numpy`` so that the
@@ -23,9 +24,13 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .brdf import surface_diffuse_albedo, surface_reflectance_factor
+from .water import fresnel_reflectance, water_diffuse_albedo
 
 #: Surface models: ``"brdf"`` (land RPV / snow / water glint, the default) or ``"lambertian"`` (R = albedo).
 SURFACE_MODELS = ("brdf", "lambertian")
+#: Smallest view cosine at which the water surface mirrors the sky with the Fresnel reflectance of the view
+#: angle (0.35 at 0.1); waves keep a real sea from mirroring the horizon like a flat pane.
+MIN_WATER_VIEW_COSINE = 0.1
 #: Smallest cosine between the view and the facet normal for which the facet's BRDF is used; below it (a
 #: facet seen edge-on or from behind, where the ray's coarse hit point and the smooth normal disagree) the
 #: local horizontal is used instead, which avoids black speckles on silhouettes.
@@ -103,4 +108,10 @@ def surface_radiance(up, view, sun, slope, albedo, land_fraction, snow_cover, wi
     # land has the snow's own albedo and BRDF shape (forward peak).
     r_direct = surface_reflectance_factor(sun, view, brdf_normal, albedo, snow_cover, land_fraction, wind_speed)
     a_diffuse = surface_diffuse_albedo(albedo, snow_cover, land_fraction)
+    # Water mirrors the (here isotropic) sky: its diffuse reflectance at the view angle is the Fresnel
+    # reflectance there (0.02 looking down, ~0.35 near the horizon), whose cosine-weighted hemispheric mean
+    # is the 0.067 of surface_diffuse_albedo (docs/surfaces.md §5).
+    mu_water = jnp.clip(jnp.sum(view * up, axis=1), MIN_WATER_VIEW_COSINE, 1.0)
+    specular_sky = fresnel_reflectance(mu_water) - water_diffuse_albedo()
+    a_diffuse = a_diffuse + ((1.0 - jnp.clip(land_fraction, 0.0, 1.0)) * specular_sky)[:, None]
     return 4.0 * (r_direct * cos_i[:, None] * direct + a_diffuse * diffuse_facet)
