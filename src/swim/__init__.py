@@ -26,6 +26,9 @@ _API = {
     "AerosolBackground": "swim.rt.gas",
     "MarchSettings": "swim.rt.march",
     "sky_irradiance": "swim.diagnostics.irradiance",
+    "compare_images": "swim.diagnostics.compare",
+    "reflectance_factor": "swim.diagnostics.satellite",
+    "FisheyeCameraModel": "swim.geometry.fisheye",
 }
 
 __all__ = sorted(_API) + ["__version__"]

@@ -279,7 +279,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "camera": camera,
         "Conventions": "CF-1.8",
     }
-    attrs.update({f"camera_{k}": v for k, v in cam.to_attrs().items()})
+    attrs.update(cam.to_attrs())  # keys start with "camera_"
     return xr.Dataset(data, coords={"wavelength": wl, "channel": ["R", "G", "B"]}, attrs=attrs)
 
 

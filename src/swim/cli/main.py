@@ -9,12 +9,14 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.logging import RichHandler
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from ..errors import SwimInputError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+# rich_markup_mode=None: help texts are plain (units in brackets such as "[deg]" must not be read as markup).
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None,
                   help="SWIm: render what a camera sees in NWP output (Albers et al. 2020).")
 console = Console(stderr=True)
 
@@ -135,10 +137,20 @@ def render(
         if netcdf is not None:
             write_netcdf(image, netcdf)
     except SwimInputError as exc:
-        console.print(f"[red]error:[/red] {exc}")
+        console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(code=2) from None
     console.print(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
                   + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
+
+
+def _register_diagnostics():
+    """The forward-operator commands live in their own modules (issue 5)."""
+    from .compare import compare
+
+    app.command(name="compare")(compare)
+
+
+_register_diagnostics()
 
 
 if __name__ == "__main__":  # pragma: no cover

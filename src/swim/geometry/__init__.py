@@ -13,10 +13,16 @@ from .cameras import (
     look_at_angles,
     make_camera,
 )
+from .fisheye import FISHEYE_PROJECTIONS, FisheyeCameraModel, OrientationFit, detect_sun, fit_orientation_from_sun
 from .sun import SunPosition, parse_time_utc, sun_from_angles, sun_position
 
 __all__ = [
     "CAMERA_KINDS",
+    "FISHEYE_PROJECTIONS",
+    "FisheyeCameraModel",
+    "OrientationFit",
+    "detect_sun",
+    "fit_orientation_from_sun",
     "AllSkyCamera",
     "Camera",
     "PanoramaCamera",
