@@ -20,11 +20,19 @@ ROOT = Path(__file__).resolve().parents[1]
 
 KATRINA_TIME = "2005-08-28T18:00"
 RICO_LAT, RICO_LON, RICO_TIME = 17.6, -61.8, "2005-01-10T15:00"
+# Highest point of the met_em terrain (3267 m, on the grid's west edge), moved 0.05 cells into the grid: on the
+# edge itself the observer would be placed at sea level (see tests/system/test_surfaces_realdata.py).
+COLORADO_PEAK_LAT, COLORADO_PEAK_LON = 39.7045, -107.3050
+# Katrina's domain centre (the scene's reference point) and an observer 800 km up from which the sea mirrors the
+# 18 UTC sun ~90 km south of the centre (the specular point, found by root finding on the sphere).
+KATRINA_CENTRE = (24.49, -90.35, 0.0)
+KATRINA_GLINT_OBSERVER = (25.29, -90.26, 800e3)
 
 
 def views(data: Path):
     katrina = data / "wrf_katrina" / "ci_test_file.nc"
     rico = data / "les" / "rico122x106x39.txt"
+    met_em = data / "wrf_geo" / "met_em.d01.2005-08-28_12_00_00.nc"
     return {
         "default_allsky": dict(scene=lambda: swim.default_scene(), camera="allsky", camera_options={"size": 511},
                                caption="Built-in default scene: all-sky view from the ground (cumulus, cirrus deck, hill)."),
@@ -62,6 +70,30 @@ def views(data: Path):
         "clear_sky_sunset": dict(scene=lambda: swim.default_scene(), camera="panorama",
                                  camera_options={"width": 1024, "height": 512}, sun_zenith=86.0, sun_azimuth=270.0,
                                  caption="The same sunset without the stratospheric layer, for comparison."),
+        "colorado_peak_panorama": dict(
+            scene=lambda: swim.open_scene(met_em), time="2005-08-28T15:00",
+            lat=COLORADO_PEAK_LAT, lon=COLORADO_PEAK_LON, height=5.0, camera="panorama",
+            camera_options={"width": 1024, "height": 256, "elevation_min_deg": -10.0, "elevation_max_deg": 6.0},
+            caption="WPS met_em terrain in Colorado (60 m grid, 2.5 km across): 360° panorama from 5 m above its "
+                    "highest point (3267 m, on the grid's west edge) at 8 am local time, the sun 27° high in the "
+                    "east (above the frame, its glow at azimuth 100°). North at the left edge, azimuth increasing "
+                    "to the right; elevation -10° to +6°, so the vertical scale is stretched 5.6 times. The ridge "
+                    "runs east from the peak (the dark cone at azimuth 90°); its north flank (left) faces away "
+                    "from the sun and is darker than the south-facing ground (right). The flat band just below "
+                    "the skyline is the terrain beyond the tiny grid, which continues at the grid's edge "
+                    "heights: its steps near azimuths 90° and 170° are where those extruded edges meet. (The "
+                    "faint horizontal line at -1.8° across the western half is a ray-marching artefact.)"),
+        "katrina_glint_space": dict(
+            scene=lambda: swim.open_scene(katrina, time=KATRINA_TIME).drop_vars("wind_speed_10m"),
+            time=KATRINA_TIME, lat=KATRINA_GLINT_OBSERVER[0], lon=KATRINA_GLINT_OBSERVER[1],
+            height=KATRINA_GLINT_OBSERVER[2], camera="perspective", look_at=KATRINA_CENTRE,
+            camera_options={"width": 512, "height": 512, "fov_deg": 42.0, "roll_deg": 180.0},
+            caption="Katrina (18 UTC) from 800 km above 25.29 N, 90.26 W, looking back south at the domain "
+                    "centre; the camera is rolled 180° so that north is up and east right. The sun, 16° from the "
+                    "zenith in the south, is mirrored by the sea ~90 km south of the centre: the "
+                    "soft sun glint (Cox-Munk) below the image centre. The scene's 10 m wind is replaced by the "
+                    "renderer's default 5 m/s: with the hurricane's 8-43 m/s winds the glint spreads into a "
+                    "faint haze. The hurricane's clouds (top right) end at the domain's north and east edges."),
     }
 
 

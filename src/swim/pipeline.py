@@ -36,16 +36,16 @@ SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
 
 
 def _terrain_at(volume, lat, lon):
-    """Terrain height [m] under (lat, lon) by bilinear interpolation; 0 (sea level) outside the domain."""
+    """Terrain height [m] under (lat, lon) by bilinear interpolation; beyond the domain the height of its nearest
+    edge, as the ray march continues the terrain (clamped)."""
     geometry = grid_geometry(volume)
     p = geodetic_to_scene(lat, lon, 0.0, volume.attrs["reference_lat"], volume.attrs["reference_lon"])
     i, j = (float(v) for v in grid_indices(volume.attrs, p[0], p[1]))
     _, ny, nx = geometry.shape
-    if not (0 <= i <= nx - 1 and 0 <= j <= ny - 1):
-        return 0.0, (i, j)
     terrain = volume["terrain_height"].values
-    i0, j0 = min(int(i), nx - 2), min(int(j), ny - 2)
-    fi, fj = i - i0, j - j0
+    ic, jc = min(max(i, 0.0), nx - 1.0), min(max(j, 0.0), ny - 1.0)
+    i0, j0 = min(int(ic), nx - 2), min(int(jc), ny - 2)
+    fi, fj = ic - i0, jc - j0
     value = (terrain[j0, i0] * (1 - fi) * (1 - fj) + terrain[j0, i0 + 1] * fi * (1 - fj)
              + terrain[j0 + 1, i0] * (1 - fi) * fj + terrain[j0 + 1, i0 + 1] * fi * fj)
     return float(value), (i, j)

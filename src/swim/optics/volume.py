@@ -130,13 +130,38 @@ def fit_grid_index_map(x, y):
     return centre, scale, coef.T.copy(), float(residual)
 
 
+def _polynomial_derivatives(u, v, xp=np):
+    """d/du and d/dv of :func:`polynomial_features`, each of shape ``broadcast(u, v).shape + (10,)``."""
+    zero, one = xp.zeros_like(u), xp.ones_like(u)
+    d_du = xp.stack([zero, one, zero, 2 * u, v, zero, 3 * u * u, 2 * u * v, v * v, zero], axis=-1)
+    d_dv = xp.stack([zero, zero, one, zero, u, 2 * v, zero, u * u, 2 * u * v, 3 * v * v], axis=-1)
+    return d_du, d_dv
+
+
 def grid_indices(attrs, x, y, xp=np):
-    """Fractional grid indices (i, j) of horizontal coordinates (x, y) [m] with the map stored in ``attrs``."""
+    """Fractional grid indices (i, j) of horizontal coordinates (x, y) [m] with the map stored in ``attrs``.
+
+    Inside the bounding box of the grid's columns (``index_map_bounds``, normalised coordinates) the cubic of
+    :func:`fit_grid_index_map`; beyond it the cubic's tangent plane at the nearest point of the box, because a
+    cubic extrapolated far outside the grid runs away (a point 26 km north of a 2.5 km grid came out 14 cells
+    off), and the terrain and surface beyond the grid are looked up by these indices.
+    """
     cx, cy = attrs["index_map_centre"]
     scale = attrs["index_map_scale"]
     coef = xp.asarray(attrs["index_map_coefficients"]).reshape(2, 10)
-    features = polynomial_features((x - cx) / scale, (y - cy) / scale, xp)
-    return features @ coef[0], features @ coef[1]
+    u = (x - cx) / scale
+    v = (y - cy) / scale
+    bounds = attrs.get("index_map_bounds") if hasattr(attrs, "get") else None
+    if bounds is None:
+        features = polynomial_features(u, v, xp)
+        return features @ coef[0], features @ coef[1]
+    uc = xp.clip(u, bounds[0], bounds[1])
+    vc = xp.clip(v, bounds[2], bounds[3])
+    features = polynomial_features(uc, vc, xp)
+    d_du, d_dv = _polynomial_derivatives(uc, vc, xp)
+    du, dv = u - uc, v - vc
+    return (features @ coef[0] + (d_du @ coef[0]) * du + (d_dv @ coef[0]) * dv,
+            features @ coef[1] + (d_du @ coef[1]) * du + (d_dv @ coef[1]) * dv)
 
 
 def _regular_levels(height, terrain, dz=None, max_levels=160):
@@ -221,7 +246,8 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
         (component, y, x) [-] (:func:`terrain_slope`); ``grid_x``, ``grid_y`` (y, x) [m]; coordinate ``level`` [m above sea level]. Attributes: ``reference_lat``,
         ``reference_lon`` [deg], ``z_bottom``, ``dz`` [m], ``affine_origin`` (2,) [m], ``affine_matrix``
         (4,) [m] (row-major 2x2, columns d/di and d/dj), ``affine_max_residual_m``; the cubic index map ``index_map_centre``, ``index_map_scale``,
-        ``index_map_coefficients`` (20,) and ``index_map_max_residual_cells`` (:func:`grid_indices`).
+        ``index_map_coefficients`` (20,), ``index_map_bounds`` (4,) and ``index_map_max_residual_cells``
+        (:func:`grid_indices`).
 
     Raises
     ------
@@ -244,6 +270,8 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     origin, matrix, residual = fit_grid_affine(gx, gy)
     spacing = float(np.sqrt(abs(np.linalg.det(matrix))))
     centre, scale, coefficients, index_residual = fit_grid_index_map(gx, gy)
+    index_bounds = np.array([(gx.min() - centre[0]) / scale, (gx.max() - centre[0]) / scale,
+                             (gy.min() - centre[1]) / scale, (gy.max() - centre[1]) / scale])
     log.info("grid: affine fit within %.0f m, cubic index map within %.3f cells (spacing %.0f m)",
              residual, index_residual, spacing)
     if index_residual > 0.25:
@@ -306,6 +334,7 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
             "index_map_centre": centre,
             "index_map_scale": scale,
             "index_map_coefficients": coefficients.ravel(),
+            "index_map_bounds": index_bounds,
             "index_map_max_residual_cells": index_residual,
         },
     )

@@ -61,8 +61,9 @@ log = logging.getLogger(__name__)
 #: (2 pi L against pi L).
 SKYLIGHT_SCALAR_FACTOR = 2.0
 #: Channel layout of the packed volume: 5 species extinctions, 3-D aerosol extinction, the 3-D aerosol's
-#: optical depth towards the sun (550 nm), Step 1a T (last).
-N_CHANNELS = len(SPECIES) + 3
+#: optical depth towards the sun (550 nm), Step 1a's cloud transmittance T, the terrain shadow (last). The
+#: terrain shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone.
+N_CHANNELS = len(SPECIES) + 4
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
 #: "seen from above" (Eq. 26) treatment of clouds.
 FROM_ABOVE_BLEND = 0.1
@@ -383,7 +384,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
     """
     multiple_scattering = ms_profile is not None
-    outside = jnp.concatenate([jnp.zeros(N_CHANNELS - 1), jnp.ones(1)]).astype(jnp.float32)
+    outside = jnp.concatenate([jnp.zeros(N_CHANNELS - 2), jnp.ones(2)]).astype(jnp.float32)
 
     def body(m, st):
         ds = length / n_steps
@@ -395,7 +396,8 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             v = trilinear(consts["volume"], k, j, i, outside)
             beta_sp = v[:, : len(SPECIES)]
             beta_a3 = v[:, len(SPECIES) : len(SPECIES) + 1] * consts["angstrom"][None, :]
-            t_cloud = v[:, -1]
+            t_cloud = v[:, -2]
+            shadow = v[:, -1]
             # Direct beam through the 3-D aerosol towards the sun (Angstrom-scaled from 550 nm).
             t_aerosol = jnp.exp(-v[:, len(SPECIES) + 1 : len(SPECIES) + 2] * consts["angstrom"][None, :])
             gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
@@ -405,6 +407,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             beta_sp = jnp.zeros((q.shape[0], len(SPECIES)), jnp.float32)
             beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
             t_cloud = jnp.ones(q.shape[0], jnp.float32)
+            shadow = jnp.ones(q.shape[0], jnp.float32)
             t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
             # Beyond the grid the terrain continues at its edge heights (clamped), so that mountains at the
             # domain's edge do not end in a cliff down to the sea-level sphere and a plateau's horizon is flat.
@@ -413,7 +416,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
         ds_eff = ds * frac * st["alive"]
         # direct beam / E_TOA, lights the gas and aerosol (Eq. 3): gas, hydrometeors (T), 3-D aerosol
-        irradiance = t_sun * t_cloud[:, None] * t_aerosol
+        irradiance = t_sun * (t_cloud * shadow)[:, None] * t_aerosol
         if in_grid:
             # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a); with
             # aerosol column classes, that of the ray's class.
@@ -443,8 +446,11 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         weight = jnp.maximum(jnp.exp(-t0) - jnp.exp(-jnp.minimum(t1, 2.0)), 0.0)
         i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
         i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
-        i_cloud_t = st["i_cloud_t"] + t_cloud * weight
+        i_cloud_t = st["i_cloud_t"] + t_cloud * shadow * weight
         hit_s = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
+        # bracket of the crossing for the bisection after the march: the previous sample (above) and this one
+        hit_lo = jnp.where(hit_now, jnp.maximum(s - ds, 0.0), st["hit_lo"])
+        hit_hi = jnp.where(hit_now, s, st["hit_hi"])
         return {
             "tau_clear": st["tau_clear"] + beta_clear * ds_eff[:, None],
             "tau_h": t1,
@@ -456,10 +462,41 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             "alive": st["alive"] & ~hit_now,
             "hit": st["hit"] | hit_now,
             "hit_s": hit_s,
+            "hit_lo": hit_lo,
+            "hit_hi": hit_hi,
             "gap": gap,
         }
 
     return jax.lax.fori_loop(0, n_steps, body, state)
+
+
+#: Bisection steps that refine a terrain crossing found between two samples of the march (2^-10 of a step:
+#: a few metres even for the ~10 km steps beyond the grid).
+TERRAIN_BISECTIONS = 10
+
+
+def refine_terrain_hit(start, direction, state, consts):
+    """Distance [m] to the terrain crossing of each ray, by bisection between the samples that bracket it.
+
+    The march finds the crossing between a sample above and one below the (clamped bilinear) terrain and
+    interpolates the gap linearly, which is exact for a flat surface but, with the long steps beyond the grid
+    or along grazing rays, can put the hit kilometres off over curved terrain; bisection on the same gap
+    function fixes that. Rays without a terrain hit keep ``state["hit_s"]``.
+    """
+    def gap(s):
+        h, _, _, j, i = _point_geometry(start + s[:, None] * direction, consts)
+        return h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
+
+    def step(_, bracket):
+        lo, hi = bracket
+        mid = 0.5 * (lo + hi)
+        below = gap(mid) < 0
+        return jnp.where(below, lo, mid), jnp.where(below, mid, hi)
+
+    lo, hi = state["hit_lo"], state["hit_hi"]
+    valid = (gap(lo) >= 0) & (gap(hi) < 0)
+    lo, hi = jax.lax.fori_loop(0, TERRAIN_BISECTIONS, step, (lo, hi))
+    return jnp.where(valid, 0.5 * (lo + hi), state["hit_s"])
 
 
 @functools.partial(jax.jit, static_argnames=("settings",))
@@ -471,6 +508,7 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         "tau_species": jnp.zeros((n, len(SPECIES)), jnp.float32),
         "l_clear": zeros3, "i_nogas": zeros3, "i_gas": zeros3, "i_cloud_t": jnp.zeros(n, jnp.float32),
         "alive": valid, "hit": jnp.zeros(n, bool), "hit_s": jnp.zeros(n, jnp.float32),
+        "hit_lo": jnp.zeros(n, jnp.float32), "hit_hi": jnp.zeros(n, jnp.float32),
         "gap": jnp.full(n, 1e9, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)
@@ -486,26 +524,26 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
 
     # ---- ground: Eq. 35 on the terrain facet, direct (BRDF) + diffuse (ARF = 1) ----
     surface = state["hit"] | (ends_on_ground & state["alive"])
-    s_hit = jnp.where(state["hit"], state["hit_s"], bounds[:, 2])
+    s_hit = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
     _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
     if consts["class_aod"].shape[0] > 1:
         diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
-    outside_t = jnp.array([0.0, 1.0], jnp.float32)
-    above = trilinear(consts["volume"][..., -2:], k + 1.0, j, i, outside_t)
-    t_cloud = above[:, 1]
-    t_aerosol = jnp.exp(-above[:, :1] * consts["angstrom"][None, :])
     ny, nx = consts["terrain"].shape[:2]
     in_grid = (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
-    # albedo (3), land, snow, wind, slope (2); beyond the grid the mean of its edge (no streaks of edge
-    # values), flat
+    # albedo (3), land, snow, wind, slope (2), and Step 1a at the ground: cloud T, terrain shadow, 3-D aerosol
+    # tau to the sun (2-D fields, so a steep slope does not sample its neighbours' underground values);
+    # beyond the grid the mean of its edge (no streaks of edge values), flat, unshaded
     fields = jnp.where(in_grid[:, None], bilinear_clamped(consts["surface"], j, i), consts["surface_outside"][None, :])
     slope = fields[:, 6:8]
+    t_cloud = fields[:, 8]
+    shadow = fields[:, 9]
+    t_aerosol = jnp.exp(-fields[:, 10:11] * consts["angstrom"][None, :])
     up = q + jnp.array([0.0, 0.0, 1.0], jnp.float32) * consts["radius"]
     up = up / jnp.linalg.norm(up, axis=1, keepdims=True)
     l_ground = surface_radiance(up, -direction, consts["sun"], slope, fields[:, :3], fields[:, 3], fields[:, 4],
-                                fields[:, 5], t_sun * t_aerosol * t_cloud[:, None], diffuse * t_cloud[:, None],
+                                fields[:, 5], t_sun * t_aerosol * (t_cloud * shadow)[:, None], diffuse * t_cloud[:, None],
                                 model=settings.surface)
     # Seen from above, the ground under a cloud layer shines through the layer's total (direct + diffuse)
     # transmittance at the view angle (reciprocity), the same delta-Eddington T as in Step 1a; rays that do
@@ -581,22 +619,35 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     }
 
 
-def surface_fields(volume):
-    """The ground's fields packed for one bilinear lookup, (ny, nx, 8): spectral albedo (3) [-], land fraction
-    [-], snow cover [-], wind speed at 10 m [m s-1] and terrain gradient dh/dx, dh/dy [-]."""
+def surface_fields(volume, transmittance):
+    """The ground's fields packed for one bilinear lookup, (ny, nx, 11): spectral albedo (3) [-], land fraction
+    [-], snow cover [-], wind speed at 10 m [m s-1], terrain gradient dh/dx, dh/dy [-], and Step 1a at the
+    ground (the first level at or above the terrain): cloud transmittance T [-], terrain shadow [-] and the
+    3-D aerosol's optical depth towards the sun at 550 nm [-]."""
+    levels = volume["level"].values
+    terrain = volume["terrain_height"].values
+    k = np.clip(np.searchsorted(levels, terrain - 1e-6 * float(volume.attrs["dz"])), 0, levels.size - 1)
+    jj, ii = np.indices(terrain.shape)
+
+    def at_ground(name):
+        return transmittance[name].values[k, jj, ii][..., None]
+
     return np.concatenate([
         volume["surface_albedo"].transpose("y", "x", "wavelength").values,
         volume["land_fraction"].values[..., None], volume["snow_cover"].values[..., None],
         volume["wind_speed_10m"].values[..., None], volume["terrain_slope"].transpose("y", "x", "component").values,
+        at_ground("cloud_transmittance"), at_ground("terrain_shadow"), at_ground("aerosol_tau_sun"),
     ], axis=-1)
 
 
-def surface_fields_outside(volume):
-    """The ground beyond the grid (8,): :func:`surface_fields` averaged over the grid's edge cells, flat."""
-    fields = surface_fields(volume)
+def surface_fields_outside(volume, transmittance):
+    """The ground beyond the grid (11,): :func:`surface_fields` averaged over the grid's edge cells, flat, lit by
+    the unobstructed sun (T = 1, no shadow, no 3-D aerosol)."""
+    fields = surface_fields(volume, transmittance)
     ring = np.concatenate([fields[0], fields[-1], fields[1:-1, 0], fields[1:-1, -1]])
     out = ring.mean(axis=0)
     out[6:8] = 0.0
+    out[8:11] = (1.0, 1.0, 0.0)
     return out
 
 
@@ -612,16 +663,18 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     ext = volume["extinction"].values.transpose(1, 2, 3, 0)
     packed = np.concatenate(
         [ext, volume["aerosol_extinction"].values[..., None], transmittance["aerosol_tau_sun"].values[..., None],
-         transmittance["transmittance"].values[..., None]], axis=-1
+         transmittance["cloud_transmittance"].values[..., None], transmittance["terrain_shadow"].values[..., None]],
+        axis=-1
     ).astype(np.float32)
     sun = np.asarray(sun_direction_scene, dtype=float)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {
         "volume": f32(packed),
         "terrain": f32(volume["terrain_height"].values[..., None]),
-        "surface": f32(surface_fields(volume)),
-        "surface_outside": f32(surface_fields_outside(volume)),
-        "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients")},
+        "surface": f32(surface_fields(volume, transmittance)),
+        "surface_outside": f32(surface_fields_outside(volume, transmittance)),
+        "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients",
+                                                             "index_map_bounds") if key in volume.attrs},
         "z_bottom": f32(geometry.z_bottom),
         "dz": f32(geometry.dz),
         "radius": f32(radius),

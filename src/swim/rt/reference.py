@@ -114,10 +114,13 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     ext = np.concatenate([volume["extinction"].values, volume["aerosol_extinction"].values[None]], axis=0)
     interp_ext = [RegularGridInterpolator(axes, ext[c].astype(float), bounds_error=False, fill_value=0.0) for c in range(ext.shape[0])]
     interp_t = RegularGridInterpolator(axes, transmittance["transmittance"].values.astype(float), bounds_error=False, fill_value=1.0)
+    # the cloud T alone dims the skylight; the terrain shadow (in "transmittance") only the direct beam
+    interp_tc = RegularGridInterpolator(axes, transmittance["cloud_transmittance"].values.astype(float), bounds_error=False,
+                                        fill_value=1.0)
     interp_tau_aer = RegularGridInterpolator(axes, transmittance["aerosol_tau_sun"].values.astype(float), bounds_error=False,
                                              fill_value=0.0)
     interp_terrain = RegularGridInterpolator(axes[1:], volume["terrain_height"].values.astype(float), bounds_error=False, fill_value=None)
-    surface_fields = [np.asarray(f, dtype=float) for f in np.moveaxis(march_surface_fields(volume), -1, 0)]
+    surface_fields = [np.asarray(f, dtype=float) for f in np.moveaxis(march_surface_fields(volume, transmittance), -1, 0)]
     heights = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
     u_axis = np.linspace(0, 1, gas.n_u)
     mu_axis = np.linspace(-1, 1, gas.n_mu)
@@ -184,7 +187,7 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     t_aer = np.exp(-interp_tau_aer(points)[:, None] * gas.angstrom_factor[None, :])
     e = t_sun * t_aer * interp_t(points)[:, None]
     in_grid = ((k >= 0) & (k <= nk - 1) & inside)[:, None]
-    e_h = np.where(in_grid, (t_sun * t_aer + SKYLIGHT_SCALAR_FACTOR * diffuse_sky) * interp_t(points)[:, None], e)
+    e_h = np.where(in_grid, e + SKYLIGHT_SCALAR_FACTOR * diffuse_sky * interp_tc(points)[:, None], e)
     beta_clear = br + ba + beta_a3 + bs
     beta_h = beta_sp.sum(axis=1)
     x = (beta_clear + beta_h[:, None]) * step[:, None]
@@ -200,7 +203,7 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     source = (br * p_rayleigh + scat_a * p_aerosol + scat_s * p_strat) * e
     if multiple_scattering:
         j = _diffuse_source(o, d, s0, s1, h, gas, sun, classes)
-        source = source + (br * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * interp_t(points)[:, None]
+        source = source + (br * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * interp_tc(points)[:, None]
     l_clear = np.sum(t_obs * source * step[:, None] * mean, axis=0)
     w = np.maximum(np.exp(-tau_h_before) - np.exp(-np.minimum(tau_h_before + d_tau_h, 2.0)), 0.0)
     i_nogas = np.sum(e_h * w[:, None], axis=0)
@@ -215,16 +218,17 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     if surface:
         h, mu_s, k, j, i = at(s_end)
         _, _, _, t_sun, diffuse = gas_at(h, mu_s)
-        t_cloud = float(interp_t([[k[0] + 1.0, j[0], i[0]]])[0])
         in_grid = (0 <= j[0] <= ny - 1) and (0 <= i[0] <= nx - 1)
         fields = (np.array([RegularGridInterpolator(axes[1:], f)([[j[0], i[0]]])[0] for f in surface_fields])
-                  if in_grid else march_surface_fields_outside(volume))
-        t_aer_ground = np.exp(-float(interp_tau_aer([[k[0] + 1.0, j[0], i[0]]])[0]) * gas.angstrom_factor)
+                  if in_grid else march_surface_fields_outside(volume, transmittance))
+        # Step 1a at the ground: cloud T, terrain shadow and 3-D aerosol tau of the column's ground level
+        t_cloud, shadow = fields[8], fields[9]
+        t_aer_ground = np.exp(-fields[10] * gas.angstrom_factor)
         p_ground = o + s_end * d
         up = p_ground / np.linalg.norm(p_ground)
         l_ground = np.asarray(surface_radiance(
             up[None], -d[None], sun, fields[6:8][None], fields[:3][None],
-            fields[3:4], fields[4:5], fields[5:6], (t_sun[0] * t_aer_ground * t_cloud)[None],
+            fields[3:4], fields[4:5], fields[5:6], (t_sun[0] * t_aer_ground * t_cloud * shadow)[None],
             (diffuse[0] * t_cloud)[None], model=surface_model), dtype=float)[0]
         # seen from above: the ground through the total transmittance of the hydrometeors (reciprocity)
         w_g = np.clip(-d[2] / FROM_ABOVE_BLEND, 0, 1)

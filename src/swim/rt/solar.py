@@ -206,8 +206,9 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
         ``b_tau_sun`` (level, y, x) [-]: its backscatter-weighted sum; ``aerosol_tau_sun`` (level, y, x)
         [-]: optical depth of the 3-D aerosol towards the sun at 550 nm (it dims the direct beam,
         e^{-tau}, and is not part of T); ``terrain_shadow`` (level, y, x)
-        [-]: transmittance of the terrain (0 in a mountain's shadow); ``transmittance`` (level, y, x)
-        [-]: T (:func:`transmittance_delta_eddington`, in place of Eq. 6) times the terrain shadow, i.e.
+        [-]: transmittance of the terrain (0 in a mountain's shadow); ``cloud_transmittance`` (level, y, x)
+        [-]: T alone (it dims the skylight; the terrain shadow cuts only the direct beam);
+        ``transmittance`` (level, y, x) [-]: T (:func:`transmittance_delta_eddington`, in place of Eq. 6) times the terrain shadow, i.e.
         E / (e^{-tau_R} E_TOA) of Eq. 8.
 
     References
@@ -253,6 +254,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
             "terrain_shadow": (dims, shadow, {"units": "1"}),
             "aerosol_tau_sun": (dims, taus[3], {"units": "1",
                                                 "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"}),
+            "cloud_transmittance": (dims, cloud_t, {"units": "1", "long_name": "cloud transmittance T (Step 1a)"}),
             "transmittance": (dims, cloud_t * shadow, {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}),
         },
         coords={"level": volume["level"]},
