@@ -6,8 +6,6 @@ Each stage is a function between xarray objects or small dataclasses; :func:`ren
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -22,6 +20,7 @@ from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
 from .geometry.cameras import fov_to_fit, look_at_angles, make_camera
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
+from .io.atomic import atomic_write
 from .io.scene import validate_scene
 from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
@@ -304,31 +303,16 @@ def _default_perspective_view(volume, lat, lon, height_asl, look_at, options):
     return view
 
 
-def _atomic_write(path: Path, writer):
-    """Write through a temporary file in the same folder and rename, so no half-written file remains."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    os.close(fd)
-    try:
-        writer(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-
-
 def write_png(image: xr.Dataset, path) -> Path:
     """Write the ``rgb`` of a rendered image as an 8-bit sRGB PNG (atomically)."""
     from PIL import Image
 
-    _atomic_write(Path(path), lambda tmp: Image.fromarray(np.asarray(image["rgb"].values, dtype=np.uint8), "RGB").save(tmp, format="PNG"))
+    atomic_write(Path(path), lambda tmp: Image.fromarray(np.asarray(image["rgb"].values, dtype=np.uint8), "RGB").save(tmp, format="PNG"))
     return Path(path)
 
 
 def write_netcdf(image: xr.Dataset, path) -> Path:
     """Write a rendered image as CF-style netCDF-4 (atomically); radiance is compressed float32."""
     encoding = {name: {"zlib": True, "complevel": 4} for name in image.data_vars}
-    _atomic_write(Path(path), lambda tmp: image.to_netcdf(tmp, format="NETCDF4", encoding=encoding))
+    atomic_write(Path(path), lambda tmp: image.to_netcdf(tmp, format="NETCDF4", encoding=encoding))
     return Path(path)

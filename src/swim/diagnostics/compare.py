@@ -60,8 +60,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +70,7 @@ from .. import frames
 from ..errors import SwimInputError
 from ..geometry.cameras import CAMERA_KINDS, Camera, make_camera
 from ..geometry.fisheye import FisheyeCameraModel
+from ..io.atomic import atomic_write
 
 __all__ = [
     "QUANTITIES",
@@ -719,28 +718,12 @@ def difference_rgb8(result: xr.Dataset, scale: float | None = None) -> np.ndarra
     return np.rint(out * 255.0).astype(np.uint8)
 
 
-def _atomic_write(path: Path, writer) -> Path:
-    """Write through a temporary file in the same folder and rename (no half-written file remains)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    os.close(fd)
-    try:
-        writer(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    return path
-
-
 def write_difference_png(result: xr.Dataset, path, scale: float | None = None) -> Path:
     """Write :func:`difference_rgb8` as a PNG (atomically); returns the path."""
     from PIL import Image
 
     rgb = difference_rgb8(result, scale)
-    return _atomic_write(Path(path), lambda tmp: Image.fromarray(rgb, "RGB").save(tmp, format="PNG"))
+    return atomic_write(Path(path), lambda tmp: Image.fromarray(rgb, "RGB").save(tmp, format="PNG"))
 
 
 def write_json(data: dict, path) -> Path:
@@ -750,4 +733,4 @@ def write_json(data: dict, path) -> Path:
     def writer(tmp):
         Path(tmp).write_text(text + "\n", encoding="utf-8")
 
-    return _atomic_write(Path(path), writer)
+    return atomic_write(Path(path), writer)
