@@ -146,7 +146,9 @@ def render(
 def _register_diagnostics():
     """The forward-operator commands live in their own modules (issue 5)."""
     from .compare import compare
+    from .ghi import ghi
 
+    app.command(name="ghi")(ghi)
     app.command(name="compare")(compare)
 
 

@@ -1,0 +1,137 @@
+"""``swim ghi``: broadband GHI/DNI/DHI time series from small all-sky renders (a thin layer over
+:func:`swim.diagnostics.ghi.ghi_time_series`; docs/irradiance.md).
+
+Register it on the main app with ``app.command()(ghi)`` (``swim/cli/main.py``).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+
+from ..errors import SwimInputError
+
+console = Console(stderr=True)
+log = logging.getLogger(__name__)
+
+
+def _parse_band(text):
+    if text is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise SwimInputError(f"--band must be 'lower,upper' in nm, e.g. '285,2800'; got {text!r}") from None
+    return lo, hi
+
+
+def ghi(
+    scene: Optional[Path] = typer.Argument(None, help="Scene file (as for 'swim render'); default: a cloud-free site "
+                                           "scene at --lat/--lon/--elevation."),
+    lat: Optional[float] = typer.Option(None, help="Observer latitude [deg] (default: --observed station, else the "
+                                        "scene centre)."),
+    lon: Optional[float] = typer.Option(None, help="Observer longitude [deg, east +]."),
+    elevation: Optional[float] = typer.Option(None, help="Site elevation [m] for the clear site scene (default: "
+                                              "--observed station, else 0)."),
+    start: str = typer.Option(..., help="First instant, ISO 8601 UTC (e.g. 2016-01-01T14:00Z)."),
+    end: str = typer.Option(..., help="Last instant, ISO 8601 UTC."),
+    step: str = typer.Option("30min", help="Step between instants (e.g. 10min, 1h)."),
+    size: int = typer.Option(65, help="All-sky image size [px] (65 converges to < 0.1 % for clear skies)."),
+    height: float = typer.Option(2.0, help="Observer height above the ground [m]."),
+    aod: float = typer.Option(0.05, help="Aerosol optical depth at 550 nm above the site."),
+    aerosol: str = typer.Option("continental", help="Aerosol type (docs/aerosols.md)."),
+    pw: Optional[float] = typer.Option(None, help="Precipitable water [cm] (default: from --observed temperature and "
+                                       "humidity (Gueymard 1994), else 1.0)."),
+    ozone: float = typer.Option(0.3, help="Total ozone [atm-cm]."),
+    albedo: Optional[float] = typer.Option(None, help="Ground albedo [-] (default: --observed up/down ratio, else 0.2 "
+                                           "for the site scene or the scene's own)."),
+    band: Optional[str] = typer.Option(None, help="Integrate over 'lower,upper' nm only (e.g. 285,2800 for a PSP "
+                                       "pyranometer); default 280-4000."),
+    out: Path = typer.Option(Path("ghi.csv"), help="CSV output (written atomically)."),
+    plot: Optional[Path] = typer.Option(None, help="Also write a PNG of simulated (vs observed) irradiance "
+                                        "(needs matplotlib)."),
+    observed: Optional[Path] = typer.Option(None, help="SURFRAD daily file to compare with (adds *_obs columns, "
+                                            "clear flags and MBE/RMSE)."),
+):
+    """Broadband GHI, DNI and DHI [W m-2] over a period from small all-sky renders (docs/irradiance.md)."""
+    import numpy as np
+
+    from ..diagnostics.ghi import (aerosol_for_site, attach_observations, clear_site_scene, error_statistics,
+                                   ghi_time_series, plot_ghi, pvlib_clear_sky, site_aod_550, time_range, write_csv)
+
+    try:
+        if plot is not None:
+            from ..diagnostics.ghi import matplotlib_pyplot
+
+            try:
+                matplotlib_pyplot()
+            except ImportError as exc:
+                raise SwimInputError(f"--plot: {exc}") from None
+        times = time_range(start, end, step)
+        obs = clear = None
+        if observed is not None:
+            from ..io.surfrad import clear_periods, read_surfrad, surfrad_albedo, surfrad_precipitable_water
+
+            obs = read_surfrad(observed)
+            lat = obs.attrs["latitude"] if lat is None else lat
+            lon = obs.attrs["longitude"] if lon is None else lon
+            elevation = obs.attrs["elevation_m"] if elevation is None else elevation
+            pw = surfrad_precipitable_water(obs) if pw is None else pw
+            albedo = surfrad_albedo(obs) if albedo is None else albedo
+            clear = clear_periods(obs)
+        pw = 1.0 if pw is None else pw
+        if scene is None:
+            if lat is None or lon is None:
+                raise SwimInputError("without a SCENE give --lat and --lon (or --observed) for the clear site scene")
+            elevation = 0.0 if elevation is None else elevation
+            ds = clear_site_scene(lat, lon, elevation, surface_albedo=0.2 if albedo is None else albedo)
+        else:
+            from .. import open_scene
+
+            ds = open_scene(scene)
+            lat = float(ds.attrs["reference_lat"]) if lat is None else lat
+            lon = float(ds.attrs["reference_lon"]) if lon is None else lon
+        from ..pipeline import _terrain_at
+        from ..optics.volume import build_optical_volume
+
+        ground = _terrain_at(build_optical_volume(ds), lat, lon)[0]
+        background = aerosol_for_site(aod, ground + height, aerosol)
+        console.print(f"rendering {len(times)} instants ({size} px) at {lat:.3f}, {lon:.3f}, ground {ground:.0f} m")
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        with Progress(TextColumn("[bold]ghi"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                      TimeRemainingColumn(), console=console, transient=True) as bar:
+            task = bar.add_task("ghi", total=len(times))
+            sim = ghi_time_series(ds, lat, lon, times, height=height, size=size, aerosol=background,
+                                  precipitable_water_cm=pw, ozone_atm_cm=ozone, surface_albedo=albedo,
+                                  band_nm=_parse_band(band),
+                                  progress=lambda done, total: bar.update(task, completed=done))
+        ref = pvlib_clear_sky(sim["sun_zenith_deg"], elevation_m=sim.attrs["observer_height_asl_m"],
+                              aod_550=site_aod_550(background, sim.attrs["observer_height_asl_m"]),
+                              angstrom_exponent=background.type.angstrom_exponent, precipitable_water_cm=pw,
+                              ozone_atm_cm=ozone, pressure_pa=sim.attrs["pressure_pa"],
+                              earth_sun_distance_au=sim["earth_sun_distance_au"], surface_albedo=sim.attrs["surface_albedo"])
+        table = sim.join(ref[["bird_ghi", "ineichen_ghi", "solis_ghi"]])
+        if obs is not None:
+            from ..io.surfrad import observations_at
+
+            table = attach_observations(table, observations_at(obs, sim.index, clear=clear))
+            mask = table["clear"].values & table["rendered"].values
+            for comp in ("ghi", "dni", "dhi"):
+                s = error_statistics(table[comp], table[f"{comp}_obs"], mask)
+                console.print(f"{comp.upper()} vs observed, {s['n']} clear instants: MBE {s['mbe']:+.1f} W m-2 "
+                              f"({s['mbe_pct']:+.1f} %), RMSE {s['rmse']:.1f} W m-2 ({s['rmse_pct']:.1f} %)")
+        write_csv(table, out)
+        if plot is not None:
+            plot_ghi(table, obs, plot, clear=clear, reference=ref,
+                     title=f"swim GHI at {lat:.2f}, {lon:.2f} (AOD550 {aod:g} {aerosol}, pw {pw:.2f} cm, {size} px)")
+    except SwimInputError as exc:
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(code=2) from None
+    day = table["rendered"]
+    console.print(f"wrote {out}" + (f" and {plot}" if plot else "")
+                  + f" ({int(day.sum())} daylight instants, max GHI {float(np.nanmax(table['ghi'])):.0f} W m-2)")
