@@ -189,6 +189,55 @@ class Camera(ABC):
         }
 
 
+def stokes_pixel_solid_angles(g_over_r2, rim, u_lines, v_lines):
+    """Solid angles of the pixels of a radially symmetric image-plane projection, by Stokes' theorem.
+
+    A projection whose solid-angle density in the image plane is the exterior derivative of the 1-form
+    ``g(r) dpsi`` (``psi`` the polar angle about the optical centre) gives each pixel square the line integral of
+    ``g dpsi = g (u dv - v du) / r^2`` round its edges. Every edge is integrated with 16-point Gauss-Legendre
+    quadrature, split where it crosses the rim (``|u| = sqrt(rim^2 - v^2)``, a kink of ``g(min(r, rim))``), so
+    the result is exact to rounding and neighbouring pixels, which share edges, add up exactly.
+
+    Parameters
+    ----------
+    g_over_r2 : callable
+        r [px] (any shape) -> g(min(r, rim)) / r^2, finite at r = 0.
+    rim : float
+        Radius of the image circle [px].
+    u_lines, v_lines : numpy.ndarray
+        Shapes (nx + 1,) and (ny + 1,): pixel edge coordinates from the optical centre [px], columns and rows.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (ny, nx): the counter-clockwise line integral per pixel (the signed solid angle [sr] for the
+        1-form ``(1 - cos theta) dpsi``, the projected solid angle for ``sin^2(theta) / 2 dpsi``).
+    """
+    nodes, weights = np.polynomial.legendre.leggauss(16)
+
+    def edge_integrals(lines, lo, hi):
+        """H[m, j] = int_{lo_j}^{hi_j} g(r) v_m / r^2 du along the lines v = v_m."""
+        v = lines[:, None]
+        a = np.broadcast_to(lo[None, :], (v.shape[0], lo.size))
+        b = np.broadcast_to(hi[None, :], (v.shape[0], hi.size))
+        s = np.sqrt(np.maximum(rim * rim - v * v, 0.0))
+        cuts = [a, np.clip(-s, a, b), np.clip(s, a, b), b]
+        total = np.zeros(a.shape)
+        for p, q in zip(cuts[:-1], cuts[1:]):
+            half = 0.5 * (q - p)
+            mid = 0.5 * (q + p)
+            u = mid[..., None] + half[..., None] * nodes
+            r = np.hypot(u, v[..., None])
+            total += half * np.sum(weights * g_over_r2(r) * v[..., None], axis=-1)
+        return total
+
+    h_rows = edge_integrals(v_lines, u_lines[:-1], u_lines[1:])  # (ny + 1, nx): horizontal edges
+    h_cols = edge_integrals(u_lines, v_lines[:-1], v_lines[1:])  # (nx + 1, ny): vertical edges
+    # Horizontal edge v = const from u = a to b contributes -int g v / r^2 du; vertical edge u = const from
+    # v = a to b contributes +int g u / r^2 dv, the same integral with u and v exchanged (h_cols.T).
+    return (h_rows[1:, :] - h_rows[:-1, :]) + (h_cols.T[:, 1:] - h_cols.T[:, :-1])
+
+
 # --------------------------------------------------------------------------------------------------------
 # all-sky fisheye
 # --------------------------------------------------------------------------------------------------------
@@ -327,34 +376,8 @@ class AllSkyCamera(Camera):
                 rr = np.minimum(r, rim)
                 return np.where(r > 0, 2.0 * np.sin(0.5 * k * rr) ** 2 / np.where(r > 0, r, 1.0) ** 2, 0.5 * k * k)
 
-        nodes, weights = np.polynomial.legendre.leggauss(16)
-        c = self.centre
-        lines = np.arange(self.size + 1, dtype=float) - 0.5 - c  # edge coordinates (pixels from the centre)
-        lo, hi = lines[:-1], lines[1:]
-
-        def edge_integrals(v):
-            """H[m, j] = int_{lo_j}^{hi_j} g(r) v_m / r^2 du along the lines v = v_m (shape (n + 1, n))."""
-            v = v[:, None]
-            a = np.broadcast_to(lo[None, :], (v.shape[0], lo.size))
-            b = np.broadcast_to(hi[None, :], (v.shape[0], hi.size))
-            # split points where the edge crosses the rim (|u| = sqrt(rim^2 - v^2))
-            s = np.sqrt(np.maximum(rim * rim - v * v, 0.0))
-            cuts = [a, np.clip(-s, a, b), np.clip(s, a, b), b]
-            total = np.zeros(a.shape)
-            for p, q in zip(cuts[:-1], cuts[1:]):
-                half = 0.5 * (q - p)
-                mid = 0.5 * (q + p)
-                u = mid[..., None] + half[..., None] * nodes
-                r = np.hypot(u, v[..., None])
-                total += half * np.sum(weights * g_over_r2(r) * v[..., None], axis=-1)
-            return total
-
-        h = edge_integrals(lines)  # horizontal edges: rows of lines (v), columns of pixels (u)
-        # Counter-clockwise in (u = col - c, v = row - c): the 1-form g dphi with dphi = (u dv - v du) / r^2.
-        # Horizontal edge v = const from u = a to b contributes -int g v / r^2 du; vertical edge u = const from
-        # v = a to b contributes +int g u / r^2 dv, which is h with the roles of u and v exchanged (h.T).
-        omega = (h[1:, :] - h[:-1, :]) + (h.T[:, 1:] - h.T[:, :-1])
-        return np.maximum(omega, 0.0)
+        lines = np.arange(self.size + 1, dtype=float) - 0.5 - self.centre  # edge coordinates from the centre
+        return np.maximum(stokes_pixel_solid_angles(g_over_r2, rim, lines, lines), 0.0)
 
     def to_attrs(self) -> dict[str, Any]:
         """See :meth:`Camera.to_attrs`."""

@@ -103,7 +103,7 @@ import numpy as np
 
 from .. import frames
 from ..errors import SwimInputError
-from .cameras import _as_directions, _as_float, _as_int, _pixel_centres
+from .cameras import _as_directions, _as_float, _as_int, _pixel_centres, stokes_pixel_solid_angles
 
 __all__ = [
     "FISHEYE_PROJECTIONS",
@@ -546,30 +546,9 @@ class FisheyeCameraModel:
             safe = np.where(r > 0, r, 1.0)
             return np.where(r > 0, 2.0 * np.sin(0.5 * t) ** 2 / safe**2, 0.5 / k1**2)
 
-        nodes, weights = np.polynomial.legendre.leggauss(16)
-
-        def edge_integrals(lines, lo, hi):
-            """H[m, j] = int_{lo_j}^{hi_j} g(r) v_m / r^2 du along the lines v = v_m."""
-            v = lines[:, None]
-            a = np.broadcast_to(lo[None, :], (v.shape[0], lo.size))
-            b = np.broadcast_to(hi[None, :], (v.shape[0], hi.size))
-            s = np.sqrt(np.maximum(rim * rim - v * v, 0.0))
-            cuts = [a, np.clip(-s, a, b), np.clip(s, a, b), b]
-            total = np.zeros(a.shape)
-            for p, q in zip(cuts[:-1], cuts[1:]):
-                half = 0.5 * (q - p)
-                mid = 0.5 * (q + p)
-                uu = mid[..., None] + half[..., None] * nodes
-                r = np.hypot(uu, v[..., None])
-                total += half * np.sum(weights * g_over_r2(r) * v[..., None], axis=-1)
-            return total
-
         u_lines = np.arange(self.width + 1, dtype=float) - 0.5 - self.cx  # column edges
         v_lines = np.arange(self.height + 1, dtype=float) - 0.5 - self.cy  # row edges (v downwards here)
-        h_rows = edge_integrals(v_lines, u_lines[:-1], u_lines[1:])  # (height + 1, width)
-        h_cols = edge_integrals(u_lines, v_lines[:-1], v_lines[1:])  # (width + 1, height)
-        omega = (h_rows[1:, :] - h_rows[:-1, :]) + (h_cols.T[:, 1:] - h_cols.T[:, :-1])
-        return np.abs(omega)
+        return np.abs(stokes_pixel_solid_angles(g_over_r2, rim, u_lines, v_lines))
 
     # ------------------------------------------------------------------ attributes and files
     def to_attrs(self) -> dict[str, Any]:
