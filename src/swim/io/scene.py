@@ -859,11 +859,9 @@ def open_scene(path, **kwargs) -> xr.Dataset:
             f"scene file {p.name}: unknown kind '{suffix}'; expected netCDF (.nc: WRF output or a canonical scene) or "
             "an SHDOM-style LES text file (.txt)"
         )
-    try:
-        ds = xr.open_dataset(p)
-    except Exception as exc:  # noqa: BLE001 - any backend failure means "not a readable netCDF file"
-        raise SwimInputError(f"scene file {p.name} cannot be read as netCDF: {exc}") from exc
-    with ds:
+    from .files import open_netcdf
+
+    with open_netcdf(p, "scene file") as ds:
         if _is_wrf(ds):
             from .wrf import read_wrf
 

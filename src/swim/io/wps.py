@@ -39,6 +39,7 @@ import xarray as xr
 
 from ..constants import WAVELENGTHS_NM
 from ..errors import SwimInputError
+from .files import open_netcdf
 from .scene import domain_centre, to_utc_datetime64, validate_scene
 from .wrf import TIME_TOLERANCE, _field, _units, wrf_times
 
@@ -189,13 +190,7 @@ def read_wps_geogrid(path_or_dataset, month: int | None = None, time=None, albed
         label = f"WPS file {Path(source).name}" if source else "the WPS dataset"
         return _read_wps_dataset(ds, month, time, albedo_band, snow_above_m, label, src)
     p = Path(path_or_dataset)
-    if not p.is_file():
-        raise SwimInputError(f"WPS file not found: {p}")
-    try:
-        opened = xr.open_dataset(p)
-    except Exception as exc:  # noqa: BLE001 - any backend failure means "not a readable netCDF file"
-        raise SwimInputError(f"WPS file {p} cannot be read as netCDF: {exc}") from exc
-    with opened as ds:
+    with open_netcdf(p, "WPS file") as ds:
         return _read_wps_dataset(ds, month, time, albedo_band, snow_above_m, f"WPS file {p.name}", source or str(p))
 
 

@@ -32,6 +32,7 @@ from ..constants import (
     WAVELENGTHS_NM,
 )
 from ..errors import SwimInputError
+from .files import open_netcdf
 from .scene import RADIUS_RANGE_M, domain_centre, to_utc_datetime64, validate_scene
 
 logger = logging.getLogger(__name__)
@@ -320,13 +321,7 @@ def read_wrf(path_or_dataset, time=None, albedo_band: str = "shortwave") -> xr.D
         source = str(ds.encoding.get("source", "xarray.Dataset"))
         return _read_wrf_dataset(ds, time, label, source, albedo_band)
     p = Path(path_or_dataset)
-    if not p.is_file():
-        raise SwimInputError(f"WRF file not found: {p}")
-    try:
-        opened = xr.open_dataset(p)
-    except Exception as exc:  # noqa: BLE001 - any backend failure means "not a readable netCDF file"
-        raise SwimInputError(f"WRF file {p} cannot be read as netCDF: {exc}") from exc
-    with opened as ds:
+    with open_netcdf(p, "WRF file") as ds:
         return _read_wrf_dataset(ds, time, f"WRF file {p.name}", str(p), albedo_band)
 
 
