@@ -314,18 +314,14 @@ def diffuse_at(h, mu_s, aerosol_class, consts):
     fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
     if n_class == 1:
         return _bilinear_table(table[0], fu, fm)
+    # The classes stacked along the height axis: rows c nu ... c nu + nu - 1 hold class c; with fu clamped
+    # inside a class, the bilinear lookup never mixes two classes.
     c0, wc = aerosol_class
+    stacked = table.reshape(n_class * nu, nmu, table.shape[-1])
     fu = jnp.clip(fu, 0.0, nu - 1.001)
-    fm = jnp.clip(fm, 0.0, nmu - 1.001)
-    u0 = jnp.floor(fu).astype(jnp.int32)
-    m0 = jnp.floor(fm).astype(jnp.int32)
-    a = (fu - u0)[:, None]
-    b = (fm - m0)[:, None]
-    out = 0.0
-    for dc, w in ((0, 1 - wc), (1, wc)):
-        out = out + w * (table[c0 + dc, u0, m0] * (1 - a) * (1 - b) + table[c0 + dc, u0 + 1, m0] * a * (1 - b)
-                         + table[c0 + dc, u0, m0 + 1] * (1 - a) * b + table[c0 + dc, u0 + 1, m0 + 1] * a * b)
-    return out
+    lower = _bilinear_table(stacked, c0 * nu + fu, fm)
+    upper = _bilinear_table(stacked, (c0 + 1) * nu + fu, fm)
+    return lower * (1 - wc) + upper * wc
 
 
 def diffuse_source_profiles(point, direction, aerosol_class, consts):
