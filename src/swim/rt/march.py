@@ -636,10 +636,9 @@ def surface_fields(volume, transmittance):
     ], axis=-1)
 
 
-def surface_fields_outside(volume, transmittance):
-    """The ground beyond the grid (11,): :func:`surface_fields` averaged over the grid's edge cells, flat, lit by
-    the unobstructed sun (T = 1, no shadow, no 3-D aerosol)."""
-    fields = surface_fields(volume, transmittance)
+def surface_fields_outside(fields):
+    """The ground beyond the grid (11,): the packed :func:`surface_fields` (ny, nx, 11) averaged over the grid's
+    edge cells, flat, lit by the unobstructed sun (T = 1, no shadow, no 3-D aerosol)."""
     ring = np.concatenate([fields[0], fields[-1], fields[1:-1, 0], fields[1:-1, -1]])
     out = ring.mean(axis=0)
     out[6:8] = 0.0
@@ -662,13 +661,14 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
          transmittance["cloud_transmittance"].values[..., None], transmittance["terrain_shadow"].values[..., None]],
         axis=-1
     ).astype(np.float32)
+    surface = surface_fields(volume, transmittance)
     sun = np.asarray(sun_direction_scene, dtype=float)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {
         "volume": f32(packed),
         "terrain": f32(volume["terrain_height"].values[..., None]),
-        "surface": f32(surface_fields(volume, transmittance)),
-        "surface_outside": f32(surface_fields_outside(volume, transmittance)),
+        "surface": f32(surface),
+        "surface_outside": f32(surface_fields_outside(surface)),
         "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients",
                                                              "index_map_bounds") if key in volume.attrs},
         "z_bottom": f32(geometry.z_bottom),

@@ -120,7 +120,8 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     interp_tau_aer = RegularGridInterpolator(axes, transmittance["aerosol_tau_sun"].values.astype(float), bounds_error=False,
                                              fill_value=0.0)
     interp_terrain = RegularGridInterpolator(axes[1:], volume["terrain_height"].values.astype(float), bounds_error=False, fill_value=None)
-    surface_fields = [np.asarray(f, dtype=float) for f in np.moveaxis(march_surface_fields(volume, transmittance), -1, 0)]
+    packed_surface = march_surface_fields(volume, transmittance)
+    surface_fields = [np.asarray(f, dtype=float) for f in np.moveaxis(packed_surface, -1, 0)]
     heights = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
     u_axis = np.linspace(0, 1, gas.n_u)
     mu_axis = np.linspace(-1, 1, gas.n_mu)
@@ -220,7 +221,7 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         _, _, _, t_sun, diffuse = gas_at(h, mu_s)
         in_grid = (0 <= j[0] <= ny - 1) and (0 <= i[0] <= nx - 1)
         fields = (np.array([RegularGridInterpolator(axes[1:], f)([[j[0], i[0]]])[0] for f in surface_fields])
-                  if in_grid else march_surface_fields_outside(volume, transmittance))
+                  if in_grid else march_surface_fields_outside(packed_surface))
         # Step 1a at the ground: cloud T, terrain shadow and 3-D aerosol tau of the column's ground level
         t_cloud, shadow = fields[8], fields[9]
         t_aer_ground = np.exp(-fields[10] * gas.angstrom_factor)
