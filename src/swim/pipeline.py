@@ -19,6 +19,7 @@ from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD,
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
 from .geometry.cameras import fov_to_fit, look_at_angles, make_camera
+from .geometry.reach import crop_scene_to_view, with_reference_point
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
 from .io.scene import validate_scene
@@ -106,7 +107,7 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
            aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
-           white_level=None, progress=None) -> xr.Dataset:
+           white_level=None, progress=None, crop: bool = True) -> xr.Dataset:
     """Render what a camera at a vantage point sees in a scene.
 
     Parameters
@@ -140,6 +141,12 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         imagery).
     progress : callable, optional
         Called with (rays done, rays total).
+    crop : bool
+        First crop the scene lazily to the columns the camera's rays can reach, widened towards the sun for
+        the shadows (:func:`swim.geometry.reach.crop_scene_to_view`; docs/rendering.md, "Cropping big
+        grids"), so a big (or dask-backed) grid is never loaded in full. Not done for a perspective camera
+        without ``view_azimuth_deg``/``view_zenith_deg`` in ``camera_options`` (its view comes from the whole
+        grid), nor when the rays reach more than 90 % of the columns. False renders the whole grid.
 
     Returns
     -------
@@ -154,6 +161,15 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     SwimInputError
         Bad scene, observer below the terrain or out of reach, bad camera options or time.
     """
+    if crop:
+        # Before anything is loaded in full; the scene frame stays that of the whole grid.
+        scene = with_reference_point(scene)
+        try:
+            sun_for_crop = resolve_sun(time, scene, sun_zenith, sun_azimuth).direction_enu
+        except (SwimInputError, TypeError, ValueError, KeyError):
+            sun_for_crop = None  # unknown here: a margin on every side; a real error is raised below
+        scene = crop_scene_to_view(scene, camera, camera_options=camera_options, lat=lat, lon=lon, height=height,
+                                   sun_direction=sun_for_crop)
     scene = validate_scene(scene)
     lat0, lon0 = float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"])
     lat = lat0 if lat is None else float(lat)
@@ -276,6 +292,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "aerosol_type": aerosol.type_name,
         "aerosol_optical_depth_550": float(aerosol.aod_550),
         "camera": camera,
+        "march_samples": int(out["steps"].sum()),
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"

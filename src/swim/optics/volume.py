@@ -130,14 +130,6 @@ def fit_grid_index_map(x, y):
     return centre, scale, coef.T.copy(), float(residual)
 
 
-def _polynomial_derivatives(u, v, xp=np):
-    """d/du and d/dv of :func:`polynomial_features`, each of shape ``broadcast(u, v).shape + (10,)``."""
-    zero, one = xp.zeros_like(u), xp.ones_like(u)
-    d_du = xp.stack([zero, one, zero, 2 * u, v, zero, 3 * u * u, 2 * u * v, v * v, zero], axis=-1)
-    d_dv = xp.stack([zero, zero, one, zero, u, 2 * v, zero, u * u, 2 * u * v, 3 * v * v], axis=-1)
-    return d_du, d_dv
-
-
 def grid_indices(attrs, x, y, xp=np):
     """Fractional grid indices (i, j) of horizontal coordinates (x, y) [m] with the map stored in ``attrs``.
 
@@ -153,15 +145,25 @@ def grid_indices(attrs, x, y, xp=np):
     v = (y - cy) / scale
     bounds = attrs.get("index_map_bounds") if hasattr(attrs, "get") else None
     if bounds is None:
-        features = polynomial_features(u, v, xp)
-        return features @ coef[0], features @ coef[1]
+        return _cubic(u, v, coef[0]), _cubic(u, v, coef[1])
     uc = xp.clip(u, bounds[0], bounds[1])
     vc = xp.clip(v, bounds[2], bounds[3])
-    features = polynomial_features(uc, vc, xp)
-    d_du, d_dv = _polynomial_derivatives(uc, vc, xp)
     du, dv = u - uc, v - vc
-    return (features @ coef[0] + (d_du @ coef[0]) * du + (d_dv @ coef[0]) * dv,
-            features @ coef[1] + (d_du @ coef[1]) * du + (d_dv @ coef[1]) * dv)
+    return tuple(_cubic(uc, vc, c) + _cubic_du(uc, vc, c) * du + _cubic_dv(uc, vc, c) * dv for c in coef)
+
+
+# The cubic of polynomial_features and its derivatives written out (Horner-like): elementwise arithmetic that
+# the JAX kernels fuse, where stacking the monomials and a matrix product would be separate operations.
+def _cubic(u, v, c):
+    return c[0] + u * (c[1] + u * (c[3] + u * c[6]) + v * (c[4] + v * c[8])) + v * (c[2] + v * (c[5] + v * c[9])) + u * u * v * c[7]
+
+
+def _cubic_du(u, v, c):
+    return c[1] + u * (2 * c[3] + 3 * c[6] * u + 2 * c[7] * v) + v * (c[4] + c[8] * v)
+
+
+def _cubic_dv(u, v, c):
+    return c[2] + v * (2 * c[5] + 3 * c[9] * v + 2 * c[8] * u) + u * (c[4] + c[7] * u)
 
 
 def _regular_levels(height, terrain, dz=None, max_levels=160):

@@ -42,6 +42,8 @@ from ..errors import SwimInputError
 from ..optics.aerosol_types import aerosol_type
 from ..optics.atmosphere import us_standard_atmosphere_1976
 from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio, rayleigh_phase_function
+from . import multiple_scattering
+from .compilation_cache import disk_cached
 from .multiple_scattering import DiffuseSourceTable, diffuse_source_table
 
 
@@ -314,9 +316,15 @@ def _profile_key(profile):
 
 
 @functools.lru_cache(maxsize=8)
-def _build_gas_tables_cached(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_albedo,
-                             scene_profile=None, classes=None) -> GasTables:
-    """Cached worker of :func:`build_gas_tables` (the tables depend only on these arguments)."""
+def _build_gas_tables_cached(*args) -> GasTables:
+    """Cached worker of :func:`build_gas_tables`: in memory, and on disk across processes
+    (:func:`swim.rt.compilation_cache.disk_cached`), because the successive-orders tables take seconds."""
+    return disk_cached("gas", args, lambda: _build_gas_tables(*args), sources=(__file__, multiple_scattering.__file__))
+
+
+def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_albedo,
+                      scene_profile=None, classes=None) -> GasTables:
+    """Worker of :func:`build_gas_tables` (the tables depend only on these arguments)."""
     wl = np.asarray(wavelengths_nm, dtype=float)
     heights = np.arange(0.0, ATMOSPHERE_TOP_M + dh / 2, dh)
     _, _, number_density = us_standard_atmosphere_1976(heights)

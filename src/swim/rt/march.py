@@ -78,7 +78,9 @@ class MarchSettings:
     n_before : int
         Steps through clear air before the model grid (e.g. from space down to the grid top).
     n_grid : int
-        Steps through the model grid.
+        Steps through the model grid, concentrated where there are hydrometeors, raised terrain or aerosol
+        gradients (:func:`adaptive_step_edges`): 128 adaptive steps are as accurate as 256 equal ones were
+        (docs/performance.md).
     n_after : int
         Steps through clear air after the grid (to the top of the atmosphere or the ground).
     chunk : int
@@ -93,9 +95,9 @@ class MarchSettings:
         BRDFs with sun glint, or Lambertian (what plane-parallel reference solvers assume).
     """
 
-    n_before: int = 48
-    n_grid: int = 256
-    n_after: int = 96
+    n_before: int = 32
+    n_grid: int = 128
+    n_after: int = 48
     chunk: int = 4096
     multiple_scattering: bool = True
     surface: str = "brdf"
@@ -200,49 +202,68 @@ def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, rad
 # JAX kernels
 # ----------------------------------------------------------------------------------------------------
 
+# The tables and volumes are stored channel-major, (C, ...), and sampled by one scalar gather per channel and
+# corner from their flattened form: XLA on CPU fuses scalar gathers into the surrounding arithmetic, while a
+# gather of (C,)-rows is a separate, several times slower operation (a 6-channel bilinear lookup took 35 ns
+# per sample against 209 ns, the 9-channel trilinear 40 ns against 244 ns; docs/performance.md).
+
+def _materialise(x):
+    """Compute x once: without the barrier XLA may fuse the gathers into each of x's consumers and repeat them."""
+    return jax.lax.optimization_barrier(x)
+
+
 def _lerp_table(table, f):
-    """Linear interpolation of a (n, C) table at fractional indices f (clamped)."""
-    n = table.shape[0]
+    """Linear interpolation of a channel-major (C, n) table at fractional indices f (n_pts,), clamped: (n_pts, C)."""
+    n = table.shape[1]
     f = jnp.clip(f, 0.0, n - 1.001)
     i0 = jnp.floor(f).astype(jnp.int32)
-    w = (f - i0)[:, None]
-    return table[i0] * (1 - w) + table[i0 + 1] * w
+    w = f - i0
+    return _materialise(jnp.stack([t[i0] * (1 - w) + t[i0 + 1] * w for t in table], axis=-1))
 
 
 def _bilinear_table(table, fu, fv):
-    """Bilinear interpolation of a (nu, nv, C) table at fractional indices (clamped)."""
-    nu, nv = table.shape[:2]
+    """Bilinear interpolation of a channel-major (C, nu, nv) table at fractional indices, clamped: (n_pts, C)."""
+    n_c, nu, nv = table.shape
     fu = jnp.clip(fu, 0.0, nu - 1.001)
     fv = jnp.clip(fv, 0.0, nv - 1.001)
     u0 = jnp.floor(fu).astype(jnp.int32)
     v0 = jnp.floor(fv).astype(jnp.int32)
-    a = (fu - u0)[:, None]
-    b = (fv - v0)[:, None]
-    return (table[u0, v0] * (1 - a) * (1 - b) + table[u0 + 1, v0] * a * (1 - b)
-            + table[u0, v0 + 1] * (1 - a) * b + table[u0 + 1, v0 + 1] * a * b)
+    a = fu - u0
+    b = fv - v0
+    r, a, b = _materialise((u0 * nv + v0, a, b))
+    flat = table.reshape(n_c, nu * nv)
+    return _materialise(jnp.stack([(t[r] * (1 - b) + t[r + 1] * b) * (1 - a) + (t[r + nv] * (1 - b) + t[r + nv + 1] * b) * a
+                                   for t in flat], axis=-1))
 
 
 def trilinear(volume, k, j, i, outside):
-    """Trilinear sample of a (nk, ny, nx, C) volume at fractional indices; ``outside`` (C,) beyond it."""
-    nk, ny, nx = volume.shape[:3]
+    """Trilinear sample of a channel-major (C, nk, ny, nx) volume at fractional indices: (n_pts, C); ``outside``
+    (C,) beyond it."""
+    n_c, nk, ny, nx = volume.shape
     inside = (k >= 0) & (k <= nk - 1) & (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
     k0 = jnp.clip(jnp.floor(k), 0, nk - 2).astype(jnp.int32)
     j0 = jnp.clip(jnp.floor(j), 0, ny - 2).astype(jnp.int32)
     i0 = jnp.clip(jnp.floor(i), 0, nx - 2).astype(jnp.int32)
-    fk = jnp.clip(k - k0, 0.0, 1.0)[:, None]
-    fj = jnp.clip(j - j0, 0.0, 1.0)[:, None]
-    fi = jnp.clip(i - i0, 0.0, 1.0)[:, None]
-    v = 0.0
-    for dk, wk in ((0, 1 - fk), (1, fk)):
-        for dj, wj in ((0, 1 - fj), (1, fj)):
-            for di, wi in ((0, 1 - fi), (1, fi)):
-                v = v + volume[k0 + dk, j0 + dj, i0 + di] * (wk * wj * wi)
-    return jnp.where(inside[:, None], v, outside[None, :])
+    fk = jnp.clip(k - k0, 0.0, 1.0)
+    fj = jnp.clip(j - j0, 0.0, 1.0)
+    fi = jnp.clip(i - i0, 0.0, 1.0)
+    base, fk, fj, fi, inside = _materialise(((k0 * ny + j0) * nx + i0, fk, fj, fi, inside))
+    flat = volume.reshape(n_c, nk * ny * nx)
+    channels = []
+    for c, t in enumerate(flat):
+        def row(b):
+            return t[b] * (1 - fi) + t[b + 1] * fi
+
+        def plane(b):
+            return row(b) * (1 - fj) + row(b + nx) * fj
+
+        channels.append(jnp.where(inside, plane(base) * (1 - fk) + plane(base + ny * nx) * fk, outside[c]))
+    return _materialise(jnp.stack(channels, axis=-1))
 
 
 def bilinear_clamped(field, j, i):
-    """Bilinear sample of a (ny, nx, C) field, clamped to its edges."""
-    ny, nx = field.shape[:2]
+    """Bilinear sample of a channel-major (C, ny, nx) field, clamped to its edges: (n_pts, C)."""
+    ny, nx = field.shape[1:]
     return _bilinear_table(field, jnp.clip(j, 0, ny - 1), jnp.clip(i, 0, nx - 1))
 
 
@@ -257,7 +278,7 @@ def _point_geometry(q, consts):
     mu_s = (q[:, 0] * sun[0] + q[:, 1] * sun[1] + pz * sun[2]) / r
     i, j = grid_indices(consts["index_map"], radius * q[:, 0] / r, radius * q[:, 1] / r, jnp)
     k = (h - consts["z_bottom"]) / consts["dz"]
-    return h, mu_s, k, j, i
+    return _materialise((h, mu_s, k, j, i))
 
 
 def _gas_at(h, mu_s, consts):
@@ -268,7 +289,7 @@ def _gas_at(h, mu_s, consts):
     (n, 3) each (one bilinear lookup in the joint (height, mu_s) table).
     """
     beta = _lerp_table(consts["beta_gas"], h / consts["dh"])
-    nu, nmu = consts["sky"].shape[:2]
+    nu, nmu = consts["sky"].shape[1:]
     fu = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (nu - 1)
     fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
     sky = _bilinear_table(consts["sky"], fu, fm)
@@ -308,24 +329,24 @@ def aerosol_class_weights(point, consts):
 
 def diffuse_at(h, mu_s, aerosol_class, consts):
     """Downward diffuse irradiance on a horizontal surface / E_TOA (n, 3) of the ray's aerosol class."""
-    table = consts["diffuse_classes"]
-    n_class, nu, nmu = table.shape[:3]
+    table = consts["diffuse_classes"]  # (3, n_class * nu, nmu): the classes stacked along the height axis
+    n_class = consts["class_aod"].shape[0]
+    nu, nmu = table.shape[1] // n_class, table.shape[2]
     fu = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (nu - 1)
     fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
     if n_class == 1:
-        return _bilinear_table(table[0], fu, fm)
-    # The classes stacked along the height axis: rows c nu ... c nu + nu - 1 hold class c; with fu clamped
-    # inside a class, the bilinear lookup never mixes two classes.
+        return _bilinear_table(table, fu, fm)
+    # Rows c nu ... c nu + nu - 1 hold class c; with fu clamped inside a class, the bilinear lookup never mixes
+    # two classes.
     c0, wc = aerosol_class
-    stacked = table.reshape(n_class * nu, nmu, table.shape[-1])
     fu = jnp.clip(fu, 0.0, nu - 1.001)
-    lower = _bilinear_table(stacked, c0 * nu + fu, fm)
-    upper = _bilinear_table(stacked, (c0 + 1) * nu + fu, fm)
+    lower = _bilinear_table(table, c0 * nu + fu, fm)
+    upper = _bilinear_table(table, (c0 + 1) * nu + fu, fm)
     return lower * (1 - wc) + upper * wc
 
 
 def diffuse_source_profiles(point, direction, aerosol_class, consts):
-    """Per-ray height profiles of the diffuse (multiple-scattering) source, (n, n_u, 9).
+    """Per-ray height profiles of the diffuse (multiple-scattering) source, (9, n, n_u).
 
     The table of :mod:`swim.rt.multiple_scattering` depends on the local sun and view cosines and the
     relative azimuth, which change along a ray only through the curvature of the earth. Each ray takes them
@@ -335,7 +356,7 @@ def diffuse_source_profiles(point, direction, aerosol_class, consts):
     (:func:`aerosol_class_weights`, the project's form of Eqs. 30-31).
 
     Inputs are the rebased ``point`` (n, 3) [m] of :func:`lowest_point`, the unit ``direction`` (n, 3) and
-    the class of :func:`aerosol_class_weights`; the result holds J of molecules, aerosol and stratospheric
+    the class of :func:`aerosol_class_weights`; the result, channel-major (9, n, n_u), holds J of molecules, aerosol and stratospheric
     aerosol at 615/546/450 nm [-] (solar-relative radiance per unit scattering optical depth) on the table's
     heights.
     """
@@ -360,21 +381,67 @@ def diffuse_source_profiles(point, direction, aerosol_class, consts):
             for dv, b in ((0, 1 - wv), (1, wv)):
                 for dp, c in ((0, 1 - wp), (1, wp)):
                     profile = profile + table[c0 + dc, s0 + ds, v0 + dv, p0 + dp] * (a * b * c * w)
-    return profile
+    return jnp.moveaxis(profile, -1, 0)
 
 
 def _profile_at(profile, h, consts):
-    """Linear interpolation of per-ray profiles (n, n_u, C) on u = sqrt(h / H_top) at heights h (n,)."""
-    n_u = profile.shape[1]
+    """Linear interpolation of channel-major per-ray profiles (C, n, n_u) on u = sqrt(h / H_top) at the rays'
+    heights h (n,): (n, C)."""
+    n_c, n, n_u = profile.shape
     f = jnp.clip(jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (n_u - 1), 0.0, n_u - 1.001)
     i0 = jnp.floor(f).astype(jnp.int32)
-    w = (f - i0)[:, None]
-    rows = jnp.arange(profile.shape[0])
-    return profile[rows, i0] * (1 - w) + profile[rows, i0 + 1] * w
+    w = f - i0
+    idx = jnp.arange(n) * n_u + i0
+    return _materialise(jnp.stack([t[idx] * (1 - w) + t[idx + 1] * w for t in profile.reshape(n_c, n * n_u)], axis=-1))
 
 
-def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, consts, ms_profile, aerosol_class):
-    """Accumulate one ray segment with n_steps midpoint steps (see module docstring).
+def uniform_step_edges(s0, length, n_steps):
+    """Edges (n_steps + 1, n) [m] of n_steps equal steps from s0 (n,) [m] over length (n,) [m]."""
+    return s0[None, :] + (jnp.arange(n_steps + 1, dtype=jnp.float32) / n_steps)[:, None] * length[None, :]
+
+
+#: Occupancy probes per ray along the grid segment (:func:`adaptive_step_edges`).
+N_OCCUPANCY_PROBES = 64
+#: Step density in empty space relative to occupied space (:func:`adaptive_step_edges`).
+EMPTY_STEP_WEIGHT = 0.125
+
+
+def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCCUPANCY_PROBES,
+                        empty_weight=EMPTY_STEP_WEIGHT):
+    """Edges (n_steps + 1, n) [m] of n_steps steps through the grid, concentrated where something happens.
+
+    Empty-space skipping for rays marched in lockstep: each ray probes the (dilated) occupancy grid of
+    :func:`occupancy_grid` (hydrometeors, the terrain, gradients of the 3-D aerosol) at ``n_probe`` equal
+    intervals of its grid segment and spreads its steps with density 1 in occupied and ``empty_weight`` in
+    empty intervals (inverse of the piecewise-linear cumulative density). Every ray takes the same number of
+    steps, so no ray waits for another, and clear air still gets steps (a cloud missed by the probes is
+    sampled as by a uniform march of n_steps empty_weight / (occupied + empty_weight (n_probe - occupied))
+    steps per interval).
+    """
+    n = start.shape[0]
+    f = (jnp.arange(n_probe, dtype=jnp.float32) + 0.5) / n_probe
+    s = s0[None, :] + f[:, None] * length[None, :]
+    q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
+    _, _, k, j, i = _point_geometry(q, consts)
+    occupancy = consts["occupancy"]
+    nk, ny, nx = occupancy.shape
+    kk, jj, ii = (jnp.clip(jnp.round(x), 0, size - 1).astype(jnp.int32) for x, size in ((k, nk), (j, ny), (i, nx)))
+    occupied = occupancy.reshape(-1)[(kk * ny + jj) * nx + ii].reshape(n_probe, n) > 0
+    weight = jnp.where(occupied, 1.0, empty_weight)
+    cdf = jnp.concatenate([jnp.zeros((1, n), jnp.float32), jnp.cumsum(weight, axis=0)], axis=0)
+    cdf = cdf / cdf[-1:]
+    targets = jnp.arange(n_steps + 1, dtype=jnp.float32) / n_steps
+    idx = jnp.clip(jax.vmap(lambda c: jnp.searchsorted(c, targets, side="right") - 1, in_axes=1, out_axes=1)(cdf),
+                   0, n_probe - 1)
+    c0 = jnp.take_along_axis(cdf, idx, axis=0)
+    c1 = jnp.take_along_axis(cdf, idx + 1, axis=0)
+    frac = jnp.clip((idx + (targets[:, None] - c0) / jnp.maximum(c1 - c0, 1e-12)) / n_probe, 0.0, 1.0)
+    return s0[None, :] + frac * length[None, :]
+
+
+def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class):
+    """Accumulate one ray segment with n_steps midpoint steps between ``edges`` (n_steps + 1, n) [m] (see the
+    module docstring).
 
     ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only;
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
@@ -383,8 +450,9 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
     outside = jnp.concatenate([jnp.zeros(N_CHANNELS - 2), jnp.ones(2)]).astype(jnp.float32)
 
     def body(m, st):
-        ds = length / n_steps
-        s = s0 + (m + 0.5) * ds
+        s_lo = jax.lax.dynamic_index_in_dim(edges, m, keepdims=False)
+        ds = jax.lax.dynamic_index_in_dim(edges, m + 1, keepdims=False) - s_lo
+        s = s_lo + 0.5 * ds
         q = start + s[:, None] * direction
         h, mu_s, k, j, i = _point_geometry(q, consts)
         beta_r, beta_a, beta_s, t_sun, diffuse = _gas_at(h, mu_s, consts)
@@ -445,7 +513,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
         i_cloud_t = st["i_cloud_t"] + t_cloud * shadow * weight
         hit_s = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
         # bracket of the crossing for the bisection after the march: the previous sample (above) and this one
-        hit_lo = jnp.where(hit_now, jnp.maximum(s - ds, 0.0), st["hit_lo"])
+        hit_lo = jnp.where(hit_now, st["s_last"], st["hit_lo"])
         hit_hi = jnp.where(hit_now, s, st["hit_hi"])
         return {
             "tau_clear": st["tau_clear"] + beta_clear * ds_eff[:, None],
@@ -461,6 +529,7 @@ def _march_segment(state, start, direction, s0, length, n_steps, in_grid, rays, 
             "hit_lo": hit_lo,
             "hit_hi": hit_hi,
             "gap": gap,
+            "s_last": s,
         }
 
     return jax.lax.fori_loop(0, n_steps, body, state)
@@ -505,18 +574,23 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         "l_clear": zeros3, "i_nogas": zeros3, "i_gas": zeros3, "i_cloud_t": jnp.zeros(n, jnp.float32),
         "alive": valid, "hit": jnp.zeros(n, bool), "hit_s": jnp.zeros(n, jnp.float32),
         "hit_lo": jnp.zeros(n, jnp.float32), "hit_hi": jnp.zeros(n, jnp.float32),
-        "gap": jnp.full(n, 1e9, jnp.float32),
+        "gap": jnp.full(n, 1e9, jnp.float32), "s_last": jnp.zeros(n, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)
     low = lowest_point(start, direction, bounds, consts)
     aerosol_class = aerosol_class_weights(low, consts)
     ms = diffuse_source_profiles(low, direction, aerosol_class, consts) if settings.multiple_scattering else None
     args = (rays, consts, ms, aerosol_class)
-    state = _march_segment(state, start, direction, zero, bounds[:, 0], settings.n_before, False, *args)
-    state = _march_segment(state, start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, True,
-                           *args)
-    state = _march_segment(state, start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after, False,
-                           *args)
+    if settings.n_before:
+        state = _march_segment(state, start, direction, uniform_step_edges(zero, bounds[:, 0], settings.n_before),
+                               settings.n_before, False, *args)
+    if settings.n_grid:
+        edges = adaptive_step_edges(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, consts)
+        state = _march_segment(state, start, direction, edges, settings.n_grid, True, *args)
+    if settings.n_after:
+        state = _march_segment(state, start, direction,
+                               uniform_step_edges(bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after),
+                               settings.n_after, False, *args)
 
     # ---- ground: Eq. 35 on the terrain facet, direct (BRDF) + diffuse (ARF = 1) ----
     surface = state["hit"] | (ends_on_ground & state["alive"])
@@ -526,7 +600,7 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
     if consts["class_aod"].shape[0] > 1:
         diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
-    ny, nx = consts["terrain"].shape[:2]
+    ny, nx = consts["terrain"].shape[1:]
     in_grid = (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
     # albedo (3), land, snow, wind, slope (2), and Step 1a at the ground: cloud T, terrain shadow, 3-D aerosol
     # tau to the sun (2-D fields, so a steep slope does not sample its neighbours' underground values);
@@ -646,6 +720,34 @@ def surface_fields_outside(fields):
     return out
 
 
+#: Hydrometeor extinction [m-1] above which a cell counts as occupied (0.001 optical depth per km).
+OCCUPIED_EXTINCTION = 1e-6
+#: Change of the 3-D aerosol's optical depth across a cell above which the cell counts as occupied [-].
+OCCUPIED_AEROSOL_CHANGE = 1e-3
+
+
+def occupancy_grid(volume):
+    """Where rays need fine steps, (level, y, x) int8: 1 in cells with hydrometeors, next to the terrain, or with
+    a 3-D aerosol that changes by more than :data:`OCCUPIED_AEROSOL_CHANGE` in optical depth across the cell,
+    dilated by one cell in every direction so that a probe between two cells still sees them
+    (:func:`adaptive_step_edges`)."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    dz = float(volume.attrs["dz"])
+    spacing = float(np.sqrt(abs(np.linalg.det(np.asarray(volume.attrs["affine_matrix"], dtype=float).reshape(2, 2)))))
+    occupied = volume["extinction"].sum("species").values > OCCUPIED_EXTINCTION
+    terrain = volume["terrain_height"].values
+    if np.any(terrain > 1.0):
+        # Only raised terrain needs the march to find it: the sea-level sphere is met analytically.
+        top = maximum_filter(terrain, size=3)
+        occupied |= (volume["level"].values[:, None, None] <= top[None] + dz) & (top[None] > 1.0)
+    aerosol = volume["aerosol_extinction"].values
+    if np.any(aerosol > 0):
+        change = (maximum_filter(aerosol, size=3) - minimum_filter(aerosol, size=3)) * max(dz, spacing)
+        occupied |= change > OCCUPIED_AEROSOL_CHANGE
+    return maximum_filter(occupied.astype(np.int8), size=3)
+
+
 def aerosol_column_optical_depth(volume):
     """Column optical depth at 550 nm of the optical volume's 3-D aerosol (y, x) [-] (sum over its levels)."""
     aer = volume["aerosol_extinction"]
@@ -655,20 +757,22 @@ def aerosol_column_optical_depth(volume):
 def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
     """Device arrays and scalars shared by all chunks of a render."""
     geometry = grid_geometry(volume)
-    ext = volume["extinction"].values.transpose(1, 2, 3, 0)
+    # Channel-major (C, nk, ny, nx): see the note above _lerp_table.
     packed = np.concatenate(
-        [ext, volume["aerosol_extinction"].values[..., None], transmittance["aerosol_tau_sun"].values[..., None],
-         transmittance["cloud_transmittance"].values[..., None], transmittance["terrain_shadow"].values[..., None]],
-        axis=-1
-    ).astype(np.float32)
+        [volume["extinction"].values, volume["aerosol_extinction"].values[None], transmittance["aerosol_tau_sun"].values[None],
+         transmittance["cloud_transmittance"].values[None], transmittance["terrain_shadow"].values[None]], axis=0,
+        dtype=np.float32)
     surface = surface_fields(volume, transmittance)
+    surface_outside = surface_fields_outside(surface)
+    classes = np.asarray(gas.diffuse_horizontal_classes)  # (n_class, nu, nmu, 3)
     sun = np.asarray(sun_direction_scene, dtype=float)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {
-        "volume": f32(packed),
-        "terrain": f32(volume["terrain_height"].values[..., None]),
-        "surface": f32(surface),
-        "surface_outside": f32(surface_fields_outside(surface)),
+        "volume": jnp.asarray(packed),
+        "terrain": f32(volume["terrain_height"].values[None]),
+        "surface": f32(np.moveaxis(surface, -1, 0)),
+        "surface_outside": f32(surface_outside),
+        "occupancy": jnp.asarray(occupancy_grid(volume)),
         "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients",
                                                              "index_map_bounds") if key in volume.attrs},
         "z_bottom": f32(geometry.z_bottom),
@@ -678,12 +782,12 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
         "mu0": f32(sun[2]),
         "dh": f32(gas.dh),
         "top": f32(gas.top_m),
-        "beta_gas": f32(np.concatenate([gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric], axis=-1)),
-        "sky": f32(np.concatenate([gas.sun_transmittance, gas.diffuse_horizontal], axis=-1)),
+        "beta_gas": f32(np.concatenate([gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric], axis=-1).T),
+        "sky": f32(np.moveaxis(np.concatenate([gas.sun_transmittance, gas.diffuse_horizontal], axis=-1), -1, 0)),
         "ms_source": f32(np.stack([t.source for t in gas.diffuse_sources])),
-        "diffuse_classes": f32(gas.diffuse_horizontal_classes),
+        "diffuse_classes": f32(np.moveaxis(classes, -1, 0).reshape(3, -1, classes.shape[2])),
         "class_aod": f32(gas.aerosol_class_aod),
-        "aerosol_column": f32(aerosol_column_optical_depth(volume).values[..., None]),
+        "aerosol_column": f32(aerosol_column_optical_depth(volume).values[None]),
         "angstrom": f32(gas.angstrom_factor),
         "aerosol_ssa": f32(gas.aerosol.ssa),
         "stratospheric_ssa": f32(gas.aerosol.stratospheric.ssa),
@@ -717,7 +821,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     dict of numpy.ndarray
         ``radiance`` (n, 3) [-] solar-relative L' (Eq. 2) at 615/546/450 nm and its components
         ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``; ``tau_hydrometeor`` (n,);
-        ``tau_clear`` (n, 3); ``surface`` (n,) bool; ``distance`` (n,) [m] to the ground or NaN.
+        ``tau_clear`` (n, 3); ``surface`` (n,) bool; ``distance`` (n,) [m] to the ground or NaN; ``steps`` (n,)
+        march steps (volume samples) taken per ray.
     """
     seg = ray_segments(origins, directions, geometry, top=float(consts["top"]))
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
@@ -726,6 +831,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                                     if not np.any(length > 0)})
     n = len(origins)
     chunk = min(settings.chunk, max(n, 1))
+    steps = settings.n_before + settings.n_grid + settings.n_after
     outputs = []
     for lo in range(0, n, chunk):
         hi = min(lo + chunk, n)
@@ -741,6 +847,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         out = _trace_chunk(take(seg["start"]), take(directions), take(seg["bounds"]), take(seg["ends_on_ground"], bool),
                            take(seg["valid"], bool), rays, consts, settings)
         outputs.append({key: np.asarray(value)[: hi - lo] for key, value in out.items()})
+        outputs[-1]["steps"] = np.full(hi - lo, steps, np.int32)
         if progress is not None:
             progress(hi, n)
     return {key: np.concatenate([o[key] for o in outputs]) for key in outputs[0]}

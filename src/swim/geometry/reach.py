@@ -1,0 +1,537 @@
+"""Which columns of a model grid a camera's rays can reach: crop big grids before anything is loaded in full.
+
+A ray from the observer can only meet the model grid inside the shell between the sea-level sphere (radius R,
+:data:`swim.constants.EARTH_RADIUS_M`) and the grid's top (the highest model level, R + top). For every pixel
+of the camera (and the ray towards the sun that gives the sun's disk) :func:`reachable_index_window` clips the
+ray to that shell, samples the clipped segment, maps the samples to fractional grid indices with the columns'
+own positions (``lat``/``lon``) and takes the bounding box over all rays, widened by
+
+* a margin of cells for the samples, the bilinear lookups and the terrain slope's central differences, and
+  the bilinear spread of the Step 1a sweep (one cell per block of levels, :mod:`swim.rt.solar`);
+* a sun-ward margin: clouds and mountains outside the view shade it (Step 1a sweeps towards the sun), so the
+  window reaches ``top * tan(sun zenith)`` further towards the sun, capped at :data:`SUN_MARGIN_CAP_M`;
+* the observer's own column (the terrain under the observer sets its height above sea level).
+
+:func:`crop_scene_to_view` applies the window with ``scene.isel`` (lazy for dask-backed or lazily opened
+netCDF scenes) after fixing the reference point of the scene frame to that of the whole grid. Before the crop
+it reads only ``lat``, ``lon``, the two highest levels of ``height``, the edges of ``terrain_height`` and a
+few of its cells under the observer. See ``docs/rendering.md``, "Cropping big grids".
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import xarray as xr
+
+from ..constants import EARTH_RADIUS_M
+from ..errors import SwimInputError
+from ..frames import enu_to_scene_rotation, geodetic_to_scene, orthographic_xy, ray_sphere_intersections
+from ..io.scene import domain_centre
+from .cameras import Camera, make_camera
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "DEFAULT_MARGIN_CELLS",
+    "SUN_MARGIN_CAP_M",
+    "MAX_CROP_FRACTION",
+    "SAMPLES_PER_RAY",
+    "with_reference_point",
+    "reachable_index_window",
+    "crop_scene_to_view",
+]
+
+#: Cells added on every side of the reached box: 3 for the spacing of the samples along a ray, the bilinear
+#: lookups and the terrain slope's central differences, plus 11 for the Step 1a sweep, whose bilinear
+#: interpolation between blocks of 16 levels (``swim.rt.solar.DIRECT_LEVELS``) widens what a grid point depends
+#: on by one cell per block, up to 10 blocks for the 160 levels of an optical volume, and one cell for its
+#: sub-steps.
+DEFAULT_MARGIN_CELLS = 14
+#: Largest sun-ward margin [m] (300 km). The sun-ward margin is ``top * tan(sun zenith)``; it reaches the cap
+#: for a sun lower than about 86 deg zenith under a 20 km grid top. Clouds further than this towards a low sun
+#: no longer shade the crop (the sweep sees cloud-free air beyond a grid's edge).
+SUN_MARGIN_CAP_M = 300e3
+#: A window that holds more than this fraction of the grid's columns is not worth a crop: the scene is returned
+#: unchanged.
+MAX_CROP_FRACTION = 0.9
+#: Points sampled along each ray's segment inside the shell (both ends included).
+SAMPLES_PER_RAY = 9
+#: Smallest sine of the sun's elevation in the sun-ward margin (as the sweep, swim.rt.solar).
+_MIN_SUN_ELEVATION_SINE = 0.01
+#: Rays processed together (bounds the memory of the samples: rays x samples x 3 float64).
+_RAY_CHUNK = 16384
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# reading the few fields needed before the crop
+
+
+def _horizontal(scene: xr.Dataset, name: str) -> xr.DataArray:
+    """A (y, x) variable, a length-1 ``time`` dimension dropped, without loading it."""
+    if name not in scene.variables:
+        raise SwimInputError(
+            f"scene lacks required variable '{name}': needs height(z,y,x) [m above sea level], lat(y,x) "
+            "[degrees_north], lon(y,x) [degrees_east] and terrain_height(y,x) [m]"
+        )
+    da = scene[name]
+    if "time" in da.dims and da.sizes["time"] == 1:
+        da = da.isel(time=0)
+    if set(da.dims) != {"y", "x"} or da.ndim != 2:
+        raise SwimInputError(f"scene variable '{name}' has dims {tuple(da.dims)}; expected ('y', 'x')")
+    return da.transpose("y", "x")
+
+
+def _finite(name: str, values: np.ndarray) -> np.ndarray:
+    bad = ~np.isfinite(values)
+    if bad.any():
+        raise SwimInputError(
+            f"scene variable '{name}' has {int(bad.sum())} non-finite value(s) (NaN or inf) out of {values.size}; "
+            "every value must be finite"
+        )
+    return values
+
+
+def _lat_lon(scene: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """Latitude and longitude [deg] of the columns, shape (ny, nx) each (2-D: cheap to load)."""
+    lat = _finite("lat", np.asarray(_horizontal(scene, "lat").values, dtype=float))
+    lon = _finite("lon", np.asarray(_horizontal(scene, "lon").values, dtype=float))
+    if lat.shape != lon.shape:
+        raise SwimInputError(f"scene variables 'lat' {lat.shape} and 'lon' {lon.shape} differ in shape")
+    return lat, lon
+
+
+def _given_reference(scene: xr.Dataset):
+    """(lat0, lon0) [deg] from the scene's attributes, or None where they are absent.
+
+    Raises
+    ------
+    SwimInputError
+        Where they are present but not finite numbers (as :func:`swim.io.scene.validate_scene`).
+    """
+    if "reference_lat" not in scene.attrs or "reference_lon" not in scene.attrs:
+        return None
+    ref = []
+    for key in ("reference_lat", "reference_lon"):
+        try:
+            value = float(scene.attrs[key])
+        except (TypeError, ValueError) as exc:
+            raise SwimInputError(f"scene attribute {key}={scene.attrs[key]!r} is not a number [deg]") from exc
+        if not np.isfinite(value):
+            raise SwimInputError(f"scene attribute {key} is not finite")
+        ref.append(value)
+    return tuple(ref)
+
+
+def with_reference_point(scene: xr.Dataset) -> xr.Dataset:
+    """The scene with its frame's reference point set explicitly, so that a crop does not move the frame.
+
+    Parameters
+    ----------
+    scene : xarray.Dataset
+        Scene with ``lat``, ``lon`` (y, x) [deg]; any backing (numpy, dask, lazy netCDF): only ``lat`` and
+        ``lon`` are read, and only when the reference point is absent.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``scene`` itself when it has ``reference_lat``/``reference_lon`` attributes (or cannot give a centre:
+        then :func:`swim.io.scene.validate_scene` reports the problem); else a shallow copy (no data copied or
+        loaded) with both set to the centre of the whole grid, the point that
+        :func:`~swim.io.scene.validate_scene` would choose (:func:`~swim.io.scene.domain_centre`).
+    """
+    if not isinstance(scene, xr.Dataset) or {"reference_lat", "reference_lon"} <= set(scene.attrs):
+        return scene
+    try:
+        lat0, lon0 = domain_centre(*_lat_lon(scene))
+    except SwimInputError:
+        return scene
+    return scene.assign_attrs(reference_lat=lat0, reference_lon=lon0)
+
+
+class _Columns:
+    """The grid's columns in the scene frame and a robust map from horizontal coordinates to grid indices."""
+
+    def __init__(self, scene: xr.Dataset):
+        if not isinstance(scene, xr.Dataset):
+            raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
+        lat, lon = _lat_lon(scene)
+        if np.abs(lat).max() > 90.0:
+            raise SwimInputError(f"lat: range [{lat.min():.4g}, {lat.max():.4g}] is outside [-90, 90] degrees_north")
+        ref = _given_reference(scene)
+        self.lat0, self.lon0 = ref if ref is not None else domain_centre(lat, lon)
+        self.shape = lat.shape
+        self.gx, self.gy = orthographic_xy(lat, lon, self.lat0, self.lon0)
+        self._fit_affine()
+        self.scene = scene
+
+    # ---- index map
+
+    def _fit_affine(self) -> None:
+        """Least-squares affine (i, j) -> (x, y) on a subsample of the columns: the first guess of the map."""
+        ny, nx = self.shape
+        jj, ii = np.meshgrid(np.arange(0, ny, max(1, ny // 64)), np.arange(0, nx, max(1, nx // 64)), indexing="ij")
+        design = np.stack([np.ones(ii.size), ii.ravel(), jj.ravel()], axis=1)
+        target = np.stack([self.gx[jj, ii].ravel(), self.gy[jj, ii].ravel()], axis=1)
+        coef, *_ = np.linalg.lstsq(design, target, rcond=None)
+        self.origin = coef[0]
+        self.matrix = coef[1:].T  # columns d(x, y)/di and d(x, y)/dj [m per cell]
+        if ny < 2 or nx < 2 or not abs(np.linalg.det(self.matrix)) > 0:
+            raise SwimInputError(
+                f"scene grid must have at least 2 distinct columns along y and x; got (y, x) = {self.shape}"
+            )
+
+    def indices(self, x, y, iterations: int = 8):
+        """Fractional grid indices (i, j) of horizontal coordinates (x, y) [m], any (equal) shape.
+
+        Newton's method on the bilinear interpolation of the columns' positions, from the affine guess: exact
+        for any smooth grid (map projections included) to well below a cell. Beyond the grid the result
+        extends the edge cell's bilinear patch linearly.
+        """
+        ny, nx = self.shape
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        i, j = np.linalg.solve(self.matrix, np.stack([x - self.origin[0], y - self.origin[1]]).reshape(2, -1))
+        i, j = i.reshape(x.shape), j.reshape(x.shape)
+        gx, gy = self.gx, self.gy
+        for _ in range(iterations):
+            ic, jc = np.clip(i, 0.0, nx - 1.0), np.clip(j, 0.0, ny - 1.0)
+            i0 = np.minimum(ic.astype(np.intp), nx - 2)
+            j0 = np.minimum(jc.astype(np.intp), ny - 2)
+            fi, fj = ic - i0, jc - j0
+            corners = []
+            for g in (gx, gy):
+                g00, g10, g01, g11 = g[j0, i0], g[j0, i0 + 1], g[j0 + 1, i0], g[j0 + 1, i0 + 1]
+                value = g00 * (1 - fi) * (1 - fj) + g10 * fi * (1 - fj) + g01 * (1 - fi) * fj + g11 * fi * fj
+                d_di = (g10 - g00) * (1 - fj) + (g11 - g01) * fj
+                d_dj = (g01 - g00) * (1 - fi) + (g11 - g10) * fi
+                corners.append((value, d_di, d_dj))
+            (vx, a, b), (vy, c, d) = corners
+            det = a * d - b * c
+            det = np.where(np.abs(det) > 0, det, np.inf)
+            rx, ry = x - vx, y - vy
+            step_i = (d * rx - b * ry) / det
+            step_j = (a * ry - c * rx) / det
+            i_new, j_new = ic + step_i, jc + step_j
+            converged = np.all(np.abs(i_new - i) < 1e-3) and np.all(np.abs(j_new - j) < 1e-3)
+            i, j = i_new, j_new
+            if converged:
+                break
+        return i, j
+
+    def cells_per_metre(self, i, j) -> np.ndarray:
+        """Inverse local Jacobian (2, 2) [cells per m] of the grid at index (i, j)."""
+        ny, nx = self.shape
+        i0 = int(np.clip(i, 0, nx - 2))
+        j0 = int(np.clip(j, 0, ny - 2))
+        jac = np.array([[self.gx[j0, i0 + 1] - self.gx[j0, i0], self.gx[j0 + 1, i0] - self.gx[j0, i0]],
+                        [self.gy[j0, i0 + 1] - self.gy[j0, i0], self.gy[j0 + 1, i0] - self.gy[j0, i0]]])
+        if not abs(np.linalg.det(jac)) > 0:
+            jac = self.matrix
+        return np.linalg.inv(jac)
+
+    # ---- the few fields read before the crop
+
+    def grid_top(self) -> float:
+        """An upper bound [m above sea level] of the optical volume's top: the highest model level, plus half
+        the top layer (the volume's top interface) and a spacing of its regular levels."""
+        height = self.scene["height"]
+        if "time" in height.dims and height.sizes["time"] == 1:
+            height = height.isel(time=0)
+        if set(height.dims) != {"z", "y", "x"} or height.ndim != 3:
+            raise SwimInputError(f"scene variable 'height' has dims {tuple(height.dims)}; expected ('z', 'y', 'x')")
+        nz = height.sizes["z"]
+        if nz < 2:
+            return float(_finite("height", np.asarray(height.isel(z=-1).values, dtype=float)).max())
+        levels = _finite("height", np.asarray(height.isel(z=sorted({0, 1, nz - 2, nz - 1})).values, dtype=float))
+        top, below = levels[-1], levels[-2]
+        interface = float(np.max(top + 0.5 * np.abs(top - below)))
+        # The optical volume's regular levels run from its bottom (>= -500 m) to at least the top interface, at
+        # most max(finest median layer, depth / 159) apart (swim.optics.volume); its top lies less than one
+        # spacing above the interface. The finest median layer is at most the lowest one's median.
+        finest = float(np.median(np.abs(levels[1] - levels[0])))
+        return interface + max(finest, (interface + 500.0) / 159.0)
+
+    def terrain(self, j: slice, i: slice) -> np.ndarray:
+        """A piece of ``terrain_height`` [m] (the only part of it read before the crop)."""
+        return _finite("terrain_height", np.asarray(_horizontal(self.scene, "terrain_height").isel(y=j, x=i).values,
+                                                    dtype=float))
+
+    def edge_terrain_max(self) -> float:
+        """Highest terrain [m] on the grid's edge: beyond the grid the ray march continues the terrain at its
+        edge heights (clamped), so only points below this height beyond the grid can touch edge cells."""
+        terrain = _horizontal(self.scene, "terrain_height")
+        rows = _finite("terrain_height", np.asarray(terrain.isel(y=[0, -1]).values, dtype=float))
+        cols = _finite("terrain_height", np.asarray(terrain.isel(x=[0, -1]).values, dtype=float))
+        return float(max(rows.max(), cols.max()))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the window
+
+
+def _as_directions(directions, valid):
+    """Unit ENU directions (n, 3) of the valid pixels of a camera or of an array of directions."""
+    if isinstance(directions, Camera):
+        dirs, mask = directions.directions()
+        valid = mask if valid is None else np.asarray(valid, dtype=bool) & mask
+    else:
+        dirs = np.asarray(directions, dtype=float)
+    if dirs.ndim < 1 or dirs.shape[-1] != 3:
+        raise SwimInputError(f"directions must be ENU unit vectors of shape (..., 3); got shape {dirs.shape}")
+    dirs = dirs.reshape(-1, 3)
+    keep = np.all(np.isfinite(dirs), axis=1)
+    if valid is not None:
+        valid = np.asarray(valid, dtype=bool).reshape(-1)
+        if valid.size != len(dirs):
+            raise SwimInputError(f"valid has {valid.size} entries for {len(dirs)} directions")
+        keep &= valid
+    dirs = dirs[keep]
+    norm = np.linalg.norm(dirs, axis=1, keepdims=True)
+    ok = norm[:, 0] > 0
+    return dirs[ok] / norm[ok]
+
+
+def _observer(lat, lon, height, lat0, lon0):
+    lat = lat0 if lat is None else float(lat)
+    lon = lon0 if lon is None else float(lon)
+    if not (-90 <= lat <= 90):
+        raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
+    if not np.isfinite(lon):
+        raise SwimInputError(f"observer lon must be finite [deg], got {lon}")
+    if height is None or not np.isfinite(height) or height < 0:
+        raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
+    return lat, lon, float(height)
+
+
+def _extend(box, i, j):
+    """Grow the index box [i_min, i_max, j_min, j_max] to hold the points (i, j)."""
+    if np.size(i) == 0:
+        return box
+    return [min(box[0], float(np.min(i))), max(box[1], float(np.max(i))),
+            min(box[2], float(np.min(j))), max(box[3], float(np.max(j)))]
+
+
+def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direction, margin_cells, sun_margin_cap_m,
+            samples_per_ray):
+    """The window of :func:`reachable_index_window` and a short description for the log."""
+    ny, nx = columns.shape
+    lat0, lon0 = columns.lat0, columns.lon0
+    lat, lon, height = _observer(lat, lon, height, lat0, lon0)
+    if not (margin_cells >= 0 and sun_margin_cap_m >= 0):
+        raise SwimInputError(f"margin_cells ({margin_cells}) and sun_margin_cap_m ({sun_margin_cap_m}) must be >= 0")
+    margin_cells = int(math.ceil(margin_cells))
+    samples = max(int(samples_per_ray), 2)
+    top = columns.grid_top()
+
+    # The observer's column, found as the renderer finds it (swim.pipeline._terrain_at: clamped to the grid).
+    p_ground = geodetic_to_scene(lat, lon, 0.0, lat0, lon0)
+    io, jo = (float(v) for v in columns.indices(p_ground[0], p_ground[1]))
+    ic, jc = min(max(io, 0.0), nx - 1.0), min(max(jo, 0.0), ny - 1.0)
+    i0, j0 = min(int(ic), nx - 2), min(int(jc), ny - 2)
+    patch = columns.terrain(slice(max(j0 - 1, 0), j0 + 3), slice(max(i0 - 1, 0), i0 + 3))
+    box = [float(i0 - 1), float(i0 + 2), float(j0 - 1), float(j0 + 2)]
+
+    rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
+    dirs = _as_directions(directions, valid) @ rotation
+    if sun_direction is not None:
+        sun = np.asarray(sun_direction, dtype=float).reshape(3)
+        if not (np.all(np.isfinite(sun)) and np.linalg.norm(sun) > 0):
+            raise SwimInputError(f"sun_direction must be a finite, non-zero vector (3,); got {sun}")
+        sun = sun / np.linalg.norm(sun)
+        dirs = np.vstack([dirs, sun[None]])  # the ray towards the sun gives the sun disk's transmittance
+    edge_max = columns.edge_terrain_max()
+    radius, outer = EARTH_RADIUS_M, EARTH_RADIUS_M + top
+    fractions = np.linspace(0.0, 1.0, samples)
+    n_rays = []
+    # The terrain under the observer lies between the patch's extremes; the reach changes monotonically with
+    # the observer's height, so the two extremes bound it.
+    for ground in sorted({float(patch.min()), float(patch.max())}):
+        origin = geodetic_to_scene(lat, lon, ground + height, lat0, lon0)
+        n_rays.append(0)
+        for lo in range(0, len(dirs), _RAY_CHUNK):
+            d = dirs[lo:lo + _RAY_CHUNK]
+            # The part of each ray inside the shell [R, R + top], as the ray march clips it (ray_segments).
+            k1, k2 = ray_sphere_intersections(origin, d, outer)
+            s0 = np.maximum(np.nan_to_num(k1, nan=0.0), 0.0)
+            s1 = np.where(np.isfinite(k2), k2, -np.inf)
+            g1, _ = ray_sphere_intersections(origin, d, radius)
+            sea = np.isfinite(g1) & (g1 > 0) & (g1 < s1)
+            s1 = np.where(sea, g1, s1)
+            ok = s1 > s0
+            if not ok.any():
+                continue
+            n_rays[-1] += int(ok.sum())
+            s = s0[ok, None] + (s1[ok] - s0[ok])[:, None] * fractions[None, :]
+            p = origin + s[..., None] * d[ok][:, None, :]
+            r = np.linalg.norm(p, axis=-1)
+            # Only the front hemisphere about the reference point has unique grid coordinates.
+            front = p[..., 2] > 0
+            x, y, h = radius * p[..., 0] / r, radius * p[..., 1] / r, r - radius
+            i, j = columns.indices(x[front], y[front])
+            inside = (i >= -1) & (i <= nx) & (j >= -1) & (j <= ny)
+            # Beyond the grid only the terrain (continued at the clamped edge heights) is looked up.
+            keep = inside | (h[front] <= edge_max + 1.0)
+            box = _extend(box, np.clip(i[keep], 0, nx - 1), np.clip(j[keep], 0, ny - 1))
+
+    i_min, i_max, j_min, j_max = box
+    i_lo, i_hi = math.floor(i_min) - margin_cells, math.floor(i_max) + 1 + margin_cells
+    j_lo, j_hi = math.floor(j_min) - margin_cells, math.floor(j_max) + 1 + margin_cells
+
+    # Sun-ward margin: the Step 1a sweep climbs towards the sun; top * tan(zenith) horizontally, capped.
+    to_cells = columns.cells_per_metre(0.5 * (i_min + i_max), 0.5 * (j_min + j_max))
+    if sun_direction is None:
+        # Unknown sun: the capped margin on every side.
+        reach = np.abs(to_cells) @ np.array([sun_margin_cap_m, sun_margin_cap_m])
+        sun_cells = (-reach, reach)
+        sun_margin_m = sun_margin_cap_m
+    else:
+        horizontal = float(np.hypot(sun[0], sun[1]))
+        sun_margin_m = min(top * horizontal / max(sun[2], _MIN_SUN_ELEVATION_SINE), sun_margin_cap_m)
+        shift = to_cells @ (sun[:2] / max(horizontal, 1e-12) * sun_margin_m) * 1.05 if horizontal > 0 else np.zeros(2)
+        sun_cells = (np.minimum(shift, 0.0), np.maximum(shift, 0.0))
+    # (round-off of a zero component must not add a cell)
+    i_lo += math.floor(sun_cells[0][0] + 1e-6)
+    j_lo += math.floor(sun_cells[0][1] + 1e-6)
+    i_hi += math.ceil(sun_cells[1][0] - 1e-6)
+    j_hi += math.ceil(sun_cells[1][1] - 1e-6)
+
+    i_lo, i_hi = max(i_lo, 0), min(i_hi, nx - 1)
+    j_lo, j_hi = max(j_lo, 0), min(j_hi, ny - 1)
+    # At least 2 x 2 columns (the optical volume needs them).
+    if i_hi - i_lo < 1:
+        i_lo, i_hi = max(min(i_lo, nx - 2), 0), min(max(i_lo, 0) + 1, nx - 1)
+    if j_hi - j_lo < 1:
+        j_lo, j_hi = max(min(j_lo, ny - 2), 0), min(max(j_lo, 0) + 1, ny - 1)
+    half_width_km = 0.5 * np.hypot(*(columns.matrix @ [i_max - i_min, 0])) / 1e3
+    info = (f"{max(n_rays)} rays reach the grid below its top of {top / 1e3:.1f} km (box {half_width_km:.0f} km half-width "
+            f"along x), sun-ward margin {sun_margin_m / 1e3:.0f} km, margin {margin_cells} cells")
+    return (slice(j_lo, j_hi + 1), slice(i_lo, i_hi + 1)), info
+
+
+def reachable_index_window(scene: xr.Dataset, directions, *, lat=None, lon=None, height=2.0, valid=None,
+                           sun_direction=None, margin_cells: int = DEFAULT_MARGIN_CELLS,
+                           sun_margin_cap_m: float = SUN_MARGIN_CAP_M,
+                           samples_per_ray: int = SAMPLES_PER_RAY) -> tuple[slice, slice]:
+    """Index window of the scene's columns that the rays of a camera can reach (and what shades them).
+
+    Parameters
+    ----------
+    scene : xarray.Dataset
+        Scene with ``lat``, ``lon``, ``terrain_height`` (y, x) [deg, deg, m] and ``height`` (z, y, x) [m above
+        sea level]; numpy-, dask- or lazily netCDF-backed. Only ``lat``, ``lon``, the two highest levels of
+        ``height``, the edges of ``terrain_height`` and its cells under the observer are read. The scene frame
+        is that of ``reference_lat``/``reference_lon`` (attributes, [deg]), else the grid's centre.
+    directions : Camera or array_like
+        A camera (:func:`swim.geometry.cameras.make_camera`; its pixel directions and valid mask), or view
+        directions of shape (..., 3): unit (east, north, up) vectors [-] in the observer's ENU frame.
+    lat, lon : float, optional
+        Observer position [deg]; default: the reference point.
+    height : float
+        Observer height above the ground [m] (as in :func:`swim.render`).
+    valid : array_like of bool, optional
+        Shape ``directions.shape[:-1]``: the directions to use (default: all finite ones).
+    sun_direction : array_like, optional
+        Shape (3,): unit vector towards the sun in the scene frame (ENU at the reference point,
+        :attr:`swim.geometry.sun.SunPosition.direction_enu`). Adds the ray towards the sun and the sun-ward
+        margin. None: the sun is unknown, and the window grows by ``sun_margin_cap_m`` on every side.
+    margin_cells : int
+        Cells [-] added on every side (:data:`DEFAULT_MARGIN_CELLS`).
+    sun_margin_cap_m : float
+        Cap [m] of the sun-ward margin ``top * tan(sun zenith)`` (:data:`SUN_MARGIN_CAP_M`).
+    samples_per_ray : int
+        Points sampled along each ray's segment in the shell between the sea-level sphere and the grid top.
+
+    Returns
+    -------
+    tuple of slice
+        ``(y, x)``: index slices of the window, for ``scene.isel(y=..., x=...)``; at least 2 x 2 columns.
+
+    Raises
+    ------
+    SwimInputError
+        On a scene without ``lat``/``lon``/``height``/``terrain_height`` of the right dims or with non-finite
+        values, a grid of fewer than 2 x 2 columns, an observer with lat outside [-90, 90] or a negative height,
+        directions that are not of shape (..., 3), or a bad ``sun_direction``.
+    """
+    window, _ = _window(_Columns(scene), directions, lat=lat, lon=lon, height=height, valid=valid,
+                        sun_direction=sun_direction, margin_cells=margin_cells, sun_margin_cap_m=sun_margin_cap_m,
+                        samples_per_ray=samples_per_ray)
+    return window
+
+
+def crop_scene_to_view(scene: xr.Dataset, camera="allsky", *, camera_options=None, lat=None, lon=None, height=2.0,
+                       sun_direction=None, margin_cells: int = DEFAULT_MARGIN_CELLS,
+                       sun_margin_cap_m: float = SUN_MARGIN_CAP_M,
+                       max_fraction: float = MAX_CROP_FRACTION) -> xr.Dataset:
+    """Crop a scene lazily to the columns a camera's rays can reach (:func:`reachable_index_window`).
+
+    Parameters
+    ----------
+    scene : xarray.Dataset
+        Scene (validated or not; numpy-, dask- or lazily netCDF-backed); see :func:`reachable_index_window`
+        for what is read. No 3-D variable is loaded: the crop is ``scene.isel(y=..., x=...)``.
+    camera : str or Camera
+        Camera kind (``"allsky"``, ``"panorama"``, ``"perspective"``) built with ``camera_options`` as
+        :func:`swim.render` builds it, or a camera. A perspective camera without ``view_azimuth_deg`` and
+        ``view_zenith_deg`` is pointed by :func:`swim.render` from the optical volume, which does not exist
+        yet: the scene is returned unchanged.
+    camera_options : dict, optional
+        Options of the camera kind (e.g. ``size``).
+    lat, lon : float, optional
+        Observer position [deg]; default: the reference point.
+    height : float
+        Observer height above the ground [m].
+    sun_direction : array_like, optional
+        Shape (3,): unit vector towards the sun in the scene frame (ENU at the reference point); None: unknown
+        (the capped sun-ward margin on every side).
+    margin_cells : int
+        Cells [-] added on every side (:data:`DEFAULT_MARGIN_CELLS`).
+    sun_margin_cap_m : float
+        Cap [m] of the sun-ward margin (:data:`SUN_MARGIN_CAP_M`).
+    max_fraction : float
+        Return the scene unchanged when the window holds more than this fraction [-] of the columns
+        (:data:`MAX_CROP_FRACTION`).
+
+    Returns
+    -------
+    xarray.Dataset
+        The cropped scene (lazy where the input is) with ``reference_lat``/``reference_lon`` [deg] set to the
+        reference point of the whole grid, so the scene frame does not move; or ``scene`` itself.
+
+    Raises
+    ------
+    SwimInputError
+        As :func:`reachable_index_window`, and for a bad camera kind or options.
+    """
+    if not isinstance(scene, xr.Dataset):
+        raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
+    options = dict(camera_options or {})
+    if isinstance(camera, Camera):
+        if options:
+            raise SwimInputError("camera_options apply to a camera kind, not to a Camera instance")
+        cam = camera
+    else:
+        kind = str(camera).strip().lower()
+        if kind == "perspective" and not {"view_azimuth_deg", "view_zenith_deg"} <= set(options):
+            log.info("crop: not cropping for a perspective camera without view_azimuth_deg/view_zenith_deg (its "
+                     "view is chosen from the whole grid)")
+            return scene
+        cam = make_camera(camera, **options)
+    columns = _Columns(scene)
+    (wy, wx), info = _window(columns, cam, lat=lat, lon=lon, height=height, valid=None, sun_direction=sun_direction,
+                             margin_cells=margin_cells, sun_margin_cap_m=sun_margin_cap_m,
+                             samples_per_ray=SAMPLES_PER_RAY)
+    ny, nx = columns.shape
+    cy, cx = wy.stop - wy.start, wx.stop - wx.start
+    fraction = cy * cx / (ny * nx)
+    if fraction > max_fraction:
+        log.info("crop: not cropping: the rays reach %d x %d of %d x %d columns (%.0f %%); %s",
+                 cx, cy, nx, ny, 100 * fraction, info)
+        return scene
+    log.info("crop: x %d:%d, y %d:%d, %d x %d of %d x %d columns (%.1f %%); %s",
+             wx.start, wx.stop, wy.start, wy.stop, cx, cy, nx, ny, 100 * fraction, info)
+    cropped = scene.isel(y=wy, x=wx)
+    return cropped.assign_attrs(reference_lat=float(columns.lat0), reference_lon=float(columns.lon0))

@@ -1,0 +1,95 @@
+"""Persistent caches, so that a new process neither compiles the JAX kernels nor builds the tables again.
+
+The ray-march and Step 1a kernels take several seconds to compile on a CPU (more than the README's default
+render itself once warm); JAX can store the compiled executables on disk and reload them in later processes.
+The cache lives in ``$SWIM_CACHE_DIR/jax`` (default ``$XDG_CACHE_HOME/swim/jax`` or ``~/.cache/swim/jax``);
+``SWIM_JAX_CACHE=0`` turns it off. A cache that cannot be created is skipped with a log message: it only
+ever saves time. :func:`disk_cached` keeps other slow, deterministic results (the successive-orders tables of
+:mod:`swim.rt.gas`) in ``$SWIM_CACHE_DIR/<kind>``, keyed by their arguments and the code that builds them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import pickle
+import tempfile
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+_DONE = False
+
+
+def _disabled() -> bool:
+    return os.environ.get("SWIM_JAX_CACHE", "1").strip().lower() in ("0", "false", "no", "off")
+
+
+def cache_directory(kind: str = "jax") -> Path:
+    """Directory of one persistent cache, e.g. ``"jax"`` for the compiled kernels (see the module docstring)."""
+    root = os.environ.get("SWIM_CACHE_DIR")
+    if root:
+        return Path(root) / kind
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "swim" / kind
+
+
+def disk_cached(kind: str, key, build, sources=()):
+    """``build()``, or its pickled result from an earlier process with the same ``key`` and code.
+
+    ``key`` must have a repr that identifies the result (no object addresses); ``sources`` are the files
+    whose code the result depends on (a changed file gives a new entry). Unreadable entries are rebuilt and
+    unwritable caches skipped: the cache only ever saves time.
+    """
+    text = repr(key)
+    if _disabled() or " at 0x" in text:
+        return build()
+    digest = hashlib.sha256(text.encode())
+    for source in sources:
+        digest.update(Path(source).read_bytes())
+    path = cache_directory(kind) / f"{digest.hexdigest()[:40]}.pkl"
+    try:
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
+        pass
+    result = build()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # write-then-rename, so that a concurrent reader never sees half a file
+        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as f:
+            pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(f.name, path)
+    except OSError as err:
+        log.info("could not cache %s (%s)", kind, err)
+    return result
+
+
+def enable_compilation_cache() -> Path | None:
+    """Point JAX's persistent compilation cache at :func:`cache_directory` (once per process).
+
+    Returns the directory, or None when the cache is disabled (``SWIM_JAX_CACHE=0``), when the user has
+    already configured a JAX cache directory (theirs is kept), or when the directory cannot be created.
+    """
+    global _DONE
+    if _DONE:
+        return None
+    _DONE = True
+    if _disabled():
+        return None
+    import jax
+
+    if jax.config.jax_compilation_cache_dir:
+        return None
+    path = cache_directory()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        log.info("no persistent JAX compilation cache (%s)", err)
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    # Cache every compiled function: a render compiles ~60 small ones (0.05-0.3 s each) beside the two big
+    # kernels, and loading them is faster.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    return path

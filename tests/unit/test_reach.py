@@ -1,0 +1,223 @@
+"""Cropping big grids to the columns a camera's rays can reach (swim.geometry.reach) and render(crop=...)."""
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import swim
+from swim.constants import EARTH_RADIUS_M
+from swim.errors import SwimInputError
+from swim.frames import enu_from_azimuth_zenith
+from swim.geometry.cameras import make_camera
+from swim.geometry.reach import (
+    DEFAULT_MARGIN_CELLS,
+    crop_scene_to_view,
+    reachable_index_window,
+    with_reference_point,
+)
+
+# ---------------------------------------------------------------------------------------------------------------
+# geometry of the window (fast)
+
+BIG_DX = 3e3
+BIG_LEVELS = np.array([50.0, 500.0, 2000.0, 8000.0, 14000.0, 15000.0])
+
+
+@pytest.fixture(scope="module")
+def big_scene():
+    """600 x 600 columns at 3 km (1800 km wide), flat sea-level ground, grid top at 15 km."""
+    n = 600
+    x = (np.arange(n) - (n - 1) / 2) * BIG_DX
+    return swim.scene_from_arrays(x=x, y=x, z=BIG_LEVELS, reference_lat=40.0, reference_lon=-100.0)
+
+
+def _horizon_cells(top, h_obs=2.0):
+    """Distance [cells] at which a ray from h_obs grazing the ground leaves a shell of height top."""
+    return (np.sqrt(2 * EARTH_RADIUS_M * top) + np.sqrt(2 * EARTH_RADIUS_M * h_obs)) / BIG_DX
+
+
+def _reach_cells(top, elevation_deg, h_obs=2.0):
+    """Grid distance [cells] at which a ray from h_obs at an elevation leaves a shell of height top."""
+    r0, e = EARTH_RADIUS_M + h_obs, np.deg2rad(elevation_deg)
+    s = -r0 * np.sin(e) + np.sqrt((r0 * np.sin(e)) ** 2 + (EARTH_RADIUS_M + top) ** 2 - r0**2)
+    return EARTH_RADIUS_M * np.sin(np.arctan2(s * np.cos(e), r0 + s * np.sin(e))) / BIG_DX
+
+
+def test_allsky_window_matches_the_horizon_reach(big_scene):
+    camera = make_camera("allsky", size=127)
+    wy, wx = reachable_index_window(big_scene, camera, height=2.0, sun_direction=[0.0, 0.0, 1.0])
+    centre = (600 - 1) / 2
+    assert wx.start < centre < wx.stop - 1 and wy.start < centre < wy.stop - 1  # holds the observer
+    assert (wx.stop - wx.start) * (wy.stop - wy.start) < 0.5 * 600 * 600  # much smaller than the domain
+    # Half-widths between the reach under the highest level (15 km) along the lowest pixels (0.7 deg above
+    # the horizon) and the horizon reach under the optical volume's top (the top interface plus a level
+    # spacing, < 16 km), plus the margin.
+    lowest = 90.0 - 63 / 63.5 * 90.0
+    lo, hi = _reach_cells(15_000.0, lowest), _horizon_cells(16_000.0) + DEFAULT_MARGIN_CELLS + 2
+    grazing = -np.rad2deg(np.sqrt(2 * 2.0 / EARTH_RADIUS_M))  # the ray that touches the sea-level sphere
+    assert _reach_cells(16_000.0, grazing) == pytest.approx(_horizon_cells(16_000.0), rel=5e-3)
+    for s in (wx, wy):
+        for half in (centre - s.start, s.stop - 1 - centre):
+            assert lo - 2 < half < hi, (half, lo, hi)
+    # The same without a margin: the bare reach.
+    wy0, wx0 = reachable_index_window(big_scene, camera, height=2.0, sun_direction=[0.0, 0.0, 1.0], margin_cells=0)
+    assert lo - 2 < 0.5 * (wx0.stop - wx0.start) < _horizon_cells(16_000.0) + 2
+
+
+def test_a_higher_observer_sees_further_below_the_horizon(big_scene):
+    # A panorama of the horizon: from h the rays that graze the ground leave the shell sqrt(2 R h) further out.
+    camera = make_camera("panorama", width=64, height=61, elevation_min_deg=-3.0, elevation_max_deg=3.0)
+    low = reachable_index_window(big_scene, camera, height=2.0, sun_direction=[0, 0, 1], margin_cells=0)
+    high = reachable_index_window(big_scene, camera, height=3000.0, sun_direction=[0, 0, 1], margin_cells=0)
+    gain = (np.sqrt(2 * EARTH_RADIUS_M * 3000.0) - np.sqrt(2 * EARTH_RADIUS_M * 2.0)) / BIG_DX
+    assert (high[1].stop - high[1].start) - (low[1].stop - low[1].start) == pytest.approx(2 * gain, rel=0.1)
+
+
+def test_sunward_margin_extends_towards_a_low_sun_and_is_capped(big_scene):
+    camera = make_camera("allsky", size=63)
+    base = reachable_index_window(big_scene, camera, sun_direction=[0, 0, 1])
+    east = enu_from_azimuth_zenith(90.0, 80.0)  # low sun in the east: shadows come from the east
+    wy, wx = reachable_index_window(big_scene, camera, sun_direction=east)
+    shift = 16_000.0 * np.tan(np.deg2rad(80.0)) / BIG_DX  # < top * tan(zenith), ~30 cells
+    assert wx.stop - base[1].stop == pytest.approx(1.05 * shift, abs=3)
+    assert wx.start == base[1].start and wy == base[0]
+    # Sun on the horizon: the cap (300 km = 100 cells) instead of the unbounded top * tan(zenith).
+    west = enu_from_azimuth_zenith(270.0, 90.0)
+    wy, wx = reachable_index_window(big_scene, camera, sun_direction=west)
+    # (the ray towards the sun itself reaches a little further than the fisheye's lowest pixels)
+    ray_only = reachable_index_window(big_scene, camera, sun_direction=west, sun_margin_cap_m=0.0)
+    assert ray_only[1].start < base[1].start
+    assert ray_only[1].start - wx.start == pytest.approx(1.05 * 100, abs=3)
+    # An unknown sun: the cap on every side.
+    wy, wx = reachable_index_window(big_scene, camera, sun_direction=None)
+    assert base[1].start - wx.start == pytest.approx(100, abs=3) and wy.stop - base[0].stop == pytest.approx(100, abs=3)
+
+
+def test_crop_keeps_the_frame_and_is_unchanged_when_the_view_covers_everything(big_scene, caplog):
+    scene = big_scene.copy()
+    del scene.attrs["reference_lat"], scene.attrs["reference_lon"]  # the frame is then the grid's centre
+    with caplog.at_level("INFO", logger="swim.geometry.reach"):
+        cropped = crop_scene_to_view(scene, "allsky", camera_options={"size": 63}, lat=40.5, lon=-99.0,
+                                     sun_direction=[0, 0, 1])
+    assert "crop: x" in caplog.text
+    assert cropped.sizes["x"] < 400 and cropped.sizes["y"] < 400
+    assert cropped.attrs["reference_lat"] == pytest.approx(40.0, abs=1e-9)
+    assert cropped.attrs["reference_lon"] == pytest.approx(-100.0, abs=1e-9)
+    assert float(cropped["x"][0]) > float(scene["x"][0])  # the columns keep their coordinates
+    swim.io.scene.validate_scene(cropped)  # x/y still agree with lat/lon in the (unmoved) frame
+    # A fisheye looking down from 3000 km sees the whole grid: the scene itself comes back.
+    assert crop_scene_to_view(big_scene, "allsky", camera_options={"size": 63, "max_zenith_deg": 180.0}, height=3_000e3,
+                              sun_direction=[0, 0, 1]) is big_scene
+    # A perspective camera pointed by the renderer from the whole grid is not cropped.
+    assert crop_scene_to_view(big_scene, "perspective", camera_options={"width": 8, "height": 8}) is big_scene
+    # The default scene (40 km wide) is in reach everywhere.
+    small = swim.default_scene()
+    assert crop_scene_to_view(small, "allsky", camera_options={"size": 63}, sun_direction=[0, 0, 1]) is small
+
+
+def test_with_reference_point_sets_the_centre_without_copying(big_scene):
+    assert with_reference_point(big_scene) is big_scene
+    scene = big_scene.copy()
+    del scene.attrs["reference_lat"], scene.attrs["reference_lon"]
+    out = with_reference_point(scene)
+    assert out.attrs["reference_lat"] == pytest.approx(40.0) and out.attrs["reference_lon"] == pytest.approx(-100.0)
+    assert "reference_lat" not in scene.attrs
+    assert np.shares_memory(out["height"].values, scene["height"].values)
+
+
+def test_bad_input_is_reported(big_scene):
+    camera = make_camera("allsky", size=15)
+    with pytest.raises(SwimInputError, match="observer height"):
+        reachable_index_window(big_scene, camera, height=-1.0)
+    with pytest.raises(SwimInputError, match="observer lat"):
+        reachable_index_window(big_scene, camera, lat=91.0)
+    with pytest.raises(SwimInputError, match=r"\(\.\.\., 3\)"):
+        reachable_index_window(big_scene, np.zeros((4, 2)))
+    with pytest.raises(SwimInputError, match="terrain_height"):
+        reachable_index_window(big_scene.drop_vars("terrain_height"), camera)
+    with pytest.raises(SwimInputError, match="camera kind"):
+        crop_scene_to_view(big_scene, "pinhole")
+    with pytest.raises(SwimInputError, match="reference_lat"):
+        crop_scene_to_view(big_scene.assign_attrs(reference_lat="north"), "allsky")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# rendering with and without the crop (each new grid shape compiles the ray-march kernel: slow)
+
+RENDER = {"camera": "allsky", "camera_options": {"size": 33}, "sun_zenith": 40.0, "sun_azimuth": 200.0,
+          "lat": 40.1, "lon": -100.2}
+N_WIDE, DX_WIDE = 150, 10e3
+LEVELS_WIDE = np.array([250.0, 750.0, 1500.0, 2500.0, 4000.0, 6000.0, 8000.0])
+
+
+def _wide_fields():
+    """Cloud liquid (z, y, x) [kg m-3] of a 1500 km wide scene: clouds near the observer, near its horizon
+    and in a corner far beyond it."""
+    lwc = np.zeros((LEVELS_WIDE.size, N_WIDE, N_WIDE))
+    lwc[2:4, 74:77, 76:80] = 4e-4  # overhead, a little east
+    lwc[1:5, 60:64, 95:99] = 6e-4  # ~250 km south-east, low in the sky
+    lwc[2:4, 5:12, 5:12] = 5e-4  # the south-west corner: out of reach
+    return lwc
+
+
+@pytest.fixture(scope="module")
+def wide_scene():
+    x = (np.arange(N_WIDE) - (N_WIDE - 1) / 2) * DX_WIDE
+    return swim.scene_from_arrays(x=x, y=x, z=LEVELS_WIDE, reference_lat=40.0, reference_lon=-100.0,
+                                  cloud_liquid_content=_wide_fields(), time="2023-06-21T18:00")
+
+
+@pytest.fixture(scope="module")
+def wide_cropped_image(wide_scene):
+    return swim.render(wide_scene, **RENDER)
+
+
+@pytest.mark.slow
+def test_crop_does_not_change_the_image(wide_scene, wide_cropped_image, caplog):
+    window = reachable_index_window(wide_scene, make_camera("allsky", size=33), lat=RENDER["lat"],
+                                    lon=RENDER["lon"], sun_direction=enu_from_azimuth_zenith(200.0, 40.0))
+    cells = (window[0].stop - window[0].start) * (window[1].stop - window[1].start)
+    assert cells < 0.6 * N_WIDE**2  # the crop does cut the grid
+    full = swim.render(wide_scene, crop=False, **RENDER)
+    cropped = wide_cropped_image
+    assert np.nanmax(cropped["tau_hydrometeor"].values) > 1  # the clouds in reach are seen
+    np.testing.assert_allclose(cropped["radiance"].values, full["radiance"].values, rtol=1e-5, atol=1e-7)
+    # The components too, up to the float32 round-off of the kernel's grid indices, which are computed from
+    # a different origin and scale on the crop (~1e-5 cells: a few 1e-5 of tau at the edges of blocky clouds).
+    for key in ("radiance_cloud", "radiance_clear", "radiance_surface", "tau_hydrometeor"):
+        np.testing.assert_allclose(cropped[key].values, full[key].values, rtol=1e-4, atol=2e-5, err_msg=key)
+    assert cropped.attrs["reference_lat"] == full.attrs["reference_lat"]
+    assert cropped.attrs["direct_transmittance"] == pytest.approx(full.attrs["direct_transmittance"])
+
+
+@pytest.mark.slow
+def test_dask_scene_renders_computing_only_the_crop(wide_scene, wide_cropped_image):
+    dask_array = pytest.importorskip("dask.array")
+    window = reachable_index_window(wide_scene, make_camera("allsky", size=33), lat=RENDER["lat"],
+                                    lon=RENDER["lon"], sun_direction=enu_from_azimuth_zenith(200.0, 40.0))
+    lwc = _wide_fields()
+    chunk = 25
+    computed = []
+
+    def block(block_info=None):
+        (z0, z1), (y0, y1), (x0, x1) = block_info[None]["array-location"]
+        outside = y1 <= window[0].start or y0 >= window[0].stop or x1 <= window[1].start or x0 >= window[1].stop
+        if outside:
+            raise AssertionError(f"computed a block outside the crop: y {y0}:{y1}, x {x0}:{x1}")
+        computed.append((y0, x0))
+        return lwc[z0:z1, y0:y1, x0:x1]
+
+    chunks = ((LEVELS_WIDE.size,), (chunk,) * (N_WIDE // chunk), (chunk,) * (N_WIDE // chunk))
+    lazy = dask_array.map_blocks(block, chunks=chunks, dtype=float)
+    height = dask_array.broadcast_to(dask_array.from_array(LEVELS_WIDE)[:, None, None],
+                                     (LEVELS_WIDE.size, N_WIDE, N_WIDE), chunks=chunks[0] + chunks[1:])
+    raw = xr.Dataset(
+        {"height": (("z", "y", "x"), height), "lat": wide_scene["lat"], "lon": wide_scene["lon"],
+         "terrain_height": wide_scene["terrain_height"], "cloud_liquid_content": (("z", "y", "x"), lazy)},
+        coords={"time": wide_scene["time"]},
+        attrs={"reference_lat": 40.0, "reference_lon": -100.0},
+    )
+    image = swim.render(raw, **RENDER)
+    n_blocks = (N_WIDE // chunk) ** 2
+    assert 0 < len(set(computed)) < n_blocks
+    np.testing.assert_allclose(image["radiance"].values, wide_cropped_image["radiance"].values, rtol=1e-5, atol=1e-7)
