@@ -59,8 +59,10 @@ def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), setting
     return out, (volume, transmittance, gas, phase)
 
 
+@pytest.mark.parametrize("settings", [MarchSettings(n_grid=400, n_after=200), MarchSettings()],
+                         ids=["fine steps", "default adaptive steps"])
 @pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
-def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume):
+def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume, settings):
     scene = _tiny_scene(aerosol_plume)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     ground = np.array([0.0, 0.0, EARTH_RADIUS_M + 20.0])  # terrain here is ~6 m
@@ -73,7 +75,7 @@ def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume):
     origins, dirs = np.array(origins), np.array(dirs)
     # with a stratospheric aerosol layer, so that its extinction, source and diffuse source are compared too
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
-    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun, aerosol=aerosol)
+    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun, aerosol=aerosol, settings=settings)
     if aerosol_plume:
         assert gas.aerosol_class_aod.size >= 3, "the plume must give several column classes"
     assert out["tau_hydrometeor"].max() > 1.0, "the test rays must cross cloud"

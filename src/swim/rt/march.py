@@ -237,9 +237,11 @@ def _bilinear_table(table, fu, fv):
 
 
 def trilinear(volume, k, j, i, outside):
-    """Trilinear sample of a channel-major (C, nk, ny, nx) volume at fractional indices: (n_pts, C); ``outside``
-    (C,) beyond it."""
-    n_c, nk, ny, nx = volume.shape
+    """Trilinear sample of a (nk, ny, nx, C) volume at fractional indices: (n_pts, C); ``outside`` (C,) beyond it.
+
+    The channels of a cell stay adjacent in memory (one cache line for all of them) and are read by scalar
+    gathers from the flattened volume (see the note above :func:`_lerp_table`)."""
+    nk, ny, nx, n_c = volume.shape
     inside = (k >= 0) & (k <= nk - 1) & (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
     k0 = jnp.clip(jnp.floor(k), 0, nk - 2).astype(jnp.int32)
     j0 = jnp.clip(jnp.floor(j), 0, ny - 2).astype(jnp.int32)
@@ -247,17 +249,18 @@ def trilinear(volume, k, j, i, outside):
     fk = jnp.clip(k - k0, 0.0, 1.0)
     fj = jnp.clip(j - j0, 0.0, 1.0)
     fi = jnp.clip(i - i0, 0.0, 1.0)
-    base, fk, fj, fi, inside = _materialise(((k0 * ny + j0) * nx + i0, fk, fj, fi, inside))
-    flat = volume.reshape(n_c, nk * ny * nx)
+    base, fk, fj, fi, inside = _materialise((((k0 * ny + j0) * nx + i0) * n_c, fk, fj, fi, inside))
+    flat = volume.reshape(-1)
+    row_step, plane_step = nx * n_c, ny * nx * n_c
     channels = []
-    for c, t in enumerate(flat):
+    for c in range(n_c):
         def row(b):
-            return t[b] * (1 - fi) + t[b + 1] * fi
+            return flat[b + c] * (1 - fi) + flat[b + c + n_c] * fi
 
         def plane(b):
-            return row(b) * (1 - fj) + row(b + nx) * fj
+            return row(b) * (1 - fj) + row(b + row_step) * fj
 
-        channels.append(jnp.where(inside, plane(base) * (1 - fk) + plane(base + ny * nx) * fk, outside[c]))
+        channels.append(jnp.where(inside, plane(base) * (1 - fk) + plane(base + plane_step) * fk, outside[c]))
     return _materialise(jnp.stack(channels, axis=-1))
 
 
@@ -757,11 +760,10 @@ def aerosol_column_optical_depth(volume):
 def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
     """Device arrays and scalars shared by all chunks of a render."""
     geometry = grid_geometry(volume)
-    # Channel-major (C, nk, ny, nx): see the note above _lerp_table.
     packed = np.concatenate(
-        [volume["extinction"].values, volume["aerosol_extinction"].values[None], transmittance["aerosol_tau_sun"].values[None],
-         transmittance["cloud_transmittance"].values[None], transmittance["terrain_shadow"].values[None]], axis=0,
-        dtype=np.float32)
+        [volume["extinction"].values.transpose(1, 2, 3, 0), volume["aerosol_extinction"].values[..., None],
+         transmittance["aerosol_tau_sun"].values[..., None], transmittance["cloud_transmittance"].values[..., None],
+         transmittance["terrain_shadow"].values[..., None]], axis=-1, dtype=np.float32)
     surface = surface_fields(volume, transmittance)
     surface_outside = surface_fields_outside(surface)
     classes = np.asarray(gas.diffuse_horizontal_classes)  # (n_class, nu, nmu, 3)
