@@ -238,9 +238,18 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
     terrain = volume["terrain_height"].values
     # Zero at and above the surface (a sunlit slope does not shade itself), 1 a full level below it.
     occupancy = np.clip((terrain[None] - levels[:, None, None]) / dz, 0.0, 1.0) * (TERRAIN_OPACITY_PER_CELL / dz)
-    fields = jnp.asarray(np.stack([total, b_weighted, occupancy, aerosol]).astype(np.float32))
-
-    taus = np.asarray(_sweep(fields, float(di), float(dj), float(path_per_level), n_sub))
+    fields = np.stack([total, b_weighted, occupancy, aerosol]).astype(np.float32)
+    # Only fields that are not zero everywhere, and only up to their highest non-zero level (plus the clear
+    # level above it), are swept: above it the optical depth towards the sun is 0. This is what makes a flat
+    # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing.
+    nonzero = fields.reshape(fields.shape[0], fields.shape[1], -1).any(axis=2)  # (4, nk)
+    taus = np.zeros_like(fields)
+    swept = np.flatnonzero(nonzero.any(axis=1))
+    if swept.size:
+        n_levels = min(int(np.flatnonzero(nonzero[swept].any(axis=0)).max()) + 2, fields.shape[1])
+        n_levels = max(n_levels, 2)
+        taus[swept, :n_levels] = np.asarray(_sweep(jnp.asarray(fields[swept, :n_levels]), float(di), float(dj),
+                                                   float(path_per_level), n_sub))
     log.info("Step 1a sweep: %d sub-steps per level, max tau_sun %.1f", n_sub, float(taus[0].max()))
     mu0 = max(float(sun[2]), 0.0)
     cloud_t = np.asarray(transmittance_delta_eddington(jnp.asarray(taus[0]), jnp.asarray(taus[1]),
