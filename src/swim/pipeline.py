@@ -5,6 +5,7 @@ Each stage is a function between xarray objects or small dataclasses; :func:`ren
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from datetime import datetime, timezone
 from pathlib import Path
@@ -33,6 +34,50 @@ log = logging.getLogger(__name__)
 
 #: Above this height [m] a perspective camera without a look-at point looks straight down.
 SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
+
+
+def _fingerprint(scene: xr.Dataset) -> str:
+    """Digest of a validated scene's values, coordinates and attributes (what its optical volume depends on).
+
+    Hashing is ~1 GB/s, several times faster than rebuilding the optical volume and Step 1a of a big grid."""
+    digest = hashlib.blake2b(digest_size=16)
+    for name in sorted(scene.variables):
+        var = scene.variables[name]
+        digest.update(f"{name}{var.dims}{var.dtype}{var.shape}".encode())
+        values = var.values
+        digest.update(np.ascontiguousarray(values).view(np.uint8).data if values.dtype.kind in "biufc"
+                      else repr(values.tolist()).encode())
+    digest.update(repr(sorted((k, repr(v)) for k, v in scene.attrs.items())).encode())
+    return digest.hexdigest()
+
+
+class _StageCache:
+    """The last render's optical volume, Step 1a and kernel constants, reused while the scene (and the sun and
+    the atmosphere) stay the same.
+
+    A time series, several cameras on one scene or a fly-through would otherwise rebuild them every frame,
+    which on a big grid takes longer than the ray march (docs/performance.md). One entry of each kind, and
+    an entry is dropped before its replacement is built, so the cache never holds two grids at once."""
+
+    def __init__(self):
+        self._entries = {}
+
+    def get(self, key, build):
+        kind = key[0]
+        entry = self._entries.get(kind)
+        if entry is not None and entry[0] == key:
+            log.info("reusing the %s of the previous render", kind)
+            return entry[1]
+        self._entries.pop(kind, None)
+        value = build()
+        self._entries[kind] = (key, value)
+        return value
+
+    def clear(self):
+        self._entries.clear()
+
+
+_STAGE_CACHE = _StageCache()
 
 
 def _terrain_at(volume, lat, lon):
@@ -179,7 +224,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     if height is None or not np.isfinite(height) or height < 0:
         raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
 
-    volume = build_optical_volume(scene)
+    fingerprint = _fingerprint(scene)
+    volume = _STAGE_CACHE.get(("volume", fingerprint), lambda: build_optical_volume(scene))
     terrain, indices = _terrain_at(volume, lat, lon)
     height_asl = terrain + float(height)
     _check_observer_reach(volume, indices, height_asl)
@@ -201,7 +247,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     observer = geodetic_to_scene(lat, lon, height_asl, lat0, lon0)
     sun_enu_observer = sun_scene @ rotation.T
 
-    transmittance = solar_transmittance(volume, sun_scene)
+    transmittance = _STAGE_CACHE.get(("transmittance", fingerprint, tuple(np.round(sun_scene, 12))),
+                                     lambda: solar_transmittance(volume, sun_scene))
     if aerosol is None:
         aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene else AerosolBackground()
     elif isinstance(aerosol, str):
@@ -216,7 +263,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     gas = build_gas_tables(aerosol, surface_albedo=np.asarray(mean_albedo.values, dtype=float),
                            scene_aerosol_profile=(levels, aer3d) if np.any(aer3d > 0) else None,
                            aerosol_class_aod=classes)
-    consts = kernel_constants(volume, transmittance, gas, sun_scene)
+    # The entry holds the gas tables, so their id cannot be reused by other tables while it lives.
+    consts, _ = _STAGE_CACHE.get(("constants", fingerprint, tuple(np.round(sun_scene, 12)), id(gas)),
+                                 lambda: (kernel_constants(volume, transmittance, gas, sun_scene), gas))
     geometry = grid_geometry(volume)
 
     # One extra ray towards the sun gives the direct-beam transmittance for the sun's disk.

@@ -288,10 +288,13 @@ def _gas_at(h, mu_s, consts):
     """Clear-atmosphere quantities at heights h [m] and local solar-zenith cosines mu_s.
 
     Returns the Rayleigh, background-aerosol and stratospheric-aerosol extinction (n, 3) [m-1] (one
-    lookup in a joint height table), and the sun transmittance and horizontal diffuse irradiance / E_TOA
-    (n, 3) each (one bilinear lookup in the joint (height, mu_s) table).
+    lookup in a joint height table of their profiles, times their spectral factors: each is a height profile
+    times a spectrum), and the sun transmittance and horizontal diffuse irradiance / E_TOA (n, 3) each (one
+    bilinear lookup in the joint (height, mu_s) table).
     """
-    beta = _lerp_table(consts["beta_gas"], h / consts["dh"])
+    profile = _lerp_table(consts["beta_gas"], h / consts["dh"])
+    spectra = consts["beta_gas_spectra"]  # (3 components, 3 wavelengths)
+    beta = jnp.concatenate([profile[:, c : c + 1] * spectra[c][None, :] for c in range(3)], axis=-1)
     nu, nmu = consts["sky"].shape[1:]
     fu = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (nu - 1)
     fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
@@ -767,6 +770,15 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     surface = surface_fields(volume, transmittance)
     surface_outside = surface_fields_outside(surface)
     classes = np.asarray(gas.diffuse_horizontal_classes)  # (n_class, nu, nmu, 3)
+    # Molecules, background and stratospheric aerosol: each a height profile times a spectrum, so the kernel
+    # looks up 3 profiles instead of 9 columns; the spectra relative to the first wavelength.
+    components = [np.asarray(b, dtype=float) for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric)]
+    spectra = np.ones((3, 3))
+    for c, b in enumerate(components):
+        if b[:, 0].sum() > 0:
+            spectra[c] = b.sum(axis=0) / b[:, 0].sum()
+            if not np.allclose(b, b[:, :1] * spectra[c][None, :], rtol=1e-5, atol=1e-30):
+                raise ValueError("clear-atmosphere extinction must be a height profile times a spectrum")
     sun = np.asarray(sun_direction_scene, dtype=float)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {
@@ -784,7 +796,8 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
         "mu0": f32(sun[2]),
         "dh": f32(gas.dh),
         "top": f32(gas.top_m),
-        "beta_gas": f32(np.concatenate([gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric], axis=-1).T),
+        "beta_gas": f32(np.stack([b[:, 0] for b in components])),
+        "beta_gas_spectra": f32(spectra),
         "sky": f32(np.moveaxis(np.concatenate([gas.sun_transmittance, gas.diffuse_horizontal], axis=-1), -1, 0)),
         "ms_source": f32(np.stack([t.source for t in gas.diffuse_sources])),
         "diffuse_classes": f32(np.moveaxis(classes, -1, 0).reshape(3, -1, classes.shape[2])),

@@ -1,0 +1,40 @@
+"""The optical volume and Step 1a are reused between renders only while the scene and the sun stay the same."""
+
+import logging
+
+import numpy as np
+
+import swim
+from swim import pipeline
+
+
+def _render(scene, **kw):
+    return swim.render(scene, camera="allsky", camera_options={"size": 17}, sun_zenith=kw.pop("sun_zenith", 40.0),
+                       sun_azimuth=150.0, **kw)
+
+
+def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
+    pipeline._STAGE_CACHE.clear()
+    scene = swim.default_scene()
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        first = _render(scene)
+        assert "reusing" not in caplog.text
+        second = _render(scene)
+        assert all(f"reusing the {kind}" in caplog.text for kind in ("volume", "transmittance", "constants"))
+    np.testing.assert_array_equal(first["radiance"].values, second["radiance"].values)
+
+    # a new sun: the volume is reused, Step 1a is not
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        _render(scene, sun_zenith=60.0)
+    assert "reusing the volume" in caplog.text and "reusing the transmittance" not in caplog.text
+
+    # the same object changed in place (clouds removed) must not be served from the cache
+    for name in [v for v in scene.data_vars if v.endswith("_content")]:
+        scene[name].values[...] = 0.0
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        clear = _render(scene)
+    assert "reusing" not in caplog.text
+    assert float(np.nanmax(clear["tau_hydrometeor"].values)) == 0.0
+    assert float(np.nanmax(first["tau_hydrometeor"].values)) > 1.0
