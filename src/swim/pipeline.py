@@ -226,6 +226,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
     fingerprint = _fingerprint(scene)
     volume = _STAGE_CACHE.get(("volume", fingerprint), lambda: build_optical_volume(scene))
+    # From here on only the scene's attributes, coordinates and variable names are needed: dropping its values
+    # frees the float64 copy of validate_scene before Step 1a and the kernel constants, the memory peak.
+    scene_vars = set(scene.data_vars)
+    scene = scene.drop_vars(list(scene.data_vars))
     terrain, indices = _terrain_at(volume, lat, lon)
     height_asl = terrain + float(height)
     _check_observer_reach(volume, indices, height_asl)
@@ -250,13 +254,13 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     transmittance = _STAGE_CACHE.get(("transmittance", fingerprint, tuple(np.round(sun_scene, 12))),
                                      lambda: solar_transmittance(volume, sun_scene))
     if aerosol is None:
-        aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene else AerosolBackground()
+        aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene_vars else AerosolBackground()
     elif isinstance(aerosol, str):
         aerosol = AerosolBackground(type_name=aerosol)
     # The scene-mean albedo reflects light back into the sky in the multiple-scattering table.
     mean_albedo = volume["surface_albedo"].mean(dim=[d for d in volume["surface_albedo"].dims if d != "wavelength"])
     # The mean column of a 3-D aerosol field joins the background aerosol in the multiple-scattering table.
-    aer3d = volume["aerosol_extinction"].mean(dim=("y", "x")).values.astype(float)
+    aer3d = volume["aerosol_extinction"].values.mean(axis=(1, 2), dtype=float)
     levels = float(volume.attrs["z_bottom"]) + float(volume.attrs["dz"]) * np.arange(aer3d.size)
     # A non-uniform field gets one table per class of column optical depth (Eqs. 30-31, docs/aerosols.md §8).
     classes = aerosol_column_classes(aerosol_column_optical_depth(volume).values) if np.any(aer3d > 0) else None

@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 import jax
 import jax.numpy as jnp
 import numpy as np
+import xarray as xr
 
 from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
@@ -741,7 +742,8 @@ def occupancy_grid(volume):
 
     dz = float(volume.attrs["dz"])
     spacing = float(np.sqrt(abs(np.linalg.det(np.asarray(volume.attrs["affine_matrix"], dtype=float).reshape(2, 2)))))
-    occupied = volume["extinction"].sum("species").values > OCCUPIED_EXTINCTION
+    # numpy sums: xarray's NaN-skipping sum copies the whole (species, level, y, x) array first
+    occupied = volume["extinction"].values.sum(axis=0) > OCCUPIED_EXTINCTION
     terrain = volume["terrain_height"].values
     if np.any(terrain > 1.0):
         # Only raised terrain needs the march to find it: the sea-level sphere is met analytically.
@@ -757,16 +759,22 @@ def occupancy_grid(volume):
 def aerosol_column_optical_depth(volume):
     """Column optical depth at 550 nm of the optical volume's 3-D aerosol (y, x) [-] (sum over its levels)."""
     aer = volume["aerosol_extinction"]
-    return (aer.sum("level") * float(volume.attrs["dz"])).rename("aerosol_column_optical_depth")
+    column = aer.values.sum(axis=0) * float(volume.attrs["dz"])  # numpy: no NaN-skipping copy of the volume
+    return xr.DataArray(column, coords={d: aer.coords[d] for d in ("y", "x") if d in aer.coords}, dims=("y", "x"),
+                        name="aerosol_column_optical_depth")
 
 
 def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
     """Device arrays and scalars shared by all chunks of a render."""
     geometry = grid_geometry(volume)
-    packed = np.concatenate(
-        [volume["extinction"].values.transpose(1, 2, 3, 0), volume["aerosol_extinction"].values[..., None],
-         transmittance["aerosol_tau_sun"].values[..., None], transmittance["cloud_transmittance"].values[..., None],
-         transmittance["terrain_shadow"].values[..., None]], axis=-1, dtype=np.float32)
+    # filled channel by channel: a transpose and a concatenate would each make a copy of the whole volume
+    extinction = volume["extinction"].values
+    packed = np.empty(extinction.shape[1:] + (N_CHANNELS,), np.float32)
+    for c in range(extinction.shape[0]):
+        packed[..., c] = extinction[c]
+    for c, field in enumerate((volume["aerosol_extinction"], transmittance["aerosol_tau_sun"],
+                               transmittance["cloud_transmittance"], transmittance["terrain_shadow"])):
+        packed[..., extinction.shape[0] + c] = field.values
     surface = surface_fields(volume, transmittance)
     surface_outside = surface_fields_outside(surface)
     classes = np.asarray(gas.diffuse_horizontal_classes)  # (n_class, nu, nmu, 3)

@@ -232,13 +232,19 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
     # The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D aerosol
     # is swept apart: its diffuse light is in the multiple-scattering table of Step 2, so it dims the
     # direct beam only (docs/rendering.md).
-    total = beta.sum(axis=0)
-    b_weighted = (b * beta).sum(axis=0)
+    # species by species in float32: (b * beta).sum() made a float64 copy of all species (1 GB at 400 x 400 x 160)
+    total = np.zeros(beta.shape[1:], np.float32)
+    b_weighted = np.zeros(beta.shape[1:], np.float32)
+    for n in range(beta.shape[0]):
+        total += beta[n]
+        b_weighted += np.float32(b[n, 0, 0, 0]) * beta[n]
     levels = volume["level"].values
     terrain = volume["terrain_height"].values
     # Zero at and above the surface (a sunlit slope does not shade itself), 1 a full level below it.
-    occupancy = np.clip((terrain[None] - levels[:, None, None]) / dz, 0.0, 1.0) * (TERRAIN_OPACITY_PER_CELL / dz)
-    fields = np.stack([total, b_weighted, occupancy, aerosol]).astype(np.float32)
+    fields = np.empty((4,) + total.shape, np.float32)
+    fields[0], fields[1], fields[3] = total, b_weighted, aerosol
+    del total, b_weighted
+    fields[2] = np.clip((terrain[None] - levels[:, None, None]) / dz, 0.0, 1.0) * (TERRAIN_OPACITY_PER_CELL / dz)
     # Only fields that are not zero everywhere, and only up to their highest non-zero level (plus the clear
     # level above it), are swept: above it the optical depth towards the sun is 0. This is what makes a flat
     # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing.
