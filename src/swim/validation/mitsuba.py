@@ -441,6 +441,12 @@ def _inside(p, box):
     return bool(np.all(p > lo) and np.all(p < hi))
 
 
+def wavefront_seed(seed, k):
+    """Sampler seed of wavefront k of a run with seed ``seed``: seed 1000003 + k, wrapped to Mitsuba's 32-bit
+    seeds (unchanged below 2^32, so references made with small seeds stay reproducible)."""
+    return (int(seed) * 1000003 + int(k)) % 2**32
+
+
 def _trace(built, origin, dirs, spp, seed):
     """Per-ray mean and standard error (n, 3) of Mitsuba's radiance I [sr-1] for unit irradiance."""
     mi = select_variant(built["variant"])
@@ -479,7 +485,7 @@ def _trace(built, origin, dirs, spp, seed):
             stop = min(total, start + _WAVEFRONT)
             m = stop - start
             sampler = mi.load_dict({"type": "independent"})
-            sampler.seed(int(seed) * 1000003 + k, m)
+            sampler.seed(wavefront_seed(seed, k), m)
             o = mi.Point3f(*(np.ascontiguousarray(o_rep[start:stop, i], dtype=np.float32) for i in range(3)))
             d = mi.Vector3f(*(np.ascontiguousarray(d_rep[start:stop, i], dtype=np.float32) for i in range(3)))
             ray = mi.RayDifferential3f(mi.Ray3f(o, d))
@@ -493,7 +499,7 @@ def _trace(built, origin, dirs, spp, seed):
             np.add.at(sums2, idx[start:stop], val**2)
     else:
         sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(int(seed), 1)
+        sampler.seed(int(seed) % 2**32, 1)
         for i in range(n):
             ray = mi.RayDifferential3f(mi.Ray3f(mi.Point3f(*origins[i]), mi.Vector3f(*dirs[i])))
             for _ in range(spp):
