@@ -2,7 +2,8 @@
 
 Each pixel's ray is marched once, from where it enters the atmosphere (or the observer) to where it
 leaves the atmosphere (100 km) or meets the ground, in three segments with fixed step counts: clear air
-before the model grid, the grid, and clear air after it. Along the way the kernel accumulates
+before the model grid, the grid (its steps concentrated where there are hydrometeors, raised terrain or
+aerosol gradients: :func:`adaptive_step_edges`), and clear air after it. Along the way the kernel accumulates
 
 * the clear-sky radiance of the gas and the aerosol: single scattering (Step 2, Eq. 3), lit by the sun
   through the spherical atmosphere (tabulated, :mod:`swim.rt.gas`) and through the clouds (T of Step 1a,
