@@ -56,19 +56,22 @@ class _StageCache:
     the atmosphere) stay the same.
 
     A time series, several cameras on one scene or a fly-through would otherwise rebuild them every frame,
-    which on a big grid takes longer than the ray march (docs/performance.md). One entry of each kind, and
-    an entry is dropped before its replacement is built, so the cache never holds two grids at once."""
+    which on a big grid takes longer than the ray march (docs/performance.md). Keys are (kind, scene
+    fingerprint, ...); one entry of each kind. Before an entry is rebuilt, it and every entry of another
+    scene are dropped, so the cache never holds two grids at once."""
 
     def __init__(self):
         self._entries = {}
 
     def get(self, key, build):
-        kind = key[0]
+        kind, fingerprint = key[:2]
         entry = self._entries.get(kind)
         if entry is not None and entry[0] == key:
             log.info("reusing the %s of the previous render", kind)
             return entry[1]
-        self._entries.pop(kind, None)
+        for other in list(self._entries):
+            if other == kind or self._entries[other][0][1] != fingerprint:
+                del self._entries[other]
         value = build()
         self._entries[kind] = (key, value)
         return value
@@ -102,8 +105,7 @@ def _check_observer_reach(volume, indices, height_asl):
     _, ny, nx = geometry.shape
     i, j = indices
     outside = np.hypot(max(0.0, -i, i - (nx - 1)), max(0.0, -j, j - (ny - 1)))
-    spacing = float(np.sqrt(abs(np.linalg.det(geometry.matrix))))
-    distance = outside * spacing
+    distance = outside * geometry.spacing
     horizon = np.sqrt(2 * EARTH_RADIUS_M * max(height_asl, 0.0)) + np.sqrt(2 * EARTH_RADIUS_M * max(geometry.top, 0.0))
     if distance > horizon:
         raise SwimInputError(
@@ -251,7 +253,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     observer = geodetic_to_scene(lat, lon, height_asl, lat0, lon0)
     sun_enu_observer = sun_scene @ rotation.T
 
-    transmittance = _STAGE_CACHE.get(("transmittance", fingerprint, tuple(np.round(sun_scene, 12))),
+    sun_key = tuple(np.round(sun_scene, 12))
+    transmittance = _STAGE_CACHE.get(("transmittance", fingerprint, sun_key),
                                      lambda: solar_transmittance(volume, sun_scene))
     if aerosol is None:
         aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene_vars else AerosolBackground()
@@ -268,7 +271,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                            scene_aerosol_profile=(levels, aer3d) if np.any(aer3d > 0) else None,
                            aerosol_class_aod=classes)
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives.
-    consts, _ = _STAGE_CACHE.get(("constants", fingerprint, tuple(np.round(sun_scene, 12)), id(gas)),
+    consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas)),
                                  lambda: (kernel_constants(volume, transmittance, gas, sun_scene), gas))
     geometry = grid_geometry(volume)
 

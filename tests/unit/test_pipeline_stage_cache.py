@@ -38,3 +38,21 @@ def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
     assert "reusing" not in caplog.text
     assert float(np.nanmax(clear["tau_hydrometeor"].values)) == 0.0
     assert float(np.nanmax(first["tau_hydrometeor"].values)) > 1.0
+
+
+def test_a_new_scene_drops_the_old_scenes_entries_before_building():
+    cache = pipeline._StageCache()
+    cache.get(("volume", "scene A"), lambda: "volume A")
+    cache.get(("transmittance", "scene A", (0, 0, 1)), lambda: "T A")
+    cache.get(("constants", "scene A", (0, 0, 1), 7), lambda: "constants A")
+
+    def build_b():
+        # nothing of scene A may still be held while scene B's (big) volume is built
+        assert cache._entries == {}
+        return "volume B"
+
+    assert cache.get(("volume", "scene B"), build_b) == "volume B"
+    # same scene, new sun: the volume stays, Step 1a is rebuilt
+    cache.get(("transmittance", "scene B", (0, 0, 1)), lambda: "T B")
+    assert cache.get(("transmittance", "scene B", (0, 1, 0)), lambda: "T B2") == "T B2"
+    assert cache.get(("volume", "scene B"), lambda: "rebuilt") == "volume B"

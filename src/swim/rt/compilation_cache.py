@@ -35,6 +35,12 @@ def cache_directory(kind: str = "jax") -> Path:
     return (Path(xdg) if xdg else Path.home() / ".cache") / "swim" / kind
 
 
+def package_sources() -> list[Path]:
+    """Every Python file of the swim package: a result keyed by all of them is rebuilt after any code change
+    (the tables depend on the optics modules as well as on the module that builds them)."""
+    return sorted(Path(__file__).resolve().parents[1].rglob("*.py"))
+
+
 def disk_cached(kind: str, key, build, sources=()):
     """``build()``, or its pickled result from an earlier process with the same ``key`` and code.
 

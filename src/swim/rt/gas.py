@@ -42,8 +42,7 @@ from ..errors import SwimInputError
 from ..optics.aerosol_types import aerosol_type
 from ..optics.atmosphere import us_standard_atmosphere_1976
 from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio, rayleigh_phase_function
-from . import multiple_scattering
-from .compilation_cache import disk_cached
+from .compilation_cache import disk_cached, package_sources
 from .multiple_scattering import DiffuseSourceTable, diffuse_source_table
 
 
@@ -319,7 +318,7 @@ def _profile_key(profile):
 def _build_gas_tables_cached(*args) -> GasTables:
     """Cached worker of :func:`build_gas_tables`: in memory, and on disk across processes
     (:func:`swim.rt.compilation_cache.disk_cached`), because the successive-orders tables take seconds."""
-    return disk_cached("gas", args, lambda: _build_gas_tables(*args), sources=(__file__, multiple_scattering.__file__))
+    return disk_cached("gas", args, lambda: _build_gas_tables(*args), sources=package_sources())
 
 
 def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_albedo,

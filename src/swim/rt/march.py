@@ -81,7 +81,7 @@ class MarchSettings:
         Steps through clear air before the model grid (e.g. from space down to the grid top).
     n_grid : int
         Steps through the model grid, concentrated where there are hydrometeors, raised terrain or aerosol
-        gradients (:func:`adaptive_step_edges`): 128 adaptive steps are as accurate as 256 equal ones were
+        gradients (:func:`adaptive_step_edges`): 128 adaptive steps are about as accurate as 256 equal ones were
         (docs/performance.md).
     n_after : int
         Steps through clear air after the grid (to the top of the atmosphere or the ground).
@@ -121,6 +121,11 @@ class GridGeometry:
     shape: tuple  # (nk, ny, nx)
     top: float
     affine_residual_cells: float = 0.0
+
+    @property
+    def spacing(self) -> float:
+        """Horizontal grid spacing [m]: the square root of a cell's area."""
+        return float(np.sqrt(abs(np.linalg.det(self.matrix))))
 
 
 def grid_geometry(volume) -> GridGeometry:
@@ -742,7 +747,7 @@ def occupancy_grid(volume):
     from scipy.ndimage import maximum_filter, minimum_filter
 
     dz = float(volume.attrs["dz"])
-    spacing = float(np.sqrt(abs(np.linalg.det(np.asarray(volume.attrs["affine_matrix"], dtype=float).reshape(2, 2)))))
+    spacing = grid_geometry(volume).spacing
     # numpy sums: xarray's NaN-skipping sum copies the whole (species, level, y, x) array first
     occupied = volume["extinction"].values.sum(axis=0) > OCCUPIED_EXTINCTION
     terrain = volume["terrain_height"].values
