@@ -275,8 +275,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                                  lambda: (kernel_constants(volume, transmittance, gas, sun_scene), gas))
     geometry = grid_geometry(volume)
 
-    # One extra ray towards the sun gives the direct-beam transmittance for the sun's disk.
-    all_dirs = np.vstack([dirs_scene, sun_scene[None]])
+    # Only the camera's valid pixels are traced (an all-sky image's corners are 21 % of its pixels), plus one
+    # extra ray towards the sun for the direct-beam transmittance of the sun's disk.
+    traced = valid.reshape(-1)
+    all_dirs = np.vstack([dirs_scene[traced], sun_scene[None]])
     origins = np.broadcast_to(observer, all_dirs.shape)
     cos_theta = all_dirs @ sun_scene
     ray_phase = {
@@ -287,7 +289,12 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "p_stratospheric": np.asarray(aerosol.stratospheric.phase_function(cos_theta)),
     }
     log.info("tracing %d rays (%s camera %s)", len(all_dirs), camera, cam.shape)
-    out = trace_rays(origins, all_dirs, consts, geometry, ray_phase, settings, progress)
+    traced_out = trace_rays(origins, all_dirs, consts, geometry, ray_phase, settings, progress)
+    out = {}
+    for key, value in traced_out.items():
+        full = np.zeros((traced.size + 1,) + value.shape[1:], value.dtype)
+        full[np.append(traced, True)] = value
+        out[key] = full
 
     ny, nx = cam.shape
     t_direct = np.exp(-(out["tau_clear"][-1] + out["tau_hydrometeor"][-1]))

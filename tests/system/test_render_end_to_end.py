@@ -104,6 +104,13 @@ def test_default_scene_renders_with_no_file():
     rgb = image["rgb"].values
     assert rgb.dtype == np.uint8 and rgb.shape == (63, 63, 3)
     assert rgb.max() > 100
+    # Only the fisheye circle (and one ray to the sun) is traced: the corners cost nothing and stay empty.
+    inside = np.isfinite(image["radiance"].values[0])
+    assert not inside[0, 0] and inside[31, 31]
+    n_traced = int(inside.sum()) + 1
+    assert 0.7 * 63 * 63 < n_traced < 0.85 * 63 * 63
+    samples = image.attrs["march_samples"]
+    assert samples % n_traced == 0 and samples // n_traced <= 32 + 128 + 48
 
 
 def test_observer_under_terrain_or_out_of_reach_is_rejected():

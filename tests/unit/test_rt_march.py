@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from swim.errors import SwimInputError
 from swim.constants import EARTH_RADIUS_M
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
@@ -173,3 +174,9 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
     expected = 0.2 * strat.stratospheric.extinction_factor(np.array([615.0, 546.0, 450.0]))
     np.testing.assert_allclose(layer["tau_clear"][0] - base["tau_clear"][0], expected, rtol=0.01)
     assert np.all(layer["radiance_clear"][0] > base["radiance_clear"][0] * 1.1)
+
+
+@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5)])
+def test_march_settings_reject_bad_counts(field, value):
+    with pytest.raises(SwimInputError, match=f"MarchSettings.{field}"):
+        MarchSettings(**{field: value})

@@ -105,6 +105,10 @@ class MarchSettings:
     surface: str = "brdf"
 
     def __post_init__(self):
+        for name in ("n_before", "n_grid", "n_after", "chunk"):
+            value, least = getattr(self, name), 1 if name == "chunk" else 0
+            if not isinstance(value, (int, np.integer)) or value < least:
+                raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
         if self.surface not in SURFACE_MODELS:
             raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
 
