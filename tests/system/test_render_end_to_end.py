@@ -158,3 +158,17 @@ def test_cli_rejects_an_unknown_aerosol_type(tmp_path):
     out = tmp_path / "x.png"
     result = CliRunner().invoke(app, ["render", "--size", "31", "--aerosol", "volcanic_ash", "--out", str(out)])
     assert result.exit_code == 2 and "continental" in result.output and not out.exists()
+
+
+def test_cli_renders_a_scene_file_lazily(tmp_path):
+    scene_file = tmp_path / "scene.nc"
+    swim.default_scene().to_netcdf(scene_file)
+    runner = CliRunner()
+    out = tmp_path / "lazy.png"
+    result = runner.invoke(app, ["render", str(scene_file), "--lazy", "--size", "31", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert out.exists()
+    bad = tmp_path / "bad.png"
+    result = runner.invoke(app, ["render", "--lazy", "--size", "31", "--out", str(bad)])
+    assert result.exit_code == 2 and "--lazy needs a scene file" in result.output
+    assert not bad.exists()

@@ -1,6 +1,7 @@
 """Unit tests of swim.io.scene (validation, scene_from_arrays, open_scene) and swim.io.default_scene."""
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -402,3 +403,32 @@ def test_default_scene_recipe():
 def test_default_scene_is_deterministic():
     a, b = default_scene(), default_scene()
     xr.testing.assert_identical(a, b)
+
+
+def test_lazy_open_reads_nothing_until_render_and_renders_the_same(tmp_path):
+    import dask.array
+
+    import swim
+
+    path = tmp_path / "scene.nc"
+    default_scene().to_netcdf(path)
+    lazy = open_scene(path, lazy=True, time=str(default_scene()["time"].values))
+    assert isinstance(lazy["cloud_liquid_content"].data, dask.array.Array)
+    assert lazy.attrs["source"] != "unknown"
+    options = dict(camera="allsky", camera_options={"size": 31})
+    eager_image = swim.render(open_scene(path), **options)
+    lazy_image = swim.render(lazy, **options)
+    np.testing.assert_allclose(lazy_image["radiance"].values, eager_image["radiance"].values, rtol=1e-6, atol=1e-9)
+
+
+def test_lazy_open_rejects_what_it_cannot_open_lazily(tmp_path):
+    katrina = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "wrf_katrina" / "ci_test_file.nc"
+    if katrina.is_file():
+        with pytest.raises(SwimInputError, match="lazy=True.*not a canonical scene"):
+            open_scene(katrina, lazy=True)
+    path = tmp_path / "scene.nc"
+    default_scene().to_netcdf(path)
+    with pytest.raises(SwimInputError, match="month"):
+        open_scene(path, lazy=True, month=7)
+    with pytest.raises(SwimInputError, match="holds only"):
+        open_scene(path, lazy=True, time="2001-01-01T00:00")

@@ -62,7 +62,10 @@ def render(
     strat_height: float = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km]."),
     white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
                                                              "4 above 100 km)."),
-    steps: int = typer.Option(256, help="Ray-marching steps through the model grid."),
+    steps: Optional[int] = typer.Option(None, help="Ray-marching steps through the model grid (default: "
+                                                    "MarchSettings().n_grid, 128 adaptive steps)."),
+    lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
+                                                    "columns the camera can see (big grids; docs/rendering.md)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -88,7 +91,9 @@ def render(
             if scene is None or scene.suffix.lower() not in (".txt", ".lwc", ".dat"):
                 raise SwimInputError("--scene-lat/--scene-lon place LES text scenes only; other scenes carry coordinates")
             place = {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
-        ds = default_scene() if scene is None else open_scene(scene, time=time, **place)
+        if lazy and scene is None:
+            raise SwimInputError("--lazy needs a scene file (a canonical scene netCDF file)")
+        ds = default_scene() if scene is None else open_scene(scene, lazy=lazy, time=time, **place)
         if albedo_image is not None:
             from ..surface.albedo import scene_with_albedo_from_image
 
@@ -129,7 +134,7 @@ def render(
             image = render_image(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                settings=MarchSettings(n_grid=steps, surface=surface),
+                settings=MarchSettings(surface=surface, **({} if steps is None else {"n_grid": steps})),
                 white_level=white_level,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )

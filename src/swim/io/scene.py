@@ -816,7 +816,43 @@ def _is_wps(ds: xr.Dataset) -> bool:
     return {"HGT_M", "XLAT_M", "XLONG_M"} <= set(ds.variables)
 
 
-def open_scene(path, **kwargs) -> xr.Dataset:
+def _check_scene_time(scene, time, p):
+    """Raise unless a requested time is within 1.5 h of the scene's."""
+    if time is None:
+        return
+    if "time" not in scene.coords:
+        raise SwimInputError(f"time={time!r} requested but scene file {p.name} has no time")
+    want = to_utc_datetime64(time)
+    have = scene["time"].values
+    if abs(have - want) > np.timedelta64(90, "m"):
+        raise SwimInputError(f"time={time!r}: scene file {p.name} holds only {pd.Timestamp(have)} UTC")
+
+
+def _open_scene_lazily(p, time=None, **kwargs):
+    """A canonical scene file opened with dask arrays, checked for names and dimensions only (see open_scene)."""
+    if kwargs:
+        raise SwimInputError(f"open_scene(lazy=True): options {sorted(kwargs)} do not apply to a canonical scene file")
+    try:
+        ds = xr.open_dataset(p, chunks={})
+    except Exception as exc:  # noqa: BLE001 - any backend failure means "not a readable netCDF file"
+        raise SwimInputError(f"scene file {p} cannot be read as netCDF: {exc}") from exc
+    if not {"height", "lat", "lon"} <= set(ds.variables):
+        ds.close()
+        raise SwimInputError(
+            f"open_scene(lazy=True): scene file {p.name} is not a canonical scene (height, lat, lon); WRF, WPS and "
+            "LES files are read eagerly: open them with lazy=False, or write the scene with Dataset.to_netcdf first")
+    missing = [d for d in ("z", "y", "x") if d not in ds.dims]
+    if missing:
+        ds.close()
+        raise SwimInputError(f"scene file {p.name}: dimensions {missing} missing; a scene has (z, y, x) "
+                             "(docs/scene-format.md)")
+    _check_scene_time(ds, time, p)
+    if ds.attrs.get("source", "unknown") == "unknown":
+        ds.attrs["source"] = str(p)
+    return ds
+
+
+def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     """Open a scene file of any supported kind and return the validated canonical scene.
 
     Dispatch: a netCDF file with WRF variables/attributes (``PH``, ``PHB``, ``Times`` or a WRF ``TITLE``) goes to
@@ -830,6 +866,11 @@ def open_scene(path, **kwargs) -> xr.Dataset:
     ----------
     path : str or os.PathLike
         File to open.
+    lazy : bool
+        Canonical scene files only: open the fields as dask arrays and return the scene unvalidated, so that
+        :func:`swim.render` crops it to what the camera can see before anything is read in full (the way to
+        render CONUS-size grids in a few GB; docs/rendering.md, "Cropping big grids"). Only the names, the
+        dimensions and the time are checked here; :func:`swim.render` validates the cropped scene.
     **kwargs
         Passed to the reader (``time=`` for WRF; ``time=``, ``month=``, ``albedo_band=``, ``snow_above_m=`` for
         WPS files; ``reference_lat=``, ``reference_lon=``, ``time=`` for LES).
@@ -848,6 +889,8 @@ def open_scene(path, **kwargs) -> xr.Dataset:
     p = Path(path)
     if not p.is_file():
         raise SwimInputError(f"scene file not found: {p}")
+    if lazy:
+        return _open_scene_lazily(p, **kwargs)
     suffix = p.suffix.lower()
     if suffix in _LES_SUFFIXES:
         from .les import read_shdom_les
@@ -877,13 +920,7 @@ def open_scene(path, **kwargs) -> xr.Dataset:
             if kwargs:
                 raise SwimInputError(f"open_scene: options {sorted(kwargs)} do not apply to a canonical scene file")
             scene = validate_scene(ds.load())
-            if time is not None:
-                if "time" not in scene.coords:
-                    raise SwimInputError(f"time={time!r} requested but scene file {p.name} has no time")
-                want = to_utc_datetime64(time)
-                have = scene["time"].values
-                if abs(have - want) > np.timedelta64(90, "m"):
-                    raise SwimInputError(f"time={time!r}: scene file {p.name} holds only {pd.Timestamp(have)} UTC")
+            _check_scene_time(scene, time, p)
             if scene.attrs["source"] == "unknown":
                 scene.attrs["source"] = str(p)
             return scene
