@@ -11,7 +11,7 @@ from ..errors import SwimInputError
 __all__ = ["open_netcdf"]
 
 
-def open_netcdf(path, kind: str) -> xr.Dataset:
+def open_netcdf(path, kind: str, chunks=None) -> xr.Dataset:
     """Open a netCDF file lazily, or raise :class:`~swim.errors.SwimInputError` naming ``kind`` and the file.
 
     Parameters
@@ -20,6 +20,8 @@ def open_netcdf(path, kind: str) -> xr.Dataset:
         The file.
     kind : str
         What the file should be, for the message (e.g. ``"WRF file"``).
+    chunks : dict, optional
+        Passed to :func:`xarray.open_dataset`: ``{}`` makes the variables dask arrays (read on demand).
 
     Returns
     -------
@@ -35,6 +37,6 @@ def open_netcdf(path, kind: str) -> xr.Dataset:
     if not p.is_file():
         raise SwimInputError(f"{kind} not found: {p}")
     try:
-        return xr.open_dataset(p)
+        return xr.open_dataset(p, chunks=chunks)
     except Exception as exc:  # noqa: BLE001 - any backend failure means "not a readable netCDF file"
         raise SwimInputError(f"{kind} {p} cannot be read as netCDF: {exc}") from exc

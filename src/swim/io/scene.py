@@ -816,26 +816,36 @@ def _is_wps(ds: xr.Dataset) -> bool:
     return {"HGT_M", "XLAT_M", "XLONG_M"} <= set(ds.variables)
 
 
-def _check_scene_time(scene, time, p):
-    """Raise unless a requested time is within 1.5 h of the scene's."""
-    if time is None:
-        return
-    if "time" not in scene.coords:
-        raise SwimInputError(f"time={time!r} requested but scene file {p.name} has no time")
-    want = to_utc_datetime64(time)
-    have = scene["time"].values
-    if abs(have - want) > np.timedelta64(90, "m"):
-        raise SwimInputError(f"time={time!r}: scene file {p.name} holds only {pd.Timestamp(have)} UTC")
+def _canonical_time(kwargs):
+    """The ``time=`` option of a canonical scene file; no other reader option applies to one."""
+    options = dict(kwargs)
+    time = options.pop("time", None)
+    if options:
+        raise SwimInputError(f"open_scene: options {sorted(options)} do not apply to a canonical scene file")
+    return time
 
 
-def _open_scene_lazily(p, time=None, **kwargs):
+def _canonical_scene(scene, p, time):
+    """Finish a canonical scene read from file p: a requested time must be within 1.5 h of the scene's, and an
+    unknown source becomes the file's path."""
+    if time is not None:
+        if "time" not in scene.coords:
+            raise SwimInputError(f"time={time!r} requested but scene file {p.name} has no time")
+        want = to_utc_datetime64(time)
+        have = scene["time"].values
+        if abs(have - want) > np.timedelta64(90, "m"):
+            raise SwimInputError(f"time={time!r}: scene file {p.name} holds only {pd.Timestamp(have)} UTC")
+    if scene.attrs.get("source", "unknown") == "unknown":
+        scene.attrs["source"] = str(p)
+    return scene
+
+
+def _open_scene_lazily(p, **kwargs):
     """A canonical scene file opened with dask arrays, checked for names and dimensions only (see open_scene)."""
-    if kwargs:
-        raise SwimInputError(f"open_scene(lazy=True): options {sorted(kwargs)} do not apply to a canonical scene file")
-    try:
-        ds = xr.open_dataset(p, chunks={})
-    except Exception as exc:  # noqa: BLE001 - any backend failure means "not a readable netCDF file"
-        raise SwimInputError(f"scene file {p} cannot be read as netCDF: {exc}") from exc
+    from .files import open_netcdf
+
+    time = _canonical_time(kwargs)
+    ds = open_netcdf(p, "scene file", chunks={})
     if not {"height", "lat", "lon"} <= set(ds.variables):
         ds.close()
         raise SwimInputError(
@@ -846,10 +856,7 @@ def _open_scene_lazily(p, time=None, **kwargs):
         ds.close()
         raise SwimInputError(f"scene file {p.name}: dimensions {missing} missing; a scene has (z, y, x) "
                              "(docs/scene-format.md)")
-    _check_scene_time(ds, time, p)
-    if ds.attrs.get("source", "unknown") == "unknown":
-        ds.attrs["source"] = str(p)
-    return ds
+    return _canonical_scene(ds, p, time)
 
 
 def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
@@ -916,14 +923,8 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
             ds.load()
             return read_wps_geogrid(ds, source=str(p), **kwargs)
         if {"height", "lat", "lon"} <= set(ds.variables):
-            time = kwargs.pop("time", None)
-            if kwargs:
-                raise SwimInputError(f"open_scene: options {sorted(kwargs)} do not apply to a canonical scene file")
-            scene = validate_scene(ds.load())
-            _check_scene_time(scene, time, p)
-            if scene.attrs["source"] == "unknown":
-                scene.attrs["source"] = str(p)
-            return scene
+            time = _canonical_time(kwargs)
+            return _canonical_scene(validate_scene(ds.load()), p, time)
     raise SwimInputError(
         f"scene file {p.name} is netCDF but neither WRF output (PH, PHB, Times), WPS geo_em/met_em output (HGT_M, "
         "XLAT_M, XLONG_M) nor a canonical scene (height, lat, lon)"
