@@ -57,7 +57,10 @@ def main(argv=None):
         r = json.loads(proc.stdout.strip().splitlines()[-1])
         results[name] = r
         print(f"{name:32s} {r['cold_s']:9.2f} {r['warm_s']:9.2f} {r['pixels'] / r['warm_s'] / 1e6:8.3f} {r['peak_rss_mb']:14.0f}")
-    (ROOT / "benchmarks" / "results.json").write_text(json.dumps(results, indent=2))
+    # Cases not run this time keep their previous figures.
+    path = ROOT / "benchmarks" / "results.json"
+    previous = json.loads(path.read_text()) if path.is_file() else {}
+    path.write_text(json.dumps({**previous, **results}, indent=2))
 
 
 if __name__ == "__main__":
