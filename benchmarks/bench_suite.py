@@ -43,6 +43,7 @@ KATRINA_ALLSKY = {"lat": 24.7, "lon": -88.6, "height": 2.0}
 KATRINA_PANORAMA = {"lat": 24.2, "lon": -89.0, "height": 3000.0}  # the README's panorama vantage
 RICO_VIEW = {"height": 2.0, "sun_zenith": 30.0, "sun_azimuth": 135.0}  # swim.validation.mitsuba rico_ground_sza30
 GROUND = {"height": 2.0}  # at the scene's reference point (the domain centre)
+ADAPTIVE = {"tolerance": 0.01, "coarse_spacing": 4}  # swim.rt.image_sampling.AdaptiveSampling() defaults
 
 CASES = {
     "katrina_allsky": {"kind": "render", "scene": "katrina", "camera": "allsky", "image": (1024, 1024), "view": KATRINA_ALLSKY},
@@ -52,6 +53,14 @@ CASES = {
     "synthetic_allsky": {"kind": "render", "scene": "synthetic", "camera": "allsky", "image": (1024, 1024), "view": GROUND},
     "synthetic_panorama": {"kind": "render", "scene": "synthetic", "camera": "panorama", "image": (2048, 1024), "view": GROUND},
     "conus_allsky": {"kind": "render", "scene": "conus", "camera": "allsky", "image": (1024, 1024), "view": GROUND, "crop": True},
+    # adaptive image sampling (swim.rt.image_sampling): timed like the others, then compared with one render of
+    # every pixel (not timed)
+    "katrina_allsky_adaptive": {"kind": "render", "scene": "katrina", "camera": "allsky", "image": (1024, 1024),
+                                "view": KATRINA_ALLSKY, "sampling": ADAPTIVE},
+    "synthetic_allsky_adaptive": {"kind": "render", "scene": "synthetic", "camera": "allsky", "image": (1024, 1024),
+                                  "view": GROUND, "sampling": ADAPTIVE},
+    "conus_allsky_adaptive": {"kind": "render", "scene": "conus", "camera": "allsky", "image": (1024, 1024), "view": GROUND,
+                              "crop": True, "sampling": ADAPTIVE},
     "series": {"kind": "series", "scene": "katrina", "camera": "allsky", "image": (512, 512), "view": KATRINA_ALLSKY,
                "frames": 24, "step_min": 10.0, "start": "2005-08-28T16:00", "wind_m_s": 10.0},
     "scaling_pixels": {"kind": "scaling_pixels", "scene": "synthetic", "camera": "allsky", "sizes": [128, 256, 512, 1024], "view": GROUND},
@@ -204,7 +213,24 @@ def render_kwargs(spec, image=None):
     kw = dict(spec["view"], camera=spec["camera"], camera_options=camera_options(spec["camera"], image or spec["image"]))
     if spec.get("crop") and "crop" in inspect.signature(swim.render).parameters:
         kw["crop"] = True
+    if spec.get("sampling"):
+        from swim.rt.image_sampling import AdaptiveSampling
+
+        kw["sampling"] = AdaptiveSampling(**spec["sampling"])
     return kw
+
+
+def adaptive_errors(image, full):
+    """Relative radiance error of an adaptively sampled image against every pixel traced, and 8-bit RGB
+    differences."""
+    import numpy as np
+
+    a, f = image["radiance"].values, full["radiance"].values
+    ok = np.isfinite(f)
+    rel = np.abs(a[ok] - f[ok]) / np.maximum(np.abs(f[ok]), 1e-3)
+    d8 = np.abs(image["rgb"].values.astype(int) - full["rgb"].values.astype(int))
+    return {"median": float(np.median(rel)), "p99": float(np.percentile(rel, 99)), "max": float(rel.max()),
+            "rgb_max": int(d8.max()), "rgb_frac_over_2": float(np.mean(d8 > 2))}
 
 
 def crop_used(kw):
@@ -246,9 +272,18 @@ def run_render(spec, probe):
     warm = statistics.median(runs)
     ny, nx = image["rgb"].shape[:2]
     rays = ny * nx + 1  # every pixel (all-sky corners too) plus the ray towards the sun
-    return {"image": [nx, ny], "rays": rays, "grid": _grid(scene), "scene_s": scene_s, "cold_s": cold, "warm_s": warm, "warm_runs": runs,
-            "compile_est_s": cold - warm, "jax_compile_s": cold_compile, "jax_compile_warm_s": warm_compile,
-            "crop": crop_used(kw), **throughput(image, rays, warm)}
+    out = {"image": [nx, ny], "rays": rays, "grid": _grid(scene), "scene_s": scene_s, "cold_s": cold, "warm_s": warm, "warm_runs": runs,
+           "compile_est_s": cold - warm, "jax_compile_s": cold_compile, "jax_compile_warm_s": warm_compile,
+           "crop": crop_used(kw), **throughput(image, rays, warm)}
+    if "traced_pixels" in image.attrs:
+        out["traced_pixels"] = int(image.attrs["traced_pixels"])
+    if "sampling" in kw:
+        every = {key: value for key, value in kw.items() if key != "sampling"}
+        swim.render(scene, **every)  # warm: compiled for this image's batches as the adaptive render was
+        full, full_s, _, _ = timed(probe, swim.render, scene, **every)
+        out.update(sampling=spec["sampling"], full_warm_s=full_s, full_traced_pixels=int(full.attrs["traced_pixels"]),
+                   adaptive_error=adaptive_errors(image, full))
+    return out
 
 
 def _render_frame(scene, kw, t):
@@ -580,8 +615,15 @@ def _notes(r):
         e, n = r["equal_error"], r["equal_noise"]
         return (f"MC/swim time: {e['ratio']:.3g} at equal error ({100 * e['target']:.1f} %, {e['spp']:.3g} spp), "
                 f"{n['ratio']:.3g} at equal noise ({100 * n['target']:.0f} %, {n['spp']:.3g} spp)")
+    adaptive = ""
+    if "adaptive_error" in r:
+        e = r["adaptive_error"]
+        adaptive = (f"adaptive: {r['traced_pixels']:,} of {r['full_traced_pixels']:,} pixels traced, every pixel "
+                    f"{r['full_warm_s']:.1f} s; error median {100 * e['median']:.2f} %, p99 {100 * e['p99']:.2f} %, "
+                    f"max {100 * e['max']:.1f} %, RGB max {e['rgb_max']}")
     return "; ".join(filter(None, [f"grid {'x'.join(map(str, r['grid']))}" if r.get("grid") else "",
-                                   f"scene load {r['scene_s']:.1f} s" if "scene_s" in r else "", "crop" if r.get("crop") else ""]))
+                                   f"scene load {r['scene_s']:.1f} s" if "scene_s" in r else "", "crop" if r.get("crop") else "",
+                                   adaptive]))
 
 
 def markdown(doc):

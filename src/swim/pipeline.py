@@ -27,6 +27,7 @@ from .io.scene import validate_scene
 from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
+from .rt.image_sampling import AdaptiveSampling, sample_image_adaptive
 from .rt.march import MarchSettings, aerosol_column_optical_depth, grid_geometry, kernel_constants, trace_rays
 from .rt.solar import solar_transmittance
 
@@ -154,7 +155,7 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
            aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
-           white_level=None, progress=None, crop: bool = True) -> xr.Dataset:
+           white_level=None, progress=None, crop: bool = True, sampling: AdaptiveSampling | None = None) -> xr.Dataset:
     """Render what a camera at a vantage point sees in a scene.
 
     Parameters
@@ -194,6 +195,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         grids"), so a big (or dask-backed) grid is never loaded in full. Not done for a perspective camera
         without ``view_azimuth_deg``/``view_zenith_deg`` in ``camera_options`` (its view comes from the whole
         grid), nor when the rays reach more than 90 % of the columns. False renders the whole grid.
+    sampling : AdaptiveSampling, optional
+        Trace a coarse lattice of pixels and only refine where the image is not smooth, interpolating the
+        rest (:func:`swim.rt.image_sampling.sample_image_adaptive`; docs/rendering.md, "Adaptive
+        sampling"): 2-5x fewer rays on typical scenes, within the sampling's tolerance where it interpolates.
+        Default: every valid pixel is traced.
 
     Returns
     -------
@@ -201,7 +207,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         ``radiance`` (wavelength, y, x) [1]: solar-relative spectral radiance L' (Eq. 2) at 615/546/450 nm;
         ``rgb`` (y, x, channel) uint8 sRGB; ``view_azimuth``, ``view_zenith`` (y, x) [deg] in the observer's
         frame; ``tau_hydrometeor`` (y, x); ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``;
-        attributes with the sun, observer, time and camera.
+        attributes with the sun, observer, time and camera, and ``traced_pixels`` (pixels whose ray was
+        marched) and ``march_samples`` (steps marched in all).
 
     Raises
     ------
@@ -275,35 +282,53 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                                  lambda: (kernel_constants(volume, transmittance, gas, sun_scene), gas))
     geometry = grid_geometry(volume)
 
+    def trace_directions(dirs, progress_rays):
+        cos_theta = dirs @ sun_scene
+        ray_phase = {
+            "cos_theta": cos_theta,
+            "cos_view_zenith": dirs[:, 2],
+            "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
+            "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta)),
+            "p_stratospheric": np.asarray(aerosol.stratospheric.phase_function(cos_theta)),
+        }
+        return trace_rays(np.broadcast_to(observer, dirs.shape), dirs, consts, geometry, ray_phase, settings,
+                          progress_rays)
+
     # Only the camera's valid pixels are traced (an all-sky image's corners are 21 % of its pixels), plus one
-    # extra ray towards the sun for the direct-beam transmittance of the sun's disk.
-    traced = valid.reshape(-1)
-    all_dirs = np.vstack([dirs_scene[traced], sun_scene[None]])
-    origins = np.broadcast_to(observer, all_dirs.shape)
-    cos_theta = all_dirs @ sun_scene
-    ray_phase = {
-        "cos_theta": cos_theta,
-        "cos_view_zenith": all_dirs[:, 2],
-        "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
-        "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta)),
-        "p_stratospheric": np.asarray(aerosol.stratospheric.phase_function(cos_theta)),
-    }
-    log.info("tracing %d rays (%s camera %s)", len(all_dirs), camera, cam.shape)
-    traced_out = trace_rays(origins, all_dirs, consts, geometry, ray_phase, settings, progress)
-    out = {}
-    for key, value in traced_out.items():
-        full = np.zeros((traced.size + 1,) + value.shape[1:], value.dtype)
-        full[np.append(traced, True)] = value
-        out[key] = full
+    # extra ray towards the sun for the direct-beam transmittance of the sun's disk (with the first batch).
+    sun_out = {}
+
+    def trace_pixels(flat, progress_rays=None):
+        dirs = np.vstack([dirs_scene[flat], sun_scene[None]]) if not sun_out else dirs_scene[flat]
+        result = trace_directions(dirs, progress_rays)
+        if not sun_out:
+            sun_out.update({key: value[-1] for key, value in result.items()})
+            result = {key: value[:-1] for key, value in result.items()}
+        return result
+
+    if sampling is None:
+        log.info("tracing %d rays (%s camera %s)", int(valid.sum()) + 1, camera, cam.shape)
+        traced = valid.reshape(-1)
+        traced_out = trace_pixels(np.flatnonzero(traced), progress)
+        out = {}
+        for key, value in traced_out.items():
+            out[key] = np.zeros((traced.size,) + value.shape[1:], value.dtype)
+            out[key][traced] = value
+    else:
+        log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, coarse spacing %d)", camera,
+                 cam.shape, int(valid.sum()), sampling.tolerance, sampling.coarse_spacing)
+        out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress)
+        log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
+                 100.0 * traced.sum() / max(int(valid.sum()), 1))
 
     ny, nx = cam.shape
-    t_direct = np.exp(-(out["tau_clear"][-1] + out["tau_hydrometeor"][-1]))
-    if out["surface"][-1]:
+    t_direct = np.exp(-(sun_out["tau_clear"] + sun_out["tau_hydrometeor"]))
+    if sun_out["surface"]:
         t_direct = np.zeros(3)
     mask = valid[None]
 
     def image(key):
-        a = out[key][:-1]
+        a = out[key]
         a = a.reshape(ny, nx, -1).transpose(2, 0, 1) if a.ndim == 2 else a.reshape(ny, nx)[None]
         return np.where(mask, a, np.nan)
 
@@ -355,7 +380,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "aerosol_type": aerosol.type_name,
         "aerosol_optical_depth_550": float(aerosol.aod_550),
         "camera": camera,
-        "march_samples": int(out["steps"].sum()),
+        "march_samples": int(out["steps"].sum() + sun_out["steps"]),
+        "traced_pixels": int(np.count_nonzero(traced)),
+        "sampling": "every pixel" if sampling is None else (
+            f"adaptive (tolerance {sampling.tolerance:g}, coarse spacing {sampling.coarse_spacing}, "
+            f"radiance floor {sampling.radiance_floor:g}, tau floor {sampling.tau_floor:g})"),
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"

@@ -172,3 +172,31 @@ def test_cli_renders_a_scene_file_lazily(tmp_path):
     result = runner.invoke(app, ["render", "--lazy", "--size", "31", "--out", str(bad)])
     assert result.exit_code == 2 and "--lazy needs a scene file" in result.output
     assert not bad.exists()
+
+
+def test_adaptive_sampling_matches_every_pixel_with_fewer_rays(katrina, katrina_allsky):
+    from swim.rt.image_sampling import AdaptiveSampling
+
+    image = swim.render(katrina, time="2005-08-28T18:00", lat=24.7, lon=-88.6, height=2.0, camera="allsky",
+                        camera_options=SMALL, sampling=AdaptiveSampling(tolerance=0.01))
+    full = katrina_allsky["radiance"].values
+    adaptive = image["radiance"].values
+    # the same pixels are valid (the fisheye circle), and the sun's disk is drawn the same way
+    np.testing.assert_array_equal(np.isfinite(adaptive), np.isfinite(full))
+    valid = np.isfinite(full)
+    assert np.argmax(np.where(valid, adaptive, 0)[1]) == np.argmax(np.where(valid, full, 0)[1])
+    rel = np.abs(adaptive[valid] - full[valid]) / np.maximum(full[valid], 1e-3)
+    assert np.median(rel) < 0.002 and np.percentile(rel, 99) < 0.03
+    assert image.attrs["traced_pixels"] < 0.8 * valid[0].sum()
+    assert katrina_allsky.attrs["traced_pixels"] == valid[0].sum()
+    assert image.attrs["sampling"].startswith("adaptive") and katrina_allsky.attrs["sampling"] == "every pixel"
+
+
+def test_cli_renders_adaptively(tmp_path):
+    out = tmp_path / "adaptive.png"
+    result = CliRunner().invoke(app, ["render", "--size", "63", "--adaptive", "--tolerance", "0.02", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert out.exists()
+    bad = tmp_path / "bad.png"
+    result = CliRunner().invoke(app, ["render", "--size", "63", "--adaptive", "--tolerance", "0", "--out", str(bad)])
+    assert result.exit_code == 2 and "tolerance" in result.output and not bad.exists()

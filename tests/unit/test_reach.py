@@ -64,6 +64,28 @@ def test_allsky_window_matches_the_horizon_reach(big_scene):
     assert lo - 2 < 0.5 * (wx0.stop - wx0.start) < _horizon_cells(16_000.0) + 2
 
 
+@pytest.mark.parametrize("kind, options, height", [
+    ("allsky", {"size": 511}, 2.0),
+    ("panorama", {"width": 1024, "height": 512}, 2.0),
+    ("panorama", {"width": 1024, "height": 512}, 9000.0),
+    ("perspective", {"width": 640, "height": 480, "fov_deg": 50.0, "view_azimuth_deg": 60.0, "view_zenith_deg": 95.0},
+     12000.0),
+])
+def test_big_cameras_use_a_subset_of_pixels_with_the_same_window(big_scene, kind, options, height):
+    from swim.geometry import reach
+
+    camera = make_camera(kind, **options)
+    dirs, valid = camera.directions()
+    assert valid.sum() > reach._MAX_SAMPLED_PIXELS  # the subset is used
+    subset = reach._representative_pixels(dirs, valid, 0.0)
+    assert subset.sum() < 0.5 * valid.sum()
+    for sun in ([0.0, 0.0, 1.0], enu_from_azimuth_zenith(250.0, 70.0)):
+        kwargs = dict(height=height, sun_direction=sun, margin_cells=0)
+        # a camera uses the subset; an array of directions is used in full
+        assert reachable_index_window(big_scene, camera, **kwargs) == reachable_index_window(
+            big_scene, dirs, valid=valid, **kwargs)
+
+
 def test_a_higher_observer_sees_further_below_the_horizon(big_scene):
     # A panorama of the horizon: from h the rays that graze the ground leave the shell sqrt(2 R h) further out.
     camera = make_camera("panorama", width=64, height=61, elevation_min_deg=-3.0, elevation_max_deg=3.0)

@@ -66,6 +66,10 @@ def render(
                                                     "MarchSettings().n_grid, 128 adaptive steps)."),
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),
+    adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
+                                  "the image is not smooth, interpolating the rest (big images 2-4x faster; "
+                                  "docs/rendering.md)."),
+    tolerance: float = typer.Option(0.01, help="Relative error allowed where --adaptive interpolates [-]."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -83,6 +87,7 @@ def render(
     from .. import default_scene, open_scene
     from ..pipeline import render as render_image, write_netcdf, write_png
     from ..rt.gas import AerosolBackground
+    from ..rt.image_sampling import AdaptiveSampling
     from ..rt.march import MarchSettings
 
     try:
@@ -121,6 +126,7 @@ def render(
             background = AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
         else:
             background = AerosolBackground(type_name=aerosol, **strat)
+        sampling = AdaptiveSampling(tolerance=tolerance) if adaptive else None
         target = None
         if look_at is not None:
             try:
@@ -135,7 +141,7 @@ def render(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                 settings=MarchSettings(surface=surface, **({} if steps is None else {"n_grid": steps})),
-                white_level=white_level,
+                white_level=white_level, sampling=sampling,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )
         write_png(image, out)

@@ -63,6 +63,10 @@ SAMPLES_PER_RAY = 9
 _MIN_SUN_ELEVATION_SINE = 0.01
 #: Rays processed together (bounds the memory of the samples: rays x samples x 3 float64).
 _RAY_CHUNK = 16384
+#: Pixels of a camera above which the window is computed from a subset of them (:func:`_representative_pixels`).
+_MAX_SAMPLED_PIXELS = 40_000
+#: Half-width of the bands about the horizon and the horizon's dip kept in full, as a sine of elevation (3 deg).
+_HORIZON_BAND_SINE = 0.0523
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -272,11 +276,16 @@ class _Columns:
 # the window
 
 
-def _as_directions(directions, valid):
-    """Unit ENU directions (n, 3) of the valid pixels of a camera or of an array of directions."""
+def _as_directions(directions, valid, dip_sine=0.0):
+    """Unit ENU directions (n, 3) of the valid pixels of a camera or of an array of directions.
+
+    Of a camera with more than :data:`_MAX_SAMPLED_PIXELS` valid pixels only a subset is used
+    (:func:`_representative_pixels`)."""
     if isinstance(directions, Camera):
         dirs, mask = directions.directions()
         valid = mask if valid is None else np.asarray(valid, dtype=bool) & mask
+        if valid.shape == dirs.shape[:-1]:
+            valid = valid & _representative_pixels(dirs, valid, dip_sine)
     else:
         dirs = np.asarray(directions, dtype=float)
     if dirs.ndim < 1 or dirs.shape[-1] != 3:
@@ -292,6 +301,31 @@ def _as_directions(directions, valid):
     norm = np.linalg.norm(dirs, axis=1, keepdims=True)
     ok = norm[:, 0] > 0
     return dirs[ok] / norm[ok]
+
+
+def _representative_pixels(dirs, valid, dip_sine):
+    """The pixels (ny, nx) bool of a camera image whose rays bound the reach as all its pixels do.
+
+    The farthest points of the reach come from the lowest rays above the horizon (and, for an observer
+    above the ground, from the rays that graze the earth below the horizon's dip): every pixel within
+    :data:`_HORIZON_BAND_SINE` of the horizon and of the dip is kept, and so is every pixel on the edge of the
+    valid field (the field of view's borders). Elsewhere every k-th row and column is enough: those rays
+    reach less far than the horizon's at the same azimuth, and neighbouring rays end within a small fraction
+    of a cell of each other. At 1024 x 1024 pixels this takes the window's time from ~5 s to ~1 s.
+    """
+    n = int(valid.sum())
+    stride = int(math.ceil(math.sqrt(n / _MAX_SAMPLED_PIXELS)))
+    if stride <= 1:
+        return valid
+    ny, nx = valid.shape
+    lattice = np.zeros_like(valid)
+    lattice[::stride, ::stride] = True
+    padded = np.pad(valid, 1, constant_values=False)
+    interior = padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:] & valid
+    with np.errstate(invalid="ignore"):
+        up = np.nan_to_num(dirs[..., 2], nan=2.0)
+        near = (np.abs(up) < _HORIZON_BAND_SINE) | (np.abs(up + dip_sine) < _HORIZON_BAND_SINE)
+    return valid & (lattice | ~interior | near)
 
 
 def _observer(lat, lon, height, lat0, lon0):
@@ -335,7 +369,9 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
     box = [float(i0 - 1), float(i0 + 2), float(j0 - 1), float(j0 + 2)]
 
     rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
-    dirs = _as_directions(directions, valid) @ rotation
+    # sine of the depression of the apparent horizon (the rays grazing the sea-level sphere) below the level
+    dip_sine = math.sqrt(max(1.0 - (EARTH_RADIUS_M / (EARTH_RADIUS_M + max(float(patch.max()) + height, 0.0))) ** 2, 0.0))
+    dirs = _as_directions(directions, valid, dip_sine) @ rotation
     if sun_direction is not None:
         sun = np.asarray(sun_direction, dtype=float).reshape(3)
         if not (np.all(np.isfinite(sun)) and np.linalg.norm(sun) > 0):

@@ -829,6 +829,20 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     }
 
 
+#: Smallest batch of rays the kernel is compiled for (:func:`padded_batch_size`).
+MIN_BATCH = 256
+
+
+def padded_batch_size(n, chunk):
+    """Rays a kernel call of n rays marches: ``chunk``, or for a last, smaller batch the next power of two
+    (at least :data:`MIN_BATCH`). The kernel is compiled once per batch size, so a few sizes serve any number
+    of rays (renders of every image size, the batches of adaptive sampling) with at most half of a batch
+    wasted on padding."""
+    if n >= chunk:
+        return chunk
+    return int(min(chunk, max(MIN_BATCH, 1 << int(np.ceil(np.log2(max(n, 1)))))))
+
+
 def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, settings: MarchSettings = MarchSettings(),
                progress=None):
     """March rays and return per-ray radiance components (numpy arrays).
@@ -863,12 +877,14 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     settings = replace(settings, **{name: 0 for name, length in zip(("n_before", "n_grid", "n_after"), lengths.T)
                                     if not np.any(length > 0)})
     n = len(origins)
-    chunk = min(settings.chunk, max(n, 1))
+    if n == 0:
+        raise SwimInputError("trace_rays needs at least one ray, got none")
+    chunk = settings.chunk
     steps = settings.n_before + settings.n_grid + settings.n_after
     outputs = []
     for lo in range(0, n, chunk):
         hi = min(lo + chunk, n)
-        pad = chunk - (hi - lo)
+        pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
 
         def take(a, dtype=np.float32):
             a = np.asarray(a[lo:hi])

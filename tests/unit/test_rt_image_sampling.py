@@ -1,0 +1,143 @@
+"""Adaptive image sampling (swim.rt.image_sampling) on analytic images: exact where interpolation is exact,
+exact at sharp edges, never tracing invalid pixels, over several image shapes."""
+
+import numpy as np
+import pytest
+
+from swim.errors import SwimInputError
+from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive
+
+
+def make_trace(function, shape, calls=None):
+    """A trace callback that evaluates function(y, x) -> (radiance (n, 3), tau (n,), surface (n,)) per pixel."""
+    ny, nx = shape
+
+    def trace(flat):
+        flat = np.asarray(flat)
+        if calls is not None:
+            calls.append(flat.copy())
+        y, x = np.divmod(flat, nx)
+        radiance, tau, surface = function(y.astype(float), x.astype(float))
+        return {"radiance": radiance, "tau_hydrometeor": tau, "surface": surface,
+                "distance": np.where(surface, 100.0 + x, np.nan), "steps": np.full(flat.size, 7, np.int32)}
+
+    return trace
+
+
+def bilinear_function(y, x):
+    """Exactly bilinear in (y, x), so bilinear interpolation of any cell reproduces it."""
+    radiance = np.stack([0.2 + 0.01 * x + 0.003 * y + 1e-4 * x * y, 0.5 + 0.002 * y, 0.1 + 0.0 * x], axis=1)
+    return radiance, 0.5 + 0.01 * y, np.zeros(y.shape, bool)
+
+
+def disk_function(y, x):
+    """A bright ground disk of radius 9 px (a sharp edge) on a uniform sky."""
+    inside = (y - 20.3) ** 2 + (x - 31.7) ** 2 < 9.0**2
+    radiance = np.where(inside[:, None], [2.0, 1.8, 1.5], [0.3, 0.5, 0.9])
+    return radiance, np.where(inside, 5.0, 0.0), inside
+
+
+def exact(function, shape):
+    y, x = np.indices(shape).reshape(2, -1).astype(float)
+    return function(y, x)
+
+
+@pytest.mark.parametrize("shape", [(1, 7), (2, 2), (3, 3), (5, 17), (33, 33), (40, 61), (64, 64)])
+@pytest.mark.parametrize("spacing", [2, 4, 8])
+def test_bilinear_image_is_reproduced_exactly_over_shapes(shape, spacing):
+    sampling = AdaptiveSampling(coarse_spacing=spacing)
+    values, traced = sample_image_adaptive(make_trace(bilinear_function, shape), np.ones(shape, bool), sampling)
+    radiance, tau, _ = exact(bilinear_function, shape)
+    np.testing.assert_allclose(values["radiance"], radiance, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(values["tau_hydrometeor"], tau, rtol=1e-12, atol=1e-12)
+    assert traced.shape == shape
+    # integer outputs (march steps) count the traced pixels only
+    assert np.array_equal(values["steps"] > 0, traced.reshape(-1))
+    if min(shape) > spacing:
+        # every cell is smooth: the lattice and the centre of each cell larger than 2 x 2 pixels are traced
+        rows, cols = (np.unique(np.append(np.arange(0, n, spacing), n - 1)) for n in shape)
+        h, w = np.meshgrid(np.diff(rows), np.diff(cols), indexing="ij")
+        assert traced.sum() == rows.size * cols.size + np.count_nonzero((h > 1) | (w > 1))
+    if min(shape) >= 4 * spacing:
+        assert traced.sum() < 1.5 * 2 / spacing**2 * traced.size
+
+
+@pytest.mark.parametrize("spacing", [4, 8])
+def test_sharp_edge_is_refined_to_single_pixels(spacing):
+    shape = (45, 70)
+    values, traced = sample_image_adaptive(make_trace(disk_function, shape), np.ones(shape, bool),
+                                           AdaptiveSampling(coarse_spacing=spacing))
+    radiance, tau, surface = exact(disk_function, shape)
+    # a disk much larger than a cell: every cell its edge crosses separates some of its corners and centre
+    np.testing.assert_allclose(values["radiance"], radiance, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(values["tau_hydrometeor"], tau, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(values["surface"], surface)
+    np.testing.assert_array_equal(np.isnan(values["distance"]), ~surface)
+    assert traced.sum() < 0.6 * traced.size
+
+
+def test_feature_at_a_cell_centre_is_found():
+    def spot_at_centre(y, x):
+        on = (y == 8) & (x == 8)  # the centre of the first 16-pixel cell
+        radiance = np.where(on[:, None], 1.0, 0.2) * np.ones((1, 3))
+        return radiance, np.zeros(y.shape), np.zeros(y.shape, bool)
+
+    shape = (33, 33)
+    values, _ = sample_image_adaptive(make_trace(spot_at_centre, shape), np.ones(shape, bool),
+                                      AdaptiveSampling(coarse_spacing=16))
+    radiance, _, _ = exact(spot_at_centre, shape)
+    np.testing.assert_allclose(values["radiance"], radiance, rtol=1e-12, atol=0)
+
+
+def test_invalid_pixels_are_never_traced_and_stay_zero():
+    shape = (48, 48)
+    yy, xx = np.indices(shape)
+    valid = (yy - 23.5) ** 2 + (xx - 23.5) ** 2 <= 24.0**2  # an all-sky camera's circle
+    calls = []
+    values, traced = sample_image_adaptive(make_trace(bilinear_function, shape, calls), valid, AdaptiveSampling())
+    asked = np.concatenate(calls)
+    assert valid.reshape(-1)[asked].all()
+    assert np.unique(asked).size == asked.size  # no pixel traced twice
+    assert not traced[~valid].any()
+    radiance, _, _ = exact(bilinear_function, shape)
+    flat_valid = valid.reshape(-1)
+    np.testing.assert_allclose(values["radiance"][flat_valid], radiance[flat_valid], rtol=1e-12, atol=1e-12)
+    assert np.all(values["radiance"][~flat_valid] == 0)
+
+
+def test_tolerance_bounds_the_error_of_a_smooth_curved_image():
+    def curved(y, x):
+        r = 0.3 + 0.5 * np.exp(-((y - 30) ** 2 + (x - 50) ** 2) / 400.0)
+        return np.stack([r, 0.8 * r, 1.2 * r], axis=1), np.zeros(y.shape), np.zeros(y.shape, bool)
+
+    shape = (64, 96)
+    for tolerance in (0.01, 0.002):
+        values, traced = sample_image_adaptive(make_trace(curved, shape), np.ones(shape, bool),
+                                               AdaptiveSampling(tolerance=tolerance))
+        radiance, _, _ = exact(curved, shape)
+        rel = np.abs(values["radiance"] - radiance) / radiance
+        # the centre test bounds the error where it looks; elsewhere the curvature is of the same order
+        assert rel.max() < 2 * tolerance
+        assert traced.sum() < 0.7 * traced.size
+
+
+def test_progress_reaches_all_valid_pixels():
+    shape = (30, 40)
+    seen = []
+    sample_image_adaptive(make_trace(disk_function, shape), np.ones(shape, bool), AdaptiveSampling(),
+                          progress=lambda done, total: seen.append((done, total)))
+    assert seen[-1] == (30 * 40, 30 * 40)
+    assert all(a <= b for (a, _), (b, _) in zip(seen, seen[1:]))
+
+
+@pytest.mark.parametrize("kwargs", [{"tolerance": 0.0}, {"tolerance": -0.1}, {"tolerance": float("nan")},
+                                    {"coarse_spacing": 1}, {"coarse_spacing": 2.5}, {"radiance_floor": -1.0},
+                                    {"tau_floor": float("inf")}])
+def test_bad_settings_raise_naming_the_field(kwargs):
+    with pytest.raises(SwimInputError, match=f"AdaptiveSampling.{next(iter(kwargs))}"):
+        AdaptiveSampling(**kwargs)
+
+
+def test_bad_mask_raises():
+    with pytest.raises(SwimInputError, match="valid"):
+        sample_image_adaptive(make_trace(bilinear_function, (4, 4)), np.ones((4, 4)), AdaptiveSampling())
