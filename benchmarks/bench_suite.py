@@ -111,7 +111,7 @@ def case_spec(name, args):
             spec["view"] = GROUND
         spec["workers"] = args.series_workers
     spec.update(name=name, quick=q, data=str(args.data), results=str(args.results), repeats=args.repeats,
-                mem_limit_gb=args.mem_limit_gb, disk_caches=args.disk_caches)
+                mem_limit_gb=args.mem_limit_gb, disk_caches=args.disk_caches, backend=args.backend)
     return spec
 
 
@@ -176,6 +176,15 @@ def machine_info():
             "numpy": numpy.__version__, "swim": swim.__version__}
 
 
+def march_backend(choice="auto"):
+    """The step-loop kernel a case's renders use (swim.rt.march.MarchSettings.backend, resolved)."""
+    from swim.rt.march import MarchSettings
+
+    if not hasattr(MarchSettings(), "resolved_backend"):
+        return "jax"  # versions before the numba kernel
+    return MarchSettings(backend=choice).resolved_backend()
+
+
 def limit_address_space(gb):
     """RLIMIT_AS for CPU runs: an allocation beyond it raises MemoryError instead of swapping the machine.
     Not on GPUs, whose drivers reserve far more virtual address space than they use."""
@@ -213,6 +222,10 @@ def render_kwargs(spec, image=None):
     kw = dict(spec["view"], camera=spec["camera"], camera_options=camera_options(spec["camera"], image or spec["image"]))
     if spec.get("crop") and "crop" in inspect.signature(swim.render).parameters:
         kw["crop"] = True
+    if spec.get("backend", "auto") != "auto":
+        from swim.rt.march import MarchSettings
+
+        kw["settings"] = MarchSettings(backend=spec["backend"])
     if spec.get("sampling"):
         from swim.rt.image_sampling import AdaptiveSampling
 
@@ -502,6 +515,7 @@ def child(spec_path, out_path):
     try:
         probe = CompileProbe(spec["disk_caches"])
         result["machine"] = machine_info()
+        result["march_backend"] = march_backend(spec.get("backend", "auto"))
         limit_address_space(spec["mem_limit_gb"])
         result.update(RUNNERS[spec["kind"]](spec, probe))
         result["status"] = "ok"
@@ -621,7 +635,8 @@ def _notes(r):
         adaptive = (f"adaptive: {r['traced_pixels']:,} of {r['full_traced_pixels']:,} pixels traced, every pixel "
                     f"{r['full_warm_s']:.1f} s; error median {100 * e['median']:.2f} %, p99 {100 * e['p99']:.2f} %, "
                     f"max {100 * e['max']:.1f} %, RGB max {e['rgb_max']}")
-    return "; ".join(filter(None, [f"grid {'x'.join(map(str, r['grid']))}" if r.get("grid") else "",
+    return "; ".join(filter(None, [f"{r['march_backend']} kernel" if r.get("march_backend") else "",
+                                   f"grid {'x'.join(map(str, r['grid']))}" if r.get("grid") else "",
                                    f"scene load {r['scene_s']:.1f} s" if "scene_s" in r else "", "crop" if r.get("crop") else "",
                                    adaptive]))
 
@@ -698,6 +713,8 @@ def main(argv=None):
     ap.add_argument("--series-workers", type=int, default=0, help="series: also spread the frames over a dask LocalCluster")
     ap.add_argument("--mc-ref-spp", type=int, default=None, help="MC reference paths per pixel (default 4096, quick 1024)")
     ap.add_argument("--mc-max-spp", type=int, default=None, help="largest spp of the MC sweep (default reference spp / 4)")
+    ap.add_argument("--backend", choices=("auto", "jax", "numba"), default="auto",
+                    help="step-loop kernel (MarchSettings.backend; default: numba on CPUs, JAX on GPUs)")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
     ap.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)

@@ -207,8 +207,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         ``radiance`` (wavelength, y, x) [1]: solar-relative spectral radiance L' (Eq. 2) at 615/546/450 nm;
         ``rgb`` (y, x, channel) uint8 sRGB; ``view_azimuth``, ``view_zenith`` (y, x) [deg] in the observer's
         frame; ``tau_hydrometeor`` (y, x); ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``;
-        attributes with the sun, observer, time and camera, and ``traced_pixels`` (pixels whose ray was
-        marched) and ``march_samples`` (steps marched in all).
+        attributes with the sun, observer, time and camera, ``traced_pixels`` (pixels whose ray was
+        marched), ``march_samples`` (steps of the lockstep march: a ray that meets the ground early counts
+        all its steps) and ``march_backend`` (the kernel that marched them, :class:`MarchSettings`).
 
     Raises
     ------
@@ -382,6 +383,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "camera": camera,
         "march_samples": int(out["steps"].sum() + sun_out["steps"]),
         "traced_pixels": int(np.count_nonzero(traced)),
+        "march_backend": settings.resolved_backend(),
         "sampling": "every pixel" if sampling is None else (
             f"adaptive (tolerance {sampling.tolerance:g}, coarse spacing {sampling.coarse_spacing}, "
             f"radiance floor {sampling.radiance_floor:g}, tau floor {sampling.tau_floor:g})"),

@@ -70,6 +70,8 @@ def render(
                                   "the image is not smooth, interpolating the rest (big images 2-4x faster; "
                                   "docs/rendering.md)."),
     tolerance: float = typer.Option(0.01, help="Relative error allowed where --adaptive interpolates [-]."),
+    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax or numba "
+                                "(docs/performance.md)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -140,7 +142,7 @@ def render(
             image = render_image(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                settings=MarchSettings(surface=surface, **({} if steps is None else {"n_grid": steps})),
+                settings=MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps})),
                 white_level=white_level, sampling=sampling,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )

@@ -23,11 +23,14 @@ for rays that look down on clouds; the ground reflects direct and diffuse light 
 unattenuated, the cloud is seen through the gas in front of it (the e^{-tau_1} of Eq. 33), and the sky
 and ground behind it are attenuated by its optical depth. docs/rendering.md states the interpretation.
 
-All kernels are JAX (float32, jit-compiled once per scene and camera size, chunked over pixels).
+The kernels are JAX (float32, jit-compiled once per batch size, chunked over pixels). On a CPU the step
+loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, 2-4x faster there), between
+the same JAX set-up and composition (:attr:`MarchSettings.backend`; docs/performance.md, section 8).
 """
 
 from __future__ import annotations
 
+import collections
 import functools
 import logging
 from dataclasses import dataclass, replace
@@ -95,6 +98,10 @@ class MarchSettings:
     surface : {"brdf", "lambertian"}
         Reflectance of the ground (:func:`swim.surface.lighting.surface_radiance`): land, snow and water
         BRDFs with sun glint, or Lambertian (what plane-parallel reference solvers assume).
+    backend : {"auto", "jax", "numba"}
+        Kernel of the step loop: "jax" marches a chunk of rays in lockstep (GPUs, gradients); "numba" runs
+        the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, 3-4x faster on a
+        CPU; docs/performance.md, section 8); "auto" takes numba when JAX's default device is the CPU.
     """
 
     n_before: int = 32
@@ -103,6 +110,7 @@ class MarchSettings:
     chunk: int = 4096
     multiple_scattering: bool = True
     surface: str = "brdf"
+    backend: str = "auto"
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "chunk"):
@@ -111,6 +119,26 @@ class MarchSettings:
                 raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
         if self.surface not in SURFACE_MODELS:
             raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
+        if self.backend not in BACKENDS:
+            raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
+
+    def resolved_backend(self) -> str:
+        """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
+        CPU and numba is installed, else "jax"."""
+        if self.backend != "auto":
+            return self.backend
+        return "numba" if jax.default_backend() == "cpu" and _numba_available() else "jax"
+
+
+#: Kernels of the step loop (:attr:`MarchSettings.backend`).
+BACKENDS = ("auto", "jax", "numba")
+
+
+@functools.lru_cache(maxsize=None)
+def _numba_available() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("numba") is not None
 
 
 @dataclass(frozen=True)
@@ -581,8 +609,18 @@ def refine_terrain_hit(start, direction, state, consts):
     return jnp.where(valid, 0.5 * (lo + hi), state["hit_s"])
 
 
-@functools.partial(jax.jit, static_argnames=("settings",))
-def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings: MarchSettings):
+def _prepare_rays(start, direction, bounds, consts, settings: MarchSettings):
+    """Per-ray set-up before the march: the aerosol column class and the diffuse-source height profiles (or
+    None) at each ray's lowest point."""
+    low = lowest_point(start, direction, bounds, consts)
+    aerosol_class = aerosol_class_weights(low, consts)
+    ms = diffuse_source_profiles(low, direction, aerosol_class, consts) if settings.multiple_scattering else None
+    return aerosol_class, ms
+
+
+def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSettings, aerosol_class, ms):
+    """The lockstep march of the three segments; the state of :func:`_march_segment` plus ``s_hit`` (n,) [m],
+    the refined terrain crossing or the end of the ray (:mod:`swim.rt.march_cpu` computes the same per ray)."""
     n = start.shape[0]
     zeros3 = jnp.zeros((n, 3), jnp.float32)
     state = {
@@ -594,9 +632,6 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         "gap": jnp.full(n, 1e9, jnp.float32), "s_last": jnp.zeros(n, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)
-    low = lowest_point(start, direction, bounds, consts)
-    aerosol_class = aerosol_class_weights(low, consts)
-    ms = diffuse_source_profiles(low, direction, aerosol_class, consts) if settings.multiple_scattering else None
     args = (rays, consts, ms, aerosol_class)
     if settings.n_before:
         state = _march_segment(state, start, direction, uniform_step_edges(zero, bounds[:, 0], settings.n_before),
@@ -608,10 +643,16 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         state = _march_segment(state, start, direction,
                                uniform_step_edges(bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after),
                                settings.n_after, False, *args)
+    state["s_hit"] = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
+    return state
 
+
+def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, settings: MarchSettings, state,
+             aerosol_class):
+    """The pixel radiance from the march's state: ground (Eq. 35), clouds (Eqs. 12-26), clear sky."""
     # ---- ground: Eq. 35 on the terrain facet, direct (BRDF) + diffuse (ARF = 1) ----
     surface = state["hit"] | (ends_on_ground & state["alive"])
-    s_hit = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
+    s_hit = state["s_hit"]
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
     _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
@@ -704,6 +745,18 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
         "surface": surface,
         "distance": jnp.where(surface, s_hit, jnp.nan),
     }
+
+
+@functools.partial(jax.jit, static_argnames=("settings",))
+def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings: MarchSettings):
+    """One chunk of rays through the JAX kernel: set-up, lockstep march and composition in one program."""
+    aerosol_class, ms = _prepare_rays(start, direction, bounds, consts, settings)
+    state = _march_rays(start, direction, bounds, valid, rays, consts, settings, aerosol_class, ms)
+    return _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class)
+
+
+_prepare_chunk = jax.jit(_prepare_rays, static_argnames=("settings",))
+_compose_chunk = jax.jit(_compose, static_argnames=("settings",))
 
 
 def surface_fields(volume, transmittance):
@@ -881,22 +934,109 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         raise SwimInputError("trace_rays needs at least one ray, got none")
     chunk = settings.chunk
     steps = settings.n_before + settings.n_grid + settings.n_after
+    backend = settings.resolved_backend()
+    if backend == "numba":
+        if not _numba_available():
+            raise SwimInputError("MarchSettings.backend='numba' needs the numba package (pip install numba)")
+        tables = _numba_tables(consts)
     outputs = []
-    for lo in range(0, n, chunk):
-        hi = min(lo + chunk, n)
-        pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
+    pool, pending = None, collections.deque()
+    if backend == "numba":
+        from concurrent.futures import ThreadPoolExecutor
 
-        def take(a, dtype=np.float32):
-            a = np.asarray(a[lo:hi])
-            if pad:
-                a = np.concatenate([a, np.repeat(a[-1:], pad, axis=0)], axis=0)
-            return jnp.asarray(a.astype(dtype))
+        from .march_cpu import threads
 
-        rays = {key: take(value) for key, value in ray_phase.items()}
-        out = _trace_chunk(take(seg["start"]), take(directions), take(seg["bounds"]), take(seg["ends_on_ground"], bool),
-                           take(seg["valid"], bool), rays, consts, settings)
-        outputs.append({key: np.asarray(value)[: hi - lo] for key, value in out.items()})
-        outputs[-1]["steps"] = np.full(hi - lo, steps, np.int32)
+        # chunks marched at once, one per core (the numba kernel runs without the GIL)
+        workers = min(threads(), -(-n // chunk))
+        pool = ThreadPoolExecutor(workers) if workers > 1 else None
+
+    def finished(out, hi):
+        outputs.append(out)
         if progress is not None:
             progress(hi, n)
+
+    try:
+        for lo in range(0, n, chunk):
+            hi = min(lo + chunk, n)
+            pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
+
+            def take(a, dtype=np.float32):
+                a = np.asarray(a[lo:hi])
+                if pad:
+                    a = np.concatenate([a, np.repeat(a[-1:], pad, axis=0)], axis=0)
+                return a.astype(dtype)
+
+            rays = {key: jnp.asarray(take(value)) for key, value in ray_phase.items()}
+            args = [take(seg["start"]), take(directions), take(seg["bounds"]), take(seg["ends_on_ground"], bool),
+                    take(seg["valid"], bool)]
+            if backend == "jax":
+                out = _trace_chunk(*map(jnp.asarray, args), rays, consts, settings)
+                finished({key: np.asarray(value)[: hi - lo] for key, value in out.items()}, hi)
+                continue
+            job = functools.partial(_trace_chunk_numba, *args, rays, consts, settings, tables,
+                                    [take(a, float) for a in (seg["start"], directions, seg["bounds"])], hi - lo)
+            if pool is None:
+                finished(job(), hi)
+                continue
+            pending.append((pool.submit(job), hi))
+            if len(pending) >= 2 * workers:  # bound the chunks held in memory; collect in order
+                future, done_hi = pending.popleft()
+                finished(future.result(), done_hi)
+        while pending:
+            future, hi = pending.popleft()
+            finished(future.result(), hi)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    for out in outputs:
+        out["steps"] = np.full(len(out["surface"]), steps, np.int32)
     return {key: np.concatenate([o[key] for o in outputs]) for key in outputs[0]}
+
+
+def _numba_tables(consts):
+    """The kernel constants as the numpy arrays and packed scalars of :func:`swim.rt.march_cpu.march_rays`
+    (views of the device arrays where JAX allows it, so the volume is not copied)."""
+    from . import march_cpu
+
+    p, coef = march_cpu.pack_parameters(consts)
+
+    def arr(a):
+        a = np.asarray(a).view()  # a view: marking it read-only leaves the caller's array as it was
+        a.flags.writeable = False  # like JAX's host views, so that every render calls the same compiled kernel
+        return a
+
+    return {"p": p, "coef": coef, "beta_gas": arr(consts["beta_gas"]), "spectra": arr(consts["beta_gas_spectra"]),
+            "sky": arr(consts["sky"]), "diffuse_classes": arr(consts["diffuse_classes"]),
+            "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
+            "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]), "angstrom": arr(consts["angstrom"]),
+            "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"])}
+
+
+def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n_rays):
+    """One chunk of rays: set-up and composition in JAX, the step loop in :func:`swim.rt.march_cpu.march_rays`
+    (``exact``: start, direction and bounds in float64). Returns numpy arrays of the first ``n_rays`` rays."""
+    from . import march_cpu
+
+    start_j, direction_j, bounds_j = jnp.asarray(start), jnp.asarray(direction), jnp.asarray(bounds)
+    aerosol_class, ms = _prepare_chunk(start_j, direction_j, bounds_j, consts, settings)
+    n = start.shape[0]
+    state = {"tau_clear": np.empty((n, 3)), "tau_h": np.empty(n), "tau_species": np.empty((n, len(SPECIES))),
+             "l_clear": np.empty((n, 3)), "i_nogas": np.empty((n, 3)), "i_gas": np.empty((n, 3)),
+             "i_cloud_t": np.empty(n), "alive": np.empty(n, bool), "hit": np.empty(n, bool), "s_hit": np.empty(n)}
+    # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
+    # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
+    phase = {key: np.array(rays[key], dtype=float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
+    ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
+    t = tables
+    march_cpu.march_rays(
+        *exact, np.array(valid), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
+        np.array(aerosol_class[0]), np.array(aerosol_class[1])[:, 0].astype(float), ms_profile, ms is not None,
+        settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
+        t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
+        t["stratospheric_ssa"], N_OCCUPANCY_PROBES, EMPTY_STEP_WEIGHT, TERRAIN_BISECTIONS,
+        state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
+        state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
+    state = {key: jnp.asarray(value if value.dtype == bool else value.astype(np.float32)) for key, value in state.items()}
+    out = _compose_chunk(start_j, direction_j, bounds_j, jnp.asarray(ends_on_ground), jnp.asarray(valid), rays, consts,
+                         settings, state, aerosol_class)
+    return {key: np.asarray(value)[:n_rays] for key, value in out.items()}

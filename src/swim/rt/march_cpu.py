@@ -1,0 +1,418 @@
+"""The step loop of the ray march fused into one loop per ray, for CPUs (numba).
+
+:mod:`swim.rt.march` marches a chunk of rays in lockstep with JAX: every step is ~45 XLA kernels over the
+whole chunk, each writing its result to memory for the next, and on a CPU that costs ~0.6 µs of CPU time per
+ray and step (~1400 cycles), far more than the step's arithmetic and ~150 table reads (docs/performance.md,
+section 8). This module runs the same steps with every intermediate in registers, one ray at a time, rays
+in parallel over the cores, and stops a ray as soon as it meets the ground. Only the loop is duplicated: the
+per-ray set-up before it (aerosol class, diffuse-source profiles) and the cloud and ground composition
+after it stay in JAX (:func:`swim.rt.march.trace_rays`), and the JAX march remains the kernel on GPUs and
+for gradients. ``tests/unit/test_rt_march.py`` holds both kernels to the float64 reference and to each other.
+
+Each function mirrors its JAX counterpart in :mod:`swim.rt.march` (named in its docstring) and follows
+the same equations (Albers et al. 2020, doi:10.5194/amt-13-3235-2020: Eq. 3 for the clear-sky source,
+Eq. 12 for the hydrometeor integral); it computes in float64 from the float32 tables.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from .compilation_cache import _disabled, cache_directory
+
+if "NUMBA_CACHE_DIR" not in os.environ and not _disabled():
+    # numba caches compiled functions beside the source by default, which an installed package may not allow
+    os.environ["NUMBA_CACHE_DIR"] = str(cache_directory("numba"))
+
+from numba import njit  # noqa: E402
+
+from ..errors import SwimInputError  # noqa: E402
+
+_CACHE = not _disabled()
+#: LLVM fast-math flags that keep NaN and infinity semantics (the index map's box may be infinite): contraction
+#: into FMAs, reassociation, reciprocals and approximate functions; 14 % faster, differences ~1e-7 relative.
+_FASTMATH = {"contract", "arcp", "nsz", "reassoc", "afn"}
+_JIT = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
+
+#: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
+_P_RADIUS, _P_SUN, _P_ZBOTTOM, _P_DZ, _P_CENTRE, _P_SCALE, _P_BOUNDS, _P_DH, _P_TOP = 0, 1, 4, 5, 6, 8, 9, 13, 14
+_N_PARAMETERS = 15
+
+
+def pack_parameters(consts):
+    """The scalars of :func:`swim.rt.march.kernel_constants` as one float64 vector (15,) and the index map's
+    cubic coefficients (20,)."""
+    p = np.zeros(_N_PARAMETERS)
+    index_map = consts["index_map"]
+    p[_P_RADIUS] = float(consts["radius"])
+    p[_P_SUN:_P_SUN + 3] = np.asarray(consts["sun"], dtype=float)
+    p[_P_ZBOTTOM] = float(consts["z_bottom"])
+    p[_P_DZ] = float(consts["dz"])
+    p[_P_CENTRE:_P_CENTRE + 2] = np.asarray(index_map["index_map_centre"], dtype=float)
+    p[_P_SCALE] = float(index_map["index_map_scale"])
+    if "index_map_bounds" in index_map:
+        p[_P_BOUNDS:_P_BOUNDS + 4] = np.asarray(index_map["index_map_bounds"], dtype=float)
+    else:  # no box: the cubic everywhere (clipping to an infinite box changes nothing)
+        p[_P_BOUNDS:_P_BOUNDS + 4] = (-np.inf, np.inf, -np.inf, np.inf)
+    p[_P_DH] = float(consts["dh"])
+    p[_P_TOP] = float(consts["top"])
+    coef = np.asarray(index_map["index_map_coefficients"], dtype=float).reshape(20)
+    return p, coef
+
+
+@njit(**_JIT)
+def _cubic(u, v, c, o):
+    """:func:`swim.optics.volume._cubic` for coefficients c[o:o + 10]."""
+    return (c[o] + u * (c[o + 1] + u * (c[o + 3] + u * c[o + 6]) + v * (c[o + 4] + v * c[o + 8]))
+            + v * (c[o + 2] + v * (c[o + 5] + v * c[o + 9])) + u * u * v * c[o + 7])
+
+
+@njit(**_JIT)
+def _cubic_du(u, v, c, o):
+    return c[o + 1] + u * (2 * c[o + 3] + 3 * c[o + 6] * u + 2 * c[o + 7] * v) + v * (c[o + 4] + c[o + 8] * v)
+
+
+@njit(**_JIT)
+def _cubic_dv(u, v, c, o):
+    return c[o + 2] + v * (2 * c[o + 5] + 3 * c[o + 9] * v + 2 * c[o + 8] * u) + u * (c[o + 4] + c[o + 7] * u)
+
+
+@njit(**_JIT)
+def _expm1_neg(x):
+    """e^-x - 1 for x >= 0: a Taylor polynomial below 0.1 (relative error < 1e-10; a step's optical depth in
+    clear air is ~1e-3), the library function above."""
+    if x < 0.1:
+        return -x * (1.0 - x * (0.5 - x * (1.0 / 6 - x * (1.0 / 24 - x * (1.0 / 120 - x * (1.0 / 720 - x / 5040))))))
+    return math.expm1(-x)
+
+
+@njit(**_JIT)
+def _clip(x, lo, hi):
+    return min(max(x, lo), hi)
+
+
+@njit(**_JIT)
+def _point_geometry(q0, q1, q2, p, coef):
+    """:func:`swim.rt.march._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
+    radius = p[_P_RADIUS]
+    pz = q2 + radius
+    r = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
+    h = (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
+    mu_s = (q0 * p[_P_SUN] + q1 * p[_P_SUN + 1] + pz * p[_P_SUN + 2]) / r
+    # swim.optics.volume.grid_indices: the cubic inside the box, its tangent plane beyond
+    u = (radius * q0 / r - p[_P_CENTRE]) / p[_P_SCALE]
+    v = (radius * q1 / r - p[_P_CENTRE + 1]) / p[_P_SCALE]
+    uc = _clip(u, p[_P_BOUNDS], p[_P_BOUNDS + 1])
+    vc = _clip(v, p[_P_BOUNDS + 2], p[_P_BOUNDS + 3])
+    du, dv = u - uc, v - vc
+    i = _cubic(uc, vc, coef, 0) + _cubic_du(uc, vc, coef, 0) * du + _cubic_dv(uc, vc, coef, 0) * dv
+    j = _cubic(uc, vc, coef, 10) + _cubic_du(uc, vc, coef, 10) * du + _cubic_dv(uc, vc, coef, 10) * dv
+    k = (h - p[_P_ZBOTTOM]) / p[_P_DZ]
+    return h, mu_s, k, j, i
+
+
+@njit(**_JIT)
+def _bilinear(table, c, fu, fv):
+    """One channel c of :func:`swim.rt.march._bilinear_table` on a (C, nu, nv) table, clamped."""
+    nu, nv = table.shape[1], table.shape[2]
+    fu = _clip(fu, 0.0, nu - 1.001)
+    fv = _clip(fv, 0.0, nv - 1.001)
+    u0 = int(math.floor(fu))
+    v0 = int(math.floor(fv))
+    a = fu - u0
+    b = fv - v0
+    return ((table[c, u0, v0] * (1 - b) + table[c, u0, v0 + 1] * b) * (1 - a)
+            + (table[c, u0 + 1, v0] * (1 - b) + table[c, u0 + 1, v0 + 1] * b) * a)
+
+
+@njit(**_JIT)
+def _bilinear_index(nu, nv, fu, fv):
+    """Corner (u0, v0) and weights (a, b) of a clamped bilinear lookup, shared by all channels of a table."""
+    fu = _clip(fu, 0.0, nu - 1.001)
+    fv = _clip(fv, 0.0, nv - 1.001)
+    u0 = int(math.floor(fu))
+    v0 = int(math.floor(fv))
+    return u0, v0, fu - u0, fv - v0
+
+
+@njit(**_JIT)
+def _bilinear_at(table, c, u0, v0, a, b):
+    return ((table[c, u0, v0] * (1 - b) + table[c, u0, v0 + 1] * b) * (1 - a)
+            + (table[c, u0 + 1, v0] * (1 - b) + table[c, u0 + 1, v0 + 1] * b) * a)
+
+
+@njit(**_JIT)
+def _terrain_gap(h, j, i, terrain):
+    """Height above the terrain (:func:`swim.rt.march.bilinear_clamped` of the (1, ny, nx) field) [m]."""
+    ny, nx = terrain.shape[1], terrain.shape[2]
+    return h - _bilinear(terrain, 0, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+
+
+@njit(**_JIT)
+def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight, edges):
+    """:func:`swim.rt.march.adaptive_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
+    nk, ny, nx = occupancy.shape
+    cdf = np.empty(n_probe + 1)
+    cdf[0] = 0.0
+    for m in range(n_probe):
+        s = s0 + (m + 0.5) / n_probe * length
+        _, _, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+        kk = int(_clip(math.floor(k + 0.5), 0.0, nk - 1.0))
+        jj = int(_clip(math.floor(j + 0.5), 0.0, ny - 1.0))
+        ii = int(_clip(math.floor(i + 0.5), 0.0, nx - 1.0))
+        cdf[m + 1] = cdf[m] + (1.0 if occupancy[kk, jj, ii] > 0 else empty_weight)
+    total = cdf[n_probe]
+    for m in range(n_probe + 1):
+        cdf[m] /= total
+    idx = 0  # searchsorted(cdf, t, "right") - 1, walked forward since t increases
+    for m in range(n_steps + 1):
+        t = m / n_steps
+        while idx + 1 <= n_probe and cdf[idx + 1] <= t:
+            idx += 1
+        ic = min(idx, n_probe - 1)
+        c0, c1 = cdf[ic], cdf[ic + 1]
+        frac = _clip((ic + (t - c0) / max(c1 - c0, 1e-12)) / n_probe, 0.0, 1.0)
+        edges[m] = s0 + frac * length
+
+
+@njit(**_JIT, nogil=True)
+def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
+               ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
+               n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
+               n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out,
+               s_hit_out):
+    """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
+
+    Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
+    a thread pool (a ``parallel=True`` loop was as fast and took 29 s to compile instead of 7).
+
+    The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before``
+    equal steps), the grid (``n_grid`` steps placed by :func:`_adaptive_edges`) and the clear air after it
+    (``n_after`` equal steps), then :func:`swim.rt.march.refine_terrain_hit`. A ray stops at the ground
+    (the lockstep kernel goes on with zero-length steps that add nothing), and a segment of zero length takes
+    one step (to see whether it starts under the terrain) instead of all of them.
+
+    Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3)
+    [m], ``valid`` (n,) bool, the phase functions ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric``
+    (n, 3), the aerosol class ``class_lower`` (n,) int and ``class_weight`` (n,), and ``ms_profile`` (9, n, n_u)
+    [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march.kernel_constants` (float32), scalars packed
+    by :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
+    ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, 5), the clear-sky radiance ``l_clear`` (n, 3),
+    the Eq. 12 integrals ``i_nogas``, ``i_gas`` (n, 3) and ``i_cloud_t`` (n,), ``alive_out`` and ``hit_out``
+    (n,) bool, and ``s_hit_out`` (n,) [m], the refined terrain crossing or the segment's end.
+    """
+    n = start.shape[0]
+    nk, ny, nx, n_c = volume.shape
+    n_species = n_c - 4
+    n_gas = beta_gas.shape[1]
+    nu_sky, nmu_sky = sky.shape[1], sky.shape[2]
+    nu_class = diffuse_classes.shape[1] // n_class
+    n_u = ms_profile.shape[2]
+    top = p[_P_TOP]
+    for r in range(n):
+        st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
+        d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
+        tc = np.zeros(3)
+        t_obs = np.ones(3)  # e^-(tau_clear + tau_h) to the observer, carried as a product
+        th = 0.0
+        tsp = np.zeros(n_species)
+        lc = np.zeros(3)
+        ing = np.zeros(3)
+        ig = np.zeros(3)
+        ict = 0.0
+        alive = valid[r]
+        hit = False
+        hit_s = 0.0
+        hit_lo = 0.0
+        hit_hi = 0.0
+        gap_prev = 1e9
+        s_last = 0.0
+        beta_r = np.empty(3)
+        beta_a = np.empty(3)
+        beta_s = np.empty(3)
+        t_sun = np.empty(3)
+        diffuse = np.empty(3)
+        vol = np.empty(n_c)
+        edges = np.empty(n_grid + 1)
+        c0 = class_lower[r]
+        wc = class_weight[r]
+        for segment in range(3):
+            if not alive:
+                break
+            if segment == 0:
+                n_steps, s0, length, in_grid = n_before, 0.0, bounds[r, 0], False
+            elif segment == 1:
+                n_steps, s0, length, in_grid = n_grid, bounds[r, 0], bounds[r, 1] - bounds[r, 0], True
+            else:
+                n_steps, s0, length, in_grid = n_after, bounds[r, 1], bounds[r, 2] - bounds[r, 1], False
+            if n_steps == 0:
+                continue
+            if in_grid:
+                _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
+                                empty_weight, edges)
+            taken = n_steps if length > 0 else 1
+            for m in range(taken):
+                if in_grid:
+                    s_lo, s_hi = edges[m], edges[m + 1]
+                else:
+                    s_lo, s_hi = s0 + m / n_steps * length, s0 + (m + 1) / n_steps * length
+                ds = s_hi - s_lo
+                s = s_lo + 0.5 * ds
+                h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+                # clear atmosphere (_gas_at): three height profiles times their spectra, and the sky table
+                f = _clip(h / p[_P_DH], 0.0, n_gas - 1.001)
+                g0 = int(math.floor(f))
+                w = f - g0
+                prof_r = beta_gas[0, g0] * (1 - w) + beta_gas[0, g0 + 1] * w
+                prof_a = beta_gas[1, g0] * (1 - w) + beta_gas[1, g0 + 1] * w
+                prof_s = beta_gas[2, g0] * (1 - w) + beta_gas[2, g0 + 1] * w
+                fu = math.sqrt(_clip(h / top, 0.0, 1.0))
+                fm = (mu_s + 1.0) * 0.5
+                u0, v0, a, b = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
+                for c in range(3):
+                    beta_r[c] = prof_r * spectra[0, c]
+                    beta_a[c] = prof_a * spectra[1, c]
+                    beta_s[c] = prof_s * spectra[2, c]
+                    t_sun[c] = _bilinear_at(sky, c, u0, v0, a, b)
+                    diffuse[c] = _bilinear_at(sky, 3 + c, u0, v0, a, b)
+                gap = _terrain_gap(h, j, i, terrain)
+                hit_now = alive and gap < 0
+                frac = _clip(gap_prev / max(gap_prev - gap, 1e-6), 0.0, 1.0) if hit_now else 1.0
+                ds_eff = ds * frac if alive else 0.0
+                if in_grid:
+                    # trilinear sample of the packed volume, its "outside" values beyond it
+                    if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:
+                        k0 = int(_clip(math.floor(k), 0.0, nk - 2.0))
+                        j0 = int(_clip(math.floor(j), 0.0, ny - 2.0))
+                        i0 = int(_clip(math.floor(i), 0.0, nx - 2.0))
+                        fk = _clip(k - k0, 0.0, 1.0)
+                        fj = _clip(j - j0, 0.0, 1.0)
+                        fi = _clip(i - i0, 0.0, 1.0)
+                        for c in range(n_c):
+                            a00 = volume[k0, j0, i0, c] * (1 - fi) + volume[k0, j0, i0 + 1, c] * fi
+                            a01 = volume[k0, j0 + 1, i0, c] * (1 - fi) + volume[k0, j0 + 1, i0 + 1, c] * fi
+                            a10 = volume[k0 + 1, j0, i0, c] * (1 - fi) + volume[k0 + 1, j0, i0 + 1, c] * fi
+                            a11 = volume[k0 + 1, j0 + 1, i0, c] * (1 - fi) + volume[k0 + 1, j0 + 1, i0 + 1, c] * fi
+                            vol[c] = (a00 * (1 - fj) + a01 * fj) * (1 - fk) + (a10 * (1 - fj) + a11 * fj) * fk
+                    else:
+                        for c in range(n_c):
+                            vol[c] = 1.0 if c >= n_c - 2 else 0.0
+                    beta_a3 = vol[n_species]
+                    tau_a3_sun = vol[n_species + 1]
+                    t_cloud = vol[n_c - 2]
+                    shadow = vol[n_c - 1]
+                    if n_class > 1:  # diffuse_at: the skylight of the ray's aerosol column class
+                        fcu = _clip(fu * (nu_class - 1), 0.0, nu_class - 1.001)
+                        n_rows = diffuse_classes.shape[1]
+                        u0, v0, a, b = _bilinear_index(n_rows, nmu_sky, c0 * nu_class + fcu, fm * (nmu_sky - 1))
+                        u1, v1, a1, b1 = _bilinear_index(n_rows, nmu_sky, (c0 + 1) * nu_class + fcu, fm * (nmu_sky - 1))
+                        for c in range(3):
+                            diffuse[c] = (_bilinear_at(diffuse_classes, c, u0, v0, a, b) * (1 - wc)
+                                          + _bilinear_at(diffuse_classes, c, u1, v1, a1, b1) * wc)
+                else:
+                    beta_a3 = 0.0
+                    tau_a3_sun = 0.0
+                    t_cloud = 1.0
+                    shadow = 1.0
+                beta_h = 0.0
+                if in_grid:
+                    for c in range(n_species):
+                        beta_h += vol[c]
+                t0 = th
+                t1 = t0 + beta_h * ds_eff
+                # Eq. 12's weight e^-t0 - e^-min(t1, 2) is exactly 0 without hydrometeors or beyond tau 2
+                weight = max(math.exp(-t0) - math.exp(-min(t1, 2.0)), 0.0) if t1 > t0 and t0 < 2.0 else 0.0
+                if use_ms:
+                    fp = _clip(fu * (n_u - 1), 0.0, n_u - 1.001)
+                    u0 = int(math.floor(fp))
+                    wu = fp - u0
+                for c in range(3):
+                    b_a3 = beta_a3 * angstrom[c]
+                    irradiance = t_sun[c] * (t_cloud * shadow)
+                    if tau_a3_sun != 0.0:
+                        irradiance *= math.exp(-tau_a3_sun * angstrom[c])
+                    beta_clear = beta_r[c] + beta_a[c] + b_a3 + beta_s[c]
+                    x = (beta_clear + beta_h) * ds_eff
+                    # one expm1 gives both the step's mean transmittance and the next step's e^-tau to the observer
+                    em = _expm1_neg(x)
+                    step_mean = -em / max(x, 1e-30) if x > 1e-4 else 1.0 - 0.5 * x
+                    scat_a = (beta_a[c] + b_a3) * aerosol_ssa[c]
+                    scat_s = beta_s[c] * stratospheric_ssa[c]
+                    source = (beta_r[c] * p_rayleigh[r] + scat_a * p_aerosol[r, c]
+                              + scat_s * p_stratospheric[r, c]) * irradiance
+                    if use_ms:
+                        j_r = ms_profile[c, r, u0] * (1 - wu) + ms_profile[c, r, u0 + 1] * wu
+                        j_a = ms_profile[3 + c, r, u0] * (1 - wu) + ms_profile[3 + c, r, u0 + 1] * wu
+                        j_s = ms_profile[6 + c, r, u0] * (1 - wu) + ms_profile[6 + c, r, u0 + 1] * wu
+                        source += (beta_r[c] * j_r + scat_a * j_a + scat_s * j_s) * t_cloud
+                    lc[c] += t_obs[c] * source * (ds_eff * step_mean)
+                    t_obs[c] *= 1.0 + em
+                    if weight > 0.0:
+                        irradiance_h = irradiance + (2.0 * diffuse[c] * t_cloud if in_grid else 0.0)
+                        ing[c] += irradiance_h * weight
+                        ig[c] += irradiance_h * math.exp(-tc[c]) * weight
+                    tc[c] += beta_clear * ds_eff
+                ict += t_cloud * shadow * weight
+                th = t1
+                if in_grid:
+                    for c in range(n_species):
+                        tsp[c] += vol[c] * ds_eff
+                if hit_now:
+                    hit_s = s - 0.5 * ds + frac * ds
+                    hit_lo = s_last
+                    hit_hi = s
+                    alive = False
+                    hit = True
+                gap_prev = gap
+                s_last = s
+                if not alive:
+                    break
+        # refine_terrain_hit: bisection between the samples that bracket the crossing
+        s_hit = bounds[r, 2]
+        if hit:
+            s_hit = hit_s
+            lo, hi = hit_lo, hit_hi
+            h, _, _, j, i = _point_geometry(st0 + lo * d0, st1 + lo * d1, st2 + lo * d2, p, coef)
+            gap_lo = _terrain_gap(h, j, i, terrain)
+            h, _, _, j, i = _point_geometry(st0 + hi * d0, st1 + hi * d1, st2 + hi * d2, p, coef)
+            gap_hi = _terrain_gap(h, j, i, terrain)
+            if gap_lo >= 0 and gap_hi < 0:
+                for _ in range(n_bisections):
+                    mid = 0.5 * (lo + hi)
+                    h, _, _, j, i = _point_geometry(st0 + mid * d0, st1 + mid * d1, st2 + mid * d2, p, coef)
+                    if _terrain_gap(h, j, i, terrain) < 0:
+                        hi = mid
+                    else:
+                        lo = mid
+                s_hit = 0.5 * (lo + hi)
+        for c in range(3):
+            tau_clear[r, c] = tc[c]
+            l_clear[r, c] = lc[c]
+            i_nogas[r, c] = ing[c]
+            i_gas[r, c] = ig[c]
+        for c in range(n_species):
+            tau_species[r, c] = tsp[c]
+        tau_h[r] = th
+        i_cloud_t[r] = ict
+        alive_out[r] = alive
+        hit_out[r] = hit
+        s_hit_out[r] = s_hit
+
+
+def threads() -> int:
+    """Chunks of rays marched at once: ``SWIM_NUM_THREADS``, or the cores this process may run on.
+
+    Raises
+    ------
+    SwimInputError
+        If ``SWIM_NUM_THREADS`` is set to anything but a positive integer.
+    """
+    value = os.environ.get("SWIM_NUM_THREADS", "").strip()
+    if value:
+        if not value.isdigit() or int(value) < 1:
+            raise SwimInputError(f"SWIM_NUM_THREADS must be a positive integer, got {value!r}")
+        return int(value)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
