@@ -42,3 +42,22 @@ def test_keys_with_object_addresses_are_not_cached(tmp_path, monkeypatch):
     key = object()
     assert disk_cached("test", key, lambda: 1) == 1
     assert not (tmp_path / "test").exists()
+
+
+def test_numba_kernel_cache_follows_swim_cache_dir(tmp_path):
+    """The numba kernel caches in $SWIM_CACHE_DIR/numba (not beside the installed source), and not at all with
+    SWIM_JAX_CACHE=0; a user's NUMBA_CACHE_DIR is kept. Fresh interpreters: the setting is read at import."""
+    import os
+    import subprocess
+    import sys
+
+    probe = "import numba, swim.rt.march_cpu as m; print(repr(numba.config.CACHE_DIR), m._CACHE)"
+    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "SWIM_JAX_CACHE", "SWIM_CACHE_DIR")}
+
+    def run(**env):
+        out = subprocess.run([sys.executable, "-c", probe], env={**base, **env}, capture_output=True, text=True, check=True)
+        return out.stdout.strip()
+
+    assert run(SWIM_CACHE_DIR=str(tmp_path)) == f"{str(tmp_path / 'numba')!r} True"
+    assert run(SWIM_CACHE_DIR=str(tmp_path), SWIM_JAX_CACHE="0") == "'' False"
+    assert run(SWIM_CACHE_DIR=str(tmp_path), NUMBA_CACHE_DIR=str(tmp_path / "mine")) == f"{str(tmp_path / 'mine')!r} True"

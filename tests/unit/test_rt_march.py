@@ -235,3 +235,16 @@ def test_backend_setting_is_checked_and_resolved(monkeypatch):
     origins, dirs = _random_rays(3)
     with pytest.raises(SwimInputError, match="needs the numba package"):
         _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0), settings=MarchSettings(backend="numba"))
+
+
+@pytest.mark.parametrize("backend", ["jax", "numba"])
+def test_non_finite_rays_are_rejected_before_the_kernel(backend):
+    origins, dirs = _random_rays(4)
+    dirs[2, 0] = np.nan
+    with pytest.raises(SwimInputError, match="directions must be a finite"):
+        _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0), settings=MarchSettings(backend=backend))
+    origins = origins.copy()
+    origins[0, 2] = np.inf
+    with pytest.raises(SwimInputError, match="origins must be a finite"):
+        _trace(_tiny_scene(), origins, np.nan_to_num(dirs), enu_from_azimuth_zenith(135.0, 40.0),
+               settings=MarchSettings(backend=backend))

@@ -24,7 +24,7 @@ unattenuated, the cloud is seen through the gas in front of it (the e^{-tau_1} o
 and ground behind it are attenuated by its optical depth. docs/rendering.md states the interpretation.
 
 The kernels are JAX (float32, jit-compiled once per batch size, chunked over pixels). On a CPU the step
-loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, 2-4x faster there), between
+loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, ~2x faster there), between
 the same JAX set-up and composition (:attr:`MarchSettings.backend`; docs/performance.md, section 8).
 """
 
@@ -100,7 +100,7 @@ class MarchSettings:
         BRDFs with sun glint, or Lambertian (what plane-parallel reference solvers assume).
     backend : {"auto", "jax", "numba"}
         Kernel of the step loop: "jax" marches a chunk of rays in lockstep (GPUs, gradients); "numba" runs
-        the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, 3-4x faster on a
+        the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, ~2x faster on a
         CPU; docs/performance.md, section 8); "auto" takes numba when JAX's default device is the CPU.
     """
 
@@ -922,8 +922,20 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         ``radiance`` (n, 3) [-] solar-relative L' (Eq. 2) at 615/546/450 nm and its components
         ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``; ``tau_hydrometeor`` (n,);
         ``tau_clear`` (n, 3); ``surface`` (n,) bool; ``distance`` (n,) [m] to the ground or NaN; ``steps`` (n,)
-        march steps (volume samples) taken per ray.
+        march steps (volume samples) of the lockstep march per ray.
+
+    Raises
+    ------
+    SwimInputError
+        If there are no rays, if ``origins`` or ``directions`` are not finite (n, 3) arrays, or if
+        ``settings.backend`` is "numba" and numba is not installed.
     """
+    for name, value in (("origins", origins), ("directions", directions)):
+        value = np.asarray(value, dtype=float)
+        if value.ndim != 2 or value.shape[-1] != 3 or not np.all(np.isfinite(value)):
+            # the numba kernel reads its tables unchecked: a NaN ray must not get that far
+            raise SwimInputError(f"trace_rays: {name} must be a finite (n, 3) array [m for origins, unit vectors "
+                                 f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
     seg = ray_segments(origins, directions, geometry, top=float(consts["top"]))
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
     lengths = np.diff(np.concatenate([np.zeros((len(origins), 1)), seg["bounds"]], axis=1), axis=1)
@@ -1019,24 +1031,28 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
 
     start_j, direction_j, bounds_j = jnp.asarray(start), jnp.asarray(direction), jnp.asarray(bounds)
     aerosol_class, ms = _prepare_chunk(start_j, direction_j, bounds_j, consts, settings)
-    n = start.shape[0]
+    # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
+    # the real rays, and the padding rows of the state repeat the last one as the inputs do.
+    n = n_rays
     state = {"tau_clear": np.empty((n, 3)), "tau_h": np.empty(n), "tau_species": np.empty((n, len(SPECIES))),
              "l_clear": np.empty((n, 3)), "i_nogas": np.empty((n, 3)), "i_gas": np.empty((n, 3)),
              "i_cloud_t": np.empty(n), "alive": np.empty(n, bool), "hit": np.empty(n, bool), "s_hit": np.empty(n)}
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
-    phase = {key: np.array(rays[key], dtype=float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
-    ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
+    phase = {key: np.array(rays[key][:n], dtype=float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
+    ms_profile = np.array(ms[:, :n]) if ms is not None else np.zeros((9, n, 2), np.float32)
     t = tables
     march_cpu.march_rays(
-        *exact, np.array(valid), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
-        np.array(aerosol_class[0]), np.array(aerosol_class[1])[:, 0].astype(float), ms_profile, ms is not None,
+        *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
+        np.array(aerosol_class[0][:n]), np.array(aerosol_class[1][:n, 0]).astype(float), ms_profile, ms is not None,
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], N_OCCUPANCY_PROBES, EMPTY_STEP_WEIGHT, TERRAIN_BISECTIONS,
         state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
         state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
-    state = {key: jnp.asarray(value if value.dtype == bool else value.astype(np.float32)) for key, value in state.items()}
+    pad = start.shape[0] - n
+    state = {key: jnp.asarray(np.concatenate([value, np.repeat(value[-1:], pad, axis=0)]) if pad else value)
+             .astype(bool if value.dtype == bool else jnp.float32) for key, value in state.items()}
     out = _compose_chunk(start_j, direction_j, bounds_j, jnp.asarray(ends_on_ground), jnp.asarray(valid), rays, consts,
                          settings, state, aerosol_class)
     return {key: np.asarray(value)[:n_rays] for key, value in out.items()}

@@ -21,17 +21,18 @@ import os
 
 import numpy as np
 
+import numba
+from numba import njit
+
+from ..errors import SwimInputError
 from .compilation_cache import _disabled, cache_directory
 
-if "NUMBA_CACHE_DIR" not in os.environ and not _disabled():
-    # numba caches compiled functions beside the source by default, which an installed package may not allow
-    os.environ["NUMBA_CACHE_DIR"] = str(cache_directory("numba"))
-
-from numba import njit  # noqa: E402
-
-from ..errors import SwimInputError  # noqa: E402
-
 _CACHE = not _disabled()
+if _CACHE and not numba.config.CACHE_DIR:
+    # numba caches compiled functions beside the source by default, which an installed package may not allow;
+    # the setting is read when each function below is decorated (a user's NUMBA_CACHE_DIR is kept)
+    numba.config.CACHE_DIR = str(cache_directory("numba"))
+
 #: LLVM fast-math flags that keep NaN and infinity semantics (the index map's box may be infinite): contraction
 #: into FMAs, reassociation, reciprocals and approximate functions; 14 % faster, differences ~1e-7 relative.
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc", "afn"}
@@ -87,6 +88,16 @@ def _expm1_neg(x):
     if x < 0.1:
         return -x * (1.0 - x * (0.5 - x * (1.0 / 6 - x * (1.0 / 24 - x * (1.0 / 120 - x * (1.0 / 720 - x / 5040))))))
     return math.expm1(-x)
+
+
+@njit(**_JIT)
+def _round_half_even(x):
+    """``jnp.round``: to the nearest integer, halves to the even one (a probe on a grid-aligned ray lands on
+    exact halves, and rounding them otherwise would place the steps differently from the JAX kernel)."""
+    r = math.floor(x + 0.5)
+    if r - x == 0.5 and r % 2.0 != 0.0:
+        r -= 1.0
+    return r
 
 
 @njit(**_JIT)
@@ -160,9 +171,9 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     for m in range(n_probe):
         s = s0 + (m + 0.5) / n_probe * length
         _, _, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
-        kk = int(_clip(math.floor(k + 0.5), 0.0, nk - 1.0))
-        jj = int(_clip(math.floor(j + 0.5), 0.0, ny - 1.0))
-        ii = int(_clip(math.floor(i + 0.5), 0.0, nx - 1.0))
+        kk = int(_clip(_round_half_even(k), 0.0, nk - 1.0))
+        jj = int(_clip(_round_half_even(j), 0.0, ny - 1.0))
+        ii = int(_clip(_round_half_even(i), 0.0, nx - 1.0))
         cdf[m + 1] = cdf[m] + (1.0 if occupancy[kk, jj, ii] > 0 else empty_weight)
     total = cdf[n_probe]
     for m in range(n_probe + 1):
@@ -306,9 +317,10 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                     shadow = vol[n_c - 1]
                     if n_class > 1:  # diffuse_at: the skylight of the ray's aerosol column class
                         fcu = _clip(fu * (nu_class - 1), 0.0, nu_class - 1.001)
-                        n_rows = diffuse_classes.shape[1]
-                        u0, v0, a, b = _bilinear_index(n_rows, nmu_sky, c0 * nu_class + fcu, fm * (nmu_sky - 1))
-                        u1, v1, a1, b1 = _bilinear_index(n_rows, nmu_sky, (c0 + 1) * nu_class + fcu, fm * (nmu_sky - 1))
+                        n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
+                        u0, v0, a, b = _bilinear_index(n_rows, nmu_class, c0 * nu_class + fcu, fm * (nmu_class - 1))
+                        u1, v1, a1, b1 = _bilinear_index(n_rows, nmu_class, (c0 + 1) * nu_class + fcu,
+                                                         fm * (nmu_class - 1))
                         for c in range(3):
                             diffuse[c] = (_bilinear_at(diffuse_classes, c, u0, v0, a, b) * (1 - wc)
                                           + _bilinear_at(diffuse_classes, c, u1, v1, a1, b1) * wc)
