@@ -192,7 +192,10 @@ def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
 
 
 def _fill(values, traced, filled, valid_flat, cells, nx):
-    """Bilinear interpolation of the untraced pixels of cells (m, 4) from their corners, by cell size."""
+    """Bilinear interpolation of the untraced pixels of cells (m, 4) from their corners, by cell size.
+
+    Each target pixel's four corner indices and weights are computed once and serve every output array (one
+    gather per corner and array)."""
     if not len(cells):
         return
     sizes = cells[:, [1, 3]] - cells[:, [0, 2]]
@@ -204,18 +207,16 @@ def _fill(values, traced, filled, valid_flat, cells, nx):
         target = ~traced[pix] & valid_flat[pix]
         wy = np.broadcast_to((dy / h)[None, :, None], (len(group), h + 1, w + 1)).reshape(-1)[target]
         wx = np.broadcast_to((dx / w)[None, None, :], (len(group), h + 1, w + 1)).reshape(-1)[target]
-        cell_of = np.repeat(np.arange(len(group)), (h + 1) * (w + 1))[target]
-        c00 = y0 * nx + x0
-        corners = [c00, c00 + w, c00 + h * nx, c00 + h * nx + w]
+        c00 = np.repeat(y0 * nx + x0, (h + 1) * (w + 1))[target]
+        corners = (c00, c00 + w, c00 + h * nx, c00 + h * nx + w)
+        weights = ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy)
         pix = pix[target]
-        for key, a in values.items():
+        for a in values.values():
             if a.dtype == bool:
-                a[pix] = a[corners[0]][cell_of]
+                a[pix] = a[c00]
             elif np.issubdtype(a.dtype, np.integer):
                 a[pix] = 0
             else:
                 shape = (-1,) + (1,) * (a.ndim - 1)
-                v00, v01, v10, v11 = (a[c][cell_of] for c in corners)
-                a[pix] = ((v00 * (1 - wx.reshape(shape)) + v01 * wx.reshape(shape)) * (1 - wy.reshape(shape))
-                          + (v10 * (1 - wx.reshape(shape)) + v11 * wx.reshape(shape)) * wy.reshape(shape))
+                a[pix] = sum(a[c] * wt.reshape(shape) for c, wt in zip(corners, weights))
         filled[pix] = True
