@@ -973,10 +973,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
 
             def take(a, dtype=np.float32):
-                a = np.asarray(a[lo:hi])
-                if pad:
-                    a = np.concatenate([a, np.repeat(a[-1:], pad, axis=0)], axis=0)
-                return a.astype(dtype)
+                return _pad_rows(np.asarray(a[lo:hi]), pad).astype(dtype)
 
             rays = {key: jnp.asarray(take(value)) for key, value in ray_phase.items()}
             args = [take(seg["start"]), take(directions), take(seg["bounds"]), take(seg["ends_on_ground"], bool),
@@ -1005,6 +1002,11 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     return {key: np.concatenate([o[key] for o in outputs]) for key in outputs[0]}
 
 
+def _pad_rows(a, pad):
+    """``a`` with its last row repeated ``pad`` times: a batch filled up to a size the kernels are compiled for."""
+    return np.concatenate([a, np.repeat(a[-1:], pad, axis=0)], axis=0) if pad else a
+
+
 def _numba_tables(consts):
     """The kernel constants as the numpy arrays and packed scalars of :func:`swim.rt.march_cpu.march_rays`
     (views of the device arrays where JAX allows it, so the volume is not copied)."""
@@ -1024,16 +1026,15 @@ def _numba_tables(consts):
             "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"])}
 
 
-def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n_rays):
+def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n):
     """One chunk of rays: set-up and composition in JAX, the step loop in :func:`swim.rt.march_cpu.march_rays`
-    (``exact``: start, direction and bounds in float64). Returns numpy arrays of the first ``n_rays`` rays."""
+    (``exact``: start, direction and bounds in float64). Returns numpy arrays of the first ``n`` (real) rays."""
     from . import march_cpu
 
     start_j, direction_j, bounds_j = jnp.asarray(start), jnp.asarray(direction), jnp.asarray(bounds)
     aerosol_class, ms = _prepare_chunk(start_j, direction_j, bounds_j, consts, settings)
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
-    n = n_rays
     state = {"tau_clear": np.empty((n, 3)), "tau_h": np.empty(n), "tau_species": np.empty((n, len(SPECIES))),
              "l_clear": np.empty((n, 3)), "i_nogas": np.empty((n, 3)), "i_gas": np.empty((n, 3)),
              "i_cloud_t": np.empty(n), "alive": np.empty(n, bool), "hit": np.empty(n, bool), "s_hit": np.empty(n)}
@@ -1050,9 +1051,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         t["stratospheric_ssa"], N_OCCUPANCY_PROBES, EMPTY_STEP_WEIGHT, TERRAIN_BISECTIONS,
         state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
         state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
-    pad = start.shape[0] - n
-    state = {key: jnp.asarray(np.concatenate([value, np.repeat(value[-1:], pad, axis=0)]) if pad else value)
-             .astype(bool if value.dtype == bool else jnp.float32) for key, value in state.items()}
+    state = {key: jnp.asarray(_pad_rows(value, start.shape[0] - n)).astype(bool if value.dtype == bool else jnp.float32)
+             for key, value in state.items()}
     out = _compose_chunk(start_j, direction_j, bounds_j, jnp.asarray(ends_on_ground), jnp.asarray(valid), rays, consts,
                          settings, state, aerosol_class)
-    return {key: np.asarray(value)[:n_rays] for key, value in out.items()}
+    return {key: np.asarray(value)[:n] for key, value in out.items()}

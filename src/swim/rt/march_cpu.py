@@ -82,6 +82,13 @@ def _cubic_dv(u, v, c, o):
 
 
 @njit(**_JIT)
+def _index_map(uc, vc, du, dv, c, o):
+    """One index of :func:`swim.optics.volume.grid_indices`: the cubic at the clipped point (uc, vc) plus its
+    tangent plane over the distance (du, dv) beyond the box."""
+    return _cubic(uc, vc, c, o) + _cubic_du(uc, vc, c, o) * du + _cubic_dv(uc, vc, c, o) * dv
+
+
+@njit(**_JIT)
 def _expm1_neg(x):
     """e^-x - 1 for x >= 0: a Taylor polynomial below 0.1 (relative error < 1e-10; a step's optical depth in
     clear air is ~1e-3), the library function above."""
@@ -119,8 +126,8 @@ def _point_geometry(q0, q1, q2, p, coef):
     uc = _clip(u, p[_P_BOUNDS], p[_P_BOUNDS + 1])
     vc = _clip(v, p[_P_BOUNDS + 2], p[_P_BOUNDS + 3])
     du, dv = u - uc, v - vc
-    i = _cubic(uc, vc, coef, 0) + _cubic_du(uc, vc, coef, 0) * du + _cubic_dv(uc, vc, coef, 0) * dv
-    j = _cubic(uc, vc, coef, 10) + _cubic_du(uc, vc, coef, 10) * du + _cubic_dv(uc, vc, coef, 10) * dv
+    i = _index_map(uc, vc, du, dv, coef, 0)
+    j = _index_map(uc, vc, du, dv, coef, 10)
     k = (h - p[_P_ZBOTTOM]) / p[_P_DZ]
     return h, mu_s, k, j, i
 
@@ -128,15 +135,8 @@ def _point_geometry(q0, q1, q2, p, coef):
 @njit(**_JIT)
 def _bilinear(table, c, fu, fv):
     """One channel c of :func:`swim.rt.march._bilinear_table` on a (C, nu, nv) table, clamped."""
-    nu, nv = table.shape[1], table.shape[2]
-    fu = _clip(fu, 0.0, nu - 1.001)
-    fv = _clip(fv, 0.0, nv - 1.001)
-    u0 = int(math.floor(fu))
-    v0 = int(math.floor(fv))
-    a = fu - u0
-    b = fv - v0
-    return ((table[c, u0, v0] * (1 - b) + table[c, u0, v0 + 1] * b) * (1 - a)
-            + (table[c, u0 + 1, v0] * (1 - b) + table[c, u0 + 1, v0 + 1] * b) * a)
+    u0, v0, a, b = _bilinear_index(table.shape[1], table.shape[2], fu, fv)
+    return _bilinear_at(table, c, u0, v0, a, b)
 
 
 @njit(**_JIT)
@@ -160,6 +160,14 @@ def _terrain_gap(h, j, i, terrain):
     """Height above the terrain (:func:`swim.rt.march.bilinear_clamped` of the (1, ny, nx) field) [m]."""
     ny, nx = terrain.shape[1], terrain.shape[2]
     return h - _bilinear(terrain, 0, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+
+
+@njit(**_JIT)
+def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
+    """Height above the terrain [m] at distance s [m] along a ray (``gap`` of
+    :func:`swim.rt.march.refine_terrain_hit`)."""
+    h, _, _, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+    return _terrain_gap(h, j, i, terrain)
 
 
 @njit(**_JIT)
@@ -387,15 +395,11 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
         if hit:
             s_hit = hit_s
             lo, hi = hit_lo, hit_hi
-            h, _, _, j, i = _point_geometry(st0 + lo * d0, st1 + lo * d1, st2 + lo * d2, p, coef)
-            gap_lo = _terrain_gap(h, j, i, terrain)
-            h, _, _, j, i = _point_geometry(st0 + hi * d0, st1 + hi * d1, st2 + hi * d2, p, coef)
-            gap_hi = _terrain_gap(h, j, i, terrain)
-            if gap_lo >= 0 and gap_hi < 0:
+            if (_gap_along(lo, st0, st1, st2, d0, d1, d2, p, coef, terrain) >= 0
+                    and _gap_along(hi, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0):
                 for _ in range(n_bisections):
                     mid = 0.5 * (lo + hi)
-                    h, _, _, j, i = _point_geometry(st0 + mid * d0, st1 + mid * d1, st2 + mid * d2, p, coef)
-                    if _terrain_gap(h, j, i, terrain) < 0:
+                    if _gap_along(mid, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0:
                         hi = mid
                     else:
                         lo = mid
