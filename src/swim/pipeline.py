@@ -28,7 +28,15 @@ from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
 from .rt.image_sampling import AdaptiveSampling, sample_image_adaptive
-from .rt.march import MarchSettings, aerosol_column_optical_depth, grid_geometry, kernel_constants, trace_rays
+from .rt.march import (
+    KERNEL_STEP1A_VARIABLES,
+    MarchSettings,
+    aerosol_column_optical_depth,
+    atmosphere_constants,
+    grid_geometry,
+    trace_rays,
+    volume_constants,
+)
 from .rt.solar import solar_transmittance
 
 log = logging.getLogger(__name__)
@@ -262,8 +270,6 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     sun_enu_observer = sun_scene @ rotation.T
 
     sun_key = tuple(np.round(sun_scene, 12))
-    transmittance = _STAGE_CACHE.get(("transmittance", fingerprint, sun_key),
-                                     lambda: solar_transmittance(volume, sun_scene))
     if aerosol is None:
         aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene_vars else AerosolBackground()
     elif isinstance(aerosol, str):
@@ -278,9 +284,17 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     gas = build_gas_tables(aerosol, surface_albedo=np.asarray(mean_albedo.values, dtype=float),
                            scene_aerosol_profile=(levels, aer3d) if np.any(aer3d > 0) else None,
                            aerosol_class_aod=classes)
-    # The entry holds the gas tables, so their id cannot be reused by other tables while it lives.
-    consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas)),
-                                 lambda: (kernel_constants(volume, transmittance, gas, sun_scene), gas))
+    def grid_constants():
+        # Step 1a, only the fields that the kernel constants read, which hold them packed into the volume: Step
+        # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160; docs/performance.md)
+        transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES)
+        return volume_constants(volume, transmittance)
+
+    # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
+    # constants are looked up inside its build, after the old entry has gone: a new sun never holds two volumes.
+    consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas)), lambda: (
+        {**_STAGE_CACHE.get(("grid constants", fingerprint, sun_key), grid_constants),
+         **atmosphere_constants(gas, sun_scene)}, gas))
     geometry = grid_geometry(volume)
 
     def trace_directions(dirs, progress_rays):

@@ -1,4 +1,5 @@
-"""The optical volume and Step 1a are reused between renders only while the scene and the sun stay the same."""
+"""The optical volume and Step 1a (in the grid's kernel constants) are reused between renders only while the
+scene and the sun stay the same."""
 
 import logging
 
@@ -20,14 +21,20 @@ def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
         first = _render(scene)
         assert "reusing" not in caplog.text
         second = _render(scene)
-        assert all(f"reusing the {kind}" in caplog.text for kind in ("volume", "transmittance", "constants"))
+        assert all(f"reusing the {kind}" in caplog.text for kind in ("volume", "constants"))
     np.testing.assert_array_equal(first["radiance"].values, second["radiance"].values)
 
     # a new sun: the volume is reused, Step 1a is not
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         _render(scene, sun_zenith=60.0)
-    assert "reusing the volume" in caplog.text and "reusing the transmittance" not in caplog.text
+    assert "reusing the volume" in caplog.text and "reusing the grid constants" not in caplog.text
+
+    # another aerosol: the grid's constants (Step 1a, the packed volume) are reused, the atmosphere's are not
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        _render(scene, sun_zenith=60.0, aerosol="maritime")
+    assert "reusing the grid constants" in caplog.text and "reusing the constants" not in caplog.text
 
     # the same object changed in place (clouds removed) must not be served from the cache
     for name in [v for v in scene.data_vars if v.endswith("_content")]:
@@ -43,7 +50,7 @@ def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
 def test_a_new_scene_drops_the_old_scenes_entries_before_building():
     cache = pipeline._StageCache()
     cache.get(("volume", "scene A"), lambda: "volume A")
-    cache.get(("transmittance", "scene A", (0, 0, 1)), lambda: "T A")
+    cache.get(("grid constants", "scene A", (0, 0, 1)), lambda: "T A")
     cache.get(("constants", "scene A", (0, 0, 1), 7), lambda: "constants A")
 
     def build_b():
@@ -53,6 +60,21 @@ def test_a_new_scene_drops_the_old_scenes_entries_before_building():
 
     assert cache.get(("volume", "scene B"), build_b) == "volume B"
     # same scene, new sun: the volume stays, Step 1a is rebuilt
-    cache.get(("transmittance", "scene B", (0, 0, 1)), lambda: "T B")
-    assert cache.get(("transmittance", "scene B", (0, 1, 0)), lambda: "T B2") == "T B2"
+    cache.get(("grid constants", "scene B", (0, 0, 1)), lambda: "T B")
+    assert cache.get(("grid constants", "scene B", (0, 1, 0)), lambda: "T B2") == "T B2"
     assert cache.get(("volume", "scene B"), lambda: "rebuilt") == "volume B"
+
+
+def test_a_new_sun_holds_one_set_of_grid_constants_at_a_time():
+    """render() looks the grid's constants up inside the build of the constants: when the sun changes, the old
+    entries (each holding the packed volume) are gone before the new packed volume is built."""
+    cache = pipeline._StageCache()
+    cache.get(("volume", "B"), lambda: "volume B")
+    cache.get(("constants", "B", "sun 1", 7), lambda: cache.get(("grid constants", "B", "sun 1"), lambda: "G1"))
+
+    def build_grid():
+        assert set(cache._entries) == {"volume"}, "the old sun's constants must be released first"
+        return "G2"
+
+    assert cache.get(("constants", "B", "sun 2", 7), lambda: cache.get(("grid constants", "B", "sun 2"), build_grid)) == "G2"
+    assert set(cache._entries) == {"volume", "constants", "grid constants"}

@@ -248,3 +248,28 @@ def test_non_finite_rays_are_rejected_before_the_kernel(backend):
     with pytest.raises(SwimInputError, match="origins must be a finite"):
         _trace(_tiny_scene(), origins, np.nan_to_num(dirs), enu_from_azimuth_zenith(135.0, 40.0),
                settings=MarchSettings(backend=backend))
+
+
+@pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
+def test_packed_volume_is_one_host_array_without_empty_aerosol_channels(aerosol_plume):
+    """The packed volume is held once, as a read-only numpy array (the numba kernel reads it in place), and
+    without a 3-D aerosol its two all-zero channels are left out (docs/performance.md, memory)."""
+    from swim.rt.march import HOST_CONSTANTS, N_CHANNELS, _device_constants
+
+    scene = _tiny_scene(aerosol_plume)
+    volume = build_optical_volume(scene)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    transmittance = solar_transmittance(volume, sun)
+    consts = kernel_constants(volume, transmittance, build_gas_tables(AerosolBackground()), sun)
+    packed = consts["volume"]
+    assert isinstance(packed, np.ndarray) and not packed.flags.writeable
+    assert packed.shape == volume["extinction"].shape[1:] + (N_CHANNELS if aerosol_plume else N_CHANNELS - 2,)
+    np.testing.assert_array_equal(packed[..., :5], np.moveaxis(volume["extinction"].values, 0, -1))
+    np.testing.assert_array_equal(packed[..., -2], transmittance["cloud_transmittance"].values)
+    np.testing.assert_array_equal(packed[..., -1], transmittance["terrain_shadow"].values)
+    if aerosol_plume:
+        np.testing.assert_array_equal(packed[..., 5], volume["aerosol_extinction"].values)
+    device = _device_constants(consts)
+    assert _device_constants(consts) is device, "the JAX kernel's device copy is made once per constants"
+    for key in HOST_CONSTANTS:
+        np.testing.assert_array_equal(np.asarray(device[key]), consts[key])

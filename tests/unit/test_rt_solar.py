@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from swim.constants import BACKSCATTER_FRACTION, HYDROMETEOR_DENSITY
+from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
@@ -135,3 +136,36 @@ def test_terrain_casts_a_shadow():
     west_foot = n // 2 - 4   # facing the sun
     assert shadow[level, n // 2, east_foot] < 0.05
     assert shadow[level, n // 2, west_foot] > 0.95
+
+
+def test_selected_variables_match_the_full_result_and_unknown_names_are_rejected():
+    """A render asks only for the Step 1a fields its kernel reads; they must be those of the full result, for a
+    scene with cloud, terrain (a shadow) and a 3-D aerosol, and a scene with nothing to sweep at all."""
+    n, spacing = 21, 500.0
+    x = (np.arange(n) - n // 2) * spacing
+    z = np.arange(0.0, 4000.0, 100.0) + 50.0
+    zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
+    cloud = 4e-4 * (np.abs(zz - 2000) < 400) * (np.abs(xx) < 1500) * (np.abs(yy) < 1500)
+    terrain = 900.0 * np.exp(-((x[None, :] + 2000) / 1200.0) ** 2 - (x[:, None] / 3000.0) ** 2)
+    aerosol = 2e-4 * np.exp(-zz / 1500.0) * (xx > 0)
+    full_scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0, terrain_height=terrain,
+                                   cloud_liquid_content=cloud, cloud_liquid_effective_radius=RADIUS,
+                                   aerosol_extinction=aerosol)
+    empty_scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0)
+    sun = enu_from_azimuth_zenith(250.0, 55.0)
+    wanted = ("cloud_transmittance", "terrain_shadow", "aerosol_tau_sun")
+    for scene in (full_scene, empty_scene):
+        volume = build_optical_volume(scene, dz=100.0)
+        full = solar_transmittance(volume, sun)
+        part = solar_transmittance(volume, sun, variables=wanted)
+        assert set(part.data_vars) == set(wanted)
+        for name in wanted:
+            np.testing.assert_array_equal(part[name].values, full[name].values, err_msg=name)
+    assert float(full["cloud_transmittance"].min()) == 1.0 and float(full["terrain_shadow"].min()) == 1.0
+    volume = build_optical_volume(full_scene, dz=100.0)
+    result = solar_transmittance(volume, sun)
+    assert float(result["cloud_transmittance"].min()) < 0.5, "the cloud must dim the sun somewhere"
+    assert float(result["terrain_shadow"].min()) < 0.05, "the hill must cast a shadow"
+    assert float(result["aerosol_tau_sun"].max()) > 0.05, "the aerosol must have an optical depth towards the sun"
+    with pytest.raises(SwimInputError, match="unknown variables"):
+        solar_transmittance(volume, sun, variables=("cloud_transmittance", "tau"))

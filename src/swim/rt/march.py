@@ -67,7 +67,8 @@ log = logging.getLogger(__name__)
 SKYLIGHT_SCALAR_FACTOR = 2.0
 #: Channel layout of the packed volume: 5 species extinctions, 3-D aerosol extinction, the 3-D aerosol's
 #: optical depth towards the sun (550 nm), Step 1a's cloud transmittance T, the terrain shadow (last). The
-#: terrain shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone.
+#: terrain shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone. Without a 3-D
+#: aerosol its two channels are left out (N_CHANNELS - 2 channels, :func:`volume_constants`).
 N_CHANNELS = len(SPECIES) + 4
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
 #: "seen from above" (Eq. 26) treatment of clouds.
@@ -468,7 +469,7 @@ def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N
     s = s0[None, :] + f[:, None] * length[None, :]
     q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
     _, _, k, j, i = _point_geometry(q, consts)
-    occupancy = consts["occupancy"]
+    occupancy = jnp.asarray(consts["occupancy"])
     nk, ny, nx = occupancy.shape
     kk, jj, ii = (jnp.clip(jnp.round(x), 0, size - 1).astype(jnp.int32) for x, size in ((k, nk), (j, ny), (i, nx)))
     occupied = occupancy.reshape(-1)[(kk * ny + jj) * nx + ii].reshape(n_probe, n) > 0
@@ -492,7 +493,9 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
     """
     multiple_scattering = ms_profile is not None
-    outside = jnp.concatenate([jnp.zeros(N_CHANNELS - 2), jnp.ones(2)]).astype(jnp.float32)
+    n_c = consts["volume"].shape[-1]
+    aerosol_3d = n_c == N_CHANNELS  # the 3-D aerosol's two channels are packed only where it is not zero
+    outside = jnp.concatenate([jnp.zeros(n_c - 2), jnp.ones(2)]).astype(jnp.float32)
 
     def body(m, st):
         s_lo = jax.lax.dynamic_index_in_dim(edges, m, keepdims=False)
@@ -504,11 +507,15 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         if in_grid:
             v = trilinear(consts["volume"], k, j, i, outside)
             beta_sp = v[:, : len(SPECIES)]
-            beta_a3 = v[:, len(SPECIES) : len(SPECIES) + 1] * consts["angstrom"][None, :]
             t_cloud = v[:, -2]
             shadow = v[:, -1]
-            # Direct beam through the 3-D aerosol towards the sun (Angstrom-scaled from 550 nm).
-            t_aerosol = jnp.exp(-v[:, len(SPECIES) + 1 : len(SPECIES) + 2] * consts["angstrom"][None, :])
+            if aerosol_3d:
+                beta_a3 = v[:, len(SPECIES) : len(SPECIES) + 1] * consts["angstrom"][None, :]
+                # Direct beam through the 3-D aerosol towards the sun (Angstrom-scaled from 550 nm).
+                t_aerosol = jnp.exp(-v[:, len(SPECIES) + 1 : len(SPECIES) + 2] * consts["angstrom"][None, :])
+            else:
+                beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
+                t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
             gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
             hit_now = st["alive"] & (gap < 0)
             frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
@@ -827,19 +834,62 @@ def aerosol_column_optical_depth(volume):
                         name="aerosol_column_optical_depth")
 
 
+#: The variables of :func:`swim.rt.solar.solar_transmittance` that :func:`kernel_constants` reads.
+KERNEL_STEP1A_VARIABLES = ("aerosol_tau_sun", "cloud_transmittance", "terrain_shadow")
+#: Constants of :func:`kernel_constants` kept as numpy arrays: the packed volume (the biggest array of a render)
+#: and the occupancy grid, which only the step loop reads. The numba kernel reads them in place; the JAX kernel
+#: gets one device copy (:func:`_device_constants`), so a CPU render does not hold the volume twice.
+HOST_CONSTANTS = ("volume", "occupancy")
+
+
 def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
-    """Device arrays and scalars shared by all chunks of a render."""
+    """Arrays and scalars shared by all chunks of a render: :func:`volume_constants` and
+    :func:`atmosphere_constants` in one dict."""
+    return {**volume_constants(volume, transmittance), **atmosphere_constants(gas, sun_direction_scene, radius)}
+
+
+def volume_constants(volume, transmittance):
+    """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
+    channel) and the occupancy grid (level, y, x) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
+    terrain, the ground's fields and the grid's index map as device arrays.
+
+    ``transmittance`` needs the :data:`KERNEL_STEP1A_VARIABLES` of :func:`swim.rt.solar.solar_transmittance`;
+    it is not referenced by the result, so a caller that keeps only this frees Step 1a's fields."""
     geometry = grid_geometry(volume)
     # filled channel by channel: a transpose and a concatenate would each make a copy of the whole volume
     extinction = volume["extinction"].values
-    packed = np.empty(extinction.shape[1:] + (N_CHANNELS,), np.float32)
+    fields = [volume["aerosol_extinction"], transmittance["aerosol_tau_sun"], transmittance["cloud_transmittance"],
+              transmittance["terrain_shadow"]]
+    if not np.any(fields[0].values):
+        fields = fields[2:]  # no 3-D aerosol: its two channels would be zeros (2/9 of the volume's memory)
+    packed = np.empty(extinction.shape[1:] + (extinction.shape[0] + len(fields),), np.float32)
     for c in range(extinction.shape[0]):
         packed[..., c] = extinction[c]
-    for c, field in enumerate((volume["aerosol_extinction"], transmittance["aerosol_tau_sun"],
-                               transmittance["cloud_transmittance"], transmittance["terrain_shadow"])):
+    for c, field in enumerate(fields):
         packed[..., extinction.shape[0] + c] = field.values
+    packed.flags.writeable = False
+    occupancy = occupancy_grid(volume)
+    occupancy.flags.writeable = False
     surface = surface_fields(volume, transmittance)
-    surface_outside = surface_fields_outside(surface)
+    f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
+    return {
+        # host arrays (HOST_CONSTANTS): the numba kernel reads them in place; the JAX kernel gets one device copy
+        "volume": packed,
+        "occupancy": occupancy,
+        "terrain": f32(volume["terrain_height"].values[None]),
+        "surface": f32(np.moveaxis(surface, -1, 0)),
+        "surface_outside": f32(surface_fields_outside(surface)),
+        "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients",
+                                                             "index_map_bounds") if key in volume.attrs},
+        "z_bottom": f32(geometry.z_bottom),
+        "dz": f32(geometry.dz),
+        "aerosol_column": f32(aerosol_column_optical_depth(volume).values[None]),
+    }
+
+
+def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
+    """The kernel constants of the clear atmosphere (:mod:`swim.rt.gas` tables), the sun and the hydrometeor
+    optics: small device arrays and scalars."""
     classes = np.asarray(gas.diffuse_horizontal_classes)  # (n_class, nu, nmu, 3)
     # Molecules, background and stratospheric aerosol: each a height profile times a spectrum, so the kernel
     # looks up 3 profiles instead of 9 columns; the spectra relative to the first wavelength.
@@ -853,15 +903,6 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     sun = np.asarray(sun_direction_scene, dtype=float)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {
-        "volume": jnp.asarray(packed),
-        "terrain": f32(volume["terrain_height"].values[None]),
-        "surface": f32(np.moveaxis(surface, -1, 0)),
-        "surface_outside": f32(surface_outside),
-        "occupancy": jnp.asarray(occupancy_grid(volume)),
-        "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients",
-                                                             "index_map_bounds") if key in volume.attrs},
-        "z_bottom": f32(geometry.z_bottom),
-        "dz": f32(geometry.dz),
         "radius": f32(radius),
         "sun": f32(sun),
         "mu0": f32(sun[2]),
@@ -873,7 +914,6 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
         "ms_source": f32(np.stack([t.source for t in gas.diffuse_sources])),
         "diffuse_classes": f32(np.moveaxis(classes, -1, 0).reshape(3, -1, classes.shape[2])),
         "class_aod": f32(gas.aerosol_class_aod),
-        "aerosol_column": f32(aerosol_column_optical_depth(volume).values[None]),
         "angstrom": f32(gas.angstrom_factor),
         "aerosol_ssa": f32(gas.aerosol.ssa),
         "stratospheric_ssa": f32(gas.aerosol.stratospheric.ssa),
@@ -951,6 +991,10 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         if not _numba_available():
             raise SwimInputError("MarchSettings.backend='numba' needs the numba package (pip install numba)")
         tables = _numba_tables(consts)
+        # the JAX set-up and composition never read the host arrays (a jitted call would copy them every time)
+        consts = {key: value for key, value in consts.items() if key not in HOST_CONSTANTS}
+    else:
+        consts = _device_constants(consts)
     outputs = []
     pool, pending = None, collections.deque()
     if backend == "numba":
@@ -1000,6 +1044,23 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     for out in outputs:
         out["steps"] = np.full(len(out["surface"]), steps, np.int32)
     return {key: np.concatenate([o[key] for o in outputs]) for key in outputs[0]}
+
+
+#: The last kernel constants given device copies of their host arrays, and those copies (:func:`_device_constants`).
+_DEVICE_CONSTANTS = {}
+
+
+def _device_constants(consts):
+    """``consts`` with the arrays of :data:`HOST_CONSTANTS` as device arrays, for the JAX kernel. The copies are
+    made once and kept for the most recent ``consts`` only (a render's chunks, and the renders of one scene and
+    sun, share them; on a GPU this is the volume's one transfer)."""
+    cached = _DEVICE_CONSTANTS.get("entry")
+    if cached is not None and cached[0] is consts:
+        return cached[1]
+    _DEVICE_CONSTANTS.clear()  # the previous copies go before the new ones are made
+    device = {**consts, **{key: jnp.asarray(consts[key]) for key in HOST_CONSTANTS}}
+    _DEVICE_CONSTANTS["entry"] = (consts, device)
+    return device
 
 
 def _pad_rows(a, pad):

@@ -225,7 +225,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     """
     n = start.shape[0]
     nk, ny, nx, n_c = volume.shape
-    n_species = n_c - 4
+    n_species = tau_species.shape[1]
+    aerosol_3d = n_c > n_species + 2  # the 3-D aerosol's two channels (packed only where it is not zero)
     n_gas = beta_gas.shape[1]
     nu_sky, nmu_sky = sky.shape[1], sky.shape[2]
     nu_class = diffuse_classes.shape[1] // n_class
@@ -319,8 +320,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                     else:
                         for c in range(n_c):
                             vol[c] = 1.0 if c >= n_c - 2 else 0.0
-                    beta_a3 = vol[n_species]
-                    tau_a3_sun = vol[n_species + 1]
+                    beta_a3 = vol[n_species] if aerosol_3d else 0.0
+                    tau_a3_sun = vol[n_species + 1] if aerosol_3d else 0.0
                     t_cloud = vol[n_c - 2]
                     shadow = vol[n_c - 1]
                     if n_class > 1:  # diffuse_at: the skylight of the ray's aerosol column class

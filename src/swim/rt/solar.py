@@ -29,6 +29,7 @@ import numpy as np
 import xarray as xr
 
 from ..constants import BACKSCATTER_FRACTION, SPECIES
+from ..errors import SwimInputError
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +38,8 @@ TERRAIN_OPACITY_PER_CELL = 8.0
 #: Lowest sine of the solar elevation used for the sweep direction (the sun below ~0.6 deg elevation is
 #: treated as grazing; the gas tables of Step 2 put such points into the earth's shadow anyway).
 MIN_SUN_ELEVATION_SINE = 0.01
+#: Variables of :func:`solar_transmittance`.
+STEP1A_VARIABLES = ("tau_sun", "b_tau_sun", "terrain_shadow", "aerosol_tau_sun", "cloud_transmittance", "transmittance")
 #: 1 - g per unit backscatter fraction b in :func:`transmittance_delta_eddington` [-]: with 1 - g = (7/3) b
 #: the delta-Eddington transmittance of a thick layer equals Eq. 4's (T1 -> mu0 / (b tau_v)) at z0 = 60 deg,
 #: and the paper's b of cloud liquid (0.063) gives g = 0.853, the asymmetry parameter of stratus droplets
@@ -189,7 +192,7 @@ def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
     return taus.transpose(1, 0, 2, 3)
 
 
-def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
+def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None) -> xr.Dataset:
     """Step 1a: optical depth towards the sun and cloud transmittance T at every grid point.
 
     Parameters
@@ -198,6 +201,9 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
         Optical volume from :func:`swim.optics.volume.build_optical_volume`.
     sun_direction_scene : array_like
         Shape (3,): unit vector towards the sun in the scene frame (ENU at the reference point).
+    variables : sequence of str, optional
+        Only these of the variables below (a render needs ``cloud_transmittance``, ``terrain_shadow`` and
+        ``aerosol_tau_sun``; each is a float32 field of the volume's size); default: all of them.
 
     Returns
     -------
@@ -211,11 +217,20 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
         ``transmittance`` (level, y, x) [-]: T (:func:`transmittance_delta_eddington`, in place of Eq. 6) times the terrain shadow, i.e.
         E / (e^{-tau_R} E_TOA) of Eq. 8.
 
+    Raises
+    ------
+    SwimInputError
+        If ``variables`` names a variable that is not one of these.
+
     References
     ----------
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8; Joseph et al. (1976),
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
+    names = STEP1A_VARIABLES if variables is None else tuple(variables)
+    unknown = sorted(set(names) - set(STEP1A_VARIABLES))
+    if unknown:
+        raise SwimInputError(f"solar_transmittance: unknown variables {unknown}; expected some of {STEP1A_VARIABLES}")
     sun = np.asarray(sun_direction_scene, dtype=float)
     sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
     dz = float(volume.attrs["dz"])
@@ -228,49 +243,81 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene) -> xr.Dataset:
 
     beta = volume["extinction"].values
     aerosol = volume["aerosol_extinction"].values
-    b = np.array([BACKSCATTER_FRACTION[s] for s in SPECIES])[:, None, None, None]
-    # The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D aerosol
-    # is swept apart: its diffuse light is in the multiple-scattering table of Step 2, so it dims the
-    # direct beam only (docs/rendering.md).
-    # species by species in float32: (b * beta).sum() made a float64 copy of all species (1 GB at 400 x 400 x 160)
-    total = np.zeros(beta.shape[1:], np.float32)
-    b_weighted = np.zeros(beta.shape[1:], np.float32)
-    for n in range(beta.shape[0]):
-        total += beta[n]
-        b_weighted += np.float32(b[n, 0, 0, 0]) * beta[n]
     levels = volume["level"].values
     terrain = volume["terrain_height"].values
-    # Zero at and above the surface (a sunlit slope does not shade itself), 1 a full level below it.
-    fields = np.empty((4,) + total.shape, np.float32)
-    fields[0], fields[1], fields[3] = total, b_weighted, aerosol
-    del total, b_weighted
-    fields[2] = np.clip((terrain[None] - levels[:, None, None]) / dz, 0.0, 1.0) * (TERRAIN_OPACITY_PER_CELL / dz)
+    nk = levels.size
+    shape = beta.shape[2:]  # (ny, nx)
+    b = [np.float32(BACKSCATTER_FRACTION[name]) for name in SPECIES]
+    # The swept fields: 0 hydrometeor extinction, 1 its backscatter-weighted sum, 2 the terrain (zero at and
+    # above the surface, so a sunlit slope does not shade itself; opaque a full level below it), 3 the 3-D
+    # aerosol. The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D
+    # aerosol is swept apart: its diffuse light is in the multiple-scattering table of Step 2, so it dims the
+    # direct beam only (docs/rendering.md).
     # Only fields that are not zero everywhere, and only up to their highest non-zero level (plus the clear
     # level above it), are swept: above it the optical depth towards the sun is 0. This is what makes a flat
-    # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing.
-    nonzero = fields.reshape(fields.shape[0], fields.shape[1], -1).any(axis=2)  # (4, nk)
-    taus = np.zeros_like(fields)
-    swept = np.flatnonzero(nonzero.any(axis=1))
-    if swept.size:
-        n_levels = min(int(np.flatnonzero(nonzero[swept].any(axis=0)).max()) + 2, fields.shape[1])
+    # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing; and only
+    # those levels are ever held as sweep input and output (memory: docs/performance.md).
+    hydro_levels = np.zeros(nk, bool)
+    for n in range(beta.shape[0]):
+        hydro_levels |= beta[n].reshape(nk, -1).any(axis=1)
+    tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol.reshape(nk, -1).any(axis=1)}
+    swept = [c for c in range(4) if tops[c].any()]
+    taus = {}
+    if swept:
+        n_levels = min(max(int(np.flatnonzero(tops[c]).max()) for c in swept) + 2, nk)
         n_levels = max(n_levels, 2)
-        taus[swept, :n_levels] = np.asarray(_sweep(jnp.asarray(fields[swept, :n_levels]), float(di), float(dj),
-                                                   float(path_per_level), n_sub))
-    log.info("Step 1a sweep: %d sub-steps per level, max tau_sun %.1f", n_sub, float(taus[0].max()))
-    mu0 = max(float(sun[2]), 0.0)
-    cloud_t = np.asarray(transmittance_delta_eddington(jnp.asarray(taus[0]), jnp.asarray(taus[1]),
-                                                       max(mu0, MIN_SUN_ELEVATION_SINE)))
-    shadow = np.exp(-taus[2])
+        fields = np.empty((len(swept), n_levels) + shape, np.float32)
+        for row, c in enumerate(swept):
+            if c < 2:  # species by species in float32 (a weighted sum over species would make a float64 copy)
+                fields[row] = 0.0
+                for n in range(beta.shape[0]):
+                    fields[row] += beta[n, :n_levels] if c == 0 else b[n] * beta[n, :n_levels]
+            elif c == 2:
+                fields[row] = np.clip((terrain[None] - levels[:n_levels, None, None]) / dz, 0.0, 1.0) * (
+                    TERRAIN_OPACITY_PER_CELL / dz)
+            else:
+                fields[row] = aerosol[:n_levels]
+        device = jnp.asarray(fields)
+        del fields
+        out = np.asarray(_sweep(device, float(di), float(dj), float(path_per_level), n_sub))
+        del device
+        taus = {c: out[row] for row, c in enumerate(swept)}
+    log.info("Step 1a sweep: %d sub-steps per level, max tau_sun %.1f", n_sub,
+             float(taus[0].max()) if 0 in taus else 0.0)
+
+    def full(c, transform=None, above=0.0):
+        """Field c on all levels (the swept levels, then ``above``), through ``transform``."""
+        a = np.full((nk,) + shape, above, np.float32)
+        if c in taus:
+            part = taus[c] if transform is None else transform(taus[c])
+            a[:part.shape[0]] = part
+        return a
+
+    mu0 = max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
+
+    def cloud_t(tau):
+        return np.asarray(transmittance_delta_eddington(jnp.asarray(tau), jnp.asarray(taus[1]), mu0))
+
     dims = ("level", "y", "x")
-    return xr.Dataset(
-        {
-            "tau_sun": (dims, taus[0], {"units": "1", "long_name": "optical depth towards the sun (Step 1a)"}),
-            "b_tau_sun": (dims, taus[1], {"units": "1"}),
-            "terrain_shadow": (dims, shadow, {"units": "1"}),
-            "aerosol_tau_sun": (dims, taus[3], {"units": "1",
-                                                "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"}),
-            "cloud_transmittance": (dims, cloud_t, {"units": "1", "long_name": "cloud transmittance T (Step 1a)"}),
-            "transmittance": (dims, cloud_t * shadow, {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}),
-        },
-        coords={"level": volume["level"]},
-    )
+    attrs = {"tau_sun": {"units": "1", "long_name": "optical depth towards the sun (Step 1a)"},
+             "b_tau_sun": {"units": "1"},
+             "terrain_shadow": {"units": "1"},
+             "aerosol_tau_sun": {"units": "1", "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
+             "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
+             "transmittance": {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}}
+    data = {}
+    for name in names:  # one field at a time, so only the requested ones are ever held
+        if name == "tau_sun":
+            value = full(0)
+        elif name == "b_tau_sun":
+            value = full(1)
+        elif name == "terrain_shadow":
+            value = full(2, lambda t: np.exp(-t), above=1.0)
+        elif name == "aerosol_tau_sun":
+            value = full(3)
+        elif name == "cloud_transmittance":
+            value = full(0, cloud_t, above=1.0)
+        else:
+            value = full(0, cloud_t, above=1.0) * full(2, lambda t: np.exp(-t), above=1.0)
+        data[name] = (dims, value, attrs[name])
+    return xr.Dataset(data, coords={"level": volume["level"]})
