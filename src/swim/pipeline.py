@@ -43,6 +43,8 @@ log = logging.getLogger(__name__)
 
 #: Above this height [m] a perspective camera without a look-at point looks straight down.
 SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
+#: Image rows per call of the colour stage in :func:`render` (bounds its float64 temporaries).
+COLOUR_BLOCK_ROWS = 128
 
 
 def _fingerprint(scene: xr.Dataset) -> str:
@@ -297,15 +299,18 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
          **atmosphere_constants(gas, sun_scene)}, gas))
     geometry = grid_geometry(volume)
 
-    def trace_directions(dirs, progress_rays):
+    def ray_phase(dirs):
         cos_theta = dirs @ sun_scene
-        ray_phase = {
+        return {
             "cos_theta": cos_theta,
             "cos_view_zenith": dirs[:, 2],
             "p_rayleigh": np.asarray(rayleigh_phase_function(cos_theta, gas.depolarization)),
             "p_aerosol": np.asarray(aerosol.type.phase_function(cos_theta)),
             "p_stratospheric": np.asarray(aerosol.stratospheric.phase_function(cos_theta)),
         }
+
+    def trace_directions(dirs, progress_rays):
+        # the phase functions chunk by chunk (trace_rays), not held for every pixel of a big image at once
         return trace_rays(np.broadcast_to(observer, dirs.shape), dirs, consts, geometry, ray_phase, settings,
                           progress_rays)
 
@@ -326,9 +331,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         traced = valid.reshape(-1)
         traced_out = trace_pixels(np.flatnonzero(traced), progress)
         out = {}
-        for key, value in traced_out.items():
+        for key in list(traced_out):
+            value = traced_out.pop(key)  # one output at a time: the traced and the image arrays are not all held
             out[key] = np.zeros((traced.size,) + value.shape[1:], value.dtype)
             out[key][traced] = value
+        del value
     else:
         log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, coarse spacing %d)", camera,
                  cam.shape, int(valid.sum()), sampling.tolerance, sampling.coarse_spacing)
@@ -351,7 +358,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         white_level = SPACE_WHITE_LEVEL if height_asl > SPACE_VIEW_HEIGHT_M else DEFAULT_WHITE_LEVEL
     disk = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
     radiance = image("radiance") + disk
-    rgb = solar_relative_to_srgb8(radiance, white_level=white_level)
+    # the colour stage is per pixel and works in float64: in blocks of rows, to bound its temporaries
+    rgb = np.concatenate([solar_relative_to_srgb8(radiance[:, r0:r0 + COLOUR_BLOCK_ROWS], white_level=white_level)
+                          for r0 in range(0, ny, COLOUR_BLOCK_ROWS)], axis=0)
     view_az, view_zen = azimuth_zenith_from_enu(np.where(valid[..., None], dirs_enu, np.nan))
     sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
 

@@ -922,6 +922,8 @@ def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIU
     }
 
 
+#: Rays per call of :func:`ray_segments` in :func:`trace_rays` (bounds its temporaries).
+SEGMENT_BLOCK = 65536
 #: Smallest batch of rays the kernel is compiled for (:func:`padded_batch_size`).
 MIN_BATCH = 256
 
@@ -947,11 +949,12 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     consts : dict
         From :func:`kernel_constants`.
     geometry : GridGeometry
-    ray_phase : dict
+    ray_phase : dict or callable
         Per-ray arrays (n,): ``cos_theta`` (cosine of the scattering angle), ``cos_view_zenith`` (view
         direction dotted with the local up at the reference point), ``p_rayleigh`` (phase function,
         mean 1 over the sphere); ``p_aerosol`` and ``p_stratospheric`` (n, 3), the phase functions of the
-        background and the stratospheric aerosol per wavelength.
+        background and the stratospheric aerosol per wavelength. Or a function that returns that dict for a
+        (m, 3) block of ``directions``, called chunk by chunk so that a big image never holds them all.
     settings : MarchSettings
     progress : callable, optional
         Called with (rays done, rays total) after each chunk.
@@ -976,7 +979,11 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             # the numba kernel reads its tables unchecked: a NaN ray must not get that far
             raise SwimInputError(f"trace_rays: {name} must be a finite (n, 3) array [m for origins, unit vectors "
                                  f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
-    seg = ray_segments(origins, directions, geometry, top=float(consts["top"]))
+    # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB
+    blocks = [ray_segments(origins[lo:lo + SEGMENT_BLOCK], directions[lo:lo + SEGMENT_BLOCK], geometry,
+                           top=float(consts["top"])) for lo in range(0, len(origins), SEGMENT_BLOCK)]
+    seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
+    del blocks
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
     lengths = np.diff(np.concatenate([np.zeros((len(origins), 1)), seg["bounds"]], axis=1), axis=1)
     settings = replace(settings, **{name: 0 for name, length in zip(("n_before", "n_grid", "n_after"), lengths.T)
@@ -995,7 +1002,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         consts = {key: value for key, value in consts.items() if key not in HOST_CONSTANTS}
     else:
         consts = _device_constants(consts)
-    outputs = []
+    outputs = {}  # written chunk by chunk into arrays for all rays (a list and a concatenate would hold two)
     pool, pending = None, collections.deque()
     if backend == "numba":
         from concurrent.futures import ThreadPoolExecutor
@@ -1007,7 +1014,10 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         pool = ThreadPoolExecutor(workers) if workers > 1 else None
 
     def finished(out, hi):
-        outputs.append(out)
+        for key, value in out.items():
+            if key not in outputs:
+                outputs[key] = np.empty((n,) + value.shape[1:], value.dtype)
+            outputs[key][hi - len(value):hi] = value
         if progress is not None:
             progress(hi, n)
 
@@ -1019,7 +1029,12 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             def take(a, dtype=np.float32):
                 return _pad_rows(np.asarray(a[lo:hi]), pad).astype(dtype)
 
-            rays = {key: jnp.asarray(take(value)) for key, value in ray_phase.items()}
+            if callable(ray_phase):
+                phase = {key: _pad_rows(np.asarray(value), pad).astype(np.float32)
+                         for key, value in ray_phase(np.asarray(directions[lo:hi])).items()}
+            else:
+                phase = {key: take(value) for key, value in ray_phase.items()}
+            rays = {key: jnp.asarray(value) for key, value in phase.items()}
             args = [take(seg["start"]), take(directions), take(seg["bounds"]), take(seg["ends_on_ground"], bool),
                     take(seg["valid"], bool)]
             if backend == "jax":
@@ -1041,9 +1056,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
-    for out in outputs:
-        out["steps"] = np.full(len(out["surface"]), steps, np.int32)
-    return {key: np.concatenate([o[key] for o in outputs]) for key in outputs[0]}
+    outputs["steps"] = np.full(n, steps, np.int32)
+    return outputs
 
 
 #: The last kernel constants given device copies of their host arrays, and those copies (:func:`_device_constants`).
