@@ -34,6 +34,7 @@ from .rt.march import (
     aerosol_column_optical_depth,
     atmosphere_constants,
     grid_geometry,
+    share_packed_channels,
     trace_rays,
     volume_constants,
 )
@@ -290,7 +291,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         # Step 1a, only the fields that the kernel constants read, which hold them packed into the volume: Step
         # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160; docs/performance.md)
         transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES)
-        return volume_constants(volume, transmittance)
+        constants = volume_constants(volume, transmittance)
+        # the volume's extinctions become views of the packed channels: the grid is held once, not twice
+        share_packed_channels(volume, constants)
+        return constants
 
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
     # constants are looked up inside its build, after the old entry has gone: a new sun never holds two volumes.

@@ -273,3 +273,22 @@ def test_packed_volume_is_one_host_array_without_empty_aerosol_channels(aerosol_
     assert _device_constants(consts) is device, "the JAX kernel's device copy is made once per constants"
     for key in HOST_CONSTANTS:
         np.testing.assert_array_equal(np.asarray(device[key]), consts[key])
+
+
+def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():
+    """render() points the optical volume's extinctions at the packed channels (one copy of the grid); the
+    constants built again from that volume (another sun) must be those built from the original volume."""
+    from swim.rt.march import share_packed_channels
+
+    volume = build_optical_volume(_tiny_scene(aerosol_plume=True))
+    original = {name: volume[name].values.copy() for name in ("extinction", "aerosol_extinction")}
+    gas = build_gas_tables(AerosolBackground())
+    sun_1, sun_2 = enu_from_azimuth_zenith(135.0, 40.0), enu_from_azimuth_zenith(250.0, 65.0)
+    expected = kernel_constants(volume, solar_transmittance(volume, sun_2), gas, sun_2)["volume"].copy()
+    consts = kernel_constants(volume, solar_transmittance(volume, sun_1), gas, sun_1)
+    share_packed_channels(volume, consts)
+    for name, values in original.items():
+        assert np.shares_memory(volume[name].values, consts["volume"]), name
+        np.testing.assert_array_equal(volume[name].values, values, err_msg=name)
+    again = kernel_constants(volume, solar_transmittance(volume, sun_2), gas, sun_2)["volume"]
+    np.testing.assert_array_equal(again, expected)

@@ -887,6 +887,23 @@ def volume_constants(volume, transmittance):
     }
 
 
+def share_packed_channels(volume, constants):
+    """Point the optical volume's ``extinction`` (species, level, y, x) and, where packed, ``aerosol_extinction``
+    (level, y, x) at their channels of the packed volume of :func:`volume_constants` (read-only views), freeing
+    the volume's own copies: a render then holds the grid's extinctions once (docs/performance.md, memory).
+
+    The values are unchanged (the packed channels are copies of them); a later Step 1a (a new sun) reads the
+    views, and the next :func:`volume_constants` copies them into its own packed volume, which may then be
+    shared in turn. Modifies ``volume`` in place and returns it."""
+    packed = constants["volume"]
+    n_species = volume.sizes["species"]
+    extinction = volume["extinction"]
+    volume["extinction"] = extinction.copy(data=np.moveaxis(packed[..., :n_species], -1, 0))
+    if packed.shape[-1] == N_CHANNELS:
+        volume["aerosol_extinction"] = volume["aerosol_extinction"].copy(data=packed[..., n_species])
+    return volume
+
+
 def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
     """The kernel constants of the clear atmosphere (:mod:`swim.rt.gas` tables), the sun and the hydrometeor
     optics: small device arrays and scalars."""

@@ -154,7 +154,8 @@ DIRECT_LEVELS = 16
 
 @functools.partial(jax.jit, static_argnames=("n_sub", "block"))
 def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
-    """Sweep (C, nk, ny, nx) extinction fields along the sun; returns optical depths of the same shape.
+    """Sweep (C, nk, ny, nx) extinction fields along the sun; returns optical depths (nk, C, ny, nx) (the
+    order the sweep builds them in: a transpose would copy them).
 
     tau(k) = integral of the extinction from level k up to level min(k + block, top) along the sun ray
     (sampled directly, n_sub points per level) + tau of that level, bilinearly interpolated where the
@@ -189,7 +190,7 @@ def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
 
     taus = jnp.zeros((nk, c, ny, nx), fields.dtype)
     taus = jax.lax.fori_loop(0, nk - 1, lambda n, t: level(nk - 2 - n, t), taus)
-    return taus.transpose(1, 0, 2, 3)
+    return taus
 
 
 def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None) -> xr.Dataset:
@@ -215,7 +216,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None)
         [-]: transmittance of the terrain (0 in a mountain's shadow); ``cloud_transmittance`` (level, y, x)
         [-]: T alone (it dims the skylight; the terrain shadow cuts only the direct beam);
         ``transmittance`` (level, y, x) [-]: T (:func:`transmittance_delta_eddington`, in place of Eq. 6) times the terrain shadow, i.e.
-        E / (e^{-tau_R} E_TOA) of Eq. 8.
+        E / (e^{-tau_R} E_TOA) of Eq. 8. All are float32; a field that nothing makes (no cloud, terrain or
+        3-D aerosol) is a read-only broadcast of its constant value.
 
     Raises
     ------
@@ -259,8 +261,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None)
     # those levels are ever held as sweep input and output (memory: docs/performance.md).
     hydro_levels = np.zeros(nk, bool)
     for n in range(beta.shape[0]):
-        hydro_levels |= beta[n].reshape(nk, -1).any(axis=1)
-    tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol.reshape(nk, -1).any(axis=1)}
+        hydro_levels |= beta[n].any(axis=(1, 2))  # not reshape: the fields may be strided views (no copies)
+    tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol.any(axis=(1, 2))}
     swept = [c for c in range(4) if tops[c].any()]
     taus = {}
     if swept:
@@ -281,16 +283,18 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None)
         del fields
         out = np.asarray(_sweep(device, float(di), float(dj), float(path_per_level), n_sub))
         del device
-        taus = {c: out[row] for row, c in enumerate(swept)}
+        taus = {c: out[:, row] for row, c in enumerate(swept)}
     log.info("Step 1a sweep: %d sub-steps per level, max tau_sun %.1f", n_sub,
              float(taus[0].max()) if 0 in taus else 0.0)
 
     def full(c, transform=None, above=0.0):
-        """Field c on all levels (the swept levels, then ``above``), through ``transform``."""
+        """Field c on all levels (the swept levels, then ``above``), through ``transform``. A field that was not
+        swept (zero everywhere) is a read-only broadcast of ``above``: it takes no memory."""
+        if c not in taus:
+            return np.broadcast_to(np.float32(above), (nk,) + shape)
         a = np.full((nk,) + shape, above, np.float32)
-        if c in taus:
-            part = taus[c] if transform is None else transform(taus[c])
-            a[:part.shape[0]] = part
+        part = taus[c] if transform is None else transform(taus[c])
+        a[:part.shape[0]] = part
         return a
 
     mu0 = max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
