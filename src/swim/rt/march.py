@@ -939,7 +939,8 @@ def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIU
     }
 
 
-#: Rays per call of :func:`ray_segments` in :func:`trace_rays` (bounds its temporaries).
+#: Rays per call of :func:`ray_segments` and of a ``ray_phase`` function in :func:`trace_rays` (bounds their
+#: temporaries).
 SEGMENT_BLOCK = 65536
 #: Smallest batch of rays the kernel is compiled for (:func:`padded_batch_size`).
 MIN_BATCH = 256
@@ -971,7 +972,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         direction dotted with the local up at the reference point), ``p_rayleigh`` (phase function,
         mean 1 over the sphere); ``p_aerosol`` and ``p_stratospheric`` (n, 3), the phase functions of the
         background and the stratospheric aerosol per wavelength. Or a function that returns that dict for a
-        (m, 3) block of ``directions``, called chunk by chunk so that a big image never holds them all.
+        (m, 3) block of ``directions``, called block by block (:data:`SEGMENT_BLOCK` rays) so that a big image
+        never holds them all.
     settings : MarchSettings
     progress : callable, optional
         Called with (rays done, rays total) after each chunk.
@@ -1020,6 +1022,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     else:
         consts = _device_constants(consts)
     outputs = {}  # written chunk by chunk into arrays for all rays (a list and a concatenate would hold two)
+    phase_block = []  # [first ray, end, ray_phase of those rays] when ray_phase is a function
     pool, pending = None, collections.deque()
     if backend == "numba":
         from concurrent.futures import ThreadPoolExecutor
@@ -1047,8 +1050,14 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                 return _pad_rows(np.asarray(a[lo:hi]), pad).astype(dtype)
 
             if callable(ray_phase):
-                phase = {key: _pad_rows(np.asarray(value), pad).astype(np.float32)
-                         for key, value in ray_phase(np.asarray(directions[lo:hi])).items()}
+                # in blocks of SEGMENT_BLOCK rays: one call per chunk would pay the phase functions' (JAX) dispatch
+                # ~200 times for a 1024^2 image
+                if not phase_block or hi > phase_block[1]:
+                    block_hi = min(n, lo + max(SEGMENT_BLOCK, hi - lo))
+                    phase_block[:] = [lo, block_hi, ray_phase(np.asarray(directions[lo:block_hi]))]
+                b_lo = phase_block[0]
+                phase = {key: _pad_rows(np.asarray(value[lo - b_lo:hi - b_lo]), pad).astype(np.float32)
+                         for key, value in phase_block[2].items()}
             else:
                 phase = {key: take(value) for key, value in ray_phase.items()}
             rays = {key: jnp.asarray(value) for key, value in phase.items()}
