@@ -232,3 +232,13 @@ def test_cli_backend_option(tmp_path):
     bad = tmp_path / "bad.png"
     result = CliRunner().invoke(app, ["render", "--size", "31", "--backend", "cuda", "--out", str(bad)])
     assert result.exit_code == 2 and "MarchSettings.backend" in result.output and not bad.exists()
+
+
+def test_cli_probes_option(tmp_path):
+    out = tmp_path / "probes.png"
+    result = CliRunner().invoke(app, ["render", "--size", "31", "--probes", "16", "--steps", "64", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert out.exists()
+    bad = tmp_path / "bad.png"
+    result = CliRunner().invoke(app, ["render", "--size", "31", "--probes", "0", "--out", str(bad)])
+    assert result.exit_code == 2 and "MarchSettings.n_probe" in result.output and not bad.exists()

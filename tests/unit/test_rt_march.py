@@ -180,7 +180,7 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
     assert np.all(layer["radiance_clear"][0] > base["radiance_clear"][0] * 1.1)
 
 
-@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5)])
+@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0)])
 def test_march_settings_reject_bad_counts(field, value):
     with pytest.raises(SwimInputError, match=f"MarchSettings.{field}"):
         MarchSettings(**{field: value})
@@ -199,13 +199,16 @@ def _random_rays(n, seed=0):
     return vantage[which], dirs
 
 
-@pytest.mark.parametrize("case", ["plume, multiple scattering", "no plume, single scattering, lambertian"])
+@pytest.mark.parametrize("case", ["plume, multiple scattering", "no plume, single scattering, lambertian",
+                                  "plume, 8 probes"])
 def test_numba_march_matches_the_jax_march(case):
     """The fused per-ray CPU march (swim.rt.march_cpu) is the JAX kernel's step loop written again: both
     must give the same pixels, to float32 round-off, for rays that cross cloud, the plume, the terrain (hits
     refined by bisection), the grid's edges and the clear air beyond it."""
     plume = case.startswith("plume")
     extra = {} if plume else {"multiple_scattering": False, "surface": "lambertian"}
+    if case.endswith("8 probes"):
+        extra = {"n_probe": 8}  # MarchSettings.n_probe reaches both kernels (test_probe_count_places_the_steps)
     origins, dirs = _random_rays(600)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
@@ -292,3 +295,12 @@ def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():
         np.testing.assert_array_equal(volume[name].values, values, err_msg=name)
     again = kernel_constants(volume, solar_transmittance(volume, sun_2), gas, sun_2)["volume"]
     np.testing.assert_array_equal(again, expected)
+
+
+def test_probe_count_places_the_steps():
+    """MarchSettings.n_probe changes where the grid steps go (both kernels take it: the parity test above)."""
+    origins, dirs = _random_rays(300)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    out = {n: _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(n_probe=n))[0] for n in (4, 64)}
+    changed = ~np.isclose(out[4]["tau_hydrometeor"], out[64]["tau_hydrometeor"], rtol=1e-4, atol=1e-6)
+    assert changed.sum() > 10, "4 probes must place the steps differently from 64"

@@ -64,6 +64,9 @@ def render(
                                                              "4 above 100 km)."),
     steps: Optional[int] = typer.Option(None, help="Ray-marching steps through the model grid (default: "
                                                     "MarchSettings().n_grid, 128 adaptive steps)."),
+    probes: Optional[int] = typer.Option(None, help="Occupancy probes per ray that place the grid steps (default: "
+                                                     "MarchSettings().n_probe, 64; 256 with --steps 256 for views "
+                                                     "that graze a big grid near the horizon)."),
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),
     adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
@@ -142,7 +145,8 @@ def render(
             image = render_image(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                settings=MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps})),
+                settings=MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps}),
+                                       **({} if probes is None else {"n_probe": probes})),
                 white_level=white_level, sampling=sampling,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )

@@ -89,6 +89,12 @@ class MarchSettings:
         (docs/performance.md).
     n_after : int
         Steps through clear air after the grid (to the top of the atmosphere or the ground).
+    n_probe : int
+        Occupancy probes per ray along its grid segment, which place the ``n_grid`` steps
+        (:func:`adaptive_step_edges`). 64 serve rays that cross up to ~100 cells; rays that graze a big grid
+        near the horizon cross hundreds, and their steps then miss cloud edges (pixel-scale stripes): 256
+        probes with ``n_grid=256`` cut the 99th percentile of the error there from 20 % to 1.6 % for 1.6x the
+        time (docs/performance.md, section 13).
     chunk : int
         Rays per kernel call. Small chunks keep the kernel's working set in the CPU caches: on a 2-core
         machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096 or 8192, 4.2 s
@@ -108,14 +114,15 @@ class MarchSettings:
     n_before: int = 32
     n_grid: int = 128
     n_after: int = 48
+    n_probe: int = 64
     chunk: int = 4096
     multiple_scattering: bool = True
     surface: str = "brdf"
     backend: str = "auto"
 
     def __post_init__(self):
-        for name in ("n_before", "n_grid", "n_after", "chunk"):
-            value, least = getattr(self, name), 1 if name == "chunk" else 0
+        for name in ("n_before", "n_grid", "n_after", "n_probe", "chunk"):
+            value, least = getattr(self, name), 1 if name in ("chunk", "n_probe") else 0
             if not isinstance(value, (int, np.integer)) or value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
         if self.surface not in SURFACE_MODELS:
@@ -446,8 +453,8 @@ def uniform_step_edges(s0, length, n_steps):
     return s0[None, :] + (jnp.arange(n_steps + 1, dtype=jnp.float32) / n_steps)[:, None] * length[None, :]
 
 
-#: Occupancy probes per ray along the grid segment (:func:`adaptive_step_edges`).
-N_OCCUPANCY_PROBES = 64
+#: Default occupancy probes per ray along the grid segment (:func:`adaptive_step_edges`, :attr:`MarchSettings.n_probe`).
+N_OCCUPANCY_PROBES = MarchSettings.n_probe
 #: Step density in empty space relative to occupied space (:func:`adaptive_step_edges`).
 EMPTY_STEP_WEIGHT = 0.125
 
@@ -644,7 +651,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
         state = _march_segment(state, start, direction, uniform_step_edges(zero, bounds[:, 0], settings.n_before),
                                settings.n_before, False, *args)
     if settings.n_grid:
-        edges = adaptive_step_edges(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, consts)
+        edges = adaptive_step_edges(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, consts,
+                                    n_probe=settings.n_probe)
         state = _march_segment(state, start, direction, edges, settings.n_grid, True, *args)
     if settings.n_after:
         state = _march_segment(state, start, direction,
@@ -1149,7 +1157,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         np.array(aerosol_class[0][:n]), np.array(aerosol_class[1][:n, 0]).astype(float), ms_profile, ms is not None,
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
-        t["stratospheric_ssa"], N_OCCUPANCY_PROBES, EMPTY_STEP_WEIGHT, TERRAIN_BISECTIONS,
+        t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, TERRAIN_BISECTIONS,
         state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
         state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
     state = {key: jnp.asarray(_pad_rows(value, start.shape[0] - n)).astype(bool if value.dtype == bool else jnp.float32)
