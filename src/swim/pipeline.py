@@ -68,7 +68,9 @@ def _fingerprint(scene: xr.Dataset) -> str:
     with ThreadPoolExecutor(cores) as pool:
         for name in sorted(scene.variables):
             var = scene.variables[name]
-            digest.update(f"{name}{var.dims}{var.dtype}{var.shape}".encode())
+            # the attributes too: validation checks the units, and a warm render does not validate again
+            digest.update(f"{name}{var.dims}{var.dtype}{var.shape}{sorted((k, repr(v)) for k, v in var.attrs.items())}"
+                          .encode())
             values = var.values
             if values.dtype.kind not in "biufc":
                 digest.update(repr(values.tolist()).encode())
@@ -248,6 +250,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     SwimInputError
         Bad scene, observer below the terrain or out of reach, bad camera options or time.
     """
+    if not isinstance(scene, xr.Dataset):
+        raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
     if crop:
         # Before anything is loaded in full; the scene frame stays that of the whole grid.
         scene = with_reference_point(scene)
@@ -262,7 +266,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     if height is None or not np.isfinite(height) or height < 0:
         raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
     if any(var.chunks is not None for var in scene.variables.values()):
-        scene = scene.load()  # a lazy (cropped) scene is read once, for the digest and the validation
+        # a lazy (cropped) scene is read once, for the digest and the validation; compute(), not load(): the
+        # caller's (uncropped) dataset must stay lazy
+        scene = scene.compute()
 
     def validated_volume():
         valid = validate_scene(scene)

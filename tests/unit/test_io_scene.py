@@ -419,6 +419,9 @@ def test_lazy_open_reads_nothing_until_render_and_renders_the_same(tmp_path):
     eager_image = swim.render(open_scene(path), **options)
     lazy_image = swim.render(lazy, **options)
     np.testing.assert_allclose(lazy_image["radiance"].values, eager_image["radiance"].values, rtol=1e-6, atol=1e-9)
+    # rendering (cropped or not) reads what it needs without loading the caller's dataset in place
+    swim.render(lazy, crop=False, **options)
+    assert isinstance(lazy["cloud_liquid_content"].data, dask.array.Array), "render must leave the scene lazy"
 
 
 def test_lazy_open_rejects_what_it_cannot_open_lazily(tmp_path):

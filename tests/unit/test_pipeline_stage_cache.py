@@ -4,9 +4,11 @@ scene and the sun stay the same."""
 import logging
 
 import numpy as np
+import pytest
 
 import swim
 from swim import pipeline
+from swim.errors import SwimInputError
 
 
 def _render(scene, **kw):
@@ -35,6 +37,12 @@ def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         _render(scene, sun_zenith=60.0, aerosol="maritime")
     assert "reusing the grid constants" in caplog.text and "reusing the constants" not in caplog.text
+
+    # a warm render does not validate again, so the digest must see what validation checks (units)
+    bad = scene.copy()
+    bad["cloud_liquid_content"] = bad["cloud_liquid_content"].assign_attrs(units="g m-3")
+    with pytest.raises(SwimInputError, match="units"):
+        _render(bad)
 
     # the same object changed in place (clouds removed) must not be served from the cache
     for name in [v for v in scene.data_vars if v.endswith("_content")]:
@@ -78,3 +86,9 @@ def test_a_new_sun_holds_one_set_of_grid_constants_at_a_time():
 
     assert cache.get(("constants", "B", "sun 2", 7), lambda: cache.get(("grid constants", "B", "sun 2"), build_grid)) == "G2"
     assert set(cache._entries) == {"volume", "constants", "grid constants"}
+
+
+@pytest.mark.parametrize("crop", [True, False])
+def test_a_scene_that_is_not_a_dataset_is_a_clear_error(crop):
+    with pytest.raises(SwimInputError, match="xarray.Dataset"):
+        swim.render({"cloud_liquid_content": 1.0}, crop=crop, sun_zenith=30.0, sun_azimuth=0.0)

@@ -240,6 +240,11 @@ def test_backend_setting_is_checked_and_resolved(monkeypatch):
         _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0), settings=MarchSettings(backend="numba"))
 
 
+def test_no_rays_is_a_clear_error():
+    with pytest.raises(SwimInputError, match="at least one ray"):
+        _trace(_tiny_scene(), np.zeros((0, 3)), np.zeros((0, 3)), enu_from_azimuth_zenith(135.0, 40.0))
+
+
 @pytest.mark.parametrize("backend", ["jax", "numba"])
 def test_non_finite_rays_are_rejected_before_the_kernel(backend):
     origins, dirs = _random_rays(4)
@@ -272,10 +277,20 @@ def test_packed_volume_is_one_host_array_without_empty_aerosol_channels(aerosol_
     np.testing.assert_array_equal(packed[..., -1], transmittance["terrain_shadow"].values)
     if aerosol_plume:
         np.testing.assert_array_equal(packed[..., 5], volume["aerosol_extinction"].values)
+    from swim.rt import march
+
     device = _device_constants(consts)
-    assert _device_constants(consts) is device, "the JAX kernel's device copy is made once per constants"
+    assert _device_constants(consts)["volume"] is device["volume"], "the device copy is made once per host array"
     for key in HOST_CONSTANTS:
         np.testing.assert_array_equal(np.asarray(device[key]), consts[key])
+    # a new host array (another sun) gets its own copy; a freed one takes its copy with it
+    replaced = dict(consts, volume=consts["volume"].copy())
+    assert _device_constants(replaced)["volume"] is not device["volume"]
+    del replaced, device
+    import gc
+
+    gc.collect()
+    assert march._DEVICE_COPIES == {}, "the device copies must go with their host volume"
 
 
 def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():

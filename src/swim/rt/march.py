@@ -33,6 +33,7 @@ from __future__ import annotations
 import collections
 import functools
 import logging
+import weakref
 from dataclasses import dataclass, replace
 
 import jax
@@ -1006,6 +1007,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             # the numba kernel reads its tables unchecked: a NaN ray must not get that far
             raise SwimInputError(f"trace_rays: {name} must be a finite (n, 3) array [m for origins, unit vectors "
                                  f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
+    if len(origins) == 0:
+        raise SwimInputError("trace_rays needs at least one ray, got none")
     # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB
     blocks = [ray_segments(origins[lo:lo + SEGMENT_BLOCK], directions[lo:lo + SEGMENT_BLOCK], geometry,
                            top=float(consts["top"])) for lo in range(0, len(origins), SEGMENT_BLOCK)]
@@ -1016,8 +1019,6 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     settings = replace(settings, **{name: 0 for name, length in zip(("n_before", "n_grid", "n_after"), lengths.T)
                                     if not np.any(length > 0)})
     n = len(origins)
-    if n == 0:
-        raise SwimInputError("trace_rays needs at least one ray, got none")
     chunk = settings.chunk
     steps = settings.n_before + settings.n_grid + settings.n_after
     backend = settings.resolved_backend()
@@ -1094,21 +1095,32 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     return outputs
 
 
-#: The last kernel constants given device copies of their host arrays, and those copies (:func:`_device_constants`).
-_DEVICE_CONSTANTS = {}
+#: Device copies of the last kernel constants' host arrays (:func:`_device_constants`): "entry" -> (weak
+#: references to the host arrays, their device copies, the token of the host's finalizer).
+_DEVICE_COPIES = {}
 
 
 def _device_constants(consts):
     """``consts`` with the arrays of :data:`HOST_CONSTANTS` as device arrays, for the JAX kernel. The copies are
-    made once and kept for the most recent ``consts`` only (a render's chunks, and the renders of one scene and
-    sun, share them; on a GPU this is the volume's one transfer)."""
-    cached = _DEVICE_CONSTANTS.get("entry")
-    if cached is not None and cached[0] is consts:
-        return cached[1]
-    _DEVICE_CONSTANTS.clear()  # the previous copies go before the new ones are made
-    device = {**consts, **{key: jnp.asarray(consts[key]) for key in HOST_CONSTANTS}}
-    _DEVICE_CONSTANTS["entry"] = (consts, device)
-    return device
+    made once per host array and kept while it lives (a render's chunks, and the renders of one scene and sun,
+    share them; on a GPU this is the volume's one transfer); they are dropped with the host array, so a new sun
+    or a cleared stage cache never keeps an old volume on the device."""
+    hosts = [consts[key] for key in HOST_CONSTANTS]
+    entry = _DEVICE_COPIES.get("entry")
+    if entry is None or any(ref() is not host for ref, host in zip(entry[0], hosts)):
+        _DEVICE_COPIES.clear()  # the previous copies go before the new ones are made
+        token = object()  # what the finalizer holds: not the copies, which must not outlive the entry
+        entry = ([weakref.ref(host) for host in hosts], {key: jnp.asarray(consts[key]) for key in HOST_CONSTANTS},
+                 token)
+        _DEVICE_COPIES["entry"] = entry
+        weakref.finalize(hosts[0], _forget_device_copies, token)
+    return {**consts, **entry[1]}
+
+
+def _forget_device_copies(token):
+    entry = _DEVICE_COPIES.get("entry")
+    if entry is not None and entry[2] is token:
+        _DEVICE_COPIES.clear()
 
 
 def _pad_rows(a, pad):
