@@ -275,6 +275,7 @@ def run_render(spec, probe):
     t0 = time.perf_counter()
     scene = load_scene(spec)
     scene_s = time.perf_counter() - t0
+    scene_rss = _self_rss_mb()  # what the scene (and building it) left: the renders' own memory is above it
     kw = render_kwargs(spec)
     image, cold, cold_compile, _ = timed(probe, swim.render, scene, **kw)
     runs, warm_compile = [], 0.0
@@ -287,7 +288,8 @@ def run_render(spec, probe):
     rays = ny * nx + 1  # every pixel (all-sky corners too) plus the ray towards the sun
     out = {"image": [nx, ny], "rays": rays, "grid": _grid(scene), "scene_s": scene_s, "cold_s": cold, "warm_s": warm, "warm_runs": runs,
            "compile_est_s": cold - warm, "jax_compile_s": cold_compile, "jax_compile_warm_s": warm_compile,
-           "crop": crop_used(kw), **throughput(image, rays, warm)}
+           "crop": crop_used(kw), **throughput(image, rays, warm),
+           "scene_rss_mb": scene_rss, "render_peak_above_scene_mb": _self_peak_rss_mb() - scene_rss}
     if "traced_pixels" in image.attrs:
         out["traced_pixels"] = int(image.attrs["traced_pixels"])
     if "sampling" in kw:
@@ -297,6 +299,20 @@ def run_render(spec, probe):
         out.update(sampling=spec["sampling"], full_warm_s=full_s, full_traced_pixels=int(full.attrs["traced_pixels"]),
                    adaptive_error=adaptive_errors(image, full))
     return out
+
+
+def _self_rss_mb():
+    """Resident memory of this process now [MB] (after a garbage collection)."""
+    import gc
+
+    gc.collect()
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmRSS"))
+
+
+def _self_peak_rss_mb():
+    """This process's high-water mark of resident memory [MB] (Linux reports KB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def _render_frame(scene, kw, t):
@@ -637,7 +653,10 @@ def _notes(r):
                     f"max {100 * e['max']:.1f} %, RGB max {e['rgb_max']}")
     return "; ".join(filter(None, [f"{r['march_backend']} kernel" if r.get("march_backend") else "",
                                    f"grid {'x'.join(map(str, r['grid']))}" if r.get("grid") else "",
-                                   f"scene load {r['scene_s']:.1f} s" if "scene_s" in r else "", "crop" if r.get("crop") else "",
+                                   f"scene load {r['scene_s']:.1f} s" if "scene_s" in r else "",
+                                   f"render peak {r['render_peak_above_scene_mb']:,.0f} MB above the scene's "
+                                   f"{r['scene_rss_mb']:,.0f}" if "render_peak_above_scene_mb" in r else "",
+                                   "crop" if r.get("crop") else "",
                                    adaptive]))
 
 
