@@ -306,8 +306,7 @@ def _self_rss_mb():
     import gc
 
     gc.collect()
-    with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmRSS"))
+    return _tree_rss_mb(os.getpid())
 
 
 def _self_peak_rss_mb():

@@ -8,7 +8,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import logging
-import os
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -39,6 +38,7 @@ from .rt.march import (
     grid_geometry,
     padded_batch_size,
     share_packed_channels,
+    threads,
     trace_rays,
     volume_constants,
 )
@@ -67,13 +67,12 @@ def _fingerprint(scene: xr.Dataset) -> str:
     from concurrent.futures import ThreadPoolExecutor
 
     digest = hashlib.sha256()  # with the CPU's SHA instructions ~1.6 GB/s here, twice blake2b
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = threads()
     with ThreadPoolExecutor(cores) as pool:
         for name in sorted(scene.variables):
             var = scene.variables[name]
             # the attributes too: validation checks the units, and a warm render does not validate again
-            digest.update(f"{name}{var.dims}{var.dtype}{var.shape}{sorted((k, repr(v)) for k, v in var.attrs.items())}"
-                          .encode())
+            digest.update(f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode())
             values = var.values
             if values.dtype.kind not in "biufc":
                 digest.update(repr(values.tolist()).encode())
@@ -85,8 +84,12 @@ def _fingerprint(scene: xr.Dataset) -> str:
             blocks = pool.map(lambda lo: hashlib.sha256(data[lo:lo + _HASH_BLOCK]).digest(),
                               range(0, len(data), _HASH_BLOCK))
             digest.update(b"".join(blocks))
-    digest.update(repr(sorted((k, repr(v)) for k, v in scene.attrs.items())).encode())
+    digest.update(_attrs_text(scene.attrs).encode())
     return digest.hexdigest()
+
+
+def _attrs_text(attrs):
+    return repr(sorted((k, repr(v)) for k, v in attrs.items()))
 
 
 def _phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type):
@@ -363,7 +366,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                 "p_aerosol": p_aerosol, "p_stratospheric": p_stratospheric}
 
     def trace_directions(dirs, progress_rays):
-        # the phase functions chunk by chunk (trace_rays), not held for every pixel of a big image at once
+        # the phase functions block by block (trace_rays), not held for every pixel of a big image at once
         return trace_rays(np.broadcast_to(observer, dirs.shape), dirs, consts, geometry, ray_phase, settings,
                           progress_rays)
 

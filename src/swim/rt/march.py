@@ -33,6 +33,7 @@ from __future__ import annotations
 import collections
 import functools
 import logging
+import os
 import weakref
 from dataclasses import dataclass, replace
 
@@ -843,7 +844,7 @@ def aerosol_column_optical_depth(volume):
                         name="aerosol_column_optical_depth")
 
 
-#: The variables of :func:`swim.rt.solar.solar_transmittance` that :func:`kernel_constants` reads.
+#: The variables of :func:`swim.rt.solar.solar_transmittance` that :func:`volume_constants` reads.
 KERNEL_STEP1A_VARIABLES = ("aerosol_tau_sun", "cloud_transmittance", "terrain_shadow")
 #: Constants of :func:`kernel_constants` kept as numpy arrays: the packed volume (the biggest array of a render)
 #: and the occupancy grid, which only the step loop reads. The numba kernel reads them in place; the JAX kernel
@@ -1031,12 +1032,12 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     else:
         consts = _device_constants(consts)
     outputs = {}  # written chunk by chunk into arrays for all rays (a list and a concatenate would hold two)
-    phase_block = []  # [first ray, end, ray_phase of those rays] when ray_phase is a function
+    # [first ray, end, phase arrays of those rays]: all rays for a dict, blocks of SEGMENT_BLOCK for a function
+    # (one call per chunk would pay the phase functions' JAX dispatch ~200 times for a 1024^2 image)
+    phase_block = [] if callable(ray_phase) else [0, n, ray_phase]
     pool, pending = None, collections.deque()
     if backend == "numba":
         from concurrent.futures import ThreadPoolExecutor
-
-        from .march_cpu import threads
 
         # chunks marched at once, one per core (the numba kernel runs without the GIL)
         workers = min(threads(), -(-n // chunk))
@@ -1055,21 +1056,13 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             hi = min(lo + chunk, n)
             pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
 
-            def take(a, dtype=np.float32):
-                return _pad_rows(np.asarray(a[lo:hi]), pad).astype(dtype)
+            def take(a, dtype=np.float32, first=0):
+                return _pad_rows(np.asarray(a[lo - first:hi - first]), pad).astype(dtype)
 
-            if callable(ray_phase):
-                # in blocks of SEGMENT_BLOCK rays: one call per chunk would pay the phase functions' (JAX) dispatch
-                # ~200 times for a 1024^2 image
-                if not phase_block or hi > phase_block[1]:
-                    block_hi = min(n, lo + max(SEGMENT_BLOCK, hi - lo))
-                    phase_block[:] = [lo, block_hi, ray_phase(np.asarray(directions[lo:block_hi]))]
-                b_lo = phase_block[0]
-                phase = {key: _pad_rows(np.asarray(value[lo - b_lo:hi - b_lo]), pad).astype(np.float32)
-                         for key, value in phase_block[2].items()}
-            else:
-                phase = {key: take(value) for key, value in ray_phase.items()}
-            rays = {key: jnp.asarray(value) for key, value in phase.items()}
+            if not phase_block or hi > phase_block[1]:
+                block_hi = min(n, lo + max(SEGMENT_BLOCK, hi - lo))
+                phase_block[:] = [lo, block_hi, ray_phase(np.asarray(directions[lo:block_hi]))]
+            rays = {key: jnp.asarray(take(value, first=phase_block[0])) for key, value in phase_block[2].items()}
             args = [take(seg["start"]), take(directions), take(seg["bounds"]), take(seg["ends_on_ground"], bool),
                     take(seg["valid"], bool)]
             if backend == "jax":
@@ -1121,6 +1114,23 @@ def _forget_device_copies(token):
     entry = _DEVICE_COPIES.get("entry")
     if entry is not None and entry[2] is token:
         _DEVICE_COPIES.clear()
+
+
+def threads() -> int:
+    """Threads for work over the cores (chunks of rays marched at once, blocks of the scene's digest):
+    ``SWIM_NUM_THREADS``, or the cores this process may run on.
+
+    Raises
+    ------
+    SwimInputError
+        If ``SWIM_NUM_THREADS`` is set to anything but a positive integer.
+    """
+    value = os.environ.get("SWIM_NUM_THREADS", "").strip()
+    if value:
+        if not value.isdigit() or int(value) < 1:
+            raise SwimInputError(f"SWIM_NUM_THREADS must be a positive integer, got {value!r}")
+        return int(value)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def _pad_rows(a, pad):

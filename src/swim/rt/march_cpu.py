@@ -17,14 +17,12 @@ Eq. 12 for the hydrometeor integral); it computes in float64 from the float32 ta
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
 import numba
 from numba import njit
 
-from ..errors import SwimInputError
 from .compilation_cache import _disabled, cache_directory
 
 _CACHE = not _disabled()
@@ -417,19 +415,3 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
         alive_out[r] = alive
         hit_out[r] = hit
         s_hit_out[r] = s_hit
-
-
-def threads() -> int:
-    """Chunks of rays marched at once: ``SWIM_NUM_THREADS``, or the cores this process may run on.
-
-    Raises
-    ------
-    SwimInputError
-        If ``SWIM_NUM_THREADS`` is set to anything but a positive integer.
-    """
-    value = os.environ.get("SWIM_NUM_THREADS", "").strip()
-    if value:
-        if not value.isdigit() or int(value) < 1:
-            raise SwimInputError(f"SWIM_NUM_THREADS must be a positive integer, got {value!r}")
-        return int(value)
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
