@@ -236,9 +236,12 @@ def test_cli_backend_option(tmp_path):
 
 def test_cli_probes_option(tmp_path):
     out = tmp_path / "probes.png"
-    result = CliRunner().invoke(app, ["render", "--size", "31", "--probes", "16", "--steps", "64", "--out", str(out)])
+    result = CliRunner().invoke(app, ["render", "--size", "31", "--probes", "16", "--steps", "64", "--probe-spacing", "1",
+                                      "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert out.exists()
     bad = tmp_path / "bad.png"
     result = CliRunner().invoke(app, ["render", "--size", "31", "--probes", "0", "--out", str(bad)])
     assert result.exit_code == 2 and "MarchSettings.n_probe" in result.output and not bad.exists()
+    result = CliRunner().invoke(app, ["render", "--size", "31", "--probe-spacing", "-1", "--out", str(bad)])
+    assert result.exit_code == 2 and "MarchSettings.probe_spacing" in result.output and not bad.exists()

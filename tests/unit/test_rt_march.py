@@ -180,7 +180,8 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
     assert np.all(layer["radiance_clear"][0] > base["radiance_clear"][0] * 1.1)
 
 
-@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0)])
+@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0),
+                                          ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2")])
 def test_march_settings_reject_bad_counts(field, value):
     with pytest.raises(SwimInputError, match=f"MarchSettings.{field}"):
         MarchSettings(**{field: value})
@@ -200,7 +201,7 @@ def _random_rays(n, seed=0):
 
 
 @pytest.mark.parametrize("case", ["plume, multiple scattering", "no plume, single scattering, lambertian",
-                                  "plume, 8 probes"])
+                                  "plume, 8 probes", "plume, 4 probes, one per cell crossed"])
 def test_numba_march_matches_the_jax_march(case):
     """The fused per-ray CPU march (swim.rt.march_cpu) is the JAX kernel's step loop written again: both
     must give the same pixels, to float32 round-off, for rays that cross cloud, the plume, the terrain (hits
@@ -209,6 +210,10 @@ def test_numba_march_matches_the_jax_march(case):
     extra = {} if plume else {"multiple_scattering": False, "surface": "lambertian"}
     if case.endswith("8 probes"):
         extra = {"n_probe": 8}  # MarchSettings.n_probe reaches both kernels (test_probe_count_places_the_steps)
+    if case.endswith("cell crossed"):
+        # rays across more than 4 cells take their own probe counts: per ray (numba), by a per-chunk maximum of
+        # padded probes (JAX); both must place the same steps (test_probe_spacing_follows_the_cells_crossed)
+        extra = {"n_probe": 4, "probe_spacing": 1.0}
     origins, dirs = _random_rays(600)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
@@ -319,3 +324,61 @@ def test_probe_count_places_the_steps():
     out = {n: _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(n_probe=n))[0] for n in (4, 64)}
     changed = ~np.isclose(out[4]["tau_hydrometeor"], out[64]["tau_hydrometeor"], rtol=1e-4, atol=1e-6)
     assert changed.sum() > 10, "4 probes must place the steps differently from 64"
+
+
+def _kernel_constants(scene, sun):
+    volume = build_optical_volume(scene)
+    return volume, kernel_constants(volume, solar_transmittance(volume, sun), build_gas_tables(AerosolBackground()), sun)
+
+
+def test_probe_counts_are_the_cells_crossed():
+    """probe_counts: a ray along the grid's x axis crosses (length / spacing) cells; with 4 probes and one per
+    cell it takes that many (rounded up), a short ray keeps 4, and probe_spacing 0 always gives n_probe."""
+    import jax.numpy as jnp
+
+    from swim.rt.march import MAX_PROBES, probe_counts
+
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    volume, consts = _kernel_constants(_tiny_scene(), sun)
+    origins = np.array([[-2300.0, 100.0, EARTH_RADIUS_M + 2000.0]] * 3)
+    dirs = np.array([[1.0, 0.0, 0.0]] * 3)
+    seg = ray_segments(origins, dirs, grid_geometry(volume), top=float(consts["top"]))
+    s0 = seg["bounds"][:, 0]
+    length = np.array([4400.0, 800.0, 4400.0])  # 11 cells of 400 m, 2 cells, and a long one with big spacing
+    args = [jnp.asarray(a, jnp.float32) for a in (seg["start"], dirs, s0, length)]
+    counts = {spacing: np.asarray(probe_counts(*args, consts, n_probe=4, probe_spacing=spacing))
+              for spacing in (0.0, 0.5, 1.0)}
+    np.testing.assert_array_equal(counts[0.0], [4, 4, 4])
+    assert counts[1.0][0] == 11 and counts[1.0][1] == 4 and counts[1.0][2] == 11, counts
+    assert counts[0.5][0] == 22 and counts[0.5][1] == 4, counts
+    assert MAX_PROBES >= 1024
+
+
+def test_probe_spacing_follows_the_cells_crossed():
+    """A cloud wall one cell thick, crossed by near-horizontal rays along 12 cells: 3 probes miss it for most
+    rays, whose 12 steps then sample it at one place each; one probe per cell crossed (probe_spacing=1) finds
+    it and puts the steps there, so the hydrometeor optical depth must come much closer to a fine march, in
+    both kernels."""
+    n, spacing = 12, 400.0
+    x = (np.arange(n) - n / 2 + 0.5) * spacing
+    z = np.arange(0.0, 5000.0, 250.0) + 125.0
+    zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
+    liquid = np.where((np.abs(xx - x[7]) < 1.0) & (zz > 1000) & (zz < 4000), 4e-4, 0.0)
+    scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=30.0, reference_lon=10.0, cloud_liquid_content=liquid)
+    rng = np.random.default_rng(5)
+    count = 120
+    origins = np.column_stack([np.full(count, -2380.0), rng.uniform(-1500.0, 1500.0, count),
+                               EARTH_RADIUS_M + rng.uniform(2000, 3000, count)])
+    dirs = np.array([enu_from_azimuth_zenith(a, z) for a, z in zip(rng.uniform(85.0, 95.0, count),
+                                                                    rng.uniform(88.0, 92.0, count))])
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    fine = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=2000, n_probe=1000, probe_spacing=0.0))[0]
+    through = fine["tau_hydrometeor"] > 0.5
+    assert through.sum() > 60, "the rays must cross the wall"
+    for backend in ("jax", "numba"):
+        err = {}
+        for probe_spacing in (0.0, 1.0):
+            out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, n_probe=3, backend=backend,
+                                                                           probe_spacing=probe_spacing))[0]
+            err[probe_spacing] = np.median(np.abs(out["tau_hydrometeor"] / fine["tau_hydrometeor"] - 1)[through])
+        assert err[1.0] < 0.3 * err[0.0] and err[1.0] < 0.1, (backend, err)

@@ -64,9 +64,14 @@ def render(
                                                              "4 above 100 km)."),
     steps: Optional[int] = typer.Option(None, help="Ray-marching steps through the model grid (default: "
                                                     "MarchSettings().n_grid, 128 adaptive steps)."),
-    probes: Optional[int] = typer.Option(None, help="Occupancy probes per ray that place the grid steps (default: "
-                                                     "MarchSettings().n_probe, 64; 256 with --steps 256 for views "
-                                                     "that graze a big grid near the horizon)."),
+    probes: Optional[int] = typer.Option(None, help="Occupancy probes per ray, at least, that place the grid steps "
+                                                     "(default: MarchSettings().n_probe, 64; 256 with --steps 256 for "
+                                                     "views that graze a big grid near the horizon)."),
+    probe_spacing: Optional[float] = typer.Option(None, "--probe-spacing",
+                                                  help="Most grid cells between a ray's occupancy probes: rays that "
+                                                       "cross more cells take more probes (default: "
+                                                       "MarchSettings().probe_spacing, 2; 0 for --probes on every "
+                                                       "ray)."),
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),
     adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
@@ -146,7 +151,8 @@ def render(
                 ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                 settings=MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps}),
-                                       **({} if probes is None else {"n_probe": probes})),
+                                       **({} if probes is None else {"n_probe": probes}),
+                                       **({} if probe_spacing is None else {"probe_spacing": probe_spacing})),
                 white_level=white_level, sampling=sampling,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )

@@ -169,18 +169,39 @@ def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
 
 
 @njit(**_JIT)
-def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight, edges):
-    """:func:`swim.rt.march.adaptive_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
+def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf):
+    """Probe the occupancy at n_probe equal intervals of a grid segment: the unnormalised cumulative step density
+    in ``cdf[:n_probe + 1]``; returns the segment's length in cells (:func:`swim.rt.march.probe_counts`)."""
     nk, ny, nx = occupancy.shape
-    cdf = np.empty(n_probe + 1)
     cdf[0] = 0.0
+    cells = 0.0
+    kp = jp = ip = 0.0
     for m in range(n_probe):
         s = s0 + (m + 0.5) / n_probe * length
         _, _, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+        if m > 0:
+            cells += max(abs(k - kp), max(abs(j - jp), abs(i - ip)))
+        kp, jp, ip = k, j, i
         kk = int(_clip(_round_half_even(k), 0.0, nk - 1.0))
         jj = int(_clip(_round_half_even(j), 0.0, ny - 1.0))
         ii = int(_clip(_round_half_even(i), 0.0, nx - 1.0))
         cdf[m + 1] = cdf[m] + (1.0 if occupancy[kk, jj, ii] > 0 else empty_weight)
+    if n_probe > 1:
+        cells *= n_probe / (n_probe - 1.0)
+    return cells
+
+
+@njit(**_JIT)
+def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight,
+                    probe_spacing, cell_slack, cdf, edges):
+    """:func:`swim.rt.march.adaptive_step_edges` for one ray, written into ``edges`` (n_steps + 1,), with the
+    probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
+    probe_spacing`` cells is probed again, once per ``probe_spacing`` cells (at most ``cdf.size - 1`` probes)."""
+    cells = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf)
+    need = math.ceil(cells / probe_spacing - cell_slack) if probe_spacing > 0 else 0.0
+    if need > n_probe:
+        n_probe = min(int(need), cdf.shape[0] - 1)
+        _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf)
     total = cdf[n_probe]
     for m in range(n_probe + 1):
         cdf[m] /= total
@@ -199,15 +220,17 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
-               n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out,
-               s_hit_out):
+               probe_spacing, n_probe_max, cell_slack, n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas,
+               i_gas, i_cloud_t, alive_out, hit_out, s_hit_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
     a thread pool (a ``parallel=True`` loop was as fast and took 29 s to compile instead of 7).
 
     The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before``
-    equal steps), the grid (``n_grid`` steps placed by :func:`_adaptive_edges`) and the clear air after it
+    equal steps), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from ``n_probe`` occupancy probes,
+    or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more, less ``cell_slack``) and
+    the clear air after it
     (``n_after`` equal steps), then :func:`swim.rt.march.refine_terrain_hit`. A ray stops at the ground
     (the lockstep kernel goes on with zero-length steps that add nothing), and a segment of zero length takes
     one step (to see whether it starts under the terrain) instead of all of them.
@@ -255,6 +278,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
         diffuse = np.empty(3)
         vol = np.empty(n_c)
         edges = np.empty(n_grid + 1)
+        cdf = np.empty(max(n_probe, n_probe_max) + 1)
         c0 = class_lower[r]
         wc = class_weight[r]
         for segment in range(3):
@@ -270,7 +294,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                 continue
             if in_grid:
                 _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
-                                empty_weight, edges)
+                                empty_weight, probe_spacing, cell_slack, cdf, edges)
             taken = n_steps if length > 0 else 1
             for m in range(taken):
                 if in_grid:
