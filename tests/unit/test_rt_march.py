@@ -181,7 +181,8 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
 
 
 @pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0),
-                                          ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2")])
+                                          ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2"),
+                                          ("tau_refine", -0.5), ("tau_refine", float("inf"))])
 def test_march_settings_reject_bad_counts(field, value):
     with pytest.raises(SwimInputError, match=f"MarchSettings.{field}"):
         MarchSettings(**{field: value})
@@ -354,23 +355,29 @@ def test_probe_counts_are_the_cells_crossed():
     assert MAX_PROBES >= 1024
 
 
+def _cloud_wall(thick, count=120, liquid_content=4e-4):
+    """A wall of cloud ``thick`` cells (400 m) thick across a 12 x 12 grid, 1-4 km high, and ``count``
+    near-horizontal rays from the grid's west edge towards it."""
+    n, spacing = 12, 400.0
+    x = (np.arange(n) - n / 2 + 0.5) * spacing
+    z = np.arange(0.0, 5000.0, 250.0) + 125.0
+    zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
+    liquid = np.where((xx > x[7] - 1.0) & (xx < x[7 + thick - 1] + 1.0) & (zz > 1000) & (zz < 4000), liquid_content, 0.0)
+    scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=30.0, reference_lon=10.0, cloud_liquid_content=liquid)
+    rng = np.random.default_rng(5)
+    origins = np.column_stack([np.full(count, -2380.0), rng.uniform(-1500.0, 1500.0, count),
+                               EARTH_RADIUS_M + rng.uniform(2000, 3000, count)])
+    dirs = np.array([enu_from_azimuth_zenith(a, z) for a, z in zip(rng.uniform(85.0, 95.0, count),
+                                                                    rng.uniform(88.0, 92.0, count))])
+    return scene, origins, dirs
+
+
 def test_probe_spacing_follows_the_cells_crossed():
     """A cloud wall one cell thick, crossed by near-horizontal rays along 12 cells: 3 probes miss it for most
     rays, whose 12 steps then sample it at one place each; one probe per cell crossed (probe_spacing=1) finds
     it and puts the steps there, so the hydrometeor optical depth must come much closer to a fine march, in
     both kernels."""
-    n, spacing = 12, 400.0
-    x = (np.arange(n) - n / 2 + 0.5) * spacing
-    z = np.arange(0.0, 5000.0, 250.0) + 125.0
-    zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
-    liquid = np.where((np.abs(xx - x[7]) < 1.0) & (zz > 1000) & (zz < 4000), 4e-4, 0.0)
-    scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=30.0, reference_lon=10.0, cloud_liquid_content=liquid)
-    rng = np.random.default_rng(5)
-    count = 120
-    origins = np.column_stack([np.full(count, -2380.0), rng.uniform(-1500.0, 1500.0, count),
-                               EARTH_RADIUS_M + rng.uniform(2000, 3000, count)])
-    dirs = np.array([enu_from_azimuth_zenith(a, z) for a, z in zip(rng.uniform(85.0, 95.0, count),
-                                                                    rng.uniform(88.0, 92.0, count))])
+    scene, origins, dirs = _cloud_wall(thick=1)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     fine = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=2000, n_probe=1000, probe_spacing=0.0))[0]
     through = fine["tau_hydrometeor"] > 0.5
@@ -382,3 +389,22 @@ def test_probe_spacing_follows_the_cells_crossed():
                                                                            probe_spacing=probe_spacing))[0]
             err[probe_spacing] = np.median(np.abs(out["tau_hydrometeor"] / fine["tau_hydrometeor"] - 1)[through])
         assert err[1.0] < 0.3 * err[0.0] and err[1.0] < 0.1, (backend, err)
+
+
+def test_thick_steps_are_refined():
+    """A thick cloud wall (optical depth ~240 across) seen edge-on with few steps: the step that reaches its face
+    samples the sunlight somewhere inside (one cell deep, the sun's transmittance there is far lower) unless
+    thick steps are halved down to tau_refine, in both kernels; the cloud's radiance must then come much closer
+    to a fine march's."""
+    scene, origins, dirs = _cloud_wall(thick=4)
+    sun = enu_from_azimuth_zenith(270.0, 40.0)  # behind the observer: the rays see the wall's sunlit face
+    fine = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=4000, tau_refine=0.0))[0]
+    through = fine["tau_hydrometeor"] > 20.0
+    assert through.sum() > 60, "the rays must cross the wall"
+    for backend in ("jax", "numba"):
+        err = {}
+        for tau_refine in (0.0, 0.5):
+            out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, backend=backend,
+                                                                           tau_refine=tau_refine))[0]
+            err[tau_refine] = np.median(np.abs(out["radiance"] / fine["radiance"] - 1)[through])
+        assert err[0.5] < 0.3 * err[0.0] and err[0.5] < 0.02, (backend, err)

@@ -101,6 +101,10 @@ class MarchSettings:
         occupied cell unseen (the occupancy is dilated by one cell); the 99th percentile of the error of a
         view 6° above the horizon of a 400 km grid falls from 20 % to 10 %, and other views do not change
         (docs/performance.md, section 13). 0 probes every ray ``n_probe`` times.
+    tau_refine : float
+        Largest hydrometeor optical depth [-] of a grid step while the ray's own is below 8: a thicker step is
+        replaced by its halves, recursively (:func:`_march_grid_refined`), so that a cloud's face is sampled
+        where its light comes from. 0 turns this off.
     chunk : int
         Rays per kernel call. Small chunks keep the kernel's working set in the CPU caches: on a 2-core
         machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096 or 8192, 4.2 s
@@ -122,6 +126,7 @@ class MarchSettings:
     n_after: int = 48
     n_probe: int = 64
     probe_spacing: float = 2.0
+    tau_refine: float = 0.5
     chunk: int = 4096
     multiple_scattering: bool = True
     surface: str = "brdf"
@@ -132,10 +137,12 @@ class MarchSettings:
             value, least = getattr(self, name), 1 if name in ("chunk", "n_probe") else 0
             if not isinstance(value, (int, np.integer)) or value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
-        spacing = self.probe_spacing
-        if isinstance(spacing, bool) or not isinstance(spacing, (int, float, np.integer, np.floating)) \
-                or not np.isfinite(spacing) or spacing < 0:
-            raise SwimInputError(f"MarchSettings.probe_spacing must be a finite number of cells >= 0, got {spacing!r}")
+        for name, what in (("probe_spacing", "a finite number of cells >= 0"),
+                           ("tau_refine", "a finite optical depth >= 0")):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or not np.isfinite(value) or value < 0:
+                raise SwimInputError(f"MarchSettings.{name} must be {what}, got {value!r}")
         if self.surface not in SURFACE_MODELS:
             raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
         if self.backend not in BACKENDS:
@@ -541,9 +548,10 @@ def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N
     return s0[None, :] + frac * length[None, :]
 
 
-def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class):
+def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class,
+                   tau_refine=0.0):
     """Accumulate one ray segment with n_steps midpoint steps between ``edges`` (n_steps + 1, n) [m] (see the
-    module docstring).
+    module docstring); in the grid, steps thicker than ``tau_refine`` are refined (:func:`_march_grid_refined`).
 
     ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only;
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
@@ -553,9 +561,8 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     aerosol_3d = n_c == N_CHANNELS  # the 3-D aerosol's two channels are packed only where it is not zero
     outside = jnp.concatenate([jnp.zeros(n_c - 2), jnp.ones(2)]).astype(jnp.float32)
 
-    def body(m, st):
-        s_lo = jax.lax.dynamic_index_in_dim(edges, m, keepdims=False)
-        ds = jax.lax.dynamic_index_in_dim(edges, m + 1, keepdims=False) - s_lo
+    def sample(st, s_lo, ds):
+        """The state after a step of length ``ds`` from ``s_lo`` [m], and the step's hydrometeor extinction."""
         s = s_lo + 0.5 * ds
         q = start + s[:, None] * direction
         h, mu_s, k, j, i = _point_geometry(q, consts)
@@ -638,9 +645,74 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
             "hit_hi": hit_hi,
             "gap": gap,
             "s_last": s,
-        }
+        }, beta_h
 
+    def body(m, st):
+        s_lo = jax.lax.dynamic_index_in_dim(edges, m, keepdims=False)
+        ds = jax.lax.dynamic_index_in_dim(edges, m + 1, keepdims=False) - s_lo
+        return sample(st, s_lo, ds)[0]
+
+    if in_grid and tau_refine > 0:
+        return _march_grid_refined(state, sample, edges, n_steps, tau_refine)
     return jax.lax.fori_loop(0, n_steps, body, state)
+
+
+#: Binary refinement of optically thick grid steps (:func:`_march_grid_refined`): levels of halving (a step
+#: down to 1/64), refinements per ray, and the hydrometeor optical depth [-] to the observer beyond which no step
+#: is refined (e^-8: what lies deeper adds < 0.04 % of the light).
+REFINE_DEPTH = 6
+REFINE_BUDGET = 32
+REFINE_VISIBLE_TAU = 8.0
+
+
+def _march_grid_refined(state, sample, edges, n_steps, tau_refine):
+    """The grid segment of :func:`_march_segment` with thick steps refined: a step whose hydrometeor optical depth
+    ``beta_h ds`` exceeds ``tau_refine`` while the ray's own is below :data:`REFINE_VISIBLE_TAU` is replaced by
+    its two halves, first half first, recursively (:data:`REFINE_DEPTH` levels, :data:`REFINE_BUDGET` times per
+    ray). So a cloud face is resolved where the light comes from, and neighbouring pixels whose midpoints fall
+    on either side of the face agree (the stripes of docs/performance.md, section 13).
+
+    Rays in lockstep, each with its own pending halves: every iteration each ray takes its next interval (the
+    last pending half, or its next step), samples it and either accumulates it or pushes its halves; the loop
+    ends when every ray has taken all its steps. :mod:`swim.rt.march_cpu` does the same per ray.
+    """
+    n = edges.shape[1]
+    slots = REFINE_DEPTH + 2  # pending halves: at most one per level, plus the two just pushed
+    col = jnp.arange(slots)[None, :]
+
+    def finished(carry):
+        _, m, pending, *_ = carry
+        return (pending == 0) & (m >= n_steps)
+
+    def body(carry):
+        st, m, pending, stack_lo, stack_hi, stack_depth, budget = carry
+        stacked = pending > 0
+        top = jnp.maximum(pending - 1, 0)[:, None]
+        next_step = jnp.minimum(m, n_steps - 1)[None, :]
+        done = ~stacked & (m >= n_steps)
+        lo = jnp.where(stacked, jnp.take_along_axis(stack_lo, top, 1)[:, 0], jnp.take_along_axis(edges, next_step, 0)[0])
+        hi = jnp.where(stacked, jnp.take_along_axis(stack_hi, top, 1)[:, 0], jnp.take_along_axis(edges, next_step + 1, 0)[0])
+        depth = jnp.where(stacked, jnp.take_along_axis(stack_depth, top, 1)[:, 0], 0)
+        ds = jnp.where(done, 0.0, hi - lo)
+        new, beta_h = sample(st, lo, ds)
+        refine = (~done & (budget > 0) & (depth < REFINE_DEPTH) & st["alive"] & (st["tau_h"] < REFINE_VISIBLE_TAU)
+                  & (beta_h * ds > tau_refine))
+        keep = ~done & ~refine
+        st = {key: jnp.where(keep.reshape((n,) + (1,) * (value.ndim - 1)), value, st[key]) for key, value in new.items()}
+        base = (pending - stacked)[:, None]
+        mid = (lo + 0.5 * ds)[:, None]
+        first, second = refine[:, None] & (col == base), refine[:, None] & (col == base + 1)
+        # pushed: the second half below the first, which is taken next
+        stack_lo = jnp.where(first, mid, jnp.where(second, lo[:, None], stack_lo))
+        stack_hi = jnp.where(first, hi[:, None], jnp.where(second, mid, stack_hi))
+        stack_depth = jnp.where(first | second, depth[:, None] + 1, stack_depth)
+        pending = base[:, 0] + 2 * refine
+        return st, m + (~stacked & ~done), pending, stack_lo, stack_hi, stack_depth, budget - refine
+
+    carry = (state, jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32), jnp.zeros((n, slots), jnp.float32),
+             jnp.zeros((n, slots), jnp.float32), jnp.zeros((n, slots), jnp.int32), jnp.full(n, REFINE_BUDGET, jnp.int32))
+    # at most n_steps + 2 REFINE_BUDGET iterations: each refinement adds two intervals
+    return jax.lax.while_loop(lambda c: ~jnp.all(finished(c)), body, carry)[0]
 
 
 #: Bisection steps that refine a terrain crossing found between two samples of the march (2^-10 of a step:
@@ -703,7 +775,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     if settings.n_grid:
         edges = adaptive_step_edges(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, consts,
                                     n_probe=settings.n_probe, probes=probes)
-        state = _march_segment(state, start, direction, edges, settings.n_grid, True, *args)
+        state = _march_segment(state, start, direction, edges, settings.n_grid, True, *args,
+                               tau_refine=float(settings.tau_refine))
     if settings.n_after:
         state = _march_segment(state, start, direction,
                                uniform_step_edges(bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after),
@@ -1248,7 +1321,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
-        CELL_SLACK, TERRAIN_BISECTIONS,
+        CELL_SLACK, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, TERRAIN_BISECTIONS,
         state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
         state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
     state = {key: jnp.asarray(_pad_rows(value, start.shape[0] - n)).astype(bool if value.dtype == bool else jnp.float32)

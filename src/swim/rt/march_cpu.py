@@ -220,8 +220,9 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
-               probe_spacing, n_probe_max, cell_slack, n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas,
-               i_gas, i_cloud_t, alive_out, hit_out, s_hit_out):
+               probe_spacing, n_probe_max, cell_slack, tau_refine, max_depth, refine_budget, refine_visible,
+               n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out,
+               s_hit_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
@@ -231,7 +232,10 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     equal steps), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from ``n_probe`` occupancy probes,
     or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more, less ``cell_slack``) and
     the clear air after it
-    (``n_after`` equal steps), then :func:`swim.rt.march.refine_terrain_hit`. A ray stops at the ground
+    (``n_after`` equal steps), then :func:`swim.rt.march.refine_terrain_hit`. A grid step whose hydrometeor
+    optical depth exceeds ``tau_refine`` while the ray's is below ``refine_visible`` is replaced by its two
+    halves, recursively to ``max_depth`` levels and at most ``refine_budget`` times per ray
+    (:func:`swim.rt.march._march_grid_refined`). A ray stops at the ground
     (the lockstep kernel goes on with zero-length steps that add nothing), and a segment of zero length takes
     one step (to see whether it starts under the terrain) instead of all of them.
 
@@ -279,6 +283,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
         vol = np.empty(n_c)
         edges = np.empty(n_grid + 1)
         cdf = np.empty(max(n_probe, n_probe_max) + 1)
+        stack_lo = np.empty(max_depth + 2)
+        stack_hi = np.empty(max_depth + 2)
+        stack_depth = np.empty(max_depth + 2, np.int64)
         c0 = class_lower[r]
         wc = class_weight[r]
         for segment in range(3):
@@ -296,11 +303,22 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                 _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
                                 empty_weight, probe_spacing, cell_slack, cdf, edges)
             taken = n_steps if length > 0 else 1
-            for m in range(taken):
-                if in_grid:
-                    s_lo, s_hi = edges[m], edges[m + 1]
+            m = 0
+            pending = 0
+            budget = refine_budget if in_grid else 0
+            while True:
+                if pending == 0:
+                    if m >= taken:
+                        break
+                    if in_grid:
+                        s_lo, s_hi = edges[m], edges[m + 1]
+                    else:
+                        s_lo, s_hi = s0 + m / n_steps * length, s0 + (m + 1) / n_steps * length
+                    m += 1
+                    depth = 0
                 else:
-                    s_lo, s_hi = s0 + m / n_steps * length, s0 + (m + 1) / n_steps * length
+                    pending -= 1
+                    s_lo, s_hi, depth = stack_lo[pending], stack_hi[pending], stack_depth[pending]
                 ds = s_hi - s_lo
                 s = s_lo + 0.5 * ds
                 h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
@@ -364,6 +382,14 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                 if in_grid:
                     for c in range(n_species):
                         beta_h += vol[c]
+                    if (budget > 0 and depth < max_depth and alive and th < refine_visible
+                            and beta_h * ds > tau_refine > 0):
+                        # too thick a step while the observer still sees it: its two halves instead, the first first
+                        stack_lo[pending], stack_hi[pending], stack_depth[pending] = s, s_hi, depth + 1
+                        stack_lo[pending + 1], stack_hi[pending + 1], stack_depth[pending + 1] = s_lo, s, depth + 1
+                        pending += 2
+                        budget -= 1
+                        continue
                 t0 = th
                 t1 = t0 + beta_h * ds_eff
                 # Eq. 12's weight e^-t0 - e^-min(t1, 2) is exactly 0 without hydrometeors or beyond tau 2
