@@ -88,6 +88,17 @@ def _fingerprint(scene: xr.Dataset) -> str:
     return digest.hexdigest()
 
 
+def _lazy_fingerprint(scene: xr.Dataset) -> str:
+    """Digest of a lazy (dask-backed) scene without reading it: its dask token, which covers the graph of every
+    variable (the names of the files and their modification times for an opened file, the tokens of the
+    operations on them, such as the crop), the in-memory coordinates' values and all attributes. dask names
+    its arrays by the same token, so equal tokens mean equal values, as for dask's own caching; only a numpy
+    array wrapped by ``dask.array.from_array`` and changed in place afterwards would go unnoticed."""
+    import dask.base
+
+    return "dask-" + dask.base.tokenize(scene)
+
+
 def _attrs_text(attrs):
     return repr(sorted((k, repr(v)) for k, v in attrs.items()))
 
@@ -290,19 +301,19 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
     if height is None or not np.isfinite(height) or height < 0:
         raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
-    if any(var.chunks is not None for var in scene.variables.values()):
-        # a lazy (cropped) scene is read once, for the digest and the validation; compute(), not load(): the
-        # caller's (uncropped) dataset must stay lazy
-        scene = scene.compute()
+    given = scene
 
     def validated_volume():
-        valid = validate_scene(scene)
+        # a lazy (cropped) scene is read here, once: compute(), not load(), so the caller's dataset stays lazy
+        valid = validate_scene(given.compute() if lazy else given)
         # From here on only the scene's attributes, coordinates and variable names are needed: dropping its
         # values frees the float64 copy of validate_scene before Step 1a and the kernel constants.
         return build_optical_volume(valid), valid.drop_vars(list(valid.data_vars)), frozenset(valid.data_vars)
 
-    # The digest of the scene as given: a warm render (same values) neither validates nor builds anything.
-    fingerprint = _fingerprint(scene)
+    # The digest of the scene as given: a warm render (same values) neither validates nor builds anything. A lazy
+    # scene is identified by its dask graph (for files their names and modification times), not read again.
+    lazy = any(var.chunks is not None for var in scene.variables.values())
+    fingerprint = _lazy_fingerprint(scene) if lazy else _fingerprint(scene)
     volume, scene, scene_vars = _STAGE_CACHE.get(("volume", fingerprint), validated_volume)
     lat0, lon0 = float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"])
     lat = lat0 if lat is None else float(lat)

@@ -237,7 +237,7 @@ def test_cli_backend_option(tmp_path):
 def test_cli_probes_option(tmp_path):
     out = tmp_path / "probes.png"
     result = CliRunner().invoke(app, ["render", "--size", "31", "--probes", "16", "--steps", "64", "--probe-spacing", "1",
-                                      "--out", str(out)])
+                                      "--tau-refine", "0.25", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert out.exists()
     bad = tmp_path / "bad.png"
@@ -245,3 +245,5 @@ def test_cli_probes_option(tmp_path):
     assert result.exit_code == 2 and "MarchSettings.n_probe" in result.output and not bad.exists()
     result = CliRunner().invoke(app, ["render", "--size", "31", "--probe-spacing", "-1", "--out", str(bad)])
     assert result.exit_code == 2 and "MarchSettings.probe_spacing" in result.output and not bad.exists()
+    result = CliRunner().invoke(app, ["render", "--size", "31", "--tau-refine", "-1", "--out", str(bad)])
+    assert result.exit_code == 2 and "MarchSettings.tau_refine" in result.output and not bad.exists()

@@ -92,3 +92,52 @@ def test_a_new_sun_holds_one_set_of_grid_constants_at_a_time():
 def test_a_scene_that_is_not_a_dataset_is_a_clear_error(crop):
     with pytest.raises(SwimInputError, match="xarray.Dataset"):
         swim.render({"cloud_liquid_content": 1.0}, crop=crop, sun_zenith=30.0, sun_azimuth=0.0)
+
+
+def test_a_lazy_scene_is_not_read_again_but_its_changes_are_seen(tmp_path, caplog):
+    """A lazily opened scene is identified by its dask graph (file name and modification time, the crop's
+    slices, attributes): a warm render reuses the stages without running a single dask task, while changed
+    attributes (validated again) and a rewritten file (new values) are not served from the cache."""
+    import dask.array
+    from dask.callbacks import Callback
+
+    from swim.io.scene import open_scene
+
+    class Tasks(Callback):
+        def __init__(self):
+            super().__init__()
+            self.count = 0
+
+        def _posttask(self, *args):
+            self.count += 1
+
+    pipeline._STAGE_CACHE.clear()
+    scene = swim.default_scene()
+    path = tmp_path / "scene.nc"
+    scene.to_netcdf(path)
+    time = str(scene["time"].values)
+    lazy = open_scene(path, lazy=True, time=time)
+    assert isinstance(lazy["cloud_liquid_content"].data, dask.array.Array)
+    for crop in (False, True):
+        first = _render(lazy, crop=crop)
+        with Tasks() as tasks, caplog.at_level(logging.INFO, logger="swim.pipeline"):
+            caplog.clear()
+            second = _render(lazy, crop=crop)
+        assert "reusing the volume" in caplog.text
+        if not crop:  # the crop reads a few columns of terrain each time; the scene itself is not read
+            assert tasks.count == 0, f"a warm render of a lazy scene ran {tasks.count} dask tasks"
+        np.testing.assert_array_equal(first["radiance"].values, second["radiance"].values)
+
+    bad = lazy.copy()
+    bad["cloud_liquid_content"] = bad["cloud_liquid_content"].assign_attrs(units="g m-3")
+    with pytest.raises(SwimInputError, match="units"):
+        _render(bad, crop=False)
+
+    cleared = scene.copy()
+    for name in [v for v in scene.data_vars if v.endswith("_content")]:
+        cleared[name] = cleared[name] * 0.0
+    path.unlink()
+    cleared.to_netcdf(path)
+    clear = _render(open_scene(path, lazy=True, time=time), crop=False)
+    assert float(np.nanmax(first["tau_hydrometeor"].values)) > 1.0
+    assert float(np.nanmax(clear["tau_hydrometeor"].values)) == 0.0

@@ -72,6 +72,10 @@ def render(
                                                        "cross more cells take more probes (default: "
                                                        "MarchSettings().probe_spacing, 2; 0 for --probes on every "
                                                        "ray)."),
+    tau_refine: Optional[float] = typer.Option(None, "--tau-refine",
+                                               help="Largest hydrometeor optical depth of a grid step near the "
+                                                    "observer: thicker steps are halved (default: "
+                                                    "MarchSettings().tau_refine, 0.5; 0 turns it off)."),
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),
     adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
@@ -152,7 +156,8 @@ def render(
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                 settings=MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps}),
                                        **({} if probes is None else {"n_probe": probes}),
-                                       **({} if probe_spacing is None else {"probe_spacing": probe_spacing})),
+                                       **({} if probe_spacing is None else {"probe_spacing": probe_spacing}),
+                                       **({} if tau_refine is None else {"tau_refine": tau_refine})),
                 white_level=white_level, sampling=sampling,
                 progress=lambda done, total: bar.update(task, completed=done / total),
             )
