@@ -91,9 +91,12 @@ def _fingerprint(scene: xr.Dataset) -> str:
 def _lazy_fingerprint(scene: xr.Dataset) -> str:
     """Digest of a lazy (dask-backed) scene without reading it: its dask token, which covers the graph of every
     variable (the names of the files and their modification times for an opened file, the tokens of the
-    operations on them, such as the crop), the in-memory coordinates' values and all attributes. dask names
-    its arrays by the same token, so equal tokens mean equal values, as for dask's own caching; only a numpy
-    array wrapped by ``dask.array.from_array`` and changed in place afterwards would go unnoticed."""
+    operations on them, such as the crop), the in-memory variables' values and all attributes. dask names its
+    arrays by the same token and relies on it for its own caching. What it does not see: a file replaced by one
+    with the same name and modification time (``cp -p``, ``rsync -t``), a file rewritten while a dataset opened
+    from it is still in use (its token was made when it was opened; open it again), and a numpy array wrapped by
+    ``dask.array.from_array`` and changed in place afterwards (wrap it again). ``swim.pipeline._STAGE_CACHE.clear()``
+    forgets every cached stage."""
     import dask.base
 
     return "dask-" + dask.base.tokenize(scene)

@@ -182,7 +182,7 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
 
 @pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0),
                                           ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2"),
-                                          ("tau_refine", -0.5), ("tau_refine", float("inf"))])
+                                          ("probe_spacing", 1e-20), ("tau_refine", -0.5), ("tau_refine", float("inf"))])
 def test_march_settings_reject_bad_counts(field, value):
     with pytest.raises(SwimInputError, match=f"MarchSettings.{field}"):
         MarchSettings(**{field: value})
@@ -345,14 +345,18 @@ def test_probe_counts_are_the_cells_crossed():
     dirs = np.array([[1.0, 0.0, 0.0]] * 3)
     seg = ray_segments(origins, dirs, grid_geometry(volume), top=float(consts["top"]))
     s0 = seg["bounds"][:, 0]
-    length = np.array([4400.0, 800.0, 4400.0])  # 11 cells of 400 m, 2 cells, and a long one with big spacing
+    length = np.array([4400.0, 800.0, 2200.0])  # 11 cells of 400 m, 2 cells, 5.5 cells
     args = [jnp.asarray(a, jnp.float32) for a in (seg["start"], dirs, s0, length)]
     counts = {spacing: np.asarray(probe_counts(*args, consts, n_probe=4, probe_spacing=spacing))
               for spacing in (0.0, 0.5, 1.0)}
     np.testing.assert_array_equal(counts[0.0], [4, 4, 4])
-    assert counts[1.0][0] == 11 and counts[1.0][1] == 4 and counts[1.0][2] == 11, counts
-    assert counts[0.5][0] == 22 and counts[0.5][1] == 4, counts
-    assert MAX_PROBES >= 1024
+    assert counts[1.0][0] == 11 and counts[1.0][1] == 4 and counts[1.0][2] == 6, counts
+    assert counts[0.5][0] == 22 and counts[0.5][1] == 4 and counts[0.5][2] == 11, counts
+    # capped at MAX_PROBES: a spacing of a tenth of a cell over 11 cells wants 110
+    capped = np.asarray(probe_counts(*args, consts, n_probe=4, probe_spacing=0.1))
+    assert 110 <= capped[0] <= 111, capped
+    assert np.asarray(probe_counts(*args[:3], jnp.asarray([1e9, 800.0, 2200.0], jnp.float32), consts, n_probe=4,
+                                   probe_spacing=0.1))[0] == MAX_PROBES
 
 
 def _cloud_wall(thick, count=120, liquid_content=4e-4):

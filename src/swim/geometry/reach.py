@@ -155,7 +155,7 @@ def with_reference_point(scene: xr.Dataset) -> xr.Dataset:
     return scene.assign_attrs(reference_lat=lat0, reference_lon=lon0)
 
 
-#: :meth:`_Columns.grid_top` of lazy height fields, by dask token (the last 8).
+#: :meth:`_Columns.grid_top` of lazy height fields, by dask token (8 at most, the oldest dropped first).
 _LAZY_GRID_TOPS = {}
 
 
@@ -256,9 +256,11 @@ class _Columns:
 
         token = dask.base.tokenize(height)
         if token not in _LAZY_GRID_TOPS:
+            top = self._grid_top(height)
             if len(_LAZY_GRID_TOPS) >= 8:
-                _LAZY_GRID_TOPS.pop(next(iter(_LAZY_GRID_TOPS)))
-            _LAZY_GRID_TOPS[token] = self._grid_top(height)
+                _LAZY_GRID_TOPS.pop(next(iter(_LAZY_GRID_TOPS), None), None)
+            _LAZY_GRID_TOPS[token] = top
+            return top
         return _LAZY_GRID_TOPS[token]
 
     @staticmethod

@@ -77,6 +77,11 @@ N_CHANNELS = len(SPECIES) + 4
 FROM_ABOVE_BLEND = 0.1
 
 
+#: Smallest non-zero :attr:`MarchSettings.probe_spacing` [cells]: finer probes than a tenth of a cell see
+#: nothing new (the occupancy is per cell), and they are capped at :data:`MAX_PROBES` anyway.
+MIN_PROBE_SPACING = 0.1
+
+
 @dataclass(frozen=True)
 class MarchSettings:
     """Step counts of the three ray segments (static for the compiled kernel).
@@ -137,11 +142,11 @@ class MarchSettings:
             value, least = getattr(self, name), 1 if name in ("chunk", "n_probe") else 0
             if not isinstance(value, (int, np.integer)) or value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
-        for name, what in (("probe_spacing", "a finite number of cells >= 0"),
-                           ("tau_refine", "a finite optical depth >= 0")):
+        for name, what, least in (("probe_spacing", f"0 or a finite number of cells >= {MIN_PROBE_SPACING}",
+                                    MIN_PROBE_SPACING), ("tau_refine", "a finite optical depth >= 0", 0.0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or not np.isfinite(value) or value < 0:
+                    or not np.isfinite(value) or value < 0 or 0 < value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be {what}, got {value!r}")
         if self.surface not in SURFACE_MODELS:
             raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
@@ -475,8 +480,8 @@ def uniform_step_edges(s0, length, n_steps):
 N_OCCUPANCY_PROBES = MarchSettings.n_probe
 #: Most occupancy probes per ray (:func:`probe_counts`): one per 2 cells of a ray across 2048 cells.
 MAX_PROBES = 1024
-#: Cells [-] by which a ray's length may exceed a multiple of ``probe_spacing`` without another probe
-#: (:func:`probe_counts`).
+#: Probe intervals [-] (of ``probe_spacing`` cells) by which a ray's length may exceed a whole number of them
+#: without another probe (:func:`probe_counts`).
 CELL_SLACK = 1e-3
 #: Step density in empty space relative to occupied space (:func:`adaptive_step_edges`).
 EMPTY_STEP_WEIGHT = 0.125
@@ -487,7 +492,7 @@ def _probe_indices(start, direction, s0, length, consts, n_probe, probes=None):
     grid segment: ``n_probe`` of them, or the first ``probes`` (n,) of each ray's own count (the others then
     repeat the last)."""
     m = jnp.arange(n_probe, dtype=jnp.float32)[:, None]
-    count = jnp.float32(n_probe) if probes is None else probes.astype(jnp.float32)[None, :]
+    count = jnp.float32(n_probe) if probes is None else jnp.minimum(probes, n_probe).astype(jnp.float32)[None, :]
     f = (jnp.minimum(m, count - 1) + 0.5) / count
     s = s0[None, :] + f * length[None, :]
     q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
@@ -502,7 +507,8 @@ def probe_counts(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBE
 
     A segment's length in cells is the Chebyshev length of its path in grid indices (the largest of the index
     changes, summed between its ``n_probe`` probes and extended by the half intervals at its ends): the number of
-    cells the ray passes along its dominant axis. ``probe_spacing`` 0 gives ``n_probe`` for every ray.
+    cells the ray passes along its dominant axis. ``probe_spacing`` 0 gives ``n_probe`` for every ray, and so does
+    ``n_probe`` 1 (a single probe measures no length).
     """
     k, j, i = _probe_indices(start, direction, s0, length, consts, n_probe)
     step = jnp.maximum(jnp.maximum(jnp.abs(jnp.diff(k, axis=0)), jnp.abs(jnp.diff(j, axis=0))), jnp.abs(jnp.diff(i, axis=0)))
@@ -534,7 +540,7 @@ def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N
     kk, jj, ii = (jnp.clip(jnp.round(x), 0, size - 1).astype(jnp.int32) for x, size in ((k, nk), (j, ny), (i, nx)))
     occupied = occupancy.reshape(-1)[(kk * ny + jj) * nx + ii].reshape(n_probe, n) > 0
     weight = jnp.where(occupied, 1.0, empty_weight)
-    count = jnp.full((n,), n_probe, jnp.int32) if probes is None else probes.astype(jnp.int32)
+    count = jnp.full((n,), n_probe, jnp.int32) if probes is None else jnp.minimum(probes.astype(jnp.int32), n_probe)
     weight = jnp.where(jnp.arange(n_probe)[:, None] < count[None, :], weight, 0.0)  # a ray's own probes only
     cdf = jnp.concatenate([jnp.zeros((1, n), jnp.float32), jnp.cumsum(weight, axis=0)], axis=0)
     cdf = cdf / cdf[-1:]
@@ -677,7 +683,7 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine):
     ends when every ray has taken all its steps. :mod:`swim.rt.march_cpu` does the same per ray.
     """
     n = edges.shape[1]
-    slots = REFINE_DEPTH + 2  # pending halves: at most one per level, plus the two just pushed
+    slots = REFINE_DEPTH + 1  # pending halves: at most one per level below the popped one, plus the two pushed
     col = jnp.arange(slots)[None, :]
 
     def finished(carry):
@@ -913,6 +919,8 @@ def _chunk_probes(start, direction, bounds, consts, settings: MarchSettings):
     if most > settings.n_probe:
         settings = replace(settings, n_probe=int(min(MAX_PROBES, 1 << int(np.ceil(np.log2(most))))))
     return settings, probes
+
+
 _compose_chunk = jax.jit(_compose, static_argnames=("settings",))
 
 

@@ -198,9 +198,10 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
     probe_spacing`` cells is probed again, once per ``probe_spacing`` cells (at most ``cdf.size - 1`` probes)."""
     cells = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf)
-    need = math.ceil(cells / probe_spacing - cell_slack) if probe_spacing > 0 else 0.0
+    # clamped before the conversion to an integer (a tiny spacing would overflow it)
+    need = min(math.ceil(cells / probe_spacing - cell_slack), cdf.shape[0] - 1.0) if probe_spacing > 0 else 0.0
     if need > n_probe:
-        n_probe = min(int(need), cdf.shape[0] - 1)
+        n_probe = int(need)
         _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf)
     total = cdf[n_probe]
     for m in range(n_probe + 1):
@@ -257,6 +258,12 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     nu_class = diffuse_classes.shape[1] // n_class
     n_u = ms_profile.shape[2]
     top = p[_P_TOP]
+    # work arrays of every ray: step edges, the probes' cumulative density, the pending halves of refined steps
+    edges = np.empty(n_grid + 1)
+    cdf = np.empty(max(n_probe, n_probe_max) + 1)
+    stack_lo = np.empty(max_depth + 1)
+    stack_hi = np.empty(max_depth + 1)
+    stack_depth = np.empty(max_depth + 1, np.int64)
     for r in range(n):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
@@ -281,11 +288,6 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
         t_sun = np.empty(3)
         diffuse = np.empty(3)
         vol = np.empty(n_c)
-        edges = np.empty(n_grid + 1)
-        cdf = np.empty(max(n_probe, n_probe_max) + 1)
-        stack_lo = np.empty(max_depth + 2)
-        stack_hi = np.empty(max_depth + 2)
-        stack_depth = np.empty(max_depth + 2, np.int64)
         c0 = class_lower[r]
         wc = class_weight[r]
         for segment in range(3):
