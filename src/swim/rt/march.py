@@ -667,7 +667,7 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
 #: down to 1/64), refinements per ray, and the hydrometeor optical depth [-] to the observer beyond which no step
 #: is refined (e^-8: what lies deeper adds < 0.04 % of the light).
 REFINE_DEPTH = 6
-REFINE_BUDGET = 32
+REFINE_BUDGET = 8
 REFINE_VISIBLE_TAU = 8.0
 
 
