@@ -487,12 +487,12 @@ CELL_SLACK = 1e-3
 EMPTY_STEP_WEIGHT = 0.125
 
 
-def _probe_indices(start, direction, s0, length, consts, n_probe, probes=None):
+def _probe_indices(start, direction, s0, length, consts, n_probe, count=None):
     """Grid indices (k, j, i), each (n_probe, n), of the probes at the middles of equal intervals of each ray's
-    grid segment: ``n_probe`` of them, or the first ``probes`` (n,) of each ray's own count (the others then
-    repeat the last)."""
+    grid segment: ``n_probe`` of them, or the first ``count`` (n,) <= n_probe of each ray's own count (the others
+    then repeat the last)."""
     m = jnp.arange(n_probe, dtype=jnp.float32)[:, None]
-    count = jnp.float32(n_probe) if probes is None else jnp.minimum(probes, n_probe).astype(jnp.float32)[None, :]
+    count = jnp.float32(n_probe) if count is None else count.astype(jnp.float32)[None, :]
     f = (jnp.minimum(m, count - 1) + 0.5) / count
     s = s0[None, :] + f * length[None, :]
     q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
@@ -500,7 +500,8 @@ def _probe_indices(start, direction, s0, length, consts, n_probe, probes=None):
     return tuple(x.reshape(n_probe, -1) for x in (k, j, i))
 
 
-def probe_counts(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBES, probe_spacing=2.0):
+def probe_counts(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBES,
+                 probe_spacing=MarchSettings.probe_spacing):
     """Occupancy probes per ray (n,) int32 for :func:`adaptive_step_edges`: ``n_probe``, or for a ray whose grid
     segment crosses more than ``n_probe * probe_spacing`` cells one per ``probe_spacing`` cells, at most
     :data:`MAX_PROBES`.
@@ -510,11 +511,11 @@ def probe_counts(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBE
     cells the ray passes along its dominant axis. ``probe_spacing`` 0 gives ``n_probe`` for every ray, and so does
     ``n_probe`` 1 (a single probe measures no length).
     """
+    if not probe_spacing:
+        return jnp.full(start.shape[:1], n_probe, jnp.int32)
     k, j, i = _probe_indices(start, direction, s0, length, consts, n_probe)
     step = jnp.maximum(jnp.maximum(jnp.abs(jnp.diff(k, axis=0)), jnp.abs(jnp.diff(j, axis=0))), jnp.abs(jnp.diff(i, axis=0)))
     cells = jnp.sum(step, axis=0) * (n_probe / max(n_probe - 1, 1))
-    if not probe_spacing:
-        return jnp.full(start.shape[:1], n_probe, jnp.int32)
     # CELL_SLACK: a ray along a grid axis crosses a whole number of cells, which must not round up in float32
     # here and not in float64 in the numba kernel (or the other way round)
     need = jnp.ceil(cells / probe_spacing - CELL_SLACK)
@@ -534,13 +535,13 @@ def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N
     n_steps empty_weight / (occupied + empty_weight (n_probe - occupied)) steps per interval).
     """
     n = start.shape[0]
-    k, j, i = _probe_indices(start, direction, s0, length, consts, n_probe, probes)
+    count = jnp.full((n,), n_probe, jnp.int32) if probes is None else jnp.minimum(probes.astype(jnp.int32), n_probe)
+    k, j, i = _probe_indices(start, direction, s0, length, consts, n_probe, None if probes is None else count)
     occupancy = jnp.asarray(consts["occupancy"])
     nk, ny, nx = occupancy.shape
     kk, jj, ii = (jnp.clip(jnp.round(x), 0, size - 1).astype(jnp.int32) for x, size in ((k, nk), (j, ny), (i, nx)))
     occupied = occupancy.reshape(-1)[(kk * ny + jj) * nx + ii].reshape(n_probe, n) > 0
     weight = jnp.where(occupied, 1.0, empty_weight)
-    count = jnp.full((n,), n_probe, jnp.int32) if probes is None else jnp.minimum(probes.astype(jnp.int32), n_probe)
     weight = jnp.where(jnp.arange(n_probe)[:, None] < count[None, :], weight, 0.0)  # a ray's own probes only
     cdf = jnp.concatenate([jnp.zeros((1, n), jnp.float32), jnp.cumsum(weight, axis=0)], axis=0)
     cdf = cdf / cdf[-1:]

@@ -309,19 +309,20 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None)
              "aerosol_tau_sun": {"units": "1", "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
              "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
              "transmittance": {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}}
+
+    def shadow(tau):
+        return np.exp(-tau)
+
+    # field: (swept field, transform, value above the swept levels)
+    recipes = {"tau_sun": (0, None, 0.0), "b_tau_sun": (1, None, 0.0), "terrain_shadow": (2, shadow, 1.0),
+               "aerosol_tau_sun": (3, None, 0.0), "cloud_transmittance": (0, cloud_t, 1.0)}
     data = {}
     for name in names:  # one field at a time, so only the requested ones are ever held
-        if name == "tau_sun":
-            value = full(0)
-        elif name == "b_tau_sun":
-            value = full(1)
-        elif name == "terrain_shadow":
-            value = full(2, lambda t: np.exp(-t), above=1.0)
-        elif name == "aerosol_tau_sun":
-            value = full(3)
-        elif name == "cloud_transmittance":
-            value = full(0, cloud_t, above=1.0)
+        if name == "transmittance":  # T times the terrain shadow, each made once if it is asked for too
+            parts = [data[part][1] if part in data else full(*recipes[part])
+                     for part in ("cloud_transmittance", "terrain_shadow")]
+            value = parts[0] * parts[1]
         else:
-            value = full(0, cloud_t, above=1.0) * full(2, lambda t: np.exp(-t), above=1.0)
+            value = full(*recipes[name])
         data[name] = (dims, value, attrs[name])
     return xr.Dataset(data, coords={"level": volume["level"]})
