@@ -73,8 +73,9 @@ def render(
                                                        "MarchSettings().probe_spacing, 2; 0 for --probes on every "
                                                        "ray)."),
     tau_refine: Optional[float] = typer.Option(None, "--tau-refine",
-                                               help="Largest hydrometeor optical depth of a grid step near the "
-                                                    "observer: thicker steps are halved (default: "
+                                               help="Largest hydrometeor optical depth of a grid step, and "
+                                                    "change of it at a cloud face, near the observer: thicker "
+                                                    "steps and faces are halved (default: "
                                                     "MarchSettings().tau_refine, 0.5; 0 turns it off)."),
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),

@@ -107,9 +107,10 @@ class MarchSettings:
         view 6° above the horizon of a 400 km grid falls from 20 % to 10 %, and other views do not change
         (docs/performance.md, section 13). 0 probes every ray ``n_probe`` times.
     tau_refine : float
-        Largest hydrometeor optical depth [-] of a grid step while the ray's own is below 8: a thicker step is
-        replaced by its halves, recursively (:func:`_march_grid_refined`), so that a cloud's face is sampled
-        where its light comes from. 0 turns this off.
+        Largest hydrometeor optical depth [-] of a grid step, and largest change of it between neighbouring
+        steps, while the ray's own is below 8: a thicker step is replaced by its halves, and so is a step at a
+        cloud face, recursively (:func:`_march_grid_refined`), so that the face is sampled where its light comes
+        from. 0 turns this off.
     chunk : int
         Rays per kernel call. Small chunks keep the kernel's working set in the CPU caches: on a 2-core
         machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096 or 8192, 4.2 s
@@ -558,7 +559,8 @@ def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N
 def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class,
                    tau_refine=0.0):
     """Accumulate one ray segment with n_steps midpoint steps between ``edges`` (n_steps + 1, n) [m] (see the
-    module docstring); in the grid, steps thicker than ``tau_refine`` are refined (:func:`_march_grid_refined`).
+    module docstring); in the grid, thick steps and cloud faces are refined down to ``tau_refine``
+    (:func:`_march_grid_refined`).
 
     ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only;
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
@@ -664,35 +666,50 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     return jax.lax.fori_loop(0, n_steps, body, state)
 
 
-#: Binary refinement of optically thick grid steps (:func:`_march_grid_refined`): levels of halving (a step
-#: down to 1/64), refinements per ray, and the hydrometeor optical depth [-] to the observer beyond which no step
-#: is refined (e^-8: what lies deeper adds < 0.04 % of the light).
+#: Binary refinement of grid steps where a cloud face may lie (:func:`_march_grid_refined`): levels of halving (a
+#: step down to 1/64), refinements per ray (splits and roll-backs), the hydrometeor optical depth [-] to the
+#: observer beyond which no step is refined (e^-8: what lies deeper adds < 0.04 % of the light), and the pending
+#: intervals a ray can hold (a split adds one, a roll-back two; a refinement that does not fit is not made).
 REFINE_DEPTH = 6
-REFINE_BUDGET = 8
+REFINE_BUDGET = 16
 REFINE_VISIBLE_TAU = 8.0
+REFINE_SLOTS = REFINE_DEPTH + 4
 
 
 def _march_grid_refined(state, sample, edges, n_steps, tau_refine):
-    """The grid segment of :func:`_march_segment` with thick steps refined: a step whose hydrometeor optical depth
-    ``beta_h ds`` exceeds ``tau_refine`` while the ray's own is below :data:`REFINE_VISIBLE_TAU` is replaced by
-    its two halves, first half first, recursively (:data:`REFINE_DEPTH` levels, :data:`REFINE_BUDGET` times per
-    ray). So a cloud face is resolved where the light comes from, and neighbouring pixels whose midpoints fall
-    on either side of the face agree (the stripes of docs/performance.md, section 13).
+    """The grid segment of :func:`_march_segment` with steps refined where a cloud face may lie, while the ray's
+    own hydrometeor optical depth is below :data:`REFINE_VISIBLE_TAU` (at most :data:`REFINE_DEPTH` levels of
+    halving and :data:`REFINE_BUDGET` refinements per ray):
 
-    Rays in lockstep, each with its own pending halves: every iteration each ray takes its next interval (the
-    last pending half, or its next step), samples it and either accumulates it or pushes its halves; the loop
-    ends when every ray has taken all its steps. :mod:`swim.rt.march_cpu` does the same per ray.
+    * a step whose hydrometeor optical depth ``beta_h ds`` exceeds ``tau_refine`` is replaced by its two halves,
+      first half first, recursively (a face inside the step, or a thick step whose midpoint sunlight stands for
+      all of it);
+    * so is a step whose extinction differs from that of the interval before it by more than ``tau_refine / ds``
+      (the face where a cloud ends lies in its first half, or the cloud goes on unseen by its midpoint);
+    * where that difference over the previous interval's length exceeds ``tau_refine``, the previous interval
+      held the face where a cloud begins, but its midpoint lay in clear air: the ray goes back to its state
+      before that interval and takes its two halves, then this interval again.
+
+    So a cloud face is resolved where the light comes from, and neighbouring pixels whose step midpoints fall on
+    either side of the face agree (the stripes of docs/performance.md, section 13).
+
+    Rays in lockstep, each with its own pending intervals (:data:`REFINE_SLOTS`, a refinement only where they
+    fit): every iteration each ray takes its next interval (the last pending one, or its next step), samples it
+    and either accumulates it, pushes its halves, or rolls back. :mod:`swim.rt.march_cpu` does the same per ray.
     """
     n = edges.shape[1]
-    slots = REFINE_DEPTH + 1  # pending halves: at most one per level below the popped one, plus the two pushed
+    slots = REFINE_SLOTS
     col = jnp.arange(slots)[None, :]
 
     def finished(carry):
         _, m, pending, *_ = carry
         return (pending == 0) & (m >= n_steps)
 
+    def rows(mask, value):
+        return mask.reshape((n,) + (1,) * (value.ndim - 1))
+
     def body(carry):
-        st, m, pending, stack_lo, stack_hi, stack_depth, budget = carry
+        st, m, pending, stack_lo, stack_hi, stack_depth, budget, saved, prev = carry
         stacked = pending > 0
         top = jnp.maximum(pending - 1, 0)[:, None]
         next_step = jnp.minimum(m, n_steps - 1)[None, :]
@@ -702,23 +719,47 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine):
         depth = jnp.where(stacked, jnp.take_along_axis(stack_depth, top, 1)[:, 0], 0)
         ds = jnp.where(done, 0.0, hi - lo)
         new, beta_h = sample(st, lo, ds)
-        refine = (~done & (budget > 0) & (depth < REFINE_DEPTH) & st["alive"] & (st["tau_h"] < REFINE_VISIBLE_TAU)
-                  & (beta_h * ds > tau_refine))
-        keep = ~done & ~refine
-        st = {key: jnp.where(keep.reshape((n,) + (1,) * (value.ndim - 1)), value, st[key]) for key, value in new.items()}
-        base = (pending - stacked)[:, None]
+        base = pending - stacked
+        live = ~done & (budget > 0) & st["alive"]
+        adjacent = prev["valid"] & (prev["hi"] == lo)
+        change = jnp.where(adjacent, jnp.abs(beta_h - prev["beta_h"]), 0.0)
+        rollback = (live & adjacent & (prev["depth"] < REFINE_DEPTH) & (change * (prev["hi"] - prev["lo"]) > tau_refine)
+                    & (base + 3 <= slots) & (saved["tau_h"] < REFINE_VISIBLE_TAU))
+        refine = (live & ~rollback & (depth < REFINE_DEPTH) & (st["tau_h"] < REFINE_VISIBLE_TAU) & (base + 2 <= slots)
+                  & (jnp.maximum(beta_h, change) * ds > tau_refine))
+        keep = ~done & ~refine & ~rollback
+        save = keep & live
+        saved = {key: jnp.where(rows(save, value), st[key], value) for key, value in saved.items()}
+        # a rolled-back ray's snapshot is not overwritten above (save needs keep)
+        st = {key: jnp.where(rows(keep, value), value, jnp.where(rows(rollback, value), saved[key], st[key]))
+              for key, value in new.items()}
         mid = (lo + 0.5 * ds)[:, None]
-        first, second = refine[:, None] & (col == base), refine[:, None] & (col == base + 1)
-        # pushed: the second half below the first, which is taken next
-        stack_lo = jnp.where(first, mid, jnp.where(second, lo[:, None], stack_lo))
-        stack_hi = jnp.where(first, hi[:, None], jnp.where(second, mid, stack_hi))
-        stack_depth = jnp.where(first | second, depth[:, None] + 1, stack_depth)
-        pending = base[:, 0] + 2 * refine
-        return st, m + (~stacked & ~done), pending, stack_lo, stack_hi, stack_depth, budget - refine
+        prev_mid = (prev["lo"] + 0.5 * (prev["hi"] - prev["lo"]))[:, None]
+        b = base[:, None]
+        # split: the second half below the first, which is taken next; rollback: this interval, then the
+        # previous one's second half, then its first half on top
+        first, second = refine[:, None] & (col == b), refine[:, None] & (col == b + 1)
+        again, p_second, p_first = (rollback[:, None] & (col == b + i) for i in range(3))
+        stack_lo = jnp.where(first | p_second, jnp.where(first, mid, prev_mid),
+                             jnp.where(second | again, lo[:, None], jnp.where(p_first, prev["lo"][:, None], stack_lo)))
+        stack_hi = jnp.where(first | again, hi[:, None],
+                             jnp.where(second, mid, jnp.where(p_second, prev["hi"][:, None],
+                                                              jnp.where(p_first, prev_mid, stack_hi))))
+        stack_depth = jnp.where(first | second, depth[:, None] + 1,
+                                jnp.where(again, depth[:, None],
+                                          jnp.where(p_second | p_first, prev["depth"][:, None] + 1, stack_depth)))
+        prev = {"valid": jnp.where(save, True, prev["valid"] & ~rollback), "lo": jnp.where(save, lo, prev["lo"]),
+                "hi": jnp.where(save, hi, prev["hi"]), "beta_h": jnp.where(save, beta_h, prev["beta_h"]),
+                "depth": jnp.where(save, depth, prev["depth"])}
+        pending = base + 2 * refine + 3 * rollback
+        return (st, m + (~stacked & ~done), pending, stack_lo, stack_hi, stack_depth, budget - refine - rollback,
+                saved, prev)
 
+    zero = jnp.zeros(n, jnp.float32)
+    prev = {"valid": jnp.zeros(n, bool), "lo": zero, "hi": zero, "beta_h": zero, "depth": jnp.zeros(n, jnp.int32)}
     carry = (state, jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32), jnp.zeros((n, slots), jnp.float32),
-             jnp.zeros((n, slots), jnp.float32), jnp.zeros((n, slots), jnp.int32), jnp.full(n, REFINE_BUDGET, jnp.int32))
-    # at most n_steps + 2 REFINE_BUDGET iterations: each refinement adds two intervals
+             jnp.zeros((n, slots), jnp.float32), jnp.zeros((n, slots), jnp.int32), jnp.full(n, REFINE_BUDGET, jnp.int32),
+             dict(state), prev)
     return jax.lax.while_loop(lambda c: ~jnp.all(finished(c)), body, carry)[0]
 
 
@@ -1330,7 +1371,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
-        CELL_SLACK, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, TERRAIN_BISECTIONS,
+        CELL_SLACK, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
+        TERRAIN_BISECTIONS,
         state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
         state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
     state = {key: jnp.asarray(_pad_rows(value, start.shape[0] - n)).astype(bool if value.dtype == bool else jnp.float32)

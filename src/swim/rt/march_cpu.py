@@ -222,7 +222,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
                probe_spacing, n_probe_max, cell_slack, tau_refine, max_depth, refine_budget, refine_visible,
-               n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out,
+               refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out,
                s_hit_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
@@ -233,10 +233,12 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     equal steps), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from ``n_probe`` occupancy probes,
     or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more, less ``cell_slack``) and
     the clear air after it
-    (``n_after`` equal steps), then :func:`swim.rt.march.refine_terrain_hit`. A grid step whose hydrometeor
-    optical depth exceeds ``tau_refine`` while the ray's is below ``refine_visible`` is replaced by its two
-    halves, recursively to ``max_depth`` levels and at most ``refine_budget`` times per ray
-    (:func:`swim.rt.march._march_grid_refined`). A ray stops at the ground
+    (``n_after`` equal steps), then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical
+    depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval
+    before it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change
+    times the previous interval's length exceeds it sends the ray back to its state before that interval, which
+    is halved; recursively to ``max_depth`` levels, at most ``refine_budget`` times per ray, with at most
+    ``refine_slots`` pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray stops at the ground
     (the lockstep kernel goes on with zero-length steps that add nothing), and a segment of zero length takes
     one step (to see whether it starts under the terrain) instead of all of them.
 
@@ -261,9 +263,12 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     # work arrays of every ray: step edges, the probes' cumulative density, the pending halves of refined steps
     edges = np.empty(n_grid + 1)
     cdf = np.empty(max(n_probe, n_probe_max) + 1)
-    stack_lo = np.empty(max_depth + 1)
-    stack_hi = np.empty(max_depth + 1)
-    stack_depth = np.empty(max_depth + 1, np.int64)
+    stack_lo = np.empty(refine_slots)
+    stack_hi = np.empty(refine_slots)
+    stack_depth = np.empty(refine_slots, np.int64)
+    # the state before the last accumulated grid interval, restored when the next one shows that a cloud face
+    # lay inside it: tau_clear, t_obs, l_clear, i_nogas, i_gas (3 each), tau_h, i_cloud_t, gap, s_last, species
+    saved = np.empty(19 + tau_species.shape[1])
     for r in range(n):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
@@ -307,7 +312,10 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
             taken = n_steps if length > 0 else 1
             m = 0
             pending = 0
-            budget = refine_budget if in_grid else 0
+            budget = refine_budget if in_grid and tau_refine > 0 else 0
+            have_prev = False  # an accumulated grid interval that may still be rolled back
+            prev_lo = prev_hi = prev_beta = 0.0
+            prev_depth = 0
             while True:
                 if pending == 0:
                     if m >= taken:
@@ -384,14 +392,48 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                 if in_grid:
                     for c in range(n_species):
                         beta_h += vol[c]
-                    if (budget > 0 and depth < max_depth and alive and th < refine_visible
-                            and beta_h * ds > tau_refine > 0):
-                        # too thick a step while the observer still sees it: its two halves instead, the first first
+                if budget > 0 and alive:
+                    adjacent = have_prev and prev_hi == s_lo
+                    change = abs(beta_h - prev_beta) if adjacent else 0.0
+                    if (adjacent and prev_depth < max_depth and change * (prev_hi - prev_lo) > tau_refine
+                            and pending + 3 <= refine_slots and saved[7] < refine_visible):
+                        # the previous interval held a cloud face that its midpoint missed: back to the state
+                        # before it, and its two halves, then this interval again
+                        tc[0], tc[1], tc[2] = saved[0], saved[1], saved[2]
+                        t_obs[0], t_obs[1], t_obs[2] = saved[3], saved[4], saved[5]
+                        lc[0], lc[1], lc[2] = saved[8], saved[9], saved[10]
+                        ing[0], ing[1], ing[2] = saved[11], saved[12], saved[13]
+                        ig[0], ig[1], ig[2] = saved[14], saved[15], saved[16]
+                        th, ict, gap_prev, s_last = saved[7], saved[6], saved[17], saved[18]
+                        for c in range(n_species):
+                            tsp[c] = saved[19 + c]
+                        mid = prev_lo + 0.5 * (prev_hi - prev_lo)
+                        stack_lo[pending], stack_hi[pending], stack_depth[pending] = s_lo, s_hi, depth
+                        stack_lo[pending + 1], stack_hi[pending + 1], stack_depth[pending + 1] = mid, prev_hi, prev_depth + 1
+                        stack_lo[pending + 2], stack_hi[pending + 2], stack_depth[pending + 2] = prev_lo, mid, prev_depth + 1
+                        pending += 3
+                        budget -= 1
+                        have_prev = False
+                        continue
+                    if (depth < max_depth and th < refine_visible and pending + 2 <= refine_slots
+                            and max(beta_h, change) * ds > tau_refine):
+                        # too thick a step, or one whose extinction differs too much from the previous one's,
+                        # while the observer still sees it: its two halves instead, the first first
                         stack_lo[pending], stack_hi[pending], stack_depth[pending] = s, s_hi, depth + 1
                         stack_lo[pending + 1], stack_hi[pending + 1], stack_depth[pending + 1] = s_lo, s, depth + 1
                         pending += 2
                         budget -= 1
                         continue
+                    saved[0], saved[1], saved[2] = tc[0], tc[1], tc[2]
+                    saved[3], saved[4], saved[5] = t_obs[0], t_obs[1], t_obs[2]
+                    saved[8], saved[9], saved[10] = lc[0], lc[1], lc[2]
+                    saved[11], saved[12], saved[13] = ing[0], ing[1], ing[2]
+                    saved[14], saved[15], saved[16] = ig[0], ig[1], ig[2]
+                    saved[6], saved[7], saved[17], saved[18] = ict, th, gap_prev, s_last
+                    for c in range(n_species):
+                        saved[19 + c] = tsp[c]
+                    have_prev = True
+                    prev_lo, prev_hi, prev_beta, prev_depth = s_lo, s_hi, beta_h, depth
                 t0 = th
                 t1 = t0 + beta_h * ds_eff
                 # Eq. 12's weight e^-t0 - e^-min(t1, 2) is exactly 0 without hydrometeors or beyond tau 2
