@@ -433,3 +433,19 @@ def test_cloud_face_inside_a_clear_step_is_found(sun_azimuth):
         assert np.median(err) < 0.003 and np.percentile(err, 90) < 0.006, (backend, np.median(err))
     np.testing.assert_allclose(out["numba"]["radiance"], out["jax"]["radiance"], rtol=2e-4)
     np.testing.assert_allclose(out["numba"]["tau_hydrometeor"], out["jax"]["tau_hydrometeor"], rtol=2e-4, atol=1e-6)
+
+
+def test_any_cut_of_the_rays_into_chunks_gives_the_same_pixels(monkeypatch):
+    """The numba kernel's rays are cut into equal chunks, as many as a multiple of the threads (a small batch runs
+    on every core): one thread, three threads, and chunks smaller than the batch must give the same pixels in the
+    same order."""
+    origins, dirs = _random_rays(700)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    monkeypatch.setenv("SWIM_NUM_THREADS", "1")
+    ref = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="numba"))[0]
+    assert np.isfinite(ref["radiance"]).all() and np.ptp(ref["radiance"][:, 0]) > 0.01
+    for threads, chunk in ((3, 4096), (2, 128), (1, 300)):
+        monkeypatch.setenv("SWIM_NUM_THREADS", str(threads))
+        out = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="numba", chunk=chunk))[0]
+        for key in ("radiance", "tau_hydrometeor", "surface"):
+            np.testing.assert_allclose(out[key], ref[key], rtol=1e-5, atol=1e-7, err_msg=f"{key}, {threads} threads, chunk {chunk}")

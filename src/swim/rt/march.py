@@ -1214,6 +1214,13 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     steps = settings.n_before + settings.n_grid + settings.n_after
     backend = settings.resolved_backend()
     if backend == "numba":
+        # chunks of equal size (at most settings.chunk), as many as a multiple of the cores: a small batch (a small
+        # image, a level of adaptive sampling) then runs on every core instead of in one chunk on one, and no
+        # core waits for a last, smaller chunk; the JAX stages around the kernel still see the padded sizes of
+        # settings.chunk (padded_batch_size), so nothing is compiled anew
+        n_chunks = threads() * -(-n // (threads() * chunk))
+        chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
+    if backend == "numba":
         if not _numba_available():
             raise SwimInputError("MarchSettings.backend='numba' needs the numba package (pip install numba)")
         tables = _numba_tables(consts)
@@ -1244,7 +1251,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     try:
         for lo in range(0, n, chunk):
             hi = min(lo + chunk, n)
-            pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
+            pad = padded_batch_size(hi - lo, settings.chunk) - (hi - lo)
 
             def take(a, dtype=np.float32, first=0):
                 return _pad_rows(np.asarray(a[lo - first:hi - first]), pad).astype(dtype)
