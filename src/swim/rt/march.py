@@ -844,12 +844,11 @@ def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, sett
     _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
     if consts["class_aod"].shape[0] > 1:
         diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
-    ny, nx = consts["terrain"].shape[1:]
-    in_grid = (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
     # albedo (3), land, snow, wind, slope (2), and Step 1a at the ground: cloud T, terrain shadow, 3-D aerosol
     # tau to the sun (2-D fields, so a steep slope does not sample its neighbours' underground values);
-    # beyond the grid the mean of its edge (no streaks of edge values), flat, unshaded
-    fields = jnp.where(in_grid[:, None], bilinear_clamped(consts["surface"], j, i), consts["surface_outside"][None, :])
+    # beyond the grid they fade from the nearest edge cell's to the edge's mean, flat and unshaded
+    fields = surface_beyond_edge(bilinear_clamped(consts["surface"], j, i), consts["surface_outside"],
+                                 *consts["terrain"].shape[1:], j, i)
     slope = fields[:, 6:8]
     t_cloud = fields[:, 8]
     shadow = fields[:, 9]
@@ -987,9 +986,39 @@ def surface_fields(volume, transmittance):
     ], axis=-1)
 
 
+#: e-folding distances [grid cells] over which the ground's fields fade beyond the grid's edge from the nearest
+#: edge cell's values to :func:`surface_fields_outside` (:func:`surface_beyond_edge`): the surface's properties
+#: (albedo, land, snow, wind, slope) over 12 cells, its lighting by Step 1a (cloud T, terrain shadow, 3-D aerosol
+#: towards the sun) over one, since no cloud beyond the grid casts a shadow.
+SURFACE_EDGE_FADE_CELLS = 6.0
+LIGHTING_EDGE_FADE_CELLS = 1.0
+
+
+def surface_beyond_edge(clamped, outside, ny, nx, j, i):
+    """The ground's fields at grid indices (j, i) (n,), anywhere: inside the grid ``clamped`` (n, C), its bilinear
+    lookup; beyond it a fade, with the distance d [cells] from the grid, from the nearest edge cell's values
+    (``clamped``, the lookup at the clamped indices) to ``outside`` (C,) (:func:`surface_fields_outside`), weight
+    e^(-d / L) with L of :func:`surface_fade_cells`.
+
+    Beyond the grid the ground used to be ``outside`` at once: the domain's outline showed from space wherever
+    the edge cells differ from their mean (a hurricane's wind, a coast), 19-30 % in the surface radiance of the
+    Katrina scene; clamping every field to its edge value instead draws streaks of edge values across the whole
+    view. The fade keeps the ground continuous at the edge and the mean some cells beyond it."""
+    dj = jnp.maximum(jnp.maximum(-j, j - (ny - 1)), 0.0)
+    di = jnp.maximum(jnp.maximum(-i, i - (nx - 1)), 0.0)
+    w = jnp.exp(-jnp.sqrt(dj * dj + di * di)[:, None] / surface_fade_cells()[None, :])
+    return outside[None, :] + (clamped - outside[None, :]) * w
+
+
+def surface_fade_cells():
+    """The e-folding distance [cells] of each of the 11 fields of :func:`surface_fields` beyond the grid (11,)."""
+    return np.array([SURFACE_EDGE_FADE_CELLS] * 8 + [LIGHTING_EDGE_FADE_CELLS] * 3, np.float32)
+
+
 def surface_fields_outside(fields):
-    """The ground beyond the grid (11,): the packed :func:`surface_fields` (ny, nx, 11) averaged over the grid's
-    edge cells, flat, lit by the unobstructed sun (T = 1, no shadow, no 3-D aerosol)."""
+    """The ground far beyond the grid (11,): the packed :func:`surface_fields` (ny, nx, 11) averaged over the grid's
+    edge cells, flat, lit by the unobstructed sun (T = 1, no shadow, no 3-D aerosol); near the grid it fades
+    into the edge cells' own values (:func:`surface_beyond_edge`)."""
     ring = np.concatenate([fields[0], fields[-1], fields[1:-1, 0], fields[1:-1, -1]])
     out = ring.mean(axis=0)
     out[6:8] = 0.0

@@ -23,7 +23,8 @@ from ..optics.phase import (
 )
 from ..optics.volume import grid_indices
 from ..surface.lighting import surface_radiance
-from .march import FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, aerosol_column_optical_depth, grid_geometry
+from .march import (FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, aerosol_column_optical_depth, surface_fade_cells,
+                    grid_geometry)
 from .march import surface_fields as march_surface_fields
 from .march import surface_fields_outside as march_surface_fields_outside
 from .solar import transmittance_delta_eddington
@@ -219,9 +220,12 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     if surface:
         h, mu_s, k, j, i = at(s_end)
         _, _, _, t_sun, diffuse = gas_at(h, mu_s)
-        in_grid = (0 <= j[0] <= ny - 1) and (0 <= i[0] <= nx - 1)
-        fields = (np.array([RegularGridInterpolator(axes[1:], f)([[j[0], i[0]]])[0] for f in surface_fields])
-                  if in_grid else march_surface_fields_outside(packed_surface))
+        # beyond the grid: from the nearest edge cell's fields to the edge's mean, e^(-distance / fade)
+        jc, ic = np.clip(j[0], 0, ny - 1), np.clip(i[0], 0, nx - 1)
+        edge = np.array([RegularGridInterpolator(axes[1:], f)([[jc, ic]])[0] for f in surface_fields])
+        w = np.exp(-np.hypot(j[0] - jc, i[0] - ic) / surface_fade_cells())
+        outside = march_surface_fields_outside(packed_surface)
+        fields = outside + (edge - outside) * w
         # Step 1a at the ground: cloud T, terrain shadow and 3-D aerosol tau of the column's ground level
         t_cloud, shadow = fields[8], fields[9]
         t_aer_ground = np.exp(-fields[10] * gas.angstrom_factor)
