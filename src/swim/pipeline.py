@@ -360,7 +360,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     def grid_constants():
         # Step 1a, only the fields that the kernel constants read, which hold them packed into the volume: Step
         # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160; docs/performance.md)
-        transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES)
+        transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
+                                            backend=settings.backend)
         constants = volume_constants(volume, transmittance)
         # the volume's extinctions become views of the packed channels: the grid is held once, not twice
         share_packed_channels(volume, constants)

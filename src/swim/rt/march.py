@@ -988,7 +988,7 @@ def surface_fields(volume, transmittance):
 
 #: e-folding distances [grid cells] over which the ground's fields fade beyond the grid's edge from the nearest
 #: edge cell's values to :func:`surface_fields_outside` (:func:`surface_beyond_edge`): the surface's properties
-#: (albedo, land, snow, wind, slope) over 12 cells, its lighting by Step 1a (cloud T, terrain shadow, 3-D aerosol
+#: (albedo, land, snow, wind, slope) over 6 cells, its lighting by Step 1a (cloud T, terrain shadow, 3-D aerosol
 #: towards the sun) over one, since no cloud beyond the grid casts a shadow.
 SURFACE_EDGE_FADE_CELLS = 6.0
 LIGHTING_EDGE_FADE_CELLS = 1.0
@@ -1249,7 +1249,6 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         # settings.chunk (padded_batch_size), so nothing is compiled anew
         n_chunks = threads() * -(-n // (threads() * chunk))
         chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
-    if backend == "numba":
         if not _numba_available():
             raise SwimInputError("MarchSettings.backend='numba' needs the numba package (pip install numba)")
         tables = _numba_tables(consts)

@@ -222,8 +222,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
                probe_spacing, n_probe_max, cell_slack, tau_refine, max_depth, refine_budget, refine_visible,
-               refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out,
-               s_hit_out):
+               refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out,
+               hit_out, s_hit_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
