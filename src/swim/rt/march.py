@@ -846,7 +846,7 @@ def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, sett
         diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
     # albedo (3), land, snow, wind, slope (2), and Step 1a at the ground: cloud T, terrain shadow, 3-D aerosol
     # tau to the sun (2-D fields, so a steep slope does not sample its neighbours' underground values);
-    # beyond the grid they fade from the nearest edge cell's to the edge's mean, flat and unshaded
+    # beyond the grid they fade from the nearest edge cell's to the edge's mean of a flat, unshaded ground
     fields = surface_beyond_edge(bilinear_clamped(consts["surface"], j, i), consts["surface_outside"],
                                  *consts["terrain"].shape[1:], j, i)
     slope = fields[:, 6:8]

@@ -267,7 +267,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     stack_hi = np.empty(refine_slots)
     stack_depth = np.empty(refine_slots, np.int64)
     # the state before the last accumulated grid interval, restored when the next one shows that a cloud face
-    # lay inside it: tau_clear, t_obs, l_clear, i_nogas, i_gas (3 each), tau_h, i_cloud_t, gap, s_last, species
+    # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
+    # gap 17, s_last 18, the species' optical depths 19-
     saved = np.empty(19 + tau_species.shape[1])
     for r in range(n):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
