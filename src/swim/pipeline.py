@@ -60,30 +60,39 @@ def _fingerprint(scene: xr.Dataset) -> str:
     """Digest of a scene's values, coordinates and attributes (what its optical volume depends on).
 
     The scene as given to :func:`render` (cropped, not yet validated: the same values validate to the same
-    scene, and a warm render then skips the validation's float64 copies). Arrays bigger than two blocks are
-    hashed in blocks of :data:`_HASH_BLOCK` bytes on all cores (hashlib releases the GIL; SHA-256 with the
-    CPU's SHA instructions, ~1.6 GB/s per core here), far less than rebuilding the optical volume and Step 1a
-    of a big grid."""
+    scene, and a warm render then skips the validation's float64 copies). The numeric arrays are hashed on all
+    cores, each on its own thread and those bigger than two blocks in blocks of :data:`_HASH_BLOCK` bytes
+    (hashlib releases the GIL; SHA-256 with the CPU's SHA instructions, ~1.6 GB/s per core here), and their
+    digests combined in the variables' order: far less than rebuilding the optical volume and Step 1a of a big
+    grid; for a small scene they take a few milliseconds per render (the 12 MB RICO LES: 5.6 ms, 7.6 ms when its
+    arrays were hashed one after the other). A non-contiguous array's copy is hashed before the next is made."""
     from concurrent.futures import ThreadPoolExecutor
+
+    def sha(data):
+        return hashlib.sha256(data).digest()
 
     digest = hashlib.sha256()  # with the CPU's SHA instructions ~1.6 GB/s here, twice blake2b
     cores = threads()
     with ThreadPoolExecutor(cores) as pool:
+        parts = []  # per variable: its header, and the futures of its values' digests
         for name in sorted(scene.variables):
             var = scene.variables[name]
             # the attributes too: validation checks the units, and a warm render does not validate again
-            digest.update(f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode())
+            header = f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode()
             values = var.values
             if values.dtype.kind not in "biufc":
-                digest.update(repr(values.tolist()).encode())
+                parts.append((header + repr(values.tolist()).encode(), []))
                 continue
+            copy = not values.flags.c_contiguous
             data = np.ascontiguousarray(values).view(np.uint8).reshape(-1).data
-            if len(data) <= 2 * _HASH_BLOCK or cores == 1:
-                digest.update(data)
-                continue
-            blocks = pool.map(lambda lo: hashlib.sha256(data[lo:lo + _HASH_BLOCK]).digest(),
-                              range(0, len(data), _HASH_BLOCK))
-            digest.update(b"".join(blocks))
+            step = _HASH_BLOCK if len(data) > 2 * _HASH_BLOCK else max(len(data), 1)
+            futures = [pool.submit(sha, data[lo:lo + step]) for lo in range(0, len(data), step)]
+            if copy:  # a contiguous copy is hashed before the next is made: never two copies at once
+                futures = [future.result() for future in futures]
+            parts.append((header, futures))
+        for header, futures in parts:
+            digest.update(header)
+            digest.update(b"".join(f if isinstance(f, bytes) else f.result() for f in futures))
     digest.update(_attrs_text(scene.attrs).encode())
     return digest.hexdigest()
 

@@ -141,3 +141,26 @@ def test_a_lazy_scene_is_not_read_again_but_its_changes_are_seen(tmp_path, caplo
     clear = _render(open_scene(path, lazy=True, time=time), crop=False)
     assert float(np.nanmax(first["tau_hydrometeor"].values)) > 1.0
     assert float(np.nanmax(clear["tau_hydrometeor"].values)) == 0.0
+
+
+def test_scene_digest_sees_every_value_and_attribute(monkeypatch):
+    """The stage cache's key of an in-memory scene (its arrays hashed on all cores, in blocks when big): equal
+    scenes give equal digests; one changed value (in a contiguous array, a non-contiguous one, or the last block
+    of a blocked one) or one changed attribute gives another."""
+    monkeypatch.setattr(pipeline, "_HASH_BLOCK", 256)  # the 3-D fields span many blocks
+    scene = swim.default_scene()
+    digest = pipeline._fingerprint(scene)
+    assert pipeline._fingerprint(scene.copy(deep=True)) == digest
+    name = next(n for n in scene.data_vars if scene[n].ndim == 3)
+    changed = scene.copy(deep=True)
+    changed[name].values.reshape(-1)[-1] += 1e-6  # the last byte's block
+    assert pipeline._fingerprint(changed) != digest
+    strided = scene.copy(deep=True)
+    strided[name] = strided[name].copy(data=np.asfortranarray(strided[name].values))
+    assert not strided[name].values.flags.c_contiguous
+    assert pipeline._fingerprint(strided) == digest  # the same values, laid out otherwise
+    strided[name].values[0, 0, 0] += 1e-6
+    assert pipeline._fingerprint(strided) != digest
+    attrs = scene.copy(deep=True)
+    attrs[name].attrs["units"] = "g m-3"
+    assert pipeline._fingerprint(attrs) != digest
