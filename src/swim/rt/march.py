@@ -156,7 +156,15 @@ class MarchSettings:
 
     def resolved_backend(self) -> str:
         """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
-        CPU and numba is installed, else "jax"."""
+        CPU and numba is installed, else "jax".
+
+        Raises
+        ------
+        SwimInputError
+            If ``backend`` is "numba" and numba is not installed.
+        """
+        if self.backend == "numba" and not _numba_available():
+            raise SwimInputError("MarchSettings.backend='numba' needs the numba package (pip install numba)")
         if self.backend != "auto":
             return self.backend
         return "numba" if jax.default_backend() == "cpu" and _numba_available() else "jax"
@@ -1247,10 +1255,9 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         # image, a level of adaptive sampling) then runs on every core instead of in one chunk on one, and no
         # core waits for a last, smaller chunk; the JAX stages around the kernel still see the padded sizes of
         # settings.chunk (padded_batch_size), so nothing is compiled anew
-        n_chunks = threads() * -(-n // (threads() * chunk))
+        cores = threads()
+        n_chunks = cores * -(-n // (cores * chunk))
         chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
-        if not _numba_available():
-            raise SwimInputError("MarchSettings.backend='numba' needs the numba package (pip install numba)")
         tables = _numba_tables(consts)
         # the JAX set-up and composition never read the host arrays (a jitted call would copy them every time)
         consts = {key: value for key, value in consts.items() if key not in HOST_CONSTANTS}
@@ -1265,7 +1272,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         from concurrent.futures import ThreadPoolExecutor
 
         # chunks marched at once, one per core (the numba kernel runs without the GIL)
-        workers = min(threads(), -(-n // chunk))
+        workers = min(cores, -(-n // chunk))
         pool = ThreadPoolExecutor(workers) if workers > 1 else None
 
     def finished(out, hi):

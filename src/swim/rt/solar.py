@@ -235,20 +235,15 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8; Joseph et al. (1976),
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
-    from .march import MarchSettings, threads
+    from .march import BACKENDS, MarchSettings, threads
 
     names = STEP1A_VARIABLES if variables is None else tuple(variables)
     unknown = sorted(set(names) - set(STEP1A_VARIABLES))
     if unknown:
         raise SwimInputError(f"solar_transmittance: unknown variables {unknown}; expected some of {STEP1A_VARIABLES}")
-    if backend not in ("auto", "jax", "numba"):
-        raise SwimInputError(f"solar_transmittance: backend must be 'auto', 'jax' or 'numba', got {backend!r}")
-    backend = MarchSettings(backend=backend).resolved_backend()
-    if backend == "numba":
-        from .march import _numba_available
-
-        if not _numba_available():
-            raise SwimInputError("solar_transmittance: backend='numba' needs the numba package (pip install numba)")
+    if backend not in BACKENDS:
+        raise SwimInputError(f"solar_transmittance: backend must be one of {BACKENDS}, got {backend!r}")
+    backend = MarchSettings(backend=backend).resolved_backend()  # "numba" without numba raises there
     sun = np.asarray(sun_direction_scene, dtype=float)
     sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
     dz = float(volume.attrs["dz"])
