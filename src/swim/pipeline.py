@@ -29,7 +29,7 @@ from .io.scene import validate_scene
 from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
-from .rt.image_sampling import AdaptiveSampling, sample_image_adaptive
+from .rt.image_sampling import AdaptiveSampling, sample_image_adaptive, tile_order
 from .rt.march import (
     KERNEL_STEP1A_VARIABLES,
     MarchSettings,
@@ -400,11 +400,17 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     sun_out = {}
 
     def trace_pixels(flat, progress_rays=None):
+        order = tile_order(flat, cam.shape)  # neighbouring pixels one after the other: they cross the same cells
+        flat = flat[order]
         dirs = np.vstack([dirs_scene[flat], sun_scene[None]]) if not sun_out else dirs_scene[flat]
         result = trace_directions(dirs, progress_rays)
         if not sun_out:
             sun_out.update({key: value[-1] for key, value in result.items()})
             result = {key: value[:-1] for key, value in result.items()}
+        for key in list(result):  # back to the order of the pixels asked for
+            value = result.pop(key)
+            result[key] = np.empty_like(value)
+            result[key][order] = value
         return result
 
     if sampling is None:

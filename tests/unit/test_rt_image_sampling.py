@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from swim.errors import SwimInputError
-from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive
+from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive, tile_order
 
 
 def make_trace(function, shape, calls=None):
@@ -141,3 +141,22 @@ def test_bad_settings_raise_naming_the_field(kwargs):
 def test_bad_mask_raises():
     with pytest.raises(SwimInputError, match="valid"):
         sample_image_adaptive(make_trace(bilinear_function, (4, 4)), np.ones((4, 4)), AdaptiveSampling())
+
+
+@pytest.mark.parametrize("shape, tile", [((16, 16), 8), ((19, 37), 8), ((5, 3), 4), ((7, 11), 1), ((1, 9), 8)])
+@pytest.mark.parametrize("subset", ["all", "scattered"])
+def test_tile_order_is_a_permutation_that_visits_tiles_one_after_the_other(shape, tile, subset):
+    rng = np.random.default_rng(3)
+    flat = np.arange(shape[0] * shape[1])
+    if subset == "scattered":
+        flat = np.sort(rng.choice(flat, size=max(1, flat.size // 3), replace=False))
+    order = tile_order(flat, shape, tile)
+    assert sorted(order.tolist()) == list(range(flat.size))
+    y, x = np.divmod(flat[order], shape[1])
+    tile_id = (y // tile) * -(-shape[1] // tile) + x // tile
+    # each tile's pixels form one run, tiles in row-major order, pixels of a tile in row-major order
+    assert np.all(np.diff(tile_id) >= 0)
+    same = np.diff(tile_id) == 0
+    assert np.all(np.diff(flat[order])[same] > 0)
+    if tile == 1:
+        assert np.array_equal(flat[order], flat)

@@ -63,6 +63,39 @@ class AdaptiveSampling:
             raise SwimInputError(f"AdaptiveSampling.coarse_spacing must be an integer >= 2, got {self.coarse_spacing!r}")
 
 
+#: Side of the square tiles in which :func:`tile_order` puts the pixels [pixels].
+TRACE_TILE = 8
+
+
+def tile_order(flat, shape, tile=TRACE_TILE):
+    """The order in which to trace pixels: tile by tile, row by row inside a tile.
+
+    Rays of neighbouring pixels cross the same grid cells, so traced one after the other they find them in the
+    CPU's caches; in image rows they revisit a cell only a row (hundreds of rays) later. On the 400 x 400 x 60
+    scene (0.9 GB volume) a 511^2 all-sky renders ~5 % faster in 8 x 8 tiles than in rows; on small grids,
+    which stay in the caches, the order makes no difference (docs/performance.md, section 16).
+
+    Parameters
+    ----------
+    flat : numpy.ndarray
+        Shape (n,) int: flat pixel indices into an image of ``shape``.
+    shape : tuple of int
+        (ny, nx) of the image [pixels].
+    tile : int
+        Side of the tiles [pixels], >= 1.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (n,) int: the permutation of ``flat`` (``flat[order]`` is in tile order; pixels of one tile keep
+        their row-major order).
+    """
+    y, x = np.divmod(np.asarray(flat, dtype=np.int64), shape[1])
+    tiles_per_row = -(-shape[1] // tile)
+    key = ((y // tile) * tiles_per_row + x // tile) * (tile * tile) + (y % tile) * tile + x % tile
+    return np.argsort(key, kind="stable")
+
+
 def _lattice(n, spacing):
     """Every spacing-th index of range(n) and the last one."""
     idx = np.arange(0, n, spacing)

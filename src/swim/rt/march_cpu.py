@@ -110,7 +110,7 @@ def _clip(x, lo, hi):
     return min(max(x, lo), hi)
 
 
-@njit(**_JIT)
+@njit(**_JIT, inline="always")  # numba-level inlining: LLVM left this call in the step loop (section 16)
 def _point_geometry(q0, q1, q2, p, coef):
     """:func:`swim.rt.march._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
     radius = p[_P_RADIUS]
@@ -270,16 +270,30 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
     # gap 17, s_last 18, the species' optical depths 19-
     saved = np.empty(19 + tau_species.shape[1])
+    # the ray's accumulators and the step's lookups, reset per ray
+    tc = np.empty(3)
+    t_obs = np.empty(3)
+    tsp = np.empty(n_species)
+    lc = np.empty(3)
+    ing = np.empty(3)
+    ig = np.empty(3)
+    beta_r = np.empty(3)
+    beta_a = np.empty(3)
+    beta_s = np.empty(3)
+    t_sun = np.empty(3)
+    diffuse = np.empty(3)
+    vol = np.empty(n_c)
+    vol32 = np.empty(n_c, np.float32)
     for r in range(n):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
-        tc = np.zeros(3)
-        t_obs = np.ones(3)  # e^-(tau_clear + tau_h) to the observer, carried as a product
+        tc[:] = 0.0
+        t_obs[:] = 1.0  # e^-(tau_clear + tau_h) to the observer, carried as a product
         th = 0.0
-        tsp = np.zeros(n_species)
-        lc = np.zeros(3)
-        ing = np.zeros(3)
-        ig = np.zeros(3)
+        tsp[:] = 0.0
+        lc[:] = 0.0
+        ing[:] = 0.0
+        ig[:] = 0.0
         ict = 0.0
         alive = valid[r]
         hit = False
@@ -288,12 +302,6 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
         hit_hi = 0.0
         gap_prev = 1e9
         s_last = 0.0
-        beta_r = np.empty(3)
-        beta_a = np.empty(3)
-        beta_s = np.empty(3)
-        t_sun = np.empty(3)
-        diffuse = np.empty(3)
-        vol = np.empty(n_c)
         c0 = class_lower[r]
         wc = class_weight[r]
         for segment in range(3):
@@ -362,12 +370,24 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                         fk = _clip(k - k0, 0.0, 1.0)
                         fj = _clip(j - j0, 0.0, 1.0)
                         fi = _clip(i - i0, 0.0, 1.0)
+                        # in float32 with the corners' weights, channel by channel over the corners' contiguous
+                        # channels: LLVM vectorises the loop 8 channels at a time (section 16 of
+                        # docs/performance.md; the JAX kernel interpolates in float32 too)
+                        w00 = np.float32((1 - fk) * (1 - fj))
+                        w01 = np.float32((1 - fk) * fj)
+                        w10 = np.float32(fk * (1 - fj))
+                        w11 = np.float32(fk * fj)
+                        w_i1 = np.float32(fi)
+                        w_i0 = np.float32(1 - fi)
+                        a00, a01 = volume[k0, j0, i0], volume[k0, j0 + 1, i0]
+                        a10, a11 = volume[k0 + 1, j0, i0], volume[k0 + 1, j0 + 1, i0]
+                        b00, b01 = volume[k0, j0, i0 + 1], volume[k0, j0 + 1, i0 + 1]
+                        b10, b11 = volume[k0 + 1, j0, i0 + 1], volume[k0 + 1, j0 + 1, i0 + 1]
                         for c in range(n_c):
-                            a00 = volume[k0, j0, i0, c] * (1 - fi) + volume[k0, j0, i0 + 1, c] * fi
-                            a01 = volume[k0, j0 + 1, i0, c] * (1 - fi) + volume[k0, j0 + 1, i0 + 1, c] * fi
-                            a10 = volume[k0 + 1, j0, i0, c] * (1 - fi) + volume[k0 + 1, j0, i0 + 1, c] * fi
-                            a11 = volume[k0 + 1, j0 + 1, i0, c] * (1 - fi) + volume[k0 + 1, j0 + 1, i0 + 1, c] * fi
-                            vol[c] = (a00 * (1 - fj) + a01 * fj) * (1 - fk) + (a10 * (1 - fj) + a11 * fj) * fk
+                            vol32[c] = (w_i0 * (w00 * a00[c] + w01 * a01[c] + w10 * a10[c] + w11 * a11[c])
+                                        + w_i1 * (w00 * b00[c] + w01 * b01[c] + w10 * b10[c] + w11 * b11[c]))
+                        for c in range(n_c):
+                            vol[c] = vol32[c]
                     else:
                         for c in range(n_c):
                             vol[c] = 1.0 if c >= n_c - 2 else 0.0
