@@ -477,3 +477,70 @@ def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean():
         assert surface[1] > 3 * surface[2], (backend, surface)  # near the edge: the edge cells' own ground
         assert abs(surface[3] / surface[4] - 1) < 1e-3, (backend, surface)  # far beyond: the edge mean
         assert surface[2] < surface[3] < surface[1], (backend, surface)
+
+
+def _clear_segments():
+    """Rays from the tiny grid's top straight up (after the grid) and from 800 km straight down (before it)."""
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    volume, consts = _kernel_constants(_tiny_scene(), sun)
+    up, down = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])
+    origins = np.array([[0.0, 0.0, EARTH_RADIUS_M + 2.0], [0.0, 0.0, EARTH_RADIUS_M + 800e3],
+                        [-3000.0, 500.0, EARTH_RADIUS_M + 2.0]])
+    dirs = np.array([up, down, [0.6, 0.0, 0.8]])
+    seg = ray_segments(origins, dirs, grid_geometry(volume), top=float(consts["top"]))
+    return consts, seg, dirs
+
+
+@pytest.mark.parametrize("n_steps", [8, 24])
+def test_clear_air_steps_follow_the_air_and_integrate_it_better(n_steps):
+    """clear_step_edges: the steps span the segment, lengthen upwards (the air thins) and integrate an
+    exponential atmosphere (scale height 8 km) by the midpoint rule better than equal steps."""
+    import jax.numpy as jnp
+
+    from swim.rt.march import clear_step_edges
+
+    consts, seg, dirs = _clear_segments()
+    start, bounds = (jnp.asarray(seg[k], jnp.float32) for k in ("start", "bounds"))
+    after = np.asarray(clear_step_edges(start, jnp.asarray(dirs, jnp.float32), bounds[:, 1], bounds[:, 2] - bounds[:, 1],
+                                        n_steps, consts), dtype=float)
+    before = np.asarray(clear_step_edges(start, jnp.asarray(dirs, jnp.float32), jnp.zeros(3), bounds[:, 0], n_steps,
+                                         consts), dtype=float)
+    b = np.asarray(seg["bounds"], dtype=float)
+    np.testing.assert_allclose(after[0], b[:, 1], rtol=1e-6)
+    np.testing.assert_allclose(after[-1], b[:, 2], rtol=1e-6)
+    np.testing.assert_allclose(before[-1, 1], b[1, 0], rtol=1e-6)
+    assert np.all(np.diff(after[:, [0, 2]], axis=0) > 0) and np.all(np.diff(before[:, 1]) > 0)
+    up_steps, down_steps = np.diff(after[:, 0]), np.diff(before[:, 1])
+    assert np.all(np.diff(up_steps) >= -1e-3 * up_steps[:-1]), "steps must lengthen as the ray climbs"
+    assert np.all(np.diff(down_steps) <= 1e-3 * down_steps[:-1]), "steps must shorten as the ray descends"
+    assert up_steps[0] < 0.5 * up_steps.mean() and down_steps[-1] < 0.5 * down_steps.mean()
+
+    # the vertical ray up: heights above the grid top h0 = start height + s
+    h0 = 2.0 + b[0, 1]
+    top = 2.0 + b[0, 2]
+    exact = 8e3 * (np.exp(-h0 / 8e3) - np.exp(-top / 8e3))
+    mid = 0.5 * (after[1:, 0] + after[:-1, 0]) + 2.0
+    placed = np.sum(np.exp(-mid / 8e3) * up_steps)
+    equal_edges = np.linspace(b[0, 1], b[0, 2], n_steps + 1)
+    equal = np.sum(np.exp(-(0.5 * (equal_edges[1:] + equal_edges[:-1]) + 2.0) / 8e3) * np.diff(equal_edges))
+    assert abs(placed - exact) < 0.5 * abs(equal - exact), (placed, equal, exact)
+
+
+def test_numba_clear_air_steps_match_the_jax_ones():
+    import jax.numpy as jnp
+
+    from swim.rt import march_cpu
+    from swim.rt.march import CLEAR_PROBES, CLEAR_STEP_FLOOR, CLEAR_STEP_POWER, clear_step_edges
+
+    consts, seg, dirs = _clear_segments()
+    start, bounds = np.asarray(seg["start"], float), np.asarray(seg["bounds"], float)
+    expected = np.asarray(clear_step_edges(jnp.asarray(start, jnp.float32), jnp.asarray(dirs, jnp.float32),
+                                           jnp.asarray(bounds[:, 1], jnp.float32),
+                                           jnp.asarray(bounds[:, 2] - bounds[:, 1], jnp.float32), 24, consts))
+    p, coef = march_cpu.pack_parameters(consts)
+    for r in range(len(dirs)):
+        cdf, edges = np.empty(CLEAR_PROBES + 1), np.empty(25)
+        march_cpu._clear_edges(*start[r], *dirs[r], bounds[r, 1], bounds[r, 2] - bounds[r, 1], 24, p, coef,
+                               np.asarray(consts["beta_gas"]), np.asarray(consts["beta_gas_spectra"]), CLEAR_PROBES,
+                               CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, cdf, edges)
+        np.testing.assert_allclose(edges, expected[:, r], rtol=0, atol=1e-4 * (bounds[r, 2] - bounds[r, 1]))

@@ -89,13 +89,15 @@ class MarchSettings:
     Attributes
     ----------
     n_before : int
-        Steps through clear air before the model grid (e.g. from space down to the grid top).
+        Steps through clear air before the model grid (e.g. from space down to the grid top), placed by the
+        extinction along the ray (:func:`clear_step_edges`).
     n_grid : int
         Steps through the model grid, concentrated where there are hydrometeors, raised terrain or aerosol
         gradients (:func:`adaptive_step_edges`): 128 adaptive steps are about as accurate as 256 equal ones were
         (docs/performance.md).
     n_after : int
-        Steps through clear air after the grid (to the top of the atmosphere or the ground).
+        Steps through clear air after the grid (to the top of the atmosphere or the ground), placed like
+        ``n_before``'s.
     n_probe : int
         Occupancy probes per ray along its grid segment, at least, which place the ``n_grid`` steps
         (:func:`adaptive_step_edges`).
@@ -127,9 +129,9 @@ class MarchSettings:
         CPU; docs/performance.md, section 8); "auto" takes numba when JAX's default device is the CPU.
     """
 
-    n_before: int = 32
+    n_before: int = 12
     n_grid: int = 128
-    n_after: int = 48
+    n_after: int = 24
     n_probe: int = 64
     probe_spacing: float = 2.0
     tau_refine: float = 0.5
@@ -480,11 +482,6 @@ def _profile_at(profile, h, consts):
     return _materialise(jnp.stack([t[idx] * (1 - w) + t[idx + 1] * w for t in profile.reshape(n_c, n * n_u)], axis=-1))
 
 
-def uniform_step_edges(s0, length, n_steps):
-    """Edges (n_steps + 1, n) [m] of n_steps equal steps from s0 (n,) [m] over length (n,) [m]."""
-    return s0[None, :] + (jnp.arange(n_steps + 1, dtype=jnp.float32) / n_steps)[:, None] * length[None, :]
-
-
 #: Default occupancy probes per ray along the grid segment (:func:`adaptive_step_edges`, :attr:`MarchSettings.n_probe`).
 N_OCCUPANCY_PROBES = MarchSettings.n_probe
 #: Most occupancy probes per ray (:func:`probe_counts`): one per 2 cells of a ray across 2048 cells.
@@ -494,6 +491,12 @@ MAX_PROBES = 1024
 CELL_SLACK = 1e-3
 #: Step density in empty space relative to occupied space (:func:`adaptive_step_edges`).
 EMPTY_STEP_WEIGHT = 0.125
+#: Extinction probes per ray along a clear-air segment (:func:`clear_step_edges`).
+CLEAR_PROBES = 16
+#: Exponent of the extinction in the clear-air step density (:func:`clear_step_edges`).
+CLEAR_STEP_POWER = 1.0 / 3.0
+#: Least clear-air step density, relative to a ray's largest (:func:`clear_step_edges`).
+CLEAR_STEP_FLOOR = 0.02
 
 
 def _probe_indices(start, direction, s0, length, consts, n_probe, count=None):
@@ -552,6 +555,14 @@ def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N
     occupied = occupancy.reshape(-1)[(kk * ny + jj) * nx + ii].reshape(n_probe, n) > 0
     weight = jnp.where(occupied, 1.0, empty_weight)
     weight = jnp.where(jnp.arange(n_probe)[:, None] < count[None, :], weight, 0.0)  # a ray's own probes only
+    return _edges_from_density(weight, count, s0, length, n_steps)
+
+
+def _edges_from_density(weight, count, s0, length, n_steps):
+    """Edges (n_steps + 1, n) [m] that cut the piecewise-constant step density ``weight`` (n_probe, n) over each
+    ray's ``count`` (n,) equal probe intervals of [s0, s0 + length] into n_steps equal parts (the inverse of the
+    piecewise-linear cumulative density)."""
+    n = weight.shape[1]
     cdf = jnp.concatenate([jnp.zeros((1, n), jnp.float32), jnp.cumsum(weight, axis=0)], axis=0)
     cdf = cdf / cdf[-1:]
     targets = jnp.arange(n_steps + 1, dtype=jnp.float32) / n_steps
@@ -562,6 +573,34 @@ def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N
     frac = jnp.clip((idx + (targets[:, None] - c0) / jnp.maximum(c1 - c0, 1e-12)) / count[None, :].astype(jnp.float32),
                     0.0, 1.0)
     return s0[None, :] + frac * length[None, :]
+
+
+def clear_step_edges(start, direction, s0, length, n_steps, consts, n_probe=CLEAR_PROBES):
+    """Edges (n_steps + 1, n) [m] of n_steps steps through the clear air before or after the grid, dense where
+    the air is.
+
+    The midpoint rule's error over a step of length ds is ~ f'' ds^3 / 24; for an integrand that falls
+    exponentially with height (f'' ~ f / H^2) the error is spread evenly by a step density ~ f^(1/3). Each ray
+    probes the extinction at 546 nm (Rayleigh, background and stratospheric aerosol: the clear-sky source's
+    coefficients) at ``n_probe`` equal intervals and spreads its steps with density extinction^(1/3) plus
+    :data:`CLEAR_STEP_FLOOR` times its largest value (so that the thin air far up still gets steps). Against a
+    march of 384 + 256 equal steps, the default 24 steps after and 12 before the grid so placed are as accurate
+    as the 48 and 32 equal steps they replace, or more (median error of ground views 0.013 % against 0.022 %, of
+    a view from 800 km 0.25 % against 0.26 %; docs/performance.md, section 17).
+
+    Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), the segment's start ``s0``
+    and ``length`` (n,) [m].
+    """
+    n = start.shape[0]
+    f = (jnp.arange(n_probe, dtype=jnp.float32)[:, None] + 0.5) / n_probe
+    s = s0[None, :] + f * length[None, :]
+    q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
+    h = _point_geometry(q, consts)[0]
+    profile = _lerp_table(consts["beta_gas"], h / consts["dh"])  # (n_probe n, 3): the three profiles
+    beta = profile @ jnp.asarray(consts["beta_gas_spectra"])[:, 1]
+    density = jnp.maximum(beta, 0.0).reshape(n_probe, n) ** CLEAR_STEP_POWER
+    density = density + CLEAR_STEP_FLOOR * jnp.max(density, axis=0, keepdims=True) + 1e-30
+    return _edges_from_density(density, jnp.full((n,), n_probe, jnp.int32), s0, length, n_steps)
 
 
 def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class,
@@ -826,7 +865,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     zero = jnp.zeros(n, jnp.float32)
     args = (rays, consts, ms, aerosol_class)
     if settings.n_before:
-        state = _march_segment(state, start, direction, uniform_step_edges(zero, bounds[:, 0], settings.n_before),
+        state = _march_segment(state, start, direction,
+                               clear_step_edges(start, direction, zero, bounds[:, 0], settings.n_before, consts),
                                settings.n_before, False, *args)
     if settings.n_grid:
         edges = adaptive_step_edges(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid, consts,
@@ -835,7 +875,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
                                tau_refine=float(settings.tau_refine))
     if settings.n_after:
         state = _march_segment(state, start, direction,
-                               uniform_step_edges(bounds[:, 1], bounds[:, 2] - bounds[:, 1], settings.n_after),
+                               clear_step_edges(start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1],
+                                                settings.n_after, consts),
                                settings.n_after, False, *args)
     state["s_hit"] = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
     return state
@@ -1413,7 +1454,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
-        CELL_SLACK, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
+        CELL_SLACK, CLEAR_PROBES, CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS,
         state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
         state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])

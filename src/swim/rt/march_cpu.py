@@ -203,6 +203,37 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     if need > n_probe:
         n_probe = int(need)
         _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf)
+    _invert_cdf(s0, length, n_steps, n_probe, cdf, edges)
+
+
+@njit(**_JIT)
+def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra, n_probe, power, floor,
+                 cdf, edges):
+    """:func:`swim.rt.march.clear_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
+    n_gas = beta_gas.shape[1]
+    cdf[0] = 0.0
+    largest = 0.0
+    for m in range(n_probe):  # the density at the probes first (in cdf[1:]), then its running sum
+        s = s0 + (m + 0.5) / n_probe * length
+        h, _, _, _, _ = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+        f = _clip(h / p[_P_DH], 0.0, n_gas - 1.001)
+        g0 = int(math.floor(f))
+        w = f - g0
+        beta = 0.0
+        for q in range(3):
+            beta += (beta_gas[q, g0] * (1 - w) + beta_gas[q, g0 + 1] * w) * spectra[q, 1]
+        cdf[m + 1] = max(beta, 0.0) ** power
+        largest = max(largest, cdf[m + 1])
+    for m in range(n_probe):
+        cdf[m + 1] = cdf[m] + cdf[m + 1] + floor * largest + 1e-30
+    _invert_cdf(s0, length, n_steps, n_probe, cdf, edges)
+
+
+@njit(**_JIT)
+def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
+    """Edges (n_steps + 1,) [m] that cut the cumulative step density ``cdf[:n_probe + 1]`` (unnormalised, over
+    n_probe equal intervals of [s0, s0 + length]) into n_steps equal parts (``_edges_from_density`` of
+    :mod:`swim.rt.march`)."""
     total = cdf[n_probe]
     for m in range(n_probe + 1):
         cdf[m] /= total
@@ -221,7 +252,8 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
-               probe_spacing, n_probe_max, cell_slack, tau_refine, max_depth, refine_budget, refine_visible,
+               probe_spacing, n_probe_max, cell_slack, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
+               refine_budget, refine_visible,
                refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out,
                hit_out, s_hit_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
@@ -230,10 +262,11 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     a thread pool (a ``parallel=True`` loop was as fast and took 29 s to compile instead of 7).
 
     The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before``
-    equal steps), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from ``n_probe`` occupancy probes,
+    steps placed by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^
+    ``clear_power`` plus ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from ``n_probe`` occupancy probes,
     or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more, less ``cell_slack``) and
     the clear air after it
-    (``n_after`` equal steps), then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical
+    (``n_after`` steps placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical
     depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval
     before it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change
     times the previous interval's length exceeds it sends the ray back to its state before that interval, which
@@ -261,8 +294,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     n_u = ms_profile.shape[2]
     top = p[_P_TOP]
     # work arrays of every ray: step edges, the probes' cumulative density, the pending halves of refined steps
-    edges = np.empty(n_grid + 1)
-    cdf = np.empty(max(n_probe, n_probe_max) + 1)
+    edges = np.empty(max(n_before, n_grid, n_after) + 1)
+    cdf = np.empty(max(n_probe, n_probe_max, n_clear_probe) + 1)
     stack_lo = np.empty(refine_slots)
     stack_hi = np.empty(refine_slots)
     stack_depth = np.empty(refine_slots, np.int64)
@@ -318,6 +351,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
             if in_grid:
                 _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
                                 empty_weight, probe_spacing, cell_slack, cdf, edges)
+            else:
+                _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra,
+                             n_clear_probe, clear_power, clear_floor, cdf, edges)
             taken = n_steps if length > 0 else 1
             m = 0
             pending = 0
@@ -329,10 +365,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                 if pending == 0:
                     if m >= taken:
                         break
-                    if in_grid:
-                        s_lo, s_hi = edges[m], edges[m + 1]
-                    else:
-                        s_lo, s_hi = s0 + m / n_steps * length, s0 + (m + 1) / n_steps * length
+                    s_lo, s_hi = edges[m], edges[m + 1]
                     m += 1
                     depth = 0
                 else:
