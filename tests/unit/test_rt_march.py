@@ -501,10 +501,10 @@ def test_clear_air_steps_follow_the_air_and_integrate_it_better(n_steps):
 
     consts, seg, dirs = _clear_segments()
     start, bounds = (jnp.asarray(seg[k], jnp.float32) for k in ("start", "bounds"))
-    after = np.asarray(clear_step_edges(start, jnp.asarray(dirs, jnp.float32), bounds[:, 1], bounds[:, 2] - bounds[:, 1],
-                                        n_steps, consts), dtype=float)
-    before = np.asarray(clear_step_edges(start, jnp.asarray(dirs, jnp.float32), jnp.zeros(3), bounds[:, 0], n_steps,
-                                         consts), dtype=float)
+    dirs_j = jnp.asarray(dirs, jnp.float32)
+    after = np.asarray(clear_step_edges(start, dirs_j, bounds[:, 1], bounds[:, 2] - bounds[:, 1], n_steps, consts),
+                       dtype=float)
+    before = np.asarray(clear_step_edges(start, dirs_j, jnp.zeros(3), bounds[:, 0], n_steps, consts), dtype=float)
     b = np.asarray(seg["bounds"], dtype=float)
     np.testing.assert_allclose(after[0], b[:, 1], rtol=1e-6)
     np.testing.assert_allclose(after[-1], b[:, 2], rtol=1e-6)

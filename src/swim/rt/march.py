@@ -3,7 +3,8 @@
 Each pixel's ray is marched once, from where it enters the atmosphere (or the observer) to where it
 leaves the atmosphere (100 km) or meets the ground, in three segments with fixed step counts: clear air
 before the model grid, the grid (its steps concentrated where there are hydrometeors, raised terrain or
-aerosol gradients: :func:`adaptive_step_edges`), and clear air after it. Along the way the kernel accumulates
+aerosol gradients: :func:`adaptive_step_edges`), and clear air after it (the clear air's steps dense where the
+air is: :func:`clear_step_edges`). Along the way the kernel accumulates
 
 * the clear-sky radiance of the gas and the aerosol: single scattering (Step 2, Eq. 3), lit by the sun
   through the spherical atmosphere (tabulated, :mod:`swim.rt.gas`) and through the clouds (T of Step 1a,
@@ -1454,8 +1455,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
-        CELL_SLACK, CLEAR_PROBES, CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
-        TERRAIN_BISECTIONS,
+        CELL_SLACK, CLEAR_PROBES, CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH,
+        REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS, TERRAIN_BISECTIONS,
         state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
         state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
     state = {key: jnp.asarray(_pad_rows(value, start.shape[0] - n)).astype(bool if value.dtype == bool else jnp.float32)
