@@ -244,6 +244,7 @@ def _fill(values, traced, filled, valid_flat, cells, nx):
         corners = (c00, c00 + w, c00 + h * nx, c00 + h * nx + w)
         weights = ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy)
         pix = pix[target]
+        cast = {}  # the weights in each float array's own precision (float32 outputs need no float64 temporaries)
         for a in values.values():
             if a.dtype == bool:
                 a[pix] = a[c00]
@@ -251,5 +252,10 @@ def _fill(values, traced, filled, valid_flat, cells, nx):
                 a[pix] = 0
             else:
                 shape = (-1,) + (1,) * (a.ndim - 1)
-                a[pix] = sum(a[c] * wt.reshape(shape) for c, wt in zip(corners, weights))
+                if a.dtype not in cast:
+                    cast[a.dtype] = [wt.astype(a.dtype) for wt in weights]
+                acc = a[corners[0]] * cast[a.dtype][0].reshape(shape)
+                for c, wt in zip(corners[1:], cast[a.dtype][1:]):
+                    acc += a[c] * wt.reshape(shape)
+                a[pix] = acc
         filled[pix] = True
