@@ -596,9 +596,9 @@ def clear_step_edges(start, direction, s0, length, n_steps, consts, n_probe=CLEA
     f = (jnp.arange(n_probe, dtype=jnp.float32)[:, None] + 0.5) / n_probe
     s = s0[None, :] + f * length[None, :]
     q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
-    h = _point_geometry(q, consts)[0]
-    profile = _lerp_table(consts["beta_gas"], h / consts["dh"])  # (n_probe n, 3): the three profiles
-    beta = profile @ jnp.asarray(consts["beta_gas_spectra"])[:, 1]
+    h, mu_s, *_ = _point_geometry(q, consts)
+    beta_r, beta_a, beta_s, _, _ = _gas_at(h, mu_s, consts)  # (the sky lookup unused: XLA drops it)
+    beta = beta_r[:, 1] + beta_a[:, 1] + beta_s[:, 1]
     density = jnp.maximum(beta, 0.0).reshape(n_probe, n) ** CLEAR_STEP_POWER
     density = density + CLEAR_STEP_FLOOR * jnp.max(density, axis=0, keepdims=True) + 1e-30
     return _edges_from_density(density, jnp.full((n,), n_probe, jnp.int32), s0, length, n_steps)

@@ -140,11 +140,17 @@ def _bilinear(table, c, fu, fv):
 @njit(**_JIT)
 def _bilinear_index(nu, nv, fu, fv):
     """Corner (u0, v0) and weights (a, b) of a clamped bilinear lookup, shared by all channels of a table."""
-    fu = _clip(fu, 0.0, nu - 1.001)
-    fv = _clip(fv, 0.0, nv - 1.001)
-    u0 = int(math.floor(fu))
-    v0 = int(math.floor(fv))
-    return u0, v0, fu - u0, fv - v0
+    u0, a = _lerp_index(fu, nu)
+    v0, b = _lerp_index(fv, nv)
+    return u0, v0, a, b
+
+
+@njit(**_JIT)
+def _lerp_index(f, n):
+    """Lower index and weight of a clamped linear lookup at fractional index f in a table axis of n entries."""
+    f = _clip(f, 0.0, n - 1.001)
+    i0 = int(math.floor(f))
+    return i0, f - i0
 
 
 @njit(**_JIT)
@@ -216,9 +222,7 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_g
     for m in range(n_probe):  # the density at the probes first (in cdf[1:]), then its running sum
         s = s0 + (m + 0.5) / n_probe * length
         h, _, _, _, _ = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
-        f = _clip(h / p[_P_DH], 0.0, n_gas - 1.001)
-        g0 = int(math.floor(f))
-        w = f - g0
+        g0, w = _lerp_index(h / p[_P_DH], n_gas)
         beta = 0.0
         for q in range(3):
             beta += (beta_gas[q, g0] * (1 - w) + beta_gas[q, g0 + 1] * w) * spectra[q, 1]
@@ -374,9 +378,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                 s = s_lo + 0.5 * ds
                 h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
                 # clear atmosphere (_gas_at): three height profiles times their spectra, and the sky table
-                f = _clip(h / p[_P_DH], 0.0, n_gas - 1.001)
-                g0 = int(math.floor(f))
-                w = f - g0
+                g0, w = _lerp_index(h / p[_P_DH], n_gas)
                 prof_r = beta_gas[0, g0] * (1 - w) + beta_gas[0, g0 + 1] * w
                 prof_a = beta_gas[1, g0] * (1 - w) + beta_gas[1, g0 + 1] * w
                 prof_s = beta_gas[2, g0] * (1 - w) + beta_gas[2, g0 + 1] * w
@@ -492,9 +494,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                 # Eq. 12's weight e^-t0 - e^-min(t1, 2) is exactly 0 without hydrometeors or beyond tau 2
                 weight = max(math.exp(-t0) - math.exp(-min(t1, 2.0)), 0.0) if t1 > t0 and t0 < 2.0 else 0.0
                 if use_ms:
-                    fp = _clip(fu * (n_u - 1), 0.0, n_u - 1.001)
-                    u0 = int(math.floor(fp))
-                    wu = fp - u0
+                    u0, wu = _lerp_index(fu * (n_u - 1), n_u)
                 for c in range(3):
                     b_a3 = beta_a3 * angstrom[c]
                     irradiance = t_sun[c] * (t_cloud * shadow)

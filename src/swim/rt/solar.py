@@ -207,8 +207,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         ``aerosol_tau_sun``; each is a float32 field of the volume's size); default: all of them.
     backend : {"auto", "jax", "numba"}
         The sweep's code: JAX (:func:`_sweep`, any device) or numba (:func:`swim.rt.solar_cpu.sweep`: the sweep
-        ~5x, Step 1a as a whole ~3x faster on a CPU); "auto" takes numba when JAX's default device is the CPU and numba is installed, as
-        :meth:`swim.rt.march.MarchSettings.resolved_backend` does. Both give the same optical depths to float32
+        ~5x, Step 1a as a whole ~3x faster on a CPU); "auto" takes numba when JAX's default device is the CPU and
+        numba is installed, as :meth:`swim.rt.march.MarchSettings.resolved_backend` does. Both give the same optical depths to float32
         round-off.
 
     Returns
