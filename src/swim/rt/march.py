@@ -580,8 +580,11 @@ def clear_step_edges(start, direction, s0, length, n_steps, consts, n_probe=CLEA
     """Edges (n_steps + 1, n) [m] of n_steps steps through the clear air before or after the grid, dense where
     the air is.
 
-    The midpoint rule's error over a step of length ds is ~ f'' ds^3 / 24; for an integrand that falls
-    exponentially with height (f'' ~ f / H^2) the error is spread evenly by a step density ~ f^(1/3). Each ray
+    The steps integrate the clear-sky source of Step 2 (single scattering and the diffuse source, Albers et al.
+    2020, Eq. 3, doi:10.5194/amt-13-3235-2020) by the midpoint rule, whose error over a step of length ds is
+    ~ f'' ds^3 / 24; for an integrand that falls exponentially with height (f'' ~ f / H^2) the error is spread
+    evenly by a step density ~ f^(1/3) (the placement is ours, not the paper's: it marches Step 2 separately,
+    Sect. 3.3). Each ray
     probes the extinction at 546 nm (Rayleigh, background and stratospheric aerosol: the clear-sky source's
     coefficients) at ``n_probe`` equal intervals and spreads its steps with density extinction^(1/3) plus
     :data:`CLEAR_STEP_FLOOR` times its largest value (so that the thin air far up still gets steps). Against a
