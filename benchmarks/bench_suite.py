@@ -187,6 +187,14 @@ def march_backend(choice="auto"):
     return MarchSettings(backend=choice).resolved_backend()
 
 
+def march_chunk(choice="auto"):
+    """Rays per kernel call of a case's renders (swim.rt.march.MarchSettings.chunk, resolved), or None."""
+    from swim.rt.march import MarchSettings
+
+    settings = MarchSettings(backend=choice)
+    return settings.resolved_chunk() if hasattr(settings, "resolved_chunk") else settings.chunk
+
+
 def limit_address_space(gb):
     """RLIMIT_AS for CPU runs: an allocation beyond it raises MemoryError instead of swapping the machine.
     Not on GPUs, whose drivers reserve far more virtual address space than they use."""
@@ -536,6 +544,7 @@ def child(spec_path, out_path):
         probe = CompileProbe(spec["disk_caches"])
         result["machine"] = machine_info()
         result["march_backend"] = march_backend(spec.get("backend", "auto"))
+        result["march_chunk"] = march_chunk(spec.get("backend", "auto"))
         limit_address_space(spec["mem_limit_gb"])
         result.update(RUNNERS[spec["kind"]](spec, probe))
         result["status"] = "ok"
@@ -656,7 +665,8 @@ def _notes(r):
         adaptive = (f"adaptive: {r['traced_pixels']:,} of {r['full_traced_pixels']:,} pixels traced, every pixel "
                     f"{r['full_warm_s']:.1f} s; error median {100 * e['median']:.2f} %, p99 {100 * e['p99']:.2f} %, "
                     f"max {100 * e['max']:.1f} %, RGB max {e['rgb_max']}")
-    return "; ".join(filter(None, [f"{r['march_backend']} kernel" if r.get("march_backend") else "",
+    chunks = f" ({r['march_chunk']:,}-ray chunks)" if r.get("march_chunk") else ""
+    return "; ".join(filter(None, [f"{r['march_backend']} kernel{chunks}" if r.get("march_backend") else "",
                                    f"grid {'x'.join(map(str, r['grid']))}" if r.get("grid") else "",
                                    f"scene load {r['scene_s']:.1f} s" if "scene_s" in r else "",
                                    f"render peak {r['render_peak_above_scene_mb']:,.0f} MB above the scene's "

@@ -344,7 +344,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     if camera == "perspective" and "view_azimuth_deg" not in options:
         options.update(_default_perspective_view(volume, lat, lon, height_asl, look_at, options))
     cam = make_camera(camera, **options)
-    dirs_enu, valid = cam.directions()
+    dirs_enu, valid = cam.cached_directions()
     rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
     dirs_scene = np.nan_to_num(dirs_enu.reshape(-1, 3)) @ rotation
     dirs_scene /= np.maximum(np.linalg.norm(dirs_scene, axis=1, keepdims=True), 1e-12)

@@ -86,6 +86,29 @@ def test_big_cameras_use_a_subset_of_pixels_with_the_same_window(big_scene, kind
             big_scene, dirs, valid=valid, **kwargs)
 
 
+def test_a_camera_s_reach_is_remembered_and_only_the_sun_is_redone(big_scene, monkeypatch):
+    from swim.geometry import reach
+
+    camera = make_camera("allsky", size=255)
+    low_sun = enu_from_azimuth_zenith(250.0, 80.0)  # a sun-ward margin of ~90 km: the window moves with the sun
+    calls = []
+    as_directions = reach._as_directions
+    monkeypatch.setattr(reach, "_as_directions", lambda *a, **k: calls.append(1) or as_directions(*a, **k))
+    reach._CAMERA_REACH.clear()
+    first = reachable_index_window(big_scene, camera, height=2.0, sun_direction=[0, 0, 1])
+    moved = reachable_index_window(big_scene, camera, height=2.0, sun_direction=low_sun)
+    assert len(calls) == 1  # the camera's rays were traced once
+    assert moved != first
+    reach._CAMERA_REACH.clear()
+    assert reachable_index_window(big_scene, camera, height=2.0, sun_direction=low_sun) == moved  # as if fresh
+    # another observer height, camera or grid is a new entry
+    high = reachable_index_window(big_scene, camera, height=5000.0, sun_direction=[0, 0, 1])
+    reachable_index_window(big_scene, make_camera("allsky", size=127), height=2.0, sun_direction=[0, 0, 1])
+    shifted = big_scene.assign_coords(lat=big_scene["lat"] + 0.5)
+    reachable_index_window(shifted, camera, height=2.0, sun_direction=[0, 0, 1])
+    assert len(calls) == 5 and high != first and len(reach._CAMERA_REACH) == 1
+
+
 def test_a_higher_observer_sees_further_below_the_horizon(big_scene):
     # A panorama of the horizon: from h the rays that graze the ground leave the shell sqrt(2 R h) further out.
     camera = make_camera("panorama", width=64, height=61, elevation_min_deg=-3.0, elevation_max_deg=3.0)

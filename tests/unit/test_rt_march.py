@@ -180,7 +180,7 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
     assert np.all(layer["radiance_clear"][0] > base["radiance_clear"][0] * 1.1)
 
 
-@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0),
+@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("chunk", True), ("chunk", 4096.0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0),
                                           ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2"),
                                           ("probe_spacing", 1e-20), ("tau_refine", -0.5), ("tau_refine", float("inf"))])
 def test_march_settings_reject_bad_counts(field, value):
@@ -244,6 +244,34 @@ def test_backend_setting_is_checked_and_resolved(monkeypatch):
     origins, dirs = _random_rays(3)
     with pytest.raises(SwimInputError, match="needs the numba package"):
         _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0), settings=MarchSettings(backend="numba"))
+
+
+def test_chunk_follows_the_device_unless_given(monkeypatch):
+    import jax
+
+    from swim.rt import march
+
+    assert MarchSettings(chunk=1000).resolved_chunk() == 1000
+    on_cpu = jax.default_backend() == "cpu"
+    assert MarchSettings().resolved_chunk() == (march.CPU_CHUNK if on_cpu else march.GPU_CHUNK)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert MarchSettings().resolved_chunk() == march.GPU_CHUNK  # the JAX kernel on a GPU: big chunks
+    assert MarchSettings(backend="numba").resolved_chunk() == march.CPU_CHUNK  # numba runs on the host's cores
+    assert MarchSettings(chunk=8192).resolved_chunk() == 8192
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    assert MarchSettings(backend="jax").resolved_chunk() == march.CPU_CHUNK
+
+
+@pytest.mark.parametrize("chunk", [64, 256])
+def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
+    """The JAX kernel marches a chunk while the next is prepared (outputs collected one chunk behind): several
+    chunks, a short last one among them, give the same rays in the same order as one big call."""
+    origins, dirs = _random_rays(600, seed=3)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    one = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="jax", chunk=1024))[0]
+    many = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="jax", chunk=chunk))[0]
+    for key in ("radiance", "tau_hydrometeor", "surface"):
+        np.testing.assert_allclose(many[key], one[key], rtol=1e-5, atol=1e-7, err_msg=key)
 
 
 def test_no_rays_is_a_clear_error():

@@ -31,6 +31,7 @@ imagery (Albers et al. 2020, AMT 13, 3235-3261, Sect. 2 and Fig. 1: north up, ea
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import numbers
@@ -118,6 +119,14 @@ def _pixel_centres(ny: int, nx: int) -> tuple[np.ndarray, np.ndarray]:
     return rows, cols
 
 
+@functools.lru_cache(maxsize=2)
+def _directions_of(camera):
+    dirs, valid = camera.directions()
+    dirs.flags.writeable = False
+    valid.flags.writeable = False
+    return dirs, valid
+
+
 # --------------------------------------------------------------------------------------------------------
 # common interface
 # --------------------------------------------------------------------------------------------------------
@@ -151,6 +160,14 @@ class Camera(ABC):
         valid : numpy.ndarray
             bool, shape ``(ny, nx)``: True where the pixel centre images a direction.
         """
+
+    def cached_directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`directions`, computed once for the last two cameras (equal cameras share them) and read-only:
+        a render asks for them twice (the crop and the rays) and the renders of a series once more each."""
+        try:
+            return _directions_of(self)
+        except TypeError:  # a camera with unhashable options is computed every time
+            return self.directions()
 
     @abstractmethod
     def pixel_of_direction(self, dirs_enu) -> tuple[np.ndarray, np.ndarray]:

@@ -175,6 +175,15 @@ class _Columns:
         self._fit_affine()
         self.scene = scene
 
+    def digest(self) -> str:
+        """Digest of the columns' positions and the reference point (what the index map depends on)."""
+        import hashlib
+
+        h = hashlib.sha256(np.ascontiguousarray(self.gx).view(np.uint8).reshape(-1).data)
+        h.update(np.ascontiguousarray(self.gy).view(np.uint8).reshape(-1).data)
+        h.update(f"{self.lat0!r} {self.lon0!r} {self.shape}".encode())
+        return h.hexdigest()
+
     # ---- index map
 
     def _fit_affine(self) -> None:
@@ -305,7 +314,7 @@ def _as_directions(directions, valid, dip_sine=0.0):
     Of a camera with more than :data:`_MAX_SAMPLED_PIXELS` valid pixels only a subset is used
     (:func:`_representative_pixels`)."""
     if isinstance(directions, Camera):
-        dirs, mask = directions.directions()
+        dirs, mask = directions.cached_directions()
         valid = mask if valid is None else np.asarray(valid, dtype=bool) & mask
         if valid.shape == dirs.shape[:-1]:
             valid = valid & _representative_pixels(dirs, valid, dip_sine)
@@ -363,51 +372,29 @@ def _observer(lat, lon, height, lat0, lon0):
     return lat, lon, float(height)
 
 
-def _extend(box, i, j):
-    """Grow the index box [i_min, i_max, j_min, j_max] to hold the points (i, j)."""
-    if np.size(i) == 0:
+#: The reach of the last camera's rays (:func:`_window`): key -> (index box or None, rays that reach the shell).
+_CAMERA_REACH = {}
+
+
+def _merge(box, other):
+    """The index box [i_min, i_max, j_min, j_max] grown to hold ``other`` (None: nothing to add)."""
+    if other is None:
         return box
-    return [min(box[0], float(np.min(i))), max(box[1], float(np.max(i))),
-            min(box[2], float(np.min(j))), max(box[3], float(np.max(j)))]
+    return [min(box[0], other[0]), max(box[1], other[1]), min(box[2], other[2]), max(box[3], other[3])]
 
 
-def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direction, margin_cells, sun_margin_cap_m,
-            samples_per_ray):
-    """The window of :func:`reachable_index_window` and a short description for the log."""
+def _rays_box(columns, dirs, grounds, lat, lon, height, top, edge_max, samples):
+    """(index box or None, rays) of rays (n, 3) in the scene frame from the observer: the bounding box of the
+    grid indices of their samples inside the shell [R, R + top], and the most rays that reach it from any of the
+    observer's ``grounds`` [m] (terrain heights under the observer)."""
     ny, nx = columns.shape
     lat0, lon0 = columns.lat0, columns.lon0
-    lat, lon, height = _observer(lat, lon, height, lat0, lon0)
-    if not (margin_cells >= 0 and sun_margin_cap_m >= 0):
-        raise SwimInputError(f"margin_cells ({margin_cells}) and sun_margin_cap_m ({sun_margin_cap_m}) must be >= 0")
-    margin_cells = int(math.ceil(margin_cells))
-    samples = max(int(samples_per_ray), 2)
-    top = columns.grid_top()
-
-    # The observer's column, found as the renderer finds it (swim.pipeline._terrain_at: clamped to the grid).
-    p_ground = geodetic_to_scene(lat, lon, 0.0, lat0, lon0)
-    io, jo = (float(v) for v in columns.indices(p_ground[0], p_ground[1]))
-    ic, jc = min(max(io, 0.0), nx - 1.0), min(max(jo, 0.0), ny - 1.0)
-    i0, j0 = min(int(ic), nx - 2), min(int(jc), ny - 2)
-    patch = columns.terrain(slice(max(j0 - 1, 0), j0 + 3), slice(max(i0 - 1, 0), i0 + 3))
-    box = [float(i0 - 1), float(i0 + 2), float(j0 - 1), float(j0 + 2)]
-
-    rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
-    # sine of the depression of the apparent horizon (the rays grazing the sea-level sphere) below the level
-    dip_sine = math.sqrt(max(1.0 - (EARTH_RADIUS_M / (EARTH_RADIUS_M + max(float(patch.max()) + height, 0.0))) ** 2, 0.0))
-    dirs = _as_directions(directions, valid, dip_sine) @ rotation
-    if sun_direction is not None:
-        sun = np.asarray(sun_direction, dtype=float).reshape(3)
-        if not (np.all(np.isfinite(sun)) and np.linalg.norm(sun) > 0):
-            raise SwimInputError(f"sun_direction must be a finite, non-zero vector (3,); got {sun}")
-        sun = sun / np.linalg.norm(sun)
-        dirs = np.vstack([dirs, sun[None]])  # the ray towards the sun gives the sun disk's transmittance
-    edge_max = columns.edge_terrain_max()
     radius, outer = EARTH_RADIUS_M, EARTH_RADIUS_M + top
     fractions = np.linspace(0.0, 1.0, samples)
-    n_rays = []
+    box, n_rays = None, []
     # The terrain under the observer lies between the patch's extremes; the reach changes monotonically with
     # the observer's height, so the two extremes bound it.
-    for ground in sorted({float(patch.min()), float(patch.max())}):
+    for ground in grounds:
         origin = geodetic_to_scene(lat, lon, ground + height, lat0, lon0)
         n_rays.append(0)
         for lo in range(0, len(dirs), _RAY_CHUNK):
@@ -433,7 +420,63 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
             inside = (i >= -1) & (i <= nx) & (j >= -1) & (j <= ny)
             # Beyond the grid only the terrain (continued at the clamped edge heights) is looked up.
             keep = inside | (h[front] <= edge_max + 1.0)
-            box = _extend(box, np.clip(i[keep], 0, nx - 1), np.clip(j[keep], 0, ny - 1))
+            if np.any(keep):
+                i, j = np.clip(i[keep], 0, nx - 1), np.clip(j[keep], 0, ny - 1)
+                box = _merge([float(i.min()), float(i.max()), float(j.min()), float(j.max())], box)
+    return box, max(n_rays)
+
+
+def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direction, margin_cells, sun_margin_cap_m,
+            samples_per_ray):
+    """The window of :func:`reachable_index_window` and a short description for the log."""
+    ny, nx = columns.shape
+    lat0, lon0 = columns.lat0, columns.lon0
+    lat, lon, height = _observer(lat, lon, height, lat0, lon0)
+    if not (margin_cells >= 0 and sun_margin_cap_m >= 0):
+        raise SwimInputError(f"margin_cells ({margin_cells}) and sun_margin_cap_m ({sun_margin_cap_m}) must be >= 0")
+    margin_cells = int(math.ceil(margin_cells))
+    samples = max(int(samples_per_ray), 2)
+    top = columns.grid_top()
+
+    # The observer's column, found as the renderer finds it (swim.pipeline._terrain_at: clamped to the grid).
+    p_ground = geodetic_to_scene(lat, lon, 0.0, lat0, lon0)
+    io, jo = (float(v) for v in columns.indices(p_ground[0], p_ground[1]))
+    ic, jc = min(max(io, 0.0), nx - 1.0), min(max(jo, 0.0), ny - 1.0)
+    i0, j0 = min(int(ic), nx - 2), min(int(jc), ny - 2)
+    patch = columns.terrain(slice(max(j0 - 1, 0), j0 + 3), slice(max(i0 - 1, 0), i0 + 3))
+    box = [float(i0 - 1), float(i0 + 2), float(j0 - 1), float(j0 + 2)]
+
+    rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
+    # sine of the depression of the apparent horizon (the rays grazing the sea-level sphere) below the level
+    dip_sine = math.sqrt(max(1.0 - (EARTH_RADIUS_M / (EARTH_RADIUS_M + max(float(patch.max()) + height, 0.0))) ** 2, 0.0))
+    grounds = sorted({float(patch.min()), float(patch.max())})
+    edge_max = columns.edge_terrain_max()
+
+    def reach(dirs_enu):
+        return _rays_box(columns, dirs_enu @ rotation, grounds, lat, lon, height, top, edge_max, samples)
+
+    # The camera's rays (most of the window's time, ~0.4 s at 1024 x 1024) are remembered for the renders that
+    # follow with the same camera, observer and grid: a time series or a repeated render redoes only the sun.
+    key = None
+    if isinstance(directions, Camera) and valid is None:
+        key = (directions, columns.digest(), lat, lon, height, top, edge_max, tuple(grounds), samples)
+    cached = _CAMERA_REACH.get(key) if key is not None else None
+    if cached is None:
+        cached = reach(_as_directions(directions, valid, dip_sine))
+        if key is not None:
+            _CAMERA_REACH.clear()  # one camera's entry: a fly-through's frames never pile up
+            _CAMERA_REACH[key] = cached
+    camera_box, n_rays = cached
+    box = _merge(box, camera_box)
+    if sun_direction is not None:
+        sun = np.asarray(sun_direction, dtype=float).reshape(3)
+        if not (np.all(np.isfinite(sun)) and np.linalg.norm(sun) > 0):
+            raise SwimInputError(f"sun_direction must be a finite, non-zero vector (3,); got {sun}")
+        sun = sun / np.linalg.norm(sun)
+        # the ray towards the sun gives the sun disk's transmittance (already in the scene frame)
+        sun_box, sun_rays = _rays_box(columns, sun[None], grounds, lat, lon, height, top, edge_max, samples)
+        box = _merge(box, sun_box)
+        n_rays = max(n_rays, 0) + sun_rays
 
     i_min, i_max, j_min, j_max = box
     i_lo, i_hi = math.floor(i_min) - margin_cells, math.floor(i_max) + 1 + margin_cells
@@ -465,7 +508,7 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
     if j_hi - j_lo < 1:
         j_lo, j_hi = max(min(j_lo, ny - 2), 0), min(max(j_lo, 0) + 1, ny - 1)
     half_width_km = 0.5 * np.hypot(*(columns.matrix @ [i_max - i_min, 0])) / 1e3
-    info = (f"{max(n_rays)} rays reach the grid below its top of {top / 1e3:.1f} km (box {half_width_km:.0f} km half-width "
+    info = (f"{n_rays} rays reach the grid below its top of {top / 1e3:.1f} km (box {half_width_km:.0f} km half-width "
             f"along x), sun-ward margin {sun_margin_m / 1e3:.0f} km, margin {margin_cells} cells")
     return (slice(j_lo, j_hi + 1), slice(i_lo, i_hi + 1)), info
 

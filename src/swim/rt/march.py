@@ -114,10 +114,13 @@ class MarchSettings:
         steps, while the ray's own is below 8: a thicker step is replaced by its halves, and so is a step at a
         cloud face, recursively (:func:`_march_grid_refined`), so that the face is sampled where its light comes
         from. 0 turns this off.
-    chunk : int
-        Rays per kernel call. Small chunks keep the kernel's working set in the CPU caches: on a 2-core
-        machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096 or 8192, 4.2 s
-        with 2048 and 6.1 s with 1024 (benchmarks/, docs/rendering.md).
+    chunk : int or None
+        Rays per kernel call; None (the default): :data:`CPU_CHUNK` on a CPU, :data:`GPU_CHUNK` when the JAX
+        kernel runs on a GPU (:meth:`resolved_chunk`). Small chunks keep the kernel's working set in the CPU
+        caches: on a 2-core machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096
+        or 8192, 4.2 s with 2048 and 6.1 s with 1024 (benchmarks/, docs/rendering.md). A GPU needs big ones to
+        fill it: on an H100 the JAX kernel marches 1.9 million rays/s in chunks of 32768 and 4.0 million in
+        chunks of 262144 (docs/performance.md, "GPU").
     multiple_scattering : bool
         Add the directional source of the higher scattering orders (:mod:`swim.rt.multiple_scattering`)
         to the clear-sky source (docs/rendering.md); False gives pure single scattering (Eq. 3).
@@ -136,7 +139,7 @@ class MarchSettings:
     n_probe: int = 64
     probe_spacing: float = 2.0
     tau_refine: float = 0.5
-    chunk: int = 4096
+    chunk: int | None = None
     multiple_scattering: bool = True
     surface: str = "brdf"
     backend: str = "auto"
@@ -144,7 +147,9 @@ class MarchSettings:
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "n_probe", "chunk"):
             value, least = getattr(self, name), 1 if name in ("chunk", "n_probe") else 0
-            if not isinstance(value, (int, np.integer)) or value < least:
+            if name == "chunk" and value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
         for name, what, least in (("probe_spacing", f"0 or a finite number of cells >= {MIN_PROBE_SPACING}",
                                     MIN_PROBE_SPACING), ("tau_refine", "a finite optical depth >= 0", 0.0)):
@@ -172,6 +177,22 @@ class MarchSettings:
             return self.backend
         return "numba" if jax.default_backend() == "cpu" and _numba_available() else "jax"
 
+
+    def resolved_chunk(self) -> int:
+        """Rays per kernel call: ``chunk``, or for None :data:`GPU_CHUNK` where the JAX kernel runs on a GPU (or
+        another accelerator) and :data:`CPU_CHUNK` elsewhere."""
+        if self.chunk is not None:
+            return int(self.chunk)
+        on_accelerator = self.resolved_backend() == "jax" and jax.default_backend() != "cpu"
+        return GPU_CHUNK if on_accelerator else CPU_CHUNK
+
+
+#: Rays per kernel call on a CPU (:meth:`MarchSettings.resolved_chunk`): small enough for its caches.
+CPU_CHUNK = 4096
+#: Rays per kernel call of the JAX kernel on a GPU: on an H100 1.9 million rays/s in chunks of 32768, 4.0 million
+#: in chunks of 262144 and 4.4 million in one chunk of 1048576 (a 1024 x 1024 all-sky's 823 593 rays then pad to
+#: 1048576: no faster); 1.6 GB of device memory at the peak (docs/performance.md, "GPU").
+GPU_CHUNK = 262144
 
 #: Kernels of the step loop (:attr:`MarchSettings.backend`).
 BACKENDS = ("auto", "jax", "numba")
@@ -1282,9 +1303,20 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                                  f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
     if len(origins) == 0:
         raise SwimInputError("trace_rays needs at least one ray, got none")
-    # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB
-    blocks = [ray_segments(origins[lo:lo + SEGMENT_BLOCK], directions[lo:lo + SEGMENT_BLOCK], geometry,
-                           top=float(consts["top"])) for lo in range(0, len(origins), SEGMENT_BLOCK)]
+    # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB; on every core (NumPy
+    # releases the GIL in its loops: 0.33 s -> 0.07 s for a 1024^2 all-sky on 16 cores)
+    def segments(lo):
+        return ray_segments(origins[lo:lo + SEGMENT_BLOCK], directions[lo:lo + SEGMENT_BLOCK], geometry,
+                            top=float(consts["top"]))
+
+    starts = range(0, len(origins), SEGMENT_BLOCK)
+    if len(starts) > 1 and threads() > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(threads(), len(starts), 8)) as segment_pool:
+            blocks = list(segment_pool.map(segments, starts))
+    else:
+        blocks = [segments(lo) for lo in starts]
     seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
     del blocks
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
@@ -1292,14 +1324,14 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     settings = replace(settings, **{name: 0 for name, length in zip(("n_before", "n_grid", "n_after"), lengths.T)
                                     if not np.any(length > 0)})
     n = len(origins)
-    chunk = settings.chunk
+    chunk = batch = settings.resolved_chunk()
     steps = settings.n_before + settings.n_grid + settings.n_after
     backend = settings.resolved_backend()
     if backend == "numba":
-        # chunks of equal size (at most settings.chunk), as many as a multiple of the cores: a small batch (a small
+        # chunks of equal size (at most the chunk setting), as many as a multiple of the cores: a small batch (a small
         # image, a level of adaptive sampling) then runs on every core instead of in one chunk on one, and no
         # core waits for a last, smaller chunk; the JAX stages around the kernel still see the padded sizes of
-        # settings.chunk (padded_batch_size), so nothing is compiled anew
+        # the chunk setting (padded_batch_size), so nothing is compiled anew
         cores = threads()
         n_chunks = cores * -(-n // (cores * chunk))
         chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
@@ -1331,7 +1363,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     try:
         for lo in range(0, n, chunk):
             hi = min(lo + chunk, n)
-            pad = padded_batch_size(hi - lo, settings.chunk) - (hi - lo)
+            pad = padded_batch_size(hi - lo, batch) - (hi - lo)
 
             def take(a, dtype=np.float32, first=0):
                 return _pad_rows(np.asarray(a[lo - first:hi - first]), pad).astype(dtype)
@@ -1345,20 +1377,25 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             if backend == "jax":
                 args = list(map(jnp.asarray, args))
                 out = _trace_chunk(*args, rays, consts, *_chunk_probes(*args[:3], consts, settings))
-                finished({key: np.asarray(value)[: hi - lo] for key, value in out.items()}, hi)
+                # dispatched asynchronously: the device marches this chunk while the host prepares the next one;
+                # the one before is collected now (two chunks' outputs at most are held)
+                pending.append((functools.partial(_host_rows, out, hi - lo), hi))
+                if len(pending) > 1:
+                    collect, done_hi = pending.popleft()
+                    finished(collect(), done_hi)
                 continue
             job = functools.partial(_trace_chunk_numba, *args, rays, consts, settings, tables,
                                     [take(a, float) for a in (seg["start"], directions, seg["bounds"])], hi - lo)
             if pool is None:
                 finished(job(), hi)
                 continue
-            pending.append((pool.submit(job), hi))
+            pending.append((pool.submit(job).result, hi))
             if len(pending) >= 2 * workers:  # bound the chunks held in memory; collect in order
-                future, done_hi = pending.popleft()
-                finished(future.result(), done_hi)
+                collect, done_hi = pending.popleft()
+                finished(collect(), done_hi)
         while pending:
-            future, hi = pending.popleft()
-            finished(future.result(), hi)
+            collect, hi = pending.popleft()
+            finished(collect(), hi)
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
@@ -1409,6 +1446,11 @@ def threads() -> int:
             raise SwimInputError(f"SWIM_NUM_THREADS must be a positive integer, got {value!r}")
         return int(value)
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _host_rows(out, n):
+    """The first n rows of a chunk's device outputs as host arrays (waits for the device)."""
+    return {key: np.asarray(value)[:n] for key, value in out.items()}
 
 
 def _pad_rows(a, pad):

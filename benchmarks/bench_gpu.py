@@ -1,0 +1,278 @@
+"""Frames per second of the JAX kernel on a GPU (issue 6, goal 3), and where a GPU render spends its time.
+
+Usage (on a machine where JAX's default device is a GPU; it also runs on a CPU, slowly)::
+
+    python benchmarks/bench_gpu.py --scenes synthetic katrina --chunks 32768 0 --sun-series 6 --out gpu.json
+
+For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel call) it renders the suite's
+1024 x 1024 all-sky view (``bench_suite.CASES``) with the JAX kernel and reports:
+
+* ``render_s``: wall time of a warm render (median of ``--repeats``), and its frames/s;
+* ``trace_s``: of that, the time in :func:`swim.rt.march.trace_rays` (ray segments, phase functions, the
+  device's march of every chunk, the copies back);
+* ``kernel_s``: the device time of one chunk's march and composition (``_trace_chunk`` on the captured
+  inputs of a full chunk, ``block_until_ready``, median of 5), and the frames/s that the kernel alone would
+  allow at 1024 x 1024 (the rays of the render / rays per second of the kernel);
+* with ``--sun-series N``: the time per frame of N renders with a new sun each (a fixed camera's time series:
+  Step 1a and the kernel constants are redone every frame);
+* the GPU's peak memory (``memory_stats``) and, with ``--compare``, the radiance against a render with the
+  numba kernel on the host's cores (median and 99th percentile of the relative difference).
+
+Figures print as a table at the end and go to ``--out`` as JSON. docs/performance.md ("GPU") has the results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT))
+
+import bench_suite  # noqa: E402  (the suite's scenes, views and render options)
+
+
+def _median_time(fn, repeats):
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        runs.append(time.perf_counter() - t0)
+    return statistics.median(runs), runs
+
+
+class TraceProbe:
+    """Wraps ``trace_rays`` (time per render) and ``_trace_chunk`` (keeps the inputs of one full chunk)."""
+
+    def __init__(self):
+        import swim.pipeline as pipeline
+        import swim.rt.march as march
+
+        self.pipeline, self.march = pipeline, march
+        self.trace_rays, self.trace_chunk = pipeline.trace_rays, march._trace_chunk
+        self.trace_s, self.captured = 0.0, None
+        pipeline.trace_rays, march._trace_chunk = self._trace_rays, self._trace_chunk
+
+    def _trace_rays(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return self.trace_rays(*args, **kwargs)
+        finally:
+            self.trace_s += time.perf_counter() - t0
+
+    def _trace_chunk(self, *args, **kwargs):
+        if self.captured is None or args[0].shape[0] > self.captured[0][0].shape[0]:
+            self.captured = (args, kwargs)
+        return self.trace_chunk(*args, **kwargs)
+
+    def kernel_time(self, repeats=5):
+        """(seconds, rays) of the device's work on the captured chunk."""
+        import jax
+
+        args, kwargs = self.captured
+        call = lambda: jax.block_until_ready(self.trace_chunk(*args, **kwargs))  # noqa: E731
+        call()
+        return _median_time(call, repeats)[0], int(args[0].shape[0])
+
+
+def gpu_memory():
+    import jax
+
+    stats = jax.devices()[0].memory_stats() or {}
+    return {key: stats[key] / 2**20 for key in ("peak_bytes_in_use", "bytes_in_use", "bytes_limit") if key in stats}
+
+
+def run_scene(name, args, probe, out_dir):
+    import numpy as np
+
+    import swim
+    from swim.rt.march import MarchSettings
+
+    spec = json.loads(json.dumps(bench_suite.CASES[f"{name}_allsky"]))
+    spec.update(data=str(args.data), backend="jax")
+    if args.size:
+        spec["image"] = [args.size, args.size]
+    if name == "synthetic":
+        spec["scene_kwargs"] = dict(bench_suite.SYNTHETIC_GRID)
+    t0 = time.perf_counter()
+    scene = bench_suite.load_scene(spec)
+    scene_s = time.perf_counter() - t0
+    kw = bench_suite.render_kwargs(spec)
+    rows = []
+    first = None
+    for chunk in args.chunks:
+        # 0: the default (MarchSettings.resolved_chunk: GPU_CHUNK on a GPU)
+        kw["settings"] = replace(MarchSettings(backend="jax"), chunk=chunk or None)
+        chunk = kw["settings"].resolved_chunk()
+        t0 = time.perf_counter()
+        image = swim.render(scene, **kw)  # cold for this chunk size: compiles its kernel shapes
+        cold = time.perf_counter() - t0
+        probe.trace_s = 0.0
+        probe.captured = None
+        warm, runs = _median_time(lambda: swim.render(scene, **kw), args.repeats)
+        trace_s = probe.trace_s / args.repeats
+        kernel_s, kernel_rays = probe.kernel_time()
+        rays = int(image.attrs["traced_pixels"]) + 1
+        kernel_rays_per_s = kernel_rays / kernel_s
+        row = {"scene": name, "chunk": chunk, "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
+               "render_fps": 1 / warm, "trace_s": trace_s, "kernel_chunk_s": kernel_s, "kernel_chunk_rays": kernel_rays,
+               "kernel_rays_per_s": kernel_rays_per_s, "kernel_fps": kernel_rays_per_s / rays,
+               "march_samples": float(image.attrs.get("march_samples", float("nan"))), "gpu_memory_mb": gpu_memory()}
+        rows.append(row)
+        print(f"{name} chunk {chunk}: cold {cold:.2f} s, warm {warm:.3f} s ({1 / warm:.2f} frames/s), trace "
+              f"{trace_s:.3f} s, kernel {kernel_s * 1e3:.2f} ms per {kernel_rays} rays -> {row['kernel_fps']:.1f} "
+              f"frames/s of the kernel alone", flush=True)
+        first = first or image
+    if args.profile and out_dir:
+        profile_render(name, scene, kw, probe, Path(out_dir))
+    if args.sampling:
+        from swim.rt.image_sampling import AdaptiveSampling
+
+        kw_a = {**kw, "sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)}
+        swim.render(scene, **kw_a)
+        warm, runs = _median_time(lambda: swim.render(scene, **kw_a), args.repeats)
+        rows.append({"scene": name, "chunk": kw["settings"].resolved_chunk(), "sampling": bench_suite.ADAPTIVE, "render_s": warm,
+                     "render_runs": runs, "render_fps": 1 / warm})
+        print(f"{name} adaptive, chunk {kw['settings'].resolved_chunk()}: warm {warm:.3f} s ({1 / warm:.2f} frames/s)", flush=True)
+    if args.sun_series:
+        # a time series seen by a fixed camera: every frame has a new sun (Step 1a and the kernel constants anew)
+        runs = []
+        for k in range(args.sun_series):
+            t0 = time.perf_counter()
+            swim.render(scene, **{**kw, "sun_zenith": 30.0 + 0.5 * k, "sun_azimuth": 135.0 + k})
+            runs.append(time.perf_counter() - t0)
+        warm = statistics.median(runs[1:]) if len(runs) > 1 else runs[0]
+        rows.append({"scene": name, "chunk": kw["settings"].resolved_chunk(), "sun_series": args.sun_series,
+                     "frame_s": warm, "frame_runs": runs, "frames_per_s": 1 / warm})
+        print(f"{name} time series (a new sun every frame): {warm:.3f} s per frame ({1 / warm:.2f} frames/s)",
+              flush=True)
+    if args.compare:
+        try:
+            rows.append(compare_numba(name, scene, kw, first))
+        except Exception as exc:  # a host without a working numba must not lose the GPU figures
+            rows.append({"scene": name, "compare": "numba", "error": repr(exc)})
+            print(f"{name}: no comparison with numba: {exc!r}", flush=True)
+    if out_dir:
+        from PIL import Image
+
+        Image.fromarray(first["rgb"].values).save(Path(out_dir) / f"gpu_{name}_allsky.png")
+    return {"scene_s": scene_s, "rows": rows}
+
+
+def profile_render(name, scene, kw, probe, out_dir):
+    """Where a warm render spends its time: the host's Python functions (cProfile, top 40 by cumulative and by
+    own time, to ``profile_<scene>_host.txt``; a render with a new sun to ``profile_<scene>_newsun_host.txt``) and the device's kernels for one captured chunk (JAX's profiler,
+    time summed per kernel name, to ``profile_<scene>_device.txt``)."""
+    import cProfile
+    import glob
+    import gzip
+    import io
+    import pstats
+    import tempfile
+
+    import jax
+
+    import swim
+
+    # a warm render, and one with a new sun (Step 1a and the kernel constants anew: a time series' frame)
+    for label, extra in (("host", {}), ("newsun_host", {"sun_zenith": 41.0, "sun_azimuth": 200.0})):
+        prof = cProfile.Profile()
+        prof.enable()
+        swim.render(scene, **{**kw, **extra})
+        prof.disable()
+        text = io.StringIO()
+        for key in ("cumulative", "tottime"):
+            pstats.Stats(prof, stream=text).sort_stats(key).print_stats(40)
+        (out_dir / f"profile_{name}_{label}.txt").write_text(text.getvalue())
+    with tempfile.TemporaryDirectory() as tmp:
+        with jax.profiler.trace(tmp, create_perfetto_trace=True):
+            seconds, rays = probe.kernel_time(repeats=1)
+        files = glob.glob(f"{tmp}/**/*.json.gz", recursive=True)
+        totals = {}
+        for f in files:
+            with gzip.open(f) as fh:
+                events = json.load(fh)
+            events = events.get("traceEvents", events) if isinstance(events, dict) else events
+            for e in events:
+                if e.get("ph") == "X" and "dur" in e:
+                    t = totals.setdefault((e.get("pid"), e["name"]), [0.0, 0])
+                    t[0] += e["dur"] * 1e-3
+                    t[1] += 1
+    lines = [f"{name}: one chunk of {rays} rays, {seconds * 1e3:.2f} ms under the profiler; {len(files)} trace files",
+             "pid | name | total [ms] | calls"]
+    lines += [f"{pid} | {n[:150]} | {t:.3f} | {c}" for (pid, n), (t, c) in
+              sorted(totals.items(), key=lambda kv: -kv[1][0])[:60]]
+    (out_dir / f"profile_{name}_device.txt").write_text("\n".join(lines))
+    print("\n".join(lines[:25]), flush=True)
+
+
+def compare_numba(name, scene, kw, first):
+    """Radiance of the JAX render ``first`` against the numba kernel's render of the same view."""
+    import numpy as np
+
+    import swim
+    from swim.rt.march import MarchSettings
+
+    kw_n = {**kw, "settings": MarchSettings(backend="numba")}
+    t0 = time.perf_counter()
+    swim.render(scene, **kw_n)
+    ref = swim.render(scene, **kw_n)
+    numba_s = time.perf_counter() - t0
+    a, b = first["radiance"].values, ref["radiance"].values
+    ok = np.isfinite(b) & np.isfinite(a)
+    rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(b[ok]), 1e-3)
+    d8 = np.abs(first["rgb"].values.astype(int) - ref["rgb"].values.astype(int))
+    cmp = {"scene": name, "compare": "numba", "numba_two_renders_s": numba_s, "median": float(np.median(rel)),
+           "p99": float(np.percentile(rel, 99)), "max": float(rel.max()), "rgb_max": int(d8.max()),
+           "nonfinite_gpu": int(np.sum(~np.isfinite(a)))}
+    print(f"{name} GPU vs numba: median {cmp['median']:.2e}, p99 {cmp['p99']:.2e}, max {cmp['max']:.2e}, "
+          f"8-bit RGB max {cmp['rgb_max']}", flush=True)
+    return cmp
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="+", default=["synthetic"], choices=("synthetic", "katrina", "rico", "conus"))
+    ap.add_argument("--chunks", nargs="+", type=int, default=[0],
+                    help="rays per kernel call to compare (0: the default, MarchSettings.resolved_chunk)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
+    ap.add_argument("--sampling", action="store_true", help="also an adaptively sampled render (last chunk size)")
+    ap.add_argument("--sun-series", type=int, default=0,
+                    help="also N frames with a new sun each (a fixed camera's time series; median of frames 2..N)")
+    ap.add_argument("--profile", action="store_true", help="also profile a warm render (host) and a chunk (device)")
+    ap.add_argument("--compare", action="store_true", help="also render with numba on the host and compare")
+    ap.add_argument("--data", type=Path, default=bench_suite.DATA)
+    ap.add_argument("--out", type=Path, default=None, help="JSON file (its folder also gets the PNGs)")
+    args = ap.parse_args(argv)
+    import jax
+
+    machine = {"jax": jax.__version__, "backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()],
+               "device_kind": jax.devices()[0].device_kind, "host_cores": len(os.sched_getaffinity(0))}
+    print(machine, flush=True)
+    probe = TraceProbe()
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+    doc = {"machine": machine, "argv": sys.argv[1:], "scenes": {}}
+    for name in args.scenes:
+        doc["scenes"][name] = run_scene(name, args, probe, args.out.parent if args.out else None)
+        if args.out:
+            args.out.write_text(json.dumps(doc, indent=1, default=float))
+    print("\n| scene | chunk | rays | warm render [s] | frames/s | in trace_rays [s] | kernel per chunk [ms] | "
+          "kernel Mrays/s | kernel frames/s |\n|---|---|---|---|---|---|---|---|---|")
+    for name, res in doc["scenes"].items():
+        for r in res["rows"]:
+            if "kernel_chunk_s" in r:
+                print(f"| {name} | {r['chunk']} | {r['rays']:,} | {r['render_s']:.3f} | {r['render_fps']:.2f} | "
+                      f"{r['trace_s']:.3f} | {1e3 * r['kernel_chunk_s']:.2f} | {r['kernel_rays_per_s'] / 1e6:.2f} | "
+                      f"{r['kernel_fps']:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
