@@ -36,6 +36,7 @@ from .rt.march import (
     aerosol_column_optical_depth,
     atmosphere_constants,
     grid_geometry,
+    occupancy_grid,
     padded_batch_size,
     share_packed_channels,
     threads,
@@ -164,6 +165,11 @@ class _StageCache:
 
 
 _STAGE_CACHE = _StageCache()
+
+
+def _read_only(array):
+    array.flags.writeable = False
+    return array
 
 
 def _terrain_at(volume, lat, lon):
@@ -371,7 +377,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160; docs/performance.md)
         transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
                                             backend=settings.backend)
-        constants = volume_constants(volume, transmittance)
+        # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
+        occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: _read_only(occupancy_grid(volume)))
+        constants = volume_constants(volume, transmittance, occupancy=occupancy)
         # the volume's extinctions become views of the packed channels: the grid is held once, not twice
         share_packed_channels(volume, constants)
         return constants

@@ -26,11 +26,14 @@ def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
         assert all(f"reusing the {kind}" in caplog.text for kind in ("volume", "constants"))
     np.testing.assert_array_equal(first["radiance"].values, second["radiance"].values)
 
-    # a new sun: the volume is reused, Step 1a is not
+    # a new sun: the volume and its occupancy grid are reused, Step 1a is not; the image is that of a fresh start
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
-        _render(scene, sun_zenith=60.0)
+        new_sun = _render(scene, sun_zenith=60.0)
     assert "reusing the volume" in caplog.text and "reusing the grid constants" not in caplog.text
+    assert "reusing the occupancy" in caplog.text
+    pipeline._STAGE_CACHE.clear()
+    np.testing.assert_array_equal(new_sun["radiance"].values, _render(scene, sun_zenith=60.0)["radiance"].values)
 
     # another aerosol: the grid's constants (Step 1a, the packed volume) are reused, the atmosphere's are not
     caplog.clear()

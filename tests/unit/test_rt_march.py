@@ -274,6 +274,27 @@ def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
         np.testing.assert_allclose(many[key], one[key], rtol=1e-5, atol=1e-7, err_msg=key)
 
 
+@pytest.mark.parametrize("threads, n_levels", [(1, 5), (3, 7), (4, 2), (8, 160)])
+def test_level_blocks_cover_every_level_once_and_raise_a_block_s_error(monkeypatch, threads, n_levels):
+    from swim.rt.march import in_level_blocks
+
+    monkeypatch.setenv("SWIM_NUM_THREADS", str(threads))
+    seen = np.zeros(n_levels, int)
+
+    def fill(k0, k1):
+        seen[k0:k1] += 1
+
+    in_level_blocks(fill, n_levels)
+    np.testing.assert_array_equal(seen, 1)
+
+    def broken(k0, k1):
+        if k0 > 0 or threads == 1:
+            raise ValueError("block failed")
+
+    with pytest.raises(ValueError, match="block failed"):
+        in_level_blocks(broken, n_levels)
+
+
 def test_no_rays_is_a_clear_error():
     with pytest.raises(SwimInputError, match="at least one ray"):
         _trace(_tiny_scene(), np.zeros((0, 3)), np.zeros((0, 3)), enu_from_azimuth_zenith(135.0, 40.0))

@@ -1151,13 +1151,15 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     return {**volume_constants(volume, transmittance), **atmosphere_constants(gas, sun_direction_scene, radius)}
 
 
-def volume_constants(volume, transmittance):
+def volume_constants(volume, transmittance, occupancy=None):
     """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
     channel) and the occupancy grid (level, y, x) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
     terrain, the ground's fields and the grid's index map as device arrays.
 
     ``transmittance`` needs the :data:`KERNEL_STEP1A_VARIABLES` of :func:`swim.rt.solar.solar_transmittance`;
-    it is not referenced by the result, so a caller that keeps only this frees Step 1a's fields."""
+    it is not referenced by the result, so a caller that keeps only this frees Step 1a's fields. ``occupancy``:
+    the volume's :func:`occupancy_grid` (read-only), which does not depend on the sun, where the caller keeps it
+    from an earlier sun; default: computed here."""
     geometry = grid_geometry(volume)
     # filled channel by channel: a transpose and a concatenate would each make a copy of the whole volume
     extinction = volume["extinction"].values
@@ -1166,13 +1168,17 @@ def volume_constants(volume, transmittance):
     if not np.any(fields[0].values):
         fields = fields[2:]  # no 3-D aerosol: its two channels would be zeros (2/9 of the volume's memory)
     packed = np.empty(extinction.shape[1:] + (extinction.shape[0] + len(fields),), np.float32)
-    for c in range(extinction.shape[0]):
-        packed[..., c] = extinction[c]
-    for c, field in enumerate(fields):
-        packed[..., extinction.shape[0] + c] = field.values
+    values = [extinction[c] for c in range(extinction.shape[0])] + [field.values for field in fields]
+
+    def fill(k0, k1):
+        for c, value in enumerate(values):
+            packed[k0:k1, ..., c] = value[k0:k1]
+
+    in_level_blocks(fill, packed.shape[0])  # on every core: 0.77 s for 160 x 400 x 400 on one
     packed.flags.writeable = False
-    occupancy = occupancy_grid(volume)
-    occupancy.flags.writeable = False
+    if occupancy is None:
+        occupancy = occupancy_grid(volume)
+        occupancy.flags.writeable = False
     surface = surface_fields(volume, transmittance)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {
@@ -1446,6 +1452,22 @@ def threads() -> int:
             raise SwimInputError(f"SWIM_NUM_THREADS must be a positive integer, got {value!r}")
         return int(value)
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def in_level_blocks(fill, n_levels):
+    """Call ``fill(k0, k1)`` over consecutive blocks of ``range(n_levels)``, one block per thread
+    (:func:`threads`): copies and sums of whole grids, which NumPy runs without the GIL, on every core."""
+    workers = max(1, min(threads(), n_levels))
+    bounds = np.linspace(0, n_levels, workers + 1).astype(int)
+    blocks = [(int(k0), int(k1)) for k0, k1 in zip(bounds[:-1], bounds[1:]) if k1 > k0]
+    if len(blocks) == 1:
+        fill(*blocks[0])
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(len(blocks)) as pool:
+        for future in [pool.submit(fill, k0, k1) for k0, k1 in blocks]:
+            future.result()  # an exception in a block is raised here
 
 
 def _host_rows(out, n):

@@ -235,7 +235,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8; Joseph et al. (1976),
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
-    from .march import BACKENDS, MarchSettings, threads
+    from .march import BACKENDS, MarchSettings, in_level_blocks, threads
 
     names = STEP1A_VARIABLES if variables is None else tuple(variables)
     unknown = sorted(set(names) - set(STEP1A_VARIABLES))
@@ -274,10 +274,15 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     # level above it), are swept: above it the optical depth towards the sun is 0. This is what makes a flat
     # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing; and only
     # those levels are ever held as sweep input and output (memory: docs/performance.md).
-    hydro_levels = np.zeros(nk, bool)
-    for n in range(beta.shape[0]):
-        hydro_levels |= beta[n].any(axis=(1, 2))  # not reshape: the fields may be strided views (no copies)
-    tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol.any(axis=(1, 2))}
+    hydro_levels, aerosol_levels = np.zeros(nk, bool), np.zeros(nk, bool)
+
+    def find(k0, k1):  # not reshape: the fields may be strided views (no copies)
+        for n in range(beta.shape[0]):
+            hydro_levels[k0:k1] |= beta[n, k0:k1].any(axis=(1, 2))
+        aerosol_levels[k0:k1] = aerosol[k0:k1].any(axis=(1, 2))
+
+    in_level_blocks(find, nk)
+    tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol_levels}
     swept = [c for c in range(4) if tops[c].any()]
     taus = {}
     if swept:
@@ -286,15 +291,19 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         # with a zero last row and column, which the numba sweep reads beside the grid's far edge
         padded = np.zeros((len(swept), n_levels, shape[0] + 1, shape[1] + 1), np.float32)
         fields = padded[:, :, :shape[0], :shape[1]]
-        for row, c in enumerate(swept):
-            if c < 2:  # species by species in float32 (a weighted sum over species would make a float64 copy)
-                for n in range(beta.shape[0]):
-                    fields[row] += beta[n, :n_levels] if c == 0 else b[n] * beta[n, :n_levels]
-            elif c == 2:
-                fields[row] = np.clip((terrain[None] - levels[:n_levels, None, None]) / dz, 0.0, 1.0) * (
-                    TERRAIN_OPACITY_PER_CELL / dz)
-            else:
-                fields[row] = aerosol[:n_levels]
+
+        def fill(k0, k1):  # levels k0..k1 of every swept field
+            for row, c in enumerate(swept):
+                if c < 2:  # species by species in float32 (a weighted sum over species would make a float64 copy)
+                    for n in range(beta.shape[0]):
+                        fields[row, k0:k1] += beta[n, k0:k1] if c == 0 else b[n] * beta[n, k0:k1]
+                elif c == 2:
+                    fields[row, k0:k1] = np.clip((terrain[None] - levels[k0:k1, None, None]) / dz, 0.0, 1.0) * (
+                        TERRAIN_OPACITY_PER_CELL / dz)
+                else:
+                    fields[row, k0:k1] = aerosol[k0:k1]
+
+        in_level_blocks(fill, n_levels)  # on every core (NumPy's loops release the GIL)
         if backend == "numba":
             from .solar_cpu import sweep
 
