@@ -456,7 +456,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     # the colour stage is per pixel and works in float64: in blocks of rows, to bound its temporaries
     rgb = np.concatenate([solar_relative_to_srgb8(radiance[:, r0:r0 + COLOUR_BLOCK_ROWS], white_level=white_level)
                           for r0 in range(0, ny, COLOUR_BLOCK_ROWS)], axis=0)
-    view_az, view_zen = azimuth_zenith_from_enu(np.where(valid[..., None], dirs_enu, np.nan))
+    view_az, view_zen = (np.array(a) for a in cam.cached_view_angles())  # copies: the output is the caller's
     sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
 
     wl = ("wavelength", WAVELENGTHS_NM, {"units": "nm", "long_name": "wavelength"})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -61,6 +62,27 @@ def test_round_trip_and_unit_length(cam):
     assert np.max(np.abs(col[valid] - cols[valid])) < 1e-6
     # NaN directions (outside the fisheye circle) are not imaged
     assert np.all(np.isnan(row[~valid])) and np.all(np.isnan(col[~valid]))
+
+
+@pytest.mark.parametrize("cam", [CAMERAS[4], CAMERAS[9], CAMERAS[12]], ids=lambda c: f"{c.kind}{c.shape}")
+def test_cached_directions_and_view_angles_are_the_camera_s_own_and_read_only(cam):
+    dirs, valid = cam.directions()
+    cached_dirs, cached_valid = cam.cached_directions()
+    np.testing.assert_array_equal(cached_valid, valid)
+    np.testing.assert_array_equal(cached_dirs[valid], dirs[valid])
+    azimuth, zenith = cam.cached_view_angles()
+    # test-side angles of the valid pixels: zenith from the up component, azimuth clockwise from north
+    v = dirs[valid]
+    np.testing.assert_allclose(zenith[valid], np.degrees(np.arccos(np.clip(v[:, 2], -1, 1))), atol=2e-4)
+    ok = np.hypot(v[:, 0], v[:, 1]) > 1e-6  # the zenith and nadir have no azimuth
+    difference = (azimuth[valid][ok] - np.degrees(np.arctan2(v[ok, 0], v[ok, 1])) + 180.0) % 360.0 - 180.0
+    np.testing.assert_allclose(difference, 0.0, atol=5e-4)
+    assert np.all(np.isnan(zenith[~valid])) and azimuth.dtype == np.float32
+    for a in (cached_dirs, cached_valid, azimuth, zenith):
+        assert not a.flags.writeable
+    # an equal camera, made anew, shares them
+    again = type(cam)(**{f.name: getattr(cam, f.name) for f in dataclasses.fields(cam)})
+    assert again.cached_directions()[0] is cached_dirs and again.cached_view_angles()[1] is zenith
 
 
 @pytest.mark.parametrize("cam", CAMERAS, ids=lambda c: f"{c.kind}{c.shape}")

@@ -119,6 +119,20 @@ def _pixel_centres(ny: int, nx: int) -> tuple[np.ndarray, np.ndarray]:
     return rows, cols
 
 
+def _view_angles(camera):
+    dirs, valid = camera.cached_directions()
+    azimuth, zenith = frames.azimuth_zenith_from_enu(np.where(valid[..., None], dirs, np.nan))
+    return azimuth.astype(np.float32), zenith.astype(np.float32)
+
+
+@functools.lru_cache(maxsize=2)
+def _view_angles_of(camera):
+    angles = _view_angles(camera)
+    for a in angles:
+        a.flags.writeable = False
+    return angles
+
+
 @functools.lru_cache(maxsize=2)
 def _directions_of(camera):
     dirs, valid = camera.directions()
@@ -168,6 +182,15 @@ class Camera(ABC):
             return _directions_of(self)
         except TypeError:  # a camera with unhashable options is computed every time
             return self.directions()
+
+    def cached_view_angles(self) -> tuple[np.ndarray, np.ndarray]:
+        """View azimuth and zenith angle [deg] of every pixel (float32, NaN where not ``valid``; azimuth clockwise
+        from north, :func:`swim.frames.azimuth_zenith_from_enu`), computed once for the last two cameras and
+        read-only, like :meth:`cached_directions`."""
+        try:
+            return _view_angles_of(self)
+        except TypeError:  # a camera with unhashable options is computed every time
+            return _view_angles(self)
 
     @abstractmethod
     def pixel_of_direction(self, dirs_enu) -> tuple[np.ndarray, np.ndarray]:
