@@ -15,6 +15,7 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   allow at 1024 x 1024 (the rays of the render / rays per second of the kernel);
 * with ``--sun-series N``: the time per frame of N renders with a new sun each (a fixed camera's time series:
   Step 1a and the kernel constants are redone every frame);
+* with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * the GPU's peak memory (``memory_stats``) and, with ``--compare``, the radiance against a render with the
   numba kernel on the host's cores (median and 99th percentile of the relative difference).
 
@@ -129,6 +130,8 @@ def run_scene(name, args, probe, out_dir):
               f"{trace_s:.3f} s, kernel {kernel_s * 1e3:.2f} ms per {kernel_rays} rays -> {row['kernel_fps']:.1f} "
               f"frames/s of the kernel alone", flush=True)
         first = first or image
+    if args.barriers:
+        rows.append(compare_barriers(name, scene, kw, probe, args.repeats))
     if args.profile and out_dir:
         profile_render(name, scene, kw, probe, Path(out_dir))
     if args.sampling:
@@ -212,6 +215,43 @@ def profile_render(name, scene, kw, probe, out_dir):
     print("\n".join(lines[:25]), flush=True)
 
 
+def compare_barriers(name, scene, kw, probe, repeats):
+    """The kernel with the optimisation barriers that it uses on CPUs (``swim.rt.march._materialise``) forced on,
+    against the default of the device: warm render, device time per chunk, largest difference of the outputs."""
+    import jax
+    import numpy as np
+
+    import swim
+    import swim.rt.march as march
+
+    def measure():
+        swim.render(scene, **kw)  # compiles
+        probe.captured = None
+        warm, _ = _median_time(lambda: swim.render(scene, **kw), repeats)
+        args, kwargs = probe.captured
+        out = jax.block_until_ready(probe.trace_chunk(*args, **kwargs))
+        return warm, probe.kernel_time()[0], {key: np.asarray(value) for key, value in out.items()}
+
+    default = measure()
+    plain = march._materialise
+    march._materialise = jax.lax.optimization_barrier
+    jax.clear_caches()
+    try:
+        forced = measure()
+    finally:
+        march._materialise = plain
+        jax.clear_caches()
+    diff = max(float(np.nanmax(np.abs(forced[2][key].astype(float) - default[2][key].astype(float)), initial=0.0))
+               for key in default[2])
+    row = {"scene": name, "compare": "optimisation barriers", "default_render_s": default[0],
+           "default_kernel_chunk_s": default[1], "barriers_render_s": forced[0], "barriers_kernel_chunk_s": forced[1],
+           "max_abs_difference": diff}
+    print(f"{name}: kernel per chunk {default[1] * 1e3:.2f} ms (default) against {forced[1] * 1e3:.2f} ms with the "
+          f"barriers forced; warm render {default[0]:.3f} against {forced[0]:.3f} s; outputs within {diff:.2e}",
+          flush=True)
+    return row
+
+
 def compare_numba(name, scene, kw, first):
     """Radiance of the JAX render ``first`` against the numba kernel's render of the same view."""
     import numpy as np
@@ -247,6 +287,8 @@ def main(argv=None):
     ap.add_argument("--sun-series", type=int, default=0,
                     help="also N frames with a new sun each (a fixed camera's time series; median of frames 2..N)")
     ap.add_argument("--profile", action="store_true", help="also profile a warm render (host) and a chunk (device)")
+    ap.add_argument("--barriers", action="store_true",
+                    help="also the kernel with its CPU optimisation barriers forced on (section 18 of docs/performance.md)")
     ap.add_argument("--compare", action="store_true", help="also render with numba on the host and compare")
     ap.add_argument("--data", type=Path, default=bench_suite.DATA)
     ap.add_argument("--out", type=Path, default=None, help="JSON file (its folder also gets the PNGs)")

@@ -16,10 +16,15 @@ own positions (``lat``/``lon``) and takes the bounding box over all rays, widene
 netCDF scenes) after fixing the reference point of the scene frame to that of the whole grid. Before the crop
 it reads only ``lat``, ``lon``, the two highest levels of ``height``, the edges of ``terrain_height`` and a
 few of its cells under the observer. See ``docs/rendering.md``, "Cropping big grids".
+
+The reach of a camera's rays (most of the window's time) is remembered for the next window with the same camera,
+observer and grid, so that a repeated render or a fixed camera's time series redoes only the ray towards the sun
+and the sun-ward margin (docs/performance.md, section 18).
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 
@@ -177,8 +182,6 @@ class _Columns:
 
     def digest(self) -> str:
         """Digest of the columns' positions and the reference point (what the index map depends on)."""
-        import hashlib
-
         h = hashlib.sha256(np.ascontiguousarray(self.gx).view(np.uint8).reshape(-1).data)
         h.update(np.ascontiguousarray(self.gy).view(np.uint8).reshape(-1).data)
         h.update(f"{self.lat0!r} {self.lon0!r} {self.shape}".encode())

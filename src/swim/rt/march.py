@@ -177,7 +177,6 @@ class MarchSettings:
             return self.backend
         return "numba" if jax.default_backend() == "cpu" and _numba_available() else "jax"
 
-
     def resolved_chunk(self) -> int:
         """Rays per kernel call: ``chunk``, or for None :data:`GPU_CHUNK` where the JAX kernel runs on a GPU (or
         another accelerator) and :data:`CPU_CHUNK` elsewhere."""
@@ -311,7 +310,12 @@ def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, rad
 # per sample against 209 ns, the 9-channel trilinear 40 ns against 244 ns; docs/performance.md).
 
 def _materialise(x):
-    """Compute x once: without the barrier XLA may fuse the gathers into each of x's consumers and repeat them."""
+    """Compute x once: without the barrier XLA on a CPU may fuse the gathers into each of x's consumers and repeat
+    them (the kernel ~9 % slower). On a GPU the barriers cost more than they save: each ends a fusion, so its
+    values go through device memory; without them the kernel is 18 % faster on an H100 (docs/performance.md,
+    section 18), so there x passes unchanged."""
+    if jax.default_backend() != "cpu":
+        return x
     return jax.lax.optimization_barrier(x)
 
 
@@ -1309,8 +1313,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                                  f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
     if len(origins) == 0:
         raise SwimInputError("trace_rays needs at least one ray, got none")
-    # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB; on every core (NumPy
-    # releases the GIL in its loops: 0.33 s -> 0.07 s for a 1024^2 all-sky on 16 cores)
+    # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB; on up to 8 cores
+    # (NumPy releases the GIL in its loops: 0.33 s -> 0.22 s for a 1024^2 all-sky on a 16-core host)
     def segments(lo):
         return ray_segments(origins[lo:lo + SEGMENT_BLOCK], directions[lo:lo + SEGMENT_BLOCK], geometry,
                             top=float(consts["top"]))
