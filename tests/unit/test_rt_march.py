@@ -313,6 +313,32 @@ def test_optimisation_barriers_only_on_cpus(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("shape", [(5, 6, 7, 9), (2, 2, 2, 7), (3, 40, 2, 1)])
+def test_trilinear_reads_rows_on_cpus_and_scalars_elsewhere_with_the_same_values(monkeypatch, shape):
+    import jax
+    import jax.numpy as jnp
+
+    from swim.rt.march import trilinear
+
+    rng = np.random.default_rng(sum(shape))
+    volume = rng.random(shape).astype(np.float32)
+    k, j, i = (rng.uniform(-0.7, n - 0.3, 500) for n in shape[:3])  # some points beyond the volume
+    outside = rng.random(shape[3]).astype(np.float32)
+    # test-side trilinear interpolation, clamped to the edge cells, ``outside`` beyond the volume
+    expected = np.empty((500, shape[3]))
+    for p in range(500):
+        idx = [min(max(int(np.floor(x)), 0), n - 2) for x, n in zip((k[p], j[p], i[p]), shape)]
+        w = [min(max(x - i0, 0.0), 1.0) for x, i0 in zip((k[p], j[p], i[p]), idx)]
+        corners = volume[idx[0]:idx[0] + 2, idx[1]:idx[1] + 2, idx[2]:idx[2] + 2]
+        expected[p] = np.einsum("a,b,c,abcn->n", [1 - w[0], w[0]], [1 - w[1], w[1]], [1 - w[2], w[2]], corners)
+        if not all(0 <= x <= n - 1 for x, n in zip((k[p], j[p], i[p]), shape)):
+            expected[p] = outside
+    args = [jnp.asarray(volume)] + [jnp.asarray(x, jnp.float32) for x in (k, j, i)] + [jnp.asarray(outside)]
+    for backend in ("cpu", "gpu"):
+        monkeypatch.setattr(jax, "default_backend", lambda: backend)
+        np.testing.assert_allclose(np.asarray(trilinear(*args)), expected, rtol=2e-5, atol=2e-6, err_msg=backend)
+
+
 def test_no_rays_is_a_clear_error():
     with pytest.raises(SwimInputError, match="at least one ray"):
         _trace(_tiny_scene(), np.zeros((0, 3)), np.zeros((0, 3)), enu_from_azimuth_zenith(135.0, 40.0))

@@ -304,10 +304,10 @@ def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, rad
 # JAX kernels
 # ----------------------------------------------------------------------------------------------------
 
-# The tables and volumes are stored channel-major, (C, ...), and sampled by one scalar gather per channel and
-# corner from their flattened form: XLA on CPU fuses scalar gathers into the surrounding arithmetic, while a
-# gather of (C,)-rows is a separate, several times slower operation (a 6-channel bilinear lookup took 35 ns
-# per sample against 209 ns, the 9-channel trilinear 40 ns against 244 ns; docs/performance.md).
+# The tables are stored channel-major, (C, ...), and sampled by one scalar gather per channel and corner from their
+# flattened form: XLA on CPU fuses scalar gathers into the surrounding arithmetic, while a gather of (C,)-rows was
+# a separate, several times slower operation (a 6-channel bilinear lookup took 35 ns per sample against 209 ns;
+# docs/performance.md, section 1). The volume's trilinear sample is the exception since JAX 0.10: see trilinear.
 
 def _materialise(x):
     """Compute x once: without the barrier XLA on a CPU may fuse the gathers into each of x's consumers and repeat
@@ -346,8 +346,11 @@ def _bilinear_table(table, fu, fv):
 def trilinear(volume, k, j, i, outside):
     """Trilinear sample of a (nk, ny, nx, C) volume at fractional indices: (n_pts, C); ``outside`` (C,) beyond it.
 
-    The channels of a cell stay adjacent in memory (one cache line for all of them) and are read by scalar
-    gathers from the flattened volume (see the note above :func:`_lerp_table`)."""
+    The channels of a cell stay adjacent in memory (one cache line for all of them). On a CPU each of the 8
+    corners is read as one row of C channels: with JAX 0.10 the kernel marches 1.9x faster so than with one scalar
+    gather per channel and corner, the reverse of what an older XLA did (see the note above :func:`_lerp_table`;
+    docs/performance.md, section 18). On a GPU the scalar gathers from the flattened volume stay: rows were 6 %
+    slower on an H100."""
     nk, ny, nx, n_c = volume.shape
     inside = (k >= 0) & (k <= nk - 1) & (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
     k0 = jnp.clip(jnp.floor(k), 0, nk - 2).astype(jnp.int32)
@@ -356,6 +359,19 @@ def trilinear(volume, k, j, i, outside):
     fk = jnp.clip(k - k0, 0.0, 1.0)
     fj = jnp.clip(j - j0, 0.0, 1.0)
     fi = jnp.clip(i - i0, 0.0, 1.0)
+    if jax.default_backend() == "cpu":
+        cells = volume.reshape(-1, n_c)
+        cell = (k0 * ny + j0) * nx + i0
+        fk, fj, fi = fk[:, None], fj[:, None], fi[:, None]
+
+        def corner(dk, dj, di):
+            return cells[cell + (dk * ny + dj) * nx + di]
+
+        def plane(dk):
+            return ((corner(dk, 0, 0) * (1 - fi) + corner(dk, 0, 1) * fi) * (1 - fj)
+                    + (corner(dk, 1, 0) * (1 - fi) + corner(dk, 1, 1) * fi) * fj)
+
+        return jnp.where(inside[:, None], plane(0) * (1 - fk) + plane(1) * fk, outside[None, :])
     base, fk, fj, fi, inside = _materialise((((k0 * ny + j0) * nx + i0) * n_c, fk, fj, fi, inside))
     flat = volume.reshape(-1)
     row_step, plane_step = nx * n_c, ny * nx * n_c
