@@ -16,10 +16,13 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
 * with ``--sun-series N``: the time per frame of N renders with a new sun each (a fixed camera's time series:
   Step 1a and the kernel constants are redone every frame);
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
+* with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
+  device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
 * the GPU's peak memory (``memory_stats``) and, with ``--compare``, the radiance against a render with the
   numba kernel on the host's cores (median and 99th percentile of the relative difference).
 
-Figures print as a table at the end and go to ``--out`` as JSON. docs/performance.md ("GPU") has the results.
+Figures print as a table at the end and go to ``--out`` as JSON (with the images as PNG beside it); ``--size``
+renders smaller images for a quick check. docs/performance.md, section 18, has the results of an H100.
 """
 
 from __future__ import annotations
