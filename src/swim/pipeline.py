@@ -167,11 +167,6 @@ class _StageCache:
 _STAGE_CACHE = _StageCache()
 
 
-def _read_only(array):
-    array.flags.writeable = False
-    return array
-
-
 def _terrain_at(volume, lat, lon):
     """Terrain height [m] under (lat, lon) by bilinear interpolation; beyond the domain the height of its nearest
     edge, as the ray march continues the terrain (clamped)."""
@@ -378,7 +373,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
                                             backend=settings.backend)
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
-        occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: _read_only(occupancy_grid(volume)))
+        occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
         constants = volume_constants(volume, transmittance, occupancy=occupancy)
         # the volume's extinctions become views of the packed channels: the grid is held once, not twice
         share_packed_channels(volume, constants)

@@ -479,7 +479,7 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
         # the ray towards the sun gives the sun disk's transmittance (already in the scene frame)
         sun_box, sun_rays = _rays_box(columns, sun[None], grounds, lat, lon, height, top, edge_max, samples)
         box = _merge(box, sun_box)
-        n_rays = max(n_rays, 0) + sun_rays
+        n_rays += sun_rays
 
     i_min, i_max, j_min, j_max = box
     i_lo, i_hi = math.floor(i_min) - margin_cells, math.floor(i_max) + 1 + margin_cells

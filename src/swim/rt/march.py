@@ -1131,7 +1131,7 @@ def occupancy_grid(volume):
     """Where rays need fine steps, (level, y, x) int8: 1 in cells with hydrometeors, next to the terrain, or with
     a 3-D aerosol that changes by more than :data:`OCCUPIED_AEROSOL_CHANGE` in optical depth across the cell,
     dilated by one cell in every direction so that a probe between two cells still sees them
-    (:func:`adaptive_step_edges`)."""
+    (:func:`adaptive_step_edges`). Read-only: renders share it across suns (it depends on the volume alone)."""
     from scipy.ndimage import maximum_filter, minimum_filter
 
     dz = float(volume.attrs["dz"])
@@ -1147,7 +1147,9 @@ def occupancy_grid(volume):
     if np.any(aerosol > 0):
         change = (maximum_filter(aerosol, size=3) - minimum_filter(aerosol, size=3)) * max(dz, spacing)
         occupied |= change > OCCUPIED_AEROSOL_CHANGE
-    return maximum_filter(occupied.astype(np.int8), size=3)
+    occupancy = maximum_filter(occupied.astype(np.int8), size=3)
+    occupancy.flags.writeable = False
+    return occupancy
 
 
 def aerosol_column_optical_depth(volume):
@@ -1199,7 +1201,6 @@ def volume_constants(volume, transmittance, occupancy=None):
     packed.flags.writeable = False
     if occupancy is None:
         occupancy = occupancy_grid(volume)
-        occupancy.flags.writeable = False
     surface = surface_fields(volume, transmittance)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {
