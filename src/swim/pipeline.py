@@ -26,6 +26,7 @@ from .geometry.reach import crop_scene_to_view, with_reference_point
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
 from .io.scene import validate_scene
+from .memory import release_free_memory
 from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
@@ -37,6 +38,7 @@ from .rt.march import (
     atmosphere_constants,
     grid_geometry,
     occupancy_grid,
+    pack_volume,
     padded_batch_size,
     share_packed_channels,
     threads,
@@ -321,7 +323,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         valid = validate_scene(given.compute() if lazy else given)
         # From here on only the scene's attributes, coordinates and variable names are needed: dropping its
         # values frees the float64 copy of validate_scene before Step 1a and the kernel constants.
-        return build_optical_volume(valid), valid.drop_vars(list(valid.data_vars)), frozenset(valid.data_vars)
+        volume = build_optical_volume(valid)
+        names = frozenset(valid.data_vars)
+        valid = valid.drop_vars(list(valid.data_vars))
+        release_free_memory()  # the build's freed blocks of rows, before Step 1a (swim.memory)
+        return volume, valid, names
 
     # The digest of the scene as given: a warm render (same values) neither validates nor builds anything. A lazy
     # scene is identified by its dask graph (for files their names and modification times), not read again.
@@ -368,15 +374,19 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                            scene_aerosol_profile=(levels, aer3d) if np.any(aer3d > 0) else None,
                            aerosol_class_aod=classes)
     def grid_constants():
-        # Step 1a, only the fields that the kernel constants read, which hold them packed into the volume: Step
-        # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160; docs/performance.md)
-        transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
-                                            backend=settings.backend)
+        # The grid is packed first and the volume's extinctions become views of the packed channels, so the
+        # grid is held once before Step 1a's fields are made (docs/performance.md, memory).
+        packed = pack_volume(volume)
+        share_packed_channels(volume, packed)
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
-        constants = volume_constants(volume, transmittance, occupancy=occupancy)
-        # the volume's extinctions become views of the packed channels: the grid is held once, not twice
-        share_packed_channels(volume, constants)
+        # Step 1a, only the fields that the kernel constants read, which copy them into the packed volume: Step
+        # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160)
+        transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
+                                            backend=settings.backend)
+        constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed)
+        del transmittance
+        release_free_memory()  # Step 1a's freed levels, before the ray march
         return constants
 
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
@@ -433,6 +443,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
 
+    release_free_memory()  # the march's freed chunks, before the image is assembled
     ny, nx = cam.shape
     t_direct = np.exp(-(sun_out["tau_clear"] + sun_out["tau_hydrometeor"]))
     if sun_out["surface"]:
@@ -503,6 +514,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"
+    del out, radiance, rgb
+    release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
     return xr.Dataset(data, coords={"wavelength": wl, "channel": ["R", "G", "B"]}, attrs=attrs)
 
 

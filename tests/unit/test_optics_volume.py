@@ -44,3 +44,44 @@ def test_resample_columns_is_linear_in_height_and_zero_below_terrain_and_above_t
     out = resample_columns(values, height, terrain, levels)
     np.testing.assert_allclose(out[:, 0, 0], [1.0, 1.0, 2.0, 5.0, 7.0, 0.0])  # top + half a layer = 900 m
     assert out[1, 0, 1] == 0.0 and out[2, 0, 1] == pytest.approx(2.0)  # below the 150 m terrain: zero
+
+
+def test_optical_volume_in_blocks_of_rows_is_eq7_resampled(monkeypatch):
+    """build_optical_volume computes Eq. 7 and resamples it in blocks of rows (memory): any block size gives
+    beta = 1.5 CWC / (r_e rho) of the whole field, resampled, with r_e from Martin et al. (1994) for cloud
+    liquid (computed here from its formula) and the default radius for snow."""
+    import swim.optics.volume as volume_module
+    from swim.constants import DEFAULT_EFFECTIVE_RADIUS, HYDROMETEOR_DENSITY, SPECIES
+    from swim.io.scene import scene_from_arrays, validate_scene
+
+    rng = np.random.default_rng(7)
+    nz, ny, nx = 12, 9, 7
+    x = np.arange(nx) * 1000.0
+    y = np.arange(ny) * 1000.0
+    z = 200.0 + 400.0 * np.arange(nz)
+    liquid = 5e-4 * rng.random((nz, ny, nx)) * (rng.random((nz, ny, nx)) > 0.4)
+    snow = 2e-4 * rng.random((nz, ny, nx))
+    terrain = 300.0 * rng.random((ny, nx))
+    scene = validate_scene(scene_from_arrays(x=x, y=y, z=z, reference_lat=40.0, reference_lon=-100.0,
+                                             terrain_height=terrain, cloud_liquid_content=liquid, snow_content=snow))
+    volumes = {}
+    for rows in (1, 4, ny):
+        monkeypatch.setattr(volume_module, "_BLOCK_BYTES", 8 * nz * nx * rows)
+        volumes[rows] = volume_module.build_optical_volume(scene)
+    levels = volumes[ny]["level"].values
+    height = scene["height"].values
+    q = scene["cloud_liquid_content"].values
+    r_liquid = np.clip(np.cbrt(3 * q / (4 * np.pi * 1000.0 * 0.8 * 1e8)), 4e-6, 20e-6)  # Martin et al. (1994)
+    beta = {"cloud_liquid": 1.5 * q / (r_liquid * HYDROMETEOR_DENSITY["cloud_liquid"]),
+            "snow": 1.5 * scene["snow_content"].values / (DEFAULT_EFFECTIVE_RADIUS["snow"] * HYDROMETEOR_DENSITY["snow"])}
+    for rows, volume in volumes.items():
+        for species, value in beta.items():
+            expected = resample_columns(value, height, scene["terrain_height"].values, levels)
+            np.testing.assert_allclose(volume["extinction"].sel(species=species).values, expected, rtol=2e-6,
+                                       atol=1e-12, err_msg=f"{species}, {rows} rows per block")
+        others = [s for s in SPECIES if s not in beta]
+        assert not volume["extinction"].sel(species=others).values.any()
+        # no 3-D aerosol in the scene: a read-only zero that takes no memory
+        aerosol = volume["aerosol_extinction"].values
+        assert aerosol.shape == (levels.size, ny, nx) and not aerosol.any()
+        assert not aerosol.flags.writeable and aerosol.strides == (0, 0, 0)

@@ -403,12 +403,39 @@ def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():
     sun_1, sun_2 = enu_from_azimuth_zenith(135.0, 40.0), enu_from_azimuth_zenith(250.0, 65.0)
     expected = kernel_constants(volume, solar_transmittance(volume, sun_2), gas, sun_2)["volume"].copy()
     consts = kernel_constants(volume, solar_transmittance(volume, sun_1), gas, sun_1)
-    share_packed_channels(volume, consts)
+    share_packed_channels(volume, consts["volume"])
     for name, values in original.items():
         assert np.shares_memory(volume[name].values, consts["volume"]), name
         np.testing.assert_array_equal(volume[name].values, values, err_msg=name)
     again = kernel_constants(volume, solar_transmittance(volume, sun_2), gas, sun_2)["volume"]
     np.testing.assert_array_equal(again, expected)
+
+
+@pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
+def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
+    """render() packs the grid and shares its channels before Step 1a (memory): Step 1a on the shared volume and
+    the constants filled into that packed volume must equal those of the volume as built, packed after Step 1a."""
+    from swim.rt.march import occupancy_grid, pack_volume, share_packed_channels, volume_constants
+
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    volume = build_optical_volume(_tiny_scene(aerosol_plume))
+    transmittance = solar_transmittance(volume, sun)
+    expected = volume_constants(volume, transmittance)
+    occupancy = occupancy_grid(volume)
+
+    shared = build_optical_volume(_tiny_scene(aerosol_plume))
+    packed = pack_volume(shared)
+    assert packed.shape[-1] == (9 if aerosol_plume else 7)
+    share_packed_channels(shared, packed)
+    assert np.shares_memory(shared["extinction"].values, packed)
+    assert not shared["extinction"].values.flags.writeable, "the shared channels must be read-only views"
+    again = solar_transmittance(shared, sun)
+    for name in transmittance.data_vars:
+        np.testing.assert_array_equal(again[name].values, transmittance[name].values, err_msg=name)
+    got = volume_constants(shared, again, occupancy=occupancy_grid(shared), packed=packed)
+    assert got["volume"] is packed and not packed.flags.writeable
+    np.testing.assert_array_equal(got["volume"], expected["volume"])
+    np.testing.assert_array_equal(got["occupancy"], occupancy)
 
 
 def test_probe_count_places_the_steps():

@@ -179,6 +179,10 @@ def _regular_levels(height, terrain, dz=None, max_levels=160):
     return bottom, float(dz), n
 
 
+#: Bytes of one float64 temporary of :func:`build_optical_volume`'s blocks of rows.
+_BLOCK_BYTES = 16 * 2**20
+
+
 class ColumnInterpolation:
     """Weights of :func:`resample_columns` from model levels to regular levels, computed once per grid.
 
@@ -217,14 +221,23 @@ class ColumnInterpolation:
 
     def __call__(self, values):
         """The field (nz, ny, nx) on the regular levels, (nk, ny, nx) float32."""
-        v = np.asarray(values, dtype=np.float32).reshape(values.shape[0], -1)
-        lower = np.take_along_axis(v, self.k0, axis=0)
-        out = np.take_along_axis(v, self.k0 + 1, axis=0)
-        out -= lower
-        out *= self.w
-        out += lower
-        out[self.zero] = 0.0
+        out = self.columns(values, 0, int(np.prod(self.shape[1:])))
         return out.reshape(self.shape)
+
+    def columns(self, values, c0, c1):
+        """Columns ``c0:c1`` (of the flattened (y, x)) of a field on the regular levels, (nk, c1 - c0) float32.
+
+        ``values`` (nz, ...) holds those columns only (any shape whose trailing axes flatten to c1 - c0), so a
+        big grid can be resampled in blocks of rows, each with small temporaries."""
+        v = np.asarray(values, dtype=np.float32).reshape(values.shape[0], -1)
+        k0 = self.k0[:, c0:c1]
+        lower = np.take_along_axis(v, k0, axis=0)
+        out = np.take_along_axis(v, k0 + 1, axis=0)
+        out -= lower
+        out *= self.w[:, c0:c1]
+        out += lower
+        out[self.zero[:, c0:c1]] = 0.0
+        return out
 
 
 def resample_columns(values, height, terrain, levels, interpolation: ColumnInterpolation | None = None):
@@ -301,8 +314,8 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
         raise SwimInputError(f"scene grid must have at least 2 points along z, y and x; got (z, y, x) = {(nz, ny, nx)}")
     lat0 = float(scene.attrs["reference_lat"])
     lon0 = float(scene.attrs["reference_lon"])
-    height = scene["height"].values.astype(float)
-    terrain = scene["terrain_height"].values.astype(float)
+    height = np.asarray(scene["height"].values, dtype=float)  # no copy of a validated scene's float64
+    terrain = np.asarray(scene["terrain_height"].values, dtype=float)
 
     gx, gy = orthographic_xy(scene["lat"].values, scene["lon"].values, lat0, lon0)
     origin, matrix, residual = fit_grid_affine(gx, gy)
@@ -322,21 +335,39 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
 
     extinction = np.zeros((len(SPECIES), nk, ny, nx), dtype=np.float32)
     interpolation = ColumnInterpolation(height, terrain, levels)
+    # Eq. 7 and the resampling in blocks of rows: the float64 temporaries of a species (content, radius,
+    # extinction, masks) then take ~16 MB each instead of a whole field each (~77 MB each for 400 x 400 x 60),
+    # which set the peak memory of a render of a big grid (docs/performance.md, memory).
+    rows = max(1, min(ny, _BLOCK_BYTES // (8 * nz * nx)))
+    flat = extinction.reshape(len(SPECIES), nk, ny * nx)
     for n, species in enumerate(SPECIES):
         name = f"{species}_content"
-        if name not in scene or not np.any(scene[name].values > 0):
+        if name not in scene:
             continue
-        content = scene[name].values.astype(float)
+        content_all = scene[name].values
+        if not np.any(content_all > 0):
+            continue
         radius_name = f"{species}_effective_radius"
-        radius = effective_radius(species, content, scene[radius_name].values if radius_name in scene else None)
-        beta = extinction_coefficient_stephens1978(content, radius, HYDROMETEOR_DENSITY[species])
-        beta = np.where(content > 0, beta, 0.0)
-        extinction[n] = interpolation(beta)
+        radius_all = scene[radius_name].values if radius_name in scene else None
+        for j0 in range(0, ny, rows):
+            j1 = min(j0 + rows, ny)
+            content = np.asarray(content_all[:, j0:j1], dtype=float)
+            radius = effective_radius(species, content, None if radius_all is None else radius_all[:, j0:j1])
+            beta = extinction_coefficient_stephens1978(content, radius, HYDROMETEOR_DENSITY[species])
+            beta[content <= 0] = 0.0
+            flat[n, :, j0 * nx:j1 * nx] = interpolation.columns(beta, j0 * nx, j1 * nx)
 
     if "aerosol_extinction" in scene:
-        aerosol = interpolation(scene["aerosol_extinction"].values.astype(float))
+        aerosol = np.empty((nk, ny * nx), np.float32)
+        values = scene["aerosol_extinction"].values
+        for j0 in range(0, ny, rows):
+            j1 = min(j0 + rows, ny)
+            aerosol[:, j0 * nx:j1 * nx] = interpolation.columns(values[:, j0:j1], j0 * nx, j1 * nx)
+        aerosol = aerosol.reshape(nk, ny, nx)
     else:
-        aerosol = np.zeros((nk, ny, nx))
+        # no 3-D aerosol: a read-only broadcast of zero, which takes no memory (100 MB at 400 x 400 x 160)
+        aerosol = np.broadcast_to(np.float32(0.0), (nk, ny, nx))
+    del interpolation
 
     land = scene["land_mask"].values.astype(float) if "land_mask" in scene else (terrain > 0.5).astype(float)
     if "surface_albedo" in scene:
@@ -350,7 +381,7 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     return xr.Dataset(
         {
             "extinction": (("species", "level", "y", "x"), extinction, {"units": "m-1", "long_name": "extinction coefficient (Eq. 7)"}),
-            "aerosol_extinction": (("level", "y", "x"), aerosol.astype(np.float32), {"units": "m-1", "long_name": "aerosol extinction coefficient at 550 nm"}),
+            "aerosol_extinction": (("level", "y", "x"), aerosol, {"units": "m-1", "long_name": "aerosol extinction coefficient at 550 nm"}),
             "terrain_height": (("y", "x"), terrain, {"units": "m"}),
             "surface_albedo": (("wavelength", "y", "x"), albedo, {"units": "1"}),
             "land_fraction": (("y", "x"), land, {"units": "1", "long_name": "land fraction (1 land, 0 water)"}),

@@ -1174,7 +1174,34 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     return {**volume_constants(volume, transmittance), **atmosphere_constants(gas, sun_direction_scene, radius)}
 
 
-def volume_constants(volume, transmittance, occupancy=None):
+def pack_volume(volume):
+    """The packed volume of :func:`volume_constants`, (level, y, x, channel) float32, with the grid's own channels
+    filled: the species' extinctions and, where the volume has a 3-D aerosol, its extinction. Step 1a's channels
+    (one sun) are left for :func:`volume_constants` to fill (their values are undefined until then).
+
+    A render packs the grid before Step 1a and then lets the optical volume share the packed channels
+    (:func:`share_packed_channels`), so the volume's own extinctions are freed before Step 1a's fields are made
+    (docs/performance.md, memory). Channels: the :data:`swim.constants.SPECIES` extinctions, then with a 3-D
+    aerosol its extinction and ``aerosol_tau_sun``, then ``cloud_transmittance`` and ``terrain_shadow``
+    (:data:`N_CHANNELS` with the aerosol, two fewer without: its channels would be zeros)."""
+    extinction = volume["extinction"].values
+    aerosol = volume["aerosol_extinction"].values
+    grid = [extinction[c] for c in range(extinction.shape[0])]
+    with_aerosol = bool(np.any(aerosol))
+    if with_aerosol:
+        grid.append(aerosol)
+    n_channels = N_CHANNELS if with_aerosol else N_CHANNELS - 2
+    packed = np.empty(extinction.shape[1:] + (n_channels,), np.float32)
+
+    def fill(k0, k1):  # channel by channel: a transpose and a concatenate would each copy the whole volume
+        for c, value in enumerate(grid):
+            packed[k0:k1, ..., c] = value[k0:k1]
+
+    in_level_blocks(fill, packed.shape[0])  # on every core: 0.77 s for 160 x 400 x 400 on one
+    return packed
+
+
+def volume_constants(volume, transmittance, occupancy=None, packed=None):
     """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
     channel) and the occupancy grid (level, y, x) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
     terrain, the ground's fields and the grid's index map as device arrays.
@@ -1182,22 +1209,22 @@ def volume_constants(volume, transmittance, occupancy=None):
     ``transmittance`` needs the :data:`KERNEL_STEP1A_VARIABLES` of :func:`swim.rt.solar.solar_transmittance`;
     it is not referenced by the result, so a caller that keeps only this frees Step 1a's fields. ``occupancy``:
     the volume's :func:`occupancy_grid` (read-only), which does not depend on the sun, where the caller keeps it
-    from an earlier sun; default: computed here."""
+    from an earlier sun; default: computed here. ``packed``: the volume's :func:`pack_volume`, whose Step 1a
+    channels are filled here (in place); default: packed here."""
     geometry = grid_geometry(volume)
-    # filled channel by channel: a transpose and a concatenate would each make a copy of the whole volume
-    extinction = volume["extinction"].values
-    fields = [volume["aerosol_extinction"], transmittance["aerosol_tau_sun"], transmittance["cloud_transmittance"],
-              transmittance["terrain_shadow"]]
-    if not np.any(fields[0].values):
-        fields = fields[2:]  # no 3-D aerosol: its two channels would be zeros (2/9 of the volume's memory)
-    packed = np.empty(extinction.shape[1:] + (extinction.shape[0] + len(fields),), np.float32)
-    values = [extinction[c] for c in range(extinction.shape[0])] + [field.values for field in fields]
+    if packed is None:
+        packed = pack_volume(volume)
+    n_grid = packed.shape[-1] - 2 - (packed.shape[-1] == N_CHANNELS)  # channels of the grid itself
+    names = KERNEL_STEP1A_VARIABLES if packed.shape[-1] == N_CHANNELS else KERNEL_STEP1A_VARIABLES[1:]
+    values = [transmittance[name].values for name in names]
+    if packed.shape[:-1] != values[0].shape:
+        raise ValueError(f"packed volume of shape {packed.shape} does not match Step 1a's fields {values[0].shape}")
 
     def fill(k0, k1):
         for c, value in enumerate(values):
-            packed[k0:k1, ..., c] = value[k0:k1]
+            packed[k0:k1, ..., n_grid + c] = value[k0:k1]
 
-    in_level_blocks(fill, packed.shape[0])  # on every core: 0.77 s for 160 x 400 x 400 on one
+    in_level_blocks(fill, packed.shape[0])
     packed.flags.writeable = False
     if occupancy is None:
         occupancy = occupancy_grid(volume)
@@ -1218,20 +1245,23 @@ def volume_constants(volume, transmittance, occupancy=None):
     }
 
 
-def share_packed_channels(volume, constants):
+def share_packed_channels(volume, packed):
     """Point the optical volume's ``extinction`` (species, level, y, x) and, where packed, ``aerosol_extinction``
-    (level, y, x) at their channels of the packed volume of :func:`volume_constants` (read-only views), freeing
-    the volume's own copies: a render then holds the grid's extinctions once (docs/performance.md, memory).
+    (level, y, x) at their channels of a packed volume (:func:`pack_volume`, or the ``"volume"`` of
+    :func:`volume_constants`) as read-only views, freeing the volume's own copies: a render then holds the grid's
+    extinctions once (docs/performance.md, memory).
 
     The values are unchanged (the packed channels are copies of them); a later Step 1a (a new sun) reads the
-    views, and the next :func:`volume_constants` copies them into its own packed volume, which may then be
-    shared in turn. Modifies ``volume`` in place and returns it."""
-    packed = constants["volume"]
+    views, and the next :func:`pack_volume` copies them into its own packed volume, which may then be shared in
+    turn. Modifies ``volume`` in place and returns it."""
     n_species = volume.sizes["species"]
-    extinction = volume["extinction"]
-    volume["extinction"] = extinction.copy(data=np.moveaxis(packed[..., :n_species], -1, 0))
+    channels = np.moveaxis(packed[..., :n_species], -1, 0).view()
+    channels.flags.writeable = False
+    volume["extinction"] = volume["extinction"].copy(data=channels)
     if packed.shape[-1] == N_CHANNELS:
-        volume["aerosol_extinction"] = volume["aerosol_extinction"].copy(data=packed[..., n_species])
+        aerosol = packed[..., n_species].view()
+        aerosol.flags.writeable = False
+        volume["aerosol_extinction"] = volume["aerosol_extinction"].copy(data=aerosol)
     return volume
 
 

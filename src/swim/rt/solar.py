@@ -150,6 +150,8 @@ def _bilinear_zero_outside(field, jj, ii):
 #: Levels integrated directly before the optical depth of a higher level is reused (bounds the numerical
 #: diffusion of the semi-Lagrangian sweep: one bilinear interpolation per block instead of per level).
 DIRECT_LEVELS = 16
+#: Levels per block of the transforms (T, the terrain shadow) of :func:`solar_transmittance`'s output.
+TRANSFORM_LEVELS = 16
 
 
 @functools.partial(jax.jit, static_argnames=("n_sub", "block"))
@@ -285,15 +287,20 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol_levels}
     swept = [c for c in range(4) if tops[c].any()]
     taus = {}
-    if swept:
-        n_levels = min(max(int(np.flatnonzero(tops[c]).max()) for c in swept) + 2, nk)
-        n_levels = max(n_levels, 2)
+    # Each field is swept up to its own top: the terrain's few levels apart from the clouds' many, so neither the
+    # sweep's input nor its output holds zeros above the terrain up to the cloud top (memory). The JAX sweep
+    # takes all fields in one call (one compiled shape).
+    levels_of = {c: max(min(int(np.flatnonzero(tops[c]).max()) + 2, nk), 2) for c in swept}
+    groups = {}
+    for c in swept:
+        groups.setdefault(levels_of[c] if backend == "numba" else max(levels_of.values()), []).append(c)
+    for n_levels, group in sorted(groups.items()):  # the smallest first: the biggest sweep's memory comes last
         # with a zero last row and column, which the numba sweep reads beside the grid's far edge
-        padded = np.zeros((len(swept), n_levels, shape[0] + 1, shape[1] + 1), np.float32)
+        padded = np.zeros((len(group), n_levels, shape[0] + 1, shape[1] + 1), np.float32)
         fields = padded[:, :, :shape[0], :shape[1]]
 
-        def fill(k0, k1):  # levels k0..k1 of every swept field
-            for row, c in enumerate(swept):
+        def fill(k0, k1):  # levels k0..k1 of every swept field of the group
+            for row, c in enumerate(group):
                 if c < 2:  # species by species in float32 (a weighted sum over species would make a float64 copy)
                     for n in range(beta.shape[0]):
                         fields[row, k0:k1] += beta[n, k0:k1] if c == 0 else b[n] * beta[n, k0:k1]
@@ -315,7 +322,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
             del padded, fields  # the host copy goes before the sweep's output is made
             out = np.asarray(_sweep(device, float(di), float(dj), float(path_per_level), n_sub))
             del device
-        taus = {c: out[:, row] for row, c in enumerate(swept)}
+        taus.update({c: out[:, row] for row, c in enumerate(group)})
+        del out
     log.info("Step 1a sweep (%s): %d sub-steps per level, max tau_sun %.1f", backend, n_sub,
              float(taus[0].max()) if 0 in taus else 0.0)
 
@@ -325,14 +333,18 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         if c not in taus:
             return np.broadcast_to(np.float32(above), (nk,) + shape)
         a = np.full((nk,) + shape, above, np.float32)
-        part = taus[c] if transform is None else transform(taus[c])
-        a[:part.shape[0]] = part
+        swept_levels = taus[c].shape[0]
+        # in blocks of levels, so the transform's temporaries stay small (a whole field of each took ~0.5 GB
+        # of a render's peak memory at 400 x 400 x 160: docs/performance.md, memory)
+        for k0 in range(0, swept_levels, TRANSFORM_LEVELS):
+            k1 = min(k0 + TRANSFORM_LEVELS, swept_levels)
+            a[k0:k1] = taus[c][k0:k1] if transform is None else transform(k0, k1)
         return a
 
     mu0 = max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
 
-    def cloud_t(tau):
-        return np.asarray(transmittance_delta_eddington(jnp.asarray(tau), jnp.asarray(taus[1]), mu0))
+    def cloud_t(k0, k1):
+        return np.asarray(transmittance_delta_eddington(jnp.asarray(taus[0][k0:k1]), jnp.asarray(taus[1][k0:k1]), mu0))
 
     dims = ("level", "y", "x")
     attrs = {"tau_sun": {"units": "1", "long_name": "optical depth towards the sun (Step 1a)"},
@@ -342,8 +354,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
              "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
              "transmittance": {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}}
 
-    def shadow(tau):
-        return np.exp(-tau)
+    def shadow(k0, k1):
+        return np.exp(-taus[2][k0:k1])
 
     # field: (swept field, transform, value above the swept levels)
     recipes = {"tau_sun": (0, None, 0.0), "b_tau_sun": (1, None, 0.0), "terrain_shadow": (2, shadow, 1.0),
