@@ -46,6 +46,7 @@ from .rt.march import (
     volume_constants,
 )
 from .rt.solar import solar_transmittance
+from .workers import worker_pool
 
 log = logging.getLogger(__name__)
 
@@ -69,33 +70,33 @@ def _fingerprint(scene: xr.Dataset) -> str:
     digests combined in the variables' order: far less than rebuilding the optical volume and Step 1a of a big
     grid; for a small scene they take a few milliseconds per render (the 12 MB RICO LES: 5.6 ms, 7.6 ms when its
     arrays were hashed one after the other). A non-contiguous array's copy is hashed before the next is made."""
-    from concurrent.futures import ThreadPoolExecutor, wait
+    from concurrent.futures import wait
 
     def sha(data):
         return hashlib.sha256(data).digest()
 
     digest = hashlib.sha256()  # with the CPU's SHA instructions ~1.6 GB/s here, twice blake2b
     cores = threads()
-    with ThreadPoolExecutor(cores) as pool:
-        parts = []  # per variable: its header, and the futures of its values' digests
-        for name in sorted(scene.variables):
-            var = scene.variables[name]
-            # the attributes too: validation checks the units, and a warm render does not validate again
-            header = f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode()
-            values = var.values
-            if values.dtype.kind not in "biufc":
-                parts.append((header + repr(values.tolist()).encode(), []))
-                continue
-            copy = not values.flags.c_contiguous
-            data = np.ascontiguousarray(values).view(np.uint8).reshape(-1).data
-            step = _HASH_BLOCK if len(data) > 2 * _HASH_BLOCK else max(len(data), 1)
-            futures = [pool.submit(sha, data[lo:lo + step]) for lo in range(0, len(data), step)]
-            if copy:  # a contiguous copy is hashed before the next is made: never two copies at once
-                wait(futures)
-            parts.append((header, futures))
-        for header, futures in parts:
-            digest.update(header)
-            digest.update(b"".join(future.result() for future in futures))
+    pool = worker_pool(cores)
+    parts = []  # per variable: its header, and the futures of its values' digests
+    for name in sorted(scene.variables):
+        var = scene.variables[name]
+        # the attributes too: validation checks the units, and a warm render does not validate again
+        header = f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode()
+        values = var.values
+        if values.dtype.kind not in "biufc":
+            parts.append((header + repr(values.tolist()).encode(), []))
+            continue
+        copy = not values.flags.c_contiguous
+        data = np.ascontiguousarray(values).view(np.uint8).reshape(-1).data
+        step = _HASH_BLOCK if len(data) > 2 * _HASH_BLOCK else max(len(data), 1)
+        futures = [pool.submit(sha, data[lo:lo + step]) for lo in range(0, len(data), step)]
+        if copy:  # a contiguous copy is hashed before the next is made: never two copies at once
+            wait(futures)
+        parts.append((header, futures))
+    for header, futures in parts:
+        digest.update(header)
+        digest.update(b"".join(future.result() for future in futures))
     digest.update(_attrs_text(scene.attrs).encode())
     return digest.hexdigest()
 

@@ -36,6 +36,7 @@ import functools
 import logging
 import os
 import weakref
+from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
 import jax
@@ -46,6 +47,7 @@ import xarray as xr
 from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
 from ..optics.volume import grid_indices
+from ..workers import worker_pool
 from ..optics.phase import (
     G_LIQUID,
     anisotropic_reflectance_factor_kokhanovsky2004,
@@ -1369,10 +1371,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
 
     starts = range(0, len(origins), SEGMENT_BLOCK)
     if len(starts) > 1 and threads() > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(min(threads(), len(starts), 8)) as segment_pool:
-            blocks = list(segment_pool.map(segments, starts))
+        blocks = list(worker_pool(min(threads(), len(starts), 8)).map(segments, starts))
     else:
         blocks = [segments(lo) for lo in starts]
     seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
@@ -1404,11 +1403,9 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     phase_block = [] if callable(ray_phase) else [0, n, ray_phase]
     pool, pending = None, collections.deque()
     if backend == "numba":
-        from concurrent.futures import ThreadPoolExecutor
-
         # chunks marched at once, one per core (the numba kernel runs without the GIL)
         workers = min(cores, -(-n // chunk))
-        pool = ThreadPoolExecutor(workers) if workers > 1 else None
+        pool = worker_pool(workers) if workers > 1 else None
 
     def finished(out, hi):
         for key, value in out.items():
@@ -1454,9 +1451,10 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         while pending:
             collect, hi = pending.popleft()
             finished(collect(), hi)
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+    finally:  # after an error (or an interrupt): the chunks not yet started are dropped
+        for collect, _ in pending:
+            if isinstance(getattr(collect, "__self__", None), Future):
+                collect.__self__.cancel()
     outputs["steps"] = np.full(n, steps, np.int32)
     return outputs
 
@@ -1515,11 +1513,13 @@ def in_level_blocks(fill, n_levels):
     if len(blocks) == 1:
         fill(*blocks[0])
         return
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(len(blocks)) as pool:
-        for future in [pool.submit(fill, k0, k1) for k0, k1 in blocks]:
+    futures = [worker_pool(len(blocks)).submit(fill, k0, k1) for k0, k1 in blocks]
+    try:
+        for future in futures:
             future.result()  # an exception in a block is raised here
+    finally:
+        for future in futures:
+            future.cancel()
 
 
 def _host_rows(out, n):

@@ -19,11 +19,11 @@ Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4 (Step 1a), as :fun
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
 
+from ..workers import worker_pool
 from .march_cpu import _JIT
 
 
@@ -129,8 +129,8 @@ def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
     bounds = np.linspace(0, ny, max(1, min(int(workers), ny)) + 1).astype(int)
     args = (fields, taus, ny, nx, float(di), float(dj), scale, int(n_sub), int(block))
     if len(bounds) > 2:
-        with ThreadPoolExecutor(len(bounds) - 1) as pool:
-            list(pool.map(lambda r: _direct_rows(*args, bounds[r], bounds[r + 1]), range(len(bounds) - 1)))
+        list(worker_pool(len(bounds) - 1).map(lambda r: _direct_rows(*args, bounds[r], bounds[r + 1]),
+                                              range(len(bounds) - 1)))
     else:
         _direct_rows(*args, 0, ny)
     _add_above(taus, ny, nx, float(di), float(dj), int(block))

@@ -1,0 +1,26 @@
+"""swim.workers: long-lived worker pools shared by the parallel stages."""
+
+import threading
+
+import pytest
+
+from swim.workers import worker_pool
+
+
+def test_the_pool_of_a_size_is_made_once_and_its_threads_are_reused():
+    pool = worker_pool(2)
+    assert worker_pool(2) is pool
+    threads = {pool.submit(threading.current_thread).result() for _ in range(20)}  # the Thread objects, held
+    assert threads and all(t.name.startswith("swim-worker-2") for t in threads)
+    assert len(threads) <= 2, "a pool of 2 must run its tasks on at most 2 threads"
+    again = {worker_pool(2).submit(threading.current_thread).result() for _ in range(20)}
+    assert again.issubset(threads), "later calls must run on the same threads, not new ones"
+
+def test_a_worker_may_not_wait_on_the_pools():
+    with pytest.raises(RuntimeError, match="deadlock"):
+        worker_pool(1).submit(worker_pool, 1).result()
+
+
+def test_bad_sizes_are_refused():
+    with pytest.raises(ValueError, match="n must be >= 1"):
+        worker_pool(0)
