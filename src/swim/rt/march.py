@@ -47,7 +47,6 @@ import xarray as xr
 from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
 from ..optics.volume import grid_indices
-from ..workers import worker_pool
 from ..optics.phase import (
     G_LIQUID,
     anisotropic_reflectance_factor_kokhanovsky2004,
@@ -60,6 +59,7 @@ from ..optics.phase import (
 )
 from ..errors import SwimInputError
 from ..surface.lighting import SURFACE_MODELS, surface_radiance
+from ..workers import worker_pool
 from .gas import GasTables
 from .solar import transmittance_delta_eddington
 
