@@ -36,7 +36,6 @@ import functools
 import logging
 import os
 import weakref
-from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
 import jax
@@ -1401,7 +1400,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     # [first ray, end, phase arrays of those rays]: all rays for a dict, blocks of SEGMENT_BLOCK for a function
     # (one call per chunk would pay the phase functions' JAX dispatch ~200 times for a 1024^2 image)
     phase_block = [] if callable(ray_phase) else [0, n, ray_phase]
-    pool, pending = None, collections.deque()
+    pool, pending = None, collections.deque()  # (collect the outputs, end of the chunk, cancel it or None)
     if backend == "numba":
         # chunks marched at once, one per core (the numba kernel runs without the GIL)
         workers = min(cores, -(-n // chunk))
@@ -1434,9 +1433,9 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                 out = _trace_chunk(*args, rays, consts, *_chunk_probes(*args[:3], consts, settings))
                 # dispatched asynchronously: the device marches this chunk while the host prepares the next one;
                 # the one before is collected now (two chunks' outputs at most are held)
-                pending.append((functools.partial(_host_rows, out, hi - lo), hi))
+                pending.append((functools.partial(_host_rows, out, hi - lo), hi, None))
                 if len(pending) > 1:
-                    collect, done_hi = pending.popleft()
+                    collect, done_hi, _ = pending.popleft()
                     finished(collect(), done_hi)
                 continue
             job = functools.partial(_trace_chunk_numba, *args, rays, consts, settings, tables,
@@ -1444,17 +1443,18 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             if pool is None:
                 finished(job(), hi)
                 continue
-            pending.append((pool.submit(job).result, hi))
+            future = pool.submit(job)
+            pending.append((future.result, hi, future.cancel))
             if len(pending) >= 2 * workers:  # bound the chunks held in memory; collect in order
-                collect, done_hi = pending.popleft()
+                collect, done_hi, _ = pending.popleft()
                 finished(collect(), done_hi)
         while pending:
-            collect, hi = pending.popleft()
+            collect, hi, _ = pending.popleft()
             finished(collect(), hi)
     finally:  # after an error (or an interrupt): the chunks not yet started are dropped
-        for collect, _ in pending:
-            if isinstance(getattr(collect, "__self__", None), Future):
-                collect.__self__.cancel()
+        for _, _, cancel in pending:
+            if cancel is not None:
+                cancel()
     outputs["steps"] = np.full(n, steps, np.int32)
     return outputs
 
