@@ -6,7 +6,6 @@ Each stage is a function between xarray objects or small dataclasses; :func:`ren
 from __future__ import annotations
 
 import functools
-import hashlib
 import logging
 from datetime import datetime, timezone
 from pathlib import Path
@@ -15,6 +14,7 @@ import jax
 import numpy as np
 import pandas as pd
 import xarray as xr
+import xxhash
 
 from . import __version__
 from .color import DEFAULT_WHITE_LEVEL, SPACE_WHITE_LEVEL, solar_relative_to_srgb8
@@ -41,12 +41,10 @@ from .rt.march import (
     pack_volume,
     padded_batch_size,
     share_packed_channels,
-    threads,
     trace_rays,
     volume_constants,
 )
 from .rt.solar import solar_transmittance
-from .workers import worker_pool
 
 log = logging.getLogger(__name__)
 
@@ -54,9 +52,12 @@ log = logging.getLogger(__name__)
 SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
 #: Image rows per call of the colour stage in :func:`render` (bounds its float64 temporaries).
 COLOUR_BLOCK_ROWS = 128
+#: Images of fewer pixels skip the C heap's trims after the march and at the end of :func:`render`: they free a few
+#: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of an 41 x 41 render; swim.memory).
+TRIM_MIN_PIXELS = 1 << 16
 
 
-#: Bytes per block of the scene's arrays hashed on its own thread by :func:`_fingerprint`.
+#: Bytes per block in which :func:`_fingerprint` copies a non-contiguous array to hash it (bounds the copy).
 _HASH_BLOCK = 1 << 24
 
 
@@ -64,39 +65,27 @@ def _fingerprint(scene: xr.Dataset) -> str:
     """Digest of a scene's values, coordinates and attributes (what its optical volume depends on).
 
     The scene as given to :func:`render` (cropped, not yet validated: the same values validate to the same
-    scene, and a warm render then skips the validation's float64 copies). The numeric arrays are hashed on all
-    cores, each on its own thread and those bigger than two blocks in blocks of :data:`_HASH_BLOCK` bytes
-    (hashlib releases the GIL; SHA-256 with the CPU's SHA instructions, ~1.6 GB/s per core here), and their
-    digests combined in the variables' order: far less than rebuilding the optical volume and Step 1a of a big
-    grid; for a small scene they take a few milliseconds per render (the 12 MB RICO LES: 5.6 ms, 7.6 ms when its
-    arrays were hashed one after the other). A non-contiguous array's copy is hashed before the next is made."""
-    from concurrent.futures import wait
-
-    def sha(data):
-        return hashlib.sha256(data).digest()
-
-    digest = hashlib.sha256()  # with the CPU's SHA instructions ~1.6 GB/s here, twice blake2b
-    cores = threads()
-    pool = worker_pool(cores)
-    parts = []  # per variable: its header, and the futures of its values' digests
+    scene, and a warm render then skips the validation's float64 copies). One streaming XXH3-128 digest
+    (``xxhash``) of each variable's name, dims, dtype, shape and attributes and of its values, in the variables'
+    order, then the scene's attributes. XXH3 hashes ~34 GB/s on one core here, SHA-256 1.8 GB/s: the 12 MB RICO
+    LES takes ~0.4 ms per render (7 ms with SHA-256 on the thread pool), the 0.47 GB of the 400 x 400 x 60
+    benchmark scene ~15 ms (docs/performance.md, section 20). It is the key of an in-process cache, not a
+    defence against crafted collisions. A non-contiguous array is copied and hashed in blocks of rows of at most
+    :data:`_HASH_BLOCK` bytes (a streaming digest does not depend on how its input is cut)."""
+    digest = xxhash.xxh3_128()
     for name in sorted(scene.variables):
         var = scene.variables[name]
         # the attributes too: validation checks the units, and a warm render does not validate again
-        header = f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode()
+        digest.update(f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode())
         values = var.values
         if values.dtype.kind not in "biufc":
-            parts.append((header + repr(values.tolist()).encode(), []))
-            continue
-        copy = not values.flags.c_contiguous
-        data = np.ascontiguousarray(values).view(np.uint8).reshape(-1).data
-        step = _HASH_BLOCK if len(data) > 2 * _HASH_BLOCK else max(len(data), 1)
-        futures = [pool.submit(sha, data[lo:lo + step]) for lo in range(0, len(data), step)]
-        if copy:  # a contiguous copy is hashed before the next is made: never two copies at once
-            wait(futures)
-        parts.append((header, futures))
-    for header, futures in parts:
-        digest.update(header)
-        digest.update(b"".join(future.result() for future in futures))
+            digest.update(repr(values.tolist()).encode())
+        elif values.flags.c_contiguous:
+            digest.update(values.reshape(-1).view(np.uint8).data)
+        else:
+            rows = max(1, _HASH_BLOCK // max(values[0].nbytes, 1))
+            for lo in range(0, values.shape[0], rows):
+                digest.update(np.ascontiguousarray(values[lo:lo + rows]).reshape(-1).view(np.uint8).data)
     digest.update(_attrs_text(scene.attrs).encode())
     return digest.hexdigest()
 
@@ -444,8 +433,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
 
-    release_free_memory()  # the march's freed chunks, before the image is assembled
     ny, nx = cam.shape
+    trim = ny * nx >= TRIM_MIN_PIXELS
+    if trim:
+        release_free_memory()  # the march's freed chunks, before the image is assembled
     t_direct = np.exp(-(sun_out["tau_clear"] + sun_out["tau_hydrometeor"]))
     if sun_out["surface"]:
         t_direct = np.zeros(3)
@@ -516,7 +507,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"
     del out, radiance, rgb
-    release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
+    if trim:
+        release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
     return xr.Dataset(data, coords={"wavelength": wl, "channel": ["R", "G", "B"]}, attrs=attrs)
 
 

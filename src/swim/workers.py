@@ -1,14 +1,14 @@
 """The process's worker threads: one long-lived pool per size, shared by every parallel stage of swim.
 
-swim runs whole-grid copies, the Step 1a sweep, the rays' segments, the scene's digest and the chunks of the
-ray march on threads (NumPy, hashlib and the numba kernels release the GIL). Each new thread gets one of glibc's
+swim runs whole-grid copies, the Step 1a sweep, the rays' segments and the chunks of the ray march on threads
+(NumPy and the numba kernels release the GIL). Each new thread gets one of glibc's
 malloc arenas, and arenas keep pages that :func:`swim.memory.release_free_memory` cannot give back. With new
 threads for every stage of every render, the resident memory after each warm 1024² render of the 400 x 400 x 60
 scene (image freed, heap trimmed) grew from 1 315 to 1 462 MB above the scene over six renders; with these
 long-lived threads it stays at 1 286-1 301 MB (docs/performance.md, section 19).
 
 Tasks given to a pool must not wait on tasks of the same pool (a pool's threads could all be waiting); swim's
-tasks are leaves (NumPy, numba, hashlib calls), and :func:`worker_pool` refuses to be called from one of its own
+tasks are leaves (NumPy and numba calls), and :func:`worker_pool` refuses to be called from one of its own
 threads. A forked child process gets new pools (the parent's threads do not exist in it).
 """
 

@@ -122,3 +122,26 @@ def test_render_of_a_clear_sky_is_consistent_with_its_components():
     assert np.all(out["dhi"].values > 0.02) and np.all(out["dhi"].values < 0.3)
     np.testing.assert_allclose(out["dni"].values, ds.attrs["direct_transmittance"])
     np.testing.assert_allclose(out["ghi"].values, out["dhi"].values + np.cos(np.radians(30.0)) * out["dni"].values)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (5, 7), (41, 41)])
+def test_radiance_without_sun_disk_sums_the_components_with_nan_as_zero(shape):
+    """The sum of the clear, cloud and surface components of an image (NaN outside the camera's circle counts as 0),
+    as xarray's ``fillna(0)`` and ``+`` give it, in float64; an image without a component is a KeyError."""
+    from swim.diagnostics.irradiance import radiance_without_sun_disk
+
+    rng = np.random.default_rng(3)
+    dims = ("wavelength", "y", "x")
+    parts = {}
+    for key in ("radiance_clear", "radiance_cloud", "radiance_surface"):
+        values = rng.random((3,) + shape).astype(np.float32)
+        values[rng.random(values.shape) < 0.3] = np.nan
+        parts[key] = (dims, values)
+    image = xr.Dataset(parts)
+    expected = sum(image[key].fillna(0) for key in parts).values.astype(float)
+    got = radiance_without_sun_disk(image)
+    assert got.dtype == np.float64 and got.shape == (3,) + shape
+    np.testing.assert_array_equal(got, expected)
+    assert np.all(np.isfinite(got))
+    with pytest.raises(KeyError):
+        radiance_without_sun_disk(image.drop_vars("radiance_cloud"))

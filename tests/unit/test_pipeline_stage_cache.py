@@ -147,23 +147,27 @@ def test_a_lazy_scene_is_not_read_again_but_its_changes_are_seen(tmp_path, caplo
 
 
 def test_scene_digest_sees_every_value_and_attribute(monkeypatch):
-    """The stage cache's key of an in-memory scene (its arrays hashed on all cores, in blocks when big): equal
-    scenes give equal digests; one changed value (in a contiguous array, a non-contiguous one, or the last block
-    of a blocked one) or one changed attribute gives another."""
-    monkeypatch.setattr(pipeline, "_HASH_BLOCK", 256)  # the 3-D fields span many blocks
+    """The stage cache's key of an in-memory scene (one streaming digest; a non-contiguous array copied in blocks
+    of rows): equal scenes give equal digests, also when an array is laid out otherwise; one changed value (in a
+    contiguous array, or in the last block of a non-contiguous one) or one changed attribute gives another."""
+    monkeypatch.setattr(pipeline, "_HASH_BLOCK", 256)  # a non-contiguous 3-D field spans many blocks
     scene = swim.default_scene()
     digest = pipeline._fingerprint(scene)
     assert pipeline._fingerprint(scene.copy(deep=True)) == digest
     name = next(n for n in scene.data_vars if scene[n].ndim == 3)
     changed = scene.copy(deep=True)
-    changed[name].values.reshape(-1)[-1] += 1e-6  # the last byte's block
+    changed[name].values.reshape(-1)[-1] += 1e-6  # the last value
     assert pipeline._fingerprint(changed) != digest
     strided = scene.copy(deep=True)
     strided[name] = strided[name].copy(data=np.asfortranarray(strided[name].values))
     assert not strided[name].values.flags.c_contiguous
     assert pipeline._fingerprint(strided) == digest  # the same values, laid out otherwise
-    strided[name].values[0, 0, 0] += 1e-6
-    assert pipeline._fingerprint(strided) != digest
+    for index in ((0, 0, 0), (-1, -1, -1)):  # the first block, and the last
+        changed = strided.copy(deep=True)
+        changed[name] = changed[name].copy(data=np.asfortranarray(changed[name].values))
+        changed[name].values[index] += 1e-6
+        assert not changed[name].values.flags.c_contiguous
+        assert pipeline._fingerprint(changed) != digest
     attrs = scene.copy(deep=True)
     attrs[name].attrs["units"] = "g m-3"
     assert pipeline._fingerprint(attrs) != digest

@@ -109,6 +109,36 @@ def test_a_camera_s_reach_is_remembered_and_only_the_sun_is_redone(big_scene, mo
     assert len(calls) == 5 and high != first and len(reach._CAMERA_REACH) == 1
 
 
+def test_a_grid_s_columns_are_projected_once_and_anew_when_they_change(big_scene, monkeypatch):
+    """The column geometry of :class:`_Columns` is kept for the next render of the same lat, lon and reference
+    point; another grid, a moved reference point or a bad lat are each seen for what they are."""
+    from swim.geometry import reach
+
+    calls = []
+    projection = reach.orthographic_xy
+    monkeypatch.setattr(reach, "orthographic_xy", lambda *a, **k: calls.append(1) or projection(*a, **k))
+    camera = make_camera("allsky", size=63)
+    kwargs = dict(height=2.0, sun_direction=[0.0, 0.0, 1.0])
+    reach._COLUMN_GEOMETRY.clear()
+    reach._CAMERA_REACH.clear()
+    first = reachable_index_window(big_scene, camera, **kwargs)
+    assert reachable_index_window(big_scene.copy(deep=True), camera, **kwargs) == first  # equal values: reused
+    assert len(calls) == 1
+    columns = reach._Columns(big_scene)
+    assert not columns.gx.flags.writeable and not columns.gy.flags.writeable  # shared: read-only
+    shifted = big_scene.assign_coords(lat=big_scene["lat"] + 0.5)
+    moved_reference = big_scene.assign_attrs(reference_lat=40.5)
+    for scene in (shifted, moved_reference):
+        window = reachable_index_window(scene, camera, **kwargs)
+        reach._COLUMN_GEOMETRY.clear()
+        reach._CAMERA_REACH.clear()
+        assert reachable_index_window(scene, camera, **kwargs) == window  # as computed afresh
+    assert len(calls) == 5
+    bad = big_scene.assign_coords(lat=big_scene["lat"] + 60.0)
+    with pytest.raises(SwimInputError, match="lat"):
+        reachable_index_window(bad, camera, **kwargs)
+
+
 def test_a_higher_observer_sees_further_below_the_horizon(big_scene):
     # A panorama of the horizon: from h the rays that graze the ground leave the shell sqrt(2 R h) further out.
     camera = make_camera("panorama", width=64, height=61, elevation_min_deg=-3.0, elevation_max_deg=3.0)

@@ -73,7 +73,11 @@ def radiance_without_sun_disk(image: xr.Dataset) -> np.ndarray:
     KeyError
         If the image lacks one of the components.
     """
-    return np.asarray(sum(image[k].fillna(0) for k in _COMPONENTS).values, dtype=float)
+    total = 0
+    for key in _COMPONENTS:  # on the numpy arrays: xarray's fillna and sums took ~2.5 ms of a 41 x 41 render's 30
+        values = image[key].values
+        total = total + np.where(np.isnan(values), values.dtype.type(0), values)
+    return np.asarray(total, dtype=float)
 
 
 def _diffuse_sky(image: xr.Dataset, sun_exclusion_deg):

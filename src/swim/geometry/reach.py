@@ -24,12 +24,12 @@ and the sun-ward margin (docs/performance.md, section 18).
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 
 import numpy as np
 import xarray as xr
+import xxhash
 
 from ..constants import EARTH_RADIUS_M
 from ..errors import SwimInputError
@@ -162,6 +162,15 @@ def with_reference_point(scene: xr.Dataset) -> xr.Dataset:
 
 #: :meth:`_Columns.grid_top` of lazy height fields, by dask token (8 at most, the oldest dropped first).
 _LAZY_GRID_TOPS = {}
+#: The last grid's column geometry (:class:`_Columns`), by a digest of its ``lat``, ``lon`` and reference point: a
+#: repeated render or a time series of one grid does not project and fit its columns again (~3 ms for the RICO
+#: LES's 122 x 106 columns, ~60 ms for 400 x 400).
+_COLUMN_GEOMETRY = {}
+
+
+def _array_digest(values) -> bytes:
+    a = np.ascontiguousarray(values)
+    return xxhash.xxh3_128_digest(a.view(np.uint8).reshape(-1).data) + f"{a.dtype}{a.shape}".encode()
 
 
 class _Columns:
@@ -171,18 +180,32 @@ class _Columns:
         if not isinstance(scene, xr.Dataset):
             raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
         lat, lon = _lat_lon(scene)
-        if np.abs(lat).max() > 90.0:
-            raise SwimInputError(f"lat: range [{lat.min():.4g}, {lat.max():.4g}] is outside [-90, 90] degrees_north")
         ref = _given_reference(scene)
-        self.lat0, self.lon0 = ref if ref is not None else domain_centre(lat, lon)
-        self.shape = lat.shape
-        self.gx, self.gy = orthographic_xy(lat, lon, self.lat0, self.lon0)
-        self._fit_affine()
+        key = (_array_digest(lat), _array_digest(lon), ref)
+        cached = _COLUMN_GEOMETRY.get(key)
+        if cached is None:
+            if np.abs(lat).max() > 90.0:
+                raise SwimInputError(f"lat: range [{lat.min():.4g}, {lat.max():.4g}] is outside [-90, 90] degrees_north")
+            self.lat0, self.lon0 = ref if ref is not None else domain_centre(lat, lon)
+            self.shape = lat.shape
+            self.gx, self.gy = orthographic_xy(lat, lon, self.lat0, self.lon0)
+            self._fit_affine()
+            for a in (self.gx, self.gy):
+                a.flags.writeable = False  # shared by the later _Columns of this grid
+            self._digest = self._positions_digest()
+            _COLUMN_GEOMETRY.clear()
+            _COLUMN_GEOMETRY[key] = {name: getattr(self, name) for name in
+                                     ("lat0", "lon0", "shape", "gx", "gy", "origin", "matrix", "_digest")}
+        else:
+            self.__dict__.update(cached)
         self.scene = scene
 
     def digest(self) -> str:
         """Digest of the columns' positions and the reference point (what the index map depends on)."""
-        h = hashlib.sha256(np.ascontiguousarray(self.gx).view(np.uint8).reshape(-1).data)
+        return self._digest
+
+    def _positions_digest(self) -> str:
+        h = xxhash.xxh3_128(np.ascontiguousarray(self.gx).view(np.uint8).reshape(-1).data)
         h.update(np.ascontiguousarray(self.gy).view(np.uint8).reshape(-1).data)
         h.update(f"{self.lat0!r} {self.lon0!r} {self.shape}".encode())
         return h.hexdigest()

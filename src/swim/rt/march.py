@@ -1425,11 +1425,12 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             if not phase_block or hi > phase_block[1]:
                 block_hi = min(n, lo + max(SEGMENT_BLOCK, hi - lo))
                 phase_block[:] = [lo, block_hi, ray_phase(np.asarray(directions[lo:block_hi]))]
-            rays = {key: jnp.asarray(take(value, first=phase_block[0])) for key, value in phase_block[2].items()}
+            rays = {key: take(value, first=phase_block[0]) for key, value in phase_block[2].items()}
             args = [take(seg["start"]), take(directions), take(seg["bounds"]), take(seg["ends_on_ground"], bool),
                     take(seg["valid"], bool)]
             if backend == "jax":
                 args = list(map(jnp.asarray, args))
+                rays = {key: jnp.asarray(value) for key, value in rays.items()}
                 out = _trace_chunk(*args, rays, consts, *_chunk_probes(*args[:3], consts, settings))
                 # dispatched asynchronously: the device marches this chunk while the host prepares the next one;
                 # the one before is collected now (two chunks' outputs at most are held)
@@ -1553,33 +1554,37 @@ def _numba_tables(consts):
 
 def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n):
     """One chunk of rays: set-up and composition in JAX, the step loop in :func:`swim.rt.march_cpu.march_rays`
-    (``exact``: start, direction and bounds in float64). Returns numpy arrays of the first ``n`` (real) rays."""
+    (``exact``: start, direction and bounds in float64). Returns numpy arrays of the first ``n`` (real) rays.
+
+    The chunk's arrays stay numpy arrays between the stages (the jitted stages take them as they are, and their
+    outputs are fetched once): a JAX operation per slice or conversion cost ~30 dispatches per chunk, ~3 ms
+    (docs/performance.md, section 20)."""
     from . import march_cpu
 
-    start_j, direction_j, bounds_j = jnp.asarray(start), jnp.asarray(direction), jnp.asarray(bounds)
-    aerosol_class, ms = _prepare_chunk(start_j, direction_j, bounds_j, consts, settings)
+    aerosol_class, ms = jax.device_get(_prepare_chunk(start, direction, bounds, consts, settings))
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
-    state = {"tau_clear": np.empty((n, 3)), "tau_h": np.empty(n), "tau_species": np.empty((n, len(SPECIES))),
-             "l_clear": np.empty((n, 3)), "i_nogas": np.empty((n, 3)), "i_gas": np.empty((n, 3)),
-             "i_cloud_t": np.empty(n), "alive": np.empty(n, bool), "hit": np.empty(n, bool), "s_hit": np.empty(n)}
+    padded = start.shape[0]
+    state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
+             "tau_species": np.empty((padded, len(SPECIES))), "l_clear": np.empty((padded, 3)),
+             "i_nogas": np.empty((padded, 3)), "i_gas": np.empty((padded, 3)), "i_cloud_t": np.empty(padded),
+             "alive": np.empty(padded, bool), "hit": np.empty(padded, bool), "s_hit": np.empty(padded)}
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
-    phase = {key: np.array(rays[key][:n], dtype=float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
-    ms_profile = np.array(ms[:, :n]) if ms is not None else np.zeros((9, n, 2), np.float32)
-    t = tables
+    phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
+    ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)  # rows beyond n are not read
+    t, out = tables, [state[key][:n] for key in state]
     march_cpu.march_rays(
         *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
-        np.array(aerosol_class[0][:n]), np.array(aerosol_class[1][:n, 0]).astype(float), ms_profile, ms is not None,
+        np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float), ms_profile, ms is not None,
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
         CELL_SLACK, CLEAR_PROBES, CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH,
-        REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS, TERRAIN_BISECTIONS,
-        state["tau_clear"], state["tau_h"], state["tau_species"], state["l_clear"], state["i_nogas"], state["i_gas"],
-        state["i_cloud_t"], state["alive"], state["hit"], state["s_hit"])
-    state = {key: jnp.asarray(_pad_rows(value, start.shape[0] - n)).astype(bool if value.dtype == bool else jnp.float32)
-             for key, value in state.items()}
-    out = _compose_chunk(start_j, direction_j, bounds_j, jnp.asarray(ends_on_ground), jnp.asarray(valid), rays, consts,
-                         settings, state, aerosol_class)
-    return {key: np.asarray(value)[:n] for key, value in out.items()}
+        REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS, TERRAIN_BISECTIONS, *out)
+    for key, value in state.items():
+        value[n:] = value[n - 1]
+        if value.dtype != bool:
+            state[key] = value.astype(np.float32)
+    out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class)
+    return {key: value[:n] for key, value in jax.device_get(out).items()}
