@@ -65,6 +65,9 @@ CASES = {
                               "crop": True, "sampling": ADAPTIVE},
     "series": {"kind": "series", "scene": "katrina", "camera": "allsky", "image": (512, 512), "view": KATRINA_ALLSKY,
                "frames": 24, "step_min": 10.0, "start": "2005-08-28T16:00", "wind_m_s": 10.0},
+    # a camera moving over a big grid (a drive or a fly-through): one 3 km cell east per frame, the time fixed
+    "flythrough": {"kind": "flythrough", "scene": "conus", "camera": "allsky", "image": (512, 512), "view": GROUND,
+                   "crop": True, "frames": 12, "step_m": 3000.0},
     "scaling_pixels": {"kind": "scaling_pixels", "scene": "synthetic", "camera": "allsky", "sizes": [128, 256, 512, 1024], "view": GROUND},
     "scaling_grid": {"kind": "scaling_grid", "scene": "synthetic", "camera": "allsky", "image": (256, 256), "grids": [100, 200, 400],
                      "domain_m": 400e3, "view": GROUND},
@@ -384,6 +387,60 @@ def run_series(spec, probe):
     return out
 
 
+class _ReuseCounter:
+    """Counts the stage cache's "reusing the volume" log records (swim.pipeline._StageCache.get)."""
+
+    def __init__(self):
+        import logging
+
+        self.count = 0
+        self.handler = logging.Handler(logging.INFO)
+        self.handler.emit = self._emit
+        self.logger = logging.getLogger("swim.pipeline")
+        self.previous_level = self.logger.level
+
+    def _emit(self, record):
+        if record.getMessage() == "reusing the volume of the previous render":
+            self.count += 1
+
+    def __enter__(self):
+        import logging
+
+        self.logger.addHandler(self.handler)
+        self.logger.setLevel(logging.INFO)
+        return self
+
+    def __exit__(self, *exc):
+        self.logger.removeHandler(self.handler)
+        self.logger.setLevel(self.previous_level)
+
+
+def run_flythrough(spec, probe):
+    """A camera moving ``step_m`` east per frame over a big grid, the time (and so the sun) fixed: per-frame times,
+    and the frames that reused the previous frame's optical volume (the same crop) rather than rebuilding it."""
+    import math
+
+    import swim
+
+    scene = load_scene(spec)
+    kw = render_kwargs(spec)
+    lat0, lon0 = float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"])
+    dlon = math.degrees(spec["step_m"] / (6371008.8 * math.cos(math.radians(lat0))))
+    frames, reused = [], []
+    for i in range(spec["frames"]):
+        with _ReuseCounter() as counter:
+            image, dt, _, _ = timed(probe, swim.render, scene, **{**kw, "lat": lat0, "lon": lon0 + i * dlon})
+        frames.append(dt)
+        reused.append(counter.count > 0)
+    nx, ny = spec["image"]
+    rays = nx * ny + 1
+    warm = statistics.median(frames[1:])
+    return {"image": [nx, ny], "rays": rays, "grid": _grid(scene), "frames": len(frames), "frame_s": frames,
+            "frame_reused_volume": reused, "rebuilds": len(frames) - sum(reused), "cold_s": frames[0], "warm_s": warm,
+            "warm_runs": frames[1:], "total_s": sum(frames), "mean_frame_s": statistics.fmean(frames),
+            "step_m": spec["step_m"], **throughput(image, rays, warm)}
+
+
 def fit_exponent(x, y):
     """Log-log slope of y against x (least squares)."""
     import numpy as np
@@ -533,7 +590,7 @@ def run_mc(spec, probe):
                               metric="median_rel_stderr", target=spec["noise_target"])}
 
 
-RUNNERS = {"render": run_render, "series": run_series, "scaling_pixels": run_scaling_pixels,
+RUNNERS = {"render": run_render, "series": run_series, "flythrough": run_flythrough, "scaling_pixels": run_scaling_pixels,
            "scaling_grid": run_scaling_grid, "mc": run_mc}
 
 
@@ -651,6 +708,10 @@ def _notes(r):
             d = r["distributed"]
             s += f"; dask {d['workers']} workers: {d['s_per_frame']:.2f} s/frame"
         return s
+    if r["kind"] == "flythrough":
+        return (f"{r['frames']} frames {r['step_m'] / 1e3:g} km apart: first {r['cold_s']:.1f} s, median "
+                f"{r['warm_s']:.2f} s/frame, mean {r['mean_frame_s']:.2f}, total {r['total_s']:.0f} s; "
+                f"{r['rebuilds']} optical volumes built (new crops)")
     if r["kind"].startswith("scaling"):
         what = "pixels" if r["kind"] == "scaling_pixels" else "grid cells"
         return f"warm time ∝ {what}^{r['exponent']:.2f}"

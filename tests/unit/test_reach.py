@@ -11,8 +11,10 @@ from swim.frames import enu_from_azimuth_zenith
 from swim.geometry.cameras import make_camera
 from swim.geometry.reach import (
     DEFAULT_MARGIN_CELLS,
+    MIN_CROP_BLOCK,
     crop_scene_to_view,
     reachable_index_window,
+    snap_window_to_blocks,
     with_reference_point,
 )
 
@@ -190,6 +192,38 @@ def test_crop_keeps_the_frame_and_is_unchanged_when_the_view_covers_everything(b
     assert crop_scene_to_view(small, "allsky", camera_options={"size": 63}, sun_direction=[0, 0, 1]) is small
 
 
+@pytest.mark.parametrize("shape", [(10, 12), (150, 150), (1059, 1799)])
+@pytest.mark.parametrize("fraction", [1.0 / 8.0, 0.25])
+def test_snapped_windows_hold_the_window_in_whole_blocks(shape, fraction):
+    """snap_window_to_blocks: the result holds the window, stays in the grid, its edges lie on multiples of a
+    power-of-two block (at least MIN_CROP_BLOCK, at most fraction x extent unless that is smaller) except at the
+    grid's edges, and a window moved by one column gets the same blocks unless an edge crosses a block's edge."""
+    rng = np.random.default_rng(sum(shape))
+    for _ in range(200):
+        window = []
+        for n in shape:
+            lo = int(rng.integers(0, n - 1))
+            window.append(slice(lo, int(rng.integers(lo + 2, n + 1))))
+        snapped = snap_window_to_blocks(tuple(window), shape, fraction)
+        for s, w, n in zip(snapped, window, shape):
+            assert 0 <= s.start <= w.start and w.stop <= s.stop <= n
+            extent = w.stop - w.start
+            block = max(MIN_CROP_BLOCK, 2 ** int(np.floor(np.log2(max(extent * fraction, 1.0)))))
+            assert block <= max(MIN_CROP_BLOCK, extent * fraction)
+            assert s.start % block == 0 and (s.stop % block == 0 or s.stop == n)
+            assert s.start > w.start - block and (s.stop < w.stop + block)
+        moved = tuple(slice(w.start + 1, w.stop + 1) if w.stop < n else w for w, n in zip(window, shape))
+        again = snap_window_to_blocks(moved, shape, fraction)
+        for s, a, w, m, n in zip(snapped, again, window, moved, shape):
+            extent = w.stop - w.start
+            block = max(MIN_CROP_BLOCK, 2 ** int(np.floor(np.log2(max(extent * fraction, 1.0)))))
+            if m.start // block == w.start // block and -(-m.stop // block) == -(-w.stop // block):
+                assert a == s
+    assert snap_window_to_blocks((slice(3, 9), slice(2, 5)), (10, 10), 0.0) == (slice(3, 9), slice(2, 5))
+    with pytest.raises(SwimInputError, match="block_fraction"):
+        snap_window_to_blocks((slice(0, 2), slice(0, 2)), (10, 10), -0.1)
+
+
 def test_with_reference_point_sets_the_centre_without_copying(big_scene):
     assert with_reference_point(big_scene) is big_scene
     scene = big_scene.copy()
@@ -265,13 +299,42 @@ def test_crop_does_not_change_the_image(wide_scene, wide_cropped_image, caplog):
     assert cropped.attrs["direct_transmittance"] == pytest.approx(full.attrs["direct_transmittance"])
 
 
+def test_a_camera_that_moves_a_little_keeps_its_crop_and_the_built_volume(wide_scene, wide_cropped_image, caplog):
+    """A move of the observer that changes the bare reachable window but not its blocks keeps the crop: the next
+    frame reuses the optical volume (the same cropped scene, the same digest), and its image is still that of the
+    whole grid. The render's crop does cut the grid."""
+    sun = enu_from_azimuth_zenith(RENDER["sun_azimuth"], RENDER["sun_zenith"])
+    camera = make_camera("allsky", size=33)
+    lat = RENDER["lat"]
+
+    def windows(lon):
+        bare = reachable_index_window(wide_scene, camera, lat=lat, lon=lon, sun_direction=sun)
+        cropped = crop_scene_to_view(wide_scene, camera, lat=lat, lon=lon, sun_direction=sun)
+        return bare, (int(cropped["x"][0]), int(cropped["x"][-1]), int(cropped["y"][0]), int(cropped["y"][-1]))
+
+    first_bare, first_crop = windows(RENDER["lon"])
+    assert (first_crop[1] - first_crop[0]) * (first_crop[3] - first_crop[2]) < 0.8 * ((N_WIDE - 1) * DX_WIDE) ** 2
+    step = np.degrees(DX_WIDE / (EARTH_RADIUS_M * np.cos(np.radians(lat))))
+    moved = next((RENDER["lon"] + k * step for k in (1, -1, 2, -2, 3, -3)
+                  if windows(RENDER["lon"] + k * step)[0] != first_bare and windows(RENDER["lon"] + k * step)[1] == first_crop),
+                 None)
+    assert moved is not None, "no move of 1-3 cells changes the bare window and keeps the crop's blocks"
+    swim.render(wide_scene, **RENDER)  # the stage cache holds this crop's volume (the fixture's may be older)
+    with caplog.at_level("INFO", logger="swim.pipeline"):
+        image = swim.render(wide_scene, **{**RENDER, "lon": moved})
+    assert "reusing the volume of the previous render" in caplog.text
+    full = swim.render(wide_scene, crop=False, **{**RENDER, "lon": moved})
+    np.testing.assert_allclose(image["radiance"].values, full["radiance"].values, rtol=1e-5, atol=1e-7)
+
+
 @pytest.mark.slow
 def test_dask_scene_renders_computing_only_the_crop(wide_scene, wide_cropped_image):
     dask_array = pytest.importorskip("dask.array")
     window = reachable_index_window(wide_scene, make_camera("allsky", size=33), lat=RENDER["lat"],
                                     lon=RENDER["lon"], sun_direction=enu_from_azimuth_zenith(200.0, 40.0))
+    window = snap_window_to_blocks(window, (N_WIDE, N_WIDE))  # the render's crop: whole blocks of columns
     lwc = _wide_fields()
-    chunk = 25
+    chunk = 10  # the crop (24:128 on both axes) leaves out the two outer rings of chunks
     computed = []
 
     def block(block_info=None):

@@ -43,9 +43,12 @@ __all__ = [
     "DEFAULT_MARGIN_CELLS",
     "SUN_MARGIN_CAP_M",
     "MAX_CROP_FRACTION",
+    "CROP_BLOCK_FRACTION",
+    "MIN_CROP_BLOCK",
     "SAMPLES_PER_RAY",
     "with_reference_point",
     "reachable_index_window",
+    "snap_window_to_blocks",
     "crop_scene_to_view",
 ]
 
@@ -62,6 +65,13 @@ SUN_MARGIN_CAP_M = 300e3
 #: A window that holds more than this fraction of the grid's columns is not worth a crop: the scene is returned
 #: unchanged.
 MAX_CROP_FRACTION = 0.9
+#: The render's crop widens its window to whole blocks of columns, each block a power of two near this fraction of the
+#: window's extent (at least :data:`MIN_CROP_BLOCK` columns): a camera that moves by less than a block keeps the same
+#: crop, so the frames of a fly-through reuse its optical volume and Step 1a instead of rebuilding them
+#: (docs/performance.md, section 21). The window then holds up to ~2 / 8 more columns per axis.
+CROP_BLOCK_FRACTION = 1.0 / 8.0
+#: Smallest block of columns of :data:`CROP_BLOCK_FRACTION`.
+MIN_CROP_BLOCK = 8
 #: Points sampled along each ray's segment inside the shell (both ends included).
 SAMPLES_PER_RAY = 9
 #: Smallest sine of the sun's elevation in the sun-ward margin (as the sweep, swim.rt.solar).
@@ -590,11 +600,55 @@ def reachable_index_window(scene: xr.Dataset, directions, *, lat=None, lon=None,
     return window
 
 
+def snap_window_to_blocks(window, shape, block_fraction: float = CROP_BLOCK_FRACTION,
+                          min_block: int = MIN_CROP_BLOCK) -> tuple[slice, slice]:
+    """Widen an index window to whole blocks of columns, so that nearby views get the same window.
+
+    Along each axis the block is the power of two nearest below ``block_fraction`` times the window's extent (at
+    least ``min_block``); the window's start is moved down and its stop up to multiples of it, within the grid.
+    The result depends on the window alone, not on earlier renders, so an image never depends on what was rendered
+    before it (the crop changes an image only at float32 round-off, docs/rendering.md).
+
+    Parameters
+    ----------
+    window : tuple of slice
+        ``(y, x)`` index slices with steps of 1 (:func:`reachable_index_window`).
+    shape : tuple of int
+        ``(ny, nx)`` columns of the grid.
+    block_fraction : float
+        Block size as a fraction [-] of the window's extent; 0 returns ``window`` unchanged.
+    min_block : int
+        Smallest block [columns].
+
+    Returns
+    -------
+    tuple of slice
+        ``(y, x)``: the widened window, holding ``window``.
+
+    Raises
+    ------
+    SwimInputError
+        If ``block_fraction`` is negative or not finite, or ``min_block`` is below 1.
+    """
+    if not (np.isfinite(block_fraction) and block_fraction >= 0) or min_block < 1:
+        raise SwimInputError(f"block_fraction ({block_fraction}) must be finite and >= 0, min_block ({min_block}) >= 1")
+    if block_fraction == 0:
+        return tuple(window)
+    snapped = []
+    for s, n in zip(window, shape):
+        extent = s.stop - s.start
+        block = max(int(min_block), 1 << max(int(math.floor(math.log2(max(extent * block_fraction, 1.0)))), 0))
+        snapped.append(slice(max((s.start // block) * block, 0), min(-(-s.stop // block) * block, n)))
+    return tuple(snapped)
+
+
 def crop_scene_to_view(scene: xr.Dataset, camera="allsky", *, camera_options=None, lat=None, lon=None, height=2.0,
                        sun_direction=None, margin_cells: int = DEFAULT_MARGIN_CELLS,
                        sun_margin_cap_m: float = SUN_MARGIN_CAP_M,
-                       max_fraction: float = MAX_CROP_FRACTION) -> xr.Dataset:
-    """Crop a scene lazily to the columns a camera's rays can reach (:func:`reachable_index_window`).
+                       max_fraction: float = MAX_CROP_FRACTION,
+                       block_fraction: float = CROP_BLOCK_FRACTION) -> xr.Dataset:
+    """Crop a scene lazily to the columns a camera's rays can reach (:func:`reachable_index_window`), widened to
+    whole blocks of columns (:func:`snap_window_to_blocks`), so that a camera that moves a little keeps its crop.
 
     Parameters
     ----------
@@ -622,6 +676,9 @@ def crop_scene_to_view(scene: xr.Dataset, camera="allsky", *, camera_options=Non
     max_fraction : float
         Return the scene unchanged when the window holds more than this fraction [-] of the columns
         (:data:`MAX_CROP_FRACTION`).
+    block_fraction : float
+        Size of the blocks that the window is widened to, as a fraction [-] of its extent
+        (:data:`CROP_BLOCK_FRACTION`; 0: the bare window).
 
     Returns
     -------
@@ -653,6 +710,7 @@ def crop_scene_to_view(scene: xr.Dataset, camera="allsky", *, camera_options=Non
                              margin_cells=margin_cells, sun_margin_cap_m=sun_margin_cap_m,
                              samples_per_ray=SAMPLES_PER_RAY)
     ny, nx = columns.shape
+    wy, wx = snap_window_to_blocks((wy, wx), (ny, nx), block_fraction)
     cy, cx = wy.stop - wy.start, wx.stop - wx.start
     fraction = cy * cx / (ny * nx)
     if fraction > max_fraction:
