@@ -41,10 +41,12 @@ from .rt.march import (
     pack_volume,
     padded_batch_size,
     share_packed_channels,
+    threads,
     trace_rays,
     volume_constants,
 )
 from .rt.solar import solar_transmittance
+from .workers import worker_pool
 
 log = logging.getLogger(__name__)
 
@@ -53,8 +55,10 @@ SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
 #: Image rows per call of the colour stage in :func:`render` (bounds its float64 temporaries).
 COLOUR_BLOCK_ROWS = 128
 #: Images of fewer pixels skip the C heap's trims after the march and at the end of :func:`render`: they free a few
-#: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of an 41 x 41 render; swim.memory).
+#: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of a 41 x 41 render; swim.memory).
 TRIM_MIN_PIXELS = 1 << 16
+#: The outputs of :func:`swim.rt.march.trace_rays` that become images of :func:`render`.
+IMAGE_OUTPUTS = ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_hydrometeor")
 
 
 #: Bytes per block in which :func:`_fingerprint` copies a non-contiguous array to hash it (bounds the copy).
@@ -69,7 +73,7 @@ def _fingerprint(scene: xr.Dataset) -> str:
     (``xxhash``) of each variable's name, dims, dtype, shape and attributes and of its values, in the variables'
     order, then the scene's attributes. XXH3 hashes ~34 GB/s on one core here, SHA-256 1.8 GB/s: the 12 MB RICO
     LES takes ~0.4 ms per render (7 ms with SHA-256 on the thread pool), the 0.47 GB of the 400 x 400 x 60
-    benchmark scene ~15 ms (docs/performance.md, section 20). It is the key of an in-process cache, not a
+    benchmark scene ~18 ms (docs/performance.md, section 20). It is the key of an in-process cache, not a
     defence against crafted collisions. A non-contiguous array is copied and hashed in blocks of rows of at most
     :data:`_HASH_BLOCK` bytes (a streaming digest does not depend on how its input is cut)."""
     digest = xxhash.xxh3_128()
@@ -402,58 +406,75 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     # extra ray towards the sun for the direct-beam transmittance of the sun's disk (with the first batch).
     sun_out = {}
 
-    def trace_pixels(flat, progress_rays=None):
-        order = tile_order(flat, cam.shape)  # neighbouring pixels one after the other: they cross the same cells
-        flat = flat[order]
-        dirs = np.vstack([dirs_scene[flat], sun_scene[None]]) if not sun_out else dirs_scene[flat]
+    def trace_tiled(flat, progress_rays=None):
+        """Trace the pixels ``flat`` in tile order (neighbouring pixels one after the other: they cross the same
+        cells): that order (indices into ``flat``) and the rays' outputs in it."""
+        order = tile_order(flat, cam.shape)
+        dirs = np.vstack([dirs_scene[flat[order]], sun_scene[None]]) if not sun_out else dirs_scene[flat[order]]
         result = trace_directions(dirs, progress_rays)
         if not sun_out:
             sun_out.update({key: value[-1] for key, value in result.items()})
             result = {key: value[:-1] for key, value in result.items()}
-        for key in list(result):  # back to the order of the pixels asked for
+        return order, result
+
+    def trace_pixels(flat, progress_rays=None):  # the adaptive sampler's: outputs in the order of the pixels asked for
+        order, result = trace_tiled(flat, progress_rays)
+        for key in list(result):
             value = result.pop(key)
             result[key] = np.empty_like(value)
             result[key][order] = value
         return result
 
+    ny, nx = cam.shape
+    planes = {}  # image outputs (channel, y, x), NaN outside the camera's pixels
     if sampling is None:
         log.info("tracing %d rays (%s camera %s)", int(valid.sum()) + 1, camera, cam.shape)
         traced = valid.reshape(-1)
-        traced_out = trace_pixels(np.flatnonzero(traced), progress)
-        out = {}
-        for key in list(traced_out):
-            value = traced_out.pop(key)  # one output at a time: the traced and the image arrays are not all held
-            out[key] = np.zeros((traced.size,) + value.shape[1:], value.dtype)
-            out[key][traced] = value
-        del value
+        flat = np.flatnonzero(traced)
+        order, rays = trace_tiled(flat, progress)
+        pixels = flat[order]
+        for key in IMAGE_OUTPUTS:  # each written once, straight into its image, one output at a time
+            value = rays.pop(key)
+            plane = np.full((value.shape[1] if value.ndim == 2 else 1, ny * nx), np.nan, value.dtype)
+            plane[:, pixels] = value.T if value.ndim == 2 else value
+            planes[key] = plane.reshape(-1, ny, nx)
+        del value, plane
+        march_samples = int(rays["steps"].sum())
+        del rays
     else:
         log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, coarse spacing %d)", camera,
                  cam.shape, int(valid.sum()), sampling.tolerance, sampling.coarse_spacing)
         out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress)
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
+        for key in IMAGE_OUTPUTS:
+            a = out.pop(key)
+            a = a.reshape(ny, nx, -1).transpose(2, 0, 1) if a.ndim == 2 else a.reshape(ny, nx)[None]
+            planes[key] = np.where(valid[None], a, np.nan)
+        march_samples = int(out["steps"].sum())
+        del out
 
-    ny, nx = cam.shape
     trim = ny * nx >= TRIM_MIN_PIXELS
     if trim:
         release_free_memory()  # the march's freed chunks, before the image is assembled
     t_direct = np.exp(-(sun_out["tau_clear"] + sun_out["tau_hydrometeor"]))
     if sun_out["surface"]:
         t_direct = np.zeros(3)
-    mask = valid[None]
-
-    def image(key):
-        a = out[key]
-        a = a.reshape(ny, nx, -1).transpose(2, 0, 1) if a.ndim == 2 else a.reshape(ny, nx)[None]
-        return np.where(mask, a, np.nan)
 
     if white_level is None:
         white_level = SPACE_WHITE_LEVEL if height_asl > SPACE_VIEW_HEIGHT_M else DEFAULT_WHITE_LEVEL
     disk = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
-    radiance = image("radiance") + disk
-    # the colour stage is per pixel and works in float64: in blocks of rows, to bound its temporaries
-    rgb = np.concatenate([solar_relative_to_srgb8(radiance[:, r0:r0 + COLOUR_BLOCK_ROWS], white_level=white_level)
-                          for r0 in range(0, ny, COLOUR_BLOCK_ROWS)], axis=0)
+    radiance = planes.pop("radiance") + disk
+    # the colour stage is per pixel and works in float64: in blocks of rows, to bound its temporaries, on up to 8
+    # cores (NumPy releases the GIL; 0.19 s for a 1024^2 image on one core here, 0.33 s on the H100's host)
+    starts = range(0, ny, COLOUR_BLOCK_ROWS)
+
+    def colour(r0):
+        return solar_relative_to_srgb8(radiance[:, r0:r0 + COLOUR_BLOCK_ROWS], white_level=white_level)
+
+    workers = min(threads(), len(starts), 8)
+    rgb = np.concatenate(list(worker_pool(workers).map(colour, starts)) if workers > 1 else [colour(r0) for r0 in starts],
+                         axis=0)
     view_az, view_zen = (np.array(a) for a in cam.cached_view_angles())  # copies: the output is the caller's
     sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
 
@@ -462,10 +483,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     data = {
         "radiance": (dims3, radiance.astype(np.float32), {
             "units": "1", "long_name": "solar-relative spectral radiance L' = 4 pi L / E_TOA (Albers et al. 2020, Eq. 2)"}),
-        "radiance_clear": (dims3, image("radiance_clear").astype(np.float32), {"units": "1", "long_name": "gas and aerosol part of L'"}),
-        "radiance_cloud": (dims3, image("radiance_cloud").astype(np.float32), {"units": "1", "long_name": "hydrometeor part of L'"}),
-        "radiance_surface": (dims3, image("radiance_surface").astype(np.float32), {"units": "1", "long_name": "ground part of L'"}),
-        "tau_hydrometeor": (("y", "x"), image("tau_hydrometeor")[0].astype(np.float32), {
+        "radiance_clear": (dims3, planes.pop("radiance_clear").astype(np.float32, copy=False), {"units": "1", "long_name": "gas and aerosol part of L'"}),
+        "radiance_cloud": (dims3, planes.pop("radiance_cloud").astype(np.float32, copy=False), {"units": "1", "long_name": "hydrometeor part of L'"}),
+        "radiance_surface": (dims3, planes.pop("radiance_surface").astype(np.float32, copy=False), {"units": "1", "long_name": "ground part of L'"}),
+        "tau_hydrometeor": (("y", "x"), planes.pop("tau_hydrometeor")[0].astype(np.float32, copy=False), {
             "units": "1", "long_name": "hydrometeor optical depth along the line of sight"}),
         "rgb": (("y", "x", "channel"), rgb, {"long_name": "true-colour image, 8-bit sRGB"}),
         "view_azimuth": (("y", "x"), view_az.astype(np.float32), {"units": "degree", "long_name": "view azimuth, clockwise from north"}),
@@ -497,7 +518,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "aerosol_type": aerosol.type_name,
         "aerosol_optical_depth_550": float(aerosol.aod_550),
         "camera": camera,
-        "march_samples": int(out["steps"].sum() + sun_out["steps"]),
+        "march_samples": march_samples + int(sun_out["steps"]),
         "traced_pixels": int(np.count_nonzero(traced)),
         "march_backend": settings.resolved_backend(),
         "sampling": "every pixel" if sampling is None else (
@@ -506,7 +527,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"
-    del out, radiance, rgb
+    del radiance, rgb
     if trim:
         release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
     return xr.Dataset(data, coords={"wavelength": wl, "channel": ["R", "G", "B"]}, attrs=attrs)

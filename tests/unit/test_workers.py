@@ -14,7 +14,9 @@ def test_the_pool_of_a_size_is_made_once_and_its_threads_are_reused():
     assert threads and all(t.name.startswith("swim-worker-2") for t in threads)
     assert len(threads) <= 2, "a pool of 2 must run its tasks on at most 2 threads"
     again = {worker_pool(2).submit(threading.current_thread).result() for _ in range(20)}
-    assert again.issubset(threads), "later calls must run on the same threads, not new ones"
+    # the pool's two threads serve every call (which of them runs a task is up to the pool: the first calls may all
+    # have run on one of them), never a new one
+    assert len(threads | again) <= 2, "later calls must run on the same pool's threads, not new ones"
 
 def test_a_worker_may_not_wait_on_the_pools():
     with pytest.raises(RuntimeError, match="deadlock"):

@@ -1565,6 +1565,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
     padded = start.shape[0]
+    # in the order of march_rays' outputs (its last ten arguments)
     state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
              "tau_species": np.empty((padded, len(SPECIES))), "l_clear": np.empty((padded, 3)),
              "i_nogas": np.empty((padded, 3)), "i_gas": np.empty((padded, 3)), "i_cloud_t": np.empty(padded),
