@@ -46,7 +46,7 @@ from .rt.march import (
     volume_constants,
 )
 from .rt.solar import solar_transmittance
-from .workers import worker_pool
+from .workers import parallel_map
 
 log = logging.getLogger(__name__)
 
@@ -472,9 +472,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     def colour(r0):
         return solar_relative_to_srgb8(radiance[:, r0:r0 + COLOUR_BLOCK_ROWS], white_level=white_level)
 
-    workers = min(threads(), len(starts), 8)
-    rgb = np.concatenate(list(worker_pool(workers).map(colour, starts)) if workers > 1 else [colour(r0) for r0 in starts],
-                         axis=0)
+    rgb = np.concatenate(parallel_map(colour, starts, min(threads(), 8)), axis=0)
     view_az, view_zen = (np.array(a) for a in cam.cached_view_angles())  # copies: the output is the caller's
     sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
 

@@ -55,3 +55,29 @@ def worker_pool(n: int) -> ThreadPoolExecutor:
         if pool is None:
             pool = _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix=f"{_PREFIX}-{n}")
         return pool
+
+
+def parallel_map(fn, items, max_threads: int) -> list:
+    """``[fn(item) for item in items]`` on up to ``max_threads`` threads of the shared pools, results in order.
+
+    With one thread (or one item) the calls run on the calling thread. An exception in a call is raised here, and
+    the calls not yet started are cancelled (those running finish).
+
+    Parameters
+    ----------
+    fn : callable
+        Called once per item; a leaf task (it must not wait on swim's pools).
+    items : iterable
+    max_threads : int
+        Threads to use at most (callers pass at most :func:`swim.rt.march.threads`).
+
+    Returns
+    -------
+    list
+        The results, in the order of ``items``.
+    """
+    items = list(items)
+    n = min(int(max_threads), len(items))
+    if n <= 1:
+        return [fn(item) for item in items]
+    return list(worker_pool(n).map(fn, items))  # Executor.map cancels what has not started after an exception

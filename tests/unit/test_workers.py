@@ -26,3 +26,23 @@ def test_a_worker_may_not_wait_on_the_pools():
 def test_bad_sizes_are_refused():
     with pytest.raises(ValueError, match="n must be >= 1"):
         worker_pool(0)
+
+
+def test_parallel_map_keeps_the_order_runs_alone_on_one_thread_and_raises_what_a_call_raises():
+    from swim.workers import parallel_map
+
+    assert parallel_map(lambda x: x * x, range(50), 2) == [x * x for x in range(50)]
+    # one thread (or one item): on the calling thread
+    assert set(parallel_map(lambda _: threading.current_thread(), range(5), 1)) == {threading.current_thread()}
+    assert parallel_map(lambda _: threading.current_thread(), [0], 4) == [threading.current_thread()]
+    workers = set(parallel_map(lambda _: threading.current_thread().name, range(20), 2))
+    assert workers and all(name.startswith("swim-worker-2") for name in workers)
+    assert parallel_map(lambda x: x, [], 4) == []
+
+    def fail_on_three(x):
+        if x == 3:
+            raise ValueError("three")
+        return x
+
+    with pytest.raises(ValueError, match="three"):
+        parallel_map(fail_on_three, range(8), 2)

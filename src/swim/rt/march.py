@@ -58,7 +58,7 @@ from ..optics.phase import (
 )
 from ..errors import SwimInputError
 from ..surface.lighting import SURFACE_MODELS, surface_radiance
-from ..workers import worker_pool
+from ..workers import parallel_map, worker_pool
 from .gas import GasTables
 from .solar import transmittance_delta_eddington
 
@@ -1368,11 +1368,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         return ray_segments(origins[lo:lo + SEGMENT_BLOCK], directions[lo:lo + SEGMENT_BLOCK], geometry,
                             top=float(consts["top"]))
 
-    starts = range(0, len(origins), SEGMENT_BLOCK)
-    if len(starts) > 1 and threads() > 1:
-        blocks = list(worker_pool(min(threads(), len(starts), 8)).map(segments, starts))
-    else:
-        blocks = [segments(lo) for lo in starts]
+    blocks = parallel_map(segments, range(0, len(origins), SEGMENT_BLOCK), min(threads(), 8))
     seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
     del blocks
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
@@ -1511,16 +1507,7 @@ def in_level_blocks(fill, n_levels):
     workers = max(1, min(threads(), n_levels))
     bounds = np.linspace(0, n_levels, workers + 1).astype(int)
     blocks = [(int(k0), int(k1)) for k0, k1 in zip(bounds[:-1], bounds[1:]) if k1 > k0]
-    if len(blocks) == 1:
-        fill(*blocks[0])
-        return
-    futures = [worker_pool(len(blocks)).submit(fill, k0, k1) for k0, k1 in blocks]
-    try:
-        for future in futures:
-            future.result()  # an exception in a block is raised here
-    finally:
-        for future in futures:
-            future.cancel()
+    parallel_map(lambda block: fill(*block), blocks, len(blocks))  # an exception in a block is raised here
 
 
 def _host_rows(out, n):

@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..workers import worker_pool
+from ..workers import parallel_map
 from .march_cpu import _JIT
 
 
@@ -128,10 +128,6 @@ def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
     scale = float(path_per_level) / n_sub
     bounds = np.linspace(0, ny, max(1, min(int(workers), ny)) + 1).astype(int)
     args = (fields, taus, ny, nx, float(di), float(dj), scale, int(n_sub), int(block))
-    if len(bounds) > 2:
-        list(worker_pool(len(bounds) - 1).map(lambda r: _direct_rows(*args, bounds[r], bounds[r + 1]),
-                                              range(len(bounds) - 1)))
-    else:
-        _direct_rows(*args, 0, ny)
+    parallel_map(lambda r: _direct_rows(*args, bounds[r], bounds[r + 1]), range(len(bounds) - 1), len(bounds) - 1)
     _add_above(taus, ny, nx, float(di), float(dj), int(block))
     return taus
