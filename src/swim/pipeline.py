@@ -19,6 +19,7 @@ import xxhash
 from . import __version__
 from .color import DEFAULT_WHITE_LEVEL, SPACE_WHITE_LEVEL, solar_relative_to_srgb8
 from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD, WAVELENGTHS_NM
+from .digest import update_with_array
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
 from .geometry.cameras import fov_to_fit, look_at_angles, make_camera
@@ -61,21 +62,15 @@ TRIM_MIN_PIXELS = 1 << 16
 IMAGE_OUTPUTS = ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_hydrometeor")
 
 
-#: Bytes per block in which :func:`_fingerprint` copies a non-contiguous array to hash it (bounds the copy).
-_HASH_BLOCK = 1 << 24
-
-
 def _fingerprint(scene: xr.Dataset) -> str:
     """Digest of a scene's values, coordinates and attributes (what its optical volume depends on).
 
     The scene as given to :func:`render` (cropped, not yet validated: the same values validate to the same
     scene, and a warm render then skips the validation's float64 copies). One streaming XXH3-128 digest
     (``xxhash``) of each variable's name, dims, dtype, shape and attributes and of its values, in the variables'
-    order, then the scene's attributes. XXH3 hashes ~34 GB/s on one core here, SHA-256 1.8 GB/s: the 12 MB RICO
-    LES takes ~0.4 ms per render (7 ms with SHA-256 on the thread pool), the 0.47 GB of the 400 x 400 x 60
-    benchmark scene ~18 ms (docs/performance.md, section 20). It is the key of an in-process cache, not a
-    defence against crafted collisions. A non-contiguous array is copied and hashed in blocks of rows of at most
-    :data:`_HASH_BLOCK` bytes (a streaming digest does not depend on how its input is cut)."""
+    order, then the scene's attributes (:mod:`swim.digest`): the 12 MB RICO LES takes ~0.4 ms per render (7 ms with
+    SHA-256 on the thread pool), the 0.47 GB of the 400 x 400 x 60 benchmark scene ~18 ms (docs/performance.md,
+    section 20)."""
     digest = xxhash.xxh3_128()
     for name in sorted(scene.variables):
         var = scene.variables[name]
@@ -84,12 +79,8 @@ def _fingerprint(scene: xr.Dataset) -> str:
         values = var.values
         if values.dtype.kind not in "biufc":
             digest.update(repr(values.tolist()).encode())
-        elif values.flags.c_contiguous:
-            digest.update(values.reshape(-1).view(np.uint8).data)
         else:
-            rows = max(1, _HASH_BLOCK // max(values[0].nbytes, 1))
-            for lo in range(0, values.shape[0], rows):
-                digest.update(np.ascontiguousarray(values[lo:lo + rows]).reshape(-1).view(np.uint8).data)
+            update_with_array(digest, values)
     digest.update(_attrs_text(scene.attrs).encode())
     return digest.hexdigest()
 

@@ -150,7 +150,9 @@ def test_scene_digest_sees_every_value_and_attribute(monkeypatch):
     """The stage cache's key of an in-memory scene (one streaming digest; a non-contiguous array copied in blocks
     of rows): equal scenes give equal digests, also when an array is laid out otherwise; one changed value (in a
     contiguous array, or in the last block of a non-contiguous one) or one changed attribute gives another."""
-    monkeypatch.setattr(pipeline, "_HASH_BLOCK", 256)  # a non-contiguous 3-D field spans many blocks
+    import swim.digest
+
+    monkeypatch.setattr(swim.digest, "BLOCK_BYTES", 256)  # a non-contiguous 3-D field spans many blocks
     scene = swim.default_scene()
     digest = pipeline._fingerprint(scene)
     assert pipeline._fingerprint(scene.copy(deep=True)) == digest

@@ -32,6 +32,7 @@ import xarray as xr
 import xxhash
 
 from ..constants import EARTH_RADIUS_M
+from ..digest import array_digest, update_with_array
 from ..errors import SwimInputError
 from ..frames import enu_to_scene_rotation, geodetic_to_scene, orthographic_xy, ray_sphere_intersections
 from ..io.scene import domain_centre
@@ -178,11 +179,6 @@ _LAZY_GRID_TOPS = {}
 _COLUMN_GEOMETRY = {}
 
 
-def _array_digest(values) -> bytes:
-    a = np.ascontiguousarray(values)
-    return xxhash.xxh3_128_digest(a.view(np.uint8).reshape(-1).data) + f"{a.dtype}{a.shape}".encode()
-
-
 class _Columns:
     """The grid's columns in the scene frame and a robust map from horizontal coordinates to grid indices."""
 
@@ -191,7 +187,7 @@ class _Columns:
             raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
         lat, lon = _lat_lon(scene)
         ref = _given_reference(scene)
-        key = (_array_digest(lat), _array_digest(lon), ref)
+        key = (array_digest(lat), array_digest(lon), ref)
         cached = _COLUMN_GEOMETRY.get(key)
         if cached is None:
             if np.abs(lat).max() > 90.0:
@@ -215,8 +211,9 @@ class _Columns:
         return self._digest
 
     def _positions_digest(self) -> str:
-        h = xxhash.xxh3_128(np.ascontiguousarray(self.gx).view(np.uint8).reshape(-1).data)
-        h.update(np.ascontiguousarray(self.gy).view(np.uint8).reshape(-1).data)
+        h = xxhash.xxh3_128()
+        update_with_array(h, self.gx)
+        update_with_array(h, self.gy)
         h.update(f"{self.lat0!r} {self.lon0!r} {self.shape}".encode())
         return h.hexdigest()
 
