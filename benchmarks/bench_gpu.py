@@ -1,8 +1,14 @@
-"""Frames per second of the JAX kernel on a GPU (issue 6, goal 3), and where a GPU render spends its time.
+"""Frames per second of the march's GPU kernels (issue 6, goal 3), and where a GPU render spends its time.
 
 Usage (on a machine where JAX's default device is a GPU; it also runs on a CPU, slowly)::
 
     python benchmarks/bench_gpu.py --scenes synthetic katrina --chunks 32768 0 --sun-series 6 --out gpu.json
+    python benchmarks/bench_gpu.py --backend cuda --scenes synthetic katrina --compare --out gpu-cuda.json
+
+``--backend jax`` (the default) renders with JAX's lockstep march; ``--backend cuda`` with the per-ray CUDA
+kernel (:mod:`swim.rt.march_cuda`, numba-cuda), for which ``trace_s`` is the time in the kernel's calls (copies to
+and from the device included) and ``kernel_s`` one launch on inputs already on the device. With
+``NUMBA_ENABLE_CUDASIM=1`` and ``--size 9`` the CUDA path runs in numba's simulator, to check the script.
 
 For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel call) it renders the suite's
 1024 x 1024 all-sky view (``bench_suite.CASES``) with the JAX kernel and reports:
@@ -85,6 +91,50 @@ class TraceProbe:
         return _median_time(call, repeats)[0], int(args[0].shape[0])
 
 
+class CudaProbe:
+    """Wraps :func:`swim.rt.march_cuda.march_rays` (the CUDA kernel's calls, with their host-device copies):
+    keeps the arguments of the biggest call and the time spent in it per render."""
+
+    def __init__(self):
+        from swim.rt import march_cuda
+
+        self.module, self.march = march_cuda, march_cuda.march_rays
+        self.march_s, self.captured = 0.0, None
+        march_cuda.march_rays = self._march
+
+    def _march(self, *args, **kwargs):
+        if self.captured is None or args[0].shape[0] > self.captured[0].shape[0]:
+            self.captured = args
+        t0 = time.perf_counter()
+        try:
+            return self.march(*args, **kwargs)
+        finally:
+            self.march_s += time.perf_counter() - t0
+
+    def kernel_time(self, repeats=5):
+        """(seconds, rays) of the kernel alone on the captured call: its inputs already on the device, one launch,
+        synchronised (the copies to and from the device are left out)."""
+        from numba import cuda
+
+        m = self.module
+        names = m.kernel_arguments()
+        values = dict(zip(names, self.captured))
+        sizes = m.work_sizes(*(values[k] for k in ("n_before", "n_grid", "n_after", "n_probe", "n_probe_max",
+                                                   "n_clear_probe", "refine_slots")),
+                             values["tau_species"].shape[1], values["volume"].shape[3])
+        device = [cuda.to_device(v) if hasattr(v, "shape") and not hasattr(v, "copy_to_host") else v
+                  for v in (values[k] for k in names)]
+        n = values["start"].shape[0]
+        launch = m.cuda_march_kernel(*sizes)[-(-n // m.THREADS_PER_BLOCK), m.THREADS_PER_BLOCK]
+
+        def call():
+            launch(*device)
+            cuda.synchronize()
+
+        call()
+        return _median_time(call, repeats)[0], int(n)
+
+
 def gpu_memory():
     import jax
 
@@ -99,7 +149,7 @@ def run_scene(name, args, probe, out_dir):
     from swim.rt.march import MarchSettings
 
     spec = json.loads(json.dumps(bench_suite.CASES[f"{name}_allsky"]))
-    spec.update(data=str(args.data), backend="jax")
+    spec.update(data=str(args.data), backend=args.backend)
     if args.size:
         spec["image"] = [args.size, args.size]
     if name == "synthetic":
@@ -112,19 +162,20 @@ def run_scene(name, args, probe, out_dir):
     first = None
     for chunk in args.chunks:
         # 0: the default (MarchSettings.resolved_chunk: GPU_CHUNK on a GPU)
-        kw["settings"] = replace(MarchSettings(backend="jax"), chunk=chunk or None)
+        kw["settings"] = replace(MarchSettings(backend=args.backend), chunk=chunk or None)
         chunk = kw["settings"].resolved_chunk()
         t0 = time.perf_counter()
         image = swim.render(scene, **kw)  # cold for this chunk size: compiles its kernel shapes
         cold = time.perf_counter() - t0
-        probe.trace_s = 0.0
+        probe.trace_s = probe.march_s = 0.0  # the one its probe has
         probe.captured = None
         warm, runs = _median_time(lambda: swim.render(scene, **kw), args.repeats)
-        trace_s = probe.trace_s / args.repeats
+        # JAX: the time in trace_rays; CUDA: in the kernel's calls (with their copies to and from the device)
+        trace_s = (probe.march_s if args.backend == "cuda" else probe.trace_s) / args.repeats
         kernel_s, kernel_rays = probe.kernel_time()
         rays = int(image.attrs["traced_pixels"]) + 1
         kernel_rays_per_s = kernel_rays / kernel_s
-        row = {"scene": name, "chunk": chunk, "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
+        row = {"scene": name, "backend": args.backend, "chunk": chunk, "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
                "render_fps": 1 / warm, "trace_s": trace_s, "kernel_chunk_s": kernel_s, "kernel_chunk_rays": kernel_rays,
                "kernel_rays_per_s": kernel_rays_per_s, "kernel_fps": kernel_rays_per_s / rays,
                "march_samples": float(image.attrs.get("march_samples", float("nan"))), "gpu_memory_mb": gpu_memory()}
@@ -284,6 +335,9 @@ def main(argv=None):
     ap.add_argument("--scenes", nargs="+", default=["synthetic"], choices=("synthetic", "katrina", "rico", "conus"))
     ap.add_argument("--chunks", nargs="+", type=int, default=[0],
                     help="rays per kernel call to compare (0: the default, MarchSettings.resolved_chunk)")
+    ap.add_argument("--backend", choices=("jax", "cuda"), default="jax",
+                    help="the march's kernel: JAX's lockstep march, or the per-ray CUDA kernel (numba-cuda; its "
+                         "'trace' column is then the time in the kernel's calls, copies included)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
     ap.add_argument("--sampling", action="store_true", help="also an adaptively sampled render (last chunk size)")
@@ -301,7 +355,7 @@ def main(argv=None):
     machine = {"jax": jax.__version__, "backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()],
                "device_kind": jax.devices()[0].device_kind, "host_cores": len(os.sched_getaffinity(0))}
     print(machine, flush=True)
-    probe = TraceProbe()
+    probe = CudaProbe() if args.backend == "cuda" else TraceProbe()
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"machine": machine, "argv": sys.argv[1:], "scenes": {}}

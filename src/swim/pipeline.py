@@ -284,7 +284,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     Raises
     ------
     SwimInputError
-        Bad scene, observer below the terrain or out of reach, bad camera options or time.
+        Bad scene, observer below the terrain or out of reach, bad camera options or time; a march kernel
+        (``settings.backend``) that cannot run here (numba missing, or no GPU for "cuda").
     """
     if not isinstance(scene, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
@@ -301,6 +302,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
     if height is None or not np.isfinite(height) or height < 0:
         raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
+    settings.resolved_backend()  # a kernel that cannot run (no numba, no GPU for "cuda") fails before any work
     given = scene
 
     def validated_volume():

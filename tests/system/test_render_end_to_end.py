@@ -230,7 +230,7 @@ def test_cli_backend_option(tmp_path):
     assert result.exit_code == 0, result.output
     assert out.exists()
     bad = tmp_path / "bad.png"
-    result = CliRunner().invoke(app, ["render", "--size", "31", "--backend", "cuda", "--out", str(bad)])
+    result = CliRunner().invoke(app, ["render", "--size", "31", "--backend", "opencl", "--out", str(bad)])
     assert result.exit_code == 2 and "MarchSettings.backend" in result.output and not bad.exists()
 
 

@@ -204,4 +204,4 @@ def test_unknown_sweep_backend_is_rejected():
     scene, _ = _slab_scene(n=5)
     volume = build_optical_volume(scene, dz=100.0)
     with pytest.raises(SwimInputError, match="backend must be"):
-        solar_transmittance(volume, enu_from_azimuth_zenith(0.0, 30.0), backend="cuda")
+        solar_transmittance(volume, enu_from_azimuth_zenith(0.0, 30.0), backend="opencl")

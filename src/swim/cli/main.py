@@ -83,8 +83,8 @@ def render(
                                   "the image is not smooth, interpolating the rest (big images 2-4x faster; "
                                   "docs/rendering.md)."),
     tolerance: float = typer.Option(0.01, help="Relative error allowed where --adaptive interpolates [-]."),
-    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax or numba "
-                                "(docs/performance.md)."),
+    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
+                                "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",

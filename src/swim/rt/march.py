@@ -128,11 +128,13 @@ class MarchSettings:
     surface : {"brdf", "lambertian"}
         Reflectance of the ground (:func:`swim.surface.lighting.surface_radiance`): land, snow and water
         BRDFs with sun glint, or Lambertian (what plane-parallel reference solvers assume).
-    backend : {"auto", "jax", "numba"}
+    backend : {"auto", "jax", "numba", "cuda"}
         Kernel of the step loop: "jax" marches a chunk of rays in lockstep (GPUs, gradients); "numba" runs
         the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, ~5x faster on a
         CPU: the default scene's 255^2 all-sky in 1.0 s against 4.6-5.1 s; docs/performance.md, sections 8 and
-        18); "auto" takes numba when JAX's default device is the CPU.
+        18); "cuda" compiles that same per-ray code for an NVIDIA GPU, one thread per ray (:mod:`swim.rt.march_cuda`,
+        numba-cuda; opt-in until its speed is measured, docs/performance.md, section 22); "auto" takes numba
+        when JAX's default device is the CPU, else jax.
     """
 
     n_before: int = 12
@@ -171,10 +173,14 @@ class MarchSettings:
         Raises
         ------
         SwimInputError
-            If ``backend`` is "numba" and numba is not installed.
+            If ``backend`` is "numba" and numba is not installed, or "cuda" and numba-cuda finds no GPU.
         """
-        if self.backend == "numba" and not _numba_available():
-            raise SwimInputError("MarchSettings.backend='numba' needs the numba package (pip install numba)")
+        if self.backend in ("numba", "cuda") and not _numba_available():
+            raise SwimInputError(f"MarchSettings.backend={self.backend!r} needs the numba package (pip install numba)")
+        if self.backend == "cuda":
+            from .march_cuda import require_cuda
+
+            require_cuda()
         if self.backend != "auto":
             return self.backend
         return "numba" if jax.default_backend() == "cpu" and _numba_available() else "jax"
@@ -184,7 +190,8 @@ class MarchSettings:
         another accelerator) and :data:`CPU_CHUNK` elsewhere."""
         if self.chunk is not None:
             return int(self.chunk)
-        on_accelerator = self.resolved_backend() == "jax" and jax.default_backend() != "cpu"
+        backend = self.resolved_backend()
+        on_accelerator = backend == "cuda" or (backend == "jax" and jax.default_backend() != "cpu")
         return GPU_CHUNK if on_accelerator else CPU_CHUNK
 
 
@@ -196,7 +203,7 @@ CPU_CHUNK = 4096
 GPU_CHUNK = 262144
 
 #: Kernels of the step loop (:attr:`MarchSettings.backend`).
-BACKENDS = ("auto", "jax", "numba")
+BACKENDS = ("auto", "jax", "numba", "cuda")
 
 
 @functools.lru_cache(maxsize=None)
@@ -1387,6 +1394,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         cores = threads()
         n_chunks = cores * -(-n // (cores * chunk))
         chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
+    if backend in ("numba", "cuda"):
         tables = _numba_tables(consts)
         # the JAX set-up and composition never read the host arrays (a jitted call would copy them every time)
         consts = {key: value for key, value in consts.items() if key not in HOST_CONSTANTS}
@@ -1436,7 +1444,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                     finished(collect(), done_hi)
                 continue
             job = functools.partial(_trace_chunk_numba, *args, rays, consts, settings, tables,
-                                    [take(a, float) for a in (seg["start"], directions, seg["bounds"])], hi - lo)
+                                    [take(a, float) for a in (seg["start"], directions, seg["bounds"])], hi - lo,
+                                    kernel=backend)
             if pool is None:
                 finished(job(), hi)
                 continue
@@ -1539,15 +1548,22 @@ def _numba_tables(consts):
             "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"])}
 
 
-def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n):
+def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n,
+                       kernel="numba"):
     """One chunk of rays: set-up and composition in JAX, the step loop in :func:`swim.rt.march_cpu.march_rays`
-    (``exact``: start, direction and bounds in float64). Returns numpy arrays of the first ``n`` (real) rays.
+    (``kernel`` "numba") or its CUDA twin :func:`swim.rt.march_cuda.march_rays` ("cuda"; ``exact``: start,
+    direction and bounds in float64). Returns numpy arrays of the first ``n`` (real) rays.
 
     The chunk's arrays stay numpy arrays between the stages (the jitted stages take them as they are, and their
     outputs are fetched once): a JAX operation per slice or conversion cost ~30 dispatches per chunk, ~3 ms
     (docs/performance.md, section 20)."""
     from . import march_cpu
 
+    march = march_cpu.march_rays
+    if kernel == "cuda":
+        from . import march_cuda
+
+        march, tables = march_cuda.march_rays, march_cuda.device_tables(tables)
     aerosol_class, ms = jax.device_get(_prepare_chunk(start, direction, bounds, consts, settings))
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
@@ -1562,7 +1578,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
     ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)  # rows beyond n are not read
     t, out = tables, [state[key][:n] for key in state]
-    march_cpu.march_rays(
+    march(
         *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
         np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float), ms_profile, ms is not None,
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],

@@ -9,6 +9,11 @@ per-ray set-up before it (aerosol class, diffuse-source profiles) and the cloud 
 after it stay in JAX (:func:`swim.rt.march.trace_rays`), and the JAX march remains the kernel on GPUs and
 for gradients. ``tests/unit/test_rt_march.py`` holds both kernels to the float64 reference and to each other.
 
+The same code is also the GPU's per-ray kernel: :mod:`swim.rt.march_cuda` compiles these functions' Python code
+for NVIDIA GPUs (numba-cuda), one thread per ray. Everything the loop calls must therefore stay within what
+both of numba's targets compile (no allocation inside :func:`_march_ray_range`, no slice assignment, scalar
+``math`` functions).
+
 Each function mirrors its JAX counterpart in :mod:`swim.rt.march` (named in its docstring) and follows
 the same equations (Albers et al. 2020, doi:10.5194/amt-13-3235-2020: Eq. 3 for the clear-sky source,
 Eq. 12 for the hydrometeor integral); it computes in float64 from the float32 tables.
@@ -252,42 +257,19 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
         edges[m] = s0 + frac * length
 
 
-@njit(**_JIT, nogil=True)
-def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
-               ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
-               n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
-               probe_spacing, n_probe_max, cell_slack, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
-               refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
-               i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out):
-    """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
-
-    Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
-    a thread pool (a ``parallel=True`` loop was as fast and took 29 s to compile instead of 7).
-
-    The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before`` steps
-    placed by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^``clear_power``
-    plus ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges`
-    from ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that
-    cross more, less ``cell_slack``) and the clear air after it (``n_after`` steps placed as ``n_before``'s),
-    then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical depth is below
-    ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before it, times
-    its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the previous
-    interval's length exceeds it sends the ray back to its state before that interval, which is halved;
-    recursively to ``max_depth`` levels, at most ``refine_budget`` times per ray, with at most ``refine_slots``
-    pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray stops at the ground (the lockstep kernel
-    goes on with zero-length steps that add nothing), and a segment of zero length takes one step (to see whether
-    it starts under the terrain) instead of all of them.
-
-    Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3)
-    [m], ``valid`` (n,) bool, the phase functions ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric``
-    (n, 3), the aerosol class ``class_lower`` (n,) int and ``class_weight`` (n,), and ``ms_profile`` (9, n, n_u)
-    [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march.kernel_constants` (float32), scalars packed
-    by :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
-    ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, 5), the clear-sky radiance ``l_clear`` (n, 3),
-    the Eq. 12 integrals ``i_nogas``, ``i_gas`` (n, 3) and ``i_cloud_t`` (n,), ``alive_out`` and ``hit_out``
-    (n,) bool, and ``s_hit_out`` (n,) [m], the refined terrain crossing or the segment's end.
-    """
-    n = start.shape[0]
+@njit(**_JIT)
+def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
+                     class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
+                     spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
+                     stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, n_clear_probe,
+                     clear_power, clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots,
+                     n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out,
+                     hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing,
+                     ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol, vol32):
+    """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
+    once: one code for the CPU's loop over all rays (one call) and a GPU thread's ray
+    (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
+    arguments were passed anew every time), and numba's inlining of it failed."""
     nk, ny, nx, n_c = volume.shape
     n_species = tau_species.shape[1]
     aerosol_3d = n_c > n_species + 2  # the 3-D aerosol's two channels (packed only where it is not zero)
@@ -296,40 +278,18 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     nu_class = diffuse_classes.shape[1] // n_class
     n_u = ms_profile.shape[2]
     top = p[_P_TOP]
-    # work arrays of every ray: step edges, the probes' cumulative density, the pending halves of refined steps
-    edges = np.empty(max(n_before, n_grid, n_after) + 1)
-    cdf = np.empty(max(n_probe, n_probe_max, n_clear_probe) + 1)
-    stack_lo = np.empty(refine_slots)
-    stack_hi = np.empty(refine_slots)
-    stack_depth = np.empty(refine_slots, np.int64)
-    # the state before the last accumulated grid interval, restored when the next one shows that a cloud face
-    # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
-    # gap 17, s_last 18, the species' optical depths 19-
-    saved = np.empty(19 + tau_species.shape[1])
-    # the ray's accumulators and the step's lookups, reset per ray
-    tc = np.empty(3)
-    t_obs = np.empty(3)
-    tsp = np.empty(n_species)
-    lc = np.empty(3)
-    ing = np.empty(3)
-    ig = np.empty(3)
-    beta_r = np.empty(3)
-    beta_a = np.empty(3)
-    beta_s = np.empty(3)
-    t_sun = np.empty(3)
-    diffuse = np.empty(3)
-    vol = np.empty(n_c)
-    vol32 = np.empty(n_c, np.float32)
-    for r in range(n):
+    for r in range(first, stop, stride):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
-        tc[:] = 0.0
-        t_obs[:] = 1.0  # e^-(tau_clear + tau_h) to the observer, carried as a product
+        for c in range(3):  # element by element: a CUDA thread's local arrays take no slice assignments
+            tc[c] = 0.0
+            t_obs[c] = 1.0  # e^-(tau_clear + tau_h) to the observer, carried as a product
+            lc[c] = 0.0
+            ing[c] = 0.0
+            ig[c] = 0.0
+        for c in range(n_species):
+            tsp[c] = 0.0
         th = 0.0
-        tsp[:] = 0.0
-        lc[:] = 0.0
-        ing[:] = 0.0
-        ig[:] = 0.0
         ict = 0.0
         alive = valid[r]
         hit = False
@@ -464,8 +424,10 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                             tsp[c] = saved[19 + c]
                         mid = prev_lo + 0.5 * (prev_hi - prev_lo)
                         stack_lo[pending], stack_hi[pending], stack_depth[pending] = s_lo, s_hi, depth
-                        stack_lo[pending + 1], stack_hi[pending + 1], stack_depth[pending + 1] = mid, prev_hi, prev_depth + 1
-                        stack_lo[pending + 2], stack_hi[pending + 2], stack_depth[pending + 2] = prev_lo, mid, prev_depth + 1
+                        stack_lo[pending + 1], stack_hi[pending + 1] = mid, prev_hi
+                        stack_depth[pending + 1] = prev_depth + 1
+                        stack_lo[pending + 2], stack_hi[pending + 2] = prev_lo, mid
+                        stack_depth[pending + 2] = prev_depth + 1
                         pending += 3
                         budget -= 1
                         have_prev = False
@@ -562,3 +524,74 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
         alive_out[r] = alive
         hit_out[r] = hit
         s_hit_out[r] = s_hit
+
+
+@njit(**_JIT, nogil=True)
+def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
+               ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
+               n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
+               probe_spacing, n_probe_max, cell_slack, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
+               refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
+               i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out):
+    """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
+
+    Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
+    a thread pool (a ``parallel=True`` loop was as fast and took 29 s to compile instead of 7).
+
+    The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before`` steps
+    placed by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^``clear_power``
+    plus ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges`
+    from ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that
+    cross more, less ``cell_slack``) and the clear air after it (``n_after`` steps placed as ``n_before``'s),
+    then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical depth is below
+    ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before it, times
+    its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the previous
+    interval's length exceeds it sends the ray back to its state before that interval, which is halved;
+    recursively to ``max_depth`` levels, at most ``refine_budget`` times per ray, with at most ``refine_slots``
+    pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray stops at the ground (the lockstep kernel
+    goes on with zero-length steps that add nothing), and a segment of zero length takes one step (to see whether
+    it starts under the terrain) instead of all of them.
+
+    Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3)
+    [m], ``valid`` (n,) bool, the phase functions ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric``
+    (n, 3), the aerosol class ``class_lower`` (n,) int and ``class_weight`` (n,), and ``ms_profile`` (9, n, n_u)
+    [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march.kernel_constants` (float32), scalars packed
+    by :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
+    ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, 5), the clear-sky radiance ``l_clear`` (n, 3),
+    the Eq. 12 integrals ``i_nogas``, ``i_gas`` (n, 3) and ``i_cloud_t`` (n,), ``alive_out`` and ``hit_out``
+    (n,) bool, and ``s_hit_out`` (n,) [m], the refined terrain crossing or the segment's end.
+    """
+    n_c = volume.shape[3]
+    n_species = tau_species.shape[1]
+    # work arrays of every ray: step edges, the probes' cumulative density, the pending halves of refined steps
+    edges = np.empty(max(n_before, n_grid, n_after) + 1)
+    cdf = np.empty(max(n_probe, n_probe_max, n_clear_probe) + 1)
+    stack_lo = np.empty(refine_slots)
+    stack_hi = np.empty(refine_slots)
+    stack_depth = np.empty(refine_slots, np.int64)
+    # the state before the last accumulated grid interval, restored when the next one shows that a cloud face
+    # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
+    # gap 17, s_last 18, the species' optical depths 19-
+    saved = np.empty(19 + tau_species.shape[1])
+    # the ray's accumulators and the step's lookups, reset per ray
+    tc = np.empty(3)
+    t_obs = np.empty(3)
+    tsp = np.empty(n_species)
+    lc = np.empty(3)
+    ing = np.empty(3)
+    ig = np.empty(3)
+    beta_r = np.empty(3)
+    beta_a = np.empty(3)
+    beta_s = np.empty(3)
+    t_sun = np.empty(3)
+    diffuse = np.empty(3)
+    vol = np.empty(n_c)
+    vol32 = np.empty(n_c, np.float32)
+    _march_ray_range(0, start.shape[0], 1, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
+                     class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
+                     spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
+                     stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, n_clear_probe,
+                     clear_power, clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots,
+                     n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out,
+                     hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing,
+                     ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol, vol32)

@@ -207,10 +207,11 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     variables : sequence of str, optional
         Only these of the variables below (a render needs ``cloud_transmittance``, ``terrain_shadow`` and
         ``aerosol_tau_sun``; each is a float32 field of the volume's size); default: all of them.
-    backend : {"auto", "jax", "numba"}
+    backend : {"auto", "jax", "numba", "cuda"}
         The sweep's code: JAX (:func:`_sweep`, any device) or numba (:func:`swim.rt.solar_cpu.sweep`: the sweep
         ~5x, Step 1a as a whole ~3x faster on a CPU); "auto" takes numba when JAX's default device is the CPU and
-        numba is installed, as :meth:`swim.rt.march.MarchSettings.resolved_backend` does. Both give the same optical depths to float32
+        numba is installed, as :meth:`swim.rt.march.MarchSettings.resolved_backend` does; "cuda" (the march's GPU
+        kernel) takes JAX when JAX runs on a GPU, else numba. Both give the same optical depths to float32
         round-off.
 
     Returns
@@ -229,8 +230,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     Raises
     ------
     SwimInputError
-        If ``variables`` names a variable that is not one of these, or ``backend`` is not one of the three (or is
-        "numba" without numba installed).
+        If ``variables`` names a variable that is not one of these, or ``backend`` is not one of
+        :data:`swim.rt.march.BACKENDS` (or is "numba" or "cuda" without numba installed).
 
     References
     ----------
@@ -246,6 +247,10 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     if backend not in BACKENDS:
         raise SwimInputError(f"solar_transmittance: backend must be one of {BACKENDS}, got {backend!r}")
     backend = MarchSettings(backend=backend).resolved_backend()  # "numba" without numba raises there
+    if backend == "cuda":  # the march's GPU kernel: the sweep where JAX runs, or on the host's cores
+        import jax
+
+        backend = "jax" if jax.default_backend() != "cpu" else "numba"
     sun = np.asarray(sun_direction_scene, dtype=float)
     sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
     dz = float(volume.attrs["dz"])

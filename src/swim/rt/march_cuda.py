@@ -1,0 +1,233 @@
+"""The fused per-ray march on NVIDIA GPUs: :mod:`swim.rt.march_cpu`'s step loop compiled by numba-cuda.
+
+The lockstep JAX march passes every ray's state through device memory ~20 times per step, which caps it at
+~5 frames/s at 1024² on an H100 (docs/performance.md, section 18). Here each CUDA thread marches one ray with
+its state in registers and local memory, as :func:`swim.rt.march_cpu.march_rays` does on a CPU core.
+
+There is one source: the functions of :mod:`swim.rt.march_cpu` (written for numba's CPU target) are compiled a
+second time as CUDA device functions, from their Python code, with their calls to each other resolved to the
+device versions (:func:`_device_functions`). The kernel (:func:`cuda_march_kernel`) only allocates a thread's
+work arrays and calls :func:`swim.rt.march_cpu._march_ray_range`, the CPU's loop over the rays, for the
+thread's ray. The JAX set-up before the march and the composition after it are shared with both other kernels
+(:func:`swim.rt.march.trace_rays`).
+
+It computes in float64, like the CPU kernel: an H100 or H200 does float64 at half its float32 rate, consumer
+GPUs at 1/32-1/64 of it. Without a GPU, numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``) runs the same
+kernel in Python, which is how the tests hold it to the CPU kernel on machines without one.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import logging
+import threading
+import types
+import weakref
+
+import numpy as np
+
+from ..errors import SwimInputError
+from . import march_cpu
+
+logger = logging.getLogger(__name__)
+
+#: The functions of :mod:`swim.rt.march_cpu` that the kernel calls, directly or through each other.
+DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_expm1_neg", "_round_half_even", "_clip",
+                    "_point_geometry", "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_terrain_gap",
+                    "_gap_along", "_probe_occupancy", "_adaptive_edges", "_clear_edges", "_invert_cdf",
+                    "_march_ray_range")
+#: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
+THREADS_PER_BLOCK = 128
+
+_LOCK = threading.Lock()
+
+
+def cuda_available() -> bool:
+    """Whether numba-cuda sees a GPU (or runs its simulator, ``NUMBA_ENABLE_CUDASIM=1``)."""
+    try:
+        from numba import cuda
+    except ImportError:  # pragma: no cover - numba without its CUDA target
+        return False
+    try:
+        return bool(cuda.is_available())
+    except Exception:  # noqa: BLE001 - a broken driver is "no GPU" here, with the reason in the log
+        logger.debug("numba-cuda finds no usable GPU", exc_info=True)
+        return False
+
+
+def require_cuda():
+    """Raise :class:`~swim.errors.SwimInputError` unless numba-cuda sees a GPU (or runs its simulator)."""
+    if not cuda_available():
+        raise SwimInputError("MarchSettings.backend='cuda' needs an NVIDIA GPU that numba-cuda can use "
+                             "(pip install numba-cuda; NUMBA_ENABLE_CUDASIM=1 runs its simulator instead)")
+
+
+def _max2(a, b):
+    return b if b > a else a
+
+
+def _min2(a, b):
+    return b if b < a else a
+
+
+@functools.lru_cache(maxsize=1)
+def _device_functions():
+    """The functions of :data:`DEVICE_FUNCTIONS` as CUDA device functions (name -> function).
+
+    Each is a copy of the CPU function's Python code whose globals are a copy of :mod:`swim.rt.march_cpu`'s
+    namespace in which those names are the device versions: numba resolves a function's calls from its globals
+    when it compiles it, so the device functions call each other, never the CPU dispatchers."""
+    from numba import cuda
+
+    namespace = dict(vars(march_cpu))
+    # Python's two-argument max and min as device functions (the same result: the first argument unless the
+    # second is larger, or smaller): numba's own overloads of them do not compile for its deprecated built-in
+    # CUDA target, which is what a machine without numba-cuda has for the compile check of the tests
+    namespace["max"] = cuda.jit(device=True)(_max2)
+    namespace["min"] = cuda.jit(device=True)(_min2)
+    for name in DEVICE_FUNCTIONS:
+        python = getattr(march_cpu, name).py_func
+        clone = types.FunctionType(python.__code__, namespace, name, python.__defaults__, python.__closure__)
+        namespace[name] = cuda.jit(device=True)(clone)  # compiled when the kernel that calls it is
+    return {name: namespace[name] for name in DEVICE_FUNCTIONS}
+
+
+def kernel_arguments() -> tuple:
+    """The argument names of :func:`swim.rt.march_cpu.march_rays`, which the CUDA kernel takes too."""
+    return tuple(inspect.signature(march_cpu.march_rays.py_func).parameters)
+
+
+def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels):
+    """Sizes of one ray's work arrays (as :func:`swim.rt.march_cpu.march_rays` allocates them): step edges,
+    probe densities, refinement slots, the saved state, species and volume channels."""
+    return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
+            19 + n_species, n_species, n_channels)
+
+
+@functools.lru_cache(maxsize=8)
+def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, fastmath=False):
+    """The CUDA kernel of :func:`swim.rt.march_cpu.march_rays`: one thread per ray, the work arrays of
+    :func:`work_sizes` in the thread's local memory (their sizes are compile-time constants, hence one kernel
+    per combination). It takes ``march_rays``' arguments (:func:`kernel_arguments`), the outputs as device
+    arrays, and is launched over ``ceil(n / THREADS_PER_BLOCK)`` blocks of :data:`THREADS_PER_BLOCK`."""
+    import numba
+    from numba import cuda
+
+    march_ray_range = _device_functions()["_march_ray_range"]
+    names = ", ".join(kernel_arguments())
+    # the argument list is the CPU kernel's, written once there; the body allocates and calls
+    source = (
+        f"def march_rays_cuda({names}):\n"
+        "    r = cuda.grid(1)\n"
+        "    if r < start.shape[0]:\n"
+        "        edges = cuda.local.array(N_EDGES, float64)\n"
+        "        cdf = cuda.local.array(N_CDF, float64)\n"
+        "        stack_lo = cuda.local.array(N_SLOTS, float64)\n"
+        "        stack_hi = cuda.local.array(N_SLOTS, float64)\n"
+        "        stack_depth = cuda.local.array(N_SLOTS, int64)\n"
+        "        saved = cuda.local.array(N_SAVED, float64)\n"
+        "        tc = cuda.local.array(3, float64)\n"
+        "        t_obs = cuda.local.array(3, float64)\n"
+        "        tsp = cuda.local.array(N_SPECIES, float64)\n"
+        "        lc = cuda.local.array(3, float64)\n"
+        "        ing = cuda.local.array(3, float64)\n"
+        "        ig = cuda.local.array(3, float64)\n"
+        "        beta_r = cuda.local.array(3, float64)\n"
+        "        beta_a = cuda.local.array(3, float64)\n"
+        "        beta_s = cuda.local.array(3, float64)\n"
+        "        t_sun = cuda.local.array(3, float64)\n"
+        "        diffuse = cuda.local.array(3, float64)\n"
+        "        vol = cuda.local.array(N_CHANNELS, float64)\n"
+        "        vol32 = cuda.local.array(N_CHANNELS, float32)\n"
+        f"        march_ray_range(r, r + 1, 1, {names}, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tc, t_obs,\n"
+        "                        tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol, vol32)\n"
+    )
+    namespace = {"cuda": cuda, "float64": numba.float64, "float32": numba.float32, "int64": numba.int64,
+                 "march_ray_range": march_ray_range, "N_EDGES": n_edges, "N_CDF": n_cdf, "N_SLOTS": n_slots,
+                 "N_SAVED": n_saved, "N_SPECIES": n_species, "N_CHANNELS": n_channels}
+    exec(compile(source, f"<swim.rt.march_cuda kernel {n_edges}/{n_cdf}/{n_slots}/{n_channels}>", "exec"), namespace)
+    return cuda.jit(fastmath=fastmath)(namespace["march_rays_cuda"])
+
+
+#: Device copies of the last tables (:func:`device_tables`): "entry" -> {name: (identity of the host buffer, weak
+#: reference to its owner, device copy)}.
+_TABLE_COPIES = {}
+
+
+def _buffer_identity(a):
+    """What identifies a host array's values for :func:`device_tables`: its memory, shape, type and strides (every
+    render makes new read-only views of the same kernel constants, so the view itself cannot be the key)."""
+    return a.__array_interface__["data"][0], a.shape, a.dtype.str, a.strides
+
+
+def _owner(a):
+    """The array that owns ``a``'s memory (the end of its chain of bases)."""
+    while isinstance(a, np.ndarray) and a.base is not None:
+        a = a.base
+    return a
+
+
+def device_tables(tables):
+    """The arrays of ``tables`` (:func:`swim.rt.march._numba_tables`) copied to the GPU once per host buffer and
+    kept while its owner lives (a render's chunks and the renders of one scene and sun share them, as the
+    packed volume's one transfer); scalars as they are. Only the last set is kept, so a new sun or scene frees
+    the old copies, and an owner that is gone (or whose memory now holds another array) is copied anew."""
+    from numba import cuda
+
+    out = dict(tables)
+    with _LOCK:
+        entry = _TABLE_COPIES.setdefault("entry", {})
+        for key, value in tables.items():
+            if not isinstance(value, np.ndarray):
+                continue
+            identity, owner = _buffer_identity(value), _owner(value)
+            cached = entry.get(key)
+            if cached is None or cached[0] != identity or cached[1]() is not owner:
+                entry.pop(key, None)  # the old copy leaves the device before the new one arrives
+                try:
+                    ref = weakref.ref(owner)
+                except TypeError:  # an owner without weak references (a capsule): held while cached
+                    ref = lambda owner=owner: owner  # noqa: E731
+                cached = entry[key] = (identity, ref, cuda.to_device(np.ascontiguousarray(value)))
+            out[key] = cached[2]
+    return out
+
+
+def march_rays(*args, stream=None):
+    """:func:`swim.rt.march_cpu.march_rays` on the GPU: the same arguments (numpy arrays, or device arrays for
+    the tables), the outputs written into the host arrays given, as there.
+
+    Raises
+    ------
+    SwimInputError
+        If numba-cuda finds no GPU.
+    """
+    from numba import cuda
+
+    require_cuda()
+    names = kernel_arguments()
+    values = dict(zip(names, args))
+    n = values["start"].shape[0]
+    if n == 0:
+        return
+    sizes = work_sizes(values["n_before"], values["n_grid"], values["n_after"], values["n_probe"],
+                       values["n_probe_max"], values["n_clear_probe"], values["refine_slots"],
+                       values["tau_species"].shape[1], values["volume"].shape[3])
+    kernel = cuda_march_kernel(*sizes)
+    outputs = ("tau_clear", "tau_h", "tau_species", "l_clear", "i_nogas", "i_gas", "i_cloud_t", "alive_out", "hit_out",
+               "s_hit_out")
+    device = {}
+    for name in names:
+        value = values[name]
+        if isinstance(value, np.ndarray):
+            value = cuda.to_device(np.ascontiguousarray(value), stream=stream) if name not in outputs else \
+                cuda.device_array(value.shape, value.dtype, stream=stream)
+        device[name] = value
+    blocks = -(-n // THREADS_PER_BLOCK)
+    launch = kernel[blocks, THREADS_PER_BLOCK, stream] if stream is not None else kernel[blocks, THREADS_PER_BLOCK]
+    launch(*(device[name] for name in names))
+    for name in outputs:
+        device[name].copy_to_host(values[name], stream=stream)
+    if stream is not None:
+        stream.synchronize()
