@@ -60,7 +60,8 @@ def require_cuda():
     """Raise :class:`~swim.errors.SwimInputError` unless numba-cuda sees a GPU (or runs its simulator)."""
     if not cuda_available():
         raise SwimInputError("MarchSettings.backend='cuda' needs an NVIDIA GPU that numba-cuda can use "
-                             "(pip install numba-cuda; NUMBA_ENABLE_CUDASIM=1 runs its simulator instead)")
+                             "(pip install 'swim-imagery[cuda]', i.e. numba-cuda; NUMBA_ENABLE_CUDASIM=1 runs its "
+                             "simulator instead)")
 
 
 def _max2(a, b):
