@@ -195,9 +195,10 @@ def device_tables(tables):
     return out
 
 
-def march_rays(*args, stream=None):
+def march_rays(*args):
     """:func:`swim.rt.march_cpu.march_rays` on the GPU: the same arguments (numpy arrays, or device arrays for
-    the tables), the outputs written into the host arrays given, as there.
+    the tables), the outputs written into the host arrays given, as there (on the default stream: the copies
+    back wait for the kernel).
 
     Raises
     ------
@@ -222,13 +223,10 @@ def march_rays(*args, stream=None):
     for name in names:
         value = values[name]
         if isinstance(value, np.ndarray):
-            value = cuda.to_device(np.ascontiguousarray(value), stream=stream) if name not in outputs else \
-                cuda.device_array(value.shape, value.dtype, stream=stream)
+            value = cuda.to_device(np.ascontiguousarray(value)) if name not in outputs else \
+                cuda.device_array(value.shape, value.dtype)
         device[name] = value
     blocks = -(-n // THREADS_PER_BLOCK)
-    launch = kernel[blocks, THREADS_PER_BLOCK, stream] if stream is not None else kernel[blocks, THREADS_PER_BLOCK]
-    launch(*(device[name] for name in names))
+    kernel[blocks, THREADS_PER_BLOCK](*(device[name] for name in names))
     for name in outputs:
-        device[name].copy_to_host(values[name], stream=stream)
-    if stream is not None:
-        stream.synchronize()
+        device[name].copy_to_host(values[name])
