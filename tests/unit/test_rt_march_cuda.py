@@ -124,10 +124,12 @@ _TABLES = """
     from swim.rt import march_cuda
 
     volume = np.arange(24, dtype=np.float32).reshape(2, 3, 4)
+    occupancy = np.ones((2, 3, 4), np.uint8)
     def tables(v):
-        view = v.view()
-        view.flags.writeable = False  # as swim.rt.march._numba_tables makes them, anew for every render
-        return {"volume": view, "n_class": 3}
+        views = {"volume": v.view(), "occupancy": occupancy.view()}
+        for view in views.values():
+            view.flags.writeable = False  # as swim.rt.march._numba_tables makes them, anew for every render
+        return {**views, "n_class": 3}
     first, again = march_cuda.device_tables(tables(volume)), march_cuda.device_tables(tables(volume))
     assert again["volume"] is first["volume"] and again["n_class"] == 3  # one transfer per host buffer
     np.testing.assert_array_equal(again["volume"].copy_to_host(), volume)

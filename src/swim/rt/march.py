@@ -1396,6 +1396,10 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
     if backend in ("numba", "cuda"):
         tables = _numba_tables(consts)
+        if backend == "cuda":
+            from .march_cuda import device_tables
+
+            tables = device_tables(tables)
         # the JAX set-up and composition never read the host arrays (a jitted call would copy them every time)
         consts = {key: value for key, value in consts.items() if key not in HOST_CONSTANTS}
     else:
@@ -1465,32 +1469,53 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     return outputs
 
 
-#: Device copies of the last kernel constants' host arrays (:func:`_device_constants`): "entry" -> (weak
-#: references to the host arrays, their device copies, the token of the host's finalizer).
+#: Device copies of the last kernel constants' host arrays for the JAX kernel (:func:`_device_constants`,
+#: :func:`device_copies`).
 _DEVICE_COPIES = {}
 
 
 def _device_constants(consts):
-    """``consts`` with the arrays of :data:`HOST_CONSTANTS` as device arrays, for the JAX kernel. The copies are
-    made once per host array and kept while it lives (a render's chunks, and the renders of one scene and sun,
-    share them; on a GPU this is the volume's one transfer); they are dropped with the host array, so a new sun
-    or a cleared stage cache never keeps an old volume on the device."""
-    hosts = [consts[key] for key in HOST_CONSTANTS]
-    entry = _DEVICE_COPIES.get("entry")
-    if entry is None or any(ref() is not host for ref, host in zip(entry[0], hosts)):
-        _DEVICE_COPIES.clear()  # the previous copies go before the new ones are made
+    """``consts`` with the arrays of :data:`HOST_CONSTANTS` as JAX device arrays, for the JAX kernel
+    (:func:`device_copies`: on a GPU the volume's one transfer)."""
+    return {**consts, **device_copies({key: consts[key] for key in HOST_CONSTANTS}, jnp.asarray, _DEVICE_COPIES)}
+
+
+def device_copies(hosts, transfer, cache):
+    """Device copies ``transfer(array)`` of the host arrays ``hosts`` (name -> numpy array), made once and kept in
+    ``cache`` while the arrays that own the hosts' memory live: a render's chunks, and the renders of one scene and
+    sun, share them (a render may hand over new views of the same arrays). Only the last set is kept: the previous
+    copies go before new ones are made, and they are dropped with their host arrays, so a new sun or a cleared
+    stage cache never keeps an old volume on the device. Serves the JAX kernel (:func:`_device_constants`) and the
+    CUDA one (:func:`swim.rt.march_cuda.device_tables`)."""
+    owners = [_owner(a) for a in hosts.values()]
+    identities = [_buffer_identity(a) for a in hosts.values()]
+    entry = cache.get("entry")
+    if entry is None or entry[3] != identities or any(ref() is not owner for ref, owner in zip(entry[0], owners)):
+        cache.clear()  # the previous copies go before the new ones are made
         token = object()  # what the finalizer holds: not the copies, which must not outlive the entry
-        entry = ([weakref.ref(host) for host in hosts], {key: jnp.asarray(consts[key]) for key in HOST_CONSTANTS},
-                 token)
-        _DEVICE_COPIES["entry"] = entry
-        weakref.finalize(hosts[0], _forget_device_copies, token)
-    return {**consts, **entry[1]}
+        entry = ([weakref.ref(owner) for owner in owners], {key: transfer(a) for key, a in hosts.items()}, token,
+                 identities)
+        cache["entry"] = entry
+        weakref.finalize(owners[0], _forget_device_copies, cache, token)
+    return entry[1]
 
 
-def _forget_device_copies(token):
-    entry = _DEVICE_COPIES.get("entry")
+def _forget_device_copies(cache, token):
+    entry = cache.get("entry")
     if entry is not None and entry[2] is token:
-        _DEVICE_COPIES.clear()
+        cache.clear()
+
+
+def _owner(a):
+    """The array that owns ``a``'s memory (the end of its chain of bases)."""
+    while isinstance(a, np.ndarray) and a.base is not None:
+        a = a.base
+    return a
+
+
+def _buffer_identity(a):
+    """A host array's memory, shape, type and strides: with its owner, what identifies the values of a view."""
+    return a.__array_interface__["data"][0], a.shape, a.dtype.str, a.strides
 
 
 def threads() -> int:
@@ -1563,7 +1588,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     if kernel == "cuda":
         from . import march_cuda
 
-        march, tables = march_cuda.march_rays, march_cuda.device_tables(tables)
+        march = march_cuda.march_rays  # its tables already on the device (march_cuda.device_tables)
     aerosol_class, ms = jax.device_get(_prepare_chunk(start, direction, bounds, consts, settings))
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.

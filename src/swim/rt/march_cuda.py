@@ -21,9 +21,7 @@ from __future__ import annotations
 import functools
 import inspect
 import logging
-import threading
 import types
-import weakref
 
 import numpy as np
 
@@ -39,8 +37,6 @@ DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_expm1_ne
                     "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
-
-_LOCK = threading.Lock()
 
 
 def cuda_available() -> bool:
@@ -151,48 +147,22 @@ def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, f
     return cuda.jit(fastmath=fastmath)(namespace["march_rays_cuda"])
 
 
-#: Device copies of the last tables (:func:`device_tables`): "entry" -> {name: (identity of the host buffer, weak
-#: reference to its owner, device copy)}.
+#: Device copies of the last tables' big arrays (:func:`device_tables`, :func:`swim.rt.march.device_copies`).
 _TABLE_COPIES = {}
 
 
-def _buffer_identity(a):
-    """What identifies a host array's values for :func:`device_tables`: its memory, shape, type and strides (every
-    render makes new read-only views of the same kernel constants, so the view itself cannot be the key)."""
-    return a.__array_interface__["data"][0], a.shape, a.dtype.str, a.strides
-
-
-def _owner(a):
-    """The array that owns ``a``'s memory (the end of its chain of bases)."""
-    while isinstance(a, np.ndarray) and a.base is not None:
-        a = a.base
-    return a
-
-
 def device_tables(tables):
-    """The arrays of ``tables`` (:func:`swim.rt.march._numba_tables`) copied to the GPU once per host buffer and
-    kept while its owner lives (a render's chunks and the renders of one scene and sun share them, as the
-    packed volume's one transfer); scalars as they are. Only the last set is kept, so a new sun or scene frees
-    the old copies, and an owner that is gone (or whose memory now holds another array) is copied anew."""
+    """``tables`` (:func:`swim.rt.march._numba_tables`) with the arrays of :data:`swim.rt.march.HOST_CONSTANTS`
+    (the packed volume and the occupancy grid) on the GPU, copied once per host array
+    (:func:`swim.rt.march.device_copies`); the kernel's launches copy the small tables with the rays."""
     from numba import cuda
 
-    out = dict(tables)
-    with _LOCK:
-        entry = _TABLE_COPIES.setdefault("entry", {})
-        for key, value in tables.items():
-            if not isinstance(value, np.ndarray):
-                continue
-            identity, owner = _buffer_identity(value), _owner(value)
-            cached = entry.get(key)
-            if cached is None or cached[0] != identity or cached[1]() is not owner:
-                entry.pop(key, None)  # the old copy leaves the device before the new one arrives
-                try:
-                    ref = weakref.ref(owner)
-                except TypeError:  # an owner without weak references (a capsule): held while cached
-                    ref = lambda owner=owner: owner  # noqa: E731
-                cached = entry[key] = (identity, ref, cuda.to_device(np.ascontiguousarray(value)))
-            out[key] = cached[2]
-    return out
+    from .march import HOST_CONSTANTS, device_copies
+
+    def transfer(a):
+        return cuda.to_device(np.ascontiguousarray(a))
+
+    return {**tables, **device_copies({key: tables[key] for key in HOST_CONSTANTS}, transfer, _TABLE_COPIES)}
 
 
 def march_rays(*args):
