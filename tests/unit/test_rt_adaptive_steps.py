@@ -8,23 +8,27 @@ from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
 from swim.rt.gas import AerosolBackground, build_gas_tables
 from swim.rt.march import (
+    EMPTY_CELLS_PER_STEP,
     EMPTY_STEP_WEIGHT,
+    MarchSettings,
     adaptive_step_edges,
     grid_geometry,
+    grid_step_edges,
     kernel_constants,
     occupancy_grid,
+    probe_counts_and_cells,
     ray_segments,
 )
 from swim.rt.solar import solar_transmittance
 
 
-def _scene(terrain_peak=0.0, aerosol=False):
+def _scene(terrain_peak=0.0, aerosol=False, cloud=True):
     n, spacing = 16, 500.0
     x = (np.arange(n) - n / 2 + 0.5) * spacing
     z = np.arange(0.0, 8000.0, 250.0) + 125.0
     zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
     # one cloud slab between 3 and 4 km over the whole domain
-    liquid = np.where((zz > 3000) & (zz < 4000), 3e-4, 0.0)
+    liquid = np.where((zz > 3000) & (zz < 4000) & cloud, 3e-4, 0.0)
     terrain = terrain_peak * np.exp(-((xx[0] / 1500) ** 2 + (yy[0] / 1500) ** 2))
     aer = 2e-4 * (xx > 0) * np.exp(-zz / 1500.0) if aerosol else None
     return scene_from_arrays(x=x, y=x, z=z, reference_lat=40.0, reference_lon=-100.0, terrain_height=terrain,
@@ -86,3 +90,82 @@ def test_adaptive_edges_span_the_segment_and_concentrate_in_the_cloud():
     assert in_cloud.sum() > 2.5 * uniform, "the cloud must get several times the steps of a uniform march"
     ratio = np.median(ds[clear]) / np.median(ds[in_cloud])
     assert 0.7 / EMPTY_STEP_WEIGHT < ratio < 1.3 / EMPTY_STEP_WEIGHT
+
+
+def _rays(scene, dirs):
+    volume = build_optical_volume(scene)
+    sun = np.array([0.0, 0.0, 1.0])
+    consts = kernel_constants(volume, solar_transmittance(volume, sun), build_gas_tables(AerosolBackground()), sun)
+    origins = np.array([[0.0, 0.0, EARTH_RADIUS_M + 10.0]] * len(dirs))
+    seg = ray_segments(origins, np.asarray(dirs, float), grid_geometry(volume), top=float(consts["top"]))
+    start, direction = jnp.asarray(seg["start"], jnp.float32), jnp.asarray(dirs, jnp.float32)
+    bounds = jnp.asarray(seg["bounds"], jnp.float32)
+    return consts, (start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0])
+
+
+def test_empty_steps_thin_out_the_steps_in_empty_space():
+    """grid_step_edges: a ray through an empty grid takes max(empty_steps, cells / EMPTY_CELLS_PER_STEP) equal steps;
+    a ray through the cloud slab keeps the step length of adaptive_step_edges inside the cloud and takes that
+    many steps in empty space, fewer in all."""
+    n_steps = 64
+    dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]
+    consts, args = _rays(_scene(cloud=False), dirs)
+    cells = np.asarray(probe_counts_and_cells(*args, consts)[1])
+    assert 28 < cells[0] < 33, "a vertical ray from 10 m crosses the grid's 32 levels"
+    for empty_steps in (4, 24):
+        edges, steps = (np.asarray(a) for a in grid_step_edges(*args, n_steps, consts, empty_steps=empty_steps))
+        expected = np.ceil(np.maximum(empty_steps, cells / EMPTY_CELLS_PER_STEP))
+        np.testing.assert_array_equal(steps, expected)
+        for r, count in enumerate(steps):
+            ds = np.diff(edges[: count + 1, r])
+            np.testing.assert_allclose(ds, ds.mean(), rtol=1e-3)  # equal steps: nothing to concentrate them on
+            np.testing.assert_allclose(edges[count:, r], float(args[2][r] + args[3][r]), rtol=1e-6)
+
+    consts, args = _rays(_scene(), dirs)
+    full = np.asarray(adaptive_step_edges(*args, n_steps, consts))
+    edges, steps = (np.asarray(a) for a in grid_step_edges(*args, n_steps, consts, empty_steps=8))
+    assert np.all(steps < n_steps)
+    for r, count in enumerate(steps):
+        ray = edges[: count + 1, r]
+        assert np.all(np.diff(ray) > 0)
+        np.testing.assert_allclose([ray[0], ray[-1]], [full[0, r], full[-1, r]], rtol=1e-6, atol=1e-3)
+        mid, ds = 0.5 * (ray[1:] + ray[:-1]) * dirs[r][2], np.diff(ray)
+        mid_full, ds_full = 0.5 * (full[1:, r] + full[:-1, r]) * dirs[r][2], np.diff(full[:, r])
+        in_cloud, in_cloud_full = (mid > 3100) & (mid < 3900), (mid_full > 3100) & (mid_full < 3900)
+        np.testing.assert_allclose(np.median(ds[in_cloud]), np.median(ds_full[in_cloud_full]), rtol=1e-3)
+        # in clear air: fewer, longer steps (the empty intervals get max(8, ~13 empty cells / 2) steps, not ~22)
+        clear, clear_full = (mid < 2000) | (mid > 5500), (mid_full < 2000) | (mid_full > 5500)
+        assert clear.sum() < 0.75 * clear_full.sum()
+        assert np.median(ds[clear]) > 1.4 * np.median(ds_full[clear_full])
+
+
+def test_empty_steps_setting():
+    assert MarchSettings().resolved_empty_steps() == MarchSettings().n_grid // 4
+    assert MarchSettings(n_grid=512).resolved_empty_steps() == 128
+    assert MarchSettings(empty_steps=0).resolved_empty_steps() == 0
+    assert MarchSettings(empty_steps=7).resolved_empty_steps() == 7
+
+
+def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
+    """swim.rt.march_cpu._adaptive_edges (the per-ray kernel's, also the CUDA kernel's) against grid_step_edges:
+    the same step counts and edges, with and without a limit on the empty steps, through clear and cloudy grids."""
+    from swim.rt import march_cpu
+    from swim.rt.march import CELL_SLACK, MAX_PROBES
+
+    dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.8, 0.3, 0.52], [0.0, 0.0, -1.0]]
+    for cloud in (False, True):
+        consts, args = _rays(_scene(cloud=cloud), dirs)
+        start, direction, s0, length = (np.asarray(a, float) for a in args)
+        p, coef = march_cpu.pack_parameters(consts)
+        occupancy = np.asarray(consts["occupancy"])
+        for empty_steps in (0, 4, 16):
+            edges, steps = (np.asarray(a) for a in grid_step_edges(*args, 64, consts, empty_steps=empty_steps))
+            for r in range(len(dirs)):
+                out, cdf = np.empty(65), np.empty(MAX_PROBES + 1)
+                count = march_cpu._adaptive_edges(*start[r], *direction[r], s0[r], length[r], 64, p, coef, occupancy, 64,
+                                                  EMPTY_STEP_WEIGHT, 0.0, CELL_SLACK, empty_steps,
+                                                  EMPTY_CELLS_PER_STEP, cdf, out)
+                assert count == steps[r], (cloud, empty_steps, r)
+                np.testing.assert_allclose(out[: count + 1], edges[: count + 1, r], rtol=0, atol=1e-4 * max(length[r], 1.0))
+            if empty_steps == 4:
+                assert np.all(steps[:3] < 64), "rays through the grid must take fewer steps"

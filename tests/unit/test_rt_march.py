@@ -100,13 +100,15 @@ def _plane_parallel_single_scattering(tau, mu0, mu, phase):
     return phase * mu0 / (mu0 - mu) * (np.exp(-tau / mu0) - np.exp(-tau / mu))
 
 
+@pytest.mark.parametrize("n_grid", [400, 128], ids=["fine", "default grid steps"])
 @pytest.mark.parametrize("sun_zenith", [30.0, 60.0])
-def test_clear_sky_matches_plane_parallel_single_scattering(sun_zenith):
+def test_clear_sky_matches_plane_parallel_single_scattering(sun_zenith, n_grid):
     """Pure Rayleigh sky: zenith radiance against the analytic single-scattering solution.
 
     An exponential atmosphere and a homogeneous layer give the same single-scattering radiance at the
     bottom for a view and sun not too far from the zenith (the integrand depends on the optical depth
-    above the scattering point only); the spherical earth changes it by < 0.5 % at these angles.
+    above the scattering point only); the spherical earth changes it by < 0.5 % at these angles. The grid is
+    empty along these rays, so they take only MarchSettings.empty_steps grid steps (100 and 32).
     """
     scene = _tiny_scene().copy()
     for name in ("cloud_liquid_content", "cloud_ice_content"):
@@ -115,7 +117,7 @@ def test_clear_sky_matches_plane_parallel_single_scattering(sun_zenith):
     view = np.array([[0.0, 0.0, 1.0], enu_from_azimuth_zenith(0.0, 20.0)])
     origins = np.array([[1500.0, -1500.0, EARTH_RADIUS_M + 1.0]] * 2)  # 1 m above sea level, away from the hill
     out, (_, _, gas, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(aod_550=0.0),
-                                     settings=MarchSettings(n_grid=400, n_after=200, multiple_scattering=False))
+                                     settings=MarchSettings(n_grid=n_grid, n_after=200, multiple_scattering=False))
     tau = np.trapezoid(gas.beta_rayleigh, dx=gas.dh, axis=0)  # column optical depth per wavelength
     for n in range(2):
         mu = view[n, 2]
@@ -180,7 +182,7 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
     assert np.all(layer["radiance_clear"][0] > base["radiance_clear"][0] * 1.1)
 
 
-@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("chunk", True), ("chunk", 4096.0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0),
+@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("chunk", True), ("chunk", 4096.0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0), ("empty_steps", -1), ("empty_steps", 2.5),
                                           ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2"),
                                           ("probe_spacing", 1e-20), ("tau_refine", -0.5), ("tau_refine", float("inf"))])
 def test_march_settings_reject_bad_counts(field, value):
@@ -202,7 +204,8 @@ def _random_rays(n, seed=0):
 
 
 @pytest.mark.parametrize("case", ["plume, multiple scattering", "no plume, single scattering, lambertian",
-                                  "plume, 8 probes", "plume, 4 probes, one per cell crossed"])
+                                  "plume, 8 probes", "plume, 4 probes, one per cell crossed",
+                                  "plume, at most 4 empty steps"])
 def test_numba_march_matches_the_jax_march(case):
     """The fused per-ray CPU march (swim.rt.march_cpu) is the JAX kernel's step loop written again: both
     must give the same pixels, to float32 round-off, for rays that cross cloud, the plume, the terrain (hits
@@ -215,6 +218,10 @@ def test_numba_march_matches_the_jax_march(case):
         # rays across more than 4 cells take their own probe counts: per ray (numba), by a per-chunk maximum of
         # padded probes (JAX); both must place the same steps (test_probe_spacing_follows_the_cells_crossed)
         extra = {"n_probe": 4, "probe_spacing": 1.0}
+    if case.endswith("empty steps"):
+        # few steps in empty space, more for rays across many empty cells: per ray in both kernels
+        # (test_empty_steps_thin_out_the_steps_in_empty_space)
+        extra = {"empty_steps": 4, "n_probe": 16}
     origins, dirs = _random_rays(600)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)

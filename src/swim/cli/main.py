@@ -64,6 +64,10 @@ def render(
                                                              "4 above 100 km)."),
     steps: Optional[int] = typer.Option(None, help="Ray-marching steps through the model grid (default: "
                                                     "MarchSettings().n_grid, 128 adaptive steps)."),
+    empty_steps: Optional[int] = typer.Option(None, "--empty-steps",
+                                              help="Most grid steps a ray puts into empty grid cells, or one per 2 "
+                                                   "empty cells where it crosses more (default: a quarter of "
+                                                   "--steps, 32; 0: every ray takes --steps steps)."),
     probes: Optional[int] = typer.Option(None, help="Occupancy probes per ray, at least, that place the grid steps "
                                                      "(default: MarchSettings().n_probe, 64; 256 with --steps 256 for "
                                                      "views that graze a big grid near the horizon)."),
@@ -157,6 +161,7 @@ def render(
                 sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                 settings=MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps}),
                                        **({} if probes is None else {"n_probe": probes}),
+                                       **({} if empty_steps is None else {"empty_steps": empty_steps}),
                                        **({} if probe_spacing is None else {"probe_spacing": probe_spacing}),
                                        **({} if tau_refine is None else {"tau_refine": tau_refine})),
                 white_level=white_level, sampling=sampling,

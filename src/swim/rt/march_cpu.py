@@ -182,10 +182,12 @@ def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
 @njit(**_JIT)
 def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf):
     """Probe the occupancy at n_probe equal intervals of a grid segment: the unnormalised cumulative step density
-    in ``cdf[:n_probe + 1]``; returns the segment's length in cells (:func:`swim.rt.march.probe_counts`)."""
+    in ``cdf[:n_probe + 1]``; returns the segment's length in cells (:func:`swim.rt.march.probe_counts_and_cells`)
+    and the number of occupied probes."""
     nk, ny, nx = occupancy.shape
     cdf[0] = 0.0
     cells = 0.0
+    occupied = 0
     kp = jp = ip = 0.0
     for m in range(n_probe):
         s = s0 + (m + 0.5) / n_probe * length
@@ -196,25 +198,47 @@ def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, 
         kk = int(_clip(_round_half_even(k), 0.0, nk - 1.0))
         jj = int(_clip(_round_half_even(j), 0.0, ny - 1.0))
         ii = int(_clip(_round_half_even(i), 0.0, nx - 1.0))
-        cdf[m + 1] = cdf[m] + (1.0 if occupancy[kk, jj, ii] > 0 else empty_weight)
+        if occupancy[kk, jj, ii] > 0:
+            occupied += 1
+            cdf[m + 1] = cdf[m] + 1.0
+        else:
+            cdf[m + 1] = cdf[m] + empty_weight
     if n_probe > 1:
         cells *= n_probe / (n_probe - 1.0)
-    return cells
+    return cells, occupied
 
 
 @njit(**_JIT)
 def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight,
-                    probe_spacing, cell_slack, cdf, edges):
-    """:func:`swim.rt.march.adaptive_step_edges` for one ray, written into ``edges`` (n_steps + 1,), with the
-    probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
+                    probe_spacing, cell_slack, empty_steps, empty_cells_per_step, cdf, edges):
+    """:func:`swim.rt.march.grid_step_edges` for one ray, written into ``edges`` (steps + 1,); returns its number
+    of steps. With the probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
     probe_spacing`` cells is probed again, once per ``probe_spacing`` cells (at most ``cdf.size - 1`` probes)."""
-    cells = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf)
+    cells, occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe,
+                                       empty_weight, cdf)
     # clamped before the conversion to an integer (a tiny spacing would overflow it)
     need = min(math.ceil(cells / probe_spacing - cell_slack), cdf.shape[0] - 1.0) if probe_spacing > 0 else 0.0
     if need > n_probe:
         n_probe = int(need)
-        _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf)
+        _, occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe,
+                                       empty_weight, cdf)
+    # empty-space skipping: the empty intervals get at most max(empty_steps, empty cells / empty_cells_per_step)
+    # steps, the occupied ones keep their density (and the ray takes fewer steps in all)
+    empty = n_probe - occupied
+    if empty_steps > 0 and empty > 0:
+        total = occupied + empty_weight * empty
+        budget = max(float(empty_steps), cells * empty / (n_probe * empty_cells_per_step))
+        if n_steps * empty_weight * empty / total > budget:
+            fewer = min(math.ceil(n_steps * occupied / total + budget), float(n_steps))
+            weight = (fewer * total / n_steps - occupied) / empty
+            below = cdf[0]  # the cumulative density again, with the empty intervals' new weight
+            for m in range(n_probe):
+                occupied_here = cdf[m + 1] - below > 0.5 * (1.0 + empty_weight)
+                below = cdf[m + 1]
+                cdf[m + 1] = cdf[m] + (1.0 if occupied_here else weight)
+            n_steps = int(fewer)
     _invert_cdf(s0, length, n_steps, n_probe, cdf, edges)
+    return n_steps
 
 
 @njit(**_JIT)
@@ -261,11 +285,12 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
 def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
-                     stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, n_clear_probe,
-                     clear_power, clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots,
-                     n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out,
-                     hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing,
-                     ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol, vol32):
+                     stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
+                     empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
+                     refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
+                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi,
+                     stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol,
+                     vol32):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
     once: one code for the CPU's loop over all rays (one call) and a GPU thread's ray
     (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
@@ -312,8 +337,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             if n_steps == 0:
                 continue
             if in_grid:
-                _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
-                                empty_weight, probe_spacing, cell_slack, cdf, edges)
+                n_steps = _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
+                                          empty_weight, probe_spacing, cell_slack, empty_steps, empty_cells_per_step,
+                                          cdf, edges)
             else:
                 _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra,
                              n_clear_probe, clear_power, clear_floor, cdf, edges)
@@ -530,9 +556,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
-               probe_spacing, n_probe_max, cell_slack, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
-               refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
-               i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out):
+               probe_spacing, n_probe_max, cell_slack, empty_steps, empty_cells_per_step, n_clear_probe, clear_power,
+               clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, tau_clear,
+               tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
@@ -542,7 +568,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     placed by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^``clear_power``
     plus ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges`
     from ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that
-    cross more, less ``cell_slack``) and the clear air after it (``n_after`` steps placed as ``n_before``'s),
+    cross more, less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in
+    its empty intervals, :func:`swim.rt.march.grid_step_edges`; 0: no limit) and the clear air after it (``n_after`` steps placed as ``n_before``'s),
     then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical depth is below
     ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before it, times
     its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the previous
@@ -590,8 +617,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     _march_ray_range(0, start.shape[0], 1, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
-                     stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, n_clear_probe,
-                     clear_power, clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots,
-                     n_bisections, tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out,
-                     hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing,
-                     ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol, vol32)
+                     stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
+                     empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
+                     refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
+                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi,
+                     stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol,
+                     vol32)
