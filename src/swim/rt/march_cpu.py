@@ -227,7 +227,9 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     empty = n_probe - occupied
     if empty_steps > 0 and empty > 0:
         total = occupied + empty_weight * empty
-        budget = max(float(empty_steps), cells * empty / (n_probe * empty_cells_per_step))
+        # less cell_slack: whole numbers of cells (rays along a grid axis) must not round the count up in float64
+        # here and not in float32 in the JAX kernel
+        budget = max(float(empty_steps), cells * empty / (n_probe * empty_cells_per_step) - cell_slack)
         if n_steps * empty_weight * empty / total > budget:
             fewer = min(math.ceil(n_steps * occupied / total + budget), float(n_steps))
             weight = (fewer * total / n_steps - occupied) / empty
