@@ -3,8 +3,8 @@
 Each pixel's ray is marched once, from where it enters the atmosphere (or the observer) to where it
 leaves the atmosphere (100 km) or meets the ground, in three segments with fixed step counts: clear air
 before the model grid, the grid (its steps concentrated where there are hydrometeors, raised terrain or
-aerosol gradients, and few where there is nothing: :func:`grid_step_edges`), and clear air after it (the clear air's steps dense where the
-air is: :func:`clear_step_edges`). Along the way the kernel accumulates
+aerosol gradients, and few where there is nothing: :func:`grid_step_edges`), and clear air after it (the clear
+air's steps dense where the air is: :func:`clear_step_edges`). Along the way the kernel accumulates
 
 * the clear-sky radiance of the gas and the aerosol: single scattering (Step 2, Eq. 3), lit by the sun
   through the spherical atmosphere (tabulated, :mod:`swim.rt.gas`) and through the clouds (T of Step 1a,
@@ -1703,8 +1703,9 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
-        CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH,
-        REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS, TERRAIN_BISECTIONS, *out)
+        CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
+        CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
+        TERRAIN_BISECTIONS, *out)
     for key, value in state.items():
         value[n:] = value[n - 1]
         if value.dtype != bool:
