@@ -86,7 +86,9 @@ def compare(
         write_json,
     )
     from ..geometry.fisheye import FisheyeCameraModel
+    from .main import modules_loaded
 
+    modules_loaded()
     err = Console(stderr=True)
     out = Console()
     try:

@@ -62,7 +62,9 @@ def ghi(
 
     from ..diagnostics.ghi import (aerosol_for_site, attach_observations, clear_site_scene, error_statistics,
                                    ghi_time_series, plot_ghi, pvlib_clear_sky, site_aod_550, time_range, write_csv)
+    from .main import modules_loaded
 
+    modules_loaded()
     try:
         if plot is not None:
             from ..diagnostics.ghi import matplotlib_pyplot

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import logging
 from enum import Enum
 from pathlib import Path
@@ -25,6 +26,39 @@ class CameraKind(str, Enum):
     allsky = "allsky"
     panorama = "panorama"
     perspective = "perspective"
+
+
+#: Whether :func:`run` paused the cyclic garbage collector for the command's imports (see :func:`run`).
+_GC_PAUSED = False
+
+
+def run() -> None:
+    """The ``swim`` console command: :data:`app` in a process of its own (``[project.scripts]``).
+
+    A command loads JAX, numba, xarray, pandas and colour-science, millions of long-lived objects, and Python's
+    cyclic garbage collector traverses them again and again while they load and once more, all of them, as the
+    interpreter exits (~0.7 s after the README's render had written its picture). The collector is therefore
+    paused until the command's modules are loaded (:func:`modules_loaded`), which then freezes them (the
+    collector no longer visits them; they live as long as the process anyway), and everything is frozen before
+    the interpreter exits. Together 1.2-1.5 s of the README's render (docs/performance.md, 24.). Tests call
+    :data:`app` in their own process and keep the collector as it is.
+    """
+    global _GC_PAUSED
+    _GC_PAUSED = gc.isenabled()
+    gc.disable()
+    try:
+        app()
+    finally:
+        gc.freeze()
+
+
+def modules_loaded() -> None:
+    """Freeze what the command's imports created and let the collector run again (when :func:`run` paused it)."""
+    global _GC_PAUSED
+    if _GC_PAUSED:
+        _GC_PAUSED = False
+        gc.freeze()
+        gc.enable()
 
 
 @app.callback()
@@ -109,6 +143,7 @@ def render(
     from ..rt.image_sampling import AdaptiveSampling
     from ..rt.march import MarchSettings
 
+    modules_loaded()
     try:
         place = {}
         if scene_lat is not None or scene_lon is not None:
@@ -190,4 +225,7 @@ _register_diagnostics()
 
 
 if __name__ == "__main__":  # pragma: no cover
-    app()
+    # the package's module, not this __main__ copy: the commands' modules_loaded() reads its _GC_PAUSED
+    from swim.cli.main import run as _run
+
+    _run()

@@ -134,6 +134,11 @@ def transmittance_delta_eddington(tau_s, b_tau_s, mu0):
     return (k + (1.0 - k) * jnp.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
 
 
+#: :func:`transmittance_delta_eddington` compiled once per block shape: called op by op, its dozen array operations
+#: were each compiled (or loaded from the disk cache) on a process's first render, ~0.25 s (docs/performance.md, 24.)
+_transmittance_delta_eddington_jit = jax.jit(transmittance_delta_eddington)
+
+
 def _bilinear_zero_outside(field, jj, ii):
     """Bilinear sample of (C, ny, nx) fields at fractional (jj, ii) of shape (ny, nx); zero outside."""
     ny, nx = field.shape[-2:]
@@ -349,7 +354,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     mu0 = max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
 
     def cloud_t(k0, k1):
-        return np.asarray(transmittance_delta_eddington(jnp.asarray(taus[0][k0:k1]), jnp.asarray(taus[1][k0:k1]), mu0))
+        return np.asarray(_transmittance_delta_eddington_jit(taus[0][k0:k1], taus[1][k0:k1], np.float32(mu0)))
 
     dims = ("level", "y", "x")
     attrs = {"tau_sun": {"units": "1", "long_name": "optical depth towards the sun (Step 1a)"},
