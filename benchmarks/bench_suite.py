@@ -274,7 +274,11 @@ def throughput(image, rays, seconds):
     from swim.rt.march import MarchSettings
 
     if "march_samples" in image.attrs:
-        samples, how = float(image.attrs["march_samples"]), "march_samples attribute of the render output"
+        backend = image.attrs.get("march_backend", "?")
+        # per-ray counts since session 16 (docs/performance.md 25.): older results hold lockstep counts
+        counted = "lockstep count" if backend == "jax" else "per-ray count"
+        samples, how = (float(image.attrs["march_samples"]),
+                        f"march_samples attribute of the render output ({counted}, {backend} kernel)")
     else:
         s = MarchSettings()
         per_ray = s.n_before + s.n_grid + s.n_after

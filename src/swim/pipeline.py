@@ -278,8 +278,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         ``rgb`` (y, x, channel) uint8 sRGB; ``view_azimuth``, ``view_zenith`` (y, x) [deg] in the observer's
         frame; ``tau_hydrometeor`` (y, x); ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``;
         attributes with the sun, observer, time and camera, ``traced_pixels`` (pixels whose ray was
-        marched), ``march_samples`` (steps of the lockstep march: a ray that meets the ground early counts
-        all its steps) and ``march_backend`` (the kernel that marched them, :class:`MarchSettings`).
+        marched), ``march_samples`` (the volume samples the march took: per ray as marched by the "numba" and
+        "cuda" kernels, the lockstep count of every ray's steps for "jax"; :func:`swim.rt.march.trace_rays`) and
+        ``march_backend`` (the kernel that marched them, :class:`MarchSettings`).
 
     Raises
     ------

@@ -205,7 +205,7 @@ def _random_rays(n, seed=0):
 
 @pytest.mark.parametrize("case", ["plume, multiple scattering", "no plume, single scattering, lambertian",
                                   "plume, 8 probes", "plume, 4 probes, one per cell crossed",
-                                  "plume, at most 4 empty steps"])
+                                  "plume, at most 4 empty steps", "plume, at most 4 empty steps, no refinement"])
 def test_numba_march_matches_the_jax_march(case):
     """The fused per-ray CPU march (swim.rt.march_cpu) is the JAX kernel's step loop written again: both
     must give the same pixels, to float32 round-off, for rays that cross cloud, the plume, the terrain (hits
@@ -218,10 +218,11 @@ def test_numba_march_matches_the_jax_march(case):
         # rays across more than 4 cells take their own probe counts: per ray (numba), by a per-chunk maximum of
         # padded probes (JAX); both must place the same steps (test_probe_spacing_follows_the_cells_crossed)
         extra = {"n_probe": 4, "probe_spacing": 1.0}
-    if case.endswith("empty steps"):
+    if "empty steps" in case:
         # few steps in empty space, more for rays across many empty cells: per ray in both kernels
-        # (test_empty_steps_thin_out_the_steps_in_empty_space)
-        extra = {"empty_steps": 4, "n_probe": 16}
+        # (test_empty_steps_thin_out_the_steps_in_empty_space); without refinement the JAX kernel masks the steps
+        # beyond each ray's count in its plain step loop (_march_segment) instead of its refined one
+        extra = {"empty_steps": 4, "n_probe": 16, **({"tau_refine": 0.0} if case.endswith("no refinement") else {})}
     origins, dirs = _random_rays(600)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
@@ -233,7 +234,42 @@ def test_numba_march_matches_the_jax_march(case):
     for key in ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear", "tau_hydrometeor"):
         np.testing.assert_allclose(numba_out[key], jax_out[key], rtol=2e-4, atol=1e-6, err_msg=key)
     np.testing.assert_allclose(numba_out["distance"], jax_out["distance"], rtol=1e-4, atol=0.5)  # NaN where no ground
-    np.testing.assert_array_equal(numba_out["steps"], jax_out["steps"])
+
+
+def test_per_ray_kernel_counts_the_samples_each_ray_takes():
+    """``steps``: the numba kernel counts the samples each ray takes, the lockstep JAX kernel every step of every
+    ray. Without refinement and without the empty-space limit a ray that never meets the ground takes every step
+    of its segments (one for a segment of zero length); one that meets it stops there. Refined halves add samples,
+    and the empty-space limit takes samples off rays through clear air."""
+    origins, dirs = _random_rays(300)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    scene = _tiny_scene()
+    plain = MarchSettings(tau_refine=0.0, empty_steps=0)
+    out = {backend: _trace(scene, origins, dirs, sun, settings=replace(plain, backend=backend))
+           for backend in ("jax", "numba")}
+    (jax_out, _), (numba_out, (volume, transmittance, gas, _)) = out["jax"], out["numba"]
+    nominal = plain.n_before + plain.n_grid + plain.n_after
+    np.testing.assert_array_equal(jax_out["steps"], nominal)
+    top = float(kernel_constants(volume, transmittance, gas, sun)["top"])
+    bounds = np.asarray(ray_segments(origins, dirs, grid_geometry(volume), top=top)["bounds"])
+    lengths = np.stack([bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1]], axis=1)
+    per_segment = np.array([plain.n_before, plain.n_grid, plain.n_after])
+    full = np.where(lengths > 0, per_segment, 1)[:, per_segment > 0].sum(axis=1)
+    ground = numba_out["surface"]
+    assert 30 < ground.sum() < 270, "rays must both meet the ground and miss it"
+    np.testing.assert_array_equal(numba_out["steps"][~ground], full[~ground])
+    # a ray whose segments end at the ground meets it in its last step; one that meets the terrain stops early
+    assert np.all((numba_out["steps"][ground] >= 1) & (numba_out["steps"][ground] <= full[ground]))
+    assert (numba_out["steps"][ground] < full[ground]).sum() > 10
+
+    refined, _ = _trace(scene, origins, dirs, sun, settings=replace(plain, backend="numba", tau_refine=0.1))
+    both = ~ground & ~refined["surface"]
+    more = refined["steps"][both] - numba_out["steps"][both]
+    assert np.all(more >= 0) and (more > 0).sum() >= 5, "refined halves are samples too"
+    skipping, _ = _trace(scene, origins, dirs, sun, settings=replace(plain, backend="numba", empty_steps=8))
+    both = ~ground & ~skipping["surface"]
+    fewer = numba_out["steps"][both] - skipping["steps"][both]
+    assert np.all(fewer >= 0) and (fewer > 0).sum() >= 5, "empty space costs fewer samples"
 
 
 def test_backend_setting_is_checked_and_resolved(monkeypatch):

@@ -114,6 +114,7 @@ def test_cuda_march_matches_the_cpu_march_in_the_simulator(tmp_path):
     for key in ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear", "tau_hydrometeor"):
         np.testing.assert_allclose(gpu[key], cpu[key], rtol=1e-5, atol=1e-7, err_msg=key)
     np.testing.assert_allclose(gpu["distance"], cpu["distance"], rtol=1e-6)  # NaN where no ground, in both
+    np.testing.assert_array_equal(gpu["steps"], cpu["steps"])  # each ray's samples, counted by the same code
     assert str(gpu["render_backend"]) == "cuda" and str(cpu["render_backend"]) == "numba"
     assert np.isfinite(cpu["render"]).sum() > 100  # the all-sky circle of a 9 x 9 image, 3 wavelengths
     np.testing.assert_allclose(gpu["render"], cpu["render"], rtol=1e-5, atol=1e-7)

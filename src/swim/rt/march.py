@@ -1447,7 +1447,9 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         ``radiance`` (n, 3) [-] solar-relative L' (Eq. 2) at 615/546/450 nm and its components
         ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``; ``tau_hydrometeor`` (n,);
         ``tau_clear`` (n, 3); ``surface`` (n,) bool; ``distance`` (n,) [m] to the ground or NaN; ``steps`` (n,)
-        march steps (volume samples) of the lockstep march per ray.
+        the volume samples each ray took: as marched by the per-ray kernels ("numba", "cuda": refined halves
+        included, none after the ground, :func:`swim.rt.march_cpu.march_rays`), the lockstep count
+        ``n_before + n_grid + n_after`` for the JAX kernel, whose rays all take every step of their chunk.
 
     Raises
     ------
@@ -1559,7 +1561,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         for _, _, cancel in pending:
             if cancel is not None:
                 cancel()
-    outputs["steps"] = np.full(n, steps, np.int32)
+    if "steps" not in outputs:  # the lockstep kernel: every ray of a chunk takes every step
+        outputs["steps"] = np.full(n, steps, np.int32)
     return outputs
 
 
@@ -1687,7 +1690,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
     padded = start.shape[0]
-    # in the order of march_rays' outputs (its last ten arguments)
+    # in the order of march_rays' outputs (its last arguments but the sample counts, which go to the caller alone)
     state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
              "tau_species": np.empty((padded, len(SPECIES))), "l_clear": np.empty((padded, 3)),
              "i_nogas": np.empty((padded, 3)), "i_gas": np.empty((padded, 3)), "i_cloud_t": np.empty(padded),
@@ -1696,7 +1699,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
     ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)  # rows beyond n are not read
-    t, out = tables, [state[key][:n] for key in state]
+    samples = np.empty(n, np.int64)
+    t, out = tables, [state[key][:n] for key in state] + [samples]
     march(
         *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
         np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float), ms_profile, ms is not None,
@@ -1711,4 +1715,4 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         if value.dtype != bool:
             state[key] = value.astype(np.float32)
     out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class)
-    return {key: value[:n] for key, value in jax.device_get(out).items()}
+    return {**{key: value[:n] for key, value in jax.device_get(out).items()}, "steps": samples.astype(np.int32)}

@@ -290,9 +290,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
-                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi,
-                     stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol,
-                     vol32):
+                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
+                     stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse,
+                     vol, vol32):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
     once: one code for the CPU's loop over all rays (one call) and a GPU thread's ray
     (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
@@ -318,6 +318,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             tsp[c] = 0.0
         th = 0.0
         ict = 0.0
+        samples = 0  # the medium's samples along this ray: every step evaluated, refined halves included
         alive = valid[r]
         hit = False
         hit_s = 0.0
@@ -364,6 +365,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     s_lo, s_hi, depth = stack_lo[pending], stack_hi[pending], stack_depth[pending]
                 ds = s_hi - s_lo
                 s = s_lo + 0.5 * ds
+                samples += 1
                 h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
                 # clear atmosphere (_gas_at): three height profiles times their spectra, and the sky table
                 g0, w = _lerp_index(h / p[_P_DH], n_gas)
@@ -552,6 +554,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         alive_out[r] = alive
         hit_out[r] = hit
         s_hit_out[r] = s_hit
+        samples_out[r] = samples
 
 
 @njit(**_JIT, nogil=True)
@@ -560,7 +563,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
                probe_spacing, n_probe_max, cell_slack, empty_steps, empty_cells_per_step, n_clear_probe, clear_power,
                clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, tau_clear,
-               tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out):
+               tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
@@ -588,7 +591,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     by :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
     ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, 5), the clear-sky radiance ``l_clear`` (n, 3),
     the Eq. 12 integrals ``i_nogas``, ``i_gas`` (n, 3) and ``i_cloud_t`` (n,), ``alive_out`` and ``hit_out``
-    (n,) bool, and ``s_hit_out`` (n,) [m], the refined terrain crossing or the segment's end.
+    (n,) bool, ``s_hit_out`` (n,) [m], the refined terrain crossing or the segment's end, and ``samples_out``
+    (n,) int, the medium's samples the ray took (its steps, refined halves and steps undone by a refinement
+    included; none after the ground; the terrain bisection's lookups not counted).
     """
     n_c = volume.shape[3]
     n_species = tau_species.shape[1]
@@ -622,6 +627,6 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
-                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, edges, cdf, stack_lo, stack_hi,
-                     stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol,
-                     vol32)
+                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
+                     stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse,
+                     vol, vol32)

@@ -188,7 +188,7 @@ def march_rays(*args):
                        values["tau_species"].shape[1], values["volume"].shape[3])
     kernel = cuda_march_kernel(*sizes)
     outputs = ("tau_clear", "tau_h", "tau_species", "l_clear", "i_nogas", "i_gas", "i_cloud_t", "alive_out", "hit_out",
-               "s_hit_out")
+               "s_hit_out", "samples_out")
     device = {}
     for name in names:
         value = values[name]
