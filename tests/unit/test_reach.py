@@ -8,6 +8,7 @@ import swim
 from swim.constants import EARTH_RADIUS_M
 from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
+from swim.geometry import reach
 from swim.geometry.cameras import make_camera
 from swim.geometry.reach import (
     DEFAULT_MARGIN_CELLS,
@@ -64,6 +65,37 @@ def test_allsky_window_matches_the_horizon_reach(big_scene):
     # The same without a margin: the bare reach.
     wy0, wx0 = reachable_index_window(big_scene, camera, height=2.0, sun_direction=[0.0, 0.0, 1.0], margin_cells=0)
     assert lo - 2 < 0.5 * (wx0.stop - wx0.start) < _horizon_cells(16_000.0) + 2
+
+
+def test_window_is_the_same_for_fields_in_memory_lazy_or_laid_out_otherwise():
+    """The window reads the grid's top, the terrain near the observer and on the grid's edge straight from NumPy
+    arrays held in memory, through xarray otherwise: the same window either way, also for (x, y) fields with a
+    length-1 time dimension (the other layout reaches the xarray path only where it is lazy)."""
+    n = 200
+    x = (np.arange(n) - (n - 1) / 2) * 6e3
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    # terrain rising to the north-east, highest on the grid's east edge; levels that rise with the ground
+    terrain = 900.0 * np.clip((xx + 0.5 * yy) / x.max(), 0.0, None)
+    levels = np.array([100.0, 600.0, 2000.0, 5000.0, 7000.0, 8000.0])
+    scene = swim.scene_from_arrays(x=x, y=x, z=levels, reference_lat=35.0, reference_lon=-90.0, terrain_height=terrain)
+    sun = enu_from_azimuth_zenith(250.0, 75.0)
+    camera = make_camera("allsky", size=63)
+
+    def window(s):
+        return reachable_index_window(s, camera, height=500.0, lat=35.05, lon=-89.95, sun_direction=sun)
+
+    expected = window(scene)
+    assert all(w.stop - w.start < 0.9 * n for w in expected)  # a real window, not the whole grid
+    for name, dims in (("height", ("z", "y", "x")), ("terrain_height", ("y", "x")), ("lat", ("y", "x"))):
+        assert reach._in_memory(scene, name, dims) is not None, name  # the NumPy path was taken
+    laid_out = scene.expand_dims(time=[np.datetime64("2024-05-01T12:00")]).transpose("time", "x", "y", "z")
+    assert window(laid_out) == expected
+    dask = pytest.importorskip("dask")
+    assert dask is not None
+    lazy = scene.chunk({"y": 30, "x": 30})
+    assert reach._in_memory(lazy, "height", ("z", "y", "x")) is None  # the xarray path
+    assert window(lazy) == expected
+    assert window(laid_out.chunk({"y": 30, "x": 30})) == expected
 
 
 @pytest.mark.parametrize("kind, options, height", [

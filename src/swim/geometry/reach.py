@@ -104,6 +104,32 @@ def _horizontal(scene: xr.Dataset, name: str) -> xr.DataArray:
     return da.transpose("y", "x")
 
 
+def _in_memory(scene: xr.Dataset, name: str, dims: tuple) -> np.ndarray | None:
+    """The values of ``name`` as a NumPy array with axes ``dims`` (a length-1 ``time`` dropped), without an
+    xarray object on the way, where they are held in memory; None where they are lazy (dask, a file) or shaped
+    otherwise (the xarray path then reads them, and reports what is wrong). A repeated render of a small image
+    spent ~3 ms of its ~25 ms making DataArrays for the few values the window needs (docs/performance.md, 26.)."""
+    var = scene.variables.get(name)
+    if var is None or type(var._data) is not np.ndarray:  # noqa: SLF001 - only a plain in-memory array, not read
+        return None
+    data, var_dims = var._data, var.dims  # noqa: SLF001
+    if "time" in var_dims and var.sizes["time"] == 1:
+        data = data[(slice(None),) * var_dims.index("time") + (0,)]
+        var_dims = tuple(d for d in var_dims if d != "time")
+    if set(var_dims) != set(dims) or len(var_dims) != len(dims):
+        return None
+    return np.transpose(data, [var_dims.index(d) for d in dims])
+
+
+def _horizontal_values(scene: xr.Dataset, name: str, j=slice(None), i=slice(None)) -> np.ndarray:
+    """Values [float] of the (y, x) variable ``name`` at rows ``j`` and columns ``i`` (slices or index lists; see
+    :func:`_horizontal`), only those read from a lazy variable."""
+    values = _in_memory(scene, name, ("y", "x"))
+    if values is None:
+        return np.asarray(_horizontal(scene, name).isel(y=j, x=i).values, dtype=float)
+    return np.asarray(values[j][:, i], dtype=float)
+
+
 def _finite(name: str, values: np.ndarray) -> np.ndarray:
     bad = ~np.isfinite(values)
     if bad.any():
@@ -116,8 +142,8 @@ def _finite(name: str, values: np.ndarray) -> np.ndarray:
 
 def _lat_lon(scene: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
     """Latitude and longitude [deg] of the columns, shape (ny, nx) each (2-D: cheap to load)."""
-    lat = _finite("lat", np.asarray(_horizontal(scene, "lat").values, dtype=float))
-    lon = _finite("lon", np.asarray(_horizontal(scene, "lon").values, dtype=float))
+    lat = _finite("lat", _horizontal_values(scene, "lat"))
+    lon = _finite("lon", _horizontal_values(scene, "lon"))
     if lat.shape != lon.shape:
         raise SwimInputError(f"scene variables 'lat' {lat.shape} and 'lon' {lon.shape} differ in shape")
     return lat, lon
@@ -291,6 +317,9 @@ class _Columns:
         Of a lazy (dask) ``height`` the result is remembered by the field's dask token (its graph: for a file,
         its name and modification time), so that the renders of one lazily opened big grid read its four
         levels once (0.8 s for the CONUS-size benchmark grid)."""
+        values = _in_memory(self.scene, "height", ("z", "y", "x"))
+        if values is not None:
+            return self._grid_top_of(lambda z: values[z], values.shape[0])
         height = self.scene["height"]
         if height.chunks is None:
             return self._grid_top(height)
@@ -311,10 +340,15 @@ class _Columns:
             height = height.isel(time=0)
         if set(height.dims) != {"z", "y", "x"} or height.ndim != 3:
             raise SwimInputError(f"scene variable 'height' has dims {tuple(height.dims)}; expected ('z', 'y', 'x')")
-        nz = height.sizes["z"]
+        height = height.transpose("z", "y", "x")
+        return _Columns._grid_top_of(lambda z: height.isel(z=z).values, height.sizes["z"])
+
+    @staticmethod
+    def _grid_top_of(levels_at, nz: int) -> float:
+        """:meth:`grid_top` from ``levels_at(z)``, the heights (len(z), ny, nx) of the levels in the list z."""
         if nz < 2:
-            return float(_finite("height", np.asarray(height.isel(z=-1).values, dtype=float)).max())
-        levels = _finite("height", np.asarray(height.isel(z=sorted({0, 1, nz - 2, nz - 1})).values, dtype=float))
+            return float(_finite("height", np.asarray(levels_at([nz - 1]), dtype=float)).max())
+        levels = _finite("height", np.asarray(levels_at(sorted({0, 1, nz - 2, nz - 1})), dtype=float))
         top, below = levels[-1], levels[-2]
         interface = float(np.max(top + 0.5 * np.abs(top - below)))
         # The optical volume's regular levels run from its bottom (>= -500 m) to at least the top interface, at
@@ -325,15 +359,13 @@ class _Columns:
 
     def terrain(self, j: slice, i: slice) -> np.ndarray:
         """A piece of ``terrain_height`` [m] (the only part of it read before the crop)."""
-        return _finite("terrain_height", np.asarray(_horizontal(self.scene, "terrain_height").isel(y=j, x=i).values,
-                                                    dtype=float))
+        return _finite("terrain_height", _horizontal_values(self.scene, "terrain_height", j, i))
 
     def edge_terrain_max(self) -> float:
         """Highest terrain [m] on the grid's edge: beyond the grid the ray march continues the terrain at its
         edge heights (clamped), so only points below this height beyond the grid can touch edge cells."""
-        terrain = _horizontal(self.scene, "terrain_height")
-        rows = _finite("terrain_height", np.asarray(terrain.isel(y=[0, -1]).values, dtype=float))
-        cols = _finite("terrain_height", np.asarray(terrain.isel(x=[0, -1]).values, dtype=float))
+        rows = _finite("terrain_height", _horizontal_values(self.scene, "terrain_height", j=[0, -1]))
+        cols = _finite("terrain_height", _horizontal_values(self.scene, "terrain_height", i=[0, -1]))
         return float(max(rows.max(), cols.max()))
 
 
