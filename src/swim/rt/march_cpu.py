@@ -574,9 +574,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     plus ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges`
     from ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that
     cross more, less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in
-    its empty intervals, :func:`swim.rt.march.grid_step_edges`; 0: no limit) and the clear air after it (``n_after`` steps placed as ``n_before``'s),
-    then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical depth is below
-    ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before it, times
+    its empty intervals, :func:`swim.rt.march.grid_step_edges`; 0: no limit) and the clear air after it
+    (``n_after`` steps placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit`. While the ray's
+    hydrometeor optical depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before it, times
     its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the previous
     interval's length exceeds it sends the ray back to its state before that interval, which is halved;
     recursively to ``max_depth`` levels, at most ``refine_budget`` times per ray, with at most ``refine_slots``

@@ -253,8 +253,6 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         raise SwimInputError(f"solar_transmittance: backend must be one of {BACKENDS}, got {backend!r}")
     backend = MarchSettings(backend=backend).resolved_backend()  # "numba" without numba raises there
     if backend == "cuda":  # the march's GPU kernel: the sweep where JAX runs, or on the host's cores
-        import jax
-
         backend = "jax" if jax.default_backend() != "cpu" else "numba"
     sun = np.asarray(sun_direction_scene, dtype=float)
     sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
