@@ -569,20 +569,20 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
     a thread pool (a ``parallel=True`` loop was as fast and took 29 s to compile instead of 7).
 
-    The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before`` steps
-    placed by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^``clear_power``
-    plus ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges`
-    from ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that
-    cross more, less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in
-    its empty intervals, :func:`swim.rt.march.grid_step_edges`; 0: no limit) and the clear air after it
-    (``n_after`` steps placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit`. While the ray's
-    hydrometeor optical depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before it, times
-    its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the previous
-    interval's length exceeds it sends the ray back to its state before that interval, which is halved;
+    The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before`` steps placed
+    by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^``clear_power`` plus
+    ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from
+    ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more,
+    less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in its empty
+    intervals, :func:`swim.rt.march.grid_step_edges`; 0: no limit) and the clear air after it (``n_after`` steps
+    placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical
+    depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before
+    it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the
+    previous interval's length exceeds it sends the ray back to its state before that interval, which is halved;
     recursively to ``max_depth`` levels, at most ``refine_budget`` times per ray, with at most ``refine_slots``
     pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray stops at the ground (the lockstep kernel
-    goes on with zero-length steps that add nothing), and a segment of zero length takes one step (to see whether
-    it starts under the terrain) instead of all of them.
+    goes on with zero-length steps that add nothing), and a segment of zero length takes one step (to see whether it
+    starts under the terrain) instead of all of them.
 
     Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3)
     [m], ``valid`` (n,) bool, the phase functions ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric``
