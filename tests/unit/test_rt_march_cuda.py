@@ -41,8 +41,8 @@ def test_kernel_takes_the_cpu_kernels_arguments():
     assert march_cuda.kernel_arguments() == cpu
     assert body[:3] == ("first", "stop", "stride") and body[3:3 + len(cpu)] == cpu
     work = body[3 + len(cpu):]
-    assert work == ("edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tc", "t_obs", "tsp", "lc", "ing",
-                    "ig", "beta_r", "beta_a", "beta_s", "t_sun", "diffuse", "vol", "vol32")
+    assert work == ("edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tsp", "step_beta", "step_source",
+                    "step_irradiance", "vol", "vol32")
     # every function the kernel reaches is compiled for the device (none is left to call a CPU dispatcher)
     names = {name for name, value in vars(march_cpu).items() if hasattr(value, "py_func")} - {"march_rays"}
     assert names == set(march_cuda.DEVICE_FUNCTIONS)

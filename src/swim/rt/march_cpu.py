@@ -283,6 +283,24 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
         edges[m] = s0 + frac * length
 
 
+@njit(**_JIT, inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
+def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff, weight):
+    """One wavelength's accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth, the
+    transmittance to the observer, the clear-sky radiance (Eq. 3: the source times the step's mean transmittance)
+    and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-t0 - e^-min(t1, 2))."""
+    x = (beta_clear + beta_h) * ds_eff
+    # one expm1 gives both the step's mean transmittance and the next step's e^-tau to the observer
+    em = _expm1_neg(x)
+    step_mean = -em / max(x, 1e-30) if x > 1e-4 else 1.0 - 0.5 * x
+    l_clear += t_obs * source * (ds_eff * step_mean)
+    t_obs *= 1.0 + em
+    if weight > 0.0:
+        i_nogas += irradiance_h * weight
+        i_gas += irradiance_h * math.exp(-tau_clear) * weight
+    tau_clear += beta_clear * ds_eff
+    return tau_clear, t_obs, l_clear, i_nogas, i_gas
+
+
 @njit(**_JIT)
 def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
@@ -291,30 +309,36 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
                      i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse,
-                     vol, vol32):
+                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
     once: one code for the CPU's loop over all rays (one call) and a GPU thread's ray
     (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
-    arguments were passed anew every time), and numba's inlining of it failed."""
+    arguments were passed anew every time), and numba's inlining of it failed.
+
+    A ray's accumulators (per wavelength: the clear-sky optical depth, the transmittance to the observer, the
+    clear-sky radiance and the two Eq. 12 integrals) are scalars, which LLVM keeps in registers; as elements of
+    work arrays (which may alias the tables, as far as LLVM knows) they were loaded and stored at every step, and
+    the kernel was ~7 % slower (docs/performance.md, section 27)."""
     nk, ny, nx, n_c = volume.shape
     n_species = tau_species.shape[1]
     aerosol_3d = n_c > n_species + 2  # the 3-D aerosol's two channels (packed only where it is not zero)
     n_gas = beta_gas.shape[1]
     nu_sky, nmu_sky = sky.shape[1], sky.shape[2]
     nu_class = diffuse_classes.shape[1] // n_class
+    n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
     n_u = ms_profile.shape[2]
     top = p[_P_TOP]
     for r in range(first, stop, stride):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
-        for c in range(3):  # element by element: a CUDA thread's local arrays take no slice assignments
-            tc[c] = 0.0
-            t_obs[c] = 1.0  # e^-(tau_clear + tau_h) to the observer, carried as a product
-            lc[c] = 0.0
-            ing[c] = 0.0
-            ig[c] = 0.0
-        for c in range(n_species):
+        # per wavelength (0, 1, 2): tau_clear, e^-(tau_clear + tau_h) to the observer (carried as a product),
+        # l_clear, i_nogas and i_gas
+        tc0 = tc1 = tc2 = 0.0
+        to0 = to1 = to2 = 1.0
+        lc0 = lc1 = lc2 = 0.0
+        in0 = in1 = in2 = 0.0
+        ig0 = ig1 = ig2 = 0.0
+        for c in range(n_species):  # element by element: a CUDA thread's local arrays take no slice assignments
             tsp[c] = 0.0
         th = 0.0
         ict = 0.0
@@ -374,17 +398,16 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 prof_s = beta_gas[2, g0] * (1 - w) + beta_gas[2, g0 + 1] * w
                 fu = math.sqrt(_clip(h / top, 0.0, 1.0))
                 fm = (mu_s + 1.0) * 0.5
-                u0, v0, a, b = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
-                for c in range(3):
-                    beta_r[c] = prof_r * spectra[0, c]
-                    beta_a[c] = prof_a * spectra[1, c]
-                    beta_s[c] = prof_s * spectra[2, c]
-                    t_sun[c] = _bilinear_at(sky, c, u0, v0, a, b)
-                    diffuse[c] = _bilinear_at(sky, 3 + c, u0, v0, a, b)
+                su0, sv0, sa, sb = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
                 gap = _terrain_gap(h, j, i, terrain)
                 hit_now = alive and gap < 0
                 frac = _clip(gap_prev / max(gap_prev - gap, 1e-6), 0.0, 1.0) if hit_now else 1.0
                 ds_eff = ds * frac if alive else 0.0
+                # the corners of the skylight of the ray's aerosol column class, where there are classes (a flag
+                # per step rather than n_class itself in the wavelength loop: the kernel was ~4 % faster so)
+                classes = False
+                cu0 = cv0 = cu1 = cv1 = 0
+                ca = cb = ca1 = cb1 = 0.0
                 if in_grid:
                     # trilinear sample of the packed volume, its "outside" values beyond it
                     if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:
@@ -419,15 +442,12 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     tau_a3_sun = vol[n_species + 1] if aerosol_3d else 0.0
                     t_cloud = vol[n_c - 2]
                     shadow = vol[n_c - 1]
-                    if n_class > 1:  # diffuse_at: the skylight of the ray's aerosol column class
+                    if n_class > 1:  # diffuse_at
+                        classes = True
                         fcu = _clip(fu * (nu_class - 1), 0.0, nu_class - 1.001)
-                        n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
-                        u0, v0, a, b = _bilinear_index(n_rows, nmu_class, c0 * nu_class + fcu, fm * (nmu_class - 1))
-                        u1, v1, a1, b1 = _bilinear_index(n_rows, nmu_class, (c0 + 1) * nu_class + fcu,
-                                                         fm * (nmu_class - 1))
-                        for c in range(3):
-                            diffuse[c] = (_bilinear_at(diffuse_classes, c, u0, v0, a, b) * (1 - wc)
-                                          + _bilinear_at(diffuse_classes, c, u1, v1, a1, b1) * wc)
+                        cu0, cv0, ca, cb = _bilinear_index(n_rows, nmu_class, c0 * nu_class + fcu, fm * (nmu_class - 1))
+                        cu1, cv1, ca1, cb1 = _bilinear_index(n_rows, nmu_class, (c0 + 1) * nu_class + fcu,
+                                                             fm * (nmu_class - 1))
                 else:
                     beta_a3 = 0.0
                     tau_a3_sun = 0.0
@@ -444,11 +464,11 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                             and pending + 3 <= refine_slots and saved[7] < refine_visible):
                         # the previous interval held a cloud face that its midpoint missed: back to the state
                         # before it, and its two halves, then this interval again
-                        tc[0], tc[1], tc[2] = saved[0], saved[1], saved[2]
-                        t_obs[0], t_obs[1], t_obs[2] = saved[3], saved[4], saved[5]
-                        lc[0], lc[1], lc[2] = saved[8], saved[9], saved[10]
-                        ing[0], ing[1], ing[2] = saved[11], saved[12], saved[13]
-                        ig[0], ig[1], ig[2] = saved[14], saved[15], saved[16]
+                        tc0, tc1, tc2 = saved[0], saved[1], saved[2]
+                        to0, to1, to2 = saved[3], saved[4], saved[5]
+                        lc0, lc1, lc2 = saved[8], saved[9], saved[10]
+                        in0, in1, in2 = saved[11], saved[12], saved[13]
+                        ig0, ig1, ig2 = saved[14], saved[15], saved[16]
                         th, ict, gap_prev, s_last = saved[7], saved[6], saved[17], saved[18]
                         for c in range(n_species):
                             tsp[c] = saved[19 + c]
@@ -471,11 +491,11 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         pending += 2
                         budget -= 1
                         continue
-                    saved[0], saved[1], saved[2] = tc[0], tc[1], tc[2]
-                    saved[3], saved[4], saved[5] = t_obs[0], t_obs[1], t_obs[2]
-                    saved[8], saved[9], saved[10] = lc[0], lc[1], lc[2]
-                    saved[11], saved[12], saved[13] = ing[0], ing[1], ing[2]
-                    saved[14], saved[15], saved[16] = ig[0], ig[1], ig[2]
+                    saved[0], saved[1], saved[2] = tc0, tc1, tc2
+                    saved[3], saved[4], saved[5] = to0, to1, to2
+                    saved[8], saved[9], saved[10] = lc0, lc1, lc2
+                    saved[11], saved[12], saved[13] = in0, in1, in2
+                    saved[14], saved[15], saved[16] = ig0, ig1, ig2
                     saved[6], saved[7], saved[17], saved[18] = ict, th, gap_prev, s_last
                     for c in range(n_species):
                         saved[19 + c] = tsp[c]
@@ -485,34 +505,44 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 t1 = t0 + beta_h * ds_eff
                 # Eq. 12's weight e^-t0 - e^-min(t1, 2) is exactly 0 without hydrometeors or beyond tau 2
                 weight = max(math.exp(-t0) - math.exp(-min(t1, 2.0)), 0.0) if t1 > t0 and t0 < 2.0 else 0.0
+                u0 = 0
+                wu = 0.0
                 if use_ms:
                     u0, wu = _lerp_index(fu * (n_u - 1), n_u)
-                for c in range(3):
-                    b_a3 = beta_a3 * angstrom[c]
-                    irradiance = t_sun[c] * (t_cloud * shadow)
+                sun = t_cloud * shadow
+                for c in range(3):  # what each wavelength adds at this step (no state carried from step to step)
+                    beta_r = prof_r * spectra[0, c]
+                    beta_a = prof_a * spectra[1, c] + beta_a3 * angstrom[c]
+                    beta_s = prof_s * spectra[2, c]
+                    irradiance = _bilinear_at(sky, c, su0, sv0, sa, sb) * sun
                     if tau_a3_sun != 0.0:
                         irradiance *= math.exp(-tau_a3_sun * angstrom[c])
-                    beta_clear = beta_r[c] + beta_a[c] + b_a3 + beta_s[c]
-                    x = (beta_clear + beta_h) * ds_eff
-                    # one expm1 gives both the step's mean transmittance and the next step's e^-tau to the observer
-                    em = _expm1_neg(x)
-                    step_mean = -em / max(x, 1e-30) if x > 1e-4 else 1.0 - 0.5 * x
-                    scat_a = (beta_a[c] + b_a3) * aerosol_ssa[c]
-                    scat_s = beta_s[c] * stratospheric_ssa[c]
-                    source = (beta_r[c] * p_rayleigh[r] + scat_a * p_aerosol[r, c]
+                    scat_a = beta_a * aerosol_ssa[c]
+                    scat_s = beta_s * stratospheric_ssa[c]
+                    source = (beta_r * p_rayleigh[r] + scat_a * p_aerosol[r, c]
                               + scat_s * p_stratospheric[r, c]) * irradiance
                     if use_ms:
                         j_r = ms_profile[c, r, u0] * (1 - wu) + ms_profile[c, r, u0 + 1] * wu
                         j_a = ms_profile[3 + c, r, u0] * (1 - wu) + ms_profile[3 + c, r, u0 + 1] * wu
                         j_s = ms_profile[6 + c, r, u0] * (1 - wu) + ms_profile[6 + c, r, u0 + 1] * wu
-                        source += (beta_r[c] * j_r + scat_a * j_a + scat_s * j_s) * t_cloud
-                    lc[c] += t_obs[c] * source * (ds_eff * step_mean)
-                    t_obs[c] *= 1.0 + em
-                    if weight > 0.0:
-                        irradiance_h = irradiance + (2.0 * diffuse[c] * t_cloud if in_grid else 0.0)
-                        ing[c] += irradiance_h * weight
-                        ig[c] += irradiance_h * math.exp(-tc[c]) * weight
-                    tc[c] += beta_clear * ds_eff
+                        source += (beta_r * j_r + scat_a * j_a + scat_s * j_s) * t_cloud
+                    irradiance_h = irradiance
+                    if weight > 0.0 and in_grid:  # the skylight only where Eq. 12's weight needs it
+                        if classes:
+                            diffuse = (_bilinear_at(diffuse_classes, c, cu0, cv0, ca, cb) * (1 - wc)
+                                       + _bilinear_at(diffuse_classes, c, cu1, cv1, ca1, cb1) * wc)
+                        else:
+                            diffuse = _bilinear_at(sky, 3 + c, su0, sv0, sa, sb)
+                        irradiance_h += 2.0 * diffuse * t_cloud
+                    step_beta[c] = beta_r + beta_a + beta_s
+                    step_source[c] = source
+                    step_irradiance[c] = irradiance_h
+                tc0, to0, lc0, in0, ig0 = _accumulate(tc0, to0, lc0, in0, ig0, step_beta[0], step_source[0],
+                                                      step_irradiance[0], beta_h, ds_eff, weight)
+                tc1, to1, lc1, in1, ig1 = _accumulate(tc1, to1, lc1, in1, ig1, step_beta[1], step_source[1],
+                                                      step_irradiance[1], beta_h, ds_eff, weight)
+                tc2, to2, lc2, in2, ig2 = _accumulate(tc2, to2, lc2, in2, ig2, step_beta[2], step_source[2],
+                                                      step_irradiance[2], beta_h, ds_eff, weight)
                 ict += t_cloud * shadow * weight
                 th = t1
                 if in_grid:
@@ -542,11 +572,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     else:
                         lo = mid
                 s_hit = 0.5 * (lo + hi)
-        for c in range(3):
-            tau_clear[r, c] = tc[c]
-            l_clear[r, c] = lc[c]
-            i_nogas[r, c] = ing[c]
-            i_gas[r, c] = ig[c]
+        tau_clear[r, 0], tau_clear[r, 1], tau_clear[r, 2] = tc0, tc1, tc2
+        l_clear[r, 0], l_clear[r, 1], l_clear[r, 2] = lc0, lc1, lc2
+        i_nogas[r, 0], i_nogas[r, 1], i_nogas[r, 2] = in0, in1, in2
+        i_gas[r, 0], i_gas[r, 1], i_gas[r, 2] = ig0, ig1, ig2
         for c in range(n_species):
             tau_species[r, c] = tsp[c]
         tau_h[r] = th
@@ -607,18 +636,11 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
     # gap 17, s_last 18, the species' optical depths 19-
     saved = np.empty(19 + tau_species.shape[1])
-    # the ray's accumulators and the step's lookups, reset per ray
-    tc = np.empty(3)
-    t_obs = np.empty(3)
+    # the species' optical depths along the ray, and what each wavelength adds at a step
     tsp = np.empty(n_species)
-    lc = np.empty(3)
-    ing = np.empty(3)
-    ig = np.empty(3)
-    beta_r = np.empty(3)
-    beta_a = np.empty(3)
-    beta_s = np.empty(3)
-    t_sun = np.empty(3)
-    diffuse = np.empty(3)
+    step_beta = np.empty(3)
+    step_source = np.empty(3)
+    step_irradiance = np.empty(3)
     vol = np.empty(n_c)
     vol32 = np.empty(n_c, np.float32)
     _march_ray_range(0, start.shape[0], 1, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
@@ -628,5 +650,4 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
                      i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tc, t_obs, tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse,
-                     vol, vol32)
+                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32)

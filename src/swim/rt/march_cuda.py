@@ -34,7 +34,7 @@ logger = logging.getLogger(__name__)
 DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_expm1_neg", "_round_half_even", "_clip",
                     "_point_geometry", "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_terrain_gap",
                     "_gap_along", "_probe_occupancy", "_adaptive_edges", "_clear_edges", "_invert_cdf",
-                    "_march_ray_range")
+                    "_accumulate", "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
 
@@ -124,21 +124,14 @@ def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, f
         "        stack_hi = cuda.local.array(N_SLOTS, float64)\n"
         "        stack_depth = cuda.local.array(N_SLOTS, int64)\n"
         "        saved = cuda.local.array(N_SAVED, float64)\n"
-        "        tc = cuda.local.array(3, float64)\n"
-        "        t_obs = cuda.local.array(3, float64)\n"
         "        tsp = cuda.local.array(N_SPECIES, float64)\n"
-        "        lc = cuda.local.array(3, float64)\n"
-        "        ing = cuda.local.array(3, float64)\n"
-        "        ig = cuda.local.array(3, float64)\n"
-        "        beta_r = cuda.local.array(3, float64)\n"
-        "        beta_a = cuda.local.array(3, float64)\n"
-        "        beta_s = cuda.local.array(3, float64)\n"
-        "        t_sun = cuda.local.array(3, float64)\n"
-        "        diffuse = cuda.local.array(3, float64)\n"
+        "        step_beta = cuda.local.array(3, float64)\n"
+        "        step_source = cuda.local.array(3, float64)\n"
+        "        step_irradiance = cuda.local.array(3, float64)\n"
         "        vol = cuda.local.array(N_CHANNELS, float64)\n"
         "        vol32 = cuda.local.array(N_CHANNELS, float32)\n"
-        f"        march_ray_range(r, r + 1, 1, {names}, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tc, t_obs,\n"
-        "                        tsp, lc, ing, ig, beta_r, beta_a, beta_s, t_sun, diffuse, vol, vol32)\n"
+        f"        march_ray_range(r, r + 1, 1, {names}, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tsp,\n"
+        "                        step_beta, step_source, step_irradiance, vol, vol32)\n"
     )
     namespace = {"cuda": cuda, "float64": numba.float64, "float32": numba.float32, "int64": numba.int64,
                  "march_ray_range": march_ray_range, "N_EDGES": n_edges, "N_CDF": n_cdf, "N_SLOTS": n_slots,
