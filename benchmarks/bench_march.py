@@ -206,7 +206,7 @@ def main(argv=None):
         result["setup_per_ray_us"] = few["us_per_ray"] - few["samples_per_ray"] * full["ns_per_sample"] * 1e-3
         result["setup_share"] = result["setup_per_ray_us"] / full["us_per_ray"]
 
-    print(f"\n{args.scene}, {args.size}² all-sky: {len(calls)} chunks, {runs[0][2][0][0].shape[0]}+ rays each; "
+    print(f"\n{args.scene}, {args.size}² all-sky: {len(calls)} chunks of rays (the first {calls[0][0].shape[0]}); "
           f"one thread, best of {args.repeats}\n")
     print("| run | rays | samples/ray | min [s] | median [s] | ns/sample | µs/ray | max output difference |")
     print("|---|---|---|---|---|---|---|---|")

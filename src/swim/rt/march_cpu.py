@@ -543,7 +543,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                                                       step_irradiance[1], beta_h, ds_eff, weight)
                 tc2, to2, lc2, in2, ig2 = _accumulate(tc2, to2, lc2, in2, ig2, step_beta[2], step_source[2],
                                                       step_irradiance[2], beta_h, ds_eff, weight)
-                ict += t_cloud * shadow * weight
+                ict += sun * weight
                 th = t1
                 if in_grid:
                     for c in range(n_species):
