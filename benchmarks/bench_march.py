@@ -48,7 +48,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import bench_suite  # noqa: E402  (benchmarks/ on the path first)
 
 #: The suite's all-sky case of each scene (its view and sun).
-SCENE_CASES = {"synthetic": "synthetic_allsky", "rico": "rico_allsky", "katrina": "katrina_allsky"}
+SCENE_CASES = {"synthetic": "synthetic_allsky", "rico": "rico_allsky", "katrina": "katrina_allsky", "conus": "conus_allsky"}
 #: march_rays' outputs: its last arguments (written in place).
 N_OUTPUTS = 11
 

@@ -42,7 +42,7 @@ def test_kernel_takes_the_cpu_kernels_arguments():
     assert body[:3] == ("first", "stop", "stride") and body[3:3 + len(cpu)] == cpu
     work = body[3 + len(cpu):]
     assert work == ("edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tsp", "step_beta", "step_source",
-                    "step_irradiance", "vol", "vol32")
+                    "step_irradiance", "vol", "vol32", "probe_at")
     # every function the kernel reaches is compiled for the device (none is left to call a CPU dispatcher)
     names = {name for name, value in vars(march_cpu).items() if hasattr(value, "py_func")} - {"march_rays"}
     assert names == set(march_cuda.DEVICE_FUNCTIONS)

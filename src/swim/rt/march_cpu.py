@@ -44,6 +44,9 @@ _JIT = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
 #: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
 _P_RADIUS, _P_SUN, _P_ZBOTTOM, _P_DZ, _P_CENTRE, _P_SCALE, _P_BOUNDS, _P_DH, _P_TOP = 0, 1, 4, 5, 6, 8, 9, 13, 14
 _N_PARAMETERS = 15
+#: Occupancy probes whose grid indices are computed together, in one vectorised loop (:func:`_probe_indices`): four
+#: AVX-512 vectors of float64; a GPU thread's local array of 6 x this.
+PROBE_BLOCK = 32
 
 
 def pack_parameters(consts):
@@ -105,8 +108,8 @@ def _round_half_even(x):
     """``jnp.round``: to the nearest integer, halves to the even one (a probe on a grid-aligned ray lands on
     exact halves, and rounding them otherwise would place the steps differently from the JAX kernel)."""
     r = math.floor(x + 0.5)
-    if r - x == 0.5 and r % 2.0 != 0.0:
-        r -= 1.0
+    if r - x == 0.5 and 0.5 * r != math.floor(0.5 * r):  # odd: no float modulo (a library call), so that
+        r -= 1.0                                          # a loop of these vectorises (_probe_indices)
     return r
 
 
@@ -115,24 +118,60 @@ def _clip(x, lo, hi):
     return min(max(x, lo), hi)
 
 
+@njit(**_JIT, inline="always")
+def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c):
+    """Distance from the Earth's centre [m], height [m] and grid indices (k, j, i) of the point q (scene frame,
+    rebased) with the index map's cubic coefficients ``c`` (an array, or a tuple where a loop over points keeps them
+    in registers): :func:`swim.rt.march._point_geometry` without the sun."""
+    pz = q2 + radius
+    r = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
+    h = (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
+    # swim.optics.volume.grid_indices: the cubic inside the box, its tangent plane beyond
+    u = (radius * q0 / r - centre_u) / scale
+    v = (radius * q1 / r - centre_v) / scale
+    uc = _clip(u, u_lo, u_hi)
+    vc = _clip(v, v_lo, v_hi)
+    du, dv = u - uc, v - vc
+    i = _index_map(uc, vc, du, dv, c, 0)
+    j = _index_map(uc, vc, du, dv, c, 10)
+    return r, h, (h - z_bottom) / dz, j, i
+
+
 @njit(**_JIT, inline="always")  # numba-level inlining: LLVM left this call in the step loop (section 16)
 def _point_geometry(q0, q1, q2, p, coef):
     """:func:`swim.rt.march._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
     radius = p[_P_RADIUS]
-    pz = q2 + radius
-    r = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
-    h = (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
-    mu_s = (q0 * p[_P_SUN] + q1 * p[_P_SUN + 1] + pz * p[_P_SUN + 2]) / r
-    # swim.optics.volume.grid_indices: the cubic inside the box, its tangent plane beyond
-    u = (radius * q0 / r - p[_P_CENTRE]) / p[_P_SCALE]
-    v = (radius * q1 / r - p[_P_CENTRE + 1]) / p[_P_SCALE]
-    uc = _clip(u, p[_P_BOUNDS], p[_P_BOUNDS + 1])
-    vc = _clip(v, p[_P_BOUNDS + 2], p[_P_BOUNDS + 3])
-    du, dv = u - uc, v - vc
-    i = _index_map(uc, vc, du, dv, coef, 0)
-    j = _index_map(uc, vc, du, dv, coef, 10)
-    k = (h - p[_P_ZBOTTOM]) / p[_P_DZ]
+    r, h, k, j, i = _height_and_indices(q0, q1, q2, radius, p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE], p[_P_BOUNDS],
+                                        p[_P_BOUNDS + 1], p[_P_BOUNDS + 2], p[_P_BOUNDS + 3], p[_P_ZBOTTOM], p[_P_DZ],
+                                        coef)
+    mu_s = (q0 * p[_P_SUN] + q1 * p[_P_SUN + 1] + (q2 + radius) * p[_P_SUN + 2]) / r
     return h, mu_s, k, j, i
+
+
+@njit(**_JIT)
+def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count, p, coef, shape, probe_at):
+    """Grid indices of probes ``first`` ... ``first + count - 1`` of ``n_probe`` at the middles of equal intervals
+    of the segment [s0, s0 + length] [m] of a ray, into ``probe_at[0:3, :count]`` (k, j, i), and the nearest
+    cell's within the grid of ``shape`` (nk, ny, nx) into ``probe_at[3:6, :count]`` (as floats).
+
+    The geometry of :func:`_point_geometry` in a loop of its own, without table reads or branches and with the
+    constants in registers, which LLVM vectorises: ~5 ns per probe instead of ~23 ns inside the loop of lookups
+    (docs/performance.md, section 28)."""
+    radius, centre_u, centre_v, scale = p[_P_RADIUS], p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE]
+    u_lo, u_hi, v_lo, v_hi = p[_P_BOUNDS], p[_P_BOUNDS + 1], p[_P_BOUNDS + 2], p[_P_BOUNDS + 3]
+    z_bottom, dz = p[_P_ZBOTTOM], p[_P_DZ]
+    c = (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7], coef[8], coef[9], coef[10], coef[11],
+         coef[12], coef[13], coef[14], coef[15], coef[16], coef[17], coef[18], coef[19])
+    for b in range(count):
+        s = s0 + (first + b + 0.5) / n_probe * length
+        _, _, k, j, i = _height_and_indices(st0 + s * d0, st1 + s * d1, st2 + s * d2, radius, centre_u, centre_v,
+                                            scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c)
+        probe_at[0, b] = k
+        probe_at[1, b] = j
+        probe_at[2, b] = i
+        probe_at[3, b] = _clip(_round_half_even(k), 0.0, shape[0] - 1.0)
+        probe_at[4, b] = _clip(_round_half_even(j), 0.0, shape[1] - 1.0)
+        probe_at[5, b] = _clip(_round_half_even(i), 0.0, shape[2] - 1.0)
 
 
 @njit(**_JIT)
@@ -180,29 +219,56 @@ def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
 
 
 @njit(**_JIT)
-def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf):
+def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step_at):
+    """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
+    ``edges`` [m]) into ``step_at[0:5, :count]`` (height [m], local solar-zenith cosine, k, j, i): a loop that LLVM
+    vectorises, as :func:`_probe_indices` (docs/performance.md, section 28)."""
+    radius, centre_u, centre_v, scale = p[_P_RADIUS], p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE]
+    u_lo, u_hi, v_lo, v_hi = p[_P_BOUNDS], p[_P_BOUNDS + 1], p[_P_BOUNDS + 2], p[_P_BOUNDS + 3]
+    z_bottom, dz = p[_P_ZBOTTOM], p[_P_DZ]
+    sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
+    c = (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7], coef[8], coef[9], coef[10], coef[11],
+         coef[12], coef[13], coef[14], coef[15], coef[16], coef[17], coef[18], coef[19])
+    for b in range(count):
+        s_lo = edges[first + b]
+        s = s_lo + 0.5 * (edges[first + b + 1] - s_lo)  # as the step loop computes it
+        q0, q1, q2 = st0 + s * d0, st1 + s * d1, st2 + s * d2
+        r, h, k, j, i = _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi,
+                                            z_bottom, dz, c)
+        step_at[0, b] = h
+        step_at[1, b] = (q0 * sun0 + q1 * sun1 + (q2 + radius) * sun2) / r
+        step_at[2, b] = k
+        step_at[3, b] = j
+        step_at[4, b] = i
+
+
+@njit(**_JIT)
+def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf, probe_at):
     """Probe the occupancy at n_probe equal intervals of a grid segment: the unnormalised cumulative step density
     in ``cdf[:n_probe + 1]``; returns the segment's length in cells (:func:`swim.rt.march.probe_counts_and_cells`)
-    and the number of occupied probes."""
+    and the number of occupied probes. The probes' indices are computed in blocks of ``probe_at.shape[1]``
+    (:func:`_probe_indices`), then looked up one by one."""
     nk, ny, nx = occupancy.shape
     cdf[0] = 0.0
     cells = 0.0
     occupied = 0
     kp = jp = ip = 0.0
-    for m in range(n_probe):
-        s = s0 + (m + 0.5) / n_probe * length
-        _, _, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
-        if m > 0:
-            cells += max(abs(k - kp), max(abs(j - jp), abs(i - ip)))
-        kp, jp, ip = k, j, i
-        kk = int(_clip(_round_half_even(k), 0.0, nk - 1.0))
-        jj = int(_clip(_round_half_even(j), 0.0, ny - 1.0))
-        ii = int(_clip(_round_half_even(i), 0.0, nx - 1.0))
-        if occupancy[kk, jj, ii] > 0:
-            occupied += 1
-            cdf[m + 1] = cdf[m] + 1.0
-        else:
-            cdf[m + 1] = cdf[m] + empty_weight
+    block = probe_at.shape[1]
+    for first in range(0, n_probe, block):
+        count = min(block, n_probe - first)
+        _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count, p, coef, (nk, ny, nx),
+                       probe_at)
+        for b in range(count):
+            m = first + b
+            k, j, i = probe_at[0, b], probe_at[1, b], probe_at[2, b]
+            if m > 0:
+                cells += max(abs(k - kp), max(abs(j - jp), abs(i - ip)))
+            kp, jp, ip = k, j, i
+            if occupancy[int(probe_at[3, b]), int(probe_at[4, b]), int(probe_at[5, b])] > 0:
+                occupied += 1
+                cdf[m + 1] = cdf[m] + 1.0
+            else:
+                cdf[m + 1] = cdf[m] + empty_weight
     if n_probe > 1:
         cells *= n_probe / (n_probe - 1.0)
     return cells, occupied
@@ -210,18 +276,18 @@ def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, 
 
 @njit(**_JIT)
 def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight,
-                    probe_spacing, cell_slack, empty_steps, empty_cells_per_step, cdf, edges):
+                    probe_spacing, cell_slack, empty_steps, empty_cells_per_step, cdf, edges, probe_at):
     """:func:`swim.rt.march.grid_step_edges` for one ray, written into ``edges`` (steps + 1,); returns its number
     of steps. With the probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
     probe_spacing`` cells is probed again, once per ``probe_spacing`` cells (at most ``cdf.size - 1`` probes)."""
     cells, occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe,
-                                       empty_weight, cdf)
+                                       empty_weight, cdf, probe_at)
     # clamped before the conversion to an integer (a tiny spacing would overflow it)
     need = min(math.ceil(cells / probe_spacing - cell_slack), cdf.shape[0] - 1.0) if probe_spacing > 0 else 0.0
     if need > n_probe:
         n_probe = int(need)
         _, occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe,
-                                       empty_weight, cdf)
+                                       empty_weight, cdf, probe_at)
     # empty-space skipping: the empty intervals get at most max(empty_steps, empty cells / empty_cells_per_step)
     # steps, the occupied ones keep their density (and the ray takes fewer steps in all)
     empty = n_probe - occupied
@@ -309,7 +375,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
                      i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32):
+                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32,
+                     probe_at):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
     once: one code for the CPU's loop over all rays (one call) and a GPU thread's ray
     (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
@@ -366,12 +433,13 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             if in_grid:
                 n_steps = _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
                                           empty_weight, probe_spacing, cell_slack, empty_steps, empty_cells_per_step,
-                                          cdf, edges)
+                                          cdf, edges, probe_at)
             else:
                 _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra,
                              n_clear_probe, clear_power, clear_floor, cdf, edges)
             taken = n_steps if length > 0 else 1
             m = 0
+            block_first = block_stop = 0  # the steps whose geometry is in probe_at (_step_geometry)
             pending = 0
             budget = refine_budget if in_grid and tau_refine > 0 else 0
             have_prev = False  # an accumulated grid interval that may still be rolled back
@@ -381,16 +449,23 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 if pending == 0:
                     if m >= taken:
                         break
+                    if m >= block_stop:  # the next block of steps' geometry, in one vectorised loop
+                        block_first, block_stop = m, min(m + probe_at.shape[1], taken)
+                        _step_geometry(st0, st1, st2, d0, d1, d2, edges, m, block_stop - m, p, coef, probe_at)
                     s_lo, s_hi = edges[m], edges[m + 1]
+                    b = m - block_first
+                    h, mu_s, k, j, i = probe_at[0, b], probe_at[1, b], probe_at[2, b], probe_at[3, b], probe_at[4, b]
                     m += 1
                     depth = 0
-                else:
+                    ds = s_hi - s_lo
+                    s = s_lo + 0.5 * ds
+                else:  # a refined half
                     pending -= 1
                     s_lo, s_hi, depth = stack_lo[pending], stack_hi[pending], stack_depth[pending]
-                ds = s_hi - s_lo
-                s = s_lo + 0.5 * ds
+                    ds = s_hi - s_lo
+                    s = s_lo + 0.5 * ds
+                    h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
                 samples += 1
-                h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
                 # clear atmosphere (_gas_at): three height profiles times their spectra, and the sky table
                 g0, w = _lerp_index(h / p[_P_DH], n_gas)
                 prof_r = beta_gas[0, g0] * (1 - w) + beta_gas[0, g0 + 1] * w
@@ -643,6 +718,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     step_irradiance = np.empty(3)
     vol = np.empty(n_c)
     vol32 = np.empty(n_c, np.float32)
+    # the grid indices (k, j, i) of a block of occupancy probes and their nearest cells' (_probe_indices)
+    probe_at = np.empty((6, PROBE_BLOCK))
     _march_ray_range(0, start.shape[0], 1, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
@@ -650,4 +727,5 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
                      i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32)
+                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32,
+                     probe_at)

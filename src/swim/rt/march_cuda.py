@@ -32,9 +32,9 @@ logger = logging.getLogger(__name__)
 
 #: The functions of :mod:`swim.rt.march_cpu` that the kernel calls, directly or through each other.
 DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_expm1_neg", "_round_half_even", "_clip",
-                    "_point_geometry", "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_terrain_gap",
-                    "_gap_along", "_probe_occupancy", "_adaptive_edges", "_clear_edges", "_invert_cdf",
-                    "_accumulate", "_march_ray_range")
+                    "_height_and_indices", "_point_geometry", "_probe_indices", "_step_geometry", "_bilinear",
+                    "_bilinear_index", "_lerp_index", "_bilinear_at", "_terrain_gap", "_gap_along", "_probe_occupancy",
+                    "_adaptive_edges", "_clear_edges", "_invert_cdf", "_accumulate", "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
 
@@ -130,12 +130,14 @@ def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, f
         "        step_irradiance = cuda.local.array(3, float64)\n"
         "        vol = cuda.local.array(N_CHANNELS, float64)\n"
         "        vol32 = cuda.local.array(N_CHANNELS, float32)\n"
+        "        probe_at = cuda.local.array((6, PROBE_BLOCK), float64)\n"
         f"        march_ray_range(r, r + 1, 1, {names}, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tsp,\n"
-        "                        step_beta, step_source, step_irradiance, vol, vol32)\n"
+        "                        step_beta, step_source, step_irradiance, vol, vol32, probe_at)\n"
     )
     namespace = {"cuda": cuda, "float64": numba.float64, "float32": numba.float32, "int64": numba.int64,
                  "march_ray_range": march_ray_range, "N_EDGES": n_edges, "N_CDF": n_cdf, "N_SLOTS": n_slots,
-                 "N_SAVED": n_saved, "N_SPECIES": n_species, "N_CHANNELS": n_channels}
+                 "N_SAVED": n_saved, "N_SPECIES": n_species, "N_CHANNELS": n_channels,
+                 "PROBE_BLOCK": march_cpu.PROBE_BLOCK}
     exec(compile(source, f"<swim.rt.march_cuda kernel {n_edges}/{n_cdf}/{n_slots}/{n_channels}>", "exec"), namespace)
     return cuda.jit(fastmath=fastmath)(namespace["march_rays_cuda"])
 
