@@ -44,8 +44,8 @@ _JIT = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
 #: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
 _P_RADIUS, _P_SUN, _P_ZBOTTOM, _P_DZ, _P_CENTRE, _P_SCALE, _P_BOUNDS, _P_DH, _P_TOP = 0, 1, 4, 5, 6, 8, 9, 13, 14
 _N_PARAMETERS = 15
-#: Occupancy probes whose grid indices are computed together, in one vectorised loop (:func:`_probe_indices`): four
-#: AVX-512 vectors of float64; a GPU thread's local array of 6 x this.
+#: Occupancy probes, or steps, whose geometry is computed together in one vectorised loop (:func:`_probe_indices`,
+#: :func:`_step_geometry`): four AVX-512 vectors of float64; a GPU thread's local array of 6 x this.
 PROBE_BLOCK = 32
 
 
@@ -148,6 +148,18 @@ def _point_geometry(q0, q1, q2, p, coef):
     return h, mu_s, k, j, i
 
 
+@njit(**_JIT, inline="always")
+def _geometry_constants(p, coef):
+    """The scalars that :func:`_height_and_indices` takes after the point (from :func:`pack_parameters`'s ``p``) and
+    the index map's 20 cubic coefficients as a tuple: a loop over points then keeps them in registers, sees no table
+    reads to order against its stores, and LLVM vectorises it (:func:`_probe_indices`, :func:`_step_geometry`)."""
+    scalars = (p[_P_RADIUS], p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE], p[_P_BOUNDS], p[_P_BOUNDS + 1],
+               p[_P_BOUNDS + 2], p[_P_BOUNDS + 3], p[_P_ZBOTTOM], p[_P_DZ])
+    c = (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7], coef[8], coef[9], coef[10], coef[11],
+         coef[12], coef[13], coef[14], coef[15], coef[16], coef[17], coef[18], coef[19])
+    return scalars, c
+
+
 @njit(**_JIT)
 def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count, p, coef, shape, probe_at):
     """Grid indices of probes ``first`` ... ``first + count - 1`` of ``n_probe`` at the middles of equal intervals
@@ -157,11 +169,7 @@ def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count,
     The geometry of :func:`_point_geometry` in a loop of its own, without table reads or branches and with the
     constants in registers, which LLVM vectorises: ~5 ns per probe instead of ~23 ns inside the loop of lookups
     (docs/performance.md, section 28)."""
-    radius, centre_u, centre_v, scale = p[_P_RADIUS], p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE]
-    u_lo, u_hi, v_lo, v_hi = p[_P_BOUNDS], p[_P_BOUNDS + 1], p[_P_BOUNDS + 2], p[_P_BOUNDS + 3]
-    z_bottom, dz = p[_P_ZBOTTOM], p[_P_DZ]
-    c = (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7], coef[8], coef[9], coef[10], coef[11],
-         coef[12], coef[13], coef[14], coef[15], coef[16], coef[17], coef[18], coef[19])
+    (radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz), c = _geometry_constants(p, coef)
     for b in range(count):
         s = s0 + (first + b + 0.5) / n_probe * length
         _, _, k, j, i = _height_and_indices(st0 + s * d0, st1 + s * d1, st2 + s * d2, radius, centre_u, centre_v,
@@ -223,12 +231,8 @@ def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step
     """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
     ``edges`` [m]) into ``step_at[0:5, :count]`` (height [m], local solar-zenith cosine, k, j, i): a loop that LLVM
     vectorises, as :func:`_probe_indices` (docs/performance.md, section 28)."""
-    radius, centre_u, centre_v, scale = p[_P_RADIUS], p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE]
-    u_lo, u_hi, v_lo, v_hi = p[_P_BOUNDS], p[_P_BOUNDS + 1], p[_P_BOUNDS + 2], p[_P_BOUNDS + 3]
-    z_bottom, dz = p[_P_ZBOTTOM], p[_P_DZ]
+    (radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz), c = _geometry_constants(p, coef)
     sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
-    c = (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7], coef[8], coef[9], coef[10], coef[11],
-         coef[12], coef[13], coef[14], coef[15], coef[16], coef[17], coef[18], coef[19])
     for b in range(count):
         s_lo = edges[first + b]
         s = s_lo + 0.5 * (edges[first + b + 1] - s_lo)  # as the step loop computes it
@@ -718,7 +722,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     step_irradiance = np.empty(3)
     vol = np.empty(n_c)
     vol32 = np.empty(n_c, np.float32)
-    # the grid indices (k, j, i) of a block of occupancy probes and their nearest cells' (_probe_indices)
+    # the geometry of a block of occupancy probes (_probe_indices), then of a block of steps (_step_geometry)
     probe_at = np.empty((6, PROBE_BLOCK))
     _march_ray_range(0, start.shape[0], 1, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
