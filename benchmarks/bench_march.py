@@ -5,6 +5,7 @@ Usage::
     python benchmarks/bench_march.py --scene synthetic --size 512                  # time per sample and per ray
     python benchmarks/bench_march.py --scene rico --size 512 --experiments         # + cache and fixed-cost splits
     python benchmarks/bench_march.py --scene synthetic --variant /tmp/my_march_cpu.py --repeats 15
+    python benchmarks/bench_march.py --scene mc --size 41 --flush 64 --repeats 15       # the Monte Carlo case's view
 
 A render's timing moves by 10-20 % on this project's shared 2-core machine, which hides a change of a few per
 cent in the kernel. This script renders the suite's all-sky view of a scene once (``benchmarks/bench_suite.py``'s
@@ -12,6 +13,11 @@ scenes and vantages), keeps the arguments of every call of :func:`swim.rt.march_
 rays with the tables it reads), and replays them on one thread, several times, alternating between kernels:
 the minimum over the repeats then moves by ~1-2 %. It reports rays, samples (the medium's samples per ray that
 the kernel counts, docs/performance.md section 25), ns per sample and µs per ray.
+
+``--scene mc`` captures the view of the suite's Monte Carlo case instead (``mc_ratio``: the RICO LES seen from
+the ground, :func:`swim.validation.mitsuba.swim_view`, 41² in the suite). ``--flush MB`` writes to a buffer of that
+many MB before each kernel's pass, as a render's other work does between its marches, so that the tables start
+outside the caches (what a small render sees).
 
 ``--variant FILE.py`` replays the same inputs through another implementation of ``march_rays`` (a copy of
 ``src/swim/rt/march_cpu.py`` with a change; its relative imports are rewritten to ``swim.rt.``) and reports the
@@ -48,7 +54,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import bench_suite  # noqa: E402  (benchmarks/ on the path first)
 
 #: The suite's all-sky case of each scene (its view and sun).
-SCENE_CASES = {"synthetic": "synthetic_allsky", "rico": "rico_allsky", "katrina": "katrina_allsky", "conus": "conus_allsky"}
+SCENE_CASES = {"synthetic": "synthetic_allsky", "rico": "rico_allsky", "katrina": "katrina_allsky",
+               "conus": "conus_allsky", "mc": "mc_ratio"}
 #: march_rays' outputs: its last arguments (written in place).
 N_OUTPUTS = 11
 
@@ -62,8 +69,6 @@ def capture(scene_name, size, data):
 
     spec = {**bench_suite.CASES[SCENE_CASES[scene_name]], "data": str(data)}
     scene = bench_suite.load_scene(spec)
-    kw = bench_suite.render_kwargs(spec, image=(size, size))
-    kw["settings"] = MarchSettings(backend="numba")
     calls, original = [], march_cpu.march_rays
 
     def recording(*args):
@@ -72,7 +77,16 @@ def capture(scene_name, size, data):
 
     march_cpu.march_rays = recording
     try:
-        swim.render(scene, **kw)
+        if spec.get("kind") == "mc":
+            from swim.validation.mitsuba import RICO_CASES, swim_view
+
+            case = RICO_CASES[spec["mc_case"]]
+            swim_view(scene, case["view"], case["sun_zenith"], settings={"allsky_size": size},
+                      march_settings=MarchSettings(backend="numba"))
+        else:
+            kw = bench_suite.render_kwargs(spec, image=(size, size))
+            kw["settings"] = MarchSettings(backend="numba")
+            swim.render(scene, **kw)
     finally:
         march_cpu.march_rays = original
     if not calls:
@@ -137,15 +151,18 @@ def with_setting(calls, **values):
     return out
 
 
-def replay(runs, repeats):
+def replay(runs, repeats, flush_mb=0):
     """Time each (label, march, calls) of ``runs``, alternating between them ``repeats`` times after one warm-up
-    pass each; returns {label: {"seconds": [...], "rays", "samples"}}."""
+    pass each (a buffer of ``flush_mb`` MB written before each pass); returns {label: {"seconds": [...], "rays",
+    "samples"}}."""
     for _, march, calls in runs:
         for args in calls:
             march(*args)
     seconds = {label: [] for label, _, _ in runs}
+    buffer = np.zeros(int(flush_mb * 2**20) // 8)
     for _ in range(repeats):
         for label, march, calls in runs:
+            buffer += 1.0  # the caches filled with other data, as between a render's marches
             t0 = time.perf_counter()
             for args in calls:
                 march(*args)
@@ -177,6 +194,7 @@ def main(argv=None):
     parser.add_argument("--chunks", type=int, default=0, help="replay only the first N chunks (0: all)")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--variant", action="append", default=[], help="another march_cpu.py to replay (repeatable)")
+    parser.add_argument("--flush", type=float, default=0.0, help="MB written before each pass (caches cold)")
     parser.add_argument("--experiments", action="store_true", help="cache and fixed-cost splits (see the docstring)")
     parser.add_argument("--data", type=Path, default=bench_suite.DATA)
     parser.add_argument("--out", type=Path, default=None)
@@ -198,7 +216,7 @@ def main(argv=None):
         runs += [("one ray per chunk", march_cpu.march_rays, reorder(calls, "one ray")),
                  ("rays shuffled", march_cpu.march_rays, reorder(calls, "shuffled")),
                  ("one step per segment", march_cpu.march_rays, one_step)]
-    result = replay(runs, args.repeats)
+    result = replay(runs, args.repeats, args.flush)
     for label, _, replayed in runs[1:1 + len(args.variant)]:
         result[label]["max_output_difference"] = max_difference(base, replayed)
     if args.experiments:
@@ -206,8 +224,9 @@ def main(argv=None):
         result["setup_per_ray_us"] = few["us_per_ray"] - few["samples_per_ray"] * full["ns_per_sample"] * 1e-3
         result["setup_share"] = result["setup_per_ray_us"] / full["us_per_ray"]
 
+    flushed = f", {args.flush:g} MB written before each pass" if args.flush else ""
     print(f"\n{args.scene}, {args.size}² all-sky: {len(calls)} chunks of rays (the first {calls[0][0].shape[0]}); "
-          f"one thread, best of {args.repeats}\n")
+          f"one thread, best of {args.repeats}{flushed}\n")
     print("| run | rays | samples/ray | min [s] | median [s] | ns/sample | µs/ray | max output difference |")
     print("|---|---|---|---|---|---|---|---|")
     for label, _, _ in runs:
@@ -223,6 +242,7 @@ def main(argv=None):
     out = args.out or bench_suite.RESULTS / f"march-{args.scene}-{stamp}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"scene": args.scene, "size": args.size, "chunks": len(calls), "repeats": args.repeats,
+           "flush_mb": args.flush,
            "machine": bench_suite.machine_info(), "git": bench_suite.git_info(), "results": result}
     out.write_text(json.dumps(doc, indent=1, default=float))
     print(f"\nwritten: {out}")

@@ -26,7 +26,10 @@ import math
 import numpy as np
 
 import numba
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .compilation_cache import _disabled, cache_directory
 
@@ -94,13 +97,31 @@ def _index_map(uc, vc, du, dv, c, o):
     return _cubic(uc, vc, c, o) + _cubic_du(uc, vc, c, o) * du + _cubic_dv(uc, vc, c, o) * dv
 
 
-@njit(**_JIT)
-def _expm1_neg(x):
-    """e^-x - 1 for x >= 0: a Taylor polynomial below 0.1 (relative error < 1e-10; a step's optical depth in
-    clear air is ~1e-3), the library function above."""
-    if x < 0.1:
-        return -x * (1.0 - x * (0.5 - x * (1.0 / 6 - x * (1.0 / 24 - x * (1.0 / 120 - x * (1.0 / 720 - x / 5040))))))
-    return math.expm1(-x)
+@intrinsic
+def _prefetch(typingctx, array, k, j, i):
+    """Ask the CPU to bring the cell ``array[k, j, i]`` (its first channel; integer indices, in range) into its
+    caches ahead of a read (LLVM's ``llvm.prefetch``: a hint, which never faults and changes no result).
+
+    A CUDA device function of the same name does nothing (:mod:`swim.rt.march_cuda`)."""
+    sig = types.void(array, k, j, i)
+
+    def codegen(context, builder, signature, args):
+        array_type = signature.args[0]
+        data = context.make_array(array_type)(context, builder, args[0])
+        intp = context.get_value_type(types.intp)
+        index = [context.cast(builder, value, kind, types.intp) for value, kind in zip(args[1:], signature.args[1:])]
+        index += [ir.Constant(intp, 0)] * (array_type.ndim - 3)
+        pointer = cgutils.get_item_pointer(context, builder, array_type, data, index, wraparound=False)
+        byte_pointer = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        signature_ir = ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
+        hint = cgutils.get_or_insert_function(builder.module, signature_ir, "llvm.prefetch.p0")
+        # a read (0), to be kept in every cache level (locality 3), of data (1)
+        builder.call(hint, [builder.bitcast(pointer, byte_pointer), ir.Constant(i32, 0), ir.Constant(i32, 3),
+                            ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 @njit(**_JIT)
@@ -229,10 +250,12 @@ def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
 @njit(**_JIT)
 def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step_at):
     """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
-    ``edges`` [m]) into ``step_at[0:5, :count]`` (height [m], local solar-zenith cosine, k, j, i): a loop that LLVM
-    vectorises, as :func:`_probe_indices` (docs/performance.md, section 28)."""
+    ``edges`` [m]) into ``step_at[0:6, :count]`` (height [m], local solar-zenith cosine, k, j, i, and the sky
+    table's height coordinate sqrt(height / top)): a loop that LLVM vectorises, as :func:`_probe_indices`
+    (docs/performance.md, sections 28 and 29)."""
     (radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz), c = _geometry_constants(p, coef)
     sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
+    top = p[_P_TOP]
     for b in range(count):
         s_lo = edges[first + b]
         s = s_lo + 0.5 * (edges[first + b + 1] - s_lo)  # as the step loop computes it
@@ -244,6 +267,28 @@ def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step
         step_at[2, b] = k
         step_at[3, b] = j
         step_at[4, b] = i
+        step_at[5, b] = math.sqrt(_clip(h / top, 0.0, 1.0))  # the sky table's height coordinate
+
+
+@njit(**_JIT)
+def _prefetch_corners(volume, count, step_at):
+    """Prefetch the eight corner cells of the trilinear volume samples of steps 0 ... count - 1 of a block (their
+    grid indices (k, j, i) in ``step_at[2:5]``, from :func:`_step_geometry`), before the step loop reads them.
+
+    The corners' reads waited on memory for ~30 % of the kernel's time where rays fan out from an observer through a
+    volume bigger than the caches (docs/performance.md, section 29); a block of 32 steps' corners (at most 256 cells
+    of 36 bytes or fewer) fits in the first-level cache."""
+    nk, ny, nx, _ = volume.shape
+    for b in range(count):
+        k, j, i = step_at[2, b], step_at[3, b], step_at[4, b]
+        if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:  # as the step loop's sample
+            k0 = int(_clip(math.floor(k), 0.0, nk - 2.0))
+            j0 = int(_clip(math.floor(j), 0.0, ny - 2.0))
+            i0 = int(_clip(math.floor(i), 0.0, nx - 2.0))
+            for dk in range(2):
+                for dj in range(2):
+                    _prefetch(volume, k0 + dk, j0 + dj, i0)
+                    _prefetch(volume, k0 + dk, j0 + dj, i0 + 1)  # the cell after, often on the next cache line
 
 
 @njit(**_JIT)
@@ -354,19 +399,28 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
 
 
 @njit(**_JIT, inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
-def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff, weight):
+def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff, weight,
+                gas_ratio):
     """One wavelength's accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth, the
     transmittance to the observer, the clear-sky radiance (Eq. 3: the source times the step's mean transmittance)
-    and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-t0 - e^-min(t1, 2))."""
+    and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-t0 - e^-min(t1, 2); ``gas_ratio``:
+    e^t0, so that ``t_obs * gas_ratio`` is the clear sky's e^-tau_clear without an exp: t_obs = e^-(tau_clear + t0),
+    and t0 < 2 wherever the weight is not 0)."""
     x = (beta_clear + beta_h) * ds_eff
-    # one expm1 gives both the step's mean transmittance and the next step's e^-tau to the observer
-    em = _expm1_neg(x)
-    step_mean = -em / max(x, 1e-30) if x > 1e-4 else 1.0 - 0.5 * x
-    l_clear += t_obs * source * (ds_eff * step_mean)
-    t_obs *= 1.0 + em
+    # the step's mean transmittance (1 - e^-x) / x and e^-x - 1, which carries e^-tau to the observer to the next
+    # step: below x = 0.1 (a step in clear air has x ~ 1e-3) one Taylor polynomial gives both (relative error
+    # < 1e-11) without the division, above it one expm1
+    if x < 0.1:
+        step_mean = 1.0 - x * (0.5 - x * (1.0 / 6 - x * (1.0 / 24 - x * (1.0 / 120 - x * (1.0 / 720 - x / 5040)))))
+        em = -x * step_mean
+    else:
+        em = math.expm1(-x)
+        step_mean = -em / x
     if weight > 0.0:
         i_nogas += irradiance_h * weight
-        i_gas += irradiance_h * math.exp(-tau_clear) * weight
+        i_gas += irradiance_h * (t_obs * gas_ratio) * weight
+    l_clear += t_obs * source * (ds_eff * step_mean)
+    t_obs *= 1.0 + em
     tau_clear += beta_clear * ds_eff
     return tau_clear, t_obs, l_clear, i_nogas, i_gas
 
@@ -412,6 +466,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         for c in range(n_species):  # element by element: a CUDA thread's local arrays take no slice assignments
             tsp[c] = 0.0
         th = 0.0
+        e_th = 1.0
         ict = 0.0
         samples = 0  # the medium's samples along this ray: every step evaluated, refined halves included
         alive = valid[r]
@@ -456,9 +511,12 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     if m >= block_stop:  # the next block of steps' geometry, in one vectorised loop
                         block_first, block_stop = m, min(m + probe_at.shape[1], taken)
                         _step_geometry(st0, st1, st2, d0, d1, d2, edges, m, block_stop - m, p, coef, probe_at)
+                        if in_grid:
+                            _prefetch_corners(volume, block_stop - m, probe_at)
                     s_lo, s_hi = edges[m], edges[m + 1]
                     b = m - block_first
                     h, mu_s, k, j, i = probe_at[0, b], probe_at[1, b], probe_at[2, b], probe_at[3, b], probe_at[4, b]
+                    fu = probe_at[5, b]
                     m += 1
                     depth = 0
                     ds = s_hi - s_lo
@@ -469,13 +527,13 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     ds = s_hi - s_lo
                     s = s_lo + 0.5 * ds
                     h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+                    fu = math.sqrt(_clip(h / top, 0.0, 1.0))
                 samples += 1
                 # clear atmosphere (_gas_at): three height profiles times their spectra, and the sky table
                 g0, w = _lerp_index(h / p[_P_DH], n_gas)
                 prof_r = beta_gas[0, g0] * (1 - w) + beta_gas[0, g0 + 1] * w
                 prof_a = beta_gas[1, g0] * (1 - w) + beta_gas[1, g0 + 1] * w
                 prof_s = beta_gas[2, g0] * (1 - w) + beta_gas[2, g0 + 1] * w
-                fu = math.sqrt(_clip(h / top, 0.0, 1.0))
                 fm = (mu_s + 1.0) * 0.5
                 su0, sv0, sa, sb = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
                 gap = _terrain_gap(h, j, i, terrain)
@@ -549,6 +607,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         in0, in1, in2 = saved[11], saved[12], saved[13]
                         ig0, ig1, ig2 = saved[14], saved[15], saved[16]
                         th, ict, gap_prev, s_last = saved[7], saved[6], saved[17], saved[18]
+                        e_th = math.exp(-th)
                         for c in range(n_species):
                             tsp[c] = saved[19 + c]
                         mid = prev_lo + 0.5 * (prev_hi - prev_lo)
@@ -583,7 +642,14 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 t0 = th
                 t1 = t0 + beta_h * ds_eff
                 # Eq. 12's weight e^-t0 - e^-min(t1, 2) is exactly 0 without hydrometeors or beyond tau 2
-                weight = max(math.exp(-t0) - math.exp(-min(t1, 2.0)), 0.0) if t1 > t0 and t0 < 2.0 else 0.0
+                # (e^-t0 is carried from the step before, e_th, and restored with the state)
+                weight = 0.0
+                e_t1 = e_th
+                gas_ratio = 0.0
+                if t1 > t0 and t0 < 2.0:
+                    e_t1 = math.exp(-min(t1, 2.0))
+                    weight = max(e_th - e_t1, 0.0)
+                    gas_ratio = 1.0 / e_th
                 u0 = 0
                 wu = 0.0
                 if use_ms:
@@ -617,13 +683,14 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     step_source[c] = source
                     step_irradiance[c] = irradiance_h
                 tc0, to0, lc0, in0, ig0 = _accumulate(tc0, to0, lc0, in0, ig0, step_beta[0], step_source[0],
-                                                      step_irradiance[0], beta_h, ds_eff, weight)
+                                                      step_irradiance[0], beta_h, ds_eff, weight, gas_ratio)
                 tc1, to1, lc1, in1, ig1 = _accumulate(tc1, to1, lc1, in1, ig1, step_beta[1], step_source[1],
-                                                      step_irradiance[1], beta_h, ds_eff, weight)
+                                                      step_irradiance[1], beta_h, ds_eff, weight, gas_ratio)
                 tc2, to2, lc2, in2, ig2 = _accumulate(tc2, to2, lc2, in2, ig2, step_beta[2], step_source[2],
-                                                      step_irradiance[2], beta_h, ds_eff, weight)
+                                                      step_irradiance[2], beta_h, ds_eff, weight, gas_ratio)
                 ict += sun * weight
                 th = t1
+                e_th = e_t1
                 if in_grid:
                     for c in range(n_species):
                         tsp[c] += vol[c] * ds_eff

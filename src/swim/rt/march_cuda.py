@@ -31,11 +31,11 @@ from . import march_cpu
 logger = logging.getLogger(__name__)
 
 #: The functions of :mod:`swim.rt.march_cpu` that the kernel calls, directly or through each other.
-DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_expm1_neg", "_round_half_even", "_clip",
+DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_round_half_even", "_clip",
                     "_height_and_indices", "_point_geometry", "_geometry_constants", "_probe_indices", "_step_geometry",
                     "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_terrain_gap", "_gap_along",
-                    "_probe_occupancy", "_adaptive_edges", "_clear_edges", "_invert_cdf", "_accumulate",
-                    "_march_ray_range")
+                    "_prefetch_corners", "_probe_occupancy", "_adaptive_edges", "_clear_edges", "_invert_cdf",
+                    "_accumulate", "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
 
@@ -69,6 +69,12 @@ def _min2(a, b):
     return b if b < a else a
 
 
+def _no_prefetch(array, k, j, i):
+    """:func:`swim.rt.march_cpu._prefetch` on a GPU: nothing (a CPU's cache hint; a GPU hides memory latency with
+    its other threads)."""
+    return
+
+
 @functools.lru_cache(maxsize=1)
 def _device_functions():
     """The functions of :data:`DEVICE_FUNCTIONS` as CUDA device functions (name -> function).
@@ -84,6 +90,7 @@ def _device_functions():
     # CUDA target, which is what a machine without numba-cuda has for the compile check of the tests
     namespace["max"] = cuda.jit(device=True)(_max2)
     namespace["min"] = cuda.jit(device=True)(_min2)
+    namespace["_prefetch"] = cuda.jit(device=True)(_no_prefetch)
     for name in DEVICE_FUNCTIONS:
         python = getattr(march_cpu, name).py_func
         clone = types.FunctionType(python.__code__, namespace, name, python.__defaults__, python.__closure__)
