@@ -1,6 +1,6 @@
 """Pieces of the CPU kernel's step (swim.rt.march_cpu) held to closed forms, and its cache hint.
 
-The whole kernel is held to the float64 reference and to the JAX kernel in test_rt_march.py; these check the two
+The whole kernel is held to the float64 reference and to the JAX kernel in test_rt_march.py; these check the
 shortcuts of section 29 of docs/performance.md on their own, where a slip would be small enough to hide there.
 """
 

@@ -270,6 +270,17 @@ def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step
         step_at[5, b] = math.sqrt(_clip(h / top, 0.0, 1.0))  # the sky table's height coordinate
 
 
+@njit(**_JIT, inline="always")
+def _lower_corner(k, j, i, nk, ny, nx):
+    """Whether the fractional grid indices (k, j, i) lie within a grid of nk x ny x nx cells, and if so the lower
+    corner (k0, j0, i0) of the cell whose eight corners a trilinear sample there reads (clamped so that k0 + 1 etc.
+    are cells too): the step loop's volume sample and :func:`_prefetch_corners`."""
+    if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:
+        return (True, int(_clip(math.floor(k), 0.0, nk - 2.0)), int(_clip(math.floor(j), 0.0, ny - 2.0)),
+                int(_clip(math.floor(i), 0.0, nx - 2.0)))
+    return False, 0, 0, 0
+
+
 @njit(**_JIT)
 def _prefetch_corners(volume, count, step_at):
     """Prefetch the eight corner cells of the trilinear volume samples of steps 0 ... count - 1 of a block (their
@@ -280,11 +291,8 @@ def _prefetch_corners(volume, count, step_at):
     of 36 bytes or fewer) fits in the first-level cache."""
     nk, ny, nx, _ = volume.shape
     for b in range(count):
-        k, j, i = step_at[2, b], step_at[3, b], step_at[4, b]
-        if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:  # as the step loop's sample
-            k0 = int(_clip(math.floor(k), 0.0, nk - 2.0))
-            j0 = int(_clip(math.floor(j), 0.0, ny - 2.0))
-            i0 = int(_clip(math.floor(i), 0.0, nx - 2.0))
+        inside, k0, j0, i0 = _lower_corner(step_at[2, b], step_at[3, b], step_at[4, b], nk, ny, nx)
+        if inside:
             for dk in range(2):
                 for dj in range(2):
                     _prefetch(volume, k0 + dk, j0 + dj, i0)
@@ -547,10 +555,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 ca = cb = ca1 = cb1 = 0.0
                 if in_grid:
                     # trilinear sample of the packed volume, its "outside" values beyond it
-                    if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:
-                        k0 = int(_clip(math.floor(k), 0.0, nk - 2.0))
-                        j0 = int(_clip(math.floor(j), 0.0, ny - 2.0))
-                        i0 = int(_clip(math.floor(i), 0.0, nx - 2.0))
+                    inside, k0, j0, i0 = _lower_corner(k, j, i, nk, ny, nx)
+                    if inside:
                         fk = _clip(k - k0, 0.0, 1.0)
                         fj = _clip(j - j0, 0.0, 1.0)
                         fi = _clip(i - i0, 0.0, 1.0)
