@@ -236,6 +236,52 @@ def test_numba_march_matches_the_jax_march(case):
     np.testing.assert_allclose(numba_out["distance"], jax_out["distance"], rtol=1e-4, atol=0.5)  # NaN where no ground
 
 
+@pytest.mark.parametrize("plume", [True, False], ids=["five aerosol classes", "one class"])
+def test_numba_set_up_matches_the_jax_set_up(plume):
+    """The per-ray set-up of the CPU kernel (swim.rt.march_cpu.prepare_rays) is swim.rt.march._prepare_rays written
+    again: the same aerosol column class and the same diffuse-source profiles at each ray's lowest point, to
+    float32 round-off (the JAX function computes in float32), for rays from the ground, inside the grid and above."""
+    import jax
+
+    from swim.rt import march_cpu
+    from swim.rt.march import _numba_tables, _prepare_rays
+
+    scene = _tiny_scene(plume)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    volume = build_optical_volume(scene)
+    aer3d = volume["aerosol_extinction"].mean(dim=("y", "x")).values.astype(float)
+    levels = float(volume.attrs["z_bottom"]) + float(volume.attrs["dz"]) * np.arange(aer3d.size)
+    classes = aerosol_column_classes(aerosol_column_optical_depth(volume).values) if plume else None
+    gas = build_gas_tables(AerosolBackground(stratospheric_aod_550=0.2),
+                           scene_aerosol_profile=(levels, aer3d) if plume else None, aerosol_class_aod=classes)
+    consts = kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
+    origins, dirs = _random_rays(900, seed=4)
+    seg = ray_segments(origins, dirs, grid_geometry(volume), top=float(consts["top"]))
+    f32 = [np.asarray(a, np.float32) for a in (seg["start"], dirs, seg["bounds"])]
+    (lower_jax, weight_jax), ms_jax = jax.device_get(
+        jax.jit(_prepare_rays, static_argnames="settings")(*f32, consts, MarchSettings()))
+    tables = _numba_tables(consts)
+    n = len(dirs)
+    lower, weight = np.empty(n, np.int32), np.empty(n)
+    ms = np.full((9, n, tables["n_u"]), np.nan, np.float32)
+    march_cpu.prepare_rays(seg["start"], dirs, seg["bounds"], tables["p"], tables["coef"], tables["aerosol_column"],
+                           tables["class_aod"], tables["ms_source"], True, lower, weight, ms)
+    if plume:
+        assert len(tables["class_aod"]) == 5 and len(np.unique(lower)) >= 3, "the rays must see several classes"
+    else:
+        assert not lower.any() and not weight.any()
+    same = lower == lower_jax  # float32 and float64 may put a column on either side of a class boundary
+    assert same.mean() > 0.99
+    np.testing.assert_allclose(weight[same], weight_jax[same, 0], atol=1e-5)
+    assert np.all(np.isfinite(ms)) and ms.max() > 0.1
+    np.testing.assert_allclose(ms[:, same], ms_jax[:, same], rtol=1e-4, atol=1e-6 * ms_jax.max())
+    # without the multiple-scattering source only the classes are written
+    untouched = np.full((9, 1, 2), -1.0, np.float32)
+    march_cpu.prepare_rays(seg["start"], dirs, seg["bounds"], tables["p"], tables["coef"], tables["aerosol_column"],
+                           tables["class_aod"], tables["ms_source"], False, lower, weight, untouched)
+    assert np.all(untouched == -1.0) and np.array_equal(lower[same], lower_jax[same])
+
+
 def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     """``steps``: the numba kernel counts the samples each ray takes, the lockstep JAX kernel every step of every
     ray. Without refinement and without the empty-space limit a ray that never meets the ground takes every step

@@ -1491,7 +1491,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         n_chunks = cores * -(-n // (cores * chunk))
         chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
     if backend in ("numba", "cuda"):
-        tables = _numba_tables(consts)
+        tables = _numba_tables(consts, prepare=backend == "numba")
         if backend == "cuda":
             from .march_cuda import device_tables
 
@@ -1651,9 +1651,11 @@ def _pad_rows(a, pad):
     return np.concatenate([a, np.repeat(a[-1:], pad, axis=0)], axis=0) if pad else a
 
 
-def _numba_tables(consts):
+def _numba_tables(consts, prepare=True):
     """The kernel constants as the numpy arrays and packed scalars of :func:`swim.rt.march_cpu.march_rays`
-    (views of the device arrays where JAX allows it, so the volume is not copied)."""
+    (views of the device arrays where JAX allows it, so the volume is not copied), and with ``prepare`` those of
+    :func:`swim.rt.march_cpu.prepare_rays` (not for the CUDA kernel, whose set-up is JAX's: from a GPU they would be
+    copies)."""
     from . import march_cpu
 
     p, coef = march_cpu.pack_parameters(consts)
@@ -1663,18 +1665,24 @@ def _numba_tables(consts):
         a.flags.writeable = False  # like JAX's host views, so that every render calls the same compiled kernel
         return a
 
-    return {"p": p, "coef": coef, "beta_gas": arr(consts["beta_gas"]), "spectra": arr(consts["beta_gas_spectra"]),
+    tables = {"p": p, "coef": coef, "beta_gas": arr(consts["beta_gas"]), "spectra": arr(consts["beta_gas_spectra"]),
             "sky": arr(consts["sky"]), "diffuse_classes": arr(consts["diffuse_classes"]),
             "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
             "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]), "angstrom": arr(consts["angstrom"]),
             "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"])}
+    if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
+        source = consts["ms_source"]
+        tables.update(ms_source=arr(np.asarray(source).reshape(source.shape[:4] + (-1,))), n_u=int(source.shape[4]),
+                      aerosol_column=arr(consts["aerosol_column"]), class_aod=arr(consts["class_aod"]))
+    return tables
 
 
 def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n,
                        kernel="numba"):
-    """One chunk of rays: set-up and composition in JAX, the step loop in :func:`swim.rt.march_cpu.march_rays`
-    (``kernel`` "numba") or its CUDA twin :func:`swim.rt.march_cuda.march_rays` ("cuda"; ``exact``: start,
-    direction and bounds in float64). Returns numpy arrays of the first ``n`` (real) rays.
+    """One chunk of rays: the per-ray set-up (:func:`swim.rt.march_cpu.prepare_rays` for ``kernel`` "numba", JAX's
+    :func:`_prepare_rays` for "cuda"), the step loop in :func:`swim.rt.march_cpu.march_rays` ("numba") or its CUDA
+    twin :func:`swim.rt.march_cuda.march_rays` ("cuda"; ``exact``: start, direction and bounds in float64), and the
+    composition in JAX. Returns numpy arrays of the first ``n`` (real) rays.
 
     The chunk's arrays stay numpy arrays between the stages (the jitted stages take them as they are, and their
     outputs are fetched once): a JAX operation per slice or conversion cost ~30 dispatches per chunk, ~3 ms
@@ -1686,10 +1694,20 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         from . import march_cuda
 
         march = march_cuda.march_rays  # its tables already on the device (march_cuda.device_tables)
-    aerosol_class, ms = jax.device_get(_prepare_chunk(start, direction, bounds, consts, settings))
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
     padded = start.shape[0]
+    if kernel == "numba":  # the set-up in numba too (~0.5 us a ray in XLA, docs/performance.md, section 30)
+        class_lower, class_weight = np.empty(padded, np.int32), np.empty(padded)
+        ms = np.empty((9, n, tables["n_u"]) if settings.multiple_scattering else (9, 1, 2), np.float32)
+        march_cpu.prepare_rays(*(a[:n] for a in exact), tables["p"], tables["coef"], tables["aerosol_column"],
+                               tables["class_aod"], tables["ms_source"], settings.multiple_scattering,
+                               class_lower[:n], class_weight[:n], ms)
+        class_lower[n:], class_weight[n:] = class_lower[n - 1], class_weight[n - 1]
+        aerosol_class = (class_lower, class_weight.astype(np.float32)[:, None])
+        ms_profile, ms = ms, (ms if settings.multiple_scattering else None)
+    else:
+        aerosol_class, ms = jax.device_get(_prepare_chunk(start, direction, bounds, consts, settings))
     # in the order of march_rays' outputs (its last arguments but the sample counts, which go to the caller alone)
     state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
              "tau_species": np.empty((padded, len(SPECIES))), "l_clear": np.empty((padded, 3)),
@@ -1698,7 +1716,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
-    ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)  # rows beyond n are not read
+    if kernel != "numba":  # a writable copy (the kernel's compiled types), or zeros; rows beyond n are not read
+        ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
     samples = np.empty(n, np.int64)
     t, out = tables, [state[key][:n] for key in state] + [samples]
     march(

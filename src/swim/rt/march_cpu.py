@@ -739,6 +739,99 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
 
 
 @njit(**_JIT, nogil=True)
+def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, ms_source, use_ms, class_lower,
+                 class_weight, ms_profile):
+    """:func:`swim.rt.march._prepare_rays`, the per-ray set-up before the march, for the rays of :func:`march_rays`:
+    each ray's lowest point (:func:`swim.rt.march.lowest_point`), the class of the 3-D aerosol column there
+    (:func:`swim.rt.march.aerosol_class_weights`) and the diffuse (multiple-scattering) source's height profiles
+    (:func:`swim.rt.march.diffuse_source_profiles`).
+
+    Inputs: rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3) [m] of
+    :func:`swim.rt.march.ray_segments`; ``p``, ``coef`` of :func:`pack_parameters`; the column optical depth field
+    ``aerosol_column`` (1, ny, nx) and its classes ``class_aod`` (n_class,); the source table ``ms_source``
+    (n_class, n_s, n_v, n_phi, n_u * 9) (:mod:`swim.rt.multiple_scattering`, its last two axes flattened). Written:
+    ``class_lower`` (n,) int32 and ``class_weight`` (n,) [-], and where ``use_ms`` ``ms_profile`` (9, n, n_u) [-].
+
+    The same arithmetic as the JAX functions, in float64 from the float32 tables: 0.05-0.1 us a ray where XLA's
+    gathers of the table's rows took ~0.5 us (docs/performance.md, section 30)."""
+    radius = p[_P_RADIUS]
+    sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
+    n_class = class_aod.shape[0]
+    ny, nx = aerosol_column.shape[1], aerosol_column.shape[2]
+    n_s, n_v, n_phi, n_row = ms_source.shape[1], ms_source.shape[2], ms_source.shape[3], ms_source.shape[4]
+    n_u = ms_profile.shape[2]
+    acc = np.empty(n_row, np.float32)  # in float32 as the JAX function: twice the lanes of a vector
+    for r in range(start.shape[0]):
+        st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
+        d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
+        # lowest_point: the point closest to the earth's centre, clipped to the traced segment
+        s_low = _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, bounds[r, 2])
+        q0, q1, q2 = st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2
+        c0 = 0
+        wc = 0.0
+        if n_class > 1:  # aerosol_class_weights: the column optical depth there, linear between the classes
+            _, _, _, j, i = _point_geometry(q0, q1, q2, p, coef)
+            column = _bilinear(aerosol_column, 0, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+            f = 0.0  # jnp.interp on the class index: clamped to the first and last class
+            if column >= class_aod[n_class - 1]:
+                f = n_class - 1.0
+            elif column > class_aod[0]:
+                for c in range(n_class - 1):
+                    if column <= class_aod[c + 1]:
+                        f = c + (column - class_aod[c]) / (class_aod[c + 1] - class_aod[c])
+                        break
+            f = _clip(f, 0.0, n_class - 1.001)
+            c0 = int(math.floor(f))
+            wc = f - c0
+        class_lower[r] = c0
+        class_weight[r] = wc
+        if not use_ms:
+            continue
+        # diffuse_source_profiles: the table at the local sun and view cosines and relative azimuth there
+        qz = q2 + radius
+        norm = math.sqrt(q0 * q0 + q1 * q1 + qz * qz)
+        up0, up1, up2 = q0 / norm, q1 / norm, qz / norm
+        mu_v = up0 * d0 + up1 * d1 + up2 * d2
+        mu_s = up0 * sun0 + up1 * sun1 + up2 * sun2
+        cos_phi = ((d0 * sun0 + d1 * sun1 + d2 * sun2 - mu_v * mu_s)
+                   / math.sqrt(max((1 - mu_v * mu_v) * (1 - mu_s * mu_s), 1e-12)))
+        fs = _clip(math.sqrt(_clip(mu_s, 0.0, 1.0)) * (n_s - 1), 0.0, n_s - 1.001)
+        fv = _clip((mu_v + 1.0) * 0.5 * (n_v - 1), 0.0, n_v - 1.001)
+        fp = _clip(math.acos(_clip(cos_phi, -1.0, 1.0)) / math.pi * (n_phi - 1), 0.0, n_phi - 1.001)
+        s0, v0, p0 = int(math.floor(fs)), int(math.floor(fv)), int(math.floor(fp))
+        ws, wv, wp = fs - s0, fv - v0, fp - p0
+        for dc in range(2 if n_class > 1 else 1):
+            w_c = (1 - wc if dc == 0 else wc) if n_class > 1 else 1.0
+            # the eight corners of the class in one pass over their (n_u, 9) profiles, each contiguous: vectorised,
+            # eight streams read once and the sum written once
+            a0 = ms_source[c0 + dc, s0, v0, p0]
+            a1 = ms_source[c0 + dc, s0, v0, p0 + 1]
+            a2 = ms_source[c0 + dc, s0, v0 + 1, p0]
+            a3 = ms_source[c0 + dc, s0, v0 + 1, p0 + 1]
+            b0 = ms_source[c0 + dc, s0 + 1, v0, p0]
+            b1 = ms_source[c0 + dc, s0 + 1, v0, p0 + 1]
+            b2 = ms_source[c0 + dc, s0 + 1, v0 + 1, p0]
+            b3 = ms_source[c0 + dc, s0 + 1, v0 + 1, p0 + 1]
+            wa, wb = w_c * (1 - ws), w_c * ws
+            w00, w01, w10, w11 = (1 - wv) * (1 - wp), (1 - wv) * wp, wv * (1 - wp), wv * wp
+            wa0, wa1, wa2, wa3 = (np.float32(wa * w00), np.float32(wa * w01), np.float32(wa * w10),
+                                  np.float32(wa * w11))
+            wb0, wb1, wb2, wb3 = (np.float32(wb * w00), np.float32(wb * w01), np.float32(wb * w10),
+                                  np.float32(wb * w11))
+            if dc == 0:
+                for x in range(n_row):
+                    acc[x] = (a0[x] * wa0 + a1[x] * wa1 + a2[x] * wa2 + a3[x] * wa3
+                              + b0[x] * wb0 + b1[x] * wb1 + b2[x] * wb2 + b3[x] * wb3)
+            else:
+                for x in range(n_row):
+                    acc[x] += (a0[x] * wa0 + a1[x] * wa1 + a2[x] * wa2 + a3[x] * wa3
+                               + b0[x] * wb0 + b1[x] * wb1 + b2[x] * wb2 + b3[x] * wb3)
+        for c in range(9):
+            for u in range(n_u):
+                ms_profile[c, r, u] = acc[u * 9 + c]
+
+
+@njit(**_JIT, nogil=True)
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,

@@ -8,7 +8,8 @@ There is one source: the functions of :mod:`swim.rt.march_cpu` (written for numb
 second time as CUDA device functions, from their Python code, with their calls to each other resolved to the
 device versions (:func:`_device_functions`). The kernel (:func:`cuda_march_kernel`) only allocates a thread's
 work arrays and calls :func:`swim.rt.march_cpu._march_ray_range`, the CPU's loop over the rays, for the
-thread's ray. The JAX set-up before the march and the composition after it are shared with both other kernels
+thread's ray. The JAX set-up before the march (which the CPU kernel has in numba,
+:func:`swim.rt.march_cpu.prepare_rays`) and the composition after it are shared with the JAX kernel
 (:func:`swim.rt.march.trace_rays`).
 
 It computes in float64, like the CPU kernel: an H100 or H200 does float64 at half its float32 rate, consumer
