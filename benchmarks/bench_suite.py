@@ -523,6 +523,9 @@ def crossing(spps, errors, target):
 
 #: Fewest warm renders whose median is swim's time in the Monte Carlo case.
 SWIM_MC_REPEATS = 15
+#: swim renders after each of Monte Carlo's calls in its sweep: both renderers are then timed under the same load (the
+#: shared machine's speed moves by +-30 % over minutes, which a ratio of times taken minutes apart inherits).
+SWIM_MC_INTERLEAVED = 3
 
 
 def run_mc(spec, probe):
@@ -537,9 +540,11 @@ def run_mc(spec, probe):
     sv, cold, cold_compile, _ = timed(probe, swim_view, scene, case["view"], case["sun_zenith"], settings=settings)
     # swim's ~20 ms render moves by +-30 % from call to call on a shared machine: a median of at least
     # SWIM_MC_REPEATS calls (Mitsuba's sweep keeps the suite's repeats: its calls take seconds)
-    runs = [timed(probe, swim_view, scene, case["view"], case["sun_zenith"], settings=settings)[1]
-            for _ in range(max(spec["repeats"], SWIM_MC_REPEATS))]
-    swim_s = statistics.median(runs)
+    def swim_runs(count):
+        return [timed(probe, swim_view, scene, case["view"], case["sun_zenith"], settings=settings)[1]
+                for _ in range(count)]
+
+    runs = swim_runs(max(spec["repeats"], SWIM_MC_REPEATS))
     swim_px = sv["image"][:, sv["mask"]].T  # (n, 3) the compared pixels (view zenith <= 75 deg, sun excluded)
     n = swim_px.shape[0]
 
@@ -567,12 +572,15 @@ def run_mc(spec, probe):
             # seeds unlike the reference's (1); Mitsuba's _trace needs seed * 1000003 < 2**32, i.e. seed < 4294
             run = mitsuba_radiance(*args, spp=spp, aerosol=sv["aerosol"], seed=100 + 20 * len(sweep) + k)
             times.append(time.perf_counter() - t0)
+            runs += swim_runs(SWIM_MC_INTERLEAVED)
             out = run if k == 0 else out
         sweep.append({"spp": spp, "mc_s": statistics.median(times), "mc_runs": times,
                       **image_errors(out["radiance"], reference, sigma)})
         if sweep[-1]["mean_abs_rel_corrected"] < 0.7 * swim_err["mean_abs_rel_corrected"]:  # crossing bracketed
             break
         spp *= 2
+    # swim's time: the median of its renders before the sweep and between Monte Carlo's calls
+    swim_s = statistics.median(runs)
     spps = np.array([p["spp"] for p in sweep], float)
     # MC time = overhead (scene build) + cost per path: a least-squares line through the sweep
     b, a = np.polyfit(spps, [p["mc_s"] for p in sweep], 1) if len(sweep) > 1 else (sweep[0]["mc_s"] / spps[0], 0.0)
