@@ -1697,7 +1697,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
     padded = start.shape[0]
-    if kernel == "numba":  # the set-up in numba too (~0.5 us a ray in XLA, docs/performance.md, section 30)
+    if kernel == "numba":  # the set-up in numba too: no JAX call per chunk (docs/performance.md, section 30)
         class_lower, class_weight = np.empty(padded, np.int32), np.empty(padded)
         ms = np.empty((9, n, tables["n_u"]) if settings.multiple_scattering else (9, 1, 2), np.float32)
         march_cpu.prepare_rays(*(a[:n] for a in exact), tables["p"], tables["coef"], tables["aerosol_column"],

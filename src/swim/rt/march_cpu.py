@@ -752,8 +752,11 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
     (n_class, n_s, n_v, n_phi, n_u * 9) (:mod:`swim.rt.multiple_scattering`, its last two axes flattened). Written:
     ``class_lower`` (n,) int32 and ``class_weight`` (n,) [-], and where ``use_ms`` ``ms_profile`` (9, n, n_u) [-].
 
-    The same arithmetic as the JAX functions, in float64 from the float32 tables: 0.05-0.1 us a ray where XLA's
-    gathers of the table's rows took ~0.5 us (docs/performance.md, section 30)."""
+    The same arithmetic as the JAX functions: the geometry and weights in float64, the corners' sum in float32 as
+    there. The aerosol classes are the project's form of Eqs. 30-31 (Albers et al. 2020,
+    doi:10.5194/amt-13-3235-2020; docs/aerosols.md, section 8). In a render 0.5-0.6 us a ray (the table's rows read
+    from the caches): 0.32-0.41 ms for a chunk of 657 rays, where the JAX call, with its dispatch and its wait on
+    XLA's threads beside the other chunk's march, took 1.1-2 ms (docs/performance.md, section 30)."""
     radius = p[_P_RADIUS]
     sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
     n_class = class_aod.shape[0]
