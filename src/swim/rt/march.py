@@ -1705,9 +1705,11 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
                                class_lower[:n], class_weight[:n], ms)
         class_lower[n:], class_weight[n:] = class_lower[n - 1], class_weight[n - 1]
         aerosol_class = (class_lower, class_weight.astype(np.float32)[:, None])
-        ms_profile, ms = ms, (ms if settings.multiple_scattering else None)
+        ms_profile = ms  # with settings.multiple_scattering off, a (9, 1, 2) placeholder that the march never reads
     else:
         aerosol_class, ms = jax.device_get(_prepare_chunk(start, direction, bounds, consts, settings))
+        # a writable copy (the kernel's compiled types), or zeros; rows beyond n are not read
+        ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
     # in the order of march_rays' outputs (its last arguments but the sample counts, which go to the caller alone)
     state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
              "tau_species": np.empty((padded, len(SPECIES))), "l_clear": np.empty((padded, 3)),
@@ -1716,13 +1718,11 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
-    if kernel != "numba":  # a writable copy (the kernel's compiled types), or zeros; rows beyond n are not read
-        ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
     samples = np.empty(n, np.int64)
     t, out = tables, [state[key][:n] for key in state] + [samples]
     march(
         *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
-        np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float), ms_profile, ms is not None,
+        np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float), ms_profile, settings.multiple_scattering,
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,

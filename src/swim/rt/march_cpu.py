@@ -233,10 +233,16 @@ def _bilinear_at(table, c, u0, v0, a, b):
 
 
 @njit(**_JIT)
+def _bilinear_clamped(field, j, i):
+    """:func:`swim.rt.march.bilinear_clamped` of the first channel of a (C, ny, nx) field at grid indices (j, i),
+    clamped to its edges."""
+    return _bilinear(field, 0, _clip(j, 0.0, field.shape[1] - 1.0), _clip(i, 0.0, field.shape[2] - 1.0))
+
+
+@njit(**_JIT)
 def _terrain_gap(h, j, i, terrain):
-    """Height above the terrain (:func:`swim.rt.march.bilinear_clamped` of the (1, ny, nx) field) [m]."""
-    ny, nx = terrain.shape[1], terrain.shape[2]
-    return h - _bilinear(terrain, 0, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+    """Height above the terrain (the (1, ny, nx) field, :func:`_bilinear_clamped`) [m]."""
+    return h - _bilinear_clamped(terrain, j, i)
 
 
 @njit(**_JIT)
@@ -760,7 +766,6 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
     radius = p[_P_RADIUS]
     sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
     n_class = class_aod.shape[0]
-    ny, nx = aerosol_column.shape[1], aerosol_column.shape[2]
     n_s, n_v, n_phi, n_row = ms_source.shape[1], ms_source.shape[2], ms_source.shape[3], ms_source.shape[4]
     n_u = ms_profile.shape[2]
     acc = np.empty(n_row, np.float32)  # in float32 as the JAX function: twice the lanes of a vector
@@ -774,7 +779,7 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
         wc = 0.0
         if n_class > 1:  # aerosol_class_weights: the column optical depth there, linear between the classes
             _, _, _, j, i = _point_geometry(q0, q1, q2, p, coef)
-            column = _bilinear(aerosol_column, 0, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+            column = _bilinear_clamped(aerosol_column, j, i)
             f = 0.0  # jnp.interp on the class index: clamped to the first and last class
             if column >= class_aod[n_class - 1]:
                 f = n_class - 1.0
