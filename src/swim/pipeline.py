@@ -40,6 +40,7 @@ from .rt.march import (
     grid_geometry,
     occupancy_grid,
     pack_volume,
+    packed_species,
     padded_batch_size,
     share_packed_channels,
     threads,
@@ -382,16 +383,18 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                            aerosol_class_aod=classes)
     def grid_constants():
         # The grid is packed first and the volume's extinctions become views of the packed channels, so the
-        # grid is held once before Step 1a's fields are made (docs/performance.md, memory).
-        packed = pack_volume(volume)
-        share_packed_channels(volume, packed)
+        # grid is held once before Step 1a's fields are made (docs/performance.md, memory); species that are zero
+        # everywhere are not packed (a march through fewer channels reads fewer cache lines, section 31)
+        species = packed_species(volume)
+        packed = pack_volume(volume, species)
+        share_packed_channels(volume, packed, species)
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
         # Step 1a, only the fields that the kernel constants read, which copy them into the packed volume: Step
         # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160)
         transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
                                             backend=settings.backend)
-        constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed)
+        constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
         del transmittance
         release_free_memory()  # Step 1a's freed levels, before the ray march
         return constants

@@ -236,6 +236,27 @@ def test_numba_march_matches_the_jax_march(case):
     np.testing.assert_allclose(numba_out["distance"], jax_out["distance"], rtol=1e-4, atol=0.5)  # NaN where no ground
 
 
+def test_chunks_without_ground_compose_without_its_term():
+    """The numba path composes a chunk in which no ray ends on the ground without the ground's term (a second
+    compiled version of the composition); the JAX kernel always evaluates it. Rays that look up from 1 km above the
+    cloud's centre (chunks of them alone) and random rays (chunks with ground) must agree in both."""
+    rng = np.random.default_rng(5)
+    n_up = 320
+    up = np.array([enu_from_azimuth_zenith(a, z) for a, z in zip(rng.uniform(0, 360, n_up), rng.uniform(0, 60, n_up))])
+    below_cloud = np.array([300.0, -200.0, EARTH_RADIUS_M + 1000.0])
+    others = _random_rays(600)
+    origins = np.concatenate([np.repeat(below_cloud[None], n_up, axis=0), others[0]])
+    dirs = np.concatenate([up, others[1]])
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    out = {backend: _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend=backend, chunk=64))[0]
+           for backend in ("jax", "numba")}
+    assert not out["numba"]["surface"][:n_up].any() and out["numba"]["surface"][n_up:].sum() > 100
+    assert (out["numba"]["tau_hydrometeor"][:n_up] > 1.0).sum() > 10, "upward rays must cross cloud"
+    np.testing.assert_array_equal(out["numba"]["radiance_surface"][:n_up], 0.0)
+    for key in ("radiance", "radiance_cloud", "radiance_surface"):
+        np.testing.assert_allclose(out["numba"][key], out["jax"][key], rtol=2e-4, atol=1e-6, err_msg=key)
+
+
 @pytest.mark.parametrize("plume", [True, False], ids=["five aerosol classes", "one class"])
 def test_numba_set_up_matches_the_jax_set_up(plume):
     """The per-ray set-up of the CPU kernel (swim.rt.march_cpu.prepare_rays) is swim.rt.march._prepare_rays written
@@ -447,10 +468,11 @@ def test_non_finite_rays_are_rejected_before_the_kernel(backend):
 
 
 @pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
-def test_packed_volume_is_one_host_array_without_empty_aerosol_channels(aerosol_plume):
+def test_packed_volume_is_one_host_array_without_empty_channels(aerosol_plume):
     """The packed volume is held once, as a read-only numpy array (the numba kernel reads it in place), and
-    without a 3-D aerosol its two all-zero channels are left out (docs/performance.md, memory)."""
-    from swim.rt.march import HOST_CONSTANTS, N_CHANNELS, _device_constants
+    without a 3-D aerosol its two all-zero channels are left out (docs/performance.md, memory), as are the species
+    that are zero everywhere (the tiny scene has cloud liquid and ice only; section 31)."""
+    from swim.rt.march import HOST_CONSTANTS, _device_constants, packed_species
 
     scene = _tiny_scene(aerosol_plume)
     volume = build_optical_volume(scene)
@@ -459,12 +481,16 @@ def test_packed_volume_is_one_host_array_without_empty_aerosol_channels(aerosol_
     consts = kernel_constants(volume, transmittance, build_gas_tables(AerosolBackground()), sun)
     packed = consts["volume"]
     assert isinstance(packed, np.ndarray) and not packed.flags.writeable
-    assert packed.shape == volume["extinction"].shape[1:] + (N_CHANNELS if aerosol_plume else N_CHANNELS - 2,)
-    np.testing.assert_array_equal(packed[..., :5], np.moveaxis(volume["extinction"].values, 0, -1))
+    extinction = volume["extinction"].values
+    assert packed_species(volume) == (0, 1) and not np.any(extinction[2:]), "liquid and ice only"
+    assert packed.shape == volume["extinction"].shape[1:] + (6 if aerosol_plume else 4,)
+    np.testing.assert_array_equal(packed[..., :2], np.moveaxis(extinction[:2], 0, -1))
     np.testing.assert_array_equal(packed[..., -2], transmittance["cloud_transmittance"].values)
     np.testing.assert_array_equal(packed[..., -1], transmittance["terrain_shadow"].values)
     if aerosol_plume:
-        np.testing.assert_array_equal(packed[..., 5], volume["aerosol_extinction"].values)
+        np.testing.assert_array_equal(packed[..., 2], volume["aerosol_extinction"].values)
+    # the kernels' per-species optical depths of the packed channels go back to their species' columns
+    np.testing.assert_array_equal(np.asarray(consts["species_matrix"]), np.eye(5, dtype=np.float32)[:2])
     from swim.rt import march
 
     device = _device_constants(consts)
@@ -493,6 +519,9 @@ def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():
     expected = kernel_constants(volume, solar_transmittance(volume, sun_2), gas, sun_2)["volume"].copy()
     consts = kernel_constants(volume, solar_transmittance(volume, sun_1), gas, sun_1)
     share_packed_channels(volume, consts["volume"])
+    # the species that are zero everywhere (rain, snow, graupel) are not packed: the volume names the others
+    assert list(volume["species"].values) == ["cloud_liquid", "cloud_ice"] and not np.any(original["extinction"][2:])
+    original["extinction"] = original["extinction"][:2]
     for name, values in original.items():
         assert np.shares_memory(volume[name].values, consts["volume"]), name
         np.testing.assert_array_equal(volume[name].values, values, err_msg=name)
@@ -514,7 +543,7 @@ def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
 
     shared = build_optical_volume(_tiny_scene(aerosol_plume))
     packed = pack_volume(shared)
-    assert packed.shape[-1] == (9 if aerosol_plume else 7)
+    assert packed.shape[-1] == (6 if aerosol_plume else 4)  # liquid, ice (+ 3-D aerosol, its tau to the sun), T, shadow
     share_packed_channels(shared, packed)
     assert np.shares_memory(shared["extinction"].values, packed)
     assert not shared["extinction"].values.flags.writeable, "the shared channels must be read-only views"
@@ -525,6 +554,43 @@ def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
     assert got["volume"] is packed and not packed.flags.writeable
     np.testing.assert_array_equal(got["volume"], expected["volume"])
     np.testing.assert_array_equal(got["occupancy"], occupancy)
+
+
+@pytest.mark.parametrize("backend", ["jax", "numba"])
+def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(backend):
+    """Packing the species that are zero everywhere (rain, snow and graupel in the tiny scene) changes no output of
+    either kernel: their channels only add zeros, and the per-species optical depths of the packed ones are put
+    back in their species' columns (the composition's phase-function mixture reads them)."""
+    from swim.rt.march import atmosphere_constants, volume_constants
+
+    origins, dirs = _random_rays(400)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    settings = MarchSettings(backend=backend)
+    out, (volume, transmittance, gas, phase) = _trace(_tiny_scene(aerosol_plume=True), origins, dirs, sun,
+                                                      settings=settings)
+    every = {**volume_constants(volume, transmittance, species=tuple(range(5))), **atmosphere_constants(gas, sun)}
+    assert every["volume"].shape[-1] == 9
+    again = trace_rays(origins, dirs, every, grid_geometry(volume), phase, settings)
+    assert (out["tau_hydrometeor"] > 1.0).sum() > 20 and out["surface"].sum() > 20, "rays must cross cloud and ground"
+    for key in ("radiance", "radiance_cloud", "radiance_surface", "tau_hydrometeor", "distance", "steps"):
+        np.testing.assert_array_equal(out[key], again[key], err_msg=key)
+
+
+def test_a_cloudless_volume_packs_no_species():
+    """A scene without hydrometeors packs Step 1a's two channels alone, and the volume that shares them (no species
+    left) is packed again the same way (a second sun of a clear sky)."""
+    from swim.rt.march import pack_volume, packed_species, share_packed_channels
+
+    scene = _tiny_scene()
+    for name in ("cloud_liquid_content", "cloud_ice_content"):
+        scene[name] = scene[name] * 0.0
+    volume = build_optical_volume(scene)
+    assert packed_species(volume) == ()
+    packed = pack_volume(volume)
+    assert packed.shape == volume["extinction"].shape[1:] + (2,)
+    share_packed_channels(volume, packed)
+    assert volume.sizes["species"] == 0 and packed_species(volume) == ()
+    assert pack_volume(volume).shape == packed.shape
 
 
 def test_probe_count_places_the_steps():

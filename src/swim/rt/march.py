@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import xarray as xr
+import xarray as xr
 
 from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
@@ -69,10 +70,13 @@ log = logging.getLogger(__name__)
 #: Scalar irradiance of isotropic diffuse light from the upper hemisphere per unit horizontal irradiance
 #: (2 pi L against pi L).
 SKYLIGHT_SCALAR_FACTOR = 2.0
-#: Channel layout of the packed volume: 5 species extinctions, 3-D aerosol extinction, the 3-D aerosol's
-#: optical depth towards the sun (550 nm), Step 1a's cloud transmittance T, the terrain shadow (last). The
-#: terrain shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone. Without a 3-D
-#: aerosol its two channels are left out (N_CHANNELS - 2 channels, :func:`volume_constants`).
+#: Most channels of the packed volume. Its layout: the extinctions of the species that are not zero everywhere
+#: (:func:`packed_species`, in the order of :data:`swim.constants.SPECIES`), the 3-D aerosol's extinction and its
+#: optical depth towards the sun (550 nm), Step 1a's cloud transmittance T, the terrain shadow (last). The terrain
+#: shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone. Species that are zero
+#: everywhere and, without a 3-D aerosol, its two channels are left out (:func:`pack_volume`): RICO's
+#: liquid-only cumulus packs 3 channels instead of 7 (18.5 -> 7.9 MB), and a march through it is 6-16 % faster for
+#: it (docs/performance.md, section 31).
 N_CHANNELS = len(SPECIES) + 4
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
 #: "seen from above" (Eq. 26) treatment of clouds.
@@ -749,7 +753,8 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     """
     multiple_scattering = ms_profile is not None
     n_c = consts["volume"].shape[-1]
-    aerosol_3d = n_c == N_CHANNELS  # the 3-D aerosol's two channels are packed only where it is not zero
+    n_sp = consts["species_matrix"].shape[0]  # the packed species (packed_species)
+    aerosol_3d = n_c == n_sp + 4  # the 3-D aerosol's two channels are packed only where it is not zero
     outside = jnp.concatenate([jnp.zeros(n_c - 2), jnp.ones(2)]).astype(jnp.float32)
 
     def sample(st, s_lo, ds):
@@ -760,13 +765,13 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         beta_r, beta_a, beta_s, t_sun, diffuse = _gas_at(h, mu_s, consts)
         if in_grid:
             v = trilinear(consts["volume"], k, j, i, outside)
-            beta_sp = v[:, : len(SPECIES)]
+            beta_sp = v[:, :n_sp]
             t_cloud = v[:, -2]
             shadow = v[:, -1]
             if aerosol_3d:
-                beta_a3 = v[:, len(SPECIES) : len(SPECIES) + 1] * consts["angstrom"][None, :]
+                beta_a3 = v[:, n_sp : n_sp + 1] * consts["angstrom"][None, :]
                 # Direct beam through the 3-D aerosol towards the sun (Angstrom-scaled from 550 nm).
-                t_aerosol = jnp.exp(-v[:, len(SPECIES) + 1 : len(SPECIES) + 2] * consts["angstrom"][None, :])
+                t_aerosol = jnp.exp(-v[:, n_sp + 1 : n_sp + 2] * consts["angstrom"][None, :])
             else:
                 beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
                 t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
@@ -774,7 +779,7 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
             hit_now = st["alive"] & (gap < 0)
             frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
         else:
-            beta_sp = jnp.zeros((q.shape[0], len(SPECIES)), jnp.float32)
+            beta_sp = jnp.zeros((q.shape[0], n_sp), jnp.float32)
             beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
             t_cloud = jnp.ones(q.shape[0], jnp.float32)
             shadow = jnp.ones(q.shape[0], jnp.float32)
@@ -999,7 +1004,7 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     zeros3 = jnp.zeros((n, 3), jnp.float32)
     state = {
         "tau_clear": zeros3, "tau_h": jnp.zeros(n, jnp.float32),
-        "tau_species": jnp.zeros((n, len(SPECIES)), jnp.float32),
+        "tau_species": jnp.zeros((n, consts["species_matrix"].shape[0]), jnp.float32),  # the packed species'
         "l_clear": zeros3, "i_nogas": zeros3, "i_gas": zeros3, "i_cloud_t": jnp.zeros(n, jnp.float32),
         "alive": valid, "hit": jnp.zeros(n, bool), "hit_s": jnp.zeros(n, jnp.float32),
         "hit_lo": jnp.zeros(n, jnp.float32), "hit_hi": jnp.zeros(n, jnp.float32),
@@ -1025,15 +1030,31 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
                                                 settings.n_after, consts),
                                settings.n_after, False, *args)
     state["s_hit"] = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
+    state["tau_species"] = state["tau_species"] @ consts["species_matrix"]  # all of SPECIES, 0 where not packed
     return state
 
 
 def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, settings: MarchSettings, state,
-             aerosol_class):
-    """The pixel radiance from the march's state: ground (Eq. 35), clouds (Eqs. 12-26), clear sky."""
-    # ---- ground: Eq. 35 on the terrain facet, direct (BRDF) + diffuse (ARF = 1) ----
+             aerosol_class, ground=True):
+    """The pixel radiance from the march's state: ground (Eq. 35), clouds (Eqs. 12-26), clear sky.
+
+    ``ground`` (static): False where no ray of the batch ends on the ground, whose term is then 0 without being
+    evaluated (as it is for such rays anyway). The chunks of an all-sky camera on the ground and the upper rows of a
+    panorama see no ground, and the ground's BRDF is about half of the composition's cost (docs/performance.md,
+    section 31)."""
     surface = state["hit"] | (ends_on_ground & state["alive"])
     s_hit = state["s_hit"]
+    if ground:
+        l_surface = _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit)
+    else:
+        l_surface = jnp.zeros_like(state["l_clear"])
+    return _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface)
+
+
+def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit):
+    """The ground's part of the pixel radiance (n, 3), 0 where a ray does not end on the ground (``surface``):
+    Eq. 35 on the terrain facet at ``s_hit`` [m], direct (BRDF) + diffuse (ARF = 1), seen through the clear sky and
+    the hydrometeors on the way."""
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
     _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
@@ -1062,8 +1083,12 @@ def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, sett
     t_hydro = (1 - w_above_ground) * jnp.exp(-tau_hydro) + w_above_ground * transmittance_delta_eddington(
         tau_hydro, state["tau_species"] @ consts["backscatter"], jnp.maximum(mu_down_ground, FROM_ABOVE_BLEND))
     transmit = jnp.exp(-state["tau_clear"]) * t_hydro[:, None]
-    l_surface = jnp.where(surface[:, None], l_ground * transmit, 0.0)
+    return jnp.where(surface[:, None], l_ground * transmit, 0.0)
 
+
+def _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface):
+    """The clouds' part of the pixel radiance and the outputs of :func:`_compose`, given the ground's part
+    ``l_surface`` (n, 3)."""
     # ---- clouds: Eq. 12 with the effective phase function of Eq. 13, blended with Eqs. 24-26 ----
     tau = state["tau_h"]
     norm = -jnp.expm1(-jnp.minimum(tau, 2.0))
@@ -1159,7 +1184,7 @@ def _chunk_probes(start, direction, bounds, consts, settings: MarchSettings):
     return settings, (probes, cells)
 
 
-_compose_chunk = jax.jit(_compose, static_argnames=("settings",))
+_compose_chunk = jax.jit(_compose, static_argnames=("settings", "ground"))
 
 
 def surface_fields(volume, transmittance):
@@ -1276,23 +1301,75 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     return {**volume_constants(volume, transmittance), **atmosphere_constants(gas, sun_direction_scene, radius)}
 
 
-def pack_volume(volume):
+def packed_species(volume) -> tuple[int, ...]:
+    """The species of an optical volume whose extinction is not zero everywhere: the species channels of
+    :func:`pack_volume`.
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        Optical volume (:func:`swim.optics.volume.build_optical_volume`): ``extinction`` (species, level, y, x)
+        [m-1] over a ``species`` coordinate of names of :data:`swim.constants.SPECIES`, in that order (after
+        :func:`share_packed_channels`, only the packed ones).
+
+    Returns
+    -------
+    tuple of int
+        Indices into :data:`swim.constants.SPECIES`, increasing.
+
+    Raises
+    ------
+    ValueError
+        If the ``species`` coordinate names a species not in :data:`swim.constants.SPECIES` or is out of its order.
+    """
+    names = [str(name) for name in volume["species"].values]
+    unknown = [name for name in names if name not in SPECIES]
+    if unknown:
+        raise ValueError(f"optical volume: unknown species {unknown}; expected names of {SPECIES}")
+    index = [SPECIES.index(name) for name in names]
+    if index != sorted(set(index)):
+        raise ValueError(f"optical volume: species {names} are not in the order of {SPECIES}")
+    extinction = volume["extinction"].values
+    nk = extinction.shape[1]
+    level_bytes = int(np.prod(extinction.shape[2:])) * extinction.itemsize  # (no species at all: a clear sky)
+    step = max(1, (4 << 20) // max(level_bytes, 1))  # ~4 MB of levels at a time: a cloud ends the scan
+
+    def any_nonzero(n):
+        return any(np.any(extinction[n, k0:k0 + step]) for k0 in range(0, nk, step))
+
+    return tuple(s for n, s in enumerate(index) if any_nonzero(n))
+
+
+def species_matrix(species) -> np.ndarray:
+    """(len(species), len(SPECIES)) float32 one-hot rows: the packed species' optical depths (n, p) times it are
+    those of all :data:`swim.constants.SPECIES` (n, 5), 0 for the species not packed (exactly: x * 1 + 0)."""
+    matrix = np.zeros((len(species), len(SPECIES)), np.float32)
+    matrix[np.arange(len(species)), list(species)] = 1.0
+    return matrix
+
+
+def pack_volume(volume, species=None):
     """The packed volume of :func:`volume_constants`, (level, y, x, channel) float32, with the grid's own channels
-    filled: the species' extinctions and, where the volume has a 3-D aerosol, its extinction. Step 1a's channels
-    (one sun) are left for :func:`volume_constants` to fill (their values are undefined until then).
+    filled: the extinctions of ``species`` and, where the volume has a 3-D aerosol, its extinction. Step 1a's
+    channels (one sun) are left for :func:`volume_constants` to fill (their values are undefined until then).
 
     A render packs the grid before Step 1a and then lets the optical volume share the packed channels
     (:func:`share_packed_channels`), so the volume's own extinctions are freed before Step 1a's fields are made
-    (docs/performance.md, memory). Channels: the :data:`swim.constants.SPECIES` extinctions, then with a 3-D
-    aerosol its extinction and ``aerosol_tau_sun``, then ``cloud_transmittance`` and ``terrain_shadow``
-    (:data:`N_CHANNELS` with the aerosol, two fewer without: its channels would be zeros)."""
+    (docs/performance.md, memory). Channels: the extinctions of ``species`` (indices into
+    :data:`swim.constants.SPECIES`; default :func:`packed_species`, those not zero everywhere: a march through
+    fewer channels reads fewer cache lines), then with a 3-D aerosol its extinction and ``aerosol_tau_sun``, then
+    ``cloud_transmittance`` and ``terrain_shadow`` (``len(species) + 4`` channels with the aerosol, two fewer
+    without: its channels would be zeros)."""
+    if species is None:
+        species = packed_species(volume)
+    names = [str(name) for name in volume["species"].values]
     extinction = volume["extinction"].values
     aerosol = volume["aerosol_extinction"].values
-    grid = [extinction[c] for c in range(extinction.shape[0])]
+    grid = [extinction[names.index(SPECIES[s])] for s in species]
     with_aerosol = bool(np.any(aerosol))
     if with_aerosol:
         grid.append(aerosol)
-    n_channels = N_CHANNELS if with_aerosol else N_CHANNELS - 2
+    n_channels = len(species) + (4 if with_aerosol else 2)
     packed = np.empty(extinction.shape[1:] + (n_channels,), np.float32)
 
     def fill(k0, k1):  # channel by channel: a transpose and a concatenate would each copy the whole volume
@@ -1303,7 +1380,7 @@ def pack_volume(volume):
     return packed
 
 
-def volume_constants(volume, transmittance, occupancy=None, packed=None):
+def volume_constants(volume, transmittance, occupancy=None, packed=None, species=None):
     """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
     channel) and the occupancy grid (level, y, x) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
     terrain, the ground's fields and the grid's index map as device arrays.
@@ -1312,12 +1389,19 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None):
     it is not referenced by the result, so a caller that keeps only this frees Step 1a's fields. ``occupancy``:
     the volume's :func:`occupancy_grid` (read-only), which does not depend on the sun, where the caller keeps it
     from an earlier sun; default: computed here. ``packed``: the volume's :func:`pack_volume`, whose Step 1a
-    channels are filled here (in place); default: packed here."""
+    channels are filled here (in place); default: packed here. ``species``: the species packed (indices into
+    :data:`swim.constants.SPECIES`; default :func:`packed_species`), which the result's ``species_matrix``
+    expands to all of them."""
     geometry = grid_geometry(volume)
+    if species is None:
+        species = packed_species(volume)
     if packed is None:
-        packed = pack_volume(volume)
-    n_grid = packed.shape[-1] - 2 - (packed.shape[-1] == N_CHANNELS)  # channels of the grid itself
-    names = KERNEL_STEP1A_VARIABLES if packed.shape[-1] == N_CHANNELS else KERNEL_STEP1A_VARIABLES[1:]
+        packed = pack_volume(volume, species)
+    aerosol_3d = packed.shape[-1] == len(species) + 4
+    if packed.shape[-1] != len(species) + 2 + 2 * aerosol_3d:
+        raise ValueError(f"packed volume of {packed.shape[-1]} channels does not hold the species {species}")
+    n_grid = packed.shape[-1] - 2 - aerosol_3d  # channels of the grid itself
+    names = KERNEL_STEP1A_VARIABLES if aerosol_3d else KERNEL_STEP1A_VARIABLES[1:]
     values = [transmittance[name].values for name in names]
     if packed.shape[:-1] != values[0].shape:
         raise ValueError(f"packed volume of shape {packed.shape} does not match Step 1a's fields {values[0].shape}")
@@ -1344,23 +1428,33 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None):
         "z_bottom": f32(geometry.z_bottom),
         "dz": f32(geometry.dz),
         "aerosol_column": f32(aerosol_column_optical_depth(volume).values[None]),
+        "species_matrix": f32(species_matrix(species)),
     }
 
 
-def share_packed_channels(volume, packed):
+def share_packed_channels(volume, packed, species=None):
     """Point the optical volume's ``extinction`` (species, level, y, x) and, where packed, ``aerosol_extinction``
     (level, y, x) at their channels of a packed volume (:func:`pack_volume`, or the ``"volume"`` of
     :func:`volume_constants`) as read-only views, freeing the volume's own copies: a render then holds the grid's
     extinctions once (docs/performance.md, memory).
 
-    The values are unchanged (the packed channels are copies of them); a later Step 1a (a new sun) reads the
-    views, and the next :func:`pack_volume` copies them into its own packed volume, which may then be shared in
-    turn. Modifies ``volume`` in place and returns it."""
-    n_species = volume.sizes["species"]
+    The values are unchanged (the packed channels are copies of them), but the ``species`` coordinate then names
+    only the packed ones (``species``, indices into :data:`swim.constants.SPECIES`; default
+    :func:`packed_species`): the others were zero everywhere. A later Step 1a (a new sun) reads the views, and the
+    next :func:`pack_volume` copies them into its own packed volume, which may then be shared in turn. Modifies
+    ``volume`` in place and returns it."""
+    if species is None:
+        species = packed_species(volume)
+    n_species = len(species)
     channels = np.moveaxis(packed[..., :n_species], -1, 0).view()
     channels.flags.writeable = False
-    volume["extinction"] = volume["extinction"].copy(data=channels)
-    if packed.shape[-1] == N_CHANNELS:
+    extinction = volume["extinction"]
+    # the species dimension changes size: the variable and its coordinate go first (the same Dataset object)
+    del volume["extinction"]
+    del volume["species"]
+    volume["extinction"] = xr.Variable(extinction.dims, channels, extinction.attrs)
+    volume.coords["species"] = np.array([SPECIES[s] for s in species], dtype=extinction["species"].dtype)
+    if packed.shape[-1] == n_species + 4:
         aerosol = packed[..., n_species].view()
         aerosol.flags.writeable = False
         volume["aerosol_extinction"] = volume["aerosol_extinction"].copy(data=aerosol)
@@ -1669,7 +1763,10 @@ def _numba_tables(consts, prepare=True):
             "sky": arr(consts["sky"]), "diffuse_classes": arr(consts["diffuse_classes"]),
             "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
             "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]), "angstrom": arr(consts["angstrom"]),
-            "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"])}
+            "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"]),
+            # the packed species' columns of SPECIES (species_matrix's ones), for the optical depths per species
+            "species": np.flatnonzero(np.asarray(consts["species_matrix"]))
+            % len(SPECIES)}
     if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
         source = consts["ms_source"]
         tables.update(ms_source=arr(np.asarray(source).reshape(source.shape[:4] + (-1,))), n_u=int(source.shape[4]),
@@ -1712,7 +1809,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
     # in the order of march_rays' outputs (its last arguments but the sample counts, which go to the caller alone)
     state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
-             "tau_species": np.empty((padded, len(SPECIES))), "l_clear": np.empty((padded, 3)),
+             "tau_species": np.empty((padded, len(tables["species"]))), "l_clear": np.empty((padded, 3)),
              "i_nogas": np.empty((padded, 3)), "i_gas": np.empty((padded, 3)), "i_cloud_t": np.empty(padded),
              "alive": np.empty(padded, bool), "hit": np.empty(padded, bool), "s_hit": np.empty(padded)}
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
@@ -1733,5 +1830,12 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         value[n:] = value[n - 1]
         if value.dtype != bool:
             state[key] = value.astype(np.float32)
-    out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class)
+    # the packed species' optical depths into all of SPECIES' (those not packed were zero everywhere)
+    tau_species = np.zeros((padded, len(SPECIES)), np.float32)
+    tau_species[:, tables["species"]] = state["tau_species"]
+    state["tau_species"] = tau_species
+    # a chunk without a ray on the ground composes without the ground's term (a second compiled version)
+    ground = bool(np.any(state["hit"][:n] | (ends_on_ground[:n] & state["alive"][:n])))
+    out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class,
+                         ground=ground)
     return {**{key: value[:n] for key, value in jax.device_get(out).items()}, "steps": samples.astype(np.int32)}

@@ -871,7 +871,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     (n, 3), the aerosol class ``class_lower`` (n,) int and ``class_weight`` (n,), and ``ms_profile`` (9, n, n_u)
     [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march.kernel_constants` (float32), scalars packed
     by :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
-    ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, 5), the clear-sky radiance ``l_clear`` (n, 3),
+    ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, p) of the volume's p packed species
+    (:func:`swim.rt.march.packed_species`), the clear-sky radiance ``l_clear`` (n, 3),
     the Eq. 12 integrals ``i_nogas``, ``i_gas`` (n, 3) and ``i_cloud_t`` (n,), ``alive_out`` and ``hit_out``
     (n,) bool, ``s_hit_out`` (n,) [m], the refined terrain crossing or the segment's end, and ``samples_out``
     (n,) int, the medium's samples the ray took (its steps, refined halves and steps undone by a refinement

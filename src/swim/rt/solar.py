@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
-from ..constants import BACKSCATTER_FRACTION, SPECIES
+from ..constants import BACKSCATTER_FRACTION
 from ..errors import SwimInputError
 
 log = logging.getLogger(__name__)
@@ -274,7 +274,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     terrain = volume["terrain_height"].values
     nk = levels.size
     shape = beta.shape[2:]  # (ny, nx)
-    b = [np.float32(BACKSCATTER_FRACTION[name]) for name in SPECIES]
+    # by the volume's own species coordinate: after share_packed_channels it names only the packed species
+    b = [np.float32(BACKSCATTER_FRACTION[str(name)]) for name in volume["species"].values]
     # The swept fields: 0 hydrometeor extinction, 1 its backscatter-weighted sum, 2 the terrain (zero at and
     # above the surface, so a sunlit slope does not shade itself; opaque a full level below it), 3 the 3-D
     # aerosol. The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D
