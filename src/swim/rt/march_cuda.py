@@ -107,9 +107,11 @@ def kernel_arguments() -> tuple:
 
 def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels):
     """Sizes of one ray's work arrays (as :func:`swim.rt.march_cpu.march_rays` allocates them): step edges,
-    probe densities, refinement slots, the saved state, species and volume channels."""
+    probe densities, refinement slots, the saved state, species and volume channels. ``n_species``: the packed
+    species (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species array keeps one element
+    (a local array of size 0 is not a CUDA array)."""
     return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
-            19 + n_species, n_species, n_channels)
+            19 + n_species, max(n_species, 1), n_channels)
 
 
 @functools.lru_cache(maxsize=8)
