@@ -1448,12 +1448,13 @@ def share_packed_channels(volume, packed, species=None):
     n_species = len(species)
     channels = np.moveaxis(packed[..., :n_species], -1, 0).view()
     channels.flags.writeable = False
-    extinction = volume["extinction"]
+    extinction, coordinate = volume["extinction"], volume["species"]
     # the species dimension changes size: the variable and its coordinate go first (the same Dataset object)
     del volume["extinction"]
     del volume["species"]
     volume["extinction"] = xr.Variable(extinction.dims, channels, extinction.attrs)
-    volume.coords["species"] = np.array([SPECIES[s] for s in species], dtype=extinction["species"].dtype)
+    volume.coords["species"] = xr.Variable("species", np.array([SPECIES[s] for s in species], coordinate.dtype),
+                                           coordinate.attrs)
     if packed.shape[-1] == n_species + 4:
         aerosol = packed[..., n_species].view()
         aerosol.flags.writeable = False
