@@ -1087,8 +1087,10 @@ def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_cl
 
 
 def _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface):
-    """The clouds' part of the pixel radiance and the outputs of :func:`_compose`, given the ground's part
-    ``l_surface`` (n, 3)."""
+    """The clouds' part of the pixel radiance (Eq. 12 with the effective phase function of Eq. 13, seen from below,
+    blended with the cloud-top reflection of Eqs. 24-26 seen from above; Albers et al. 2020,
+    doi:10.5194/amt-13-3235-2020) and the outputs of :func:`_compose`, given the ground's part ``l_surface``
+    (n, 3)."""
     # ---- clouds: Eq. 12 with the effective phase function of Eq. 13, blended with Eqs. 24-26 ----
     tau = state["tau_h"]
     norm = -jnp.expm1(-jnp.minimum(tau, 2.0))
@@ -1765,9 +1767,7 @@ def _numba_tables(consts, prepare=True):
             "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
             "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]), "angstrom": arr(consts["angstrom"]),
             "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"]),
-            # the packed species' columns of SPECIES (species_matrix's ones), for the optical depths per species
-            "species": np.flatnonzero(np.asarray(consts["species_matrix"]))
-            % len(SPECIES)}
+            "species_matrix": arr(consts["species_matrix"])}
     if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
         source = consts["ms_source"]
         tables.update(ms_source=arr(np.asarray(source).reshape(source.shape[:4] + (-1,))), n_u=int(source.shape[4]),
@@ -1810,7 +1810,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
     # in the order of march_rays' outputs (its last arguments but the sample counts, which go to the caller alone)
     state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
-             "tau_species": np.empty((padded, len(tables["species"]))), "l_clear": np.empty((padded, 3)),
+             "tau_species": np.empty((padded, tables["species_matrix"].shape[0])), "l_clear": np.empty((padded, 3)),
              "i_nogas": np.empty((padded, 3)), "i_gas": np.empty((padded, 3)), "i_cloud_t": np.empty(padded),
              "alive": np.empty(padded, bool), "hit": np.empty(padded, bool), "s_hit": np.empty(padded)}
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
@@ -1831,10 +1831,9 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         value[n:] = value[n - 1]
         if value.dtype != bool:
             state[key] = value.astype(np.float32)
-    # the packed species' optical depths into all of SPECIES' (those not packed were zero everywhere)
-    tau_species = np.zeros((padded, len(SPECIES)), np.float32)
-    tau_species[:, tables["species"]] = state["tau_species"]
-    state["tau_species"] = tau_species
+    # the packed species' optical depths into all of SPECIES' (those not packed were zero everywhere), as in the JAX
+    # kernel (_march_rays)
+    state["tau_species"] = state["tau_species"] @ tables["species_matrix"]
     # a chunk without a ray on the ground composes without the ground's term (a second compiled version)
     ground = bool(np.any(state["hit"][:n] | (ends_on_ground[:n] & state["alive"][:n])))
     out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class,
