@@ -42,7 +42,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import xarray as xr
-import xarray as xr
 
 from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
 from ..frames import ray_sphere_intersections
@@ -1763,11 +1762,11 @@ def _numba_tables(consts, prepare=True):
         return a
 
     tables = {"p": p, "coef": coef, "beta_gas": arr(consts["beta_gas"]), "spectra": arr(consts["beta_gas_spectra"]),
-            "sky": arr(consts["sky"]), "diffuse_classes": arr(consts["diffuse_classes"]),
-            "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
-            "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]), "angstrom": arr(consts["angstrom"]),
-            "aerosol_ssa": arr(consts["aerosol_ssa"]), "stratospheric_ssa": arr(consts["stratospheric_ssa"]),
-            "species_matrix": arr(consts["species_matrix"])}
+              "sky": arr(consts["sky"]), "diffuse_classes": arr(consts["diffuse_classes"]),
+              "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
+              "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]),
+              "angstrom": arr(consts["angstrom"]), "aerosol_ssa": arr(consts["aerosol_ssa"]),
+              "stratospheric_ssa": arr(consts["stratospheric_ssa"]), "species_matrix": arr(consts["species_matrix"])}
     if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
         source = consts["ms_source"]
         tables.update(ms_source=arr(np.asarray(source).reshape(source.shape[:4] + (-1,))), n_u=int(source.shape[4]),
