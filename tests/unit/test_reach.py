@@ -143,6 +143,31 @@ def test_a_camera_s_reach_is_remembered_and_only_the_sun_is_redone(big_scene, mo
     assert len(calls) == 5 and high != first and len(reach._CAMERA_REACH) == 1
 
 
+def test_a_window_is_remembered_per_sun_and_margins(big_scene, monkeypatch):
+    """The same camera, observer and sun again: the window is the one remembered, without tracing the sun's ray
+    again; another sun or margin is traced afresh and gives the window a fresh computation gives."""
+    from swim.geometry import reach
+
+    camera = make_camera("allsky", size=63)
+    low_sun = enu_from_azimuth_zenith(250.0, 80.0)
+    traced = []
+    rays_box = reach._rays_box
+    monkeypatch.setattr(reach, "_rays_box", lambda *a, **k: traced.append(len(a[1])) or rays_box(*a, **k))
+    reach._CAMERA_REACH.clear()
+    first = reachable_index_window(big_scene, camera, height=2.0, sun_direction=low_sun)
+    assert len(traced) == 2  # the camera's rays, then the sun's ray
+    assert reachable_index_window(big_scene, camera, height=2.0, sun_direction=low_sun) == first
+    assert len(traced) == 2  # nothing traced again
+    overhead = reachable_index_window(big_scene, camera, height=2.0, sun_direction=[0.0, 0.0, 1.0])
+    wider = reachable_index_window(big_scene, camera, height=2.0, sun_direction=low_sun, margin_cells=9)
+    assert len(traced) == 4 and traced[2:] == [1, 1]  # only the sun's ray, for each
+    assert overhead != first and wider != first
+    for window, kwargs in ((overhead, dict(sun_direction=[0.0, 0.0, 1.0])),
+                           (wider, dict(sun_direction=low_sun, margin_cells=9))):
+        reach._CAMERA_REACH.clear()
+        assert reachable_index_window(big_scene, camera, height=2.0, **kwargs) == window  # as computed afresh
+
+
 def test_a_grid_s_columns_are_projected_once_and_anew_when_they_change(big_scene, monkeypatch):
     """The column geometry of :class:`_Columns` is kept for the next render of the same lat, lon and reference
     point; another grid, a moved reference point or a bad lat are each seen for what they are."""

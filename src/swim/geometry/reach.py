@@ -437,8 +437,11 @@ def _observer(lat, lon, height, lat0, lon0):
     return lat, lon, float(height)
 
 
-#: The reach of the last camera's rays (:func:`_window`): key -> (index box or None, rays that reach the shell).
+#: The reach of the last camera's rays (:func:`_window`): key -> (index box or None, rays that reach the shell,
+#: {(sun, margin_cells, sun_margin_cap_m): the window and its description}).
 _CAMERA_REACH = {}
+#: Windows remembered per camera entry of :data:`_CAMERA_REACH` (one per sun and margins).
+_WINDOWS_PER_CAMERA = 16
 
 
 def _merge(box, other):
@@ -511,33 +514,42 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
     patch = columns.terrain(slice(max(j0 - 1, 0), j0 + 3), slice(max(i0 - 1, 0), i0 + 3))
     box = [float(i0 - 1), float(i0 + 2), float(j0 - 1), float(j0 + 2)]
 
-    rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
-    # sine of the depression of the apparent horizon (the rays grazing the sea-level sphere) below the level
-    dip_sine = math.sqrt(max(1.0 - (EARTH_RADIUS_M / (EARTH_RADIUS_M + max(float(patch.max()) + height, 0.0))) ** 2, 0.0))
     grounds = sorted({float(patch.min()), float(patch.max())})
     edge_max = columns.edge_terrain_max()
-
-    def reach(dirs_enu):
-        return _rays_box(columns, dirs_enu @ rotation, grounds, lat, lon, height, top, edge_max, samples)
-
-    # The camera's rays (most of the window's time, ~0.4 s at 1024 x 1024) are remembered for the renders that
-    # follow with the same camera, observer and grid: a time series or a repeated render redoes only the sun.
-    key = None
-    if isinstance(directions, Camera) and valid is None:
-        key = (directions, columns.digest(), lat, lon, height, top, edge_max, tuple(grounds), samples)
-    cached = _CAMERA_REACH.get(key) if key is not None else None
-    if cached is None:
-        cached = reach(_as_directions(directions, valid, dip_sine))
-        if key is not None:
-            _CAMERA_REACH.clear()  # one camera's entry: a fly-through's frames never pile up
-            _CAMERA_REACH[key] = cached
-    camera_box, n_rays = cached
-    box = _merge(box, camera_box)
+    sun = None
     if sun_direction is not None:
         sun = np.asarray(sun_direction, dtype=float).reshape(3)
         if not (np.all(np.isfinite(sun)) and np.linalg.norm(sun) > 0):
             raise SwimInputError(f"sun_direction must be a finite, non-zero vector (3,); got {sun}")
         sun = sun / np.linalg.norm(sun)
+
+    # The camera's rays (most of the window's time, ~0.4 s at 1024 x 1024) are remembered for the renders that
+    # follow with the same camera, observer and grid: a time series or a repeated render redoes only the sun. The
+    # windows made with them are remembered too, per sun and margins: a render repeated under the same sun (an
+    # assimilation's calls of the operator on one grid) does not trace the sun's ray again (~0.6 ms, a 25th of a
+    # 41 x 41 render; docs/performance.md, section 33).
+    key = None
+    if isinstance(directions, Camera) and valid is None:
+        key = (directions, columns.digest(), lat, lon, height, top, edge_max, tuple(grounds), samples)
+    cached = _CAMERA_REACH.get(key) if key is not None else None
+    window_key = (None if sun is None else tuple(sun), margin_cells, sun_margin_cap_m)
+    if cached is not None and window_key in cached[2]:
+        return cached[2][window_key]
+    rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
+    # sine of the depression of the apparent horizon (the rays grazing the sea-level sphere) below the level
+    dip_sine = math.sqrt(max(1.0 - (EARTH_RADIUS_M / (EARTH_RADIUS_M + max(float(patch.max()) + height, 0.0))) ** 2, 0.0))
+
+    def reach(dirs_enu):
+        return _rays_box(columns, dirs_enu @ rotation, grounds, lat, lon, height, top, edge_max, samples)
+
+    if cached is None:
+        cached = (*reach(_as_directions(directions, valid, dip_sine)), {})
+        if key is not None:
+            _CAMERA_REACH.clear()  # one camera's entry: a fly-through's frames never pile up
+            _CAMERA_REACH[key] = cached
+    camera_box, n_rays, windows = cached
+    box = _merge(box, camera_box)
+    if sun is not None:
         # the ray towards the sun gives the sun disk's transmittance (already in the scene frame)
         sun_box, sun_rays = _rays_box(columns, sun[None], grounds, lat, lon, height, top, edge_max, samples)
         box = _merge(box, sun_box)
@@ -575,7 +587,11 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
     half_width_km = 0.5 * np.hypot(*(columns.matrix @ [i_max - i_min, 0])) / 1e3
     info = (f"{n_rays} rays reach the grid below its top of {top / 1e3:.1f} km (box {half_width_km:.0f} km half-width "
             f"along x), sun-ward margin {sun_margin_m / 1e3:.0f} km, margin {margin_cells} cells")
-    return (slice(j_lo, j_hi + 1), slice(i_lo, i_hi + 1)), info
+    result = (slice(j_lo, j_hi + 1), slice(i_lo, i_hi + 1)), info
+    if len(windows) >= _WINDOWS_PER_CAMERA:  # a time series' suns: a new one each frame, never piled up
+        windows.clear()
+    windows[window_key] = result
+    return result
 
 
 def reachable_index_window(scene: xr.Dataset, directions, *, lat=None, lon=None, height=2.0, valid=None,
