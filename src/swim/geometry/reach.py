@@ -526,7 +526,7 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
     # The camera's rays (most of the window's time, ~0.4 s at 1024 x 1024) are remembered for the renders that
     # follow with the same camera, observer and grid: a time series or a repeated render redoes only the sun. The
     # windows made with them are remembered too, per sun and margins: a render repeated under the same sun (an
-    # assimilation's calls of the operator on one grid) does not trace the sun's ray again (~0.6 ms, a 25th of a
+    # assimilation's calls of the operator on one grid) does not trace the sun's ray again (~0.5 ms, a 30th of a
     # 41 x 41 render; docs/performance.md, section 33).
     key = None
     if isinstance(directions, Camera) and valid is None:
