@@ -180,14 +180,15 @@ def _atmosphere_inputs(volume):
     return mean_albedo, (levels, aer3d), aerosol_column_classes(aerosol_column_optical_depth(volume).values)
 
 
-def _terrain_at(volume, lat, lon):
+def _terrain_at(volume, lat, lon, geometry=None):
     """Terrain height [m] under (lat, lon) by bilinear interpolation; beyond the domain the height of its nearest
-    edge, as the ray march continues the terrain (clamped)."""
-    geometry = grid_geometry(volume)
+    edge, as the ray march continues the terrain (clamped). ``geometry``: the volume's :func:`grid_geometry`, if
+    the caller has it."""
+    geometry = grid_geometry(volume) if geometry is None else geometry
     p = geodetic_to_scene(lat, lon, 0.0, volume.attrs["reference_lat"], volume.attrs["reference_lon"])
     i, j = (float(v) for v in grid_indices(volume.attrs, p[0], p[1]))
     _, ny, nx = geometry.shape
-    terrain = volume["terrain_height"].values
+    terrain = volume.variables["terrain_height"].values
     ic, jc = min(max(i, 0.0), nx - 1.0), min(max(j, 0.0), ny - 1.0)
     i0, j0 = min(int(ic), nx - 2), min(int(jc), ny - 2)
     fi, fj = ic - i0, jc - j0
@@ -196,9 +197,8 @@ def _terrain_at(volume, lat, lon):
     return float(value), (i, j)
 
 
-def _check_observer_reach(volume, indices, height_asl):
-    """Raise if the model domain lies wholly below the observer's horizon."""
-    geometry = grid_geometry(volume)
+def _check_observer_reach(geometry, indices, height_asl):
+    """Raise if the model domain (:func:`grid_geometry`) lies wholly below the observer's horizon."""
     _, ny, nx = geometry.shape
     i, j = indices
     outside = np.hypot(max(0.0, -i, i - (nx - 1)), max(0.0, -j, j - (ny - 1)))
@@ -239,7 +239,7 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
     if not np.isfinite(pitch) or pitch <= 0:
         return disk
     radius = max(SUN_ANGULAR_RADIUS_RAD, 0.75 * pitch)
-    cos_angle = np.einsum("yxc,c->yx", np.nan_to_num(dirs_enu), sun_enu)
+    cos_angle = dirs_enu @ sun_enu  # NaN outside the camera's pixels, where the comparison below is False
     inside = valid & (cos_angle >= np.cos(radius))
     count = int(inside.sum())
     if count == 0:
@@ -351,9 +351,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     lat0, lon0 = float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"])
     lat = lat0 if lat is None else float(lat)
     lon = lon0 if lon is None else float(lon)
-    terrain, indices = _terrain_at(volume, lat, lon)
+    geometry = grid_geometry(volume)
+    terrain, indices = _terrain_at(volume, lat, lon, geometry)
     height_asl = terrain + float(height)
-    _check_observer_reach(volume, indices, height_asl)
+    _check_observer_reach(geometry, indices, height_asl)
 
     sun = resolve_sun(time, scene, sun_zenith, sun_azimuth)
     if sun.zenith_deg > 90:
@@ -404,7 +405,6 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas)), lambda: (
         {**_STAGE_CACHE.get(("grid constants", fingerprint, sun_key), grid_constants),
          **atmosphere_constants(gas, sun_scene)}, gas))
-    geometry = grid_geometry(volume)
 
     def ray_phase(dirs):
         cos_theta = dirs @ sun_scene

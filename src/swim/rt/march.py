@@ -251,7 +251,7 @@ class GridGeometry:
 def grid_geometry(volume) -> GridGeometry:
     """:class:`GridGeometry` of an optical volume (:func:`swim.optics.volume.build_optical_volume`)."""
     matrix = np.asarray(volume.attrs["affine_matrix"], dtype=float).reshape(2, 2)
-    nk, ny, nx = volume["aerosol_extinction"].shape
+    nk, ny, nx = volume.variables["aerosol_extinction"].shape  # a Variable: no DataArray is made
     z_bottom = float(volume.attrs["z_bottom"])
     dz = float(volume.attrs["dz"])
     spacing = float(np.sqrt(abs(np.linalg.det(matrix))))
