@@ -69,14 +69,6 @@ log = logging.getLogger(__name__)
 #: Scalar irradiance of isotropic diffuse light from the upper hemisphere per unit horizontal irradiance
 #: (2 pi L against pi L).
 SKYLIGHT_SCALAR_FACTOR = 2.0
-#: Most channels of the packed volume. Its layout: the extinctions of the species that are not zero everywhere
-#: (:func:`packed_species`, in the order of :data:`swim.constants.SPECIES`), the 3-D aerosol's extinction and its
-#: optical depth towards the sun (550 nm), Step 1a's cloud transmittance T, the terrain shadow (last). The terrain
-#: shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone. Species that are zero
-#: everywhere and, without a 3-D aerosol, its two channels are left out (:func:`pack_volume`): RICO's
-#: liquid-only cumulus packs 3 channels instead of 7 (18.5 -> 7.9 MB), and a march through it is 6-16 % faster for
-#: it (docs/performance.md, section 31).
-N_CHANNELS = len(SPECIES) + 4
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
 #: "seen from above" (Eq. 26) treatment of clouds.
 FROM_ABOVE_BLEND = 0.1
@@ -753,7 +745,7 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     multiple_scattering = ms_profile is not None
     n_c = consts["volume"].shape[-1]
     n_sp = consts["species_matrix"].shape[0]  # the packed species (packed_species)
-    aerosol_3d = n_c == n_sp + 4  # the 3-D aerosol's two channels are packed only where it is not zero
+    aerosol_3d = packed_aerosol_3d(n_c, n_sp)  # packed only where it is not zero
     outside = jnp.concatenate([jnp.zeros(n_c - 2), jnp.ones(2)]).astype(jnp.float32)
 
     def sample(st, s_lo, ds):
@@ -1041,13 +1033,19 @@ def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, sett
     evaluated (as it is for such rays anyway). The chunks of an all-sky camera on the ground and the upper rows of a
     panorama see no ground, and the ground's BRDF is about half of the composition's cost (docs/performance.md,
     section 31)."""
-    surface = state["hit"] | (ends_on_ground & state["alive"])
+    surface = _ends_on_surface(state, ends_on_ground)
     s_hit = state["s_hit"]
     if ground:
         l_surface = _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit)
     else:
         l_surface = jnp.zeros_like(state["l_clear"])
     return _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface)
+
+
+def _ends_on_surface(state, ends_on_ground):
+    """Which rays end on the ground (n,) bool: a terrain hit, or a ray still alive at the end of a segment that ends
+    on the sea-level sphere (JAX or numpy arrays)."""
+    return state["hit"] | (ends_on_ground & state["alive"])
 
 
 def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit):
@@ -1302,6 +1300,20 @@ def kernel_constants(volume, transmittance, gas: GasTables, sun_direction_scene,
     return {**volume_constants(volume, transmittance), **atmosphere_constants(gas, sun_direction_scene, radius)}
 
 
+def packed_aerosol_3d(n_channels, n_species) -> bool:
+    """Whether a packed volume of ``n_channels`` channels and ``n_species`` packed species holds the 3-D aerosol's
+    two channels.
+
+    The packed volume's layout (:func:`pack_volume`): the extinctions of the species that are not zero everywhere
+    (:func:`packed_species`, in the order of :data:`swim.constants.SPECIES`), the 3-D aerosol's extinction and its
+    optical depth towards the sun (550 nm), Step 1a's cloud transmittance T, the terrain shadow (last). The terrain
+    shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone. Species that are zero
+    everywhere and, without a 3-D aerosol, its two channels are left out: RICO's liquid-only cumulus packs 3
+    channels instead of 7 (18.5 -> 7.9 MB), and a march through it is 6-16 % faster for it (docs/performance.md,
+    section 31)."""
+    return n_channels == n_species + 4
+
+
 def packed_species(volume) -> tuple[int, ...]:
     """The species of an optical volume whose extinction is not zero everywhere: the species channels of
     :func:`pack_volume`.
@@ -1398,7 +1410,7 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
         species = packed_species(volume)
     if packed is None:
         packed = pack_volume(volume, species)
-    aerosol_3d = packed.shape[-1] == len(species) + 4
+    aerosol_3d = packed_aerosol_3d(packed.shape[-1], len(species))
     if packed.shape[-1] != len(species) + 2 + 2 * aerosol_3d:
         raise ValueError(f"packed volume of {packed.shape[-1]} channels does not hold the species {species}")
     n_grid = packed.shape[-1] - 2 - aerosol_3d  # channels of the grid itself
@@ -1456,7 +1468,7 @@ def share_packed_channels(volume, packed, species=None):
     volume["extinction"] = xr.Variable(extinction.dims, channels, extinction.attrs)
     volume.coords["species"] = xr.Variable("species", np.array([SPECIES[s] for s in species], coordinate.dtype),
                                            coordinate.attrs)
-    if packed.shape[-1] == n_species + 4:
+    if packed_aerosol_3d(packed.shape[-1], n_species):
         aerosol = packed[..., n_species].view()
         aerosol.flags.writeable = False
         volume["aerosol_extinction"] = volume["aerosol_extinction"].copy(data=aerosol)
@@ -1834,7 +1846,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # kernel (_march_rays)
     state["tau_species"] = state["tau_species"] @ tables["species_matrix"]
     # a chunk without a ray on the ground composes without the ground's term (a second compiled version)
-    ground = bool(np.any(state["hit"][:n] | (ends_on_ground[:n] & state["alive"][:n])))
+    ground = bool(np.any(_ends_on_surface(state, ends_on_ground)[:n]))
     out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class,
                          ground=ground)
     return {**{key: value[:n] for key, value in jax.device_get(out).items()}, "steps": samples.astype(np.int32)}
