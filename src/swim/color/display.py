@@ -121,6 +121,14 @@ def display_matrix(transform: str = CHROMATIC_ADAPTATION_TRANSFORM) -> np.ndarra
     return np.array(_display_matrix(transform))
 
 
+@functools.lru_cache(maxsize=4)
+def _luminance_row(transform: str) -> np.ndarray:
+    """Row of the display matrix's inverse that gives luminance from display RGB (made once per transform)."""
+    row = np.linalg.inv(_display_matrix(transform))[1]
+    row.flags.writeable = False
+    return row
+
+
 @functools.lru_cache(maxsize=32)
 def _known_transform(transform) -> bool:
     """Whether colour-science knows the chromatic adaptation transform: its registry's lookup (case- and
@@ -200,7 +208,7 @@ def XYZ_to_display_rgb(
         return np.clip(rgb, 0.0, 1.0)
     # preserve_hue: work on the (few) offending pixels only
     flat = rgb.reshape(-1, 3)
-    lum = np.linalg.inv(m)[1]  # luminance Y / Y_white from rgb; the coefficients sum to 1
+    lum = _luminance_row(transform)  # luminance Y / Y_white from rgb; the coefficients sum to 1
     # the smallest and largest channels as two element-wise operations: a reduction over an axis of 3 took ~70 us
     # for a 41 x 41 image
     neg = np.flatnonzero(np.minimum(np.minimum(flat[:, 0], flat[:, 1]), flat[:, 2]) < 0.0)

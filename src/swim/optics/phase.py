@@ -32,10 +32,18 @@ VENUS_MAX_PHASE_ANGLE_DEG = 179.0
 VENUS_BRANCH_PHASE_ANGLE_DEG = 163.7
 #: Absolute V magnitude of Venus at full phase, 1 AU from sun and observer (Mallama et al. 2006) [mag].
 VENUS_V10 = -4.384
+#: Coefficients of α, α², α³, α⁴ [mag deg^-k] of the Mallama et al. (2006) fit below
+#: :data:`VENUS_BRANCH_PHASE_ANGLE_DEG` (:func:`venus_magnitude_mallama2006`).
+VENUS_NEAR_COEFFICIENTS = (-1.044e-3, 3.687e-4, -2.814e-6, 8.938e-9)
+#: Coefficients of 1, α, α² [mag deg^-k] of its branch beyond, relative to full phase (236.05828 - V(1, 0)).
+VENUS_FAR_COEFFICIENTS = (236.05828 - VENUS_V10, -2.81914, 8.39034e-3)
 #: Normalising numerator of the thick, sunlit cloud phase function (paper Eq. 19) [-].
 THICK_HIGH_NUMERATOR = 1.94
 #: Coefficients b1, b2 of the Kokhanovsky (2004) reflectance factor, paper Eq. 25 and Sect. 3.4.3 [-].
 KOKHANOVSKY_B1, KOKHANOVSKY_B2 = 1.48, 7.76
+#: Double Henyey-Greenstein parameters g, f_b of the cloud phase function in the reflectance factor (water cloud,
+#: paper Sect. 3.4.3) [-].
+ARF_DHG_G, ARF_DHG_FB = 0.7, 0.4
 #: Floor on cos z + cos z0 in the reflectance factor, to keep it finite at grazing sun and view [-].
 ARF_MIN_MU_SUM = 1e-3
 #: Floor on mu0 in :func:`diffuse_transmission_factor`: at low sun the skylight, whose transmitted flux does
@@ -46,6 +54,22 @@ DIFFUSE_TRANSMISSION_MIN_MU0 = 0.15
 #: 2, half of it diffraction into a cone of ~lambda / (pi D) (0.5° for 10 um droplets at 546 nm); used to
 #: delta-scale the view-path attenuation of the thin-cloud term (:func:`delta_scaled_path_factor`) [-].
 FORWARD_PEAK_FRACTION = 0.5
+#: Lobes of the thin-cloud phase functions of ice, rain and snow (paper Eqs. B1-B3; ice with the sign of its
+#: isotropic term fixed, docs/phase-functions.md), in the argument order of :func:`_thin_lobes`: forward weight,
+#: forward g (raised to τ'), middle weight, middle g (raised to τ'), isotropic weight, back weight, back g.
+#: Graupel takes the rain form. One table for the JAX functions here and the CPU composition
+#: (:mod:`swim.rt.compose_cpu`).
+THIN_LOBES = {
+    "cloud_ice": (0.50, 0.999, 0.21, 0.991, 0.25, 0.04, -0.2),
+    "rain": (0.10, 0.99, 1.05, 0.75, -0.35, 0.20, -0.2),
+    "snow": (0.50, 0.999, 0.45, 0.991, 0.03, 0.02, -0.2),
+}
+THIN_LOBES["graupel"] = THIN_LOBES["rain"]
+#: Cloud liquid's forward-peak weight f1 = 0.8^τ' (paper Eq. 17 as interpreted, docs/phase-functions.md) [-].
+LIQUID_FORWARD_WEIGHT_BASE = 0.8
+#: The other lobes of cloud liquid's thin phase function (paper Eq. 18): the forward and middle weights' sum
+#: (the middle weight is 1.06 - f1), middle g (raised to τ'), isotropic weight, back weight, back g.
+LIQUID_THIN_LOBES = (1.06, 0.6, -0.08, 0.02, -0.6)
 
 
 def henyey_greenstein(cos_theta, g):
@@ -186,8 +210,9 @@ def phase_thin_cloud_liquid(cos_theta, tau_o, g_lambda):
     """
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
-    f1 = 0.8**tp
-    return _thin_lobes(mu, tp, f1, g_lambda, 1.06 - f1, 0.6, -0.08, 0.02, -0.6)
+    f1 = LIQUID_FORWARD_WEIGHT_BASE**tp
+    total, g_middle, isotropic, back, g_back = LIQUID_THIN_LOBES
+    return _thin_lobes(mu, tp, f1, g_lambda, total - f1, g_middle, isotropic, back, g_back)
 
 
 def phase_thin_rain(cos_theta, tau_o):
@@ -214,7 +239,7 @@ def phase_thin_rain(cos_theta, tau_o):
     """
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
-    return _thin_lobes(mu, tp, 0.10, 0.99, 1.05, 0.75, -0.35, 0.20, -0.2)
+    return _thin_lobes(mu, tp, *THIN_LOBES["rain"])
 
 
 def phase_thin_cloud_ice(cos_theta, tau_o):
@@ -247,7 +272,7 @@ def phase_thin_cloud_ice(cos_theta, tau_o):
     """
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
-    return _thin_lobes(mu, tp, 0.50, 0.999, 0.21, 0.991, 0.25, 0.04, -0.2)
+    return _thin_lobes(mu, tp, *THIN_LOBES["cloud_ice"])
 
 
 def phase_thin_snow(cos_theta, tau_o):
@@ -270,7 +295,7 @@ def phase_thin_snow(cos_theta, tau_o):
     """
     mu = jnp.asarray(cos_theta)
     tp = _multiple_scattering_order(tau_o)
-    return _thin_lobes(mu, tp, 0.50, 0.999, 0.45, 0.991, 0.03, 0.02, -0.2)
+    return _thin_lobes(mu, tp, *THIN_LOBES["snow"])
 
 
 def phase_thin_graupel(cos_theta, tau_o):
@@ -326,8 +351,10 @@ def venus_magnitude_mallama2006(phase_angle_deg):
     H2SO4, Icarus 182, 10-22, doi:10.1016/j.icarus.2005.12.014.
     """
     a = jnp.asarray(phase_angle_deg)
-    near = a * (-1.044e-3 + a * (3.687e-4 + a * (-2.814e-6 + a * 8.938e-9)))
-    far = (236.05828 - VENUS_V10) + a * (-2.81914 + a * 8.39034e-3)
+    c1, c2, c3, c4 = VENUS_NEAR_COEFFICIENTS
+    f0, f1, f2 = VENUS_FAR_COEFFICIENTS
+    near = a * (c1 + a * (c2 + a * (c3 + a * c4)))
+    far = f0 + a * (f1 + a * f2)
     return jnp.where(a < VENUS_BRANCH_PHASE_ANGLE_DEG, near, far)
 
 
@@ -581,12 +608,6 @@ def phase_thin_mixture(cos_theta, tau_o, species_weights, g_liquid):
     return jnp.sum(jnp.asarray(species_weights) * thin, axis=-1)
 
 
-#: Forward-peak lobes of the thin phase functions (Eqs. 18, B1-B3): (weight, g) with weight None for the
-#: liquid f1 = 0.8^τ' and g raised to τ' as in :func:`_thin_lobes`.
-_FORWARD_PEAK_LOBES = {"cloud_liquid": (None, None), "cloud_ice": (0.50, 0.999), "rain": (0.10, 0.99),
-                       "snow": (0.50, 0.999), "graupel": (0.10, 0.99)}
-
-
 def forward_peak_mixture(cos_theta, tau_o, species_weights, g_liquid):
     """The forward-peak lobes of :func:`phase_thin_mixture` alone (the first term of Eqs. 18, B1-B3).
 
@@ -599,9 +620,10 @@ def forward_peak_mixture(cos_theta, tau_o, species_weights, g_liquid):
     tp = _multiple_scattering_order(tau_o)
     lobes = []
     for s in SPECIES:
-        f, g = _FORWARD_PEAK_LOBES[s]
-        if f is None:
-            f, g = 0.8**tp, g_liquid
+        if s == "cloud_liquid":
+            f, g = LIQUID_FORWARD_WEIGHT_BASE**tp, g_liquid
+        else:
+            f, g = THIN_LOBES[s][:2]
         lobes.append(f * henyey_greenstein(mu, jnp.asarray(g) ** tp))
     peak = jnp.stack(jnp.broadcast_arrays(*lobes), axis=-1)
     return jnp.sum(jnp.asarray(species_weights) * peak, axis=-1)
@@ -630,7 +652,7 @@ def cloud_albedo_stephens1978(tau, b):
 
 
 def anisotropic_reflectance_factor_kokhanovsky2004(
-    cos_view_zenith, cos_sun_zenith, cos_theta, b1=KOKHANOVSKY_B1, b2=KOKHANOVSKY_B2, g=0.7, fb=0.4
+    cos_view_zenith, cos_sun_zenith, cos_theta, b1=KOKHANOVSKY_B1, b2=KOKHANOVSKY_B2, g=ARF_DHG_G, fb=ARF_DHG_FB
 ):
     """Anisotropic reflectance factor of a thick (semi-infinite, non-absorbing) cloud (paper Eq. 25, corrected).
 

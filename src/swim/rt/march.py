@@ -25,8 +25,10 @@ unattenuated, the cloud is seen through the gas in front of it (the e^{-tau_1} o
 and ground behind it are attenuated by its optical depth. docs/rendering.md states the interpretation.
 
 The kernels are JAX (float32, jit-compiled once per batch size, chunked over pixels). On a CPU the step
-loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, ~5x faster there), between
-the same JAX set-up and composition (:attr:`MarchSettings.backend`; docs/performance.md, section 8).
+loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, ~5x faster there), with its
+per-ray set-up (:func:`swim.rt.march_cpu.prepare_rays`) and the clouds' composition (:mod:`swim.rt.compose_cpu`)
+in numba too; the ground's term stays in JAX (:attr:`MarchSettings.backend`; docs/performance.md, sections 8, 30
+and 35).
 """
 
 from __future__ import annotations
@@ -1779,6 +1781,8 @@ def _numba_tables(consts, prepare=True):
               "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]),
               "angstrom": arr(consts["angstrom"]), "aerosol_ssa": arr(consts["aerosol_ssa"]),
               "stratospheric_ssa": arr(consts["stratospheric_ssa"]), "species_matrix": arr(consts["species_matrix"])}
+    # each packed species' index into SPECIES, for the numba composition
+    tables["species_index"] = np.argmax(tables["species_matrix"], axis=1).astype(np.int64)
     if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
         source = consts["ms_source"]
         tables.update(ms_source=arr(np.asarray(source).reshape(source.shape[:4] + (-1,))), n_u=int(source.shape[4]),
@@ -1791,7 +1795,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     """One chunk of rays: the per-ray set-up (:func:`swim.rt.march_cpu.prepare_rays` for ``kernel`` "numba", JAX's
     :func:`_prepare_rays` for "cuda"), the step loop in :func:`swim.rt.march_cpu.march_rays` ("numba") or its CUDA
     twin :func:`swim.rt.march_cuda.march_rays` ("cuda"; ``exact``: start, direction and bounds in float64), and the
-    composition in JAX. Returns numpy arrays of the first ``n`` (real) rays.
+    composition (:func:`_compose_numba` for "numba", JAX's :func:`_compose` for "cuda"). Returns numpy arrays of the
+    first ``n`` (real) rays.
 
     The chunk's arrays stay numpy arrays between the stages (the jitted stages take them as they are, and their
     outputs are fetched once): a JAX operation per slice or conversion cost ~30 dispatches per chunk, ~3 ms
@@ -1838,15 +1843,61 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS, *out)
-    for key, value in state.items():
-        value[n:] = value[n - 1]
-        if value.dtype != bool:
-            state[key] = value.astype(np.float32)
-    # the packed species' optical depths into all of SPECIES' (those not packed were zero everywhere), as in the JAX
-    # kernel (_march_rays)
-    state["tau_species"] = state["tau_species"] @ tables["species_matrix"]
+    if kernel == "numba":  # the clouds composed in numba too, the ground in JAX where a ray meets it (section 35)
+        return {**_compose_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, state,
+                                 aerosol_class, n), "steps": samples.astype(np.int32)}
+    _pad_state(state, n, tables)
     # a chunk without a ray on the ground composes without the ground's term (a second compiled version)
     ground = bool(np.any(_ends_on_surface(state, ends_on_ground)[:n]))
     out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class,
                          ground=ground)
     return {**{key: value[:n] for key, value in jax.device_get(out).items()}, "steps": samples.astype(np.int32)}
+
+
+def _pad_state(state, n, tables):
+    """The per-ray kernels' state (float64, the first ``n`` of its rows written) as the JAX composition takes it, in
+    place: the padding rows repeat the last ray (as the inputs do), float32, and the packed species' optical depths
+    spread into all of SPECIES' (those not packed were zero everywhere), as in the JAX kernel (:func:`_march_rays`)."""
+    for key, value in state.items():
+        value[n:] = value[n - 1]
+        if value.dtype != bool:
+            state[key] = value.astype(np.float32)
+    state["tau_species"] = state["tau_species"] @ tables["species_matrix"]
+
+
+def _compose_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, state,
+                   aerosol_class, n):
+    """The outputs of :func:`_compose` for the first ``n`` rays of a chunk marched by the numba kernel: the clouds'
+    part and the sum in :func:`swim.rt.compose_cpu.compose_clouds` (no JAX call, no GIL), the ground's term (Eq. 35)
+    in JAX for chunks that have rays on the ground (:func:`_ground_only`). ``state`` holds the kernel's float64
+    outputs (its packed species, padding rows not yet written); numpy arrays."""
+    from . import compose_cpu
+
+    st = {key: value[:n] for key, value in state.items()}  # the real rays' float64 rows (views)
+    surface = _ends_on_surface(st, ends_on_ground[:n])
+    if np.any(surface):
+        padded = dict(state)  # float32 copies for JAX in this dict; st keeps the float64 rows
+        _pad_state(padded, n, tables)
+        ground = {key: padded[key] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
+        l_surface = np.asarray(jax.device_get(_ground_chunk(start, direction, ends_on_ground, rays, consts, settings,
+                                                            ground, aerosol_class)))[:n]
+    else:
+        l_surface = np.zeros((n, 3), np.float32)
+    radiance, l_cloud = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    compose_cpu.compose_clouds(st["tau_h"], st["tau_species"], tables["species_index"], st["i_nogas"], st["i_gas"],
+                               st["i_cloud_t"], st["l_clear"], l_surface, np.array(valid[:n]), rays["cos_theta"][:n],
+                               rays["cos_view_zenith"][:n], tables["p"][compose_cpu.P_MU0], compose_cpu.G_LIQUID_ARRAY,
+                               compose_cpu.BACKSCATTER_ARRAY, radiance, l_cloud)
+    return {"radiance": radiance, "radiance_clear": st["l_clear"].astype(np.float32), "radiance_cloud": l_cloud,
+            "radiance_surface": l_surface, "tau_hydrometeor": st["tau_h"].astype(np.float32),
+            "tau_clear": st["tau_clear"].astype(np.float32), "surface": surface,
+            "distance": np.where(surface, st["s_hit"], np.nan).astype(np.float32)}
+
+
+def _ground_only(start, direction, ends_on_ground, rays, consts, settings, state, aerosol_class):
+    """The ground's term of :func:`_compose` alone, (n, 3): for the numba kernel's chunks with rays on the ground."""
+    return _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class,
+                            _ends_on_surface(state, ends_on_ground), state["s_hit"])
+
+
+_ground_chunk = jax.jit(_ground_only, static_argnames=("settings",))
