@@ -75,7 +75,7 @@ def radiance_without_sun_disk(image: xr.Dataset) -> np.ndarray:
     """
     total = 0
     for key in _COMPONENTS:  # on the numpy arrays: xarray's fillna and sums took ~2.5 ms of a 41 x 41 render's 30
-        values = image[key].values
+        values = image.variables[key].values  # the Variable: a DataArray is made in ~40 us
         total = total + np.where(np.isnan(values), values.dtype.type(0), values)
     return np.asarray(total, dtype=float)
 

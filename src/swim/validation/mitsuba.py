@@ -650,8 +650,8 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
                 sun_azimuth=float(cfg["sun_azimuth"]), aerosol=aerosol, height=height,
                 settings=reference_settings(march_settings))
     sky = radiance_without_sun_disk(ds)
-    vz = ds["view_zenith"].values.astype(float)
-    va = ds["view_azimuth"].values.astype(float)
+    vz = ds.variables["view_zenith"].values.astype(float)  # Variables: a DataArray is made in ~30 us
+    va = ds.variables["view_azimuth"].values.astype(float)
     d = directions_from_angles(vz, va)
     sun = enu_from_azimuth_zenith(float(ds.attrs["sun_azimuth_deg"]), float(ds.attrs["sun_zenith_deg"]))
     scat = np.degrees(np.arccos(np.clip(np.nan_to_num(d) @ sun, -1.0, 1.0)))
@@ -660,7 +660,7 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
         mask &= vz <= float(cfg["max_view_zenith_deg"])
     image = np.where(mask[None], sky, np.nan)
     observer = np.array([0.0, 0.0, float(ds.attrs["observer_height_asl_m"])])
-    tau = ds["tau_hydrometeor"].values.astype(float)
+    tau = ds.variables["tau_hydrometeor"].values.astype(float)
     return {"image": image, "mask": mask, "directions": d[mask], "observer": observer, "dataset": ds,
             "aerosol": aerosol, "tau": tau}
 
