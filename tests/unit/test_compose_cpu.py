@@ -62,7 +62,8 @@ def numba_composition(st, species, mu0, dtype=np.float64):
     compose_cpu.compose_clouds(st["tau_h"], st["tau_packed"], np.asarray(species, np.int64), st["i_nogas"],
                                st["i_gas"], st["i_cloud_t"], st["l_clear"], st["l_surface"], st["valid"],
                                st["cos_theta"], st["cos_view_zenith"], float(mu0), compose_cpu.G_LIQUID_ARRAY,
-                               compose_cpu.BACKSCATTER_ARRAY, radiance, cloud)
+                               compose_cpu.BACKSCATTER_ARRAY, compose_cpu.COEFFICIENTS, compose_cpu.LOBES, radiance,
+                               cloud)
     return radiance, cloud
 
 

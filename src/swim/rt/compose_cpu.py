@@ -23,12 +23,12 @@ from numba import njit
 
 from ..constants import BACKSCATTER_FRACTION, SPECIES
 from ..optics.phase import (
-    G_LIQUID,
     ARF_DHG_FB,
     ARF_DHG_G,
     ARF_MIN_MU_SUM,
     DIFFUSE_TRANSMISSION_MIN_MU0,
     FORWARD_PEAK_FRACTION,
+    G_LIQUID,
     KOKHANOVSKY_B1,
     KOKHANOVSKY_B2,
     LIQUID_FORWARD_WEIGHT_BASE,
@@ -46,22 +46,50 @@ from .solar import ONE_MINUS_G_PER_BACKSCATTER
 
 #: Index of cloud liquid in :data:`swim.constants.SPECIES`: its forward lobe depends on the wavelength.
 _LIQUID = SPECIES.index("cloud_liquid")
-#: The thin lobes of :data:`swim.optics.phase.THIN_LOBES` as rows in the order of SPECIES (cloud liquid's row unused).
-_LOBES = np.array([THIN_LOBES.get(s, (0.0,) * 7) for s in SPECIES], dtype=np.float64)
-# g^tau' as e^(tau' ln g): the logarithms of the lobes' g once (a pow per lobe cost more than the rest of a ray)
-_LN_LOBE_G = np.log(np.where(_LOBES[:, [1, 3]] > 0, _LOBES[:, [1, 3]], 1.0))
-_LIQUID_TOTAL, _LIQUID_G_MIDDLE, _LIQUID_ISOTROPIC, _LIQUID_BACK, _LIQUID_G_BACK = LIQUID_THIN_LOBES
-_LN_LIQUID_G_MIDDLE = math.log(_LIQUID_G_MIDDLE)
-_LN_LIQUID_FORWARD_WEIGHT_BASE = math.log(LIQUID_FORWARD_WEIGHT_BASE)
-_VENUS_C1, _VENUS_C2, _VENUS_C3, _VENUS_C4 = VENUS_NEAR_COEFFICIENTS
-_VENUS_F0, _VENUS_F1, _VENUS_F2 = VENUS_FAR_COEFFICIENTS
-_LN10 = math.log(10.0)
 #: Where :func:`swim.rt.march_cpu.pack_parameters` keeps mu0, the sun direction's vertical component [-].
 P_MU0 = _P_SUN + 2
-#: :data:`swim.optics.phase.G_LIQUID` and the species' backscatter fractions (:data:`swim.constants.SPECIES`'
-#: order) as the arrays :func:`compose_clouds` takes.
+
+# The coefficients reach the compiled functions as arguments, not as globals: numba bakes globals into its cached
+# machine code and checks only this file's time stamp, so a coefficient changed in swim.optics.phase would not reach
+# a cached compilation.
+(_K_FROM_ABOVE, _K_MIN_MU0, _K_FORWARD, _K_B1, _K_B2, _K_DHG_G, _K_DHG_FB, _K_MIN_MU_SUM, _K_THICK, _K_VENUS_MAX,
+ _K_VENUS_BRANCH, _K_VENUS_NEAR, _K_VENUS_FAR, _K_LN_F1, _K_LIQUID_TOTAL, _K_LN_LIQUID_G_MIDDLE, _K_LIQUID_ISOTROPIC,
+ _K_LIQUID_BACK, _K_LIQUID_G_BACK, _K_ONE_MINUS_G) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15, 18, 19, 20, 21, 22, 23,
+                                                      24)
+
+
+def coefficients():
+    """The scalars of the composition as one float64 vector (its layout: the ``_K_*`` indices of this module).
+
+    g^tau' is computed as e^(tau' ln g), so the vector holds ln g where a g is raised to tau' (a ``pow`` per lobe
+    cost as much as the rest of a ray)."""
+    total, g_middle, isotropic, back, g_back = LIQUID_THIN_LOBES
+    return np.array([FROM_ABOVE_BLEND, DIFFUSE_TRANSMISSION_MIN_MU0, FORWARD_PEAK_FRACTION, KOKHANOVSKY_B1,
+                     KOKHANOVSKY_B2, ARF_DHG_G, ARF_DHG_FB, ARF_MIN_MU_SUM, THICK_HIGH_NUMERATOR,
+                     VENUS_MAX_PHASE_ANGLE_DEG, VENUS_BRANCH_PHASE_ANGLE_DEG, *VENUS_NEAR_COEFFICIENTS,
+                     *VENUS_FAR_COEFFICIENTS, math.log(LIQUID_FORWARD_WEIGHT_BASE), total, math.log(g_middle),
+                     isotropic, back, g_back, ONE_MINUS_G_PER_BACKSCATTER], dtype=np.float64)
+
+
+def lobes():
+    """The thin lobes of :data:`swim.optics.phase.THIN_LOBES` as rows (5, 7) in the order of SPECIES, with ln g in
+    place of the two g that are raised to tau' (columns 1 and 3); cloud liquid's row is unused
+    (:func:`coefficients`)."""
+    rows = np.zeros((len(SPECIES), 7))
+    for i, s in enumerate(SPECIES):
+        if s in THIN_LOBES:
+            rows[i] = THIN_LOBES[s]
+            rows[i, [1, 3]] = np.log(rows[i, [1, 3]])
+    return rows
+
+
+#: :func:`coefficients`, :func:`lobes`, :data:`swim.optics.phase.G_LIQUID` and the species' backscatter fractions
+#: (:data:`swim.constants.SPECIES`' order): the arrays that :func:`compose_clouds` takes.
+COEFFICIENTS = coefficients()
+LOBES = lobes()
 G_LIQUID_ARRAY = np.array(G_LIQUID, dtype=np.float64)
 BACKSCATTER_ARRAY = np.array([BACKSCATTER_FRACTION[s] for s in SPECIES], dtype=np.float64)
+_LN10 = math.log(10.0)
 
 
 @njit(**_JIT, inline="always")
@@ -72,47 +100,50 @@ def _henyey_greenstein(mu, g):
 
 
 @njit(**_JIT)
-def _phase_thick_high(mu):
+def _phase_thick_high(mu, k):
     """:func:`swim.optics.phase.phase_thick_high` (paper Eq. 19, Mallama et al. 2006's Venus phase law)."""
     mu = min(max(mu, -1.0), 1.0)
     alpha = 180.0 - math.degrees(math.acos(mu))
-    if alpha > VENUS_MAX_PHASE_ANGLE_DEG:
-        alpha = VENUS_MAX_PHASE_ANGLE_DEG
+    if alpha > k[_K_VENUS_MAX]:
+        alpha = k[_K_VENUS_MAX]
         illuminated_fraction = math.sin(math.radians(180.0 - alpha) / 2.0) ** 2
     else:  # sin^2(theta / 2) = (1 - cos theta) / 2, exact in float64 for the float32 cosines the march gives
         illuminated_fraction = 0.5 * (1.0 - mu)
-    if alpha < VENUS_BRANCH_PHASE_ANGLE_DEG:
-        m = alpha * (_VENUS_C1 + alpha * (_VENUS_C2 + alpha * (_VENUS_C3 + alpha * _VENUS_C4)))
+    if alpha < k[_K_VENUS_BRANCH]:
+        c = _K_VENUS_NEAR
+        m = alpha * (k[c] + alpha * (k[c + 1] + alpha * (k[c + 2] + alpha * k[c + 3])))
     else:
-        m = _VENUS_F0 + alpha * (_VENUS_F1 + alpha * _VENUS_F2)
-    return THICK_HIGH_NUMERATOR * math.exp(-0.4 * _LN10 * m) / illuminated_fraction
+        c = _K_VENUS_FAR
+        m = k[c] + alpha * (k[c + 1] + alpha * k[c + 2])
+    return k[_K_THICK] * math.exp(-0.4 * _LN10 * m) / illuminated_fraction
 
 
 @njit(**_JIT)
-def _reflectance_factor(mu_view, mu0, mu):
+def _reflectance_factor(mu_view, mu0, mu, k):
     """:func:`swim.optics.phase.anisotropic_reflectance_factor_kokhanovsky2004` (paper Eq. 25 corrected, with the
     double Henyey-Greenstein function of Eq. 27)."""
     mu_view = min(max(mu_view, 0.0), 1.0)
     mu0 = min(max(mu0, 0.0), 1.0)
-    one_g2 = 1.0 + ARF_DHG_G * ARF_DHG_G
-    dhg = _henyey_greenstein(mu, ARF_DHG_G) + (1.0 - ARF_DHG_G * ARF_DHG_G) * (
-        ARF_DHG_FB * (3.0 * mu * mu - 1.0) / (2.0 * one_g2 * math.sqrt(one_g2)))
-    return (KOKHANOVSKY_B1 + KOKHANOVSKY_B2 * mu_view * mu0 + dhg) / (4.0 * max(mu_view + mu0, ARF_MIN_MU_SUM))
+    g = k[_K_DHG_G]
+    one_g2 = 1.0 + g * g
+    dhg = _henyey_greenstein(mu, g) + (1.0 - g * g) * (k[_K_DHG_FB] * (3.0 * mu * mu - 1.0)
+                                                       / (2.0 * one_g2 * math.sqrt(one_g2)))
+    return (k[_K_B1] + k[_K_B2] * mu_view * mu0 + dhg) / (4.0 * max(mu_view + mu0, k[_K_MIN_MU_SUM]))
 
 
 @njit(**_JIT)
-def _transmittance_delta_eddington(tau_s, b_tau_s, mu0):
+def _transmittance_delta_eddington(tau_s, b_tau_s, mu0, k):
     """:func:`swim.rt.solar.transmittance_delta_eddington` (replaces paper Eqs. 4-6)."""
-    x = ONE_MINUS_G_PER_BACKSCATTER * b_tau_s
+    x = k[_K_ONE_MINUS_G] * b_tau_s
     one_minus_g = min(max(x / max(tau_s, 1e-30), 0.0), 1.0)
     tau_prime = x * (2.0 - one_minus_g)
-    k = 0.5 + 0.75 * mu0
-    return (k + (1.0 - k) * math.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
+    kk = 0.5 + 0.75 * mu0
+    return (kk + (1.0 - kk) * math.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
 
 
 @njit(**_JIT, nogil=True)
 def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clear, l_surface, valid, cos_theta,
-                   cos_view_zenith, mu0, g_liquid, backscatter, radiance_out, cloud_out):
+                   cos_view_zenith, mu0, g_liquid, backscatter, coefficients, lobes, radiance_out, cloud_out):
     """The clouds' radiance and the pixel radiance of n rays, as :func:`swim.rt.march._compose_clouds`.
 
     Parameters
@@ -139,15 +170,19 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
         Shape (3,): cloud liquid's forward-peak asymmetry parameter per wavelength (paper Eq. 16).
     backscatter : numpy.ndarray
         Shape (5,): backscatter fraction b of each species of SPECIES [-] (paper Sect. 3.4).
+    coefficients, lobes : numpy.ndarray
+        :data:`COEFFICIENTS` and :data:`LOBES`.
     radiance_out, cloud_out : numpy.ndarray
         Shape (n, 3), written: the pixel radiance L' (clear + clouds + ground, 0 where not valid) and the clouds'
         part [-].
     """
+    k = coefficients
     n = tau_h.shape[0]
     n_species = species.shape[0]
-    low_sun = (9.0 / 7.0) * max(mu0, DIFFUSE_TRANSMISSION_MIN_MU0)  # diffuse_transmission_factor (Eq. 21's c4)
+    low_sun = (9.0 / 7.0) * max(mu0, k[_K_MIN_MU0])  # diffuse_transmission_factor (Eq. 21's c4)
     mu0_top = max(mu0, 0.05)
-    one_f = 1.0 - FORWARD_PEAK_FRACTION
+    one_f = 1.0 - k[_K_FORWARD]
+    from_above = k[_K_FROM_ABOVE]
     ln_g_liquid = np.empty(3)
     for c in range(3):
         ln_g_liquid[c] = math.log(g_liquid[c])
@@ -161,12 +196,12 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
             t_mean = min(max(i_cloud_t[r] / safe, 0.0), 1.0)
             mu = cos_theta[r]
             mu_view_down = -cos_view_zenith[r]
-            w_above = min(max(mu_view_down / FROM_ABOVE_BLEND, 0.0), 1.0)
+            w_above = min(max(mu_view_down / from_above, 0.0), 1.0)
             low_factor = (1.0 - w_above) * low_sun + w_above
             tp = max(tau, 1.0)  # the multiple-scattering order tau' of the lobes' g^tau'
             c1 = math.exp(-((tau / 10.0) ** 2)) * t_mean  # blend_coefficient (Eqs. 14, 22): c1 = c3
             # phase_thick (Eqs. 19-21) with the indirectly lit term's low_factor
-            thick = (2.0 * c1 * _phase_thick_high(mu)
+            thick = (2.0 * c1 * _phase_thick_high(mu, k)
                      + 4.0 * (1.0 - c1) * low_factor * (1.0 + 2.0 * max(cos_view_zenith[r], 0.0)) / 3.0)
             # the thin mixture (Eqs. 13, 18, B1-B3) without cloud liquid's wavelength-dependent forward lobe:
             # rest = every lobe but the forward ones, peak = the other species' forward lobes
@@ -175,29 +210,30 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
             peak = 0.0
             w_liquid = 0.0
             b_eff = 0.0
-            f1 = math.exp(tp * _LN_LIQUID_FORWARD_WEIGHT_BASE)
-            for k in range(n_species):
-                s = species[k]
-                w = tau_packed[r, k] * inv_tau
+            f1 = math.exp(tp * k[_K_LN_F1])
+            for j in range(n_species):
+                s = species[j]
+                w = tau_packed[r, j] * inv_tau
                 b_eff += w * backscatter[s]
                 if s == _LIQUID:
                     w_liquid = w
-                    rest += w * ((_LIQUID_TOTAL - f1) * _henyey_greenstein(mu, math.exp(tp * _LN_LIQUID_G_MIDDLE))
-                                 + _LIQUID_ISOTROPIC + _LIQUID_BACK * _henyey_greenstein(mu, _LIQUID_G_BACK))
+                    middle = _henyey_greenstein(mu, math.exp(tp * k[_K_LN_LIQUID_G_MIDDLE]))
+                    back = _henyey_greenstein(mu, k[_K_LIQUID_G_BACK])
+                    rest += w * ((k[_K_LIQUID_TOTAL] - f1) * middle + k[_K_LIQUID_ISOTROPIC] + k[_K_LIQUID_BACK] * back)
                 else:
-                    peak += w * _LOBES[s, 0] * _henyey_greenstein(mu, math.exp(tp * _LN_LOBE_G[s, 0]))
-                    rest += w * (_LOBES[s, 2] * _henyey_greenstein(mu, math.exp(tp * _LN_LOBE_G[s, 1])) + _LOBES[s, 4]
-                                 + _LOBES[s, 5] * _henyey_greenstein(mu, _LOBES[s, 6]))
+                    peak += w * lobes[s, 0] * _henyey_greenstein(mu, math.exp(tp * lobes[s, 1]))
+                    rest += w * (lobes[s, 2] * _henyey_greenstein(mu, math.exp(tp * lobes[s, 3])) + lobes[s, 4]
+                                 + lobes[s, 5] * _henyey_greenstein(mu, lobes[s, 6]))
             path = -math.expm1(-tau) / safe  # Eq. 12's 1 - e^-tau over its normalisation
             path_thin = -math.expm1(-one_f * tau) / one_f / safe  # delta_scaled_path_factor
             # seen from above: the cloud-top reflection (Eqs. 24-26) with the delta-Eddington albedo and T_self
-            mu_down = max(mu_view_down, FROM_ABOVE_BLEND)
+            mu_down = max(mu_view_down, from_above)
             tau_s = tau * mu_down / mu0_top
-            albedo = 1.0 - _transmittance_delta_eddington(tau_s, b_eff * tau_s, mu0_top)
+            albedo = 1.0 - _transmittance_delta_eddington(tau_s, b_eff * tau_s, mu0_top, k)
             lim = min(tau, 2.0)
             depth_s = (1.0 - (1.0 + lim) * math.exp(-lim)) / safe * mu_down / mu0_top
-            t_self = max(_transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top), 0.05)
-            top = 4.0 * max(mu0, 0.0) * _reflectance_factor(mu_down, max(mu0, 1e-3), mu) / t_self
+            t_self = max(_transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top, k), 0.05)
+            top = 4.0 * max(mu0, 0.0) * _reflectance_factor(mu_down, max(mu0, 1e-3), mu, k) / t_self
             for c in range(3):
                 p_thin = rest + peak + w_liquid * f1 * _henyey_greenstein(mu, math.exp(tp * ln_g_liquid[c]))
                 phase = c1 * p_thin + (1.0 - c1) * thick  # effective_phase_function (Eq. 13)

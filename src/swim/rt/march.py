@@ -1887,7 +1887,8 @@ def _compose_numba(start, direction, bounds, ends_on_ground, valid, rays, consts
     compose_cpu.compose_clouds(st["tau_h"], st["tau_species"], tables["species_index"], st["i_nogas"], st["i_gas"],
                                st["i_cloud_t"], st["l_clear"], l_surface, np.array(valid[:n]), rays["cos_theta"][:n],
                                rays["cos_view_zenith"][:n], tables["p"][compose_cpu.P_MU0], compose_cpu.G_LIQUID_ARRAY,
-                               compose_cpu.BACKSCATTER_ARRAY, radiance, l_cloud)
+                               compose_cpu.BACKSCATTER_ARRAY, compose_cpu.COEFFICIENTS, compose_cpu.LOBES, radiance,
+                               l_cloud)
     return {"radiance": radiance, "radiance_clear": st["l_clear"].astype(np.float32), "radiance_cloud": l_cloud,
             "radiance_surface": l_surface, "tau_hydrometeor": st["tau_h"].astype(np.float32),
             "tau_clear": st["tau_clear"].astype(np.float32), "surface": surface,
