@@ -1844,7 +1844,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS, *out)
     if kernel == "numba":  # the clouds composed in numba too, the ground in JAX where a ray meets it (section 35)
-        return {**_compose_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, state,
+        return {**_compose_numba(start, direction, ends_on_ground, valid, rays, consts, settings, tables, state,
                                  aerosol_class, n), "steps": samples.astype(np.int32)}
     _pad_state(state, n, tables)
     # a chunk without a ray on the ground composes without the ground's term (a second compiled version)
@@ -1865,8 +1865,7 @@ def _pad_state(state, n, tables):
     state["tau_species"] = state["tau_species"] @ tables["species_matrix"]
 
 
-def _compose_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, state,
-                   aerosol_class, n):
+def _compose_numba(start, direction, ends_on_ground, valid, rays, consts, settings, tables, state, aerosol_class, n):
     """The outputs of :func:`_compose` for the first ``n`` rays of a chunk marched by the numba kernel: the clouds'
     part and the sum in :func:`swim.rt.compose_cpu.compose_clouds` (no JAX call, no GIL), the ground's term (Eq. 35)
     in JAX for chunks that have rays on the ground (:func:`_ground_only`). ``state`` holds the kernel's float64
@@ -1876,9 +1875,9 @@ def _compose_numba(start, direction, bounds, ends_on_ground, valid, rays, consts
     st = {key: value[:n] for key, value in state.items()}  # the real rays' float64 rows (views)
     surface = _ends_on_surface(st, ends_on_ground[:n])
     if np.any(surface):
-        padded = dict(state)  # float32 copies for JAX in this dict; st keeps the float64 rows
-        _pad_state(padded, n, tables)
-        ground = {key: padded[key] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
+        # the state that the ground's term reads, padded as float32 copies for JAX (st keeps the float64 rows)
+        ground = {key: state[key] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
+        _pad_state(ground, n, tables)
         l_surface = np.asarray(jax.device_get(_ground_chunk(start, direction, ends_on_ground, rays, consts, settings,
                                                             ground, aerosol_class)))[:n]
     else:
