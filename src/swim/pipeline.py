@@ -433,12 +433,15 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
             result = {key: value[:-1] for key, value in result.items()}
         return order, result
 
-    def trace_pixels(flat, progress_rays=None):  # the adaptive sampler's: outputs in the order of the pixels asked for
+    def trace_pixels(flat, progress_rays=None):
+        # the adaptive sampler's: outputs in the order of the pixels asked for, only those that the image and the
+        # sampler's test read (the sampler keeps and interpolates every array it is given)
         order, result = trace_tiled(flat, progress_rays)
         for key in list(result):
             value = result.pop(key)
-            result[key] = np.empty_like(value)
-            result[key][order] = value
+            if key in IMAGE_OUTPUTS or key in ("surface", "steps"):
+                result[key] = np.empty_like(value)
+                result[key][order] = value
         return result
 
     ny, nx = cam.shape
@@ -460,7 +463,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     else:
         log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, coarse spacing %d)", camera,
                  cam.shape, int(valid.sum()), sampling.tolerance, sampling.coarse_spacing)
-        out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress)
+        out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress, max_threads=min(threads(), 8))
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
         for key in IMAGE_OUTPUTS:

@@ -121,6 +121,39 @@ def test_tolerance_bounds_the_error_of_a_smooth_curved_image():
         assert traced.sum() < 0.7 * traced.size
 
 
+def mixed_function(y, x):
+    """Smooth gradients with sharp-edged blobs of several sizes: smooth cells and splits at every level."""
+    blobs = ((y - 12.0) ** 2 + (x - 40.0) ** 2 < 30.0) | ((np.abs(y - 45.0) < 3) & (np.abs(x - 20.0) < 11))
+    r = 0.3 + 0.004 * x + 0.002 * y + np.where(blobs, 0.9, 0.0) + 0.05 * np.sin(x / 7.0) * np.cos(y / 9.0)
+    return np.stack([r, 0.7 * r, 1.1 * r], axis=1), np.where(blobs, 3.0, 0.01 * y), blobs
+
+
+@pytest.mark.parametrize("shape", [(64, 96), (61, 77)])
+def test_traced_pixels_keep_their_values_and_threads_do_not_change_the_image(shape):
+    valid = np.ones(shape, bool)
+    valid[:, :3] = False  # invalid pixels on the lattice's first column
+    results = [sample_image_adaptive(make_trace(mixed_function, shape), valid, AdaptiveSampling(), max_threads=n)
+               for n in (1, 3)]
+    (values, traced), (values_threads, traced_threads) = results
+    assert np.array_equal(traced, traced_threads)
+    for key in values:
+        np.testing.assert_array_equal(values[key], values_threads[key])
+    radiance, tau, surface = exact(mixed_function, shape)
+    t = traced.reshape(-1)
+    # interpolation happens after the last level: no traced pixel is overwritten by a coarser cell's interpolation
+    np.testing.assert_array_equal(values["radiance"][t], radiance[t])
+    np.testing.assert_array_equal(values["tau_hydrometeor"][t], tau[t])
+    np.testing.assert_array_equal(values["surface"][t], surface[t])
+    interpolated = valid.reshape(-1) & ~t
+    assert interpolated.sum() > 0.3 * valid.sum() and t.sum() > 0.1 * valid.sum()
+    # an interpolated pixel is a convex combination of traced ones, and a smooth cell is accurate to ~ tolerance
+    assert values["radiance"][interpolated].min() >= radiance[t].min() - 1e-12
+    assert values["radiance"][interpolated].max() <= radiance[t].max() + 1e-12
+    rel = np.abs(values["radiance"][interpolated] - radiance[interpolated]) / radiance[interpolated]
+    assert np.median(rel) < 0.01
+    assert np.all(values["radiance"][~valid.reshape(-1)] == 0)
+
+
 def test_progress_reaches_all_valid_pixels():
     shape = (30, 40)
     seen = []

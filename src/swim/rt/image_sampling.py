@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SwimInputError
+from ..workers import parallel_map
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,7 @@ def _lattice(n, spacing):
     return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
 
 
-def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSampling(), progress=None):
+def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSampling(), progress=None, max_threads=1):
     """Sample an image by tracing a quadtree of its pixels and interpolating its smooth cells.
 
     Parameters
@@ -117,6 +118,11 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     sampling : AdaptiveSampling
     progress : callable, optional
         Called with (pixels done, valid pixels) after each batch of rays.
+    max_threads : int
+        Threads [-] that interpolate the smooth cells' pixels, one output array each (NumPy's gathers release the
+        GIL), at the end: the cells of every level are interpolated then, coarse to fine, which gives what filling
+        them level by level gives (only traced pixels enter the test of a cell, and a pixel traced later keeps its
+        traced value).
 
     Returns
     -------
@@ -167,6 +173,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     y0, x0 = np.meshgrid(rows[:-1], cols[:-1], indexing="ij")
     y1, x1 = np.meshgrid(rows[1:], cols[1:], indexing="ij")
     cells = np.stack([y0.ravel(), y1.ravel(), x0.ravel(), x1.ravel()], axis=1)
+    smooth_levels = []  # the smooth cells (m, 4) of each level, coarse to fine: interpolated at the end
     while cells.size:
         y0, y1, x0, x1 = cells.T
         # A cell of at most 2 x 2 pixels has only corners, all traced.
@@ -178,7 +185,9 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
         run(yc * nx + xc)
         smooth = _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling)
-        _fill(values, traced, filled, valid_flat, cells[smooth], nx)
+        smooth_levels.append(cells[smooth])
+        for pix, _, _, _ in _fill_groups(traced, valid_flat, smooth_levels[-1], nx, pixels_only=True):  # progress
+            filled[pix] = True
         report()
         split = cells[~smooth]
         y0, y1, x0, x1 = split.T
@@ -189,6 +198,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
             np.stack([yc, y1, x0, xc], axis=1), np.stack([yc, y1, xc, x1], axis=1)])
         # A cell one pixel high (or wide) splits only across: drop the empty halves.
         cells = children[(children[:, 1] > children[:, 0]) & (children[:, 3] > children[:, 2])]
+    _fill(values, traced, valid_flat, smooth_levels, nx, max_threads)
     return _finish(values, traced, ny, nx, trace), traced.reshape(ny, nx)
 
 
@@ -224,38 +234,61 @@ def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
     return ok
 
 
-def _fill(values, traced, filled, valid_flat, cells, nx):
-    """Bilinear interpolation of the untraced pixels of cells (m, 4) from their corners, by cell size.
-
-    Each target pixel's four corner indices and weights are computed once and serve every output array (one
-    gather per corner and array)."""
+def _fill_groups(traced, valid_flat, cells, nx, pixels_only=False):
+    """The pixels of cells (m, 4) that are valid and not traced, by cell size: per size (h, w) the pixels (k,), the
+    flat index of their cells' upper left corners (k,), and their offsets down and across in their cells as
+    fractions (k,) [-]; the cells' four corners are ``c00``, ``c00 + w``, ``c00 + h * nx`` and ``c00 + h * nx + w``.
+    With ``pixels_only`` the pixels alone (the rest None)."""
     if not len(cells):
         return
-    sizes = cells[:, [1, 3]] - cells[:, [0, 2]]
-    for h, w in np.unique(sizes, axis=0):
-        group = cells[np.all(sizes == (h, w), axis=1)]
+    heights, widths = cells[:, 1] - cells[:, 0], cells[:, 3] - cells[:, 2]
+    size_key = heights * (int(widths.max()) + 1) + widths  # one integer per size: np.unique(axis=0) was ~10x slower
+    for key in np.unique(size_key):
+        group = cells[size_key == key]
+        h, w = int(group[0, 1] - group[0, 0]), int(group[0, 3] - group[0, 2])
         y0, x0 = group[:, 0], group[:, 2]
         dy, dx = np.arange(h + 1), np.arange(w + 1)
         pix = ((y0[:, None, None] + dy[None, :, None]) * nx + x0[:, None, None] + dx[None, None, :]).reshape(-1)
         target = ~traced[pix] & valid_flat[pix]
+        if pixels_only:
+            yield pix[target], None, (h, w), None
+            continue
         wy = np.broadcast_to((dy / h)[None, :, None], (len(group), h + 1, w + 1)).reshape(-1)[target]
         wx = np.broadcast_to((dx / w)[None, None, :], (len(group), h + 1, w + 1)).reshape(-1)[target]
         c00 = np.repeat(y0 * nx + x0, (h + 1) * (w + 1))[target]
-        corners = (c00, c00 + w, c00 + h * nx, c00 + h * nx + w)
-        weights = ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy)
-        pix = pix[target]
-        cast = {}  # the weights in each float array's own precision (float32 outputs need no float64 temporaries)
-        for a in values.values():
-            if a.dtype == bool:
+        yield pix[target], c00, (h, w), (wy, wx)
+
+
+def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
+    """Bilinear interpolation of the untraced pixels of the smooth cells of every level (a list of (m, 4) arrays,
+    coarse to fine: a pixel on the edge of cells of two levels takes the finer cell's value, as when each level
+    was filled before the next was traced), from their corners; one thread per output array.
+
+    Each target pixel's corners and offsets are computed once and serve every output array (one ``np.take`` per
+    corner and array into one scratch array, the weights in the array's own precision: float32 outputs need no
+    float64 temporaries)."""
+    groups = [group for cells in levels for group in _fill_groups(traced, valid_flat, cells, nx)]
+
+    def fill_one(a):
+        if a.dtype == bool:  # the corners agree (the test of a smooth cell)
+            for pix, c00, _, _ in groups:
                 a[pix] = a[c00]
-            elif np.issubdtype(a.dtype, np.integer):
+        elif a.dtype.kind in "iu":
+            for pix, _, _, _ in groups:
                 a[pix] = 0
-            else:
-                shape = (-1,) + (1,) * (a.ndim - 1)
-                if a.dtype not in cast:
-                    cast[a.dtype] = [wt.astype(a.dtype) for wt in weights]
-                acc = a[corners[0]] * cast[a.dtype][0].reshape(shape)
-                for c, wt in zip(corners[1:], cast[a.dtype][1:]):
-                    acc += a[c] * wt.reshape(shape)
+        else:
+            shape = (-1,) + (1,) * (a.ndim - 1)
+            for pix, c00, (h, w), (wy, wx) in groups:
+                wy, wx = wy.astype(a.dtype).reshape(shape), wx.astype(a.dtype).reshape(shape)
+                weights = ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy)
+                acc = np.take(a, c00, axis=0)
+                acc *= weights[0]
+                scratch = np.empty_like(acc)
+                for offset, weight in zip((w, h * nx, h * nx + w), weights[1:]):
+                    np.take(a, c00 + offset, axis=0, out=scratch)
+                    scratch *= weight
+                    acc += scratch
                 a[pix] = acc
-        filled[pix] = True
+
+    if groups:
+        parallel_map(fill_one, list(values.values()), max_threads)

@@ -1615,6 +1615,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     # (one call per chunk would pay the phase functions' JAX dispatch ~200 times for a 1024^2 image)
     phase_block = [] if callable(ray_phase) else [0, n, ray_phase]
     pool, pending = None, collections.deque()  # (collect the outputs, end of the chunk, cancel it or None)
+    held = []  # the first chunks' jobs, one per worker, submitted together (below)
     if backend == "numba":
         # chunks marched at once, one per core (the numba kernel runs without the GIL)
         workers = min(cores, -(-n // chunk))
@@ -1659,8 +1660,17 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             if pool is None:
                 finished(job(), hi)
                 continue
-            future = pool.submit(job)
-            pending.append((future.result, hi, future.cancel))
+            held.append((job, hi))
+            if not pending and len(held) < workers and hi < n:
+                # the first round's jobs are made before any is submitted: a worker's Python calls (the kernels'
+                # dispatch) do not compete for the GIL with the making of the next job, and the chunks of a small
+                # image start together (the second chunk of the Monte Carlo case's 41^2 view started ~0.8 ms after
+                # the first; the view -0.1 ms in median, docs/performance.md, section 36)
+                continue
+            for ready, ready_hi in held:
+                future = pool.submit(ready)
+                pending.append((future.result, ready_hi, future.cancel))
+            held.clear()
             if len(pending) >= 2 * workers:  # bound the chunks held in memory; collect in order
                 collect, done_hi, _ = pending.popleft()
                 finished(collect(), done_hi)
