@@ -154,6 +154,22 @@ def test_traced_pixels_keep_their_values_and_threads_do_not_change_the_image(sha
     assert np.all(values["radiance"][~valid.reshape(-1)] == 0)
 
 
+@pytest.mark.parametrize("pattern", ["none", "diagonal", "one"])
+def test_masks_without_valid_lattice_pixels(pattern):
+    shape = (33, 40)
+    valid = np.zeros(shape, bool)
+    if pattern == "diagonal":
+        valid[np.arange(33), np.arange(33) + 3] = True  # off the lattice's first columns
+    elif pattern == "one":
+        valid[13, 17] = True
+    values, traced = sample_image_adaptive(make_trace(bilinear_function, shape), valid, AdaptiveSampling())
+    radiance, _, _ = exact(bilinear_function, shape)
+    assert np.array_equal(traced, valid)  # no cell of valid pixels is smooth: each is traced
+    flat = valid.reshape(-1)
+    np.testing.assert_array_equal(values["radiance"][flat], radiance[flat])
+    assert np.all(values["radiance"][~flat] == 0)
+
+
 def test_progress_reaches_all_valid_pixels():
     shape = (30, 40)
     seen = []

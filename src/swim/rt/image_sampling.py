@@ -211,6 +211,8 @@ def _finish(values, traced, ny, nx, trace):
 
 def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
     """Cells (m,) whose traced centre matches the bilinear interpolation of their corners."""
+    if not values:  # nothing traced yet (no valid pixel so far): no cell can be interpolated
+        return np.zeros(len(cells), bool)
     y0, y1, x0, x1 = cells.T
     corners = [y0 * nx + x0, y0 * nx + x1, y1 * nx + x0, y1 * nx + x1]
     centre = yc * nx + xc
