@@ -60,8 +60,10 @@ def worker_pool(n: int) -> ThreadPoolExecutor:
 def parallel_map(fn, items, max_threads: int) -> list:
     """``[fn(item) for item in items]`` on up to ``max_threads`` threads of the shared pools, results in order.
 
-    With one thread (or one item) the calls run on the calling thread. An exception in a call is raised here, and
-    the calls not yet started are cancelled (those running finish).
+    With one thread (or one item) the calls run on the calling thread. Otherwise they run on the pool of
+    ``max_threads`` threads, even for fewer items: one pool per size that callers ask for, not one per number of
+    items (each pool's threads and their malloc arenas live as long as the process). An exception in a call is raised
+    here, and the calls not yet started are cancelled (those running finish).
 
     Parameters
     ----------
@@ -77,7 +79,7 @@ def parallel_map(fn, items, max_threads: int) -> list:
         The results, in the order of ``items``.
     """
     items = list(items)
-    n = min(int(max_threads), len(items))
-    if n <= 1:
+    if min(int(max_threads), len(items)) <= 1:
         return [fn(item) for item in items]
-    return list(worker_pool(n).map(fn, items))  # Executor.map cancels what has not started after an exception
+    # Executor.map cancels what has not started after an exception
+    return list(worker_pool(int(max_threads)).map(fn, items))

@@ -266,10 +266,20 @@ def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
     coarse to fine: a pixel on the edge of cells of two levels takes the finer cell's value, as when each level
     was filled before the next was traced), from their corners; one thread per output array.
 
-    Each target pixel's corners and offsets are computed once and serve every output array (one ``np.take`` per
-    corner and array into one scratch array, the weights in the array's own precision: float32 outputs need no
-    float64 temporaries)."""
+    Each target pixel's corners and weights are computed once and serve every output array (one ``np.take`` per
+    corner and array into one scratch array). The weights are computed in float64 and rounded once to each float
+    array's precision, as before the fill moved to the end: float32 outputs come out bit for bit the same, and need
+    no float64 temporaries."""
     groups = [group for cells in levels for group in _fill_groups(traced, valid_flat, cells, nx)]
+    if not groups:
+        return
+    cast = {}  # per float dtype, per group: the four corners' weights in that precision, (k, 1, ...) for broadcasting
+    for a in values.values():
+        if a.dtype != bool and a.dtype.kind not in "iu" and (a.dtype, a.ndim) not in cast:
+            shape = (-1,) + (1,) * (a.ndim - 1)
+            cast[a.dtype, a.ndim] = [tuple(wt.astype(a.dtype).reshape(shape) for wt in
+                                           ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy))
+                                     for _, _, _, (wy, wx) in groups]
 
     def fill_one(a):
         if a.dtype == bool:  # the corners agree (the test of a smooth cell)
@@ -279,10 +289,7 @@ def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
             for pix, _, _, _ in groups:
                 a[pix] = 0
         else:
-            shape = (-1,) + (1,) * (a.ndim - 1)
-            for pix, c00, (h, w), (wy, wx) in groups:
-                wy, wx = wy.astype(a.dtype).reshape(shape), wx.astype(a.dtype).reshape(shape)
-                weights = ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy)
+            for (pix, c00, (h, w), _), weights in zip(groups, cast[a.dtype, a.ndim]):
                 acc = np.take(a, c00, axis=0)
                 acc *= weights[0]
                 scratch = np.empty_like(acc)
@@ -292,5 +299,4 @@ def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
                     acc += scratch
                 a[pix] = acc
 
-    if groups:
-        parallel_map(fill_one, list(values.values()), max_threads)
+    parallel_map(fill_one, list(values.values()), max_threads)
