@@ -170,6 +170,22 @@ def test_masks_without_valid_lattice_pixels(pattern):
     assert np.all(values["radiance"][~flat] == 0)
 
 
+def test_each_cells_centre_is_traced_with_the_batch_before_its_test():
+    # the lattice with its cells' centres, then each level's edge midpoints with the children's centres: three
+    # batches for a spacing of 4 (the levels 4 and 2), and no pixel asked for twice
+    shape, calls = (40, 61), []
+    values, traced = sample_image_adaptive(make_trace(disk_function, shape, calls), np.ones(shape, bool),
+                                           AdaptiveSampling(coarse_spacing=4))
+    assert len(calls) == 3
+    asked = np.concatenate(calls)
+    assert np.unique(asked).size == asked.size and np.array_equal(np.sort(asked), np.flatnonzero(traced))
+    rows, cols = (np.unique(np.append(np.arange(0, n, 4), n - 1)) for n in shape)
+    lattice = (rows[:, None] * shape[1] + cols[None, :]).reshape(-1)
+    yc, xc = (rows[:-1] + rows[1:]) // 2, (cols[:-1] + cols[1:]) // 2
+    first_centres = (yc[:, None] * shape[1] + xc[None, :]).reshape(-1)
+    assert set(calls[0]) == set(lattice) | set(first_centres)
+
+
 def test_progress_reaches_all_valid_pixels():
     shape = (30, 40)
     seen = []
