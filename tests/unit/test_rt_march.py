@@ -257,6 +257,33 @@ def test_chunks_without_ground_compose_without_its_term():
         np.testing.assert_allclose(out["numba"][key], out["jax"][key], rtol=2e-4, atol=1e-6, err_msg=key)
 
 
+@pytest.mark.parametrize("looking_down", [40, 700], ids=["few rays on the ground", "more than GROUND_BATCH"])
+def test_the_grounds_term_of_a_chunks_ground_rays_alone_matches_the_jax_kernel(monkeypatch, looking_down):
+    """The numba path evaluates the ground's JAX term for a chunk's rays on the ground alone, padded to
+    GROUND_BATCH rays or, for more, to the chunk's size: both must give the JAX kernel's pixels, whichever rays of the
+    chunk end on the ground."""
+    from swim.rt import march
+
+    monkeypatch.setenv("SWIM_NUM_THREADS", "1")  # one chunk
+    assert 40 < march.GROUND_BATCH < 700  # the two cases: fewer, and more, rays on the ground than GROUND_BATCH
+    rng = np.random.default_rng(11)
+    n = 900
+    zenith = np.where(np.arange(n) < looking_down, rng.uniform(100.0, 170.0, n), rng.uniform(0.0, 70.0, n))
+    dirs = np.array([enu_from_azimuth_zenith(a, z) for a, z in zip(rng.uniform(0, 360, n), zenith)])
+    order = rng.permutation(n)  # the rays on the ground spread over the chunk
+    dirs = dirs[order]
+    origins = np.repeat(np.array([[0.0, 0.0, EARTH_RADIUS_M + 3000.0]]), n, axis=0)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    out = {backend: _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend=backend))[0]
+           for backend in ("jax", "numba")}
+    on_ground = out["numba"]["surface"]
+    assert looking_down * 0.9 <= on_ground.sum() <= looking_down
+    np.testing.assert_array_equal(on_ground, out["jax"]["surface"])
+    assert np.all(out["numba"]["radiance_surface"][on_ground] > 0) and np.all(out["numba"]["radiance_surface"][~on_ground] == 0)
+    for key in ("radiance", "radiance_surface"):
+        np.testing.assert_allclose(out["numba"][key], out["jax"][key], rtol=2e-4, atol=1e-6, err_msg=key)
+
+
 @pytest.mark.parametrize("plume", [True, False], ids=["five aerosol classes", "one class"])
 def test_numba_set_up_matches_the_jax_set_up(plume):
     """The per-ray set-up of the CPU kernel (swim.rt.march_cpu.prepare_rays) is swim.rt.march._prepare_rays written
