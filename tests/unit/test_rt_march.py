@@ -260,8 +260,8 @@ def test_chunks_without_ground_compose_without_its_term():
 @pytest.mark.parametrize("looking_down", [40, 700], ids=["few rays on the ground", "more than GROUND_BATCH"])
 def test_the_grounds_term_of_a_chunks_ground_rays_alone_matches_the_jax_kernel(monkeypatch, looking_down):
     """The numba path evaluates the ground's JAX term for a chunk's rays on the ground alone, padded to
-    GROUND_BATCH rays or, for more, to the chunk's size: both must give the JAX kernel's pixels, whichever rays of the
-    chunk end on the ground."""
+    GROUND_BATCH rays, or for more such rays for the whole chunk: both must give the JAX kernel's pixels, whichever
+    rays of the chunk end on the ground."""
     from swim.rt import march
 
     monkeypatch.setenv("SWIM_NUM_THREADS", "1")  # one chunk

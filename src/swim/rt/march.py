@@ -1885,16 +1885,21 @@ def _compose_numba(start, direction, ends_on_ground, valid, rays, consts, settin
     st = {key: value[:n] for key, value in state.items()}  # the real rays' float64 rows (views)
     surface = _ends_on_surface(st, ends_on_ground[:n])
     on_ground = np.flatnonzero(surface)
-    l_surface = np.zeros((n, 3), np.float32)
-    if on_ground.size:
-        # The ground's term for the rays on the ground alone, padded (repeats of the last) to GROUND_BATCH rays or,
-        # for more, to the chunk's size: two compiled sizes. A view from the ground has a few such rays per chunk
-        # near the horizon, for which the term was evaluated on all 4 096 (1024^2 synthetic all-sky -3.5 %,
-        # docs/performance.md, section 36). The state as float32 copies with all of SPECIES' optical depths, as
-        # the JAX composition reads it (_pad_state).
+    if on_ground.size > GROUND_BATCH:
+        # the state that the ground's term reads, padded as float32 copies for JAX (st keeps the float64 rows)
+        ground = {key: state[key] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
+        _pad_state(ground, n, tables)
+        l_surface = np.asarray(jax.device_get(_ground_chunk(start, direction, ends_on_ground, rays, consts, settings,
+                                                            ground, aerosol_class)))[:n]
+    else:
+        l_surface = np.zeros((n, 3), np.float32)
+    if 0 < on_ground.size <= GROUND_BATCH:
+        # A few rays on the ground (a view from the ground has them near the horizon): the term for them alone,
+        # padded (repeats of the last) to GROUND_BATCH rays, instead of for all the chunk's 4 096 (1024^2 synthetic
+        # all-sky -2 to -3.5 %, docs/performance.md, section 36); the state as float32 copies with all of SPECIES'
+        # optical depths, as _pad_state makes it.
         m = on_ground.size
-        rows = np.concatenate([on_ground, np.full((GROUND_BATCH if m <= GROUND_BATCH else len(start)) - m,
-                                                  on_ground[-1])])
+        rows = np.concatenate([on_ground, np.full(GROUND_BATCH - m, on_ground[-1])])
         ground = {key: state[key][rows] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
         for key, value in ground.items():
             if value.dtype != bool:
@@ -1923,5 +1928,6 @@ def _ground_only(start, direction, ends_on_ground, rays, consts, settings, state
 
 
 _ground_chunk = jax.jit(_ground_only, static_argnames=("settings",))
-#: Rays of the ground's JAX term for a chunk with at most this many rays on the ground (else the chunk's size).
+#: Rays of the ground's JAX term for a chunk with at most this many rays on the ground (:func:`_compose_numba`);
+#: with more, the term is evaluated for the whole chunk.
 GROUND_BATCH = 512
