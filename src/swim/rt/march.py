@@ -1878,14 +1878,13 @@ def _pad_state(state, n, tables):
 def _compose_numba(start, direction, ends_on_ground, valid, rays, consts, settings, tables, state, aerosol_class, n):
     """The outputs of :func:`_compose` for the first ``n`` rays of a chunk marched by the numba kernel: the clouds'
     part and the sum in :func:`swim.rt.compose_cpu.compose_clouds` (no JAX call, no GIL), the ground's term (Eq. 35)
-    in JAX for the chunk's rays that end on the ground, if any (:func:`_ground_only`). ``state`` holds the kernel's
-    float64 outputs (its packed species, padding rows not yet written); numpy arrays."""
+    in JAX for chunks that have rays on the ground (:func:`_ground_only`). ``state`` holds the kernel's float64
+    outputs (its packed species, padding rows not yet written); numpy arrays."""
     from . import compose_cpu
 
     st = {key: value[:n] for key, value in state.items()}  # the real rays' float64 rows (views)
     surface = _ends_on_surface(st, ends_on_ground[:n])
-    on_ground = np.flatnonzero(surface)
-    if on_ground.size > GROUND_BATCH:
+    if np.any(surface):
         # the state that the ground's term reads, padded as float32 copies for JAX (st keeps the float64 rows)
         ground = {key: state[key] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
         _pad_state(ground, n, tables)
@@ -1893,22 +1892,6 @@ def _compose_numba(start, direction, ends_on_ground, valid, rays, consts, settin
                                                             ground, aerosol_class)))[:n]
     else:
         l_surface = np.zeros((n, 3), np.float32)
-    if 0 < on_ground.size <= GROUND_BATCH:
-        # A few rays on the ground (a view from the ground has them near the horizon): the term for them alone,
-        # padded (repeats of the last) to GROUND_BATCH rays, instead of for all the chunk's 4 096 (1024^2 synthetic
-        # all-sky -2 to -3.5 %, docs/performance.md, section 36); the state as float32 copies with all of SPECIES'
-        # optical depths, as _pad_state makes it.
-        m = on_ground.size
-        rows = np.concatenate([on_ground, np.full(GROUND_BATCH - m, on_ground[-1])])
-        ground = {key: state[key][rows] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
-        for key, value in ground.items():
-            if value.dtype != bool:
-                ground[key] = value.astype(np.float32)
-        ground["tau_species"] = ground["tau_species"] @ tables["species_matrix"]
-        l_rows = jax.device_get(_ground_chunk(start[rows], direction[rows], ends_on_ground[rows],
-                                              {key: value[rows] for key, value in rays.items()}, consts, settings,
-                                              ground, tuple(a[rows] for a in aerosol_class)))
-        l_surface[on_ground] = np.asarray(l_rows)[:m]
     radiance, l_cloud = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
     compose_cpu.compose_clouds(st["tau_h"], st["tau_species"], tables["species_index"], st["i_nogas"], st["i_gas"],
                                st["i_cloud_t"], st["l_clear"], l_surface, np.array(valid[:n]), rays["cos_theta"][:n],
@@ -1928,6 +1911,3 @@ def _ground_only(start, direction, ends_on_ground, rays, consts, settings, state
 
 
 _ground_chunk = jax.jit(_ground_only, static_argnames=("settings",))
-#: Rays of the ground's JAX term for a chunk with at most this many rays on the ground (:func:`_compose_numba`);
-#: with more, the term is evaluated for the whole chunk.
-GROUND_BATCH = 512
