@@ -40,7 +40,7 @@ from ..optics.phase import (
     VENUS_MAX_PHASE_ANGLE_DEG,
     VENUS_NEAR_COEFFICIENTS,
 )
-from .march import FROM_ABOVE_BLEND
+from .march import FROM_ABOVE_BLEND, TOP_MIN_MU0, TOP_MIN_SELF_TRANSMITTANCE, TOP_REFLECTANCE_MIN_MU0
 from .march_cpu import _JIT, _P_SUN
 from .solar import ONE_MINUS_G_PER_BACKSCATTER
 
@@ -54,8 +54,8 @@ P_MU0 = _P_SUN + 2
 # a cached compilation.
 (_K_FROM_ABOVE, _K_MIN_MU0, _K_FORWARD, _K_B1, _K_B2, _K_DHG_G, _K_DHG_FB, _K_MIN_MU_SUM, _K_THICK, _K_VENUS_MAX,
  _K_VENUS_BRANCH, _K_VENUS_NEAR, _K_VENUS_FAR, _K_LN_F1, _K_LIQUID_TOTAL, _K_LN_LIQUID_G_MIDDLE, _K_LIQUID_ISOTROPIC,
- _K_LIQUID_BACK, _K_LIQUID_G_BACK, _K_ONE_MINUS_G) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15, 18, 19, 20, 21, 22, 23,
-                                                      24)
+ _K_LIQUID_BACK, _K_LIQUID_G_BACK, _K_ONE_MINUS_G, _K_TOP_MIN_MU0, _K_TOP_MIN_T_SELF, _K_TOP_ARF_MIN_MU0) = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 15, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27)
 
 
 def coefficients():
@@ -68,7 +68,8 @@ def coefficients():
                      KOKHANOVSKY_B2, ARF_DHG_G, ARF_DHG_FB, ARF_MIN_MU_SUM, THICK_HIGH_NUMERATOR,
                      VENUS_MAX_PHASE_ANGLE_DEG, VENUS_BRANCH_PHASE_ANGLE_DEG, *VENUS_NEAR_COEFFICIENTS,
                      *VENUS_FAR_COEFFICIENTS, math.log(LIQUID_FORWARD_WEIGHT_BASE), total, math.log(g_middle),
-                     isotropic, back, g_back, ONE_MINUS_G_PER_BACKSCATTER], dtype=np.float64)
+                     isotropic, back, g_back, ONE_MINUS_G_PER_BACKSCATTER, TOP_MIN_MU0, TOP_MIN_SELF_TRANSMITTANCE,
+                     TOP_REFLECTANCE_MIN_MU0], dtype=np.float64)
 
 
 def lobes():
@@ -180,7 +181,7 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
     n = tau_h.shape[0]
     n_species = species.shape[0]
     low_sun = (9.0 / 7.0) * max(mu0, k[_K_MIN_MU0])  # diffuse_transmission_factor (Eq. 21's c4)
-    mu0_top = max(mu0, 0.05)
+    mu0_top = max(mu0, k[_K_TOP_MIN_MU0])
     one_f = 1.0 - k[_K_FORWARD]
     from_above = k[_K_FROM_ABOVE]
     ln_g_liquid = np.empty(3)
@@ -232,8 +233,8 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
             albedo = 1.0 - _transmittance_delta_eddington(tau_s, b_eff * tau_s, mu0_top, k)
             lim = min(tau, 2.0)
             depth_s = (1.0 - (1.0 + lim) * math.exp(-lim)) / safe * mu_down / mu0_top
-            t_self = max(_transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top, k), 0.05)
-            top = 4.0 * max(mu0, 0.0) * _reflectance_factor(mu_down, max(mu0, 1e-3), mu, k) / t_self
+            t_self = max(_transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top, k), k[_K_TOP_MIN_T_SELF])
+            top = 4.0 * max(mu0, 0.0) * _reflectance_factor(mu_down, max(mu0, k[_K_TOP_ARF_MIN_MU0]), mu, k) / t_self
             for c in range(3):
                 p_thin = rest + peak + w_liquid * f1 * _henyey_greenstein(mu, math.exp(tp * ln_g_liquid[c]))
                 phase = c1 * p_thin + (1.0 - c1) * thick  # effective_phase_function (Eq. 13)

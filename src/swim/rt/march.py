@@ -74,6 +74,12 @@ SKYLIGHT_SCALAR_FACTOR = 2.0
 #: Range of the downward view cosine over which rays switch from the "seen from below" (Eq. 13) to the
 #: "seen from above" (Eq. 26) treatment of clouds.
 FROM_ABOVE_BLEND = 0.1
+#: Floors of the cloud-top reflection seen from above (Eqs. 24-26, docs/rendering.md, "Overcast accuracy"): the sun's
+#: cosine [-] in the slant optical depths and the delta-Eddington T of the top layer, the self-transmittance T_self
+#: [-] that divides the irradiance, and the sun's cosine [-] in the reflectance factor.
+TOP_MIN_MU0 = 0.05
+TOP_MIN_SELF_TRANSMITTANCE = 0.05
+TOP_REFLECTANCE_MIN_MU0 = 1e-3
 
 
 #: Smallest non-zero :attr:`MarchSettings.probe_spacing` [cells]: finer probes than a tenth of a cell see
@@ -1126,14 +1132,14 @@ def _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface):
     # extinction, which the reflection function ARF includes).
     b_eff = weights @ consts["backscatter"]
     mu_down = jnp.maximum(mu_view_down, FROM_ABOVE_BLEND)
-    mu0_top = jnp.maximum(mu0, 0.05)
+    mu0_top = jnp.maximum(mu0, TOP_MIN_MU0)
     tau_s = tau * mu_down / mu0_top
     albedo_cloud = 1.0 - transmittance_delta_eddington(tau_s, b_eff * tau_s, mu0_top)
     lim = jnp.minimum(tau, 2.0)
     depth = (1.0 - (1.0 + lim) * jnp.exp(-lim)) / safe  # Eq. 12's e^{-tau_o}-weighted mean tau_o
     depth_s = depth * mu_down / mu0_top
-    t_self = jnp.maximum(transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top), 0.05)
-    arf = anisotropic_reflectance_factor_kokhanovsky2004(mu_down, jnp.maximum(mu0, 1e-3), cos_theta)
+    t_self = jnp.maximum(transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top), TOP_MIN_SELF_TRANSMITTANCE)
+    arf = anisotropic_reflectance_factor_kokhanovsky2004(mu_down, jnp.maximum(mu0, TOP_REFLECTANCE_MIN_MU0), cos_theta)
     gas_to_cloud = state["i_gas"] / jnp.maximum(state["i_nogas"], 1e-30)
     l_top = 4.0 * jnp.maximum(mu0, 0.0) * arf[:, None] * (e_mean / t_self[:, None]) * gas_to_cloud
     l_above = c1[:, None] * p_thin * eq12 + ((1 - c1) * albedo_cloud)[:, None] * l_top
