@@ -259,9 +259,9 @@ def test_chunks_without_ground_compose_without_its_term():
 
 @pytest.mark.parametrize("looking_down", [40, 700], ids=["few rays on the ground", "most rays on the ground"])
 def test_the_grounds_term_of_a_chunk_with_ground_rays_matches_the_jax_kernel(monkeypatch, looking_down):
-    """The numba path composes the clouds in numba and the ground's term in JAX, for chunks that have rays on the
-    ground: few or most of a chunk's rays, spread over it, must give the JAX kernel's pixels (the ground's term only
-    where a ray ends on the ground)."""
+    """The numba path composes the clouds and, for chunks that have rays on the ground, the ground's term in numba:
+    few or most of a chunk's rays, spread over it, must give the JAX kernel's pixels (the ground's term only where a
+    ray ends on the ground)."""
     monkeypatch.setenv("SWIM_NUM_THREADS", "1")  # one chunk
     rng = np.random.default_rng(11)
     n = 900

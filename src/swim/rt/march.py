@@ -27,8 +27,8 @@ and ground behind it are attenuated by its optical depth. docs/rendering.md stat
 The kernels are JAX (float32, jit-compiled once per batch size, chunked over pixels). On a CPU the step
 loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, ~5x faster there), with its
 per-ray set-up (:func:`swim.rt.march_cpu.prepare_rays`) and the clouds' composition (:mod:`swim.rt.compose_cpu`)
-in numba too; the ground's term stays in JAX (:attr:`MarchSettings.backend`; docs/performance.md, sections 8, 30
-and 35).
+and the ground's (:mod:`swim.rt.ground_cpu`) in numba too (:attr:`MarchSettings.backend`; docs/performance.md,
+sections 8, 30, 35 and 37).
 """
 
 from __future__ import annotations
@@ -1059,7 +1059,7 @@ def _ends_on_surface(state, ends_on_ground):
 def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit):
     """The ground's part of the pixel radiance (n, 3), 0 where a ray does not end on the ground (``surface``):
     Eq. 35 on the terrain facet at ``s_hit`` [m], direct (BRDF) + diffuse (ARF = 1), seen through the clear sky and
-    the hydrometeors on the way."""
+    the hydrometeors on the way. The numba kernel's twin: :func:`swim.rt.ground_cpu.ground_radiance`."""
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
     _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
@@ -1796,7 +1796,9 @@ def _numba_tables(consts, prepare=True):
               "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
               "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]),
               "angstrom": arr(consts["angstrom"]), "aerosol_ssa": arr(consts["aerosol_ssa"]),
-              "stratospheric_ssa": arr(consts["stratospheric_ssa"]), "species_matrix": arr(consts["species_matrix"])}
+              "stratospheric_ssa": arr(consts["stratospheric_ssa"]), "species_matrix": arr(consts["species_matrix"]),
+              "surface": arr(consts["surface"]), "surface_outside": arr(consts["surface_outside"]),
+              "backscatter": arr(consts["backscatter"])}
     # each packed species' index into SPECIES, for the numba composition
     tables["species_index"] = np.argmax(tables["species_matrix"], axis=1).astype(np.int64)
     if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
@@ -1859,9 +1861,9 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS, *out)
-    if kernel == "numba":  # the clouds composed in numba too, the ground in JAX where a ray meets it (section 35)
-        return {**_compose_numba(start, direction, ends_on_ground, valid, rays, consts, settings, tables, state,
-                                 aerosol_class, n), "steps": samples.astype(np.int32)}
+    if kernel == "numba":  # composed in numba too: the clouds (section 35) and the ground (section 37)
+        return {**_compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, aerosol_class, n),
+                "steps": samples.astype(np.int32)}
     _pad_state(state, n, tables)
     # a chunk without a ray on the ground composes without the ground's term (a second compiled version)
     ground = bool(np.any(_ends_on_surface(state, ends_on_ground)[:n]))
@@ -1881,23 +1883,28 @@ def _pad_state(state, n, tables):
     state["tau_species"] = state["tau_species"] @ tables["species_matrix"]
 
 
-def _compose_numba(start, direction, ends_on_ground, valid, rays, consts, settings, tables, state, aerosol_class, n):
-    """The outputs of :func:`_compose` for the first ``n`` rays of a chunk marched by the numba kernel: the clouds'
-    part and the sum in :func:`swim.rt.compose_cpu.compose_clouds` (no JAX call, no GIL), the ground's term (Eq. 35)
-    in JAX for chunks that have rays on the ground (:func:`_ground_only`). ``state`` holds the kernel's float64
-    outputs (its packed species, padding rows not yet written); numpy arrays."""
+def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, aerosol_class, n):
+    """The outputs of :func:`_compose` for the first ``n`` rays of a chunk marched by the numba kernel: the ground's
+    term (Eq. 35) in :func:`swim.rt.ground_cpu.ground_radiance` for chunks that have rays on the ground, the clouds'
+    part and the sum in :func:`swim.rt.compose_cpu.compose_clouds` (no JAX call, no GIL). ``exact`` holds the rays'
+    float64 start, direction and bounds as the march took them, ``state`` the kernel's float64 outputs (its packed
+    species, padding rows not yet written); numpy arrays."""
     from . import compose_cpu
 
     st = {key: value[:n] for key, value in state.items()}  # the real rays' float64 rows (views)
     surface = _ends_on_surface(st, ends_on_ground[:n])
+    l_surface = np.zeros((n, 3), np.float32)
     if np.any(surface):
-        # the state that the ground's term reads, padded as float32 copies for JAX (st keeps the float64 rows)
-        ground = {key: state[key] for key in ("tau_clear", "tau_h", "tau_species", "hit", "alive", "s_hit")}
-        _pad_state(ground, n, tables)
-        l_surface = np.asarray(jax.device_get(_ground_chunk(start, direction, ends_on_ground, rays, consts, settings,
-                                                            ground, aerosol_class)))[:n]
-    else:
-        l_surface = np.zeros((n, 3), np.float32)
+        from . import ground_cpu
+
+        g = ground_cpu.ground_tables()
+        ground_cpu.ground_radiance(
+            exact[0][:n], exact[1][:n], st["s_hit"], surface, rays["cos_view_zenith"][:n], st["tau_h"],
+            st["tau_clear"], st["tau_species"], tables["species_index"], np.array(aerosol_class[0][:n]),
+            aerosol_class[1][:n, 0].astype(float), tables["p"], tables["coef"], tables["sky"],
+            tables["diffuse_classes"], tables["n_class"], tables["surface"], tables["surface_outside"],
+            tables["angstrom"], tables["backscatter"], settings.surface == "lambertian", compose_cpu.COEFFICIENTS,
+            g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"], l_surface)
     radiance, l_cloud = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
     compose_cpu.compose_clouds(st["tau_h"], st["tau_species"], tables["species_index"], st["i_nogas"], st["i_gas"],
                                st["i_cloud_t"], st["l_clear"], l_surface, np.array(valid[:n]), rays["cos_theta"][:n],
@@ -1908,12 +1915,3 @@ def _compose_numba(start, direction, ends_on_ground, valid, rays, consts, settin
             "radiance_surface": l_surface, "tau_hydrometeor": st["tau_h"].astype(np.float32),
             "tau_clear": st["tau_clear"].astype(np.float32), "surface": surface,
             "distance": np.where(surface, st["s_hit"], np.nan).astype(np.float32)}
-
-
-def _ground_only(start, direction, ends_on_ground, rays, consts, settings, state, aerosol_class):
-    """The ground's term of :func:`_compose` alone, (n, 3): for the numba kernel's chunks with rays on the ground."""
-    return _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class,
-                            _ends_on_surface(state, ends_on_ground), state["s_hit"])
-
-
-_ground_chunk = jax.jit(_ground_only, static_argnames=("settings",))

@@ -144,9 +144,28 @@ def _symmetric_scaling(kernel, w_mu):
     return g
 
 
+def _disk_cached(name, build, *args):
+    """``build(*args)``, kept on disk between processes (:func:`swim.rt.compilation_cache.disk_cached`, keyed by
+    the arguments and this file's code): the two tables take ~0.45 s together, most of the ground's share of a new
+    process's first render (docs/performance.md, section 37)."""
+    from ..rt.compilation_cache import disk_cached
+
+    return disk_cached("surface", (name, *args), lambda: build(*args), sources=(__file__,))
+
+
 @functools.cache
 def _rpv_table(k, theta, rho_c):
     """q(mu) on the uniform grid: R = a (mu_i+mu_v)^(k-1) F H q(mu_i) q(mu_v) has DHR = a at every mu_i."""
+    return _disk_cached("rpv_table", _build_rpv_table, k, theta, rho_c)
+
+
+@functools.cache
+def _snow_table():
+    """g(a, mu) on (albedo nodes, uniform mu grid): R = a R_snow g(a, mu_i) g(a, mu_v) has DHR = a."""
+    return _disk_cached("snow_table", _build_snow_table)
+
+
+def _build_rpv_table(k, theta, rho_c):
     mu, w_mu, cos_phi, w_phi, grid = _quadrature()
 
     def kernel(mu_1, mu_2):  # azimuthal mean of the reduced shape, times mu_2^(k-1)
@@ -162,9 +181,7 @@ def _rpv_table(k, theta, rho_c):
     return q
 
 
-@functools.cache
-def _snow_table():
-    """g(a, mu) on (albedo nodes, uniform mu grid): R = a R_snow g(a, mu_i) g(a, mu_v) has DHR = a."""
+def _build_snow_table():
     mu, w_mu, cos_phi, w_phi, grid = _quadrature()
 
     def r0_q(mu_1, mu_2):

@@ -16,7 +16,9 @@ direct light and ARF = 1 for the diffuse light. swim evaluates it on the *tilted
   R = a everywhere (the plane-parallel references of the validation suite assume it).
 
 All inputs are per ray (the ground point of each ray); the function is written in ``jax.numpy`` so that the
-kernel and the float64 reference evaluate the same expressions.
+kernel and the float64 reference evaluate the same expressions. On CPUs the renderer evaluates the same expressions
+one ray at a time in numba (:func:`swim.rt.ground_cpu.surface_radiance`), which ``tests/unit/test_ground_cpu.py``
+holds to this function.
 """
 
 from __future__ import annotations
