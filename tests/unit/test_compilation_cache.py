@@ -1,6 +1,7 @@
 """The persistent caches only ever save time: hits, invalidation by code, switches."""
 
 import pickle
+from pathlib import Path
 
 from swim.rt.compilation_cache import cache_directory, disk_cached
 
@@ -45,19 +46,43 @@ def test_keys_with_object_addresses_are_not_cached(tmp_path, monkeypatch):
 
 
 def test_numba_kernel_cache_follows_swim_cache_dir(tmp_path):
-    """The numba kernel caches in $SWIM_CACHE_DIR/numba (not beside the installed source), and not at all with
-    SWIM_JAX_CACHE=0; a user's NUMBA_CACHE_DIR is kept. Fresh interpreters: the setting is read at import."""
+    """The numba kernel caches in $SWIM_CACHE_DIR/numba/<digest of the numba modules' code> (not beside the installed
+    source), and not at all with SWIM_JAX_CACHE=0; a user's NUMBA_CACHE_DIR is kept. Fresh interpreters: the setting
+    is read at import."""
     import os
     import subprocess
     import sys
 
     probe = "import numba, swim.rt.march_cpu as m; print(repr(numba.config.CACHE_DIR), m._CACHE)"
+    from swim.rt.march_cpu import numba_sources_digest
     base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "SWIM_JAX_CACHE", "SWIM_CACHE_DIR")}
 
     def run(**env):
         out = subprocess.run([sys.executable, "-c", probe], env={**base, **env}, capture_output=True, text=True, check=True)
         return out.stdout.strip()
 
-    assert run(SWIM_CACHE_DIR=str(tmp_path)) == f"{str(tmp_path / 'numba')!r} True"
+    assert run(SWIM_CACHE_DIR=str(tmp_path)) == f"{str(tmp_path / 'numba' / numba_sources_digest())!r} True"
     assert run(SWIM_CACHE_DIR=str(tmp_path), SWIM_JAX_CACHE="0") == "'' False"
     assert run(SWIM_CACHE_DIR=str(tmp_path), NUMBA_CACHE_DIR=str(tmp_path / "mine")) == f"{str(tmp_path / 'mine')!r} True"
+
+
+def test_the_numba_cache_folder_changes_with_the_code_of_any_numba_module(tmp_path, monkeypatch):
+    """numba checks only a function's own file for staleness, but a ground term compiled from ground_cpu.py bakes in
+    march_cpu.py's geometry: the digest that names the cache folder must change when any *_cpu.py module changes."""
+    import shutil
+
+    import swim.rt.march_cpu as m
+
+    rt = Path(m.__file__).parent
+    copy = tmp_path / "rt"
+    copy.mkdir()
+    for path in rt.glob("*_cpu.py"):
+        shutil.copy(path, copy / path.name)
+    monkeypatch.setattr(m, "__file__", str(copy / "march_cpu.py"))
+    before = m.numba_sources_digest()
+    assert before == m.numba_sources_digest() and len(before) == 16
+    for name in ("march_cpu.py", "compose_cpu.py", "ground_cpu.py", "solar_cpu.py"):
+        (copy / name).write_text((copy / name).read_text() + "\n# changed\n")
+        after = m.numba_sources_digest()
+        assert after != before, name
+        before = after

@@ -13,11 +13,20 @@ import jax
 import numpy as np
 import pytest
 
-from swim.constants import EARTH_RADIUS_M
+from swim.constants import EARTH_RADIUS_M, SPECIES
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
-from swim.rt import ground_cpu
-from swim.rt.march import MarchSettings
+from swim.optics.volume import build_optical_volume
+from swim.rt import compose_cpu, ground_cpu
+from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
+from swim.rt.march import (
+    MarchSettings,
+    _ground_radiance,
+    _numba_tables,
+    aerosol_column_optical_depth,
+    kernel_constants,
+)
+from swim.rt.solar import solar_transmittance
 from swim.surface.lighting import MIN_VIEW_COSINE, facet_normal, surface_radiance
 
 from test_rt_march import _trace
@@ -81,20 +90,22 @@ def test_the_numba_surface_radiance_is_the_jax_one(model):
 
 
 def _surface_scene(aerosol_plume):
-    """A coast: sea in the west (the ground's fields blend the two across the coast's cell), land with a snow-capped ridge in the east, a wind field, one cloud; with a smoke
-    plume, several aerosol column classes."""
+    """A coast: sea in the west (the ground's fields blend the two across the coast's cell), land with a
+    snow-capped ridge in the east, a wind field, a cloud of liquid and one of ice (two packed species, whose
+    backscatter fractions differ); with a smoke plume, several aerosol column classes."""
     n, spacing = 12, 400.0
     x = (np.arange(n) - n / 2 + 0.5) * spacing
     z = np.arange(0.0, 5000.0, 250.0) + 125.0
     zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
     liquid = 6e-4 * np.exp(-(((xx - 300) / 900) ** 2 + ((yy + 200) / 700) ** 2 + ((zz - 2500) / 600) ** 2))
+    snowfall = 2e-4 * np.exp(-(((xx + 1200) / 700) ** 2 + ((yy - 600) / 700) ** 2 + ((zz - 1200) / 500) ** 2))
     land = (xx[0] > -500.0).astype(float)
     terrain = 900.0 * np.exp(-(((xx[0] - 1500) / 700) ** 2)) * land
     snow = np.clip((terrain - 300.0) / 400.0, 0.0, 1.0)
     wind = 2.0 + 8.0 * (yy[0] - x[0]) / (x[-1] - x[0])
     aerosol = 6e-4 * np.exp(-zz / 1500.0) * np.clip((600.0 - xx) / 1200.0, 0.0, 1.0) if aerosol_plume else None
     return scene_from_arrays(x=x, y=x, z=z, reference_lat=30.0, reference_lon=10.0, terrain_height=terrain,
-                             cloud_liquid_content=liquid, land_mask=land, snow_cover=snow, wind_speed_10m=wind,
+                             cloud_liquid_content=liquid, snow_content=snowfall, land_mask=land, snow_cover=snow, wind_speed_10m=wind,
                              aerosol_extinction=aerosol)
 
 
@@ -121,3 +132,61 @@ def test_the_numba_kernels_ground_is_the_jax_kernels(monkeypatch, surface, plume
     assert out["numba"]["radiance_surface"].max() > 2 * np.median(out["numba"]["radiance_surface"])
     for key in ("radiance", "radiance_surface"):
         np.testing.assert_allclose(out["numba"][key], out["jax"][key], rtol=2e-4, atol=1e-6, err_msg=key)
+
+
+def _surface_constants(plume, sun):
+    volume = build_optical_volume(_surface_scene(plume))
+    profile, classes = None, None
+    if plume:
+        aer3d = volume["aerosol_extinction"].mean(dim=("y", "x")).values.astype(float)
+        profile = (float(volume.attrs["z_bottom"]) + float(volume.attrs["dz"]) * np.arange(aer3d.size), aer3d)
+        classes = aerosol_column_classes(aerosol_column_optical_depth(volume).values)
+    gas = build_gas_tables(AerosolBackground(), scene_aerosol_profile=profile, aerosol_class_aod=classes)
+    return kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
+
+
+@pytest.mark.parametrize("surface,plume", [("brdf", True), ("lambertian", False)],
+                         ids=["brdf, five aerosol classes", "lambertian"])
+def test_the_numba_ground_term_of_rays_is_the_jax_one(surface, plume):
+    """ground_radiance against march._ground_radiance in float64 on random ray states: ground points within the grid
+    and up to 25 km beyond its edge, views from below, along and across the from-above blend, every species packed in
+    a shuffled order (each with its own backscatter fraction), mixed aerosol classes, rays that do not end on the
+    ground."""
+    rng = np.random.default_rng(9)
+    sun = enu_from_azimuth_zenith(250.0, 50.0)
+    consts = _surface_constants(plume, sun)
+    tables = _numba_tables(consts, prepare=False)
+    n = 3000
+    start = np.column_stack([rng.uniform(-30e3, 30e3, n), rng.uniform(-30e3, 30e3, n), rng.uniform(0.0, 6000.0, n)])
+    direction = _unit(rng.normal(size=(n, 3)) * np.array([1.0, 1.0, 2.0]))
+    s_hit = rng.uniform(0.0, 20e3, n)
+    surface_mask = rng.random(n) < 0.9
+    cos_view_zenith = direction[:, 2].copy()
+    cos_view_zenith[:40] = 0.0
+    cos_view_zenith[40:80] = -0.1
+    cos_view_zenith[80:120] = -0.05
+    tau_h = rng.exponential(2.0, n) * (rng.random(n) < 0.7)
+    species = rng.permutation(len(SPECIES)).astype(np.int64)
+    tau_packed = rng.dirichlet(np.ones(len(SPECIES)), n) * tau_h[:, None]
+    tau_species = np.zeros_like(tau_packed)
+    tau_species[:, species] = tau_packed
+    tau_clear = rng.uniform(0.0, 1.0, (n, 3))
+    n_class = tables["n_class"]
+    assert n_class == (5 if plume else 1)
+    class_lower = rng.integers(0, max(n_class - 1, 1), n).astype(np.int32)
+    class_weight = rng.random(n) if n_class > 1 else np.zeros(n)
+    with jax.enable_x64(True):
+        expected = np.asarray(_ground_radiance(
+            start, direction, {"cos_view_zenith": cos_view_zenith}, consts, MarchSettings(surface=surface),
+            {"tau_h": tau_h, "tau_clear": tau_clear, "tau_species": tau_species}, (class_lower, class_weight[:, None]),
+            surface_mask, s_hit))
+    g = ground_cpu.ground_tables()
+    got = np.empty((n, 3))
+    ground_cpu.ground_radiance(
+        start, direction, s_hit, surface_mask, cos_view_zenith, tau_h, tau_clear, tau_packed, species, class_lower,
+        class_weight, tables["p"], tables["coef"], tables["sky"], tables["diffuse_classes"], n_class,
+        tables["surface"], tables["surface_outside"], tables["angstrom"], tables["backscatter"], surface == "lambertian",
+        compose_cpu.COEFFICIENTS, g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"],
+        g["fade_cells"], got)
+    assert np.all(got[~surface_mask] == 0) and np.all(got[surface_mask] > 0)
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-14)

@@ -10,55 +10,62 @@ without the GIL, in the worker that marched the chunk, after :mod:`swim.rt.compo
 
 Each function mirrors one of :mod:`swim.surface.lighting`, :mod:`swim.surface.brdf`, :mod:`swim.surface.water` or
 :mod:`swim.rt.march` (named in its docstring) and reads its constants and normalisation tables from there
-(:func:`ground_tables`); it computes in float64 from the float32 tables. ``tests/unit/test_ground_cpu.py`` holds it to
-the JAX functions.
+(:func:`ground_tables`); it computes in float64 from the march's float32 tables and the float64 BRDF tables.
+``tests/unit/test_ground_cpu.py`` holds it to the JAX functions.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import threading
 
 import numpy as np
 from numba import njit
 
 from ..surface import brdf, lighting, water
 from .compose_cpu import _transmittance_delta_eddington
-from .march import FROM_ABOVE_BLEND, LIGHTING_EDGE_FADE_CELLS, SURFACE_EDGE_FADE_CELLS
-from .march_cpu import _JIT, _P_RADIUS, _P_SUN, _P_TOP, _bilinear, _bilinear_at, _bilinear_index, _clip, _point_geometry
+from .march import FROM_ABOVE_BLEND, surface_fade_cells
+from .march_cpu import _JIT, _P_RADIUS, _P_SUN, _P_TOP, _bilinear_at, _bilinear_index, _clip, _point_geometry
 
 # The constants reach the compiled functions as arguments (numba bakes globals into its cached machine code and
 # checks only this file's time stamp): the layout of ground_tables()'s vector.
 (_G_MIN_VIEW_COSINE, _G_MIN_WATER_VIEW_COSINE, _G_MU_MIN, _G_RPV_K, _G_RPV_THETA, _G_RPV_HOT_SPOT, _G_SNOW_A,
  _G_SNOW_B, _G_SNOW_C, _G_SNOW_C1, _G_SNOW_E1, _G_SNOW_C2, _G_SNOW_E2, _G_SNOW_ALBEDO_MIN, _G_MSS_OFFSET,
- _G_MSS_PER_WIND, _G_GLINT_MU_FLOOR, _G_WATER_INDEX, _G_WATER_DIFFUSE, _G_FROM_ABOVE, _G_FADE_SURFACE,
- _G_FADE_LIGHTING) = range(22)
-#: The packed ground fields of :func:`swim.rt.march.surface_fields`: albedo (3), land, snow, wind, slope (2), cloud T,
-#: terrain shadow, 3-D aerosol optical depth towards the sun.
-_N_FIELDS = 11
+ _G_MSS_PER_WIND, _G_GLINT_MU_FLOOR, _G_WATER_INDEX, _G_WATER_DIFFUSE, _G_FROM_ABOVE) = range(20)
+# the workers of a render's first chunks may ask for the tables together: one builds them
+_TABLES_LOCK = threading.Lock()
 
 
-@functools.cache
 def ground_tables():
     """The constants of the ground's term as one float64 vector (layout: the ``_G_*`` indices of this module) and
     its arrays: copies of the RPV and snow normalisation tables of :mod:`swim.surface.brdf` (kept on disk between
-    processes), the snow albedo and the water's subsurface reflectance at 615/546/450 nm.
+    processes), the snow albedo and the water's subsurface reflectance at 615/546/450 nm, and the e-folding
+    distances [cells] of the ground's fields beyond the grid (:func:`swim.rt.march.surface_fade_cells`). Made once
+    per process (thread-safe).
 
     Returns
     -------
     dict
-        ``coefficients`` (22,), ``rpv_q`` (257,), ``snow_table`` (11, 257), ``snow_albedo`` (3,),
-        ``subsurface`` (3,); float64, read-only.
+        ``coefficients`` (20,), ``rpv_q`` (257,), ``snow_table`` (11, 257), ``snow_albedo`` (3,),
+        ``subsurface`` (3,), ``fade_cells`` (11,); float64, read-only.
     """
+    with _TABLES_LOCK:
+        return _ground_tables()
+
+
+@functools.cache
+def _ground_tables():
     c1, e1, c2, e2 = brdf.SNOW_PHASE_COEFFS
     k = np.array([lighting.MIN_VIEW_COSINE, lighting.MIN_WATER_VIEW_COSINE, brdf.MU_MIN, brdf.RPV_K, brdf.RPV_THETA_HG,
                   brdf.RPV_HOT_SPOT, brdf.SNOW_R0_A, brdf.SNOW_R0_B, brdf.SNOW_R0_C, c1, e1, c2, e2,
                   brdf.SNOW_SHAPE_ALBEDO_MIN, water.COX_MUNK_MSS_OFFSET, water.COX_MUNK_MSS_PER_WIND,
-                  water.GLINT_MU_FLOOR, water.WATER_REFRACTIVE_INDEX, water.water_diffuse_albedo(), FROM_ABOVE_BLEND,
-                  SURFACE_EDGE_FADE_CELLS, LIGHTING_EDGE_FADE_CELLS], dtype=np.float64)
+                  water.GLINT_MU_FLOOR, water.WATER_REFRACTIVE_INDEX, water.water_diffuse_albedo(), FROM_ABOVE_BLEND],
+                 dtype=np.float64)
     out = {"coefficients": k, "rpv_q": np.array(brdf._rpv_table(brdf.RPV_K, brdf.RPV_THETA_HG, brdf.RPV_HOT_SPOT)),
            "snow_table": np.array(brdf._snow_table()), "snow_albedo": np.array(brdf.SNOW_ALBEDO, dtype=np.float64),
-           "subsurface": np.array(water.WATER_SUBSURFACE_REFLECTANCE, dtype=np.float64)}
+           "subsurface": np.array(water.WATER_SUBSURFACE_REFLECTANCE, dtype=np.float64),
+           "fade_cells": surface_fade_cells().astype(np.float64)}
     for a in out.values():
         a.flags.writeable = False  # one compiled type for every call (read-only arrays)
     return out
@@ -248,7 +255,7 @@ def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, sno
 def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, tau_clear, tau_packed, species,
                     class_lower, class_weight, p, coef, sky, diffuse_classes, n_class, fields, fields_outside,
                     angstrom, backscatter, lambertian, compose_coefficients, k, rpv_q, snow_table, snow_albedo,
-                    subsurface, out):
+                    subsurface, fade_cells, out):
     """The ground's part of the pixel radiance of n rays, as :func:`swim.rt.march._ground_radiance` (Eq. 35).
 
     Parameters
@@ -279,7 +286,7 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
         Lambertian ground (``MarchSettings.surface == "lambertian"``) instead of the BRDFs.
     compose_coefficients : numpy.ndarray
         :data:`swim.rt.compose_cpu.COEFFICIENTS` (the delta-Eddington transmittance's constant).
-    k, rpv_q, snow_table, snow_albedo, subsurface : numpy.ndarray
+    k, rpv_q, snow_table, snow_albedo, subsurface, fade_cells : numpy.ndarray
         :func:`ground_tables`.
     out : numpy.ndarray
         Shape (n, 3), written: L' of the ground seen by the observer [-].
@@ -290,14 +297,14 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
     nu_sky, nmu_sky = sky.shape[1], sky.shape[2]
     n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
     nu_class = n_rows // n_class
-    ny, nx = fields.shape[1], fields.shape[2]
+    n_fields, ny, nx = fields.shape
     sun = p[_P_SUN:_P_SUN + 3]
     up = np.empty(3)
     view = np.empty(3)
     albedo = np.empty(3)
     direct = np.empty(3)
     diffuse = np.empty(3)
-    value = np.empty(_N_FIELDS)
+    value = np.empty(n_fields)
     radiance = np.empty(3)
     for r in range(n):
         if not surface[r]:
@@ -328,12 +335,10 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
         dj = max(max(-j, j - (ny - 1)), 0.0)
         di = max(max(-i, i - (nx - 1)), 0.0)
         d = math.sqrt(dj * dj + di * di)
-        w_surface = math.exp(-d / k[_G_FADE_SURFACE])
-        w_lighting = math.exp(-d / k[_G_FADE_LIGHTING])
-        jc, ic = _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0)
-        for c in range(_N_FIELDS):
-            w = w_surface if c < 8 else w_lighting
-            value[c] = fields_outside[c] + (_bilinear(fields, c, jc, ic) - fields_outside[c]) * w
+        fj0, fi0, fa, fb = _bilinear_index(ny, nx, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+        for c in range(n_fields):
+            w = math.exp(-d / fade_cells[c])
+            value[c] = fields_outside[c] + (_bilinear_at(fields, c, fj0, fi0, fa, fb) - fields_outside[c]) * w
         t_cloud, shadow = value[8], value[9]
         for c in range(3):
             albedo[c] = value[c]

@@ -1904,7 +1904,8 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
             aerosol_class[1][:n, 0].astype(float), tables["p"], tables["coef"], tables["sky"],
             tables["diffuse_classes"], tables["n_class"], tables["surface"], tables["surface_outside"],
             tables["angstrom"], tables["backscatter"], settings.surface == "lambertian", compose_cpu.COEFFICIENTS,
-            g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"], l_surface)
+            g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"], g["fade_cells"],
+            l_surface)
     radiance, l_cloud = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
     compose_cpu.compose_clouds(st["tau_h"], st["tau_species"], tables["species_index"], st["i_nogas"], st["i_gas"],
                                st["i_cloud_t"], st["l_clear"], l_surface, np.array(valid[:n]), rays["cos_theta"][:n],

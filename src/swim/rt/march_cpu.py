@@ -22,7 +22,9 @@ Eq. 12 for the hydrometeor integral); it computes in float64 from the float32 ta
 
 from __future__ import annotations
 
+import hashlib
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -34,11 +36,27 @@ from numba.extending import intrinsic
 
 from .compilation_cache import _disabled, cache_directory
 
+
+def numba_sources_digest() -> str:
+    """A digest (16 hex digits) of the code of every module with numba-compiled functions (``swim/rt/*_cpu.py``).
+
+    numba decides whether a cached compilation is stale from the time stamp of the function's own file only, and bakes
+    the compiled functions it calls from other files (``swim.rt.ground_cpu`` calls this module's point geometry and
+    lookups, and ``swim.rt.compose_cpu``'s transmittance) into the caller's machine code: after a change to this file
+    a cached ``ground_radiance`` would keep running the old geometry. The cache therefore lives in a folder named by
+    this digest, so that any change to any of these modules starts a fresh one (docs/performance.md, section 37)."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*_cpu.py")):
+        digest.update(path.name.encode() + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 _CACHE = not _disabled()
 if _CACHE and not numba.config.CACHE_DIR:
     # numba caches compiled functions beside the source by default, which an installed package may not allow;
-    # the setting is read when each function below is decorated (a user's NUMBA_CACHE_DIR is kept)
-    numba.config.CACHE_DIR = str(cache_directory("numba"))
+    # the setting is read when each function below is decorated (a user's NUMBA_CACHE_DIR is kept, and with it
+    # numba's own staleness check by file time stamps)
+    numba.config.CACHE_DIR = str(cache_directory("numba") / numba_sources_digest())
 
 #: LLVM fast-math flags that keep NaN and infinity semantics (the index map's box may be infinite): contraction
 #: into FMAs, reassociation, reciprocals and approximate functions; 14 % faster, differences ~1e-7 relative.

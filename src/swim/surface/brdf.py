@@ -146,11 +146,15 @@ def _symmetric_scaling(kernel, w_mu):
 
 def _disk_cached(name, build, *args):
     """``build(*args)``, kept on disk between processes (:func:`swim.rt.compilation_cache.disk_cached`, keyed by
-    the arguments and this file's code): the two tables take ~0.45 s together, most of the ground's share of a new
-    process's first render (docs/performance.md, section 37)."""
+    the arguments and the code of every module of :mod:`swim.surface`, where all that the tables are built from
+    lives): the two tables take ~0.45 s together, most of the ground's share of a new process's first render
+    (docs/performance.md, section 37)."""
+    from pathlib import Path
+
     from ..rt.compilation_cache import disk_cached
 
-    return disk_cached("surface", (name, *args), lambda: build(*args), sources=(__file__,))
+    sources = sorted(Path(__file__).resolve().parent.glob("*.py"))
+    return disk_cached("surface", (name, *args), lambda: build(*args), sources=sources)
 
 
 @functools.cache
