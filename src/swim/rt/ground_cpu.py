@@ -157,6 +157,13 @@ def _snow_shape(mi, mv, phase_sv, albedo, k, snow_table):
     return raw * _lerp_snow(snow_table, mi, a, albedo_min) * _lerp_snow(snow_table, mv, a, albedo_min)
 
 
+@njit(**_JIT, inline="always")
+def _diffuse_on_facet(sky_view, mu_s, albedo, direct, diffuse, c):
+    """Diffuse irradiance on the facet / E_TOA at wavelength c: the sky it sees and the Lambertian ground around it
+    (same albedo) lit by the global horizontal irradiance (:func:`swim.surface.lighting.surface_radiance`)."""
+    return sky_view * diffuse[c] + (1.0 - sky_view) * albedo[c] * (mu_s * direct[c] + diffuse[c])
+
+
 @njit(**_JIT)
 def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, snow_cover, wind_speed, direct, diffuse,
                      lambertian, k, rpv_q, snow_table, snow_albedo, subsurface, out):
@@ -194,7 +201,7 @@ def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, sno
     mu_s = max(_dot(u0, u1, u2, sun[0], sun[1], sun[2]), 0.0)
     if lambertian:
         for c in range(3):
-            diffuse_facet = sky_view * diffuse[c] + (1.0 - sky_view) * albedo[c] * (mu_s * direct[c] + diffuse[c])
+            diffuse_facet = _diffuse_on_facet(sky_view, mu_s, albedo, direct, diffuse, c)
             out[c] = 4.0 * albedo[c] * (cos_i * direct[c] + diffuse_facet)
         return
     v0, v1, v2 = view[0], view[1], view[2]
@@ -207,6 +214,7 @@ def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, sno
     visible = mu_i > 0.0 and mu_v > 0.0
     f = _clip(land_fraction, 0.0, 1.0)
     s = _clip(snow_cover, 0.0, 1.0)
+    n_w = k[_G_WATER_INDEX]
     rpv = 0.0
     glint = 0.0
     leaving = 0.0
@@ -230,25 +238,22 @@ def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, sno
         w2 = s2 + v2 - (mu_i + mu_v) * n2
         tan2 = (w0 * w0 + w1 * w1 + w2 * w2) / (mu_sum * mu_sum)
         glint = _sun_glint(mu_i, mu_v, _dot(s0, s1, s2, v0, v1, v2), tan2, wind_speed, k)
-        n_w = k[_G_WATER_INDEX]
         leaving = (1.0 - _fresnel(mu_i, n_w)) * (1.0 - _fresnel(mu_v, n_w)) / (n_w * n_w)
-    n_w = k[_G_WATER_INDEX]
     rho_bar = k[_G_WATER_DIFFUSE]
     r_int = 1.0 - (1.0 - rho_bar) / (n_w * n_w)
     # water mirrors the (isotropic) sky with the Fresnel reflectance of the view angle
     mu_water = _clip(_dot(v0, v1, v2, u0, u1, u2), k[_G_MIN_WATER_VIEW_COSINE], 1.0)
     specular_sky = _fresnel(mu_water, n_w) - rho_bar
     for c in range(3):
-        r_sub = subsurface[c]
-        water_c = r_sub / (1.0 - r_int * r_sub)
+        # the subsurface reflectance with the light reflected back down at the surface, R_sub / (1 - r_int R_sub)
+        r_sub = subsurface[c] / (1.0 - r_int * subsurface[c])
         snow = snow_albedo[c] * _snow_shape(mi, mv, phase_sv, snow_albedo[c], k, snow_table) if visible else 0.0
-        r_direct = f * ((1.0 - s) * rpv * albedo[c] + s * snow) + (1.0 - f) * (glint + leaving * water_c)
+        r_direct = f * ((1.0 - s) * rpv * albedo[c] + s * snow) + (1.0 - f) * (glint + leaving * r_sub)
         # surface_diffuse_albedo, plus the water's view-angle Fresnel mirror of the sky
         a_diffuse = (f * ((1.0 - s) * albedo[c] + s * snow_albedo[c])
-                     + (1.0 - f) * (rho_bar + r_sub * (1.0 - rho_bar) ** 2 / (n_w * n_w * (1.0 - r_int * r_sub)))
-                     + (1.0 - f) * specular_sky)
-        diffuse_facet = sky_view * diffuse[c] + (1.0 - sky_view) * albedo[c] * (mu_s * direct[c] + diffuse[c])
-        out[c] = 4.0 * (r_direct * cos_i * direct[c] + a_diffuse * diffuse_facet)
+                     + (1.0 - f) * (rho_bar + r_sub * (1.0 - rho_bar) ** 2 / (n_w * n_w) + specular_sky))
+        out[c] = 4.0 * (r_direct * cos_i * direct[c]
+                        + a_diffuse * _diffuse_on_facet(sky_view, mu_s, albedo, direct, diffuse, c))
 
 
 @njit(**_JIT, nogil=True)

@@ -1851,10 +1851,11 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
     samples = np.empty(n, np.int64)
+    ray_class = (np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float))  # the march's and the ground's
     t, out = tables, [state[key][:n] for key in state] + [samples]
     march(
         *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
-        np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float), ms_profile, settings.multiple_scattering,
+        *ray_class, ms_profile, settings.multiple_scattering,
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
         t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
         t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
@@ -1862,7 +1863,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS, *out)
     if kernel == "numba":  # composed in numba too: the clouds (section 35) and the ground (section 37)
-        return {**_compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, aerosol_class, n),
+        return {**_compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, ray_class, n),
                 "steps": samples.astype(np.int32)}
     _pad_state(state, n, tables)
     # a chunk without a ray on the ground composes without the ground's term (a second compiled version)
@@ -1883,12 +1884,13 @@ def _pad_state(state, n, tables):
     state["tau_species"] = state["tau_species"] @ tables["species_matrix"]
 
 
-def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, aerosol_class, n):
+def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, ray_class, n):
     """The outputs of :func:`_compose` for the first ``n`` rays of a chunk marched by the numba kernel: the ground's
     term (Eq. 35) in :func:`swim.rt.ground_cpu.ground_radiance` for chunks that have rays on the ground, the clouds'
     part and the sum in :func:`swim.rt.compose_cpu.compose_clouds` (no JAX call, no GIL). ``exact`` holds the rays'
-    float64 start, direction and bounds as the march took them, ``state`` the kernel's float64 outputs (its packed
-    species, padding rows not yet written); numpy arrays."""
+    float64 start, direction and bounds as the march took them, ``ray_class`` the real rays' aerosol column class and
+    float64 weight as the march took them, ``state`` the kernel's float64 outputs (its packed species, padding rows not
+    yet written); numpy arrays."""
     from . import compose_cpu
 
     st = {key: value[:n] for key, value in state.items()}  # the real rays' float64 rows (views)
@@ -1900,8 +1902,8 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
         g = ground_cpu.ground_tables()
         ground_cpu.ground_radiance(
             exact[0][:n], exact[1][:n], st["s_hit"], surface, rays["cos_view_zenith"][:n], st["tau_h"],
-            st["tau_clear"], st["tau_species"], tables["species_index"], np.array(aerosol_class[0][:n]),
-            aerosol_class[1][:n, 0].astype(float), tables["p"], tables["coef"], tables["sky"],
+            st["tau_clear"], st["tau_species"], tables["species_index"], *ray_class, tables["p"], tables["coef"],
+            tables["sky"],
             tables["diffuse_classes"], tables["n_class"], tables["surface"], tables["surface_outside"],
             tables["angstrom"], tables["backscatter"], settings.surface == "lambertian", compose_cpu.COEFFICIENTS,
             g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"], g["fade_cells"],

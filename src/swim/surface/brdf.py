@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import logging
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -149,9 +150,7 @@ def _disk_cached(name, build, *args):
     the arguments and the code of every module of :mod:`swim.surface`, where all that the tables are built from
     lives): the two tables take ~0.45 s together, most of the ground's share of a new process's first render
     (docs/performance.md, section 37)."""
-    from pathlib import Path
-
-    from ..rt.compilation_cache import disk_cached
+    from ..rt.compilation_cache import disk_cached  # here: swim.rt imports this module
 
     sources = sorted(Path(__file__).resolve().parent.glob("*.py"))
     return disk_cached("surface", (name, *args), lambda: build(*args), sources=sources)
