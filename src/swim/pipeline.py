@@ -329,7 +329,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
     if height is None or not np.isfinite(height) or height < 0:
         raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
-    settings.resolved_backend()  # a kernel that cannot run (no numba, no GPU for "cuda") fails before any work
+    # a kernel that cannot run (no numba, no GPU for "cuda") fails before any work
+    backend = settings.resolved_backend()
+    from .rt import precompile
+
+    precompile.start(backend)  # on a cold numba cache, the march compiles in a helper process meanwhile
     given = scene
 
     def validated_volume():

@@ -1,0 +1,243 @@
+"""The numba march kernel compiled in a helper process on a cold cache, while the render gets on with its own work.
+
+A process whose numba disk cache (:mod:`swim.rt.march_cpu`, ``$SWIM_CACHE_DIR/numba``) lacks the kernels compiles them
+at their first calls, one after the other: numba holds one compiler lock per process, so two threads cannot compile
+at once. The README's ``swim render`` on a new installation spent ~24 s of its ~27 s compiling, ~12-14 s of it the
+march (:func:`swim.rt.march_cpu.march_rays`: type inference of its ~300-line loop with its ~50 helpers, then LLVM).
+
+A second process can compile at the same time. :func:`start`, called by :func:`swim.pipeline.render` before any
+work, finds the march missing from the disk cache and starts ``python -m swim.rt.precompile march_rays``, which
+compiles it into that cache with the argument types that the render will pass (:func:`kernel_signature`). The
+render meanwhile reads the scene, builds the optics and runs Step 1a. Its first chunk (:func:`wait`, from
+:func:`swim.rt.march._trace_chunk_numba`) compiles the per-ray set-up and the composition kernels, which it would
+otherwise compile after the march, then waits for the helper and loads the march from the cache. Measured with the
+README's render and an empty cache: 25-27 s → ~20 s (docs/performance.md, section 38).
+
+The helper is only an optimisation. A kernel whose types differ from :func:`kernel_signature`'s is compiled by the
+render as before; a helper that fails or cannot start leaves the march to the render (logged). A file lock in the
+cache folder lets one helper compile while the others wait and then load its result (two pytest-xdist workers, or
+several renders starting at once). ``SWIM_PRECOMPILE=0`` turns the helper off; so does turning the disk caches off
+(``SWIM_JAX_CACHE=0``), since the helper hands its result over through them. ``tests/unit/test_precompile.py``
+holds :func:`kernel_signature` to the types of a real render's calls.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import logging
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+log = logging.getLogger(__name__)
+
+#: The kernels whose types :func:`kernel_signature` knows, and their modules.
+KERNELS = {"march_rays": "swim.rt.march_cpu", "prepare_rays": "swim.rt.march_cpu",
+           "compose_clouds": "swim.rt.compose_cpu", "ground_radiance": "swim.rt.ground_cpu"}
+#: Compiled by the helper process (the longest compilation by far).
+HELPER_KERNELS = ("march_rays",)
+#: Compiled by the render's first chunk while it waits for the helper (in the order the chunk calls them).
+WAITING_KERNELS = ("prepare_rays", "compose_clouds", "ground_radiance")
+#: Longest wait for the helper [s]; then it is stopped and the render compiles the march itself.
+WAIT_S = 600.0
+
+_lock = threading.Lock()
+_helper = None  # (subprocess.Popen, start time, stderr file) while a helper runs for this process
+
+
+def _disabled() -> bool:
+    return os.environ.get("SWIM_PRECOMPILE", "1").strip().lower() in ("0", "false", "no", "off")
+
+
+def _dispatcher(name):
+    return getattr(importlib.import_module(KERNELS[name]), name)
+
+
+def _argument_types():
+    """The numba type of each argument of each kernel in :data:`KERNELS`, by parameter name, as
+    :func:`swim.rt.march._trace_chunk_numba` and :func:`swim.rt.march._compose_numba` call them: per-chunk arrays
+    are fresh C-contiguous numpy arrays, the render's tables read-only views of JAX arrays, Python ints int64."""
+    from numba import types
+
+    f8, f4, i8, i4, i1, b1 = types.float64, types.float32, types.int64, types.int32, types.int8, types.boolean
+
+    def a(dtype, ndim):
+        return types.Array(dtype, ndim, "C")
+
+    def ro(dtype, ndim):
+        return types.Array(dtype, ndim, "C", readonly=True)
+
+    rays = {"start": a(f8, 2), "direction": a(f8, 2)}
+    march = {
+        **rays, "bounds": a(f8, 2), "valid": a(b1, 1), "p_rayleigh": a(f8, 1), "p_aerosol": a(f8, 2),
+        "p_stratospheric": a(f8, 2), "class_lower": a(i4, 1), "class_weight": a(f8, 1), "ms_profile": a(f4, 3),
+        "use_ms": b1, "n_before": i8, "n_grid": i8, "n_after": i8, "p": a(f8, 1), "coef": a(f8, 1),
+        "beta_gas": ro(f4, 2), "spectra": ro(f4, 2), "sky": ro(f4, 3), "diffuse_classes": ro(f4, 3), "n_class": i8,
+        "volume": ro(f4, 4), "terrain": ro(f4, 3), "occupancy": ro(i1, 3), "angstrom": ro(f4, 1),
+        "aerosol_ssa": ro(f4, 1), "stratospheric_ssa": ro(f4, 1), "n_probe": i8, "empty_weight": f8,
+        "probe_spacing": f8, "n_probe_max": i8, "cell_slack": f8, "empty_steps": i8, "empty_cells_per_step": f8,
+        "n_clear_probe": i8, "clear_power": f8, "clear_floor": f8, "tau_refine": f8, "max_depth": i8,
+        "refine_budget": i8, "refine_visible": f8, "refine_slots": i8, "n_bisections": i8,
+        # outputs
+        "tau_clear": a(f8, 2), "tau_h": a(f8, 1), "tau_species": a(f8, 2), "l_clear": a(f8, 2), "i_nogas": a(f8, 2),
+        "i_gas": a(f8, 2), "i_cloud_t": a(f8, 1), "alive_out": a(b1, 1), "hit_out": a(b1, 1), "s_hit_out": a(f8, 1),
+        "samples_out": a(i8, 1)}
+    prepare = {
+        **rays, "bounds": a(f8, 2), "p": a(f8, 1), "coef": a(f8, 1), "aerosol_column": ro(f4, 3),
+        "class_aod": ro(f4, 1), "ms_source": ro(f4, 5), "use_ms": b1, "class_lower": a(i4, 1),
+        "class_weight": a(f8, 1), "ms_profile": a(f4, 3)}
+    compose = {
+        "tau_h": a(f8, 1), "tau_packed": a(f8, 2), "species": a(i8, 1), "i_nogas": a(f8, 2), "i_gas": a(f8, 2),
+        "i_cloud_t": a(f8, 1), "l_clear": a(f8, 2), "l_surface": a(f4, 2), "valid": a(b1, 1), "cos_theta": a(f4, 1),
+        "cos_view_zenith": a(f4, 1), "mu0": f8, "g_liquid": a(f8, 1), "backscatter": a(f8, 1),
+        "coefficients": a(f8, 1), "lobes": a(f8, 2), "radiance_out": a(f4, 2), "cloud_out": a(f4, 2)}
+    ground = {
+        **rays, "s_hit": a(f8, 1), "surface": a(b1, 1), "cos_view_zenith": a(f4, 1), "tau_h": a(f8, 1),
+        "tau_clear": a(f8, 2), "tau_packed": a(f8, 2), "species": a(i8, 1), "class_lower": a(i4, 1),
+        "class_weight": a(f8, 1), "p": a(f8, 1), "coef": a(f8, 1), "sky": ro(f4, 3), "diffuse_classes": ro(f4, 3),
+        "n_class": i8, "fields": ro(f4, 3), "fields_outside": ro(f4, 1), "angstrom": ro(f4, 1),
+        "backscatter": ro(f4, 1), "lambertian": b1, "compose_coefficients": a(f8, 1), "k": ro(f8, 1),
+        "rpv_q": ro(f8, 1), "snow_table": ro(f8, 2), "snow_albedo": ro(f8, 1), "subsurface": ro(f8, 1),
+        "fade_cells": ro(f8, 1), "out": a(f4, 2)}
+    return {"march_rays": march, "prepare_rays": prepare, "compose_clouds": compose, "ground_radiance": ground}
+
+
+def kernel_signature(name: str) -> tuple:
+    """The numba signature (a tuple of argument types) with which a render calls the kernel ``name`` of
+    :data:`KERNELS`.
+
+    Raises
+    ------
+    KeyError
+        If ``name`` is not in :data:`KERNELS`.
+    RuntimeError
+        If the kernel's parameters are not those that :func:`_argument_types` names (its code changed).
+    """
+    dispatcher = _dispatcher(name)
+    types = _argument_types()[name]
+    parameters = list(inspect.signature(dispatcher.py_func).parameters)
+    if parameters != list(types):
+        raise RuntimeError(f"swim.rt.precompile names the arguments of {name} as {list(types)}, but the kernel takes "
+                           f"{parameters}: update _argument_types")
+    return tuple(types[p] for p in parameters)
+
+
+def is_cached(name: str) -> bool:
+    """Whether the kernel ``name`` is compiled for :func:`kernel_signature` in this process or in numba's disk
+    cache. True where numba's cache is off or its internals (private API) are not what this module expects: then
+    nothing is compiled ahead."""
+    dispatcher = _dispatcher(name)
+    signature = kernel_signature(name)
+    if signature in dispatcher.overloads:
+        return True
+    try:
+        cache = dispatcher._cache
+        key = cache._index_key(signature, dispatcher.targetctx.codegen())
+        return key in cache._cache_file._load_index()
+    except Exception:  # a NullCache (caching off) or another numba version's internals
+        return True
+
+
+def _helper_command(names) -> list[str]:
+    return [sys.executable, "-m", "swim.rt.precompile", *names]
+
+
+def _helper_needed() -> bool:
+    """Whether numba's disk cache is on and lacks a kernel of :data:`HELPER_KERNELS` that this process has not
+    compiled either."""
+    from . import march_cpu
+
+    return march_cpu._CACHE and not march_cpu.march_rays.signatures and not all(map(is_cached, HELPER_KERNELS))
+
+
+def start(backend: str) -> bool:
+    """Start the helper process that compiles the march kernel into numba's disk cache, where ``backend`` is
+    "numba" and that cache lacks it (see the module docstring); returns whether a helper runs now.
+
+    Called by :func:`swim.pipeline.render` before any work; cheap once the kernel is compiled in this process."""
+    global _helper
+    if backend != "numba" or _disabled():
+        return False
+    with _lock:
+        if _helper is not None:
+            return True
+        if not _helper_needed():
+            return False
+        errors = tempfile.TemporaryFile()
+        try:
+            process = subprocess.Popen(_helper_command(HELPER_KERNELS), stdin=subprocess.DEVNULL,
+                                       stdout=subprocess.DEVNULL, stderr=errors)
+        except OSError as error:  # no interpreter to start (an embedded Python): the render compiles it
+            errors.close()
+            log.info("numba's cache lacks the march kernel and no helper process could start (%s)", error)
+            return False
+        _helper = (process, time.perf_counter(), errors)
+        log.info("numba's cache lacks the march kernel: compiling it in a helper process (pid %d)", process.pid)
+        return True
+
+
+def wait() -> None:
+    """Before a render's first march: compile :data:`WAITING_KERNELS` here (what the render would compile after
+    the march), then wait for the helper that :func:`start` began, so that the march is loaded from the disk cache
+    rather than compiled a second time. Returns at once where no helper runs."""
+    global _helper
+    if _helper is None:
+        return
+    with _lock:
+        if _helper is None:
+            return
+        process, started, errors = _helper
+        for name in WAITING_KERNELS:
+            try:
+                _dispatcher(name).compile(kernel_signature(name))  # loads it where the disk cache has it
+            except Exception as error:  # only ever a head start: the render compiles it at its first call
+                log.warning("compiling %s ahead of its first call failed: %s", name, error)
+        try:
+            code = process.wait(timeout=max(WAIT_S - (time.perf_counter() - started), 1.0))
+        except subprocess.TimeoutExpired:
+            process.kill()
+            code = process.wait()
+            log.warning("the helper process compiling the march kernel took more than %.0f s: stopped", WAIT_S)
+        if code == 0:
+            log.info("the helper process compiled the march kernel in %.1f s", time.perf_counter() - started)
+        else:
+            errors.seek(0)
+            tail = errors.read().decode(errors="replace")[-2000:]
+            log.warning("the helper process compiling the march kernel failed (exit code %s); compiling it here:\n%s",
+                        code, tail)
+        errors.close()
+        _helper = None
+
+
+def main(argv=None) -> int:
+    """``python -m swim.rt.precompile KERNEL ...``: compile the named kernels of :data:`KERNELS` for
+    :func:`kernel_signature` into numba's disk cache, one helper at a time per cache folder."""
+    names = list(sys.argv[1:] if argv is None else argv)
+    from . import march_cpu
+
+    folder = march_cpu.numba.config.CACHE_DIR
+    lock = None
+    if folder:
+        os.makedirs(folder, exist_ok=True)
+        lock = open(os.path.join(folder, "precompile.lock"), "w")
+        try:
+            import fcntl
+
+            fcntl.flock(lock, fcntl.LOCK_EX)  # another helper compiling: wait, then load its result
+        except (ImportError, OSError):
+            pass
+    try:
+        for name in names:
+            _dispatcher(name).compile(kernel_signature(name))
+    finally:
+        if lock is not None:
+            lock.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

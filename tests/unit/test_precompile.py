@@ -1,0 +1,97 @@
+"""The march kernel compiled in a helper process on a cold numba cache (swim.rt.precompile): the types it compiles
+for are those a render calls with, the helper's result lands in the cache, and a failing helper only costs time."""
+
+import logging
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import swim
+from swim.rt import precompile
+from swim.rt.march import MarchSettings
+
+
+@pytest.fixture(autouse=True)
+def _no_helper_left():
+    """A real helper that an earlier render in this process started (a cold cache) is waited for first, so that
+    the tests below start their own."""
+    precompile.wait()
+    yield
+    precompile.wait()
+
+
+@pytest.mark.parametrize("name", sorted(precompile.KERNELS))
+def test_the_argument_types_name_every_parameter_of_the_kernel(name):
+    signature = precompile.kernel_signature(name)  # raises where a parameter was added, removed or renamed
+    assert len(signature) == len(precompile._argument_types()[name])
+
+
+def test_the_signatures_are_those_a_render_calls_the_kernels_with():
+    """A render whose rays end on the ground calls all four kernels; each must have been compiled (or loaded) for
+    exactly the types the helper compiles for, or the helper's work would be wasted."""
+    image = swim.render(swim.default_scene(), camera="panorama", camera_options={"width": 32, "height": 16},
+                        time="2024-06-21T18:00:00Z", settings=MarchSettings(backend="numba"))
+    assert np.isfinite(image["radiance"].values).all()
+    assert float(image["radiance_surface"].max()) > 0, "the view must include the ground (ground_radiance)"
+    for name in precompile.KERNELS:
+        assert precompile.kernel_signature(name) in precompile._dispatcher(name).signatures, name
+
+
+def _in_fresh_cache(code, cache, timeout=300):
+    env = {**os.environ, "SWIM_CACHE_DIR": str(cache), "SWIM_PRECOMPILE": "1"}
+    env.pop("SWIM_JAX_CACHE", None)
+    env.pop("NUMBA_CACHE_DIR", None)
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.slow
+def test_the_helper_compiles_the_march_into_the_disk_cache(tmp_path):
+    check = "from swim.rt import precompile; print(precompile.is_cached('march_rays'))"
+    before = _in_fresh_cache(check, tmp_path)
+    assert before.returncode == 0, before.stderr
+    assert before.stdout.strip() == "False", "an empty cache folder must lack the kernel"
+    helper = _in_fresh_cache("from swim.rt.precompile import main; main(['march_rays'])", tmp_path)
+    assert helper.returncode == 0, helper.stderr
+    after = _in_fresh_cache(check, tmp_path)
+    assert after.stdout.strip() == "True", after.stderr
+    assert list(tmp_path.glob("numba/*/precompile.lock")), "the helpers' lock lives in the cache folder"
+
+
+def test_no_helper_for_other_kernels_or_when_switched_off(monkeypatch):
+    monkeypatch.setattr(precompile, "_helper_needed", lambda: True)
+    started = []
+    monkeypatch.setattr(precompile, "_helper_command", lambda names: started.append(names) or [sys.executable, "-c", ""])
+    assert not precompile.start("jax") and not precompile.start("cuda")
+    monkeypatch.setenv("SWIM_PRECOMPILE", "0")
+    assert not precompile.start("numba")
+    assert started == []
+
+
+def test_a_failing_helper_is_logged_and_leaves_the_march_to_the_render(monkeypatch, caplog):
+    monkeypatch.delenv("SWIM_PRECOMPILE", raising=False)
+    monkeypatch.setattr(precompile, "_helper_needed", lambda: True)
+    monkeypatch.setattr(precompile, "_helper_command",
+                        lambda names: [sys.executable, "-c", "import sys; sys.stderr.write('no luck'); sys.exit(3)"])
+    with caplog.at_level(logging.INFO, logger="swim.rt.precompile"):
+        assert precompile.start("numba")
+        assert precompile.start("numba"), "a second render while the helper runs starts no other"
+        precompile.wait()
+    assert precompile._helper is None
+    assert "exit code 3" in caplog.text and "no luck" in caplog.text
+    precompile.wait()  # nothing left to wait for: returns at once
+
+
+def test_a_helper_that_outlives_the_wait_is_stopped(monkeypatch, caplog):
+    monkeypatch.delenv("SWIM_PRECOMPILE", raising=False)
+    monkeypatch.setattr(precompile, "_helper_needed", lambda: True)
+    monkeypatch.setattr(precompile, "WAIT_S", 1.0)
+    monkeypatch.setattr(precompile, "_helper_command", lambda names: [sys.executable, "-c", "import time; time.sleep(60)"])
+    with caplog.at_level(logging.INFO, logger="swim.rt.precompile"):
+        assert precompile.start("numba")
+        process = precompile._helper[0]
+        precompile.wait()
+    assert process.poll() is not None, "the helper must be stopped"
+    assert "took more than" in caplog.text
