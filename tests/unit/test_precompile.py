@@ -29,15 +29,26 @@ def test_the_argument_types_name_every_parameter_of_the_kernel(name):
     assert len(signature) == len(precompile._argument_types()[name])
 
 
-def test_the_signatures_are_those_a_render_calls_the_kernels_with():
-    """A render whose rays end on the ground calls all four kernels; each must have been compiled (or loaded) for
-    exactly the types the helper compiles for, or the helper's work would be wasted."""
+def test_the_signatures_are_those_a_render_calls_the_kernels_with(monkeypatch):
+    """A render whose rays end on the ground calls all four kernels, each with exactly the types the helper and
+    wait() compile for, or their work would be wasted (the argument types recorded at the calls, no helper)."""
+    monkeypatch.setenv("SWIM_PRECOMPILE", "0")
+    expected = {name: {precompile.kernel_signature(name)} for name in precompile.KERNELS}
+    called = {}
+    for name, module in precompile.KERNELS.items():
+        kernel = precompile._dispatcher(name)
+
+        def recording(*args, _kernel=kernel, _name=name):
+            called.setdefault(_name, set()).add(tuple(_kernel.typeof_pyval(a) for a in args))
+            return _kernel(*args)
+
+        monkeypatch.setattr(sys.modules[module], name, recording)
     image = swim.render(swim.default_scene(), camera="panorama", camera_options={"width": 32, "height": 16},
                         time="2024-06-21T18:00:00Z", settings=MarchSettings(backend="numba"))
     assert np.isfinite(image["radiance"].values).all()
     assert float(image["radiance_surface"].max()) > 0, "the view must include the ground (ground_radiance)"
-    for name in precompile.KERNELS:
-        assert precompile.kernel_signature(name) in precompile._dispatcher(name).signatures, name
+    assert sorted(called) == sorted(precompile.KERNELS)
+    assert called == expected
 
 
 def _in_fresh_cache(code, cache, timeout=300):
@@ -72,6 +83,7 @@ def test_no_helper_for_other_kernels_or_when_switched_off(monkeypatch):
 
 def test_a_failing_helper_is_logged_and_leaves_the_march_to_the_render(monkeypatch, caplog):
     monkeypatch.delenv("SWIM_PRECOMPILE", raising=False)
+    monkeypatch.setattr(precompile, "WAITING_KERNELS", ())
     monkeypatch.setattr(precompile, "_helper_needed", lambda: True)
     monkeypatch.setattr(precompile, "_helper_command",
                         lambda names: [sys.executable, "-c", "import sys; sys.stderr.write('no luck'); sys.exit(3)"])
@@ -80,12 +92,13 @@ def test_a_failing_helper_is_logged_and_leaves_the_march_to_the_render(monkeypat
         assert precompile.start("numba"), "a second render while the helper runs starts no other"
         precompile.wait()
     assert precompile._helper is None
-    assert "exit code 3" in caplog.text and "no luck" in caplog.text
+    assert "exit code 3" in caplog.text and "compiling it here" in caplog.text and "no luck" in caplog.text
     precompile.wait()  # nothing left to wait for: returns at once
 
 
 def test_a_helper_that_outlives_the_wait_is_stopped(monkeypatch, caplog):
     monkeypatch.delenv("SWIM_PRECOMPILE", raising=False)
+    monkeypatch.setattr(precompile, "WAITING_KERNELS", ())
     monkeypatch.setattr(precompile, "_helper_needed", lambda: True)
     monkeypatch.setattr(precompile, "WAIT_S", 1.0)
     monkeypatch.setattr(precompile, "_helper_command", lambda names: [sys.executable, "-c", "import time; time.sleep(60)"])
@@ -95,3 +108,30 @@ def test_a_helper_that_outlives_the_wait_is_stopped(monkeypatch, caplog):
         precompile.wait()
     assert process.poll() is not None, "the helper must be stopped"
     assert "took more than" in caplog.text
+
+
+def test_numba_cache_saves_wait_for_another_process_lock(tmp_path):
+    """Two processes saving entries of one function at once could number both data files alike; the saves are
+    serialised by a lock in the cache folder (swim.rt.compilation_cache.serialise_numba_cache_writes)."""
+    fcntl = pytest.importorskip("fcntl")
+    import threading
+
+    from numba.core import caching
+
+    import swim.rt.march_cpu  # noqa: F401  (installs the lock where numba's cache is on)
+    from swim.rt.compilation_cache import serialise_numba_cache_writes
+
+    serialise_numba_cache_writes()
+    assert getattr(caching.IndexDataCacheFile.save, "_swim_locked", False)
+    index = caching.IndexDataCacheFile(str(tmp_path), "f-1.py311", source_stamp=(1.0, 1))
+    other = open(tmp_path / "swim-index.lock", "a")  # another process's lock: a separate open file
+    fcntl.flock(other, fcntl.LOCK_EX)
+    saver = threading.Thread(target=index.save, args=(("sig", "target"), b"code"))
+    saver.start()
+    saver.join(0.5)
+    assert saver.is_alive(), "the save must wait for the lock"
+    assert index.load(("sig", "target")) is None
+    other.close()
+    saver.join(10)
+    assert not saver.is_alive()
+    assert index.load(("sig", "target")) == b"code"

@@ -72,6 +72,39 @@ def disk_cached(kind: str, key, build, sources=()):
     return result
 
 
+def serialise_numba_cache_writes() -> None:
+    """Make numba's saves of disk-cache entries exclusive between processes (a file lock per cache folder).
+
+    numba saves an entry by reading the function's index, adding its key and writing the index back, without a
+    lock. Two processes that save entries of the same function at once (different argument types: the helpers of
+    :mod:`swim.rt.march_cpu` are compiled for arrays and for tuples) can lose one, or number both data files alike,
+    so that one signature's key points at the other's machine code. A helper process compiling beside the render
+    (:mod:`swim.rt.precompile`), or two pytest-xdist workers, make that likely; the lock is held for the save
+    only (~1 ms). Without ``fcntl`` (Windows) numba's own behaviour is kept."""
+    try:
+        import fcntl
+
+        from numba.core import caching
+
+        original = caching.IndexDataCacheFile.save
+    except (ImportError, AttributeError):
+        return
+    if getattr(original, "_swim_locked", False):
+        return
+
+    def save(self, key, data):
+        try:
+            handle = open(os.path.join(self._cache_path, "swim-index.lock"), "a")
+        except OSError:
+            return original(self, key, data)
+        with handle:  # closing the file releases the lock
+            fcntl.flock(handle, fcntl.LOCK_EX)
+            return original(self, key, data)
+
+    save._swim_locked = True
+    caching.IndexDataCacheFile.save = save
+
+
 def enable_compilation_cache() -> Path | None:
     """Point JAX's persistent compilation cache at :func:`cache_directory` (once per process).
 

@@ -34,7 +34,7 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .compilation_cache import _disabled, cache_directory
+from .compilation_cache import _disabled, cache_directory, serialise_numba_cache_writes
 
 
 def numba_sources_digest() -> str:
@@ -57,6 +57,8 @@ if _CACHE and not numba.config.CACHE_DIR:
     # the setting is read when each function below is decorated (a user's NUMBA_CACHE_DIR is kept, and with it
     # numba's own staleness check by file time stamps)
     numba.config.CACHE_DIR = str(cache_directory("numba") / numba_sources_digest())
+if _CACHE:
+    serialise_numba_cache_writes()  # a helper process may compile beside this one (swim.rt.precompile)
 
 #: LLVM fast-math flags that keep NaN and infinity semantics (the index map's box may be infinite): contraction
 #: into FMAs, reassociation, reciprocals and approximate functions; 14 % faster, differences ~1e-7 relative.

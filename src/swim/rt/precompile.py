@@ -2,23 +2,25 @@
 
 A process whose numba disk cache (:mod:`swim.rt.march_cpu`, ``$SWIM_CACHE_DIR/numba``) lacks the kernels compiles them
 at their first calls, one after the other: numba holds one compiler lock per process, so two threads cannot compile
-at once. The README's ``swim render`` on a new installation spent ~24 s of its ~27 s compiling, ~12-14 s of it the
-march (:func:`swim.rt.march_cpu.march_rays`: type inference of its ~300-line loop with its ~50 helpers, then LLVM).
+at once. The README's ``swim render`` on a new installation spent 24.7 s of its 27.5 s compiling, 14.3 s of it the
+march (:func:`swim.rt.march_cpu.march_rays`: numba's type inference of its step loop and ~50 helpers, then LLVM).
 
 A second process can compile at the same time. :func:`start`, called by :func:`swim.pipeline.render` before any
 work, finds the march missing from the disk cache and starts ``python -m swim.rt.precompile march_rays``, which
 compiles it into that cache with the argument types that the render will pass (:func:`kernel_signature`). The
 render meanwhile reads the scene, builds the optics and runs Step 1a. Its first chunk (:func:`wait`, from
-:func:`swim.rt.march._trace_chunk_numba`) compiles the per-ray set-up and the composition kernels, which it would
-otherwise compile after the march, then waits for the helper and loads the march from the cache. Measured with the
-README's render and an empty cache: 25-27 s → ~20 s (docs/performance.md, section 38).
+:func:`swim.rt.march._trace_chunk_numba`) compiles the per-ray set-up, which it calls first, and the composition
+kernels, which it would compile after the march, then waits for the helper and loads the march from the cache.
+Measured with the README's render and an empty cache: 23.9-24.0 s → 16.1-17.5 s (docs/performance.md, section 38).
 
 The helper is only an optimisation. A kernel whose types differ from :func:`kernel_signature`'s is compiled by the
-render as before; a helper that fails or cannot start leaves the march to the render (logged). A file lock in the
-cache folder lets one helper compile while the others wait and then load its result (two pytest-xdist workers, or
-several renders starting at once). ``SWIM_PRECOMPILE=0`` turns the helper off; so does turning the disk caches off
-(``SWIM_JAX_CACHE=0``), since the helper hands its result over through them. ``tests/unit/test_precompile.py``
-holds :func:`kernel_signature` to the types of a real render's calls.
+render as before; a helper that fails, cannot start or takes longer than :data:`WAIT_S` leaves the march to the
+render (logged as a warning). Where ``fcntl`` exists, a file lock in the cache folder lets one helper compile while
+the others wait and then load its result (two pytest-xdist workers, or several renders starting at once), and
+:func:`swim.rt.compilation_cache.serialise_numba_cache_writes` keeps two processes from writing a function's cache
+index at once. ``SWIM_PRECOMPILE=0`` turns the helper off; so does turning the disk caches off (``SWIM_JAX_CACHE=0``),
+since the helper hands its result over through them. ``tests/unit/test_precompile.py`` holds
+:func:`kernel_signature` to the types of a real render's calls.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import sys
 import tempfile
 import threading
 import time
+from pathlib import Path
 
 log = logging.getLogger(__name__)
 
@@ -42,8 +45,11 @@ KERNELS = {"march_rays": "swim.rt.march_cpu", "prepare_rays": "swim.rt.march_cpu
 HELPER_KERNELS = ("march_rays",)
 #: Compiled by the render's first chunk while it waits for the helper (in the order the chunk calls them).
 WAITING_KERNELS = ("prepare_rays", "compose_clouds", "ground_radiance")
-#: Longest wait for the helper [s]; then it is stopped and the render compiles the march itself.
-WAIT_S = 600.0
+#: Longest wait for the helper [s] (it compiles the march in ~12 s on 2 cores); then it is stopped and the render
+#: compiles the march itself.
+WAIT_S = 180.0
+#: Longest wait of a helper for another one's lock [s]; then it compiles anyway.
+LOCK_WAIT_S = 150.0
 
 _lock = threading.Lock()
 _helper = None  # (subprocess.Popen, start time, stderr file) while a helper runs for this process
@@ -60,7 +66,8 @@ def _dispatcher(name):
 def _argument_types():
     """The numba type of each argument of each kernel in :data:`KERNELS`, by parameter name, as
     :func:`swim.rt.march._trace_chunk_numba` and :func:`swim.rt.march._compose_numba` call them: per-chunk arrays
-    are fresh C-contiguous numpy arrays, the render's tables read-only views of JAX arrays, Python ints int64."""
+    are fresh C-contiguous numpy arrays, the render's tables C-contiguous and marked read-only
+    (:func:`swim.rt.march._numba_tables`), Python ints int64."""
     from numba import types
 
     f8, f4, i8, i4, i1, b1 = types.float64, types.float32, types.int64, types.int32, types.int8, types.boolean
@@ -146,34 +153,54 @@ def _helper_command(names) -> list[str]:
     return [sys.executable, "-m", "swim.rt.precompile", *names]
 
 
+def _helper_environment() -> dict:
+    """This process's environment with numba's cache folder and the folder that holds this swim package named
+    explicitly, so that the helper compiles this code into the cache this process reads."""
+    from . import march_cpu
+
+    env = dict(os.environ)
+    env["NUMBA_CACHE_DIR"] = str(march_cpu.numba.config.CACHE_DIR)
+    root = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+    return env
+
+
 def _helper_needed() -> bool:
     """Whether numba's disk cache is on and lacks a kernel of :data:`HELPER_KERNELS` that this process has not
     compiled either."""
     from . import march_cpu
 
-    return march_cpu._CACHE and not march_cpu.march_rays.signatures and not all(map(is_cached, HELPER_KERNELS))
+    try:
+        return march_cpu._CACHE and not march_cpu.march_rays.signatures and not all(map(is_cached, HELPER_KERNELS))
+    except Exception:  # e.g. NUMBA_DISABLE_JIT=1: plain Python functions, nothing to compile
+        return False
 
 
 def start(backend: str) -> bool:
     """Start the helper process that compiles the march kernel into numba's disk cache, where ``backend`` is
-    "numba" and that cache lacks it (see the module docstring); returns whether a helper runs now.
+    "numba" and that cache lacks it (see the module docstring); returns whether a helper has been started and not
+    yet waited for (:func:`wait`).
 
-    Called by :func:`swim.pipeline.render` before any work; cheap once the kernel is compiled in this process."""
+    Called by :func:`swim.pipeline.render` before any work; cheap once the kernel is compiled in this process. Never
+    raises: without a helper the render compiles the kernel itself."""
     global _helper
     if backend != "numba" or _disabled():
         return False
     with _lock:
         if _helper is not None:
             return True
-        if not _helper_needed():
+        # an interpreter that cannot start "python -m" (embedded, frozen): the render compiles the march itself
+        if not sys.executable or getattr(sys, "frozen", False) or not _helper_needed():
             return False
-        errors = tempfile.TemporaryFile()
+        errors = None
         try:
+            errors = tempfile.TemporaryFile()
             process = subprocess.Popen(_helper_command(HELPER_KERNELS), stdin=subprocess.DEVNULL,
-                                       stdout=subprocess.DEVNULL, stderr=errors)
-        except OSError as error:  # no interpreter to start (an embedded Python): the render compiles it
-            errors.close()
-            log.info("numba's cache lacks the march kernel and no helper process could start (%s)", error)
+                                       stdout=subprocess.DEVNULL, stderr=errors, env=_helper_environment())
+        except Exception as error:  # only ever a head start
+            if errors is not None:
+                errors.close()
+            log.warning("numba's cache lacks the march kernel and no helper process could start (%s)", error)
             return False
         _helper = (process, time.perf_counter(), errors)
         log.info("numba's cache lacks the march kernel: compiling it in a helper process (pid %d)", process.pid)
@@ -181,9 +208,10 @@ def start(backend: str) -> bool:
 
 
 def wait() -> None:
-    """Before a render's first march: compile :data:`WAITING_KERNELS` here (what the render would compile after
-    the march), then wait for the helper that :func:`start` began, so that the march is loaded from the disk cache
-    rather than compiled a second time. Returns at once where no helper runs."""
+    """Before a render's first march: compile :data:`WAITING_KERNELS` here (the per-ray set-up, which the chunk calls
+    next, and the composition kernels, which it would compile after the march), then wait for the helper that
+    :func:`start` began, so that the march is loaded from the disk cache rather than compiled a second time. Returns
+    at once where no helper was started."""
     global _helper
     if _helper is None:
         return
@@ -202,8 +230,13 @@ def wait() -> None:
             process.kill()
             code = process.wait()
             log.warning("the helper process compiling the march kernel took more than %.0f s: stopped", WAIT_S)
-        if code == 0:
+        if code == 0 and all(map(is_cached, HELPER_KERNELS)):
             log.info("the helper process compiled the march kernel in %.1f s", time.perf_counter() - started)
+        elif code == 0:
+            from . import march_cpu
+
+            log.warning("the helper process finished, but the march kernel is not in this process's numba cache "
+                        "(%s); compiling it here", march_cpu.numba.config.CACHE_DIR)
         else:
             errors.seek(0)
             tail = errors.read().decode(errors="replace")[-2000:]
@@ -224,10 +257,18 @@ def main(argv=None) -> int:
     if folder:
         os.makedirs(folder, exist_ok=True)
         lock = open(os.path.join(folder, "precompile.lock"), "w")
-        try:
+        try:  # another helper compiling: wait, then load its result
             import fcntl
 
-            fcntl.flock(lock, fcntl.LOCK_EX)  # another helper compiling: wait, then load its result
+            deadline = time.monotonic() + LOCK_WAIT_S
+            while True:
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() > deadline:
+                        break  # a stuck helper elsewhere: compile anyway
+                    time.sleep(0.2)
         except (ImportError, OSError):
             pass
     try:
