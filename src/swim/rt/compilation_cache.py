@@ -22,8 +22,14 @@ log = logging.getLogger(__name__)
 _DONE = False
 
 
+def switched_off(variable: str) -> bool:
+    """Whether the environment variable ``variable`` turns its switch off ("0", "false", "no" or "off"; on when unset):
+    ``SWIM_JAX_CACHE`` here, ``SWIM_PRECOMPILE`` in :mod:`swim.rt.precompile`."""
+    return os.environ.get(variable, "1").strip().lower() in ("0", "false", "no", "off")
+
+
 def _disabled() -> bool:
-    return os.environ.get("SWIM_JAX_CACHE", "1").strip().lower() in ("0", "false", "no", "off")
+    return switched_off("SWIM_JAX_CACHE")
 
 
 def cache_directory(kind: str = "jax") -> Path:

@@ -36,6 +36,8 @@ import threading
 import time
 from pathlib import Path
 
+from .compilation_cache import switched_off
+
 log = logging.getLogger(__name__)
 
 #: The kernels whose types :func:`kernel_signature` knows, and their modules.
@@ -53,10 +55,6 @@ LOCK_WAIT_S = 150.0
 
 _lock = threading.Lock()
 _helper = None  # (subprocess.Popen, start time, stderr file) while a helper runs for this process
-
-
-def _disabled() -> bool:
-    return os.environ.get("SWIM_PRECOMPILE", "1").strip().lower() in ("0", "false", "no", "off")
 
 
 def _dispatcher(name):
@@ -184,7 +182,7 @@ def start(backend: str) -> bool:
     Called by :func:`swim.pipeline.render` before any work; cheap once the kernel is compiled in this process. Never
     raises: without a helper the render compiles the kernel itself."""
     global _helper
-    if backend != "numba" or _disabled():
+    if backend != "numba" or switched_off("SWIM_PRECOMPILE"):
         return False
     with _lock:
         if _helper is not None:
