@@ -213,12 +213,14 @@ def render(
 
 
 def _register_diagnostics():
-    """The forward-operator commands live in their own modules (issue 5)."""
+    """The forward-operator commands live in their own modules (issue 5), and so does ``swim cache``."""
+    from .cache import cache
     from .compare import compare
     from .ghi import ghi
 
     app.command(name="ghi")(ghi)
     app.command(name="compare")(compare)
+    app.command(name="cache")(cache)
 
 
 _register_diagnostics()

@@ -6,6 +6,8 @@ The cache lives in ``$SWIM_CACHE_DIR/jax`` (default ``$XDG_CACHE_HOME/swim/jax``
 ``SWIM_JAX_CACHE=0`` turns it off. A cache that cannot be created is skipped with a log message: it only
 ever saves time. :func:`disk_cached` keeps other slow, deterministic results (the successive-orders tables of
 :mod:`swim.rt.gas`) in ``$SWIM_CACHE_DIR/<kind>``, keyed by their arguments and the code that builds them.
+Every cache stays within a budget (``SWIM_CACHE_MAX_MB``, least recently used entries removed first;
+:mod:`swim.rt.cache_budget`), and ``swim cache`` lists or clears them.
 """
 
 from __future__ import annotations
@@ -61,11 +63,16 @@ def disk_cached(kind: str, key, build, sources=()):
     for source in sources:
         digest.update(Path(source).read_bytes())
     path = cache_directory(kind) / f"{digest.hexdigest()[:40]}.pkl"
+    from .cache_budget import mark_used, max_bytes, prune_least_recently_used
+
     try:
         with open(path, "rb") as f:
-            return pickle.load(f)
+            result = pickle.load(f)
+        mark_used(path)  # least recently used entries go first when the cache is over its budget
+        return result
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
         pass
+    limit = max_bytes()  # a bad SWIM_CACHE_MAX_MB is reported before the build, not after it
     result = build()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -75,6 +82,8 @@ def disk_cached(kind: str, key, build, sources=()):
         os.replace(f.name, path)
     except OSError as err:
         log.info("could not cache %s (%s)", kind, err)
+        return result
+    prune_least_recently_used(path.parent, limit, keep=path)
     return result
 
 
@@ -134,7 +143,52 @@ def enable_compilation_cache() -> Path | None:
         log.info("no persistent JAX compilation cache (%s)", err)
         return None
     jax.config.update("jax_compilation_cache_dir", str(path))
+    _bound_jax_cache(jax)
     # Cache every compiled function: a render compiles ~60 small ones (0.05-0.3 s each) beside the two big
     # kernels, and loading them is faster.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return path
+
+
+def _bound_jax_cache(jax) -> None:
+    """JAX's own least-recently-used eviction at :func:`swim.rt.cache_budget.max_bytes` (it needs ``filelock``); a
+    size the user has set is kept, and a bad ``SWIM_CACHE_MAX_MB`` leaves the cache unbounded with a warning (this
+    runs at import, where an exception would stop every command)."""
+    from ..errors import SwimInputError
+    from .cache_budget import max_bytes
+
+    if jax.config.jax_compilation_cache_max_size != -1:
+        return
+    try:
+        import filelock  # noqa: F401  (JAX's LRU cache locks its folder with it)
+
+        limit = max_bytes()
+        _backfill_access_times(Path(jax.config.jax_compilation_cache_dir))
+        jax.config.update("jax_compilation_cache_max_size", limit)
+    except ImportError:
+        log.info("JAX's compilation cache is unbounded: the filelock package is missing")
+    except SwimInputError as err:
+        log.warning("%s: JAX's compilation cache is left unbounded", err)
+
+
+def _backfill_access_times(folder: Path) -> None:
+    """Give every entry of JAX's cache folder the access-time file that JAX's eviction reads (``<key>-atime``).
+
+    JAX writes it only while eviction is on; entries written before (by an older swim, or with eviction off) lack it,
+    and JAX's eviction then fails on them with FileNotFoundError at every new compilation. A missing time is taken
+    from the entry's modification time. The folder is scanned again only after entries were added (its modification
+    time is later than the marker's)."""
+    marker = folder / ".swim-atime-backfill"
+    try:
+        if marker.exists() and marker.stat().st_mtime_ns >= folder.stat().st_mtime_ns:
+            return
+        names = set(os.listdir(folder))
+        for name in names:
+            if name.endswith("-cache") and name[:-len("-cache")] + "-atime" not in names:
+                stamp = (folder / name).stat().st_mtime_ns
+                (folder / (name[:-len("-cache")] + "-atime")).write_bytes(stamp.to_bytes(8, "little"))
+        marker.touch()
+        os.utime(marker)  # later than the folder's own time, which creating the marker set
+    except OSError as err:
+        log.info("JAX cache %s: access times not backfilled (%s)", folder, err)
+

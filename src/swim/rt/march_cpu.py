@@ -34,6 +34,7 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from .cache_budget import prune_code_versions
 from .compilation_cache import _disabled, cache_directory, serialise_numba_cache_writes
 
 
@@ -56,7 +57,10 @@ if _CACHE and not numba.config.CACHE_DIR:
     # numba caches compiled functions beside the source by default, which an installed package may not allow;
     # the setting is read when each function below is decorated (a user's NUMBA_CACHE_DIR is kept, and with it
     # numba's own staleness check by file time stamps)
-    numba.config.CACHE_DIR = str(cache_directory("numba") / numba_sources_digest())
+    _digest = numba_sources_digest()
+    numba.config.CACHE_DIR = str(cache_directory("numba") / _digest)
+    # each code version has its own folder: the oldest go, so that upgrades do not pile up machine code
+    prune_code_versions(cache_directory("numba"), _digest)
 if _CACHE:
     serialise_numba_cache_writes()  # a helper process may compile beside this one (swim.rt.precompile)
 
