@@ -23,6 +23,8 @@ _API = {
     "render": "swim.pipeline",
     "write_png": "swim.pipeline",
     "write_netcdf": "swim.pipeline",
+    "render_series": "swim.series",
+    "series_times": "swim.series",
     "AerosolBackground": "swim.rt.gas",
     "MarchSettings": "swim.rt.march",
     "sky_irradiance": "swim.diagnostics.irradiance",

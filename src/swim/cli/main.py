@@ -133,10 +133,19 @@ def render(
                                 "or lambertian (docs/surfaces.md)."),
     scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
     scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
-    out: Path = typer.Option(Path("swim.png"), help="PNG output path."),
-    netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here."),
+    out: Path = typer.Option(Path("swim.png"), help="PNG output path; with --end a pattern such as "
+                             "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height)."),
+    netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here (a pattern with "
+                                          "--end)."),
+    end: Optional[str] = typer.Option(None, help="Render a time series from --time (default: the scene's time) to "
+                                      "this UTC time, ISO 8601, the sun moving over the same scene."),
+    every: float = typer.Option(10.0, help="Time step of a series [min]."),
+    workers: int = typer.Option(0, help="Render a series' frames on a local dask cluster of this many processes "
+                                "(0: one after the other in this process; needs dask.distributed)."),
+    scheduler: Optional[str] = typer.Option(None, help="Address of a running dask.distributed scheduler for a "
+                                            "series' frames (e.g. tcp://10.0.0.5:8786)."),
 ):
-    """Render an all-sky, panorama or perspective image of a scene."""
+    """Render an all-sky, panorama or perspective image of a scene, or a time series of them (--end)."""
     from .. import default_scene, open_scene
     from ..pipeline import render as render_image, write_netcdf, write_png
     from ..rt.gas import AerosolBackground
@@ -188,20 +197,22 @@ def render(
                 assert len(target) == 3
             except (ValueError, AssertionError):
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
+        settings = MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps}),
+                                 **({} if probes is None else {"n_probe": probes}),
+                                 **({} if empty_steps is None else {"empty_steps": empty_steps}),
+                                 **({} if probe_spacing is None else {"probe_spacing": probe_spacing}),
+                                 **({} if tau_refine is None else {"tau_refine": tau_refine}))
+        common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
+                      sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
+                      settings=settings, white_level=white_level, sampling=sampling)
+        if end is not None or workers or scheduler:
+            _render_series(ds, time, end, every, workers, scheduler, out, netcdf, common)
+            return
         with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                       TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
             task = bar.add_task("render", total=1.0)
-            image = render_image(
-                ds, time=time, lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
-                sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                settings=MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps}),
-                                       **({} if probes is None else {"n_probe": probes}),
-                                       **({} if empty_steps is None else {"empty_steps": empty_steps}),
-                                       **({} if probe_spacing is None else {"probe_spacing": probe_spacing}),
-                                       **({} if tau_refine is None else {"tau_refine": tau_refine})),
-                white_level=white_level, sampling=sampling,
-                progress=lambda done, total: bar.update(task, completed=done / total),
-            )
+            image = render_image(ds, time=time, progress=lambda done, total: bar.update(task, completed=done / total),
+                                 **common)
         write_png(image, out)
         if netcdf is not None:
             write_netcdf(image, netcdf)
@@ -210,6 +221,48 @@ def render(
         raise typer.Exit(code=2) from None
     console.print(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
                   + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
+
+
+def _render_series(scene, start, end, every, workers, scheduler, out, netcdf, common):
+    """``swim render --end``: the frames from ``start`` to ``end`` (:func:`swim.series.render_series`)."""
+    import pandas as pd
+
+    from ..series import render_series, series_times
+
+    if end is None:
+        raise SwimInputError("--workers and --scheduler render a series: give its last time with --end")
+    if workers < 0:
+        raise SwimInputError(f"--workers must be >= 0, got {workers}")
+    if start is None:
+        if "time" not in scene.coords:
+            raise SwimInputError("a series needs --time: the scene has no time of its own")
+        start = pd.Timestamp(scene["time"].values)
+    times = series_times(start, end, every)
+    if (workers or scheduler) and logging.getLogger().level > logging.INFO:
+        try:  # dask.distributed sets its own logger to INFO as it is imported; -v shows its scheduler's life
+            import distributed  # noqa: F401
+
+            logging.getLogger("distributed").setLevel(logging.WARNING)
+        except ImportError:
+            pass  # render_series names the missing package
+    client = None
+    if scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise SwimInputError('--scheduler needs dask.distributed: pip install "swim-imagery[scale]"') from None
+        client = Client(scheduler)
+    try:
+        with Progress(TextColumn("[bold]frames"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f}"),
+                      TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
+            task = bar.add_task("frames", total=len(times))
+            table = render_series(scene, times, out=out, netcdf=netcdf, client=client, workers=workers or None,
+                                  progress=lambda done, total: bar.update(task, completed=done), **common)
+    finally:
+        if client is not None:
+            client.close()
+    console.print(f"wrote {len(table)} frames, {escape(str(table['png'].iloc[0]))} ... {escape(str(table['png'].iloc[-1]))} "
+                  f"({table['seconds'].median():.2f} s per frame in median)")
 
 
 def _register_diagnostics():

@@ -217,11 +217,14 @@ def wait() -> None:
         if _helper is None:
             return
         process, started, errors = _helper
+        here = time.perf_counter()
         for name in WAITING_KERNELS:
             try:
                 _dispatcher(name).compile(kernel_signature(name))  # loads it where the disk cache has it
             except Exception as error:  # only ever a head start: the render compiles it at its first call
                 log.warning("compiling %s ahead of its first call failed: %s", name, error)
+        log.info("%s ready in %.1f s; waiting for the helper process", ", ".join(WAITING_KERNELS),
+                 time.perf_counter() - here)
         try:
             code = process.wait(timeout=max(WAIT_S - (time.perf_counter() - started), 1.0))
         except subprocess.TimeoutExpired:

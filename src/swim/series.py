@@ -1,0 +1,311 @@
+"""Many frames: a time series, several sites or a fly-through, rendered in this process or on a dask.distributed
+cluster, each frame written to its own file as it is done.
+
+:func:`render_series` takes one scene (or a scene per frame: hourly model output) and a list of frames, each a set of
+:func:`swim.render` arguments (a time, a vantage point, a camera). In this process the frames run one after the other
+and share the optical volume of their scene (:mod:`swim.pipeline`'s stage cache). With a ``dask.distributed`` client
+(or ``workers=N``, a local cluster of N processes) each frame is a task: an in-memory scene is sent to every worker
+once, a scene file is opened by each worker once, and each worker writes its own frames. Each file is written whole
+or not at all (:func:`swim.io.atomic.atomic_write`). Throughput on this project's 2-core machine: docs/rendering.md,
+"Many frames".
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import os
+import socket
+import time as wall_clock
+from pathlib import Path
+
+import pandas as pd
+import xarray as xr
+
+from .errors import SwimInputError
+
+log = logging.getLogger(__name__)
+
+#: Columns of :func:`render_series`'s table, in order.
+COLUMNS = ("time", "png", "netcdf", "sun_zenith_deg", "sun_azimuth_deg", "traced_pixels", "seconds", "worker")
+
+
+def series_times(start, end, every_minutes: float) -> pd.DatetimeIndex:
+    """UTC instants from ``start`` to ``end`` (both included where ``end`` falls on the step) every ``every_minutes``.
+
+    Parameters
+    ----------
+    start, end : str, datetime or pandas.Timestamp
+        First and last instant (UTC; a time zone is converted).
+    every_minutes : float
+        Step [min] > 0.
+
+    Returns
+    -------
+    pandas.DatetimeIndex
+        Timezone-naive UTC instants.
+
+    Raises
+    ------
+    SwimInputError
+        If a time cannot be parsed, ``end`` is before ``start`` or the step is not > 0.
+    """
+    try:
+        first, last = (_utc(t) for t in (start, end))
+    except (TypeError, ValueError) as err:
+        raise SwimInputError(f"series start and end must be ISO 8601 UTC times; got {start!r}, {end!r} ({err})") from None
+    if not (isinstance(every_minutes, (int, float)) and every_minutes > 0 and every_minutes < float("inf")):
+        raise SwimInputError(f"series step every_minutes must be a number of minutes > 0; got {every_minutes!r}")
+    if last < first:
+        raise SwimInputError(f"series end {last} UTC is before its start {first} UTC")
+    return pd.date_range(first, last, freq=pd.Timedelta(minutes=every_minutes))
+
+
+def _utc(value) -> pd.Timestamp:
+    stamp = pd.Timestamp(value)
+    if stamp is pd.NaT:
+        raise ValueError("not a time")
+    return stamp.tz_convert("UTC").tz_localize(None) if stamp.tzinfo is not None else stamp
+
+
+def _frame_list(frames) -> list[dict]:
+    """Frames as dicts of :func:`swim.render` arguments (plus "scene"); bare times become ``{"time": t}``."""
+    if isinstance(frames, (str, bytes, dict)) or not hasattr(frames, "__iter__"):
+        raise SwimInputError("frames must be a sequence of times or of dicts of swim.render arguments")
+    out = []
+    for i, frame in enumerate(frames):
+        if isinstance(frame, dict):
+            out.append(dict(frame))
+        else:
+            try:
+                out.append({"time": _utc(frame)})
+            except (TypeError, ValueError):
+                raise SwimInputError(f"frame {i}: {frame!r} is neither a time nor a dict of swim.render arguments") \
+                    from None
+    if not out:
+        raise SwimInputError("frames is empty: nothing to render")
+    return out
+
+
+def _output_paths(pattern, frames, what) -> list[Path | None]:
+    """``pattern`` formatted for each frame (its arguments merged with the common ones) with ``index``, ``time`` (a
+    pandas.Timestamp: ``{time:%Y%m%dT%H%M}``), ``lat``, ``lon`` and ``height``; distinct paths or a clear error."""
+    if pattern is None:
+        return [None] * len(frames)
+    pattern = str(pattern)
+    paths = []
+    for i, frame in enumerate(frames):
+        fields = {"index": i, "lat": frame.get("lat"), "lon": frame.get("lon"), "height": frame.get("height"),
+                  "time": None if frame.get("time") is None else _utc(frame["time"])}
+        try:
+            paths.append(Path(pattern.format(**fields)))
+        except (KeyError, IndexError, ValueError, TypeError, AttributeError) as err:
+            raise SwimInputError(f"{what} pattern {pattern!r} cannot name frame {i} ({err!r}); it may use {{index}}, "
+                                 "{time:%Y%m%dT%H%M} (frames with a time), {lat}, {lon} and {height}") from None
+    seen = {}
+    for i, path in enumerate(paths):
+        if path in seen:
+            raise SwimInputError(f"{what} pattern {pattern!r} names frames {seen[path]} and {i} alike ({path}); "
+                                 "add {index} or {time:%Y%m%dT%H%M%S}")
+        seen[path] = i
+    return paths
+
+
+def _opened(path: str, lazy: bool):
+    """A scene file opened once per process and version of the file (a worker's frames share it and its optical
+    volume; a file rewritten under the same name, such as an hourly "latest" forecast, is opened again)."""
+    try:
+        stat = os.stat(path)
+    except OSError:
+        raise SwimInputError(f"scene file not found: {path}") from None
+    return _opened_version(path, lazy, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=2)
+def _opened_version(path: str, lazy: bool, mtime_ns: int, size: int):
+    return _open(path, lazy)
+
+
+def _open(path: str, lazy: bool):
+    from .io.scene import open_scene
+
+    return open_scene(path, lazy=lazy)
+
+
+def _render_frame(index, scene, lazy, kwargs, png, netcdf):
+    """One frame, in this process or on a dask worker: render, write, and return its row of the table."""
+    from .pipeline import render, write_netcdf, write_png
+
+    started = wall_clock.perf_counter()
+    if isinstance(scene, (str, os.PathLike)):
+        scene = _opened(str(scene), lazy)
+    image = render(scene, **kwargs)
+    if png is not None:
+        write_png(image, png)
+    if netcdf is not None:
+        write_netcdf(image, netcdf)
+    attrs = image.attrs
+    return {"index": index, "time": _utc(attrs["time"]) if attrs.get("time") else pd.NaT,
+            "png": None if png is None else str(png), "netcdf": None if netcdf is None else str(netcdf),
+            "sun_zenith_deg": float(attrs["sun_zenith_deg"]), "sun_azimuth_deg": float(attrs["sun_azimuth_deg"]),
+            "traced_pixels": int(attrs.get("traced_pixels", -1)), "seconds": wall_clock.perf_counter() - started,
+            "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+
+def _frame_error(index, frame, err) -> SwimInputError:
+    when = f" at {_utc(frame['time'])} UTC" if frame.get("time") is not None else ""
+    return SwimInputError(f"frame {index}{when}: {err}")
+
+
+def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers: int | None = None, lazy: bool = False,
+                  progress=None, **render_kwargs) -> pd.DataFrame:
+    """Render many frames of one scene (or of a scene per frame) and write each to its own file.
+
+    Parameters
+    ----------
+    scene : xarray.Dataset, str or os.PathLike
+        The canonical scene of every frame, or a scene file (:func:`swim.open_scene`; opened once per process). A
+        frame's own ``"scene"`` replaces it (e.g. one WRF file per hour).
+    frames : sequence
+        Times (str, datetime or pandas.Timestamp, UTC; e.g. :func:`series_times`) or dicts of :func:`swim.render`
+        arguments (``time``, ``lat``, ``lon``, ``height``, ``camera_options``, ...; and ``"scene"``), one per frame.
+        A dict's arguments override ``render_kwargs``.
+    out : str or os.PathLike, optional
+        PNG path pattern, formatted per frame with ``index`` (0, 1, ...), ``time`` (a pandas.Timestamp, UTC: e.g.
+        ``"frames/{time:%Y%m%dT%H%M}.png"``), ``lat``, ``lon`` and ``height`` (the frame's arguments or the common
+        ones; None where neither gives one). Folders are created.
+    netcdf : str or os.PathLike, optional
+        The same for CF netCDF files of the radiance (:func:`swim.write_netcdf`).
+    client : dask.distributed.Client, optional
+        Render the frames as tasks on this cluster (each worker writes its own files, so the paths must be on a
+        file system that the workers share with the caller).
+    workers : int, optional
+        Without ``client``: start a local dask cluster of this many single-threaded worker processes for the
+        series, each marching on ``cores // workers`` threads (``SWIM_NUM_THREADS``). None or 0: in this process.
+    lazy : bool
+        Open scene files lazily (canonical netCDF only; :func:`swim.open_scene`).
+    progress : callable, optional
+        Called with (frames done, frames total) after each frame.
+    **render_kwargs
+        :func:`swim.render` arguments common to every frame (``camera``, ``camera_options``, ``aerosol``,
+        ``settings``, ``sampling``, ``white_level``, ...).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per frame, indexed by frame number, with :data:`COLUMNS`: its ``time`` (UTC), ``png`` and
+        ``netcdf`` paths, the sun's zenith and azimuth [deg], the pixels traced, the frame's wall time
+        ``seconds`` [s] and the ``worker`` (host:pid) that rendered it.
+
+    Raises
+    ------
+    SwimInputError
+        Before any frame: no frames, a frame that is neither a time nor a dict, no output pattern, output patterns
+        that name two frames alike or use a field a frame lacks, ``workers`` < 0, or dask.distributed missing for
+        ``workers``. During the series: the first frame that fails, by number and time (the frames written before
+        it are complete files; the other frames of a cluster are cancelled).
+    """
+    frames = _frame_list(frames)
+    if out is None and netcdf is None:
+        raise SwimInputError("render_series needs out (a PNG path pattern) or netcdf: the frames would be lost")
+    merged = [{**render_kwargs, **frame} for frame in frames]
+    pngs = _output_paths(out, merged, "out")
+    ncs = _output_paths(netcdf, merged, "netcdf")
+    if scene is None and any("scene" not in f for f in frames):
+        raise SwimInputError("render_series: no scene for the frames without their own 'scene'")
+    for i, frame in enumerate(frames):
+        given = frame.get("scene", scene)
+        if not isinstance(given, (xr.Dataset, str, os.PathLike)):
+            raise SwimInputError(f"frame {i}: the scene must be an xarray.Dataset or a scene file path; got "
+                                 f"{type(given).__name__}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise SwimInputError(f"workers must be a number of processes >= 0; got {workers!r}")
+    jobs = []
+    for i, frame in enumerate(merged):
+        kwargs = {k: v for k, v in frame.items() if k != "scene"}
+        jobs.append((i, frame.get("scene", scene), kwargs, pngs[i], ncs[i]))
+    if client is None and workers:
+        return _on_local_cluster(jobs, frames, workers, lazy, progress)
+    if client is None:
+        return _in_this_process(jobs, frames, lazy, progress)
+    return _on_cluster(client, jobs, frames, lazy, progress)
+
+
+def _table(rows) -> pd.DataFrame:
+    return pd.DataFrame(rows).set_index("index").sort_index().loc[:, list(COLUMNS)]
+
+
+def _in_this_process(jobs, frames, lazy, progress):
+    rows = []
+    opened = (None, None)  # the last scene file and its scene: held for the series only, not after it
+    for i, given, kwargs, png, nc in jobs:
+        try:
+            if isinstance(given, (str, os.PathLike)):
+                if opened[0] != str(given):
+                    opened = (None, None)  # the previous scene goes before the next is read
+                    opened = (str(given), _open(str(given), lazy))
+                given = opened[1]
+            rows.append(_render_frame(i, given, lazy, kwargs, png, nc))
+        except SwimInputError as err:
+            raise _frame_error(i, frames[i], err) from None
+        log.info("frame %d of %d in %.2f s", i + 1, len(jobs), rows[-1]["seconds"])
+        if progress is not None:
+            progress(len(rows), len(jobs))
+    return _table(rows)
+
+
+def _on_cluster(client, jobs, frames, lazy, progress):
+    from dask.distributed import as_completed
+
+    remote = {}  # in-memory scenes, sent to every worker once each
+    futures = {}
+    for i, given, kwargs, png, nc in jobs:
+        if isinstance(given, xr.Dataset):
+            if id(given) not in remote:
+                remote[id(given)] = client.scatter(given, broadcast=True)
+            given = remote[id(given)]
+        else:
+            given = str(given)
+        futures[client.submit(_render_frame, i, given, lazy, kwargs, png, nc, pure=False)] = i
+    rows = []
+    try:
+        for future in as_completed(futures):
+            i = futures[future]
+            try:
+                rows.append(future.result())
+            except SwimInputError as err:
+                raise _frame_error(i, frames[i], err) from None
+            log.info("frame %d done on %s (%d of %d)", i, rows[-1]["worker"], len(rows), len(jobs))
+            if progress is not None:
+                progress(len(rows), len(jobs))
+    finally:
+        if len(rows) < len(jobs):
+            client.cancel(list(futures))
+    return _table(rows)
+
+
+def local_cluster(workers: int):
+    """A local dask.distributed cluster of ``workers`` single-threaded worker processes, each marching on
+    ``cores // workers`` threads (``SWIM_NUM_THREADS``), so that the frames do not oversubscribe the cores.
+
+    Raises
+    ------
+    SwimInputError
+        If dask.distributed is not installed (``pip install "swim-imagery[scale]"``).
+    """
+    try:
+        from dask.distributed import LocalCluster
+    except ImportError:
+        raise SwimInputError('workers= needs dask.distributed: pip install "swim-imagery[scale]"') from None
+    from .rt.march import threads
+
+    per_worker = max(1, threads() // workers)
+    return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
+                        dashboard_address=None, env={"SWIM_NUM_THREADS": str(per_worker)})
+
+
+def _on_local_cluster(jobs, frames, workers, lazy, progress):
+    from dask.distributed import Client
+
+    with local_cluster(workers) as cluster, Client(cluster) as client:
+        return _on_cluster(client, jobs, frames, lazy, progress)
