@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import numbers
 import os
 import socket
 import time as wall_clock
@@ -54,7 +55,8 @@ def series_times(start, end, every_minutes: float) -> pd.DatetimeIndex:
         first, last = (_utc(t) for t in (start, end))
     except (TypeError, ValueError) as err:
         raise SwimInputError(f"series start and end must be ISO 8601 UTC times; got {start!r}, {end!r} ({err})") from None
-    if not (isinstance(every_minutes, (int, float)) and every_minutes > 0 and every_minutes < float("inf")):
+    if (isinstance(every_minutes, bool) or not isinstance(every_minutes, numbers.Real)
+            or not 0 < every_minutes < float("inf")):
         raise SwimInputError(f"series step every_minutes must be a number of minutes > 0; got {every_minutes!r}")
     if last < first:
         raise SwimInputError(f"series end {last} UTC is before its start {first} UTC")
@@ -75,7 +77,15 @@ def _frame_list(frames) -> list[dict]:
     out = []
     for i, frame in enumerate(frames):
         if isinstance(frame, dict):
-            out.append(dict(frame))
+            frame = dict(frame)
+            if frame.get("time") is not None:
+                try:
+                    frame["time"] = _utc(frame["time"])
+                except (TypeError, ValueError):
+                    raise SwimInputError(f"frame {i}: time {frame['time']!r} is not an ISO 8601 UTC time") from None
+            out.append(frame)
+        elif isinstance(frame, (numbers.Number, bool)):  # pandas would read a number as nanoseconds since 1970
+            raise SwimInputError(f"frame {i}: {frame!r} is neither a time nor a dict of swim.render arguments")
         else:
             try:
                 out.append({"time": _utc(frame)})
@@ -96,9 +106,10 @@ def _output_paths(pattern, frames, what) -> list[Path | None]:
     paths = []
     for i, frame in enumerate(frames):
         fields = {"index": i, "lat": frame.get("lat"), "lon": frame.get("lon"), "height": frame.get("height"),
-                  "time": None if frame.get("time") is None else _utc(frame["time"])}
+                  "time": frame.get("time")}  # a pandas.Timestamp or None (_frame_list)
         try:
-            paths.append(Path(pattern.format(**fields)))
+            # absolute: a worker of a cluster writes relative to its own folder otherwise
+            paths.append(Path(pattern.format(**fields)).absolute())
         except (KeyError, IndexError, ValueError, TypeError, AttributeError) as err:
             raise SwimInputError(f"{what} pattern {pattern!r} cannot name frame {i} ({err!r}); it may use {{index}}, "
                                  "{time:%Y%m%dT%H%M} (frames with a time), {lat}, {lon} and {height}") from None
@@ -171,7 +182,7 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
         arguments (``time``, ``lat``, ``lon``, ``height``, ``camera_options``, ...; and ``"scene"``), one per frame.
         A dict's arguments override ``render_kwargs``.
     out : str or os.PathLike, optional
-        PNG path pattern, formatted per frame with ``index`` (0, 1, ...), ``time`` (a pandas.Timestamp, UTC: e.g.
+        PNG path pattern (made absolute against this process's folder), formatted per frame with ``index`` (0, 1, ...), ``time`` (a pandas.Timestamp, UTC: e.g.
         ``"frames/{time:%Y%m%dT%H%M}.png"``), ``lat``, ``lon`` and ``height`` (the frame's arguments or the common
         ones; None where neither gives one). Folders are created.
     netcdf : str or os.PathLike, optional
@@ -182,6 +193,8 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
     workers : int, optional
         Without ``client``: start a local dask cluster of this many single-threaded worker processes for the
         series, each marching on ``cores // workers`` threads (``SWIM_NUM_THREADS``). None or 0: in this process.
+        dask starts the workers by spawning fresh interpreters, so a script that uses it needs the usual
+        ``if __name__ == "__main__":`` guard.
     lazy : bool
         Open scene files lazily (canonical netCDF only; :func:`swim.open_scene`).
     progress : callable, optional
@@ -200,10 +213,12 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
     Raises
     ------
     SwimInputError
-        Before any frame: no frames, a frame that is neither a time nor a dict, no output pattern, output patterns
-        that name two frames alike or use a field a frame lacks, ``workers`` < 0, or dask.distributed missing for
-        ``workers``. During the series: the first frame that fails, by number and time (the frames written before
-        it are complete files; the other frames of a cluster are cancelled).
+        Before any frame: no frames, a frame that is neither a time nor a dict or whose time is not one, no output
+        pattern, output patterns that name two frames alike or use a field a frame lacks, ``out`` and ``netcdf``
+        naming one file, ``workers`` < 0, both ``client`` and ``workers``, or dask.distributed missing for
+        ``workers``. During the series: the
+        first frame that fails, by number and time. The frames written before it are complete files; on a cluster
+        the frames not yet started are cancelled, and those already running may still write theirs.
     """
     frames = _frame_list(frames)
     if out is None and netcdf is None:
@@ -211,6 +226,9 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
     merged = [{**render_kwargs, **frame} for frame in frames]
     pngs = _output_paths(out, merged, "out")
     ncs = _output_paths(netcdf, merged, "netcdf")
+    both = set(pngs) & set(ncs) - {None}
+    if both:
+        raise SwimInputError(f"out and netcdf name the same file {sorted(both)[0]}")
     if scene is None and any("scene" not in f for f in frames):
         raise SwimInputError("render_series: no scene for the frames without their own 'scene'")
     for i, frame in enumerate(frames):
@@ -220,10 +238,15 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
                                  f"{type(given).__name__}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
         raise SwimInputError(f"workers must be a number of processes >= 0; got {workers!r}")
+    if workers and client is not None:
+        raise SwimInputError("give either client (a running cluster) or workers (a local one), not both")
     jobs = []
     for i, frame in enumerate(merged):
         kwargs = {k: v for k, v in frame.items() if k != "scene"}
-        jobs.append((i, frame.get("scene", scene), kwargs, pngs[i], ncs[i]))
+        given = frame.get("scene", scene)
+        if isinstance(given, (str, os.PathLike)):
+            given = Path(given).absolute()  # as the output paths: the same file on every worker
+        jobs.append((i, given, kwargs, pngs[i], ncs[i]))
     if client is None and workers:
         return _on_local_cluster(jobs, frames, workers, lazy, progress)
     if client is None:
@@ -259,16 +282,16 @@ def _on_cluster(client, jobs, frames, lazy, progress):
 
     remote = {}  # in-memory scenes, sent to every worker once each
     futures = {}
-    for i, given, kwargs, png, nc in jobs:
-        if isinstance(given, xr.Dataset):
-            if id(given) not in remote:
-                remote[id(given)] = client.scatter(given, broadcast=True)
-            given = remote[id(given)]
-        else:
-            given = str(given)
-        futures[client.submit(_render_frame, i, given, lazy, kwargs, png, nc, pure=False)] = i
     rows = []
     try:
+        for i, given, kwargs, png, nc in jobs:
+            if isinstance(given, xr.Dataset):
+                if id(given) not in remote:
+                    remote[id(given)] = client.scatter(given, broadcast=True)
+                given = remote[id(given)]
+            else:
+                given = str(given)
+            futures[client.submit(_render_frame, i, given, lazy, kwargs, png, nc, pure=False)] = i
         for future in as_completed(futures):
             i = futures[future]
             try:
@@ -281,7 +304,17 @@ def _on_cluster(client, jobs, frames, lazy, progress):
     finally:
         if len(rows) < len(jobs):
             client.cancel(list(futures))
+        client.cancel(list(remote.values()))  # the scattered scenes
+        if any(isinstance(job[1], Path) for job in jobs):
+            try:  # the workers' open scene files, which a long-lived cluster would otherwise keep
+                client.run(_forget_scenes)
+            except Exception as err:  # only memory is at stake
+                log.info("the workers kept their open scene files (%s)", err)
     return _table(rows)
+
+
+def _forget_scenes():
+    _opened_version.cache_clear()
 
 
 def local_cluster(workers: int):

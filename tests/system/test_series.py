@@ -48,6 +48,7 @@ def test_frames_are_the_single_renders_and_the_sun_follows_the_ephemeris(scene, 
     assert list(table.columns) == list(COLUMNS) and list(table.index) == [0, 1, 2]
     assert list(table["time"]) == list(times)
     assert [p.rsplit("/", 1)[1] for p in table["png"]] == ["1500.png", "1800.png", "2100.png"]
+    assert all(p.startswith("/") for p in table["png"]), "absolute, so that workers elsewhere write the same files"
     # each frame is what swim.render gives for that time on its own
     for t, png, nc in zip(times, table["png"], table["netcdf"]):
         alone = swim.render(scene, time=t, camera_options=SIZE)
@@ -113,6 +114,14 @@ def test_bad_series_fail_before_any_frame(scene, tmp_path):
         render_series(scene, times, out=tmp_path / "{index}.png", workers=-1)
     with pytest.raises(SwimInputError, match="frame 0: the scene must be"):
         render_series(np.zeros(3), times, out=tmp_path / "{index}.png")
+    with pytest.raises(SwimInputError, match="frame 1: time 'later' is not an ISO 8601 UTC time"):
+        render_series(scene, [{"time": times[0]}, {"time": "later"}], out=tmp_path / "{index}.png")
+    with pytest.raises(SwimInputError, match="frame 0: 1700000000 is neither a time"):
+        render_series(scene, [1700000000], out=tmp_path / "{index}.png")
+    with pytest.raises(SwimInputError, match="out and netcdf name the same file"):
+        render_series(scene, times, out=tmp_path / "{index}", netcdf=tmp_path / "{index}")
+    with pytest.raises(SwimInputError, match="either client .* or workers"):
+        render_series(scene, times, out=tmp_path / "{index}.png", workers=2, client=object())
     assert not list(tmp_path.iterdir()), "nothing written"
 
 
@@ -122,6 +131,15 @@ def test_a_failing_frame_is_named_and_the_frames_before_it_are_whole(scene, tmp_
         render_series(scene, frames, out=tmp_path / "{index}.png", camera_options=SIZE)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["0.png"]
     assert _pixels(tmp_path / "0.png").shape == (47, 47, 3)
+
+
+def test_a_frame_that_fails_on_a_cluster_is_named(scene, tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    frames = [{"time": "2023-06-21T18:00"}, {"time": "2023-06-21T18:10", "lat": 95.0}]
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        with pytest.raises(SwimInputError, match=r"frame 1 at 2023-06-21 18:10:00 UTC: observer lat must be in"):
+            render_series(scene, frames, out=tmp_path / "{index}.png", client=client, camera_options=SIZE)
 
 
 def test_a_dask_cluster_renders_the_same_frames(scene, tmp_path):
@@ -163,3 +181,13 @@ def test_the_render_command_renders_a_series(tmp_path, monkeypatch):
     assert same.exit_code == 2 and "names frames 0 and 1 alike" in same.output
     alone = runner.invoke(app, ["render", "--workers", "2", "--size", "31"])
     assert alone.exit_code == 2 and "--end" in alone.output
+    fixed = runner.invoke(app, ["render", "--end", "2023-06-21T18:20", "--sun-zenith", "30", "--out", "{index}.png"])
+    assert fixed.exit_code == 2 and "fix the sun" in fixed.output
+    nowhere = runner.invoke(app, ["render", "--end", "2023-06-21T18:20", "--size", "31", "--out", "{index}.png",
+                                  "--scheduler", "nonsense://x"])
+    assert nowhere.exit_code == 2 and "no dask scheduler answered" in nowhere.output
+    netcdf_only = runner.invoke(app, ["render", "--time", "2023-06-21T18:00", "--end", "2023-06-21T18:10",
+                                      "--size", "31", "--netcdf", "nc/{index}.nc"])
+    assert netcdf_only.exit_code == 0, netcdf_only.output
+    assert sorted(p.name for p in (tmp_path / "nc").iterdir()) == ["0.nc", "1.nc"]
+    assert not list(tmp_path.glob("*.png")), "no PNG unless --out is given"

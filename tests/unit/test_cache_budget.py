@@ -73,52 +73,89 @@ def test_the_budget_defaults_to_a_gigabyte_and_reads_megabytes(monkeypatch):
     assert max_bytes() == int(2.5 * 2**20)
 
 
+def _version(n):
+    """A code version's folder name (16 hex digits, as swim.rt.march_cpu.numba_sources_digest gives)."""
+    return f"{n:016x}"
+
+
+def _versions(root, count, age_step_s=100):
+    for n in range(count):  # version 0 oldest ... count - 1 newest
+        _file(root / _version(n) / "index.nbi", 10, age_s=0)
+        stamp = time.time() - age_step_s * (count - n)
+        os.utime(root / _version(n), (stamp, stamp))
+
+
 def test_numba_keeps_the_current_code_version_and_the_two_used_last(tmp_path):
-    for n in range(5):  # v0 oldest ... v4 newest
-        _file(tmp_path / f"v{n}" / "index.nbi", 10, age_s=0)
-        stamp = time.time() - 100 * (5 - n)
-        os.utime(tmp_path / f"v{n}", (stamp, stamp))
-    removed = prune_code_versions(tmp_path, "v0")
-    assert sorted(removed) == ["v1", "v2"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["v0", "v3", "v4"]
-    assert prune_code_versions(tmp_path, "new") == ["v3"], "a new version's folder need not exist yet"
+    _versions(tmp_path, 5)
+    _file(tmp_path / "notes" / "mine.txt", 10, age_s=10**6)  # not a code version: never touched
+    removed = prune_code_versions(tmp_path, _version(0))
+    assert sorted(removed) == [_version(1), _version(2)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [_version(0), _version(3), _version(4), "notes"]
+    assert prune_code_versions(tmp_path, _version(99)) == [_version(3)], "a new version's folder need not exist yet"
 
 
-def test_importing_the_numba_kernels_prunes_old_code_versions(tmp_path):
+def test_a_code_version_that_a_live_process_holds_is_neither_pruned_nor_cleared(tmp_path, monkeypatch):
+    """A long-running process (a dask worker, a notebook) keeps its machine code while newer versions come and go."""
+    _versions(tmp_path / "numba", 5)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from pathlib import Path; from swim.rt.cache_budget import "
+         f"hold_code_version as h; print(h(Path(sys.argv[1]), '{_version(0)}'), flush=True); sys.stdin.read()",
+         str(tmp_path / "numba")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "True"
+        old = time.time() - 10**4  # held, yet the least recently marked: only its lock keeps it
+        os.utime(tmp_path / "numba" / _version(0), (old, old))
+        removed = prune_code_versions(tmp_path / "numba", _version(9))
+        assert sorted(removed) == [_version(1), _version(2)], "the oldest, version 0, is held"
+        monkeypatch.setenv("SWIM_CACHE_DIR", str(tmp_path))
+        clear_caches(["numba"])
+        assert sorted(p.name for p in (tmp_path / "numba").iterdir()) == [_version(0)]
+    finally:
+        holder.communicate("")
+    clear_caches(["numba"])
+    assert not list((tmp_path / "numba").iterdir()), "released: cleared"
+
+
+def test_importing_the_numba_kernels_holds_its_version_and_prunes_old_ones(tmp_path):
     """In a fresh interpreter, as a new installation's first render would."""
     from swim.rt.march_cpu import numba_sources_digest
 
-    for n in range(4):
-        _file(tmp_path / "numba" / f"old{n}" / "index.nbi", 10, age_s=0)
-        stamp = time.time() - 100 * (4 - n)
-        os.utime(tmp_path / "numba" / f"old{n}", (stamp, stamp))
+    _versions(tmp_path / "numba", 4)
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "SWIM_JAX_CACHE")}
     subprocess.run([sys.executable, "-c", "import swim.rt.march_cpu"], env={**env, "SWIM_CACHE_DIR": str(tmp_path)},
                    check=True, capture_output=True)
     left = sorted(p.name for p in (tmp_path / "numba").iterdir())
-    assert set(left) - {numba_sources_digest()} == {"old2", "old3"}
+    assert left == sorted([_version(2), _version(3), numba_sources_digest()])
+    assert (tmp_path / "numba" / numba_sources_digest() / ".in-use").exists()
 
 
-def test_jax_evicts_entries_written_before_eviction_was_on(tmp_path):
-    """An entry without JAX's access-time file (written while eviction was off) made JAX's eviction raise
-    FileNotFoundError at every new compilation; swim gives it one when it turns eviction on."""
+def test_jax_evicts_entries_written_without_access_times(tmp_path):
+    """An entry without JAX's access-time file (written while eviction was off, e.g. by an older swim beside this
+    one) made JAX's eviction raise FileNotFoundError at every new compilation; swim's eviction gives it one first."""
     legacy = _file(tmp_path / "jax" / "jit_old-0123-cache", 4000, age_s=3600)
     code = ("import jax, swim.rt; from jax._src.lru_cache import LRUCache\n"
             "print(jax.config.jax_compilation_cache_max_size)\n"
             "cache = LRUCache(jax.config.jax_compilation_cache_dir, max_size=5000)\n"
-            "cache.put('jit_new-4567', b'y' * 3000)\n")
-    env = {k: v for k, v in os.environ.items() if k not in ("SWIM_JAX_CACHE", "JAX_COMPILATION_CACHE_DIR")}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+            "cache.put('jit_new-4567', b'y' * 1000)\n"
+            "open(jax.config.jax_compilation_cache_dir + '/jit_later-89-cache', 'wb').write(b'z' * 500)\n"
+            "cache.put('jit_last-1011', b'w' * 3000)\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("SWIM_JAX_CACHE", "JAX_COMPILATION_CACHE_DIR",
+                                                            "JAX_COMPILATION_CACHE_MAX_SIZE")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={**env, "SWIM_CACHE_DIR": str(tmp_path), "SWIM_CACHE_MAX_MB": "3"})
+    assert out.returncode == 0, out.stderr
     assert int(out.stdout.split()[0]) == 3 * 2**20
-    assert not legacy.exists(), "the older entry is evicted for the new one"
-    assert (tmp_path / "jax" / "jit_new-4567-cache").exists()
+    assert not legacy.exists(), "the oldest entry is evicted for the new ones"
+    assert sorted(p.name for p in (tmp_path / "jax").glob("*-cache")) == [
+        "jit_last-1011-cache", "jit_later-89-cache", "jit_new-4567-cache"]
+    assert (tmp_path / "jax" / "jit_later-89-atime").exists(), "an entry that came later got its access time too"
 
 
 def test_cache_command_lists_and_clears(tmp_path, monkeypatch):
     monkeypatch.setenv("SWIM_CACHE_DIR", str(tmp_path))
     _file(tmp_path / "gas" / "a.pkl", 3 * 2**20, age_s=0)
-    _file(tmp_path / "numba" / "v1" / "f.nbc", 2**20, age_s=0)
+    _file(tmp_path / "gas" / "notes.txt", 2**20, age_s=0)  # not the cache's: neither counted nor removed
+    _file(tmp_path / "numba" / _version(1) / "f.nbc", 2**20, age_s=0)
     usage = {u.kind: u for u in cache_usage()}
     assert list(usage) == list(KINDS)
     assert (usage["gas"].files, usage["gas"].size_bytes) == (1, 3 * 2**20)
@@ -130,7 +167,8 @@ def test_cache_command_lists_and_clears(tmp_path, monkeypatch):
     assert "gas" in listing.output and "3.0" in listing.output
     cleared = runner.invoke(app, ["cache", "--clear", "--kind", "gas"])
     assert cleared.exit_code == 0 and "removed 3.0 MB" in cleared.output
-    assert not (tmp_path / "gas").exists() and (tmp_path / "numba" / "v1" / "f.nbc").exists()
+    assert sorted(p.name for p in (tmp_path / "gas").iterdir()) == ["notes.txt"]
+    assert (tmp_path / "numba" / _version(1) / "f.nbc").exists()
     bad = runner.invoke(app, ["cache", "--kind", "gass"])
     assert bad.exit_code == 2 and "unknown cache kind" in bad.output
     with pytest.raises(SwimInputError, match="unknown cache kind"):

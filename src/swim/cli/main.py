@@ -133,8 +133,8 @@ def render(
                                 "or lambertian (docs/surfaces.md)."),
     scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
     scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
-    out: Path = typer.Option(Path("swim.png"), help="PNG output path; with --end a pattern such as "
-                             "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height)."),
+    out: Optional[Path] = typer.Option(None, help="PNG output path (default swim.png); with --end a pattern such as "
+                                       "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height)."),
     netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here (a pattern with "
                                           "--end)."),
     end: Optional[str] = typer.Option(None, help="Render a time series from --time (default: the scene's time) to "
@@ -206,8 +206,12 @@ def render(
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                       settings=settings, white_level=white_level, sampling=sampling)
         if end is not None or workers or scheduler:
+            if sun_zenith is not None or sun_azimuth is not None:
+                raise SwimInputError("--sun-zenith/--sun-azimuth fix the sun: every frame of a series from --time to "
+                                     "--end would be the same")
             _render_series(ds, time, end, every, workers, scheduler, out, netcdf, common)
             return
+        out = Path("swim.png") if out is None else out
         with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                       TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
             task = bar.add_task("render", total=1.0)
@@ -238,6 +242,8 @@ def _render_series(scene, start, end, every, workers, scheduler, out, netcdf, co
             raise SwimInputError("a series needs --time: the scene has no time of its own")
         start = pd.Timestamp(scene["time"].values)
     times = series_times(start, end, every)
+    if out is None and netcdf is None:
+        raise SwimInputError("a series needs --out (or --netcdf) as a pattern, e.g. 'frames/{time:%Y%m%dT%H%M}.png'")
     if (workers or scheduler) and logging.getLogger().level > logging.INFO:
         try:  # dask.distributed sets its own logger to INFO as it is imported; -v shows its scheduler's life
             import distributed  # noqa: F401
@@ -251,7 +257,10 @@ def _render_series(scene, start, end, every, workers, scheduler, out, netcdf, co
             from dask.distributed import Client
         except ImportError:
             raise SwimInputError('--scheduler needs dask.distributed: pip install "swim-imagery[scale]"') from None
-        client = Client(scheduler)
+        try:
+            client = Client(scheduler, timeout=30, set_as_default=False)  # used through render_series only
+        except (OSError, TimeoutError, ValueError) as err:
+            raise SwimInputError(f"--scheduler {scheduler}: no dask scheduler answered ({err})") from None
     try:
         with Progress(TextColumn("[bold]frames"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f}"),
                       TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
@@ -261,7 +270,8 @@ def _render_series(scene, start, end, every, workers, scheduler, out, netcdf, co
     finally:
         if client is not None:
             client.close()
-    console.print(f"wrote {len(table)} frames, {escape(str(table['png'].iloc[0]))} ... {escape(str(table['png'].iloc[-1]))} "
+    files = table["png"] if out is not None else table["netcdf"]
+    console.print(f"wrote {len(table)} frames, {escape(str(files.iloc[0]))} ... {escape(str(files.iloc[-1]))} "
                   f"({table['seconds'].median():.2f} s per frame in median)")
 
 

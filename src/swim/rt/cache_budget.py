@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import shutil
 import time
 from dataclasses import dataclass
@@ -133,33 +134,103 @@ def mark_used(path: Path) -> None:
         pass
 
 
+#: Names of the numba cache's code-version folders (:func:`swim.rt.march_cpu.numba_sources_digest`): nothing else in
+#: that folder is ever removed.
+_CODE_VERSION = re.compile(r"[0-9a-f]{16}")
+#: Endings of the files that swim's (and JAX's) caches write: nothing else in their folders is ever removed.
+_OWN_FILES = {"gas": (".pkl", ".tmp"), "surface": (".pkl", ".tmp"),
+              "jax": ("-cache", "-atime", ".lockfile")}
+#: Name of the lock file by which live processes hold their code version's numba folder (:func:`hold_code_version`).
+IN_USE = ".in-use"
+_held = None  # this process's shared lock on its code version's folder (an open file), kept for its lifetime
+
+
+def hold_code_version(root: Path, current: str) -> bool:
+    """Create the numba cache folder ``root/current`` and hold a shared lock on it for the life of this process, so
+    that no other process prunes or clears it while this one may still write machine code there (a long-running
+    process: a dask worker, a notebook, a test run). Returns whether the lock is held (never where ``fcntl`` is
+    missing, e.g. Windows: there only recency protects the folder)."""
+    global _held
+    try:
+        import fcntl
+    except ImportError:
+        return False
+    for _ in range(3):  # a pruner may remove the folder between our mkdir and our lock: then again
+        try:
+            (root / current).mkdir(parents=True, exist_ok=True)
+            handle = open(root / current / IN_USE, "a")
+        except OSError:
+            continue
+        fcntl.flock(handle, fcntl.LOCK_SH)
+        if os.fstat(handle.fileno()).st_nlink > 0:  # not removed while we waited for the lock
+            _held = handle
+            return True
+        handle.close()
+    return False
+
+
+def _remove_code_version(folder: str) -> int | None:
+    """Remove one code version's folder unless a live process holds it (:func:`hold_code_version`); its size
+    [bytes], or None when it is in use."""
+    try:
+        import fcntl
+    except ImportError:
+        fcntl = None
+    handle = None
+    if fcntl is not None:
+        try:
+            handle = open(os.path.join(folder, IN_USE), "a")
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.close()
+            return None
+        except OSError:
+            handle = None
+    try:
+        size = _folder_size(folder)[1]
+        shutil.rmtree(folder, ignore_errors=True)
+        return size if not os.path.exists(folder) else 0
+    finally:
+        if handle is not None:
+            handle.close()
+
+
 def prune_code_versions(root: Path, current: str, keep: int = CODE_VERSIONS) -> list[str]:
-    """Remove the numba cache folders under ``root`` but the ``keep`` most recently used, ``current`` always among them.
+    """Remove the numba cache folders under ``root`` but the ``keep`` most recently used, ``current`` always among
+    them, and any folder that a live process holds (:func:`hold_code_version`).
 
     Each folder holds the machine code of one version of swim's numba modules
-    (:func:`swim.rt.march_cpu.numba_sources_digest`); ``current`` is marked used first. Returns the removed folders'
-    names."""
+    (:func:`swim.rt.march_cpu.numba_sources_digest`, 16 hex digits; other folders are left alone); ``current`` is
+    marked used first. Returns the removed folders' names."""
     mark_used(root / current)
-    try:
-        folders = [item for item in os.scandir(root) if item.is_dir(follow_symlinks=False)]
-    except OSError:
-        return []
+    folders = _own_entries("numba", root)
+
     def used(item):
         try:
             return item.stat().st_mtime
         except OSError:
             return 0.0
+
     ranked = sorted((item for item in folders if item.name != current), key=used, reverse=True)
-    removed = []
-    for item in ranked[max(keep - 1, 0):]:
-        shutil.rmtree(item.path, ignore_errors=True)
-        removed.append(item.name)
+    removed = [item.name for item in ranked[max(keep - 1, 0):] if _remove_code_version(item.path) is not None]
     if removed:
         log.info("numba cache: removed %d folders of older code versions", len(removed))
     return removed
 
 
-def _folder_size(folder: Path) -> tuple[int, int]:
+def _own_entries(kind: str, folder: Path) -> list[os.DirEntry]:
+    """The entries of ``folder`` that the cache ``kind`` wrote: its files by their endings, or numba's code-version
+    folders by their names; never links."""
+    try:
+        items = list(os.scandir(folder))
+    except OSError:
+        return []
+    if kind == "numba":
+        return [item for item in items if _CODE_VERSION.fullmatch(item.name) and item.is_dir(follow_symlinks=False)]
+    return [item for item in items if item.name.endswith(_OWN_FILES[kind]) and item.is_file(follow_symlinks=False)]
+
+
+def _folder_size(folder) -> tuple[int, int]:
     files = size = 0
     for path, _, names in os.walk(folder):
         for name in names:
@@ -171,16 +242,33 @@ def _folder_size(folder: Path) -> tuple[int, int]:
     return files, size
 
 
+def _entry_size(kind: str, item: os.DirEntry) -> tuple[int, int]:
+    if kind == "numba":
+        return _folder_size(item.path)
+    try:
+        return 1, item.stat(follow_symlinks=False).st_size
+    except OSError:
+        return 0, 0
+
+
 def cache_usage() -> list[CacheUsage]:
-    """Each of :data:`KINDS`'s folders, files, size [bytes] and budget (missing folders have 0 files)."""
+    """Each of :data:`KINDS`'s folder, the number of files swim wrote there, their size [bytes] and the cache's
+    budget (missing folders: 0 files)."""
     limit = max_bytes()
-    return [CacheUsage(kind, cache_directory(kind), *_folder_size(cache_directory(kind)),
-                       None if kind == "numba" else limit) for kind in KINDS]
+    usage = []
+    for kind in KINDS:
+        folder = cache_directory(kind)
+        sizes = [_entry_size(kind, item) for item in _own_entries(kind, folder)]
+        usage.append(CacheUsage(kind, folder, sum(n for n, _ in sizes), sum(b for _, b in sizes),
+                                None if kind == "numba" else limit))
+    return usage
 
 
 def clear_caches(kinds=KINDS) -> int:
-    """Empty the caches ``kinds`` (a subset of :data:`KINDS`); returns the bytes removed. A process that is rendering
-    meanwhile only loses time: it builds or compiles again what it does not find.
+    """Remove what the caches ``kinds`` (a subset of :data:`KINDS`) wrote: their entries' files, and numba's
+    code-version folders except those that a live process holds (:func:`hold_code_version`). Other files in the
+    folders are left alone. Returns the bytes removed. A process that is rendering meanwhile only loses time: it
+    builds or compiles again what it does not find.
 
     Raises
     ------
@@ -192,7 +280,9 @@ def clear_caches(kinds=KINDS) -> int:
         raise SwimInputError(f"unknown cache kind(s) {unknown}; expected some of {list(KINDS)}")
     removed = 0
     for kind in kinds:
-        folder = cache_directory(kind)
-        removed += _folder_size(folder)[1]
-        shutil.rmtree(folder, ignore_errors=True)
+        for item in _own_entries(kind, cache_directory(kind)):
+            if kind == "numba":
+                removed += _remove_code_version(item.path) or 0
+            else:
+                removed += _remove(Path(item.path))
     return removed

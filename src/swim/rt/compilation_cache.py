@@ -151,44 +151,68 @@ def enable_compilation_cache() -> Path | None:
 
 
 def _bound_jax_cache(jax) -> None:
-    """JAX's own least-recently-used eviction at :func:`swim.rt.cache_budget.max_bytes` (it needs ``filelock``); a
-    size the user has set is kept, and a bad ``SWIM_CACHE_MAX_MB`` leaves the cache unbounded with a warning (this
-    runs at import, where an exception would stop every command)."""
+    """JAX's own least-recently-used eviction at :func:`swim.rt.cache_budget.max_bytes` (it needs ``filelock``).
+
+    A size the user has set (``JAX_COMPILATION_CACHE_MAX_SIZE`` or the config) is kept, and a bad
+    ``SWIM_CACHE_MAX_MB`` leaves the cache unbounded with a warning (this runs at import, where an exception would
+    stop every command). The cache also stays unbounded where this JAX's eviction is not the one
+    :func:`_backfill_before_eviction` knows."""
     from ..errors import SwimInputError
     from .cache_budget import max_bytes
 
-    if jax.config.jax_compilation_cache_max_size != -1:
+    if "JAX_COMPILATION_CACHE_MAX_SIZE" in os.environ or jax.config.jax_compilation_cache_max_size != -1:
         return
     try:
         import filelock  # noqa: F401  (JAX's LRU cache locks its folder with it)
+        from jax._src import lru_cache
 
         limit = max_bytes()
-        _backfill_access_times(Path(jax.config.jax_compilation_cache_dir))
-        jax.config.update("jax_compilation_cache_max_size", limit)
-    except ImportError:
-        log.info("JAX's compilation cache is unbounded: the filelock package is missing")
+    except ImportError as err:
+        log.info("JAX's compilation cache is unbounded (%s)", err)
+        return
     except SwimInputError as err:
         log.warning("%s: JAX's compilation cache is left unbounded", err)
+        return
+    if _backfill_before_eviction(lru_cache):
+        jax.config.update("jax_compilation_cache_max_size", limit)
+    else:
+        log.info("JAX's compilation cache is unbounded: this JAX's eviction is not the one swim knows")
+
+
+def _backfill_before_eviction(lru_cache) -> bool:
+    """Make JAX's eviction (``LRUCache._evict_if_needed``, run under its folder lock at every new entry) first give
+    each entry the access-time file it reads (``<key>-atime``); returns whether it could.
+
+    JAX writes that file only while eviction is on. Entries written without it (before eviction was on, by an older
+    swim, or by a process with another setting) made the eviction fail with FileNotFoundError at every new
+    compilation, so that nothing new was cached. A missing time is taken from the entry's modification time."""
+    cls = getattr(lru_cache, "LRUCache", None)
+    original = getattr(cls, "_evict_if_needed", None)
+    if original is None:
+        return False
+    if getattr(original, "_swim_backfills", False):
+        return True
+
+    def evict_if_needed(self, *args, **kwargs):
+        _backfill_access_times(Path(str(self.path)))
+        return original(self, *args, **kwargs)
+
+    evict_if_needed._swim_backfills = True
+    cls._evict_if_needed = evict_if_needed
+    return True
 
 
 def _backfill_access_times(folder: Path) -> None:
-    """Give every entry of JAX's cache folder the access-time file that JAX's eviction reads (``<key>-atime``).
-
-    JAX writes it only while eviction is on; entries written before (by an older swim, or with eviction off) lack it,
-    and JAX's eviction then fails on them with FileNotFoundError at every new compilation. A missing time is taken
-    from the entry's modification time. The folder is scanned again only after entries were added (its modification
-    time is later than the marker's)."""
-    marker = folder / ".swim-atime-backfill"
+    """The ``<key>-atime`` file of every ``<key>-cache`` entry in ``folder`` that lacks one (see
+    :func:`_backfill_before_eviction`); entries that vanish meanwhile are skipped."""
     try:
-        if marker.exists() and marker.stat().st_mtime_ns >= folder.stat().st_mtime_ns:
-            return
         names = set(os.listdir(folder))
-        for name in names:
-            if name.endswith("-cache") and name[:-len("-cache")] + "-atime" not in names:
-                stamp = (folder / name).stat().st_mtime_ns
+    except OSError:
+        return
+    for name in names:
+        if name.endswith("-cache") and name[:-len("-cache")] + "-atime" not in names:
+            try:
+                stamp = os.stat(folder / name).st_mtime_ns
                 (folder / (name[:-len("-cache")] + "-atime")).write_bytes(stamp.to_bytes(8, "little"))
-        marker.touch()
-        os.utime(marker)  # later than the folder's own time, which creating the marker set
-    except OSError as err:
-        log.info("JAX cache %s: access times not backfilled (%s)", folder, err)
-
+            except OSError:
+                pass

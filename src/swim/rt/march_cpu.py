@@ -34,7 +34,7 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .cache_budget import prune_code_versions
+from .cache_budget import hold_code_version, prune_code_versions
 from .compilation_cache import _disabled, cache_directory, serialise_numba_cache_writes
 
 
@@ -59,7 +59,9 @@ if _CACHE and not numba.config.CACHE_DIR:
     # numba's own staleness check by file time stamps)
     _digest = numba_sources_digest()
     numba.config.CACHE_DIR = str(cache_directory("numba") / _digest)
-    # each code version has its own folder: the oldest go, so that upgrades do not pile up machine code
+    # each code version has its own folder: this process holds its own, and the oldest of the others go, so that
+    # upgrades do not pile up machine code
+    hold_code_version(cache_directory("numba"), _digest)
     prune_code_versions(cache_directory("numba"), _digest)
 if _CACHE:
     serialise_numba_cache_writes()  # a helper process may compile beside this one (swim.rt.precompile)
