@@ -81,6 +81,38 @@ def test_no_helper_for_other_kernels_or_when_switched_off(monkeypatch):
     assert started == []
 
 
+@pytest.mark.parametrize("backend, platforms, plugin, expected", [
+    ("numba", "", False, ["numba"]), ("auto", "cpu", False, ["numba"]), ("auto", "", False, ["numba"]),
+    ("auto", "cuda", False, []), ("auto", "", True, []), ("jax", "cpu", False, []), ("cuda", "", False, [])])
+def test_the_command_starts_the_helper_early_only_for_the_numba_kernel(monkeypatch, backend, platforms, plugin,
+                                                                       expected):
+    """``swim render`` starts the helper before it imports JAX: "auto" only where JAX can see no GPU (no GPU
+    platform named, no JAX plugin installed); otherwise swim.pipeline.render decides once JAX is loaded."""
+    from importlib import metadata
+
+    started = []
+    monkeypatch.setattr(precompile, "start", lambda kind: started.append(kind) or True)
+    monkeypatch.setenv("JAX_PLATFORMS", platforms)
+    if plugin:
+        monkeypatch.setattr(metadata, "entry_points", lambda group: ["jax_cuda12_plugin"])
+    precompile.start_early(backend)
+    assert started == expected
+
+
+def test_the_helper_process_does_not_import_jax(tmp_path):
+    """It compiles numba kernels only; swim.rt's JAX cache set-up would cost ~0.4 s of its start."""
+    probe = "import sys, swim.rt.march_cpu, swim.rt.precompile; print('jax' in sys.modules)"
+    env = {**os.environ, "SWIM_CACHE_DIR": str(tmp_path)}
+    helper = subprocess.run([sys.executable, "-c", probe], env={**env, "SWIM_PRECOMPILE_HELPER": "1"},
+                            capture_output=True, text=True, check=True)
+    render = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
+    assert (helper.stdout.strip(), render.stdout.strip()) == ("False", "True")
+    from swim.rt import march_cpu
+
+    if march_cpu._CACHE:
+        assert precompile._helper_environment()["SWIM_PRECOMPILE_HELPER"] == "1"
+
+
 def test_a_failing_helper_is_logged_and_leaves_the_march_to_the_render(monkeypatch, caplog):
     monkeypatch.delenv("SWIM_PRECOMPILE", raising=False)
     monkeypatch.setattr(precompile, "WAITING_KERNELS", ())

@@ -146,6 +146,9 @@ def render(
                                             "series' frames (e.g. tcp://10.0.0.5:8786)."),
 ):
     """Render an all-sky, panorama or perspective image of a scene, or a time series of them (--end)."""
+    from ..rt import precompile
+
+    precompile.start_early(backend)  # on a cold numba cache: the march compiles in a helper while the rest loads
     from .. import default_scene, open_scene
     from ..pipeline import render as render_image, write_netcdf, write_png
     from ..rt.gas import AerosolBackground

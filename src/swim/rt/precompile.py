@@ -6,12 +6,14 @@ at once. The README's ``swim render`` on a new installation spent 24.7 s of its 
 march (:func:`swim.rt.march_cpu.march_rays`: numba's type inference of its step loop and ~50 helpers, then LLVM).
 
 A second process can compile at the same time. :func:`start`, called by :func:`swim.pipeline.render` before any
-work, finds the march missing from the disk cache and starts ``python -m swim.rt.precompile march_rays``, which
+work (and, through :func:`start_early`, by ``swim render`` before its other imports and the scene), finds the march
+missing from the disk cache and starts ``python -m swim.rt.precompile march_rays``, which
 compiles it into that cache with the argument types that the render will pass (:func:`kernel_signature`). The
 render meanwhile reads the scene, builds the optics and runs Step 1a. Its first chunk (:func:`wait`, from
 :func:`swim.rt.march._trace_chunk_numba`) compiles the per-ray set-up, which it calls first, and the composition
 kernels, which it would compile after the march, then waits for the helper and loads the march from the cache.
-Measured with the README's render and an empty cache: 23.9-24.0 s → 16.1-17.5 s (docs/performance.md, section 38).
+Measured with the README's render and an empty cache: 23.9-24.0 s → 16.1-17.5 s, and 14.9-15.7 s since the command
+starts the helper (docs/performance.md, section 38).
 
 The helper is only an optimisation. A kernel whose types differ from :func:`kernel_signature`'s is compiled by the
 render as before; a helper that fails, cannot start or takes longer than :data:`WAIT_S` leaves the march to the
@@ -158,6 +160,7 @@ def _helper_environment() -> dict:
 
     env = dict(os.environ)
     env["NUMBA_CACHE_DIR"] = str(march_cpu.numba.config.CACHE_DIR)
+    env["SWIM_PRECOMPILE_HELPER"] = "1"  # no JAX set-up in the helper (swim.rt's import; ~0.4 s of its start)
     root = str(Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
     return env
@@ -203,6 +206,30 @@ def start(backend: str) -> bool:
         _helper = (process, time.perf_counter(), errors)
         log.info("numba's cache lacks the march kernel: compiling it in a helper process (pid %d)", process.pid)
         return True
+
+
+def start_early(backend: str) -> bool:
+    """:func:`start` for a command that has not yet loaded the rest of swim or its scene (``swim render``): on a cold
+    cache the march kernel's helper starts ~2 s sooner. ``backend`` is the command's option; "auto" counts as
+    "numba" only where JAX can see no GPU (no GPU platform in ``JAX_PLATFORMS``, no JAX plugin installed), since
+    telling for sure would mean initialising JAX's backends first. :func:`swim.pipeline.render` starts the helper in
+    any case where it was not started here. Never raises."""
+    try:
+        if backend == "auto" and _jax_may_see_a_gpu():
+            return False
+        return start("numba") if backend in ("auto", "numba") else False
+    except Exception as error:  # only ever a head start
+        log.info("no early start of the helper process (%s)", error)
+        return False
+
+
+def _jax_may_see_a_gpu() -> bool:
+    platforms = os.environ.get("JAX_PLATFORMS", "").strip().lower()
+    if platforms:
+        return any(name in platforms for name in ("cuda", "gpu", "rocm", "tpu", "metal"))
+    from importlib import metadata, util
+
+    return bool(metadata.entry_points(group="jax_plugins")) or util.find_spec("jax_plugins") is not None
 
 
 def wait() -> None:
