@@ -58,6 +58,9 @@ def ghi(
                                             "clear flags and MBE/RMSE)."),
 ):
     """Broadband GHI, DNI and DHI [W m-2] over a period from small all-sky renders (docs/irradiance.md)."""
+    from ..rt import precompile
+
+    precompile.start_early("auto")  # on a cold numba cache: the march compiles in a helper while the rest loads
     import numpy as np
 
     from ..diagnostics.ghi import (aerosol_for_site, attach_observations, clear_site_scene, error_statistics,
