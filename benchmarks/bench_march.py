@@ -39,6 +39,7 @@ import argparse
 import importlib.util
 import inspect
 import json
+import re
 import statistics
 import sys
 import tempfile
@@ -96,7 +97,7 @@ def capture(scene_name, size, data):
 
 def load_variant(path):
     """``march_rays`` of a copy of march_cpu.py at ``path`` (relative imports made absolute, no disk cache)."""
-    source = Path(path).read_text().replace("from .compilation_cache import", "from swim.rt.compilation_cache import")
+    source = re.sub(r"^from \.(\w+) import", r"from swim.rt.\1 import", Path(path).read_text(), flags=re.MULTILINE)
     source = source.replace('_JIT = {"cache": _CACHE,', '_JIT = {"cache": False,')
     folder = Path(tempfile.mkdtemp(prefix="swim-march-variant-"))
     copy = folder / f"variant_{Path(path).stem}.py"
