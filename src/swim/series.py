@@ -122,34 +122,36 @@ def _output_paths(pattern, frames, what) -> list[Path | None]:
     return paths
 
 
-def _opened(path: str, lazy: bool):
+def _opened(path: str, opening: tuple):
     """A scene file opened once per process and version of the file (a worker's frames share it and its optical
     volume; a file rewritten under the same name, such as an hourly "latest" forecast, is opened again)."""
     try:
         stat = os.stat(path)
     except OSError:
         raise SwimInputError(f"scene file not found: {path}") from None
-    return _opened_version(path, lazy, stat.st_mtime_ns, stat.st_size)
+    return _opened_version(path, opening, stat.st_mtime_ns, stat.st_size)
 
 
 @functools.lru_cache(maxsize=2)
-def _opened_version(path: str, lazy: bool, mtime_ns: int, size: int):
-    return _open(path, lazy)
+def _opened_version(path: str, opening: tuple, mtime_ns: int, size: int):
+    return _open(path, opening)
 
 
-def _open(path: str, lazy: bool):
+def _open(path: str, opening: tuple):
+    """:func:`swim.open_scene` with ``opening`` = (lazy, the reader's options as sorted (name, value) pairs)."""
     from .io.scene import open_scene
 
-    return open_scene(path, lazy=lazy)
+    lazy, options = opening
+    return open_scene(path, lazy=lazy, **dict(options))
 
 
-def _render_frame(index, scene, lazy, kwargs, png, netcdf):
+def _render_frame(index, scene, opening, kwargs, png, netcdf):
     """One frame, in this process or on a dask worker: render, write, and return its row of the table."""
     from .pipeline import render, write_netcdf, write_png
 
     started = wall_clock.perf_counter()
     if isinstance(scene, (str, os.PathLike)):
-        scene = _opened(str(scene), lazy)
+        scene = _opened(str(scene), opening)
     image = render(scene, **kwargs)
     if png is not None:
         write_png(image, png)
@@ -169,7 +171,7 @@ def _frame_error(index, frame, err) -> SwimInputError:
 
 
 def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers: int | None = None, lazy: bool = False,
-                  progress=None, **render_kwargs) -> pd.DataFrame:
+                  open_options: dict | None = None, progress=None, **render_kwargs) -> pd.DataFrame:
     """Render many frames of one scene (or of a scene per frame) and write each to its own file.
 
     Parameters
@@ -197,6 +199,9 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
         ``if __name__ == "__main__":`` guard.
     lazy : bool
         Open scene files lazily (canonical netCDF only; :func:`swim.open_scene`).
+    open_options : dict, optional
+        The reader's options for scene files (:func:`swim.open_scene`'s keywords, e.g. ``{"time": "2005-08-28T18:00"}``
+        for a WRF file of several times, ``reference_lat``/``reference_lon`` for an LES file); hashable values.
     progress : callable, optional
         Called with (frames done, frames total) after each frame.
     **render_kwargs
@@ -240,6 +245,12 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
         raise SwimInputError(f"workers must be a number of processes >= 0; got {workers!r}")
     if workers and client is not None:
         raise SwimInputError("give either client (a running cluster) or workers (a local one), not both")
+    try:
+        opening = (bool(lazy), tuple(sorted((open_options or {}).items())))
+        hash(opening)
+    except (AttributeError, TypeError):
+        raise SwimInputError(f"open_options must be a dict of swim.open_scene keywords with plain values; got "
+                             f"{open_options!r}") from None
     jobs = []
     for i, frame in enumerate(merged):
         kwargs = {k: v for k, v in frame.items() if k != "scene"}
@@ -248,17 +259,17 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
             given = Path(given).absolute()  # as the output paths: the same file on every worker
         jobs.append((i, given, kwargs, pngs[i], ncs[i]))
     if client is None and workers:
-        return _on_local_cluster(jobs, frames, workers, lazy, progress)
+        return _on_local_cluster(jobs, frames, workers, opening, progress)
     if client is None:
-        return _in_this_process(jobs, frames, lazy, progress)
-    return _on_cluster(client, jobs, frames, lazy, progress)
+        return _in_this_process(jobs, frames, opening, progress)
+    return _on_cluster(client, jobs, frames, opening, progress)
 
 
 def _table(rows) -> pd.DataFrame:
     return pd.DataFrame(rows).set_index("index").sort_index().loc[:, list(COLUMNS)]
 
 
-def _in_this_process(jobs, frames, lazy, progress):
+def _in_this_process(jobs, frames, opening, progress):
     rows = []
     opened = (None, None)  # the last scene file and its scene: held for the series only, not after it
     for i, given, kwargs, png, nc in jobs:
@@ -266,9 +277,9 @@ def _in_this_process(jobs, frames, lazy, progress):
             if isinstance(given, (str, os.PathLike)):
                 if opened[0] != str(given):
                     opened = (None, None)  # the previous scene goes before the next is read
-                    opened = (str(given), _open(str(given), lazy))
+                    opened = (str(given), _open(str(given), opening))
                 given = opened[1]
-            rows.append(_render_frame(i, given, lazy, kwargs, png, nc))
+            rows.append(_render_frame(i, given, opening, kwargs, png, nc))
         except SwimInputError as err:
             raise _frame_error(i, frames[i], err) from None
         log.info("frame %d of %d in %.2f s", i + 1, len(jobs), rows[-1]["seconds"])
@@ -277,7 +288,7 @@ def _in_this_process(jobs, frames, lazy, progress):
     return _table(rows)
 
 
-def _on_cluster(client, jobs, frames, lazy, progress):
+def _on_cluster(client, jobs, frames, opening, progress):
     from dask.distributed import as_completed
 
     remote = {}  # in-memory scenes, sent to every worker once each
@@ -291,7 +302,7 @@ def _on_cluster(client, jobs, frames, lazy, progress):
                 given = remote[id(given)]
             else:
                 given = str(given)
-            futures[client.submit(_render_frame, i, given, lazy, kwargs, png, nc, pure=False)] = i
+            futures[client.submit(_render_frame, i, given, opening, kwargs, png, nc, pure=False)] = i
         for future in as_completed(futures):
             i = futures[future]
             try:
@@ -337,8 +348,8 @@ def local_cluster(workers: int):
                         dashboard_address=None, env={"SWIM_NUM_THREADS": str(per_worker)})
 
 
-def _on_local_cluster(jobs, frames, workers, lazy, progress):
+def _on_local_cluster(jobs, frames, workers, opening, progress):
     from dask.distributed import Client
 
     with local_cluster(workers) as cluster, Client(cluster) as client:
-        return _on_cluster(client, jobs, frames, lazy, progress)
+        return _on_cluster(client, jobs, frames, opening, progress)

@@ -86,14 +86,14 @@ def test_a_worker_opens_a_rewritten_scene_file_again(scene, tmp_path):
 
     path = tmp_path / "latest.nc"
     scene.to_netcdf(path)
-    first = _opened(str(path), False)
-    assert _opened(str(path), False) is first, "the same file is opened once"
+    first = _opened(str(path), (False, ()))
+    assert _opened(str(path), (False, ())) is first, "the same file is opened once"
     scene.assign_attrs(title="the next hour").to_netcdf(path)
     later = os.stat(path).st_mtime_ns + 10**9
     os.utime(path, ns=(later, later))
-    assert _opened(str(path), False).attrs["title"] == "the next hour"
+    assert _opened(str(path), (False, ())).attrs["title"] == "the next hour"
     with pytest.raises(SwimInputError, match="scene file not found"):
-        _opened(str(tmp_path / "missing.nc"), False)
+        _opened(str(tmp_path / "missing.nc"), (False, ()))
 
 
 def test_bad_series_fail_before_any_frame(scene, tmp_path):
@@ -151,10 +151,17 @@ def test_a_dask_cluster_renders_the_same_frames(scene, tmp_path):
         done = []
         table = render_series(scene, times, out=tmp_path / "b" / "{index}.png", client=client, camera_options=SIZE,
                               progress=lambda n, total: done.append((n, total)))
+        path = tmp_path / "scene.nc"
+        scene.to_netcdf(path)
+        from_file = render_series(path, times, out=tmp_path / "c" / "{index}.png", client=client, camera_options=SIZE,
+                                  open_options={"time": "2023-06-21T18:00"})  # the workers open the file
     assert done[-1] == (3, 3)
     assert list(table["time"]) == list(times)
-    for a, b in zip(alone["png"], table["png"]):
+    for a, b, c in zip(alone["png"], table["png"], from_file["png"]):
         np.testing.assert_array_equal(_pixels(a), _pixels(b))
+        np.testing.assert_array_equal(_pixels(a), _pixels(c))
+    with pytest.raises(SwimInputError, match="open_options must be a dict"):
+        render_series(path, times, out=tmp_path / "d" / "{index}.png", open_options={"time": ["not", "hashable"]})
 
 
 @pytest.mark.slow
@@ -191,3 +198,19 @@ def test_the_render_command_renders_a_series(tmp_path, monkeypatch):
     assert netcdf_only.exit_code == 0, netcdf_only.output
     assert sorted(p.name for p in (tmp_path / "nc").iterdir()) == ["0.nc", "1.nc"]
     assert not list(tmp_path.glob("*.png")), "no PNG unless --out is given"
+
+
+@pytest.mark.slow
+def test_the_render_command_on_worker_processes_opens_the_file_there(scene, tmp_path, monkeypatch):
+    from swim.cli.main import app
+
+    monkeypatch.chdir(tmp_path)
+    scene.to_netcdf("scene.nc")
+    args = ["render", "scene.nc", "--time", "2023-06-21T18:00", "--end", "2023-06-21T18:20", "--size", "31"]
+    runner = CliRunner()
+    alone = runner.invoke(app, [*args, "--out", "a/{index}.png"])
+    spread = runner.invoke(app, [*args, "--out", "b/{index}.png", "--workers", "2"])
+    assert alone.exit_code == 0 and spread.exit_code == 0, spread.output
+    for i in range(3):
+        np.testing.assert_array_equal(_pixels(tmp_path / "a" / f"{i}.png"), _pixels(tmp_path / "b" / f"{i}.png"))
+

@@ -212,7 +212,10 @@ def render(
             if sun_zenith is not None or sun_azimuth is not None:
                 raise SwimInputError("--sun-zenith/--sun-azimuth fix the sun: every frame of a series from --time to "
                                      "--end would be the same")
-            _render_series(ds, time, end, every, workers, scheduler, out, netcdf, common)
+            # a cluster's workers open a plain scene file themselves (no scene sent through the scheduler)
+            source = None if scene is None or albedo_image is not None else (
+                scene, {**({} if time is None else {"time": time}), **place}, lazy)
+            _render_series(ds, source, time, end, every, workers, scheduler, out, netcdf, common)
             return
         out = Path("swim.png") if out is None else out
         with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
@@ -230,8 +233,10 @@ def render(
                   + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
 
 
-def _render_series(scene, start, end, every, workers, scheduler, out, netcdf, common):
-    """``swim render --end``: the frames from ``start`` to ``end`` (:func:`swim.series.render_series`)."""
+def _render_series(scene, source, start, end, every, workers, scheduler, out, netcdf, common):
+    """``swim render --end``: the frames from ``start`` to ``end`` (:func:`swim.series.render_series`). ``scene`` is the
+    opened scene; ``source`` (path, reader options, lazy) the file it came from, which the workers of a cluster open
+    themselves, or None."""
     import pandas as pd
 
     from ..series import render_series, series_times
@@ -268,8 +273,12 @@ def _render_series(scene, start, end, every, workers, scheduler, out, netcdf, co
         with Progress(TextColumn("[bold]frames"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f}"),
                       TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
             task = bar.add_task("frames", total=len(times))
-            table = render_series(scene, times, out=out, netcdf=netcdf, client=client, workers=workers or None,
-                                  progress=lambda done, total: bar.update(task, completed=done), **common)
+            given, opening = scene, {}
+            if (client is not None or workers) and source is not None:
+                given, options, lazy = source
+                opening = {"open_options": options, "lazy": lazy}
+            table = render_series(given, times, out=out, netcdf=netcdf, client=client, workers=workers or None,
+                                  progress=lambda done, total: bar.update(task, completed=done), **opening, **common)
     finally:
         if client is not None:
             client.close()
