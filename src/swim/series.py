@@ -77,13 +77,7 @@ def _frame_list(frames) -> list[dict]:
     out = []
     for i, frame in enumerate(frames):
         if isinstance(frame, dict):
-            frame = dict(frame)
-            if frame.get("time") is not None:
-                try:
-                    frame["time"] = _utc(frame["time"])
-                except (TypeError, ValueError):
-                    raise SwimInputError(f"frame {i}: time {frame['time']!r} is not an ISO 8601 UTC time") from None
-            out.append(frame)
+            out.append(dict(frame))
         elif isinstance(frame, (numbers.Number, bool)):  # pandas would read a number as nanoseconds since 1970
             raise SwimInputError(f"frame {i}: {frame!r} is neither a time nor a dict of swim.render arguments")
         else:
@@ -229,6 +223,12 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
     if out is None and netcdf is None:
         raise SwimInputError("render_series needs out (a PNG path pattern) or netcdf: the frames would be lost")
     merged = [{**render_kwargs, **frame} for frame in frames]
+    for i, frame in enumerate(merged):  # a frame's own time or the common one: UTC, for the file names and the table
+        if frame.get("time") is not None:
+            try:
+                frame["time"] = _utc(frame["time"])
+            except (TypeError, ValueError):
+                raise SwimInputError(f"frame {i}: time {frame['time']!r} is not an ISO 8601 UTC time") from None
     pngs = _output_paths(out, merged, "out")
     ncs = _output_paths(netcdf, merged, "netcdf")
     both = set(pngs) & set(ncs) - {None}
@@ -236,11 +236,6 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
         raise SwimInputError(f"out and netcdf name the same file {sorted(both)[0]}")
     if scene is None and any("scene" not in f for f in frames):
         raise SwimInputError("render_series: no scene for the frames without their own 'scene'")
-    for i, frame in enumerate(frames):
-        given = frame.get("scene", scene)
-        if not isinstance(given, (xr.Dataset, str, os.PathLike)):
-            raise SwimInputError(f"frame {i}: the scene must be an xarray.Dataset or a scene file path; got "
-                                 f"{type(given).__name__}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
         raise SwimInputError(f"workers must be a number of processes >= 0; got {workers!r}")
     if workers and client is not None:
@@ -257,12 +252,15 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
         given = frame.get("scene", scene)
         if isinstance(given, (str, os.PathLike)):
             given = Path(given).absolute()  # as the output paths: the same file on every worker
+        elif not isinstance(given, xr.Dataset):
+            raise SwimInputError(f"frame {i}: the scene must be an xarray.Dataset or a scene file path; got "
+                                 f"{type(given).__name__}")
         jobs.append((i, given, kwargs, pngs[i], ncs[i]))
     if client is None and workers:
-        return _on_local_cluster(jobs, frames, workers, opening, progress)
+        return _on_local_cluster(jobs, merged, workers, opening, progress)
     if client is None:
-        return _in_this_process(jobs, frames, opening, progress)
-    return _on_cluster(client, jobs, frames, opening, progress)
+        return _in_this_process(jobs, merged, opening, progress)
+    return _on_cluster(client, jobs, merged, opening, progress)
 
 
 def _table(rows) -> pd.DataFrame:

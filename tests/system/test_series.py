@@ -70,6 +70,11 @@ def test_frames_as_sites_and_a_scene_file_per_frame(scene, tmp_path):
               {"lat": LAT + 0.02, "lon": LON, "time": "2023-06-21T18:00", "scene": path}]
     table = render_series(scene, frames, out=tmp_path / "{lat:.2f}_{lon:.2f}.png", camera_options=SIZE)
     assert [p.rsplit("/", 1)[1] for p in table["png"]] == ["40.00_-105.30.png", "40.02_-105.30.png"]
+    # a time common to all frames names the files as a frame's own does (converted to UTC)
+    common = render_series(scene, [{"lat": LAT}, {"lat": LAT + 0.02}], time="2023-06-21T12:00-06:00",
+                           out=tmp_path / "c" / "{time:%H%M}_{index}.png", camera_options=SIZE)
+    assert [p.rsplit("/", 1)[1] for p in common["png"]] == ["1800_0.png", "1800_1.png"]
+    np.testing.assert_array_equal(_pixels(common["png"][0]), _pixels(table["png"][0]))
     np.testing.assert_array_equal(_pixels(table["png"][0]),
                                   swim.render(scene, time="2023-06-21T18:00", camera_options=SIZE)["rgb"].values)
     moved = swim.render(swim.open_scene(path), time="2023-06-21T18:00", lat=LAT + 0.02, lon=LON, camera_options=SIZE)
