@@ -36,15 +36,11 @@ def cache(
             removed = clear_caches(kinds)
             console.print(f"removed {removed / 2**20:.1f} MB from the {', '.join(kinds)} cache(s)")
             return
-        unknown = sorted(set(kinds) - set(KINDS))
-        if unknown:
-            raise SwimInputError(f"unknown cache kind(s) {unknown}; expected some of {list(KINDS)}")
         table = Table("cache", "folder", "files", "size [MB]", "budget [MB]")
-        for usage in cache_usage():
-            if usage.kind in kinds:
-                budget = f"{CODE_VERSIONS} code versions" if usage.max_bytes is None else f"{usage.max_bytes / 2**20:.0f}"
-                table.add_row(usage.kind, escape(str(usage.path)), str(usage.files), f"{usage.size_bytes / 2**20:.1f}",
-                              budget)
+        for usage in cache_usage(kinds):
+            budget = f"{CODE_VERSIONS} code versions" if usage.max_bytes is None else f"{usage.max_bytes / 2**20:.0f}"
+            table.add_row(usage.kind, escape(str(usage.path)), str(usage.files), f"{usage.size_bytes / 2**20:.1f}",
+                          budget)
         Console().print(table)
     except SwimInputError as exc:
         console.print(f"[red]error:[/red] {escape(str(exc))}")

@@ -251,12 +251,26 @@ def _entry_size(kind: str, item: os.DirEntry) -> tuple[int, int]:
         return 0, 0
 
 
-def cache_usage() -> list[CacheUsage]:
-    """Each of :data:`KINDS`'s folder, the number of files swim wrote there, their size [bytes] and the cache's
-    budget (missing folders: 0 files)."""
+def _known(kinds) -> tuple:
+    unknown = sorted(set(kinds) - set(KINDS))
+    if unknown:
+        raise SwimInputError(f"unknown cache kind(s) {unknown}; expected some of {list(KINDS)}")
+    return tuple(kind for kind in KINDS if kind in kinds)
+
+
+def cache_usage(kinds=KINDS) -> list[CacheUsage]:
+    """Each of the caches ``kinds``' (a subset of :data:`KINDS`, listed in its order) folder, the number of files
+    swim wrote there, their size [bytes] and the cache's budget (missing folders: 0 files).
+
+    Raises
+    ------
+    SwimInputError
+        If a kind is not one of :data:`KINDS`, or ``SWIM_CACHE_MAX_MB`` is bad (:func:`max_bytes`).
+    """
+    kinds = _known(kinds)
     limit = max_bytes()
     usage = []
-    for kind in KINDS:
+    for kind in kinds:
         folder = cache_directory(kind)
         sizes = [_entry_size(kind, item) for item in _own_entries(kind, folder)]
         usage.append(CacheUsage(kind, folder, sum(n for n, _ in sizes), sum(b for _, b in sizes),
@@ -275,11 +289,8 @@ def clear_caches(kinds=KINDS) -> int:
     SwimInputError
         If a kind is not one of :data:`KINDS`.
     """
-    unknown = sorted(set(kinds) - set(KINDS))
-    if unknown:
-        raise SwimInputError(f"unknown cache kind(s) {unknown}; expected some of {list(KINDS)}")
     removed = 0
-    for kind in kinds:
+    for kind in _known(kinds):
         for item in _own_entries(kind, cache_directory(kind)):
             if kind == "numba":
                 removed += _remove_code_version(item.path) or 0

@@ -57,12 +57,12 @@ if _CACHE and not numba.config.CACHE_DIR:
     # numba caches compiled functions beside the source by default, which an installed package may not allow;
     # the setting is read when each function below is decorated (a user's NUMBA_CACHE_DIR is kept, and with it
     # numba's own staleness check by file time stamps)
-    _digest = numba_sources_digest()
-    numba.config.CACHE_DIR = str(cache_directory("numba") / _digest)
+    _digest, _versions = numba_sources_digest(), cache_directory("numba")
+    numba.config.CACHE_DIR = str(_versions / _digest)
     # each code version has its own folder: this process holds its own, and the oldest of the others go, so that
     # upgrades do not pile up machine code
-    hold_code_version(cache_directory("numba"), _digest)
-    prune_code_versions(cache_directory("numba"), _digest)
+    hold_code_version(_versions, _digest)
+    prune_code_versions(_versions, _digest)
 if _CACHE:
     serialise_numba_cache_writes()  # a helper process may compile beside this one (swim.rt.precompile)
 
