@@ -17,7 +17,7 @@ from swim.constants import EARTH_RADIUS_M, SPECIES
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
-from swim.rt import compose_cpu, ground_cpu
+from swim.rt import compose_cpu, ground_cpu, march_cpu
 from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
 from swim.rt.march import (
     MarchSettings,
@@ -64,8 +64,9 @@ def numba_radiance(pts, model):
     g = ground_cpu.ground_tables()
     n = len(pts["up"])
     out = np.empty((n, 3))
+    surface_radiance = march_cpu.callable_from_python(ground_cpu.surface_radiance)
     for r in range(n):
-        ground_cpu.surface_radiance(
+        surface_radiance(
             pts["up"][r], pts["view"][r], pts["sun"][r], pts["slope"][r, 0], pts["slope"][r, 1], pts["albedo"][r],
             pts["land_fraction"][r], pts["snow_cover"][r], pts["wind_speed"][r], pts["direct"][r], pts["diffuse"][r],
             model == "lambertian", g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"],

@@ -157,6 +157,7 @@ def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
 
     dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.8, 0.3, 0.52], [0.0, 0.0, -1.0], [0.1, 0.0, -0.995]]
     heights = [10.0, 10.0, 10.0, 9000.0, 9000.0]
+    adaptive_edges = march_cpu.callable_from_python(march_cpu._adaptive_edges)
     for cloud in (False, True):
         consts, args = _rays(_scene(cloud=cloud), dirs, heights)
         start, direction, s0, length = (np.asarray(a, float) for a in args)
@@ -176,7 +177,7 @@ def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
                         continue
                     out, cdf = np.empty(65), np.empty(MAX_PROBES + 1)
                     probe_at = np.empty((6, march_cpu.PROBE_BLOCK))  # a block of probes' indices (_probe_indices)
-                    n = march_cpu._adaptive_edges(*start[r], *direction[r], s0[r], length[r], 64, p, coef, occupancy,
+                    n = adaptive_edges(*start[r], *direction[r], s0[r], length[r], 64, p, coef, occupancy,
                                                   n_probe, EMPTY_STEP_WEIGHT, spacing, CELL_SLACK, empty_steps,
                                                   EMPTY_CELLS_PER_STEP, cdf, out, probe_at)
                     assert n == steps[r], (cloud, n_probe, empty_steps, r)

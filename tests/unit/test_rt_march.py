@@ -837,9 +837,10 @@ def test_numba_clear_air_steps_match_the_jax_ones():
                                            jnp.asarray(bounds[:, 1], jnp.float32),
                                            jnp.asarray(bounds[:, 2] - bounds[:, 1], jnp.float32), 24, consts))
     p, coef = march_cpu.pack_parameters(consts)
+    clear_edges = march_cpu.callable_from_python(march_cpu._clear_edges)
     for r in range(len(dirs)):
         cdf, edges = np.empty(CLEAR_PROBES + 1), np.empty(25)
-        march_cpu._clear_edges(*start[r], *dirs[r], bounds[r, 1], bounds[r, 2] - bounds[r, 1], 24, p, coef,
+        clear_edges(*start[r], *dirs[r], bounds[r, 1], bounds[r, 2] - bounds[r, 1], 24, p, coef,
                                np.asarray(consts["beta_gas"]), np.asarray(consts["beta_gas_spectra"]), CLEAR_PROBES,
                                CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, cdf, edges)
         np.testing.assert_allclose(edges, expected[:, r], rtol=0, atol=1e-4 * (bounds[r, 2] - bounds[r, 1]))

@@ -24,7 +24,7 @@ def test_step_accumulates_the_exact_mean_transmittance(x):
     tau_clear, t0 = 0.4, 0.3
     t_obs = math.exp(-(tau_clear + t0))
     source, irradiance, weight = 2.0, 3.0, 0.125
-    out = march_cpu._accumulate(tau_clear, t_obs, 0.0, 0.0, 0.0, beta_clear, source, irradiance, beta_h, ds, weight,
+    out = march_cpu.callable_from_python(march_cpu._accumulate)(tau_clear, t_obs, 0.0, 0.0, 0.0, beta_clear, source, irradiance, beta_h, ds, weight,
                                 math.exp(t0))
     mean = -math.expm1(-x) / x if x > 0 else 1.0
     assert out[0] == pytest.approx(tau_clear + beta_clear * ds, rel=1e-15)
@@ -43,10 +43,32 @@ def test_corner_prefetch_reads_nothing_and_compiles_to_cache_hints():
                                  [0.0, 3.0, 2.2, 1.0, 4.5, 1.0],
                                  [0.0, 4.0, 0.7, 1.0, 1.0, 1.0]])
     before = volume.copy()
-    march_cpu._prefetch_corners(volume, 6, step_at)
+    march_cpu.callable_from_python(march_cpu._prefetch_corners)(volume, 6, step_at)
     assert np.array_equal(volume, before)
     if platform.machine().lower() in ("x86_64", "amd64"):
         # compiled here (a function loaded from numba's disk cache keeps no assembly to inspect)
         fresh = numba.njit(cache=False)(march_cpu._prefetch_corners.py_func)
         fresh(volume, 6, step_at)
         assert "prefetcht0" in fresh.inspect_asm(fresh.signatures[0])
+
+
+def test_only_the_kernels_that_python_calls_have_python_wrappers():
+    """Every compiled function of the CPU kernels' modules that Python does not call is compiled without numba's
+    CPython and C wrappers (an empty cache compiles the march ~17 % faster, docs/performance.md section 40), and
+    the kernels that the render calls keep theirs; a helper stays callable through ``callable_from_python``."""
+    from swim.rt import compose_cpu, ground_cpu, solar_cpu
+
+    kernels = {"march_rays", "prepare_rays", "compose_clouds", "ground_radiance", "_direct_rows", "_add_above"}
+    seen = set()
+    for module in (march_cpu, compose_cpu, ground_cpu, solar_cpu):
+        for name, value in vars(module).items():
+            if not isinstance(value, numba.core.registry.CPUDispatcher) or value.py_func.__module__ != module.__name__:
+                continue
+            seen.add(name)
+            wrapped = not value.targetoptions.get("no_cpython_wrapper", False)
+            assert wrapped == (name in kernels), (module.__name__, name)
+    assert kernels <= seen
+    assert len(seen) > 40
+    assert march_cpu.callable_from_python(march_cpu._clip)(3.0, 0.0, 1.0) == 1.0
+    with pytest.raises(TypeError, match="callable_from_python"):  # not a crash of the interpreter
+        march_cpu._clip(3.0, 0.0, 1.0)

@@ -23,6 +23,7 @@ Eq. 12 for the hydrometeor integral); it computes in float64 from the float32 ta
 from __future__ import annotations
 
 import hashlib
+import inspect
 import math
 from pathlib import Path
 
@@ -32,6 +33,7 @@ import numba
 from llvmlite import ir
 from numba import njit, types
 from numba.core import cgutils
+from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
 from .cache_budget import hold_code_version, prune_code_versions
@@ -69,7 +71,58 @@ if _CACHE:
 #: LLVM fast-math flags that keep NaN and infinity semantics (the index map's box may be infinite): contraction
 #: into FMAs, reassociation, reciprocals and approximate functions; 14 % faster, differences ~1e-7 relative.
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc", "afn"}
-_JIT = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
+#: The kernels that Python calls (march_rays, prepare_rays, compose_clouds, ground_radiance, Step 1a's sweep).
+_JIT_KERNEL = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
+#: The functions that only compiled code calls (:func:`_helper_jit`): without the CPython and C wrappers that numba
+#: would otherwise compile (and cache) for each of them, an empty cache compiles the march and its set-up ~2.5 s
+#: (17 %) faster (docs/performance.md, section 40).
+_JIT = {**_JIT_KERNEL, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+
+
+class _CompiledOnlyDispatcher(CPUDispatcher):
+    """A function compiled without numba's Python wrapper (:func:`_helper_jit`). Called from Python, numba would
+    enter the wrapper that was never compiled and crash the interpreter; this raises instead."""
+
+    def __call__(self, *args, **kwargs):
+        raise TypeError(f"swim.rt: {self.py_func.__name__} is compiled for compiled callers only (no Python wrapper); "
+                        "call it through swim.rt.march_cpu.callable_from_python")
+
+
+def _helper_jit(**options):
+    """``numba.njit`` for the kernels' helpers, which only compiled code calls: :data:`_JIT`'s options (no Python or
+    C wrapper) and ``options`` (e.g. ``inline="always"``); a call from Python raises TypeError."""
+
+    def decorate(function):
+        dispatcher = njit(**_JIT, **options)(function)
+        if isinstance(dispatcher, CPUDispatcher):  # not so under NUMBA_DISABLE_JIT=1: the plain function
+            dispatcher.__class__ = _CompiledOnlyDispatcher
+        return dispatcher
+
+    return decorate
+
+
+def callable_from_python(function):
+    """A helper of the kernels compiled without a Python wrapper (:func:`_helper_jit`), made callable from Python
+    (tests, debugging): a jitted shim, compiled once per argument types, that calls it.
+
+    Parameters
+    ----------
+    function : numba dispatcher
+        E.g. ``march_cpu._adaptive_edges``.
+
+    Returns
+    -------
+    callable
+        Takes ``function``'s arguments, returns its result.
+    """
+    if not isinstance(function, CPUDispatcher):  # NUMBA_DISABLE_JIT=1: a plain function
+        return function
+    # parameters by name: numba inlines ``inline="always"`` functions into the shim and refuses ``*args`` there
+    names = ", ".join(inspect.signature(function.py_func).parameters)
+    namespace = {"function": function}
+    exec(f"def call({names}):\n    return function({names})\n", namespace)
+    return njit(cache=False)(namespace["call"])
+
 
 #: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
 _P_RADIUS, _P_SUN, _P_ZBOTTOM, _P_DZ, _P_CENTRE, _P_SCALE, _P_BOUNDS, _P_DH, _P_TOP = 0, 1, 4, 5, 6, 8, 9, 13, 14
@@ -100,24 +153,24 @@ def pack_parameters(consts):
     return p, coef
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _cubic(u, v, c, o):
     """:func:`swim.optics.volume._cubic` for coefficients c[o:o + 10]."""
     return (c[o] + u * (c[o + 1] + u * (c[o + 3] + u * c[o + 6]) + v * (c[o + 4] + v * c[o + 8]))
             + v * (c[o + 2] + v * (c[o + 5] + v * c[o + 9])) + u * u * v * c[o + 7])
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _cubic_du(u, v, c, o):
     return c[o + 1] + u * (2 * c[o + 3] + 3 * c[o + 6] * u + 2 * c[o + 7] * v) + v * (c[o + 4] + c[o + 8] * v)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _cubic_dv(u, v, c, o):
     return c[o + 2] + v * (2 * c[o + 5] + 3 * c[o + 9] * v + 2 * c[o + 8] * u) + u * (c[o + 4] + c[o + 7] * u)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _index_map(uc, vc, du, dv, c, o):
     """One index of :func:`swim.optics.volume.grid_indices`: the cubic at the clipped point (uc, vc) plus its
     tangent plane over the distance (du, dv) beyond the box."""
@@ -151,7 +204,7 @@ def _prefetch(typingctx, array, k, j, i):
     return sig, codegen
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _round_half_even(x):
     """``jnp.round``: to the nearest integer, halves to the even one (a probe on a grid-aligned ray lands on
     exact halves, and rounding them otherwise would place the steps differently from the JAX kernel)."""
@@ -161,12 +214,12 @@ def _round_half_even(x):
     return r
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _clip(x, lo, hi):
     return min(max(x, lo), hi)
 
 
-@njit(**_JIT, inline="always")
+@_helper_jit(inline="always")
 def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c):
     """Distance from the Earth's centre [m], height [m] and grid indices (k, j, i) of the point q (scene frame,
     rebased) with the index map's cubic coefficients ``c`` (an array, or a tuple where a loop over points keeps them
@@ -185,7 +238,7 @@ def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_h
     return r, h, (h - z_bottom) / dz, j, i
 
 
-@njit(**_JIT, inline="always")  # numba-level inlining: LLVM left this call in the step loop (section 16)
+@_helper_jit(inline="always")  # numba-level inlining: LLVM left this call in the step loop (section 16)
 def _point_geometry(q0, q1, q2, p, coef):
     """:func:`swim.rt.march._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
     radius = p[_P_RADIUS]
@@ -196,7 +249,7 @@ def _point_geometry(q0, q1, q2, p, coef):
     return h, mu_s, k, j, i
 
 
-@njit(**_JIT, inline="always")
+@_helper_jit(inline="always")
 def _geometry_constants(p, coef):
     """The scalars that :func:`_height_and_indices` takes after the point (from :func:`pack_parameters`'s ``p``) and
     the index map's 20 cubic coefficients as a tuple: a loop over points then keeps them in registers, sees no table
@@ -208,7 +261,7 @@ def _geometry_constants(p, coef):
     return scalars, c
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count, p, coef, shape, probe_at):
     """Grid indices of probes ``first`` ... ``first + count - 1`` of ``n_probe`` at the middles of equal intervals
     of the segment [s0, s0 + length] [m] of a ray, into ``probe_at[0:3, :count]`` (k, j, i), and the nearest
@@ -230,14 +283,14 @@ def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count,
         probe_at[5, b] = _clip(_round_half_even(i), 0.0, shape[2] - 1.0)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _bilinear(table, c, fu, fv):
     """One channel c of :func:`swim.rt.march._bilinear_table` on a (C, nu, nv) table, clamped."""
     u0, v0, a, b = _bilinear_index(table.shape[1], table.shape[2], fu, fv)
     return _bilinear_at(table, c, u0, v0, a, b)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _bilinear_index(nu, nv, fu, fv):
     """Corner (u0, v0) and weights (a, b) of a clamped bilinear lookup, shared by all channels of a table."""
     u0, a = _lerp_index(fu, nu)
@@ -245,7 +298,7 @@ def _bilinear_index(nu, nv, fu, fv):
     return u0, v0, a, b
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _lerp_index(f, n):
     """Lower index and weight of a clamped linear lookup at fractional index f in a table axis of n entries."""
     f = _clip(f, 0.0, n - 1.001)
@@ -253,26 +306,26 @@ def _lerp_index(f, n):
     return i0, f - i0
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _bilinear_at(table, c, u0, v0, a, b):
     return ((table[c, u0, v0] * (1 - b) + table[c, u0, v0 + 1] * b) * (1 - a)
             + (table[c, u0 + 1, v0] * (1 - b) + table[c, u0 + 1, v0 + 1] * b) * a)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _bilinear_clamped(field, j, i):
     """:func:`swim.rt.march.bilinear_clamped` of the first channel of a (C, ny, nx) field at grid indices (j, i),
     clamped to its edges."""
     return _bilinear(field, 0, _clip(j, 0.0, field.shape[1] - 1.0), _clip(i, 0.0, field.shape[2] - 1.0))
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _terrain_gap(h, j, i, terrain):
     """Height above the terrain (the (1, ny, nx) field, :func:`_bilinear_clamped`) [m]."""
     return h - _bilinear_clamped(terrain, j, i)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
     """Height above the terrain [m] at distance s [m] along a ray (``gap`` of
     :func:`swim.rt.march.refine_terrain_hit`)."""
@@ -280,7 +333,7 @@ def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
     return _terrain_gap(h, j, i, terrain)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step_at):
     """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
     ``edges`` [m]) into ``step_at[0:6, :count]`` (height [m], local solar-zenith cosine, k, j, i, and the sky
@@ -303,7 +356,7 @@ def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step
         step_at[5, b] = math.sqrt(_clip(h / top, 0.0, 1.0))  # the sky table's height coordinate
 
 
-@njit(**_JIT, inline="always")
+@_helper_jit(inline="always")
 def _lower_corner(k, j, i, nk, ny, nx):
     """Whether the fractional grid indices (k, j, i) lie within a grid of nk x ny x nx cells, and if so the lower
     corner (k0, j0, i0) of the cell whose eight corners a trilinear sample there reads (clamped so that k0 + 1 etc.
@@ -314,7 +367,7 @@ def _lower_corner(k, j, i, nk, ny, nx):
     return False, 0, 0, 0
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _prefetch_corners(volume, count, step_at):
     """Prefetch the eight corner cells of the trilinear volume samples of steps 0 ... count - 1 of a block (their
     grid indices (k, j, i) in ``step_at[2:5]``, from :func:`_step_geometry`), before the step loop reads them.
@@ -332,7 +385,7 @@ def _prefetch_corners(volume, count, step_at):
                     _prefetch(volume, k0 + dk, j0 + dj, i0 + 1)  # the cell after, often on the next cache line
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf, probe_at):
     """Probe the occupancy at n_probe equal intervals of a grid segment: the unnormalised cumulative step density
     in ``cdf[:n_probe + 1]``; returns the segment's length in cells (:func:`swim.rt.march.probe_counts_and_cells`)
@@ -364,7 +417,7 @@ def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, 
     return cells, occupied
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight,
                     probe_spacing, cell_slack, empty_steps, empty_cells_per_step, cdf, edges, probe_at):
     """:func:`swim.rt.march.grid_step_edges` for one ray, written into ``edges`` (steps + 1,); returns its number
@@ -399,7 +452,7 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     return n_steps
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra, n_probe, power, floor,
                  cdf, edges):
     """:func:`swim.rt.march.clear_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
@@ -420,7 +473,7 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_g
     _invert_cdf(s0, length, n_steps, n_probe, cdf, edges)
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
     """Edges (n_steps + 1,) [m] that cut the cumulative step density ``cdf[:n_probe + 1]`` (unnormalised, over
     n_probe equal intervals of [s0, s0 + length]) into n_steps equal parts (``_edges_from_density`` of
@@ -439,7 +492,7 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
         edges[m] = s0 + frac * length
 
 
-@njit(**_JIT, inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
+@_helper_jit(inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
 def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff, weight,
                 gas_ratio):
     """One wavelength's accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth, the
@@ -466,7 +519,7 @@ def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, i
     return tau_clear, t_obs, l_clear, i_nogas, i_gas
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
@@ -771,7 +824,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         samples_out[r] = samples
 
 
-@njit(**_JIT, nogil=True)
+@njit(**_JIT_KERNEL, nogil=True)
 def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, ms_source, use_ms, class_lower,
                  class_weight, ms_profile):
     """:func:`swim.rt.march._prepare_rays`, the per-ray set-up before the march, for the rays of :func:`march_rays`:
@@ -866,7 +919,7 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
                 ms_profile[c, r, u] = acc[u * 9 + c]
 
 
-@njit(**_JIT, nogil=True)
+@njit(**_JIT_KERNEL, nogil=True)
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,

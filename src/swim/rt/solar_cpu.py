@@ -24,10 +24,10 @@ import numpy as np
 from numba import njit
 
 from ..workers import parallel_map
-from .march_cpu import _JIT
+from .march_cpu import _JIT_KERNEL, _helper_jit
 
 
-@njit(**_JIT)
+@_helper_jit()
 def _span(shift, n):
     """Points q of range(n) whose shifted position q + shift lies in [0, n - 1], as (first, end), and the
     position's integer offset and fraction."""
@@ -37,7 +37,7 @@ def _span(shift, n):
     return first, end, int(floor), shift - floor
 
 
-@njit(**_JIT, nogil=True)
+@njit(**_JIT_KERNEL, nogil=True)
 def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, row_first, row_end):
     """``taus[k, :, j, :nx]`` = ``scale`` x the extinction ``fields`` (C, nk, ny + 1, nx + 1; zero last row and
     column) summed along the sun ray over the ``block`` levels above level k (``n_sub`` points per level, linear
@@ -73,7 +73,7 @@ def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, row_first, r
                     taus[k, ch, j, i] = acc[i] * scale
 
 
-@njit(**_JIT, nogil=True)
+@njit(**_JIT_KERNEL, nogil=True)
 def _add_above(taus, ny, nx, di, dj, block):
     """Level by level from the top: add to ``taus[k]`` the optical depth of level min(k + block, top), bilinearly
     interpolated where the sun ray from level k crosses it (zero outside the grid)."""
