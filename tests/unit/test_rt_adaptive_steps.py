@@ -178,8 +178,8 @@ def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
                     out, cdf = np.empty(65), np.empty(MAX_PROBES + 1)
                     probe_at = np.empty((6, march_cpu.PROBE_BLOCK))  # a block of probes' indices (_probe_indices)
                     n = adaptive_edges(*start[r], *direction[r], s0[r], length[r], 64, p, coef, occupancy,
-                                                  n_probe, EMPTY_STEP_WEIGHT, spacing, CELL_SLACK, empty_steps,
-                                                  EMPTY_CELLS_PER_STEP, cdf, out, probe_at)
+                                       n_probe, EMPTY_STEP_WEIGHT, spacing, CELL_SLACK, empty_steps,
+                                       EMPTY_CELLS_PER_STEP, cdf, out, probe_at)
                     assert n == steps[r], (cloud, n_probe, empty_steps, r)
                     np.testing.assert_allclose(out[: n + 1], edges[: n + 1, r], rtol=0,
                                                atol=1e-4 * max(length[r], 1.0))

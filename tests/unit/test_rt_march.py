@@ -841,6 +841,6 @@ def test_numba_clear_air_steps_match_the_jax_ones():
     for r in range(len(dirs)):
         cdf, edges = np.empty(CLEAR_PROBES + 1), np.empty(25)
         clear_edges(*start[r], *dirs[r], bounds[r, 1], bounds[r, 2] - bounds[r, 1], 24, p, coef,
-                               np.asarray(consts["beta_gas"]), np.asarray(consts["beta_gas_spectra"]), CLEAR_PROBES,
-                               CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, cdf, edges)
+                    np.asarray(consts["beta_gas"]), np.asarray(consts["beta_gas_spectra"]), CLEAR_PROBES,
+                    CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, cdf, edges)
         np.testing.assert_allclose(edges, expected[:, r], rtol=0, atol=1e-4 * (bounds[r, 2] - bounds[r, 1]))

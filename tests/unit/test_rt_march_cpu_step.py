@@ -24,8 +24,8 @@ def test_step_accumulates_the_exact_mean_transmittance(x):
     tau_clear, t0 = 0.4, 0.3
     t_obs = math.exp(-(tau_clear + t0))
     source, irradiance, weight = 2.0, 3.0, 0.125
-    out = march_cpu.callable_from_python(march_cpu._accumulate)(tau_clear, t_obs, 0.0, 0.0, 0.0, beta_clear, source, irradiance, beta_h, ds, weight,
-                                math.exp(t0))
+    accumulate = march_cpu.callable_from_python(march_cpu._accumulate)
+    out = accumulate(tau_clear, t_obs, 0.0, 0.0, 0.0, beta_clear, source, irradiance, beta_h, ds, weight, math.exp(t0))
     mean = -math.expm1(-x) / x if x > 0 else 1.0
     assert out[0] == pytest.approx(tau_clear + beta_clear * ds, rel=1e-15)
     assert out[1] == pytest.approx(t_obs * math.exp(-x), rel=1e-12)

@@ -26,7 +26,8 @@ from numba import njit
 from ..surface import brdf, lighting, water
 from .compose_cpu import _transmittance_delta_eddington
 from .march import FROM_ABOVE_BLEND, surface_fade_cells
-from .march_cpu import _JIT_KERNEL, _helper_jit, _P_RADIUS, _P_SUN, _P_TOP, _bilinear_at, _bilinear_index, _clip, _point_geometry
+from .march_cpu import (_JIT_KERNEL, _P_RADIUS, _P_SUN, _P_TOP, _bilinear_at, _bilinear_index, _clip, _helper_jit,
+                        _point_geometry)
 
 # The constants reach the compiled functions as arguments (numba bakes globals into its cached machine code and
 # checks only this file's time stamp): the layout of ground_tables()'s vector.

@@ -76,7 +76,7 @@ _JIT_KERNEL = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
 #: The functions that only compiled code calls (:func:`_helper_jit`): without the CPython and C wrappers that numba
 #: would otherwise compile (and cache) for each of them, an empty cache compiles the march and its set-up ~2.5 s
 #: (17 %) faster (docs/performance.md, section 40).
-_JIT = {**_JIT_KERNEL, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+_JIT_HELPER = {**_JIT_KERNEL, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
 
 
 class _CompiledOnlyDispatcher(CPUDispatcher):
@@ -89,11 +89,23 @@ class _CompiledOnlyDispatcher(CPUDispatcher):
 
 
 def _helper_jit(**options):
-    """``numba.njit`` for the kernels' helpers, which only compiled code calls: :data:`_JIT`'s options (no Python or
-    C wrapper) and ``options`` (e.g. ``inline="always"``); a call from Python raises TypeError."""
+    """``numba.njit`` for the kernels' helpers, which only compiled code calls.
+
+    Parameters
+    ----------
+    **options
+        numba options beside :data:`_JIT_HELPER`'s (disk cache, fast-math, no Python or C wrapper), e.g.
+        ``inline="always"``.
+
+    Returns
+    -------
+    callable
+        A decorator: the function's numba dispatcher, which raises TypeError when called from Python (use
+        :func:`callable_from_python`); under ``NUMBA_DISABLE_JIT=1`` the plain function.
+    """
 
     def decorate(function):
-        dispatcher = njit(**_JIT, **options)(function)
+        dispatcher = njit(**_JIT_HELPER, **options)(function)
         if isinstance(dispatcher, CPUDispatcher):  # not so under NUMBA_DISABLE_JIT=1: the plain function
             dispatcher.__class__ = _CompiledOnlyDispatcher
         return dispatcher
@@ -103,7 +115,8 @@ def _helper_jit(**options):
 
 def callable_from_python(function):
     """A helper of the kernels compiled without a Python wrapper (:func:`_helper_jit`), made callable from Python
-    (tests, debugging): a jitted shim, compiled once per argument types, that calls it.
+    (tests, debugging): a jitted shim that calls it (each call of this function makes and compiles a new shim: keep
+    the shim for repeated calls).
 
     Parameters
     ----------
@@ -119,8 +132,8 @@ def callable_from_python(function):
         return function
     # parameters by name: numba inlines ``inline="always"`` functions into the shim and refuses ``*args`` there
     names = ", ".join(inspect.signature(function.py_func).parameters)
-    namespace = {"function": function}
-    exec(f"def call({names}):\n    return function({names})\n", namespace)
+    namespace = {"__swim_helper": function}  # a name that no helper's parameter shadows
+    exec(f"def call({names}):\n    return __swim_helper({names})\n", namespace)
     return njit(cache=False)(namespace["call"])
 
 
