@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 import swim.color as sc
-from swim.color._tables import colour
+from swim.color._tables import import_colour
 from swim.constants import WAVELENGTHS_NM
 from swim.errors import SwimInputError
 
 GRID = sc.SPECTRAL_GRID_NM
+colour = import_colour()  # the reference library (a render itself does not import it)
 
 
 def _grid_index(wavelength_nm: float) -> int:
@@ -329,6 +330,36 @@ def test_display_rgb_bad_arguments():
 # --------------------------------------------------------------------------------------------------
 # sRGB encoding
 # --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("shape", [(), (7,), (3, 5, 3)])
+def test_oetf_srgb_is_colour_sciences(shape):
+    """swim's sRGB OETF (written out, so that a render need not import colour-science) is colour-science's
+    eotf_inverse_sRGB, on both branches, at the joint, outside [0, 1] and for NaN, over several array shapes."""
+    rng = np.random.default_rng(5)
+    x = rng.uniform(-0.05, 1.2, shape)
+    if x.ndim:
+        x.flat[0], x.flat[-1] = 0.0031308, np.nan
+    np.testing.assert_allclose(sc.oetf_srgb(x), colour.models.eotf_inverse_sRGB(x), rtol=1e-15, atol=1e-16)
+    assert np.shape(sc.oetf_srgb(x)) == shape
+
+
+def test_a_render_takes_colour_science_data_from_the_disk_cache(tmp_path):
+    """The first process builds the colour-science entry of the disk cache; a second one encodes an image without
+    importing colour-science (~0.6-1.2 s of every render's start, docs/performance.md section 40), to the same bytes."""
+    import os
+    import subprocess
+    import sys
+
+    script = ("import sys, numpy as np; from swim.color import solar_relative_to_srgb8; "
+              "rgb = solar_relative_to_srgb8(np.linspace(0.01, 3.0, 96).reshape(3, 4, 8)); "
+              "print(int('colour' in sys.modules), rgb.tobytes().hex())")
+    env = {**os.environ, "SWIM_CACHE_DIR": str(tmp_path)}
+    first, second = (subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
+                                    check=True).stdout.split() for _ in range(2))
+    assert first[0] == "1" and second[0] == "0"
+    assert first[1] == second[1]
+    assert list((tmp_path / "colour").glob("*.pkl"))
 
 
 def test_oetf_srgb_published_constants():

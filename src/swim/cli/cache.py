@@ -20,7 +20,7 @@ console = Console(stderr=True)
 def cache(
     clear: bool = typer.Option(False, "--clear", help="Remove the caches' files (the next render builds and compiles "
                                "them again)."),
-    kind: Optional[List[str]] = typer.Option(None, "--kind", help="Only this cache: gas, surface, jax or numba "
+    kind: Optional[List[str]] = typer.Option(None, "--kind", help="Only this cache: gas, surface, colour, jax or numba "
                                              "(repeatable; default: all)."),
 ):
     """List swim's disk caches (folder, files, size, budget), or clear them with --clear.

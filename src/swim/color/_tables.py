@@ -1,7 +1,9 @@
 """Reference tables of the colour stage: the solar spectrum, the CIE 1931 colour matching functions
 and the regular wavelength grid on which the spectral reconstruction of Sect. 3.8 is evaluated.
 
-Everything here is computed once and cached; the arrays handed out are read-only.
+Everything here is computed once and cached; the arrays handed out are read-only. What comes from colour-science is
+also cached on disk (:func:`colour_science_data`), so that a render does not import it (~0.6 s, ~1.2 s where
+matplotlib is installed, whose ``pyplot`` colour-science imports; docs/performance.md, section 40).
 
 Sources
 -------
@@ -20,11 +22,10 @@ import warnings
 import numpy as np
 
 from swim.constants import SOLAR_CONSTANT_W_M2
+from swim.errors import SwimInputError
 
-with warnings.catch_warnings():
-    # colour-science warns at import time about optional plotting dependencies (matplotlib).
-    warnings.simplefilter("ignore")
-    import colour  # noqa: F401  (re-exported for the sibling modules)
+#: Version of what :func:`colour_science_data` takes from colour-science (part of its disk cache's key).
+_COLOUR_DATA_LAYOUT = 1
 
 #: Regular wavelength grid of the reconstructed spectrum [nm]: 380-780 nm in 5 nm steps (81 samples),
 #: the CIE 015 recommended summation interval for colorimetry.
@@ -44,6 +45,74 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=float)
     a.flags.writeable = False
     return a
+
+
+def import_colour():
+    """colour-science, imported when first needed.
+
+    Returns
+    -------
+    module
+        ``colour``, imported with its warnings about optional plotting dependencies silenced.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        import colour
+    return colour
+
+
+@functools.lru_cache(maxsize=8)
+def colour_science_data(transform: str | None = None) -> dict:
+    """What the colour stage takes from colour-science, from swim's disk cache (kind ``colour``).
+
+    The cache is keyed by the installed colour-science version, so colour-science is imported only to build an entry
+    (once per installation and version), not by every render.
+
+    Parameters
+    ----------
+    transform : str, optional
+        A chromatic adaptation transform of colour-science (``colour.CHROMATIC_ADAPTATION_TRANSFORMS``), e.g.
+        "Bradford"; its matrix is included.
+
+    Returns
+    -------
+    dict
+        ``cmfs_wavelength_nm`` (471,) [nm] and ``cmfs`` (471, 3) [-]: the CIE 1931 2-degree colour matching functions
+        (``colour.MSDS_CMFS``); ``srgb_XYZ_to_RGB`` (3, 3) [-] and ``srgb_whitepoint_XYZ`` (3,) [-] (Y = 1): the
+        sRGB colourspace's matrix and D65 white (``colour.RGB_COLOURSPACES["sRGB"]``); with ``transform``, ``cat``
+        (3, 3) [-]: the transform's cone-response matrix.
+
+    Raises
+    ------
+    swim.errors.SwimInputError
+        If ``transform`` is not one of colour-science's chromatic adaptation transforms.
+    """
+    from importlib.metadata import PackageNotFoundError, version
+
+    from swim.rt.compilation_cache import disk_cached
+
+    try:
+        colour_version = version("colour-science")
+    except PackageNotFoundError:  # not installed as a distribution (e.g. vendored): ask the module itself
+        colour_version = import_colour().__version__
+    key = ("colour-science data", _COLOUR_DATA_LAYOUT, colour_version, CMFS_NAME, transform)
+    return disk_cached("colour", key, lambda: _colour_science_data(transform))
+
+
+def _colour_science_data(transform):
+    colour = import_colour()
+    if transform is not None and transform not in colour.CHROMATIC_ADAPTATION_TRANSFORMS:
+        raise SwimInputError(
+            f"transform must be one of {sorted(colour.CHROMATIC_ADAPTATION_TRANSFORMS)}; got {transform!r}")
+    cmfs = colour.MSDS_CMFS[CMFS_NAME]
+    srgb = colour.RGB_COLOURSPACES["sRGB"]
+    data = {"cmfs_wavelength_nm": np.array(cmfs.wavelengths, dtype=float),
+            "cmfs": np.array(cmfs.values, dtype=float),
+            "srgb_XYZ_to_RGB": np.array(srgb.matrix_XYZ_to_RGB, dtype=float),
+            "srgb_whitepoint_XYZ": np.array(colour.xy_to_XYZ(srgb.whitepoint), dtype=float)}
+    if transform is not None:
+        data["cat"] = np.array(colour.CHROMATIC_ADAPTATION_TRANSFORMS[transform], dtype=float)
+    return data
 
 
 @functools.lru_cache(maxsize=1)
@@ -106,8 +175,8 @@ def cie_1931_cmfs() -> tuple[np.ndarray, np.ndarray]:
     xyz_bar : numpy.ndarray, shape (471, 3)
         x-bar, y-bar, z-bar [-] (CIE 015:2018 Table 1, via colour-science).
     """
-    cmfs = colour.MSDS_CMFS[CMFS_NAME]
-    return _readonly(cmfs.wavelengths), _readonly(cmfs.values)
+    data = colour_science_data()
+    return _readonly(data["cmfs_wavelength_nm"]), _readonly(data["cmfs"])
 
 
 @functools.lru_cache(maxsize=1)

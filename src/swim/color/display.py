@@ -19,7 +19,7 @@ import functools
 
 import numpy as np
 
-from swim.color._tables import colour
+from swim.color._tables import colour_science_data, import_colour
 from swim.color.spectrum import solar_relative_to_XYZ
 from swim.errors import SwimInputError
 
@@ -80,11 +80,14 @@ def sun_white_XYZ() -> np.ndarray:
 
 @functools.lru_cache(maxsize=4)
 def _display_matrix(transform: str) -> np.ndarray:
-    srgb = colour.RGB_COLOURSPACES["sRGB"]
+    data = colour_science_data(transform)  # raises SwimInputError for a transform colour-science does not know
     xyz_sun = sun_white_XYZ()
-    xyz_d65 = colour.xy_to_XYZ(srgb.whitepoint)  # Y = 1
-    cat = colour.adaptation.matrix_chromatic_adaptation_VonKries(xyz_sun, xyz_d65, transform=transform)
-    m = np.asarray(srgb.matrix_XYZ_to_RGB) @ cat
+    xyz_d65 = data["srgb_whitepoint_XYZ"]  # Y = 1
+    # von Kries adaptation in the transform's cone space, M^-1 diag(M XYZ_d65 / M XYZ_sun) M (what
+    # colour.adaptation.matrix_chromatic_adaptation_VonKries gives; tests/unit/test_color.py holds the two together)
+    cone = data["cat"]
+    cat = np.linalg.inv(cone) @ np.diag((cone @ xyz_d65) / (cone @ xyz_sun)) @ cone
+    m = data["srgb_XYZ_to_RGB"] @ cat
     m = m / (m @ xyz_sun)[:, None]  # sun white -> exactly (1, 1, 1)
     m.flags.writeable = False
     return m
@@ -111,14 +114,12 @@ def display_matrix(transform: str = CHROMATIC_ADAPTATION_TRANSFORM) -> np.ndarra
         If ``transform`` is not a colour-science chromatic adaptation transform.
     """
     try:
-        known = _known_transform(transform)
+        return np.array(_display_matrix(transform))
     except TypeError:  # an unhashable name
-        known = False
-    if not known:
+        colour = import_colour()
         raise SwimInputError(
             f"transform must be one of {sorted(colour.CHROMATIC_ADAPTATION_TRANSFORMS)}; got {transform!r}"
-        )
-    return np.array(_display_matrix(transform))
+        ) from None
 
 
 @functools.lru_cache(maxsize=4)
@@ -127,13 +128,6 @@ def _luminance_row(transform: str) -> np.ndarray:
     row = np.linalg.inv(_display_matrix(transform))[1]
     row.flags.writeable = False
     return row
-
-
-@functools.lru_cache(maxsize=32)
-def _known_transform(transform) -> bool:
-    """Whether colour-science knows the chromatic adaptation transform: its registry's lookup (case- and
-    punctuation-insensitive) takes ~90 us, a sixth of a small image's colour stage."""
-    return transform in colour.CHROMATIC_ADAPTATION_TRANSFORMS
 
 
 def _check_white_level(white_level) -> float:
@@ -242,7 +236,11 @@ def oetf_srgb(rgb_linear) -> np.ndarray:
     numpy.ndarray, same shape
         Encoded values [-]; [0, 1] maps onto [0, 1].
     """
-    return np.asarray(colour.models.eotf_inverse_sRGB(np.asarray(rgb_linear, dtype=float)), dtype=float)
+    linear = np.asarray(rgb_linear, dtype=float)
+    # as colour.models.eotf_inverse_sRGB (tests/unit/test_color.py holds the two together), without importing
+    # colour-science in a render
+    with np.errstate(invalid="ignore"):
+        return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.abs(linear) ** (1 / 2.4) - 0.055)
 
 
 def encode_srgb8(rgb_linear) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Bounded disk caches: what swim keeps in ``$SWIM_CACHE_DIR`` stays below a budget, and can be listed and cleared.
 
-swim keeps four caches on disk (:func:`swim.rt.compilation_cache.cache_directory`):
+swim keeps five caches on disk (:func:`swim.rt.compilation_cache.cache_directory`):
 
 ========  ===========================================================  =============================================
 kind      what                                                         bound
@@ -8,6 +8,9 @@ kind      what                                                         bound
 gas       the successive-orders clear-sky tables (:mod:`swim.rt.gas`),  :func:`max_bytes`, least recently used first
           9-42 MB each, one per aerosol, surface albedo and profile
 surface   the BRDF tables (:mod:`swim.surface.brdf`)                   :func:`max_bytes`, least recently used first
+colour    colour-science's colour matching functions and sRGB and      :func:`max_bytes`, least recently used first
+          adaptation matrices (:func:`swim.color._tables.colour_science_data`,
+          a few kB per version), so that a render does not import it
 jax       JAX's compiled executables                                   :func:`max_bytes`, JAX's own LRU eviction
                                                                        (``jax_compilation_cache_max_size``)
 numba     numba's machine code, one folder per version of the code     the :data:`CODE_VERSIONS` most recently used
@@ -16,7 +19,7 @@ numba     numba's machine code, one folder per version of the code     the :data
 
 Without bounds they only grow: every new scene aerosol profile or albedo adds a table of up to 42 MB, and every
 upgrade of swim adds new tables and a new numba folder (a development machine held 28 GB of tables after two days).
-``SWIM_CACHE_MAX_MB`` sets the budget of each of the first three kinds (default :data:`DEFAULT_MAX_MB`); entries are
+``SWIM_CACHE_MAX_MB`` sets the budget of each of the first four kinds (default :data:`DEFAULT_MAX_MB`); entries are
 removed, least recently used first, when a new one is written. ``swim cache`` lists the caches and
 ``swim cache --clear`` empties them (:func:`cache_usage`, :func:`clear_caches`).
 """
@@ -37,7 +40,7 @@ from .compilation_cache import cache_directory
 log = logging.getLogger(__name__)
 
 #: The caches, in the order ``swim cache`` lists them.
-KINDS = ("gas", "surface", "jax", "numba")
+KINDS = ("gas", "surface", "colour", "jax", "numba")
 #: Budget of each of the table and JAX caches [MB] (``SWIM_CACHE_MAX_MB`` overrides it): ~24 of the largest gas tables.
 DEFAULT_MAX_MB = 1024
 #: numba code versions kept (each a folder named by its code's digest): the current one and the two used before it,
@@ -138,7 +141,7 @@ def mark_used(path: Path) -> None:
 #: that folder is ever removed.
 _CODE_VERSION = re.compile(r"[0-9a-f]{16}")
 #: Endings of the files that swim's (and JAX's) caches write: nothing else in their folders is ever removed.
-_OWN_FILES = {"gas": (".pkl", ".tmp"), "surface": (".pkl", ".tmp"),
+_OWN_FILES = {"gas": (".pkl", ".tmp"), "surface": (".pkl", ".tmp"), "colour": (".pkl", ".tmp"),
               "jax": ("-cache", "-atime", ".lockfile")}
 #: Name of the lock file by which live processes hold their code version's numba folder (:func:`hold_code_version`).
 IN_USE = ".in-use"
