@@ -564,9 +564,9 @@ def write_csv(frame: pd.DataFrame, path):
 def matplotlib_pyplot():
     """``matplotlib.pyplot`` with the Agg backend, or ImportError if matplotlib is not really installed.
 
-    colour-science (imported by swim's colour code) puts ``unittest.mock.MagicMock`` objects into
-    ``sys.modules["matplotlib"]`` etc. when matplotlib is missing, so a bare ``import matplotlib`` succeeds
-    and every drawing call silently does nothing; this checks for the real package.
+    colour-science (when imported, e.g. to build swim's colour cache entry) puts ``unittest.mock.MagicMock``
+    objects into ``sys.modules["matplotlib"]`` etc. when matplotlib is missing, so a bare ``import matplotlib``
+    succeeds and every drawing call silently does nothing; this checks for the real package.
 
     Raises
     ------
