@@ -99,11 +99,16 @@ def colour_science_data(transform: str | None = None) -> dict:
     return disk_cached("colour", key, lambda: _colour_science_data(transform))
 
 
+def unknown_transform(transform) -> SwimInputError:
+    """The error for a chromatic adaptation transform that colour-science does not know, naming those it does."""
+    known = sorted(import_colour().CHROMATIC_ADAPTATION_TRANSFORMS)
+    return SwimInputError(f"transform must be one of {known}; got {transform!r}")
+
+
 def _colour_science_data(transform):
     colour = import_colour()
     if transform is not None and transform not in colour.CHROMATIC_ADAPTATION_TRANSFORMS:
-        raise SwimInputError(
-            f"transform must be one of {sorted(colour.CHROMATIC_ADAPTATION_TRANSFORMS)}; got {transform!r}")
+        raise unknown_transform(transform)
     cmfs = colour.MSDS_CMFS[CMFS_NAME]
     srgb = colour.RGB_COLOURSPACES["sRGB"]
     data = {"cmfs_wavelength_nm": np.array(cmfs.wavelengths, dtype=float),

@@ -19,7 +19,7 @@ import functools
 
 import numpy as np
 
-from swim.color._tables import colour_science_data, import_colour
+from swim.color._tables import colour_science_data, unknown_transform
 from swim.color.spectrum import solar_relative_to_XYZ
 from swim.errors import SwimInputError
 
@@ -116,10 +116,7 @@ def display_matrix(transform: str = CHROMATIC_ADAPTATION_TRANSFORM) -> np.ndarra
     try:
         return np.array(_display_matrix(transform))
     except TypeError:  # an unhashable name
-        colour = import_colour()
-        raise SwimInputError(
-            f"transform must be one of {sorted(colour.CHROMATIC_ADAPTATION_TRANSFORMS)}; got {transform!r}"
-        ) from None
+        raise unknown_transform(transform) from None
 
 
 @functools.lru_cache(maxsize=4)

@@ -227,8 +227,9 @@ def _slant_optical_depth(h, mu, heights, beta, top, radius, n_steps=400):
         f *= 1.0 / dh
         np.clip(f, 0.0, n_nodes - 1.0, out=f)
         i = np.minimum(f.astype(np.intp), n_nodes - 2)
-        w_hi = sb * (2 * u / n_steps) * (f - i)  # the step's length times the upper node's weight
-        w_lo = sb * (2 * u / n_steps) - w_hi
+        ds = sb * (2 * u / n_steps)
+        w_hi = ds * (f - i)  # the step's length times the upper node's weight
+        w_lo = ds - w_hi
         for c, b in enumerate(columns):
             tau[first:first + block, c] = np.sum(np.take(b, i) * w_lo + np.take(b, i + 1) * w_hi, axis=-1)
     tau = tau.reshape(h.shape + (beta.shape[1],))

@@ -12,8 +12,9 @@ compiles it into that cache with the argument types that the render will pass (:
 render meanwhile reads the scene, builds the optics and runs Step 1a. Its first chunk (:func:`wait`, from
 :func:`swim.rt.march._trace_chunk_numba`) compiles the per-ray set-up, which it calls first, and the composition
 kernels, which it would compile after the march, then waits for the helper and loads the march from the cache.
-Measured with the README's render and an empty cache: 23.9-24.0 s → 16.1-17.5 s, and 14.9-15.7 s since the command
-starts the helper (docs/performance.md, section 38).
+Measured with the README's render and an empty cache: 23.9-24.0 s → 16.1-17.5 s, 14.9-15.7 s since the command
+starts the helper (docs/performance.md, section 38), and 14.1-14.4 s since the kernels' helpers have no Python
+wrappers (section 40).
 
 The helper is only an optimisation. A kernel whose types differ from :func:`kernel_signature`'s is compiled by the
 render as before; a helper that fails, cannot start or takes longer than :data:`WAIT_S` leaves the march to the
