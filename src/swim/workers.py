@@ -18,6 +18,8 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
+from .errors import SwimInputError
+
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 _POOLS_PID = [os.getpid()]
 _LOCK = threading.Lock()
@@ -30,7 +32,7 @@ def worker_pool(n: int) -> ThreadPoolExecutor:
     Parameters
     ----------
     n : int
-        Threads of the pool, >= 1 (callers pass at most :func:`swim.rt.march.threads`).
+        Threads of the pool, >= 1 (callers pass at most :func:`threads`).
 
     Returns
     -------
@@ -71,7 +73,7 @@ def parallel_map(fn, items, max_threads: int) -> list:
         Called once per item; a leaf task (it must not wait on swim's pools).
     items : iterable
     max_threads : int
-        Threads to use at most (callers pass at most :func:`swim.rt.march.threads`).
+        Threads to use at most (callers pass at most :func:`threads`).
 
     Returns
     -------
@@ -83,3 +85,20 @@ def parallel_map(fn, items, max_threads: int) -> list:
         return [fn(item) for item in items]
     # Executor.map cancels what has not started after an exception
     return list(worker_pool(int(max_threads)).map(fn, items))
+
+
+def threads() -> int:
+    """Threads for work over the cores (chunks of rays marched at once, blocks of the scene's digest):
+    ``SWIM_NUM_THREADS``, or the cores this process may run on.
+
+    Raises
+    ------
+    SwimInputError
+        If ``SWIM_NUM_THREADS`` is set to anything but a positive integer.
+    """
+    value = os.environ.get("SWIM_NUM_THREADS", "").strip()
+    if value:
+        if not value.isdigit() or int(value) < 1:
+            raise SwimInputError(f"SWIM_NUM_THREADS must be a positive integer, got {value!r}")
+        return int(value)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import jax.numpy as jnp
+import pytest
 
 from swim.constants import EARTH_RADIUS_M
 from swim.io.scene import scene_from_arrays
@@ -33,6 +34,47 @@ def _scene(terrain_peak=0.0, aerosol=False, cloud=True):
     aer = 2e-4 * (xx > 0) * np.exp(-zz / 1500.0) if aerosol else None
     return scene_from_arrays(x=x, y=x, z=z, reference_lat=40.0, reference_lon=-100.0, terrain_height=terrain,
                              cloud_liquid_content=liquid, land_mask=1.0, aerosol_extinction=aer)
+
+
+@pytest.mark.parametrize("shape", [(1,), (7,), (5, 1, 9), (6, 7, 8), (3, 4, 5, 2)])
+def test_dilation_by_one_cell_is_scipys_maximum_filter(shape):
+    from scipy.ndimage import maximum_filter
+
+    from swim.rt.march import dilated_by_one_cell
+
+    rng = np.random.default_rng(len(shape) * 10 + shape[0])
+    for density in (0.0, 0.03, 0.3, 1.0):
+        mask = rng.random(shape) < density
+        got = dilated_by_one_cell(mask)
+        assert got.dtype == bool and got.shape == mask.shape
+        np.testing.assert_array_equal(got, maximum_filter(mask.astype(np.int8), size=3).astype(bool))
+
+
+@pytest.mark.parametrize("packed_layout", [True, False])
+@pytest.mark.parametrize("n_species", [0, 1, 5])
+def test_species_sum_is_the_weighted_sum_over_species(packed_layout, n_species):
+    """The volume's extinction summed over species, with and without weights, over levels k0:k1, written into a
+    strided output: as a float64 sum would give, within float32 round-off, for a contiguous volume and for a
+    view of a packed one (the species adjacent in memory)."""
+    from swim.rt.march import species_sum
+
+    rng = np.random.default_rng(n_species)
+    nk, ny, nx = 6, 5, 7
+    if packed_layout:
+        packed = rng.random((nk, ny, nx, n_species + 3), dtype=np.float32)
+        extinction = np.moveaxis(packed[..., :n_species], -1, 0)
+    else:
+        extinction = rng.random((n_species, nk, ny, nx), dtype=np.float32)
+    weights = rng.random(n_species)
+    for w in (None, weights):
+        expected = np.einsum("skyx,s->kyx", extinction.astype(float), np.ones(n_species) if w is None else w)
+        got = species_sum(extinction, w)
+        assert got.dtype == np.float32 and got.shape == (nk, ny, nx)
+        np.testing.assert_allclose(got, expected, rtol=1e-6, atol=0)
+        padded = np.full((nk, ny + 1, nx + 1), -1.0, np.float32)
+        species_sum(extinction, w, 2, 5, out=padded[2:5, :ny, :nx])
+        np.testing.assert_allclose(padded[2:5, :ny, :nx], expected[2:5], rtol=1e-6, atol=0)
+        assert np.all(padded[:2] == -1) and np.all(padded[5:] == -1) and np.all(padded[:, ny] == -1)
 
 
 def test_occupancy_marks_cloud_dilated_by_one_level_and_nothing_else():

@@ -27,6 +27,7 @@ from ..constants import HYDROMETEOR_DENSITY, SPECIES, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import orthographic_xy
 from ..io.scene import DEFAULT_WIND_SPEED_M_S
+from ..workers import parallel_map, threads
 from .hydrometeors import effective_radius, extinction_coefficient_stephens1978
 
 log = logging.getLogger(__name__)
@@ -197,24 +198,36 @@ class ColumnInterpolation:
         h = height.reshape(nz, -1)
         ncol = h.shape[1]
         levels = np.asarray(levels, dtype=float)
+        nk = levels.size
+        cols = np.arange(ncol)
         # Number of model levels below each target level, by counting (the levels of every column increase):
         # level z lies below targets k >= searchsorted(levels, h[z], "right"). O(nz ncol + nk ncol) memory,
-        # where comparing all pairs took nk x nz x ncol (1.5e9 for a 400 x 400 x 60 grid).
-        counts = np.zeros((levels.size + 1, ncol), dtype=np.int32)
-        cols = np.arange(ncol)
+        # where comparing all pairs took nk x nz x ncol (1.5e9 for a 400 x 400 x 60 grid). Each model level adds
+        # one count per column (cols are distinct: a plain fancy +=), and the running sum over the target levels
+        # is taken row by row in place: numpy's cumsum along the first axis of a C-ordered array took 0.3 s for
+        # 160 x 160 000 (docs/performance.md, section 41).
+        counts = np.zeros((nk + 1, ncol), dtype=np.int32)
+        flat = counts.reshape(-1)
         for z in range(nz):
-            counts[np.searchsorted(levels, h[z], side="right"), cols] += 1
+            flat[np.searchsorted(levels, h[z], side="right") * np.intp(ncol) + cols] += 1
+        k0 = counts[:-1]
+        for k in range(1, nk):
+            k0[k] += k0[k - 1]
+        np.clip(k0, 1, nz - 1, out=k0)
+        k0 -= 1
         # int32 and float32 keep the (nk, ncol) work arrays small (heights to a millimetre at 20 km).
-        self.k0 = np.clip(np.cumsum(counts[:-1], axis=0, dtype=np.int32), 1, nz - 1) - 1
-        del counts
-        h32 = h.astype(np.float32)
-        h0 = np.take_along_axis(h32, self.k0, axis=0)
-        self.w = np.take_along_axis(h32, self.k0 + 1, axis=0)
-        self.w -= h0
-        np.subtract(levels.astype(np.float32)[:, None], h0, out=h0)
-        np.divide(h0, self.w, out=self.w)
+        self.k0 = k0
+        # The heights either side of each target level, by one flat take per target level: numpy's
+        # take_along_axis builds index arrays of the whole (nk, ncol) and was 3-4x slower.
+        h32 = h.astype(np.float32).reshape(-1)
+        self.w = np.empty((nk, ncol), dtype=np.float32)
+        for k in range(nk):
+            below = k0[k] * np.intp(ncol) + cols  # intp: no int32 overflow past 2**31 values
+            h0 = h32.take(below)
+            thickness = h32.take(below + ncol)
+            thickness -= h0
+            np.divide(np.float32(levels[k]) - h0, thickness, out=self.w[k])
         np.clip(self.w, 0.0, 1.0, out=self.w)
-        del h0
         top = h[-1] + 0.5 * (h[-1] - h[-2])
         self.zero = (levels[:, None] > top[None, :]) | (levels[:, None] < np.asarray(terrain, dtype=float).reshape(1, -1))
         self.shape = (levels.size,) + height.shape[1:]
@@ -229,13 +242,19 @@ class ColumnInterpolation:
 
         ``values`` (nz, ...) holds those columns only (any shape whose trailing axes flatten to c1 - c0), so a
         big grid can be resampled in blocks of rows, each with small temporaries."""
-        v = np.asarray(values, dtype=np.float32).reshape(values.shape[0], -1)
-        k0 = self.k0[:, c0:c1]
-        lower = np.take_along_axis(v, k0, axis=0)
-        out = np.take_along_axis(v, k0 + 1, axis=0)
-        out -= lower
-        out *= self.w[:, c0:c1]
-        out += lower
+        n = c1 - c0
+        v = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
+        if v.size != values.shape[0] * n:
+            raise ValueError(f"values hold {v.size // max(values.shape[0], 1)} columns per level, not c1 - c0 = {n}")
+        cols = np.arange(n)
+        out = np.empty((self.k0.shape[0], n), dtype=np.float32)
+        for k, row in enumerate(out):  # one flat take per target level (as in __init__)
+            below = self.k0[k, c0:c1] * np.intp(n) + cols
+            lower = v.take(below)
+            v.take(below + n, out=row)
+            row -= lower
+            row *= self.w[k, c0:c1]
+            row += lower
         out[self.zero[:, c0:c1]] = 0.0
         return out
 
@@ -337,9 +356,12 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     interpolation = ColumnInterpolation(height, terrain, levels)
     # Eq. 7 and the resampling in blocks of rows: the float64 temporaries of a species (content, radius,
     # extinction, masks) then take ~16 MB each instead of a whole field each (~77 MB each for 400 x 400 x 60),
-    # which set the peak memory of a render of a big grid (docs/performance.md, memory).
-    rows = max(1, min(ny, _BLOCK_BYTES // (8 * nz * nx)))
+    # which set the peak memory of a render of a big grid (docs/performance.md, memory). The blocks run on every
+    # core (NumPy releases the GIL), each thread's blocks that much smaller, so the temporaries stay ~16 MB each.
+    workers = threads()
+    rows = max(1, min(ny, _BLOCK_BYTES // (8 * nz * nx * workers)))
     flat = extinction.reshape(len(SPECIES), nk, ny * nx)
+    blocks = [(j0, min(j0 + rows, ny)) for j0 in range(0, ny, rows)]
     for n, species in enumerate(SPECIES):
         name = f"{species}_content"
         if name not in scene:
@@ -349,20 +371,26 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
             continue
         radius_name = f"{species}_effective_radius"
         radius_all = scene[radius_name].values if radius_name in scene else None
-        for j0 in range(0, ny, rows):
-            j1 = min(j0 + rows, ny)
+
+        def eq7_block(block, n=n, species=species, content_all=content_all, radius_all=radius_all):
+            j0, j1 = block
             content = np.asarray(content_all[:, j0:j1], dtype=float)
             radius = effective_radius(species, content, None if radius_all is None else radius_all[:, j0:j1])
             beta = extinction_coefficient_stephens1978(content, radius, HYDROMETEOR_DENSITY[species])
             beta[content <= 0] = 0.0
             flat[n, :, j0 * nx:j1 * nx] = interpolation.columns(beta, j0 * nx, j1 * nx)
 
+        parallel_map(eq7_block, blocks, workers)  # an error in a block (bad values) is raised here
+
     if "aerosol_extinction" in scene:
         aerosol = np.empty((nk, ny * nx), np.float32)
         values = scene["aerosol_extinction"].values
-        for j0 in range(0, ny, rows):
-            j1 = min(j0 + rows, ny)
+
+        def aerosol_block(block):
+            j0, j1 = block
             aerosol[:, j0 * nx:j1 * nx] = interpolation.columns(values[:, j0:j1], j0 * nx, j1 * nx)
+
+        parallel_map(aerosol_block, blocks, workers)
         aerosol = aerosol.reshape(nk, ny, nx)
     else:
         # no 3-D aerosol: a read-only broadcast of zero, which takes no memory (100 MB at 400 x 400 x 160)

@@ -243,7 +243,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8; Joseph et al. (1976),
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
-    from .march import BACKENDS, MarchSettings, in_level_blocks, threads
+    from .march import BACKENDS, MarchSettings, in_level_blocks, species_sum, threads
 
     names = STEP1A_VARIABLES if variables is None else tuple(variables)
     unknown = sorted(set(names) - set(STEP1A_VARIABLES))
@@ -310,9 +310,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
 
         def fill(k0, k1):  # levels k0..k1 of every swept field of the group
             for row, c in enumerate(group):
-                if c < 2:  # species by species in float32 (a weighted sum over species would make a float64 copy)
-                    for n in range(beta.shape[0]):
-                        fields[row, k0:k1] += beta[n, k0:k1] if c == 0 else b[n] * beta[n, k0:k1]
+                if c < 2:  # in float32, one matrix-vector product per cell where the species are packed
+                    species_sum(beta, None if c == 0 else b, k0, k1, out=fields[row, k0:k1])
                 elif c == 2:
                     fields[row, k0:k1] = np.clip((terrain[None] - levels[k0:k1, None, None]) / dz, 0.0, 1.0) * (
                         TERRAIN_OPACITY_PER_CELL / dz)
