@@ -199,34 +199,43 @@ class ColumnInterpolation:
         ncol = h.shape[1]
         levels = np.asarray(levels, dtype=float)
         nk = levels.size
-        cols = np.arange(ncol)
-        # Number of model levels below each target level, by counting (the levels of every column increase):
-        # level z lies below targets k >= searchsorted(levels, h[z], "right"). O(nz ncol + nk ncol) memory,
-        # where comparing all pairs took nk x nz x ncol (1.5e9 for a 400 x 400 x 60 grid). Each model level adds
-        # one count per column (cols are distinct: a plain fancy +=), and the running sum over the target levels
-        # is taken row by row in place: numpy's cumsum along the first axis of a C-ordered array took 0.3 s for
-        # 160 x 160 000 (docs/performance.md, section 41).
-        counts = np.zeros((nk + 1, ncol), dtype=np.int32)
-        flat = counts.reshape(-1)
-        for z in range(nz):
-            flat[np.searchsorted(levels, h[z], side="right") * np.intp(ncol) + cols] += 1
-        k0 = counts[:-1]
-        for k in range(1, nk):
-            k0[k] += k0[k - 1]
-        np.clip(k0, 1, nz - 1, out=k0)
-        k0 -= 1
         # int32 and float32 keep the (nk, ncol) work arrays small (heights to a millimetre at 20 km).
-        self.k0 = k0
-        # The heights either side of each target level, by one flat take per target level: numpy's
-        # take_along_axis builds index arrays of the whole (nk, ncol) and was 3-4x slower.
-        h32 = h.astype(np.float32).reshape(-1)
+        self.k0 = np.empty((nk, ncol), dtype=np.int32)
         self.w = np.empty((nk, ncol), dtype=np.float32)
-        for k in range(nk):
-            below = k0[k] * np.intp(ncol) + cols  # intp: no int32 overflow past 2**31 values
-            h0 = h32.take(below)
-            thickness = h32.take(below + ncol)
-            thickness -= h0
-            np.divide(np.float32(levels[k]) - h0, thickness, out=self.w[k])
+
+        def weights(block):
+            c0, c1 = block
+            n = c1 - c0
+            cols = np.arange(n)
+            # Number of model levels below each target level, by counting (the levels of every column increase):
+            # level z lies below targets k >= searchsorted(levels, h[z], "right"). O(nz ncol + nk ncol) memory,
+            # where comparing all pairs took nk x nz x ncol (1.5e9 for a 400 x 400 x 60 grid). Each model level
+            # adds one count per column (cols are distinct: a plain fancy +=), and the running sum over the target
+            # levels is taken row by row in place: numpy's cumsum along the first axis of a C-ordered array took
+            # 0.3 s for 160 x 160 000 (docs/performance.md, section 41).
+            counts = np.zeros((nk + 1, n), dtype=np.int32)
+            flat = counts.reshape(-1)
+            for z in range(nz):
+                flat[np.searchsorted(levels, h[z, c0:c1], side="right") * np.intp(n) + cols] += 1
+            k0 = counts[:-1]
+            for k in range(1, nk):
+                k0[k] += k0[k - 1]
+            np.clip(k0, 1, nz - 1, out=k0)
+            k0 -= 1
+            self.k0[:, c0:c1] = k0
+            # The heights either side of each target level, by one flat take per target level: numpy's
+            # take_along_axis builds index arrays of the whole (nk, ncol) and was 3-4x slower.
+            h32 = h[:, c0:c1].astype(np.float32).reshape(-1)
+            for k in range(nk):
+                below = k0[k] * np.intp(n) + cols  # intp: no int32 overflow past 2**31 values
+                h0 = h32.take(below)
+                thickness = h32.take(below + n)
+                thickness -= h0
+                np.divide(np.float32(levels[k]) - h0, thickness, out=self.w[k, c0:c1])
+
+        # blocks of columns on every core (NumPy releases the GIL)
+        bounds = np.linspace(0, ncol, max(1, min(threads(), ncol)) + 1).astype(int)
+        parallel_map(weights, [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a], threads())
         np.clip(self.w, 0.0, 1.0, out=self.w)
         top = h[-1] + 0.5 * (h[-1] - h[-2])
         self.zero = (levels[:, None] > top[None, :]) | (levels[:, None] < np.asarray(terrain, dtype=float).reshape(1, -1))
