@@ -1330,7 +1330,7 @@ def occupancy_grid(volume):
 def dilated_by_one_cell(mask):
     """A boolean array with every cell next to a True cell (a 3 x 3 x ... cube around it) set: what
     ``scipy.ndimage.maximum_filter(mask, size=3)`` gives, by one shifted ``|=`` per side and axis (bytes, in
-    place: 0.05 s against scipy's 0.18 s for 160 x 400 x 400; docs/performance.md, section 41).
+    place: 0.03 s against scipy's 0.18 s for 160 x 400 x 400; docs/performance.md, section 41).
 
     Parameters
     ----------
