@@ -1463,8 +1463,9 @@ def pack_volume(volume, species=None):
     packed = np.empty(extinction.shape[1:] + (n_channels,), np.float32)
 
     def fill(k0, k1):  # channel by channel: a transpose and a concatenate would each copy the whole volume
-        for c, value in enumerate(grid):
-            packed[k0:k1, ..., c] = value[k0:k1]
+        for k in range(k0, k1):  # level by level, so a level's cache lines are written while in the caches
+            for c, value in enumerate(grid):
+                packed[k, ..., c] = value[k]
 
     in_level_blocks(fill, packed.shape[0])  # on every core: 0.77 s for 160 x 400 x 400 on one
     return packed
