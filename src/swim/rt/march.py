@@ -1497,9 +1497,10 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     if packed.shape[:-1] != values[0].shape:
         raise ValueError(f"packed volume of shape {packed.shape} does not match Step 1a's fields {values[0].shape}")
 
-    def fill(k0, k1):
-        for c, value in enumerate(values):
-            packed[k0:k1, ..., n_grid + c] = value[k0:k1]
+    def fill(k0, k1):  # level by level, as in pack_volume
+        for k in range(k0, k1):
+            for c, value in enumerate(values):
+                packed[k, ..., n_grid + c] = value[k]
 
     in_level_blocks(fill, packed.shape[0])
     packed.flags.writeable = False
