@@ -102,3 +102,13 @@ def threads() -> int:
             raise SwimInputError(f"SWIM_NUM_THREADS must be a positive integer, got {value!r}")
         return int(value)
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def in_blocks(fill, n):
+    """Call ``fill(i0, i1)`` over consecutive blocks of ``range(n)`` (levels, columns), one block per thread
+    (:func:`threads`): copies and sums of whole grids, which NumPy runs without the GIL, on every core. An exception
+    in a block is raised here."""
+    workers = max(1, min(threads(), n))
+    bounds = [i * n // workers for i in range(workers + 1)]
+    blocks = [(i0, i1) for i0, i1 in zip(bounds[:-1], bounds[1:]) if i1 > i0]
+    parallel_map(lambda block: fill(*block), blocks, len(blocks))

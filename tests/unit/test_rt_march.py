@@ -410,7 +410,7 @@ def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
 
 @pytest.mark.parametrize("threads, n_levels", [(1, 5), (3, 7), (4, 2), (8, 160)])
 def test_level_blocks_cover_every_level_once_and_raise_a_block_s_error(monkeypatch, threads, n_levels):
-    from swim.rt.march import in_level_blocks
+    from swim.workers import in_blocks
 
     monkeypatch.setenv("SWIM_NUM_THREADS", str(threads))
     seen = np.zeros(n_levels, int)
@@ -418,7 +418,7 @@ def test_level_blocks_cover_every_level_once_and_raise_a_block_s_error(monkeypat
     def fill(k0, k1):
         seen[k0:k1] += 1
 
-    in_level_blocks(fill, n_levels)
+    in_blocks(fill, n_levels)
     np.testing.assert_array_equal(seen, 1)
 
     def broken(k0, k1):
@@ -426,7 +426,7 @@ def test_level_blocks_cover_every_level_once_and_raise_a_block_s_error(monkeypat
             raise ValueError("block failed")
 
     with pytest.raises(ValueError, match="block failed"):
-        in_level_blocks(broken, n_levels)
+        in_blocks(broken, n_levels)
 
 
 def test_optimisation_barriers_only_on_cpus(monkeypatch):

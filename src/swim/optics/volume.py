@@ -27,7 +27,7 @@ from ..constants import HYDROMETEOR_DENSITY, SPECIES, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import orthographic_xy
 from ..io.scene import DEFAULT_WIND_SPEED_M_S
-from ..workers import parallel_map, threads
+from ..workers import in_blocks, parallel_map, threads
 from .hydrometeors import effective_radius, extinction_coefficient_stephens1978
 
 log = logging.getLogger(__name__)
@@ -203,8 +203,7 @@ class ColumnInterpolation:
         self.k0 = np.empty((nk, ncol), dtype=np.int32)
         self.w = np.empty((nk, ncol), dtype=np.float32)
 
-        def weights(block):
-            c0, c1 = block
+        def weights(c0, c1):
             n = c1 - c0
             cols = np.arange(n)
             # Number of model levels below each target level, by counting (the levels of every column increase):
@@ -233,9 +232,7 @@ class ColumnInterpolation:
                 thickness -= h0
                 np.divide(np.float32(levels[k]) - h0, thickness, out=self.w[k, c0:c1])
 
-        # blocks of columns on every core (NumPy releases the GIL)
-        bounds = np.linspace(0, ncol, max(1, min(threads(), ncol)) + 1).astype(int)
-        parallel_map(weights, [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a], threads())
+        in_blocks(weights, ncol)  # blocks of columns on every core
         np.clip(self.w, 0.0, 1.0, out=self.w)
         top = h[-1] + 0.5 * (h[-1] - h[-2])
         self.zero = (levels[:, None] > top[None, :]) | (levels[:, None] < np.asarray(terrain, dtype=float).reshape(1, -1))

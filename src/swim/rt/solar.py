@@ -243,7 +243,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8; Joseph et al. (1976),
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
-    from .march import BACKENDS, MarchSettings, in_level_blocks, species_sum, threads
+    from ..workers import in_blocks, threads
+    from .march import BACKENDS, MarchSettings, species_sum
 
     names = STEP1A_VARIABLES if variables is None else tuple(variables)
     unknown = sorted(set(names) - set(STEP1A_VARIABLES))
@@ -292,7 +293,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
             hydro_levels[k0:k1] |= beta[n, k0:k1].any(axis=(1, 2))
         aerosol_levels[k0:k1] = aerosol[k0:k1].any(axis=(1, 2))
 
-    in_level_blocks(find, nk)
+    in_blocks(find, nk)
     tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol_levels}
     swept = [c for c in range(4) if tops[c].any()]
     taus = {}
@@ -318,7 +319,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
                 else:
                     fields[row, k0:k1] = aerosol[k0:k1]
 
-        in_level_blocks(fill, n_levels)  # on every core (NumPy's loops release the GIL)
+        in_blocks(fill, n_levels)  # on every core (NumPy's loops release the GIL)
         if backend == "numba":
             from .solar_cpu import sweep
 
