@@ -78,12 +78,67 @@ def test_resample_columns_matches_numpy_interp_per_column(shape):
         interpolation.columns(values, c0, c1) if c0 else interpolation.columns(values[:, :0], 0, 1)
 
 
+@pytest.mark.parametrize("shape", [(6, 1, 1), (9, 3, 5), (30, 11, 4)])
+def test_resample_columns_of_a_sparse_field_matches_numpy_interp_per_column(shape):
+    """A cloud fills few model levels: target levels whose model levels are zero in every column of a block are
+    left zero without interpolating. Against numpy.interp per column, for a field that is zero on most levels,
+    non-zero on one level in a single column, and zero everywhere; over the whole grid and in blocks of columns
+    that split the cloudy levels' columns."""
+    from swim.optics.volume import ColumnInterpolation
+
+    rng = np.random.default_rng(sum(shape) + 1)
+    nz, ny, nx = shape
+    height = 50.0 + np.cumsum(rng.uniform(20.0, 400.0, shape), axis=0)
+    terrain = rng.uniform(0.0, 120.0, (ny, nx))
+    levels = np.linspace(0.0, height.max() * 1.2, 53)
+    layer = np.zeros(shape)
+    layer[nz // 2] = rng.uniform(1e-4, 1e-3, (ny, nx))  # one cloudy model level
+    layer[nz // 2 + 1, ny - 1, nx - 1] = 7e-4  # and one cloudy cell above it, in the last column only
+    fields = {"one level and one cell": layer, "zero": np.zeros(shape)}
+    interpolation = ColumnInterpolation(height, terrain, levels)
+    for name, values in fields.items():
+        out = interpolation(values)
+        for j in range(ny):
+            for i in range(nx):
+                h = height[:, j, i]
+                expected = np.interp(levels, h, values[:, j, i])
+                top = h[-1] + 0.5 * (h[-1] - h[-2])
+                expected[(levels > top) | (levels < terrain[j, i])] = 0.0
+                np.testing.assert_allclose(out[:, j, i], expected, rtol=1e-5, atol=1e-9, err_msg=f"{name}, {j, i}")
+        flat = values.reshape(nz, -1)
+        cut = max(1, flat.shape[1] - 2)  # the last block holds the single cloudy column
+        parts = [interpolation.columns(flat[:, c0:c1], c0, c1) for c0, c1 in ((0, cut), (cut, flat.shape[1]))
+                 if c1 > c0]
+        np.testing.assert_array_equal(np.concatenate(parts, axis=1), out.reshape(levels.size, -1), err_msg=name)
+    assert interpolation(layer).any() and not interpolation(fields["zero"]).any()
+
+
+def test_optical_volume_refuses_bad_content_by_name():
+    """Eq. 7 runs on the cells with content only, so a content that is not finite and >= 0 (a scene that was not
+    validated) is refused with the variable's name and units, not skipped or turned into NaN extinction."""
+    from swim.errors import SwimInputError
+    from swim.io.scene import scene_from_arrays, validate_scene
+    from swim.optics.volume import build_optical_volume
+
+    nz, ny, nx = 6, 4, 5
+    scene = validate_scene(scene_from_arrays(x=np.arange(nx) * 1000.0, y=np.arange(ny) * 1000.0,
+                                             z=300.0 * (1 + np.arange(nz)), reference_lat=40.0, reference_lon=-100.0,
+                                             terrain_height=np.zeros((ny, nx)),
+                                             snow_content=np.full((nz, ny, nx), 1e-4)))
+    for bad in (-1e-3, np.nan, np.inf):
+        broken = scene.copy(deep=True)
+        broken["snow_content"].values[2, 1, 3] = bad
+        with pytest.raises(SwimInputError, match=r"snow_content must be finite and >= 0 \[kg m-3\]"):
+            build_optical_volume(broken)
+
+
 def test_optical_volume_in_blocks_of_rows_is_eq7_resampled(monkeypatch):
     """build_optical_volume computes Eq. 7 and resamples it in blocks of rows (memory): any block size gives
     beta = 1.5 CWC / (r_e rho) of the whole field, resampled, with r_e from Martin et al. (1994) for cloud
-    liquid (computed here from its formula) and the default radius for snow."""
+    liquid (computed here from its formula) and the scene's own radii for snow. Both fields are patchy (Eq. 7 is
+    evaluated where there is content only), and one row of snow is clear (a block of one row is then empty)."""
     import swim.optics.volume as volume_module
-    from swim.constants import DEFAULT_EFFECTIVE_RADIUS, HYDROMETEOR_DENSITY, SPECIES
+    from swim.constants import HYDROMETEOR_DENSITY, SPECIES
     from swim.io.scene import scene_from_arrays, validate_scene
 
     rng = np.random.default_rng(7)
@@ -92,10 +147,13 @@ def test_optical_volume_in_blocks_of_rows_is_eq7_resampled(monkeypatch):
     y = np.arange(ny) * 1000.0
     z = 200.0 + 400.0 * np.arange(nz)
     liquid = 5e-4 * rng.random((nz, ny, nx)) * (rng.random((nz, ny, nx)) > 0.4)
-    snow = 2e-4 * rng.random((nz, ny, nx))
+    snow = 2e-4 * rng.random((nz, ny, nx)) * (rng.random((nz, ny, nx)) > 0.5)
+    snow[:, 3] = 0.0
+    snow_radius = rng.uniform(50e-6, 500e-6, (nz, ny, nx))
     terrain = 300.0 * rng.random((ny, nx))
     scene = validate_scene(scene_from_arrays(x=x, y=y, z=z, reference_lat=40.0, reference_lon=-100.0,
-                                             terrain_height=terrain, cloud_liquid_content=liquid, snow_content=snow))
+                                             terrain_height=terrain, cloud_liquid_content=liquid, snow_content=snow,
+                                             snow_effective_radius=snow_radius))
     volumes = {}
     for rows in (1, 4, ny):
         monkeypatch.setattr(volume_module, "_BLOCK_BYTES", 8 * nz * nx * rows)
@@ -105,7 +163,7 @@ def test_optical_volume_in_blocks_of_rows_is_eq7_resampled(monkeypatch):
     q = scene["cloud_liquid_content"].values
     r_liquid = np.clip(np.cbrt(3 * q / (4 * np.pi * 1000.0 * 0.8 * 1e8)), 4e-6, 20e-6)  # Martin et al. (1994)
     beta = {"cloud_liquid": 1.5 * q / (r_liquid * HYDROMETEOR_DENSITY["cloud_liquid"]),
-            "snow": 1.5 * scene["snow_content"].values / (DEFAULT_EFFECTIVE_RADIUS["snow"] * HYDROMETEOR_DENSITY["snow"])}
+            "snow": 1.5 * snow / (snow_radius * HYDROMETEOR_DENSITY["snow"])}
     for rows, volume in volumes.items():
         for species, value in beta.items():
             expected = resample_columns(value, height, scene["terrain_height"].values, levels)

@@ -5,10 +5,11 @@ tracer wants a volume it can index in O(1): this stage
 
 1. computes the extinction coefficient of each hydrometeor species on the native grid with Eq. 7 of the
    paper (Albers et al. 2020) and the effective radius of each species
-   (:func:`swim.optics.hydrometeors.effective_radius`),
+   (:func:`swim.optics.hydrometeors.effective_radius`), at the cells with content (elsewhere it is 0),
 2. resamples extinction (not content: Eq. 7 is non-linear in the radius) linearly in height onto regular
    levels ``z = z_bottom + k dz`` per column; below the lowest model level down to the terrain the lowest
-   value is kept (fog reaches the ground), below the terrain and above the top it is zero,
+   value is kept (fog reaches the ground), below the terrain and above the top it is zero, and so is a
+   regular level between model levels that are zero throughout a block of columns (not interpolated),
 3. fits the affine map between grid indices (i, j) and grid horizontal coordinates (x, y) (the
    orthographic projection about the scene's reference point, :func:`swim.frames.orthographic_xy`), and
    records how far the real column positions deviate from it.
@@ -237,6 +238,7 @@ class ColumnInterpolation:
         top = h[-1] + 0.5 * (h[-1] - h[-2])
         self.zero = (levels[:, None] > top[None, :]) | (levels[:, None] < np.asarray(terrain, dtype=float).reshape(1, -1))
         self.shape = (levels.size,) + height.shape[1:]
+        self._spans = {}  # (c0, c1) -> the lowest and highest model level each target level reads there
 
     def __call__(self, values):
         """The field (nz, ny, nx) on the regular levels, (nk, ny, nx) float32."""
@@ -247,22 +249,38 @@ class ColumnInterpolation:
         """Columns ``c0:c1`` (of the flattened (y, x)) of a field on the regular levels, (nk, c1 - c0) float32.
 
         ``values`` (nz, ...) holds those columns only (any shape whose trailing axes flatten to c1 - c0), so a
-        big grid can be resampled in blocks of rows, each with small temporaries."""
+        big grid can be resampled in blocks of rows, each with small temporaries. A target level whose model
+        levels either side are zero in every one of these columns is zero, without interpolating: a cloud
+        species fills a few of a model's levels (docs/performance.md, section 42)."""
         n = c1 - c0
         v = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
-        if v.size != values.shape[0] * n:
-            raise ValueError(f"values hold {v.size // max(values.shape[0], 1)} columns per level, not c1 - c0 = {n}")
+        nz = values.shape[0]
+        if v.size != nz * n:
+            raise ValueError(f"values hold {v.size // max(nz, 1)} columns per level, not c1 - c0 = {n}")
         cols = np.arange(n)
-        out = np.empty((self.k0.shape[0], n), dtype=np.float32)
-        for k, row in enumerate(out):  # one flat take per target level (as in __init__)
+        out = np.zeros((self.k0.shape[0], n), dtype=np.float32)
+        for k in np.flatnonzero(self._reads_values(v.reshape(nz, n), c0, c1)):
+            row = out[k]  # one flat take per target level (as in __init__)
             below = self.k0[k, c0:c1] * np.intp(n) + cols
             lower = v.take(below)
             v.take(below + n, out=row)
             row -= lower
             row *= self.w[k, c0:c1]
             row += lower
-        out[self.zero[:, c0:c1]] = 0.0
+            row[self.zero[k, c0:c1]] = 0.0
         return out
+
+    def _reads_values(self, values, c0, c1):
+        """(nk,) bool: whether target level k reads a model level that is not zero in every column of ``values``
+        (nz, c1 - c0), i.e. whether some column's levels k0 or k0 + 1 there hold a value."""
+        key = (c0, c1)
+        span = self._spans.get(key)
+        if span is None:  # the model levels that each target level reads in these columns (all fields share them)
+            k0 = self.k0[:, c0:c1]
+            span = self._spans[key] = (k0.min(axis=1), k0.max(axis=1) + 1)
+        # nonzero model levels counted from the bottom: any in [lowest, highest] is a difference of two counts
+        count = np.concatenate(([0], np.cumsum(np.any(values != 0, axis=1))))
+        return count[span[1] + 1] > count[span[0]]
 
 
 def resample_columns(values, height, terrain, levels, interpolation: ColumnInterpolation | None = None):
@@ -328,7 +346,9 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     Raises
     ------
     SwimInputError
-        If the grid is degenerate (fewer than 2 columns in x or y or 2 levels).
+        If the grid is degenerate (fewer than 2 columns in x or y or 2 levels), or a ``<species>_content`` is
+        negative or not finite (the message names it; :func:`swim.io.scene.validate_scene` refuses such scenes
+        first).
 
     References
     ----------
@@ -378,12 +398,23 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
         radius_name = f"{species}_effective_radius"
         radius_all = scene[radius_name].values if radius_name in scene else None
 
-        def eq7_block(block, n=n, species=species, content_all=content_all, radius_all=radius_all):
+        def eq7_block(block, n=n, name=name, species=species, content_all=content_all, radius_all=radius_all):
             j0, j1 = block
             content = np.asarray(content_all[:, j0:j1], dtype=float)
-            radius = effective_radius(species, content, None if radius_all is None else radius_all[:, j0:j1])
-            beta = extinction_coefficient_stephens1978(content, radius, HYDROMETEOR_DENSITY[species])
-            beta[content <= 0] = 0.0
+            lowest, highest = content.min(), content.max()
+            if not (lowest >= 0.0 and highest < np.inf):  # NaN fails both
+                bad = ~np.isfinite(content) | (content < 0)
+                raise SwimInputError(f"{name} must be finite and >= 0 [kg m-3]; got {int(bad.sum())} values such as "
+                                     f"{content[bad].flat[0]!r}")
+            if highest == 0.0:
+                return  # the block's extinction stays 0
+            # Eq. 7 where there is content only (1-10 % of a model's cells; elsewhere beta is 0): the same values
+            # as over the whole block, at a fraction of its float64 passes (docs/performance.md, section 42)
+            cloudy = content > 0
+            present = content[cloudy]
+            radius = effective_radius(species, present, None if radius_all is None else radius_all[:, j0:j1][cloudy])
+            beta = np.zeros(content.shape, np.float32)
+            beta[cloudy] = extinction_coefficient_stephens1978(present, radius, HYDROMETEOR_DENSITY[species])
             flat[n, :, j0 * nx:j1 * nx] = interpolation.columns(beta, j0 * nx, j1 * nx)
 
         parallel_map(eq7_block, blocks, workers)  # an error in a block (bad values) is raised here
