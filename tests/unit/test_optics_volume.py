@@ -46,6 +46,18 @@ def test_resample_columns_is_linear_in_height_and_zero_below_terrain_and_above_t
     assert out[1, 0, 1] == 0.0 and out[2, 0, 1] == pytest.approx(2.0)  # below the 150 m terrain: zero
 
 
+def _numpy_interp_per_column(values, height, terrain, levels):
+    """The independent reference of the column resampling: numpy.interp on each column, zero below the terrain and
+    above half a layer over the top model level; (levels, ny, nx)."""
+    expected = np.zeros((levels.size,) + values.shape[1:])
+    for j, i in np.ndindex(*values.shape[1:]):
+        h = height[:, j, i]
+        expected[:, j, i] = np.interp(levels, h, values[:, j, i])
+        top = h[-1] + 0.5 * (h[-1] - h[-2])
+        expected[(levels > top) | (levels < terrain[j, i]), j, i] = 0.0
+    return expected
+
+
 @pytest.mark.parametrize("shape", [(2, 1, 1), (7, 3, 5), (30, 11, 4)])
 def test_resample_columns_matches_numpy_interp_per_column(shape):
     """Each column resampled as numpy.interp would (an independent per-column reference), on uneven heights
@@ -62,14 +74,8 @@ def test_resample_columns_matches_numpy_interp_per_column(shape):
     levels.sort()
     out = resample_columns(values, height, terrain, levels)
     assert out.shape == (levels.size, ny, nx) and out.dtype == np.float32
-    for j in range(ny):
-        for i in range(nx):
-            h = height[:, j, i]
-            expected = np.interp(levels, h, values[:, j, i])
-            top = h[-1] + 0.5 * (h[-1] - h[-2])
-            expected[(levels > top) | (levels < terrain[j, i])] = 0.0
-            # float32 weights from float32 heights (~1 mm at 12 km): 1e-4 of the values' range
-            np.testing.assert_allclose(out[:, j, i], expected, rtol=1e-5, atol=1e-7, err_msg=f"column {j, i}")
+    # float32 weights from float32 heights (~1 mm at 12 km): 1e-4 of the values' range
+    np.testing.assert_allclose(out, _numpy_interp_per_column(values, height, terrain, levels), rtol=1e-5, atol=1e-7)
     interpolation = ColumnInterpolation(height, terrain, levels)
     c0, c1 = (ny * nx) // 3, ny * nx
     block = interpolation.columns(values.reshape(nz, -1)[:, c0:c1], c0, c1)
@@ -98,13 +104,8 @@ def test_resample_columns_of_a_sparse_field_matches_numpy_interp_per_column(shap
     interpolation = ColumnInterpolation(height, terrain, levels)
     for name, values in fields.items():
         out = interpolation(values)
-        for j in range(ny):
-            for i in range(nx):
-                h = height[:, j, i]
-                expected = np.interp(levels, h, values[:, j, i])
-                top = h[-1] + 0.5 * (h[-1] - h[-2])
-                expected[(levels > top) | (levels < terrain[j, i])] = 0.0
-                np.testing.assert_allclose(out[:, j, i], expected, rtol=1e-5, atol=1e-9, err_msg=f"{name}, {j, i}")
+        np.testing.assert_allclose(out, _numpy_interp_per_column(values, height, terrain, levels), rtol=1e-5,
+                                   atol=1e-9, err_msg=name)
         flat = values.reshape(nz, -1)
         cut = max(1, flat.shape[1] - 2)  # the last block holds the single cloudy column
         parts = [interpolation.columns(flat[:, c0:c1], c0, c1) for c0, c1 in ((0, cut), (cut, flat.shape[1]))
