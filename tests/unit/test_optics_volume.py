@@ -127,10 +127,12 @@ def test_optical_volume_refuses_bad_content_by_name():
                                              terrain_height=np.zeros((ny, nx)),
                                              snow_content=np.full((nz, ny, nx), 1e-4)))
     for bad in (-1e-3, np.nan, np.inf):
-        broken = scene.copy(deep=True)
-        broken["snow_content"].values[2, 1, 3] = bad
-        with pytest.raises(SwimInputError, match=r"snow_content must be finite and >= 0 \[kg m-3\]"):
-            build_optical_volume(broken)
+        for background in (1e-4, 0.0):  # also where the field has no content at all besides the bad value
+            broken = scene.copy(deep=True)
+            broken["snow_content"].values[...] = background
+            broken["snow_content"].values[2, 1, 3] = bad
+            with pytest.raises(SwimInputError, match=r"snow_content must be finite and >= 0 \[kg m-3\]"):
+                build_optical_volume(broken)
 
 
 def test_optical_volume_in_blocks_of_rows_is_eq7_resampled(monkeypatch):

@@ -392,9 +392,7 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
         name = f"{species}_content"
         if name not in scene:
             continue
-        content_all = scene[name].values
-        if not np.any(content_all > 0):
-            continue
+        content_all = scene[name].values  # each block checks its content and skips itself where it has none
         radius_name = f"{species}_effective_radius"
         radius_all = scene[radius_name].values if radius_name in scene else None
 
