@@ -741,7 +741,7 @@ def clear_step_edges(start, direction, s0, length, n_steps, consts, n_probe=CLEA
 
 
 def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class,
-                   tau_refine=0.0, steps=None):
+                   tau_refine=0.0, steps=None, terminal=False):
     """Accumulate one ray segment with n_steps midpoint steps between ``edges`` (n_steps + 1, n) [m] (see the
     module docstring), or each ray its own ``steps`` (n,) <= n_steps of them (:func:`grid_step_edges`); in the
     grid, thick steps and cloud faces are refined down to ``tau_refine`` (:func:`_march_grid_refined`).
@@ -758,6 +758,8 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     def sample(st, s_lo, ds):
         """The state after a step of length ``ds`` from ``s_lo`` [m], and the step's hydrometeor extinction."""
         s = s_lo + 0.5 * ds
+        if terminal:  # the step back takes back what the step before added: at that step's sample
+            s = jnp.where(ds < 0, st["hit_lo"], s)
         q = start + s[:, None] * direction
         h, mu_s, k, j, i = _point_geometry(q, consts)
         beta_r, beta_a, beta_s, t_sun, diffuse = _gas_at(h, mu_s, consts)
@@ -774,7 +776,7 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
                 beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
                 t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
             gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
-            hit_now = st["alive"] & (gap < 0)
+            hit_now = st["alive"] & (gap < 0) & (not terminal)
             frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
         else:
             beta_sp = jnp.zeros((q.shape[0], n_sp), jnp.float32)
@@ -787,7 +789,9 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
             gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
             hit_now = st["alive"] & (gap < 0)
             frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
-        ds_eff = ds * frac * st["alive"]
+        # the step in which the ray meets the ground adds nothing here: its sample may lie deep inside the
+        # terrain; the terminal step (_terminal_step) covers it up to the refined crossing
+        ds_eff = jnp.where(st["alive"] & ~hit_now, ds, 0.0)
         # direct beam / E_TOA, lights the gas and aerosol (Eq. 3): gas, hydrometeors (T), 3-D aerosol
         irradiance = t_sun * (t_cloud * shadow)[:, None] * t_aerosol
         if in_grid:
@@ -801,7 +805,9 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         beta_clear = beta_r + beta_a + beta_a3 + beta_s
         beta_h = beta_sp.sum(axis=1)
         x = (beta_clear + beta_h[:, None]) * ds_eff[:, None]
-        step_mean = jnp.where(x > 1e-4, -jnp.expm1(-x) / jnp.maximum(x, 1e-30), 1.0 - 0.5 * x)
+        # (1 - e^-x) / x, also for the terminal step's negative x (a step back)
+        big = jnp.abs(x) > 1e-4
+        step_mean = jnp.where(big, -jnp.expm1(-x) / jnp.where(big, x, 1.0), 1.0 - 0.5 * x)
         t_obs = jnp.exp(-(st["tau_clear"] + st["tau_h"][:, None]))
         scat_a = (beta_a + beta_a3) * consts["aerosol_ssa"]
         scat_s = beta_s * consts["stratospheric_ssa"]
@@ -816,7 +822,8 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         # Eq. 12 integrand over the first two optical depths of hydrometeors.
         t0 = st["tau_h"]
         t1 = t0 + beta_h * ds_eff
-        weight = jnp.maximum(jnp.exp(-t0) - jnp.exp(-jnp.minimum(t1, 2.0)), 0.0)
+        weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
+        weight = jnp.where(t1 >= t0, jnp.maximum(weight, 0.0), weight)  # negative for a step back
         i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
         i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
         i_cloud_t = st["i_cloud_t"] + t_cloud * shadow * weight
@@ -824,6 +831,8 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         # bracket of the crossing for the bisection after the march: the previous sample (above) and this one
         hit_lo = jnp.where(hit_now, st["s_last"], st["hit_lo"])
         hit_hi = jnp.where(hit_now, s, st["hit_hi"])
+        hit_from = jnp.where(hit_now, s_lo, st["hit_from"])
+        hit_back = jnp.where(hit_now, st["lo_last"], st["hit_back"])
         return {
             "tau_clear": st["tau_clear"] + beta_clear * ds_eff[:, None],
             "tau_h": t1,
@@ -837,6 +846,9 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
             "hit_s": hit_s,
             "hit_lo": hit_lo,
             "hit_hi": hit_hi,
+            "hit_from": hit_from,
+            "hit_back": hit_back,
+            "lo_last": s_lo,
             "gap": gap,
             "s_last": s,
         }, beta_h
@@ -984,6 +996,32 @@ def refine_terrain_hit(start, direction, state, consts):
     return jnp.where(valid, 0.5 * (lo + hi), state["hit_s"])
 
 
+def _terminal_step(state, start, direction, rays, consts, ms_profile, aerosol_class):
+    """The last step of each ray that met the ground: from the start of the step in which it did (``hit_from``) to
+    the refined crossing ``s_hit`` [m] (:func:`refine_terrain_hit`), one sample at its middle; rays that did not
+    meet the ground are left as they are.
+
+    The march finds the ground by a sample below it, in the middle of a step that may be kilometres long (the
+    empty space of a ray grazing a big grid); that sample's light and extinction come from inside the terrain,
+    and the step adds nothing. Where the crossing lies before ``hit_from``, in the far half of the step before
+    (which was taken whole, from ``hit_back``), that step is taken back (a step of negative length at its own
+    sample ``hit_lo``, which undoes it) and taken again up to the crossing. So the light of the air in front of
+    the ground no longer depends on the step count (docs/performance.md, section 43). :mod:`swim.rt.march_cpu`
+    takes the same steps."""
+    state = dict(state)
+    s_hit, alive = state.pop("s_hit"), state["alive"]
+    hit_from = state["hit_from"]
+    back = state["hit"] & (s_hit < hit_from) & (state["hit_back"] >= 0)
+    # two steps: back to where the step before began (zero length unless ``back``), then on to the crossing (zero
+    # length where it lies before the ray's first step)
+    mid = jnp.where(back, state["hit_back"], hit_from)
+    end = jnp.where(back | (s_hit > hit_from), s_hit, hit_from)
+    state["alive"] = state["hit"]
+    state = _march_segment(state, start, direction, jnp.stack([hit_from, mid, end]), 2, True, rays, consts,
+                           ms_profile, aerosol_class, terminal=True)
+    return dict(state, alive=alive, s_hit=s_hit)
+
+
 def _prepare_rays(start, direction, bounds, consts, settings: MarchSettings):
     """Per-ray set-up before the march: the aerosol column class and the diffuse-source height profiles (or
     None) at each ray's lowest point."""
@@ -1006,6 +1044,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
         "l_clear": zeros3, "i_nogas": zeros3, "i_gas": zeros3, "i_cloud_t": jnp.zeros(n, jnp.float32),
         "alive": valid, "hit": jnp.zeros(n, bool), "hit_s": jnp.zeros(n, jnp.float32),
         "hit_lo": jnp.zeros(n, jnp.float32), "hit_hi": jnp.zeros(n, jnp.float32),
+        "hit_from": jnp.zeros(n, jnp.float32), "hit_back": jnp.zeros(n, jnp.float32),
+        "lo_last": jnp.full(n, -1.0, jnp.float32),  # where the last step taken began (none yet)
         "gap": jnp.full(n, 1e9, jnp.float32), "s_last": jnp.zeros(n, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)
@@ -1028,6 +1068,7 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
                                                 settings.n_after, consts),
                                settings.n_after, False, *args)
     state["s_hit"] = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
+    state = _terminal_step(state, start, direction, *args)
     state["tau_species"] = state["tau_species"] @ consts["species_matrix"]  # all of SPECIES, 0 where not packed
     return state
 

@@ -347,6 +347,22 @@ def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
 
 
 @_helper_jit()
+def _terrain_crossing(hit_s, lo, hi, n_bisections, st0, st1, st2, d0, d1, d2, p, coef, terrain):
+    """:func:`swim.rt.march.refine_terrain_hit`: the ground's crossing [m] by bisection between the samples ``lo``
+    (above the ground) and ``hi`` (below it) that bracket it; ``hit_s`` where they do not."""
+    if (_gap_along(lo, st0, st1, st2, d0, d1, d2, p, coef, terrain) >= 0
+            and _gap_along(hi, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0):
+        for _ in range(n_bisections):
+            mid = 0.5 * (lo + hi)
+            if _gap_along(mid, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0:
+                hi = mid
+            else:
+                lo = mid
+        return 0.5 * (lo + hi)
+    return hit_s
+
+
+@_helper_jit()
 def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step_at):
     """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
     ``edges`` [m]) into ``step_at[0:6, :count]`` (height [m], local solar-zenith cosine, k, j, i, and the sky
@@ -515,9 +531,9 @@ def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, i
     and t0 < 2 wherever the weight is not 0)."""
     x = (beta_clear + beta_h) * ds_eff
     # the step's mean transmittance (1 - e^-x) / x and e^-x - 1, which carries e^-tau to the observer to the next
-    # step: below x = 0.1 (a step in clear air has x ~ 1e-3) one Taylor polynomial gives both (relative error
-    # < 1e-11) without the division, above it one expm1
-    if x < 0.1:
+    # step: for |x| < 0.1 (a step in clear air has x ~ 1e-3; x < 0 for the terminal step back over the ground)
+    # one Taylor polynomial gives both (relative error < 1e-11) without the division, beyond it one expm1
+    if -0.1 < x < 0.1:
         step_mean = 1.0 - x * (0.5 - x * (1.0 / 6 - x * (1.0 / 24 - x * (1.0 / 120 - x * (1.0 / 720 - x / 5040)))))
         em = -x * step_mean
     else:
@@ -585,10 +601,27 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         s_last = 0.0
         c0 = class_lower[r]
         wc = class_weight[r]
-        for segment in range(3):
-            if not alive:
-                break
-            if segment == 0:
+        last_lo = -1.0  # where the last step taken began (none yet)
+        term_lo = back_to = 0.0  # where the step in which the ray met the ground began, and the step before it
+        s_hit = bounds[r, 2]
+        for segment in range(4):
+            terminal = segment == 3
+            if terminal:
+                # swim.rt.march._terminal_step: from the start of the step in which the ray met the ground (whose
+                # sample may lie far inside the terrain, and which added nothing) to the refined crossing, or
+                # back to it where it lies in the far half of the step before
+                if not hit:
+                    break
+                s_hit = _terrain_crossing(hit_s, hit_lo, hit_hi, n_bisections, st0, st1, st2, d0, d1, d2, p, coef,
+                                          terrain)
+                length = s_hit - term_lo
+                if not (length > 0 or (length < 0 and back_to >= 0)):
+                    break
+                n_steps, s0, in_grid = 1, term_lo, True
+                alive = True
+            elif not alive:
+                continue
+            elif segment == 0:
                 n_steps, s0, length, in_grid = n_before, 0.0, bounds[r, 0], False
             elif segment == 1:
                 n_steps, s0, length, in_grid = n_grid, bounds[r, 0], bounds[r, 1] - bounds[r, 0], True
@@ -596,18 +629,28 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 n_steps, s0, length, in_grid = n_after, bounds[r, 1], bounds[r, 2] - bounds[r, 1], False
             if n_steps == 0:
                 continue
-            if in_grid:
+            if terminal:
+                n_steps = 0  # one pending interval, sampled in the loop's branch for refined halves
+            elif in_grid:
                 n_steps = _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
                                           empty_weight, probe_spacing, cell_slack, empty_steps, empty_cells_per_step,
                                           cdf, edges, probe_at)
             else:
                 _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra,
                              n_clear_probe, clear_power, clear_floor, cdf, edges)
-            taken = n_steps if length > 0 else 1
+            taken = n_steps if length > 0 or terminal else 1
             m = 0
             block_first = block_stop = 0  # the steps whose geometry is in probe_at (_step_geometry)
             pending = 0
-            budget = refine_budget if in_grid and tau_refine > 0 else 0
+            if terminal:  # pending intervals, the last one on top
+                if length > 0:
+                    stack_lo[0], stack_hi[0], stack_depth[0] = term_lo, s_hit, max_depth
+                    pending = 1
+                else:  # the crossing lies in the far half of the step before: that step taken back, then again
+                    stack_lo[0], stack_hi[0], stack_depth[0] = back_to, s_hit, max_depth
+                    stack_lo[1], stack_hi[1], stack_depth[1] = term_lo, back_to, max_depth
+                    pending = 2
+            budget = refine_budget if in_grid and tau_refine > 0 and not terminal else 0
             have_prev = False  # an accumulated grid interval that may still be rolled back
             prev_lo = prev_hi = prev_beta = 0.0
             prev_depth = 0
@@ -633,6 +676,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     s_lo, s_hi, depth = stack_lo[pending], stack_hi[pending], stack_depth[pending]
                     ds = s_hi - s_lo
                     s = s_lo + 0.5 * ds
+                    if terminal and ds < 0:  # the step back takes back what the step before added: at its sample
+                        s = hit_lo
                     h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
                     fu = math.sqrt(_clip(h / top, 0.0, 1.0))
                 samples += 1
@@ -644,9 +689,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 fm = (mu_s + 1.0) * 0.5
                 su0, sv0, sa, sb = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
                 gap = _terrain_gap(h, j, i, terrain)
-                hit_now = alive and gap < 0
+                hit_now = alive and gap < 0 and not terminal
                 frac = _clip(gap_prev / max(gap_prev - gap, 1e-6), 0.0, 1.0) if hit_now else 1.0
-                ds_eff = ds * frac if alive else 0.0
+                ds_eff = ds if alive and not hit_now else 0.0
                 # the corners of the skylight of the ray's aerosol column class, where there are classes (a flag
                 # per step rather than n_class itself in the wavelength loop: the kernel was ~4 % faster so)
                 classes = False
@@ -711,10 +756,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         lc0, lc1, lc2 = saved[8], saved[9], saved[10]
                         in0, in1, in2 = saved[11], saved[12], saved[13]
                         ig0, ig1, ig2 = saved[14], saved[15], saved[16]
-                        th, ict, gap_prev, s_last = saved[7], saved[6], saved[17], saved[18]
+                        th, ict, gap_prev, s_last, last_lo = saved[7], saved[6], saved[17], saved[18], saved[19]
                         e_th = math.exp(-th)
                         for c in range(n_species):
-                            tsp[c] = saved[19 + c]
+                            tsp[c] = saved[20 + c]
                         mid = prev_lo + 0.5 * (prev_hi - prev_lo)
                         stack_lo[pending], stack_hi[pending], stack_depth[pending] = s_lo, s_hi, depth
                         stack_lo[pending + 1], stack_hi[pending + 1] = mid, prev_hi
@@ -739,9 +784,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     saved[8], saved[9], saved[10] = lc0, lc1, lc2
                     saved[11], saved[12], saved[13] = in0, in1, in2
                     saved[14], saved[15], saved[16] = ig0, ig1, ig2
-                    saved[6], saved[7], saved[17], saved[18] = ict, th, gap_prev, s_last
+                    saved[6], saved[7], saved[17], saved[18], saved[19] = ict, th, gap_prev, s_last, last_lo
                     for c in range(n_species):
-                        saved[19 + c] = tsp[c]
+                        saved[20 + c] = tsp[c]
                     have_prev = True
                     prev_lo, prev_hi, prev_beta, prev_depth = s_lo, s_hi, beta_h, depth
                 t0 = th
@@ -754,6 +799,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 if t1 > t0 and t0 < 2.0:
                     e_t1 = math.exp(-min(t1, 2.0))
                     weight = max(e_th - e_t1, 0.0)
+                    gas_ratio = 1.0 / e_th
+                elif t1 < t0 and t1 < 2.0:  # a step back (the terminal step): a negative weight
+                    e_t1 = math.exp(-t1)
+                    weight = e_th - e_t1
                     gas_ratio = 1.0 / e_th
                 u0 = 0
                 wu = 0.0
@@ -803,26 +852,17 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     hit_s = s - 0.5 * ds + frac * ds
                     hit_lo = s_last
                     hit_hi = s
+                    term_lo = s_lo
+                    back_to = last_lo
                     alive = False
                     hit = True
+                if terminal and pending == 0:
+                    alive = False
                 gap_prev = gap
                 s_last = s
+                last_lo = s_lo
                 if not alive:
                     break
-        # refine_terrain_hit: bisection between the samples that bracket the crossing
-        s_hit = bounds[r, 2]
-        if hit:
-            s_hit = hit_s
-            lo, hi = hit_lo, hit_hi
-            if (_gap_along(lo, st0, st1, st2, d0, d1, d2, p, coef, terrain) >= 0
-                    and _gap_along(hi, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0):
-                for _ in range(n_bisections):
-                    mid = 0.5 * (lo + hi)
-                    if _gap_along(mid, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0:
-                        hi = mid
-                    else:
-                        lo = mid
-                s_hit = 0.5 * (lo + hi)
         tau_clear[r, 0], tau_clear[r, 1], tau_clear[r, 2] = tc0, tc1, tc2
         l_clear[r, 0], l_clear[r, 1], l_clear[r, 2] = lc0, lc1, lc2
         i_nogas[r, 0], i_nogas[r, 1], i_nogas[r, 2] = in0, in1, in2
@@ -950,7 +990,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more,
     less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in its empty
     intervals, :func:`swim.rt.march.grid_step_edges`; 0: no limit) and the clear air after it (``n_after`` steps
-    placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit`. While the ray's hydrometeor optical
+    placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit` and, for a ray that met the ground,
+    the terminal steps of :func:`swim.rt.march._terminal_step` up to that crossing. While the ray's hydrometeor optical
     depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before
     it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the
     previous interval's length exceeds it sends the ray back to its state before that interval, which is halved;
@@ -981,8 +1022,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     stack_depth = np.empty(refine_slots, np.int64)
     # the state before the last accumulated grid interval, restored when the next one shows that a cloud face
     # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
-    # gap 17, s_last 18, the species' optical depths 19-
-    saved = np.empty(19 + tau_species.shape[1])
+    # gap 17, s_last 18, last_lo 19, the species' optical depths 20-
+    saved = np.empty(20 + tau_species.shape[1])
     # the species' optical depths along the ray, and what each wavelength adds at a step
     tsp = np.empty(n_species)
     step_beta = np.empty(3)

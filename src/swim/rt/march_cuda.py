@@ -35,8 +35,8 @@ logger = logging.getLogger(__name__)
 DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_round_half_even", "_clip",
                     "_height_and_indices", "_point_geometry", "_geometry_constants", "_probe_indices", "_step_geometry",
                     "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_bilinear_clamped", "_terrain_gap",
-                    "_gap_along", "_lower_corner", "_prefetch_corners", "_probe_occupancy", "_adaptive_edges",
-                    "_clear_edges", "_invert_cdf", "_accumulate", "_march_ray_range")
+                    "_gap_along", "_terrain_crossing", "_lower_corner", "_prefetch_corners", "_probe_occupancy",
+                    "_adaptive_edges", "_clear_edges", "_invert_cdf", "_accumulate", "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
 
@@ -110,7 +110,7 @@ def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, r
     species (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species array keeps one element
     (a local array of size 0 is not a CUDA array)."""
     return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
-            19 + n_species, max(n_species, 1), n_channels)
+            20 + n_species, max(n_species, 1), n_channels)
 
 
 @functools.lru_cache(maxsize=8)
