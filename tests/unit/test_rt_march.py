@@ -239,11 +239,13 @@ def _random_rays(n, seed=0):
 
 @pytest.mark.parametrize("case", ["plume, multiple scattering", "no plume, single scattering, lambertian",
                                   "plume, 8 probes", "plume, 4 probes, one per cell crossed",
-                                  "plume, at most 4 empty steps", "plume, at most 4 empty steps, no refinement"])
+                                  "plume, at most 4 empty steps", "plume, at most 4 empty steps, no refinement",
+                                  "fog on the ground, 8 grid steps"])
 def test_numba_march_matches_the_jax_march(case):
     """The fused per-ray CPU march (swim.rt.march_cpu) is the JAX kernel's step loop written again: both
     must give the same pixels, to float32 round-off, for rays that cross cloud, the plume, the terrain (hits
-    refined by bisection), the grid's edges and the clear air beyond it."""
+    refined by bisection), the grid's edges and the clear air beyond it. With fog on the ground and few steps, rays
+    take their terminal steps back through the fog, beyond the first two optical depths (_terminal_step)."""
     plume = case.startswith("plume")
     extra = {} if plume else {"multiple_scattering": False, "surface": "lambertian"}
     if case.endswith("8 probes"):
@@ -257,16 +259,24 @@ def test_numba_march_matches_the_jax_march(case):
         # (test_empty_steps_thin_out_the_steps_in_empty_space); without refinement the JAX kernel masks the steps
         # beyond each ray's count in its plain step loop (_march_segment) instead of its refined one
         extra = {"empty_steps": 4, "n_probe": 16, **({"tau_refine": 0.0} if case.endswith("no refinement") else {})}
+    scene = _tiny_scene(plume)
+    if case.startswith("fog"):
+        extra = {"n_grid": 8}
+        fog = 4e-4 * np.exp(-((scene["height"] - scene["terrain_height"]) / 150.0) ** 2)  # tau ~10 per 100 m
+        scene["cloud_liquid_content"] = scene["cloud_liquid_content"] + fog.transpose(*scene["cloud_liquid_content"].dims)
     origins, dirs = _random_rays(600)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
-    out = {backend: _trace(_tiny_scene(plume), origins, dirs, sun, aerosol=aerosol,
+    out = {backend: _trace(scene, origins, dirs, sun, aerosol=aerosol,
                            settings=MarchSettings(backend=backend, **extra))[0] for backend in ("jax", "numba")}
     jax_out, numba_out = out["jax"], out["numba"]
     assert jax_out["surface"].sum() > 100 and (jax_out["tau_hydrometeor"] > 1.0).sum() > 30, "rays must hit ground and cloud"
     np.testing.assert_array_equal(numba_out["surface"], jax_out["surface"])
     for key in ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear", "tau_hydrometeor"):
-        np.testing.assert_allclose(numba_out[key], jax_out[key], rtol=2e-4, atol=1e-6, err_msg=key)
+        # in the fog the refined crossing, which both kernels find to ~1 m (float32 and float64 positions 20-30 km
+        # from the vantage), moves the fog's optical depth by up to ~0.1 m-1 x its difference
+        rtol = 1e-3 if key == "tau_hydrometeor" and case.startswith("fog") else 2e-4
+        np.testing.assert_allclose(numba_out[key], jax_out[key], rtol=rtol, atol=1e-6, err_msg=key)
     np.testing.assert_allclose(numba_out["distance"], jax_out["distance"], rtol=1e-4, atol=0.5)  # NaN where no ground
 
 

@@ -526,9 +526,10 @@ def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, i
                 gas_ratio):
     """One wavelength's accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth, the
     transmittance to the observer, the clear-sky radiance (Eq. 3: the source times the step's mean transmittance)
-    and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-t0 - e^-min(t1, 2); ``gas_ratio``:
-    e^t0, so that ``t_obs * gas_ratio`` is the clear sky's e^-tau_clear without an exp: t_obs = e^-(tau_clear + t0),
-    and t0 < 2 wherever the weight is not 0)."""
+    and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-min(t0, 2) - e^-min(t1, 2);
+    ``gas_ratio``: e^t0, so that ``t_obs * gas_ratio`` is the clear sky's e^-tau_clear without an exp: t_obs =
+    e^-(tau_clear + t0), and t0 < 2 wherever the weight is > 0). A negative weight is a terminal step back
+    (:func:`swim.rt.march._terminal_step`), where t0 may exceed 2: it takes e^-tau_clear itself."""
     x = (beta_clear + beta_h) * ds_eff
     # the step's mean transmittance (1 - e^-x) / x and e^-x - 1, which carries e^-tau to the observer to the next
     # step: for |x| < 0.1 (a step in clear air has x ~ 1e-3; x < 0 for the terminal step back over the ground)
@@ -542,6 +543,9 @@ def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, i
     if weight > 0.0:
         i_nogas += irradiance_h * weight
         i_gas += irradiance_h * (t_obs * gas_ratio) * weight
+    elif weight < 0.0:
+        i_nogas += irradiance_h * weight
+        i_gas += irradiance_h * math.exp(-tau_clear) * weight
     l_clear += t_obs * source * (ds_eff * step_mean)
     t_obs *= 1.0 + em
     tau_clear += beta_clear * ds_eff
@@ -803,7 +807,6 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 elif t1 < t0 and t1 < 2.0:  # a step back (the terminal step): a negative weight
                     e_t1 = math.exp(-t1)
                     weight = e_th - e_t1
-                    gas_ratio = 1.0 / e_th
                 u0 = 0
                 wu = 0.0
                 if use_ms:
@@ -826,7 +829,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         j_s = ms_profile[6 + c, r, u0] * (1 - wu) + ms_profile[6 + c, r, u0 + 1] * wu
                         source += (beta_r * j_r + scat_a * j_a + scat_s * j_s) * t_cloud
                     irradiance_h = irradiance
-                    if weight > 0.0 and in_grid:  # the skylight only where Eq. 12's weight needs it
+                    if weight != 0.0 and in_grid:  # the skylight only where Eq. 12's weight needs it (< 0: a step back)
                         if classes:
                             diffuse = (_bilinear_at(diffuse_classes, c, cu0, cv0, ca, cb) * (1 - wc)
                                        + _bilinear_at(diffuse_classes, c, cu1, cv1, ca1, cb1) * wc)
