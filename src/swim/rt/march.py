@@ -832,7 +832,6 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         hit_lo = jnp.where(hit_now, st["s_last"], st["hit_lo"])
         hit_hi = jnp.where(hit_now, s, st["hit_hi"])
         hit_from = jnp.where(hit_now, s_lo, st["hit_from"])
-        hit_back = jnp.where(hit_now, st["lo_last"], st["hit_back"])
         return {
             "tau_clear": st["tau_clear"] + beta_clear * ds_eff[:, None],
             "tau_h": t1,
@@ -847,8 +846,6 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
             "hit_lo": hit_lo,
             "hit_hi": hit_hi,
             "hit_from": hit_from,
-            "hit_back": hit_back,
-            "lo_last": s_lo,
             "gap": gap,
             "s_last": s,
         }, beta_h
@@ -1004,17 +1001,19 @@ def _terminal_step(state, start, direction, rays, consts, ms_profile, aerosol_cl
     The march finds the ground by a sample below it, in the middle of a step that may be kilometres long (the
     empty space of a ray grazing a big grid); that sample's light and extinction come from inside the terrain,
     and the step adds nothing. Where the crossing lies before ``hit_from``, in the far half of the step before
-    (which was taken whole, from ``hit_back``), that step is taken back (a step of negative length at its own
-    sample ``hit_lo``, which undoes it) and taken again up to the crossing. So the light of the air in front of
+    (which was taken whole; its sample ``hit_lo`` is its middle, so it began at 2 ``hit_lo`` - ``hit_from``), that
+    step is taken back (a step of negative length at its own sample, which undoes it) and taken again up to the
+    crossing. So the light of the air in front of
     the ground no longer depends on the step count (docs/performance.md, section 43). :mod:`swim.rt.march_cpu`
     takes the same steps."""
     state = dict(state)
     s_hit, alive = state.pop("s_hit"), state["alive"]
     hit_from = state["hit_from"]
-    back = state["hit"] & (s_hit < hit_from) & (state["hit_back"] >= 0)
+    back_to = 2.0 * state["hit_lo"] - hit_from  # < 0 where no step came before
+    back = state["hit"] & (s_hit < hit_from) & (back_to >= 0)
     # two steps: back to where the step before began (zero length unless ``back``), then on to the crossing (zero
     # length where it lies before the ray's first step)
-    mid = jnp.where(back, state["hit_back"], hit_from)
+    mid = jnp.where(back, back_to, hit_from)
     end = jnp.where(back | (s_hit > hit_from), s_hit, hit_from)
     state["alive"] = state["hit"]
     state = _march_segment(state, start, direction, jnp.stack([hit_from, mid, end]), 2, True, rays, consts,
@@ -1044,8 +1043,7 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
         "l_clear": zeros3, "i_nogas": zeros3, "i_gas": zeros3, "i_cloud_t": jnp.zeros(n, jnp.float32),
         "alive": valid, "hit": jnp.zeros(n, bool), "hit_s": jnp.zeros(n, jnp.float32),
         "hit_lo": jnp.zeros(n, jnp.float32), "hit_hi": jnp.zeros(n, jnp.float32),
-        "hit_from": jnp.zeros(n, jnp.float32), "hit_back": jnp.zeros(n, jnp.float32),
-        "lo_last": jnp.full(n, -1.0, jnp.float32),  # where the last step taken began (none yet)
+        "hit_from": jnp.zeros(n, jnp.float32),
         "gap": jnp.full(n, 1e9, jnp.float32), "s_last": jnp.zeros(n, jnp.float32),
     }
     zero = jnp.zeros(n, jnp.float32)

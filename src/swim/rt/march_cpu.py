@@ -605,8 +605,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         s_last = 0.0
         c0 = class_lower[r]
         wc = class_weight[r]
-        lo_last = -1.0  # where the last step taken began (none yet)
-        term_lo = back_to = 0.0  # where the step in which the ray met the ground began, and the step before it
+        term_lo = 0.0  # where the step in which the ray met the ground began
         s_hit = bounds[r, 2]
         for segment in range(4):
             terminal = segment == 3
@@ -619,6 +618,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 s_hit = _terrain_crossing(hit_s, hit_lo, hit_hi, n_bisections, st0, st1, st2, d0, d1, d2, p, coef,
                                           terrain)
                 length = s_hit - term_lo
+                # where the step before it began: its sample hit_lo is its middle (< 0 where there was none)
+                back_to = 2.0 * hit_lo - term_lo
                 if not (length > 0 or (length < 0 and back_to >= 0)):
                     break
                 n_steps, s0, in_grid = 1, term_lo, True
@@ -760,10 +761,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         lc0, lc1, lc2 = saved[8], saved[9], saved[10]
                         in0, in1, in2 = saved[11], saved[12], saved[13]
                         ig0, ig1, ig2 = saved[14], saved[15], saved[16]
-                        th, ict, gap_prev, s_last, lo_last = saved[7], saved[6], saved[17], saved[18], saved[19]
+                        th, ict, gap_prev, s_last = saved[7], saved[6], saved[17], saved[18]
                         e_th = math.exp(-th)
                         for c in range(n_species):
-                            tsp[c] = saved[20 + c]
+                            tsp[c] = saved[19 + c]
                         mid = prev_lo + 0.5 * (prev_hi - prev_lo)
                         stack_lo[pending], stack_hi[pending], stack_depth[pending] = s_lo, s_hi, depth
                         stack_lo[pending + 1], stack_hi[pending + 1] = mid, prev_hi
@@ -788,9 +789,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     saved[8], saved[9], saved[10] = lc0, lc1, lc2
                     saved[11], saved[12], saved[13] = in0, in1, in2
                     saved[14], saved[15], saved[16] = ig0, ig1, ig2
-                    saved[6], saved[7], saved[17], saved[18], saved[19] = ict, th, gap_prev, s_last, lo_last
+                    saved[6], saved[7], saved[17], saved[18] = ict, th, gap_prev, s_last
                     for c in range(n_species):
-                        saved[20 + c] = tsp[c]
+                        saved[19 + c] = tsp[c]
                     have_prev = True
                     prev_lo, prev_hi, prev_beta, prev_depth = s_lo, s_hi, beta_h, depth
                 t0 = th
@@ -856,14 +857,12 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     hit_lo = s_last
                     hit_hi = s
                     term_lo = s_lo
-                    back_to = lo_last
                     alive = False
                     hit = True
                 if terminal and pending == 0:
                     alive = False
                 gap_prev = gap
                 s_last = s
-                lo_last = s_lo
                 if not alive:
                     break
         tau_clear[r, 0], tau_clear[r, 1], tau_clear[r, 2] = tc0, tc1, tc2
@@ -1025,8 +1024,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     stack_depth = np.empty(refine_slots, np.int64)
     # the state before the last accumulated grid interval, restored when the next one shows that a cloud face
     # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
-    # gap 17, s_last 18, lo_last 19, the species' optical depths 20-
-    saved = np.empty(20 + tau_species.shape[1])
+    # gap 17, s_last 18, the species' optical depths 19-
+    saved = np.empty(19 + tau_species.shape[1])
     # the species' optical depths along the ray, and what each wavelength adds at a step
     tsp = np.empty(n_species)
     step_beta = np.empty(3)

@@ -110,7 +110,7 @@ def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, r
     species (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species array keeps one element
     (a local array of size 0 is not a CUDA array)."""
     return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
-            20 + n_species, max(n_species, 1), n_channels)
+            19 + n_species, max(n_species, 1), n_channels)
 
 
 @functools.lru_cache(maxsize=8)
