@@ -1003,9 +1003,14 @@ def _terminal_step(state, start, direction, rays, consts, ms_profile, aerosol_cl
     and the step adds nothing. Where the crossing lies before ``hit_from``, in the far half of the step before
     (which was taken whole; its sample ``hit_lo`` is its middle, so it began at 2 ``hit_lo`` - ``hit_from``), that
     step is taken back (a step of negative length at its own sample, which undoes it) and taken again up to the
-    crossing. So the light of the air in front of
-    the ground no longer depends on the step count (docs/performance.md, section 43). :mod:`swim.rt.march_cpu`
-    takes the same steps."""
+    crossing. The step back inverts Eq. 3's exponential step exactly ((T, L) -> (T e^-x, L + T S (1 - e^-x) / x)
+    with -x) and Eq. 12's weight e^-min(tau0, 2) - e^-min(tau1, 2) changes sign (Albers et al. 2020,
+    doi:10.5194/amt-13-3235-2020). So the light of the air in front of the ground no longer depends on the step
+    count (docs/performance.md, section 43). :mod:`swim.rt.march_cpu` takes the same steps.
+
+    ``state``: the march's per-ray arrays (n,) or (n, 3) of :func:`_march_rays` with ``s_hit`` (n,) [m]; ``start``
+    (n, 3) [m], unit ``direction`` (n, 3); the rest as :func:`_march_segment` takes them. Returns the state
+    after the terminal steps, ``alive`` and ``s_hit`` as they were."""
     state = dict(state)
     s_hit, alive = state.pop("s_hit"), state["alive"]
     hit_from = state["hit_from"]
