@@ -97,7 +97,8 @@ def zone_errors(image, reference, view_zenith, rim_deg, floor=RADIANCE_FLOOR):
     """Median, 99th and 99.9th percentile [%] of the relative error (the largest over the channels) over all valid
     pixels, below and above the view zenith ``rim_deg`` [deg]; ``image`` and ``reference`` (c, ny, nx) or (ny, nx),
     ``view_zenith`` (ny, nx); the reference's absolute values below ``floor`` count as ``floor``."""
-    image, reference = np.atleast_3d(image.T).T, np.atleast_3d(reference.T).T  # (ny, nx) -> (1, ny, nx)
+    if image.ndim == 2:  # one channel
+        image, reference = image[None], reference[None]
     rel = np.max(np.abs(image - reference) / np.maximum(np.abs(reference), floor), axis=0)
     ok = np.isfinite(rel) & np.isfinite(view_zenith)
     out = {}

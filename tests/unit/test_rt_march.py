@@ -375,8 +375,7 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     """``steps``: the numba kernel counts the samples each ray takes, the lockstep JAX kernel every step of every
     ray. Without refinement and without the empty-space limit a ray that never meets the ground takes every step
     of its segments (one for a segment of zero length); one that meets it stops there (and takes its terminal
-    steps). Refined halves add samples,
-    and the empty-space limit takes samples off rays through clear air."""
+    steps). Refined halves add samples, and the empty-space limit takes samples off rays through clear air."""
     origins, dirs = _random_rays(300)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     scene = _tiny_scene()

@@ -605,7 +605,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         s_last = 0.0
         c0 = class_lower[r]
         wc = class_weight[r]
-        term_lo = 0.0  # where the step in which the ray met the ground began
+        hit_from = 0.0  # where the step in which the ray met the ground began
         s_hit = bounds[r, 2]
         for segment in range(4):
             terminal = segment == 3
@@ -617,12 +617,12 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     break
                 s_hit = _terrain_crossing(hit_s, hit_lo, hit_hi, n_bisections, st0, st1, st2, d0, d1, d2, p, coef,
                                           terrain)
-                length = s_hit - term_lo
+                length = s_hit - hit_from
                 # where the step before it began: its sample hit_lo is its middle (< 0 where there was none)
-                back_to = 2.0 * hit_lo - term_lo
+                back_to = 2.0 * hit_lo - hit_from
                 if not (length > 0 or (length < 0 and back_to >= 0)):
                     break
-                n_steps, s0, in_grid = 1, term_lo, True
+                n_steps, s0, in_grid = 0, hit_from, True
                 alive = True
             elif not alive:
                 continue
@@ -632,10 +632,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 n_steps, s0, length, in_grid = n_grid, bounds[r, 0], bounds[r, 1] - bounds[r, 0], True
             else:
                 n_steps, s0, length, in_grid = n_after, bounds[r, 1], bounds[r, 2] - bounds[r, 1], False
-            if n_steps == 0:
-                continue
             if terminal:
-                n_steps = 0  # one pending interval, sampled in the loop's branch for refined halves
+                pass  # no placed steps: one or two pending intervals (below), sampled as refined halves are
+            elif n_steps == 0:
+                continue
             elif in_grid:
                 n_steps = _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
                                           empty_weight, probe_spacing, cell_slack, empty_steps, empty_cells_per_step,
@@ -649,11 +649,11 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             pending = 0
             if terminal:  # pending intervals, the last one on top
                 if length > 0:
-                    stack_lo[0], stack_hi[0], stack_depth[0] = term_lo, s_hit, max_depth
+                    stack_lo[0], stack_hi[0], stack_depth[0] = hit_from, s_hit, max_depth
                     pending = 1
                 else:  # the crossing lies in the far half of the step before: that step taken back, then again
                     stack_lo[0], stack_hi[0], stack_depth[0] = back_to, s_hit, max_depth
-                    stack_lo[1], stack_hi[1], stack_depth[1] = term_lo, back_to, max_depth
+                    stack_lo[1], stack_hi[1], stack_depth[1] = hit_from, back_to, max_depth
                     pending = 2
             budget = refine_budget if in_grid and tau_refine > 0 and not terminal else 0
             have_prev = False  # an accumulated grid interval that may still be rolled back
@@ -856,7 +856,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     hit_s = s - 0.5 * ds + frac * ds
                     hit_lo = s_last
                     hit_hi = s
-                    term_lo = s_lo
+                    hit_from = s_lo
                     alive = False
                     hit = True
                 if terminal and pending == 0:
