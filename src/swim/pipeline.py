@@ -543,7 +543,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "march_backend": settings.resolved_backend(),
         "sampling": "every pixel" if sampling is None else (
             f"adaptive (tolerance {sampling.tolerance:g}, coarse spacing {sampling.coarse_spacing}, "
-            f"radiance floor {sampling.radiance_floor:g}, tau floor {sampling.tau_floor:g})"),
+            f"radiance floor {sampling.radiance_floor:g}, tau tolerance {sampling.tau_tolerance:g}, "
+            f"tau floor {sampling.tau_floor:g})"),
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"

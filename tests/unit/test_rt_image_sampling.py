@@ -121,6 +121,27 @@ def test_tolerance_bounds_the_error_of_a_smooth_curved_image():
         assert traced.sum() < 0.7 * traced.size
 
 
+def test_tau_tolerance_bounds_the_error_of_a_smooth_optical_depth_image_on_its_own():
+    """A uniform radiance over a smooth optical-depth bump: only the optical-depth test can refine, and its own
+    tolerance (not the radiance's) bounds the interpolated optical depth's error."""
+    def bump(y, x):
+        tau = 2.0 + 6.0 * np.exp(-((y - 30) ** 2 + (x - 50) ** 2) / 400.0)
+        return np.tile([0.3, 0.5, 0.9], (y.size, 1)), tau, np.zeros(y.shape, bool)
+
+    shape = (64, 96)
+    _, tau, _ = exact(bump, shape)
+    errors, traced_counts = [], []
+    for tau_tolerance in (0.05, 0.01):
+        values, traced = sample_image_adaptive(make_trace(bump, shape), np.ones(shape, bool),
+                                               AdaptiveSampling(tolerance=0.001, tau_tolerance=tau_tolerance))
+        errors.append(np.max(np.abs(values["tau_hydrometeor"] - tau) / tau))
+        traced_counts.append(int(traced.sum()))
+        # the centre test bounds the error where it looks; elsewhere the curvature is of the same order
+        assert errors[-1] < 2 * tau_tolerance
+    assert errors[0] > 2 * 0.001  # the radiance's tolerance does not hold the optical depth
+    assert traced_counts[0] < traced_counts[1]  # the looser test interpolates more of the bump
+
+
 def mixed_function(y, x):
     """Smooth gradients with sharp-edged blobs of several sizes: smooth cells and splits at every level."""
     blobs = ((y - 12.0) ** 2 + (x - 40.0) ** 2 < 30.0) | ((np.abs(y - 45.0) < 3) & (np.abs(x - 20.0) < 11))
@@ -197,7 +218,7 @@ def test_progress_reaches_all_valid_pixels():
 
 @pytest.mark.parametrize("kwargs", [{"tolerance": 0.0}, {"tolerance": -0.1}, {"tolerance": float("nan")},
                                     {"coarse_spacing": 1}, {"coarse_spacing": 2.5}, {"radiance_floor": -1.0},
-                                    {"tau_floor": float("inf")}])
+                                    {"tau_floor": float("inf")}, {"tau_tolerance": 0.0}, {"tau_tolerance": -1.0}])
 def test_bad_settings_raise_naming_the_field(kwargs):
     with pytest.raises(SwimInputError, match=f"AdaptiveSampling.{next(iter(kwargs))}"):
         AdaptiveSampling(**kwargs)

@@ -120,7 +120,7 @@ def render(
     adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
                                   "the image is not smooth, interpolating the rest (big images 2-4x faster; "
                                   "docs/rendering.md)."),
-    tolerance: float = typer.Option(0.01, help="Relative error allowed where --adaptive interpolates [-]."),
+    tolerance: float = typer.Option(0.01, help="Relative radiance error allowed where --adaptive interpolates [-]."),
     backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
                                 "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "

@@ -8,9 +8,9 @@ display", Commun. ACM 23, 343-349, doi:10.1145/358876.358882, with an explicit e
 
 1. the lattice of every ``coarse_spacing``-th row and column (and the last ones) is traced;
 2. each cell of the lattice traces its centre pixel and compares it with the bilinear interpolation of
-   its four corners. Where the radiance and the hydrometeor optical depth agree within
-   ``tolerance`` (relative, above an absolute floor) and all five pixels see the same thing (all ground or
-   all sky, all inside the camera's field), the cell's other pixels are interpolated;
+   its four corners. Where the radiance and the hydrometeor optical depth agree within ``tolerance`` and
+   ``tau_tolerance`` (relative, above absolute floors) and all five pixels see the same thing (all ground
+   or all sky, all inside the camera's field), the cell's other pixels are interpolated;
 3. the other cells trace the midpoints of their edges and split into four, down to single pixels.
 
 A smooth image costs about 2 / ``coarse_spacing``^2 of the rays (1/8 for a spacing of 4). A feature smaller
@@ -35,15 +35,19 @@ class AdaptiveSampling:
     Attributes
     ----------
     tolerance : float
-        Largest relative difference [-] between a cell's traced centre and the bilinear interpolation of its
-        corners for the cell to be interpolated (radiance in each channel, and the hydrometeor optical
-        depth). Default 0.01 (1 %).
+        Largest relative difference [-] between a cell's traced centre radiance (in each channel) and the
+        bilinear interpolation of its corners for the cell to be interpolated. Default 0.01 (1 %).
     coarse_spacing : int
         Pixels between the rows and columns of the first lattice (>= 2). Larger spacings trace fewer rays in
         smooth regions and risk missing smaller features.
     radiance_floor : float
         Absolute solar-relative radiance [-] added to the tolerance, so that dark pixels (night side, deep
         shadow) do not refine on differences far below what any output resolves.
+    tau_tolerance : float
+        The same for the hydrometeor optical depth along the line of sight [-]. Default 0.05: the test is
+        there to catch clouds whose radiance happens to match the sky's; at 1 % it refined smooth thick
+        cloud for the optical-depth image alone (~17 % of an all-sky render's rays, docs/performance.md,
+        section 45).
     tau_floor : float
         Absolute hydrometeor optical depth [-] added to the tolerance of the optical-depth test.
     """
@@ -51,15 +55,17 @@ class AdaptiveSampling:
     tolerance: float = 0.01
     coarse_spacing: int = 4
     radiance_floor: float = 1e-4
+    tau_tolerance: float = 0.05
     tau_floor: float = 0.01
 
     def __post_init__(self):
-        for name in ("tolerance", "radiance_floor", "tau_floor"):
+        for name in ("tolerance", "tau_tolerance", "radiance_floor", "tau_floor"):
             value = getattr(self, name)
             if not isinstance(value, (int, float, np.floating, np.integer)) or not np.isfinite(value) or value < 0:
                 raise SwimInputError(f"AdaptiveSampling.{name} must be a finite number >= 0, got {value!r}")
-        if self.tolerance <= 0:
-            raise SwimInputError(f"AdaptiveSampling.tolerance must be > 0, got {self.tolerance!r}")
+        for name in ("tolerance", "tau_tolerance"):
+            if getattr(self, name) <= 0:
+                raise SwimInputError(f"AdaptiveSampling.{name} must be > 0, got {getattr(self, name)!r}")
         if not isinstance(self.coarse_spacing, (int, np.integer)) or self.coarse_spacing < 2:
             raise SwimInputError(f"AdaptiveSampling.coarse_spacing must be an integer >= 2, got {self.coarse_spacing!r}")
 
@@ -231,14 +237,15 @@ def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
         ok &= surface[p] == surface[centre]
     wy = ((yc - y0) / np.maximum(y1 - y0, 1))[:, None]
     wx = ((xc - x0) / np.maximum(x1 - x0, 1))[:, None]
-    for key, floor in (("radiance", sampling.radiance_floor), ("tau_hydrometeor", sampling.tau_floor)):
+    for key, tolerance, floor in (("radiance", sampling.tolerance, sampling.radiance_floor),
+                                  ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)):
         v = values[key].reshape(values[key].shape[0], -1)
         c00, c01, c10, c11 = (v[p] for p in corners)
         predicted = (c00 * (1 - wx) + c01 * wx) * (1 - wy) + (c10 * (1 - wx) + c11 * wx) * wy
         actual = v[centre]
         scale = np.maximum(np.abs(actual), np.abs(predicted))
         with np.errstate(invalid="ignore"):
-            ok &= np.all(np.abs(actual - predicted) <= sampling.tolerance * scale + floor, axis=1)
+            ok &= np.all(np.abs(actual - predicted) <= tolerance * scale + floor, axis=1)
     return ok
 
 
