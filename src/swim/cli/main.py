@@ -114,7 +114,7 @@ def render(
                                                help="Largest hydrometeor optical depth of a grid step, and "
                                                     "change of it at a cloud face, near the observer: thicker "
                                                     "steps and faces are halved (default: "
-                                                    "MarchSettings().tau_refine, 0.5; 0 turns it off)."),
+                                                    "MarchSettings().tau_refine, 0.25; 0 turns it off)."),
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),
     adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
