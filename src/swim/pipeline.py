@@ -465,8 +465,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         march_samples = int(rays["steps"].sum())
         del rays
     else:
-        log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, coarse spacing %d)", camera,
-                 cam.shape, int(valid.sum()), sampling.tolerance, sampling.coarse_spacing)
+        log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, tau tolerance %g, "
+                 "coarse spacing %d)", camera, cam.shape, int(valid.sum()), sampling.tolerance, sampling.tau_tolerance,
+                 sampling.coarse_spacing)
         out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress, max_threads=min(threads(), 8))
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))

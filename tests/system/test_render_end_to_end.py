@@ -202,9 +202,12 @@ def test_adaptive_sampling_matches_every_pixel_with_fewer_rays(katrina, katrina_
 
 def test_cli_renders_adaptively(tmp_path):
     out = tmp_path / "adaptive.png"
-    result = CliRunner().invoke(app, ["render", "--size", "63", "--adaptive", "--tolerance", "0.02", "--out", str(out)])
+    result = CliRunner().invoke(app, ["render", "--size", "63", "--adaptive", "--tolerance", "0.02", "--tau-tolerance",
+                                      "0.03", "--out", str(out), "--netcdf", str(tmp_path / "adaptive.nc")])
     assert result.exit_code == 0, result.output
     assert out.exists()
+    with xr.open_dataset(tmp_path / "adaptive.nc") as ds:
+        assert "tolerance 0.02," in ds.attrs["sampling"] and "tau tolerance 0.03," in ds.attrs["sampling"]
     bad = tmp_path / "bad.png"
     result = CliRunner().invoke(app, ["render", "--size", "63", "--adaptive", "--tolerance", "0", "--out", str(bad)])
     assert result.exit_code == 2 and "tolerance" in result.output and not bad.exists()

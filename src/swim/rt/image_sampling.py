@@ -46,8 +46,8 @@ class AdaptiveSampling:
     tau_tolerance : float
         The same for the hydrometeor optical depth along the line of sight [-]. Default 0.05: the test is
         there to catch clouds whose radiance happens to match the sky's; at 1 % it refined smooth thick
-        cloud for the optical-depth image alone (~17 % of an all-sky render's rays, docs/performance.md,
-        section 45).
+        cloud for the optical-depth image alone (~14 % of an all-sky render's rays, 17 % of its time,
+        docs/performance.md, section 45).
     tau_floor : float
         Absolute hydrometeor optical depth [-] added to the tolerance of the optical-depth test.
     """
