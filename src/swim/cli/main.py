@@ -121,9 +121,10 @@ def render(
                                   "the image is not smooth, interpolating the rest (big images 2-4x faster; "
                                   "docs/rendering.md)."),
     tolerance: float = typer.Option(0.01, help="Relative radiance error allowed where --adaptive interpolates [-]."),
-    tau_tolerance: float = typer.Option(0.05, "--tau-tolerance",
-                                        help="Relative error of the line-of-sight hydrometeor optical depth allowed "
-                                             "where --adaptive interpolates [-]."),
+    tau_tolerance: Optional[float] = typer.Option(None, "--tau-tolerance",
+                                                  help="Relative error of the line-of-sight hydrometeor optical depth "
+                                                       "allowed where --adaptive interpolates [-] (default: "
+                                                       "AdaptiveSampling().tau_tolerance, 0.05)."),
     backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
                                 "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
@@ -195,7 +196,8 @@ def render(
             background = AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
         else:
             background = AerosolBackground(type_name=aerosol, **strat)
-        sampling = AdaptiveSampling(tolerance=tolerance, tau_tolerance=tau_tolerance) if adaptive else None
+        sampling = AdaptiveSampling(tolerance=tolerance, **({} if tau_tolerance is None else
+                                                            {"tau_tolerance": tau_tolerance})) if adaptive else None
         target = None
         if look_at is not None:
             try:
