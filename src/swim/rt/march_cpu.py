@@ -589,8 +589,21 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
     n_u = ms_profile.shape[2]
     top = p[_P_TOP]
+    dh = p[_P_DH]
+    # the wavelengths' constants (and each ray's phase functions, below) as tuples of scalars, read once: read from
+    # their arrays, they were read again at every step (the loop's stores may alias them, as far as LLVM knows);
+    # 3-4 % faster (docs/performance.md, section 47)
+    spec_r = (spectra[0, 0], spectra[0, 1], spectra[0, 2])
+    spec_a = (spectra[1, 0], spectra[1, 1], spectra[1, 2])
+    spec_s = (spectra[2, 0], spectra[2, 1], spectra[2, 2])
+    ang = (angstrom[0], angstrom[1], angstrom[2])
+    ssa_a = (aerosol_ssa[0], aerosol_ssa[1], aerosol_ssa[2])
+    ssa_s = (stratospheric_ssa[0], stratospheric_ssa[1], stratospheric_ssa[2])
     for r in range(first, stop, stride):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
+        phase_r = p_rayleigh[r]
+        phase_a = (p_aerosol[r, 0], p_aerosol[r, 1], p_aerosol[r, 2])
+        phase_s = (p_stratospheric[r, 0], p_stratospheric[r, 1], p_stratospheric[r, 2])
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
         # per wavelength (0, 1, 2): tau_clear, e^-(tau_clear + tau_h) to the observer (carried as a product),
         # l_clear, i_nogas and i_gas
@@ -696,7 +709,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     fu = math.sqrt(_clip(h / top, 0.0, 1.0))
                 samples += 1
                 # clear atmosphere (_gas_at): three height profiles times their spectra, and the sky table
-                g0, w = _lerp_index(h / p[_P_DH], n_gas)
+                g0, w = _lerp_index(h / dh, n_gas)
                 prof_r = beta_gas[0, _ix(g0)] * (1 - w) + beta_gas[0, _ix(g0 + 1)] * w
                 prof_a = beta_gas[1, _ix(g0)] * (1 - w) + beta_gas[1, _ix(g0 + 1)] * w
                 prof_s = beta_gas[2, _ix(g0)] * (1 - w) + beta_gas[2, _ix(g0 + 1)] * w
@@ -825,16 +838,15 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     u0, wu = _lerp_index(fu * (n_u - 1), n_u)
                 sun = t_cloud * shadow
                 for c in range(3):  # what each wavelength adds at this step (no state carried from step to step)
-                    beta_r = prof_r * spectra[0, c]
-                    beta_a = prof_a * spectra[1, c] + beta_a3 * angstrom[c]
-                    beta_s = prof_s * spectra[2, c]
+                    beta_r = prof_r * spec_r[c]
+                    beta_a = prof_a * spec_a[c] + beta_a3 * ang[c]
+                    beta_s = prof_s * spec_s[c]
                     irradiance = _bilinear_at(sky, c, su0, sv0, sa, sb) * sun
                     if tau_a3_sun != 0.0:
-                        irradiance *= math.exp(-tau_a3_sun * angstrom[c])
-                    scat_a = beta_a * aerosol_ssa[c]
-                    scat_s = beta_s * stratospheric_ssa[c]
-                    source = (beta_r * p_rayleigh[_ix(r)] + scat_a * p_aerosol[_ix(r), c]
-                              + scat_s * p_stratospheric[_ix(r), c]) * irradiance
+                        irradiance *= math.exp(-tau_a3_sun * ang[c])
+                    scat_a = beta_a * ssa_a[c]
+                    scat_s = beta_s * ssa_s[c]
+                    source = (beta_r * phase_r + scat_a * phase_a[c] + scat_s * phase_s[c]) * irradiance
                     if use_ms:
                         ur, ua, ub = _ix(r), _ix(u0), _ix(u0 + 1)
                         j_r = ms_profile[c, ur, ua] * (1 - wu) + ms_profile[c, ur, ub] * wu
