@@ -60,16 +60,15 @@ _TOTALS = {"instructions": r"I\s+refs:\s+([\d,]+)",
 
 
 def callgrind(chunk_file, passes):
-    """Run ``passes`` passes of the kernel over the pickled chunk under callgrind; returns its totals and the
-    chunk's samples and rays (from the child's own count)."""
+    """Run ``passes`` (at least one) passes of the kernel over the pickled chunk under callgrind; returns its totals
+    and the chunk's samples and rays (from the child's own count)."""
     child = [sys.executable, "-c", CHILD, str(chunk_file), str(passes), str(ROOT / "benchmarks")]
     done = subprocess.run(["valgrind", "--tool=callgrind", "--branch-sim=yes", "--callgrind-out-file=/dev/null",
                            *child], capture_output=True, text=True, check=True)
     text = done.stdout + done.stderr
     totals = {key: int(re.search(pattern, text).group(1).replace(",", "")) for key, pattern in _TOTALS.items()}
-    if passes:
-        found = re.search(r"samples (\d+) rays (\d+)", text)
-        totals["samples"], totals["rays"] = int(found.group(1)), int(found.group(2))
+    found = re.search(r"samples (\d+) rays (\d+)", text)
+    totals["samples"], totals["rays"] = int(found.group(1)), int(found.group(2))
     return totals
 
 
@@ -96,7 +95,8 @@ def main(argv=None):
             pickle.dump(calls[opts.chunk], f, protocol=5)
         del calls
         t0 = time.perf_counter()
-        callgrind(chunk_file, 0)  # numba compiles for valgrind's CPU here (and caches it), outside the counts
+        # numba compiles for valgrind's CPU at the first call (and caches it): a pass outside the counts
+        callgrind(chunk_file, 1)
         compile_s = time.perf_counter() - t0
         one, two = callgrind(chunk_file, 1), callgrind(chunk_file, 2)
     samples, rays = two["samples"], two["rays"]
