@@ -635,7 +635,9 @@ def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
 def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(backend):
     """Packing the species that are zero everywhere (rain, snow and graupel in the tiny scene) changes no output of
     either kernel: their channels only add zeros, and the per-species optical depths of the packed ones are put
-    back in their species' columns (the composition's phase-function mixture reads them)."""
+    back in their species' columns (the composition's phase-function mixture reads them). The same to float32
+    round-off: the numba march's vectorised code sums a volume of 9 channels in another order than one of 6 (its
+    step counts exactly the same)."""
     from swim.rt.march import atmosphere_constants, volume_constants
 
     origins, dirs = _random_rays(400)
@@ -647,8 +649,9 @@ def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(back
     assert every["volume"].shape[-1] == 9
     again = trace_rays(origins, dirs, every, grid_geometry(volume), phase, settings)
     assert (out["tau_hydrometeor"] > 1.0).sum() > 20 and out["surface"].sum() > 20, "rays must cross cloud and ground"
-    for key in ("radiance", "radiance_cloud", "radiance_surface", "tau_hydrometeor", "distance", "steps"):
-        np.testing.assert_array_equal(out[key], again[key], err_msg=key)
+    np.testing.assert_array_equal(out["steps"], again["steps"])
+    for key in ("radiance", "radiance_cloud", "radiance_surface", "tau_hydrometeor", "distance"):
+        np.testing.assert_allclose(out[key], again[key], rtol=1e-6, atol=1e-12, err_msg=key)
 
 
 def test_a_cloudless_volume_packs_no_species():

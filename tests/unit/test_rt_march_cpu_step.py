@@ -14,24 +14,54 @@ import pytest
 from swim.rt import march_cpu
 
 
-@pytest.mark.parametrize("x", [0.0, 1e-9, 1e-4, 2e-3, 0.05, 0.0999999, 0.1, 0.3, 2.0, 40.0])
-def test_step_accumulates_the_exact_mean_transmittance(x):
+@pytest.mark.parametrize("lanes", [(0.0, 1e-9, 1e-4, 2e-3), (0.05, 0.0999999, 1e-6, 0.02), (0.1, 0.3, 2.0, 40.0),
+                                   (0.0999999, 0.1, 1e-4, 0.0), (-0.05, -0.2, 0.3, 1e-3)])
+@pytest.mark.parametrize("weight", [0.125, -0.0625, 0.0])
+def test_step_accumulates_the_exact_mean_transmittance(lanes, weight):
     """A step of optical depth x adds source * ds * (1 - e^-x) / x times the transmittance before it (Eq. 3 over a
-    step), multiplies the transmittance by e^-x, and adds Eq. 12's integrals with the clear sky's e^-tau_clear: on
-    both sides of the polynomial's limit (x = 0.1), to 1e-11 relative (the polynomial's first dropped term, x^7 / 8!,
-    is 2.5e-12 there)."""
-    beta_clear, beta_h, ds = 0.25 * x, 0.75 * x, 1.0
-    tau_clear, t0 = 0.4, 0.3
-    t_obs = math.exp(-(tau_clear + t0))
-    source, irradiance, weight = 2.0, 3.0, 0.125
-    accumulate = march_cpu.callable_from_python(march_cpu._accumulate)
-    out = accumulate(tau_clear, t_obs, 0.0, 0.0, 0.0, beta_clear, source, irradiance, beta_h, ds, weight, math.exp(t0))
-    mean = -math.expm1(-x) / x if x > 0 else 1.0
-    assert out[0] == pytest.approx(tau_clear + beta_clear * ds, rel=1e-15)
-    assert out[1] == pytest.approx(t_obs * math.exp(-x), rel=1e-12)
-    assert out[2] == pytest.approx(t_obs * source * ds * mean, rel=1e-11)
-    assert out[3] == pytest.approx(irradiance * weight, rel=1e-15)
-    assert out[4] == pytest.approx(irradiance * math.exp(-tau_clear) * weight, rel=1e-12)
+    step), multiplies the transmittance by e^-x, and adds Eq. 12's integrals with the clear sky's e^-tau_clear (its
+    weight > 0), or takes it back (< 0: the terminal step back, x < 0 too): in each of the four lanes, on both sides
+    of the polynomial's limit (x = 0.1) and with lanes on either side of it in one step (then every lane takes the
+    expm1), to 1e-11 relative (the polynomial's first dropped term, x^7 / 8!, is 2.5e-12 there)."""
+    beta_h, ds = 0.75 * lanes[0], 1.0
+    beta_clear = tuple(x - beta_h for x in lanes)  # each lane's whole optical depth is x
+    tau_clear = (0.4, 0.1, 0.7, 0.2)
+    t0 = 0.3
+    t_obs = tuple(math.exp(-(tau + t0)) for tau in tau_clear)
+    source, irradiance = (2.0, 1.0, 0.5, 3.0), (3.0, 2.0, 1.5, 0.5)
+    zeros = (0.0, 0.0, 0.0, 0.0)
+    accumulate = march_cpu.callable_from_python(march_cpu._accumulate_lanes)
+    out = accumulate(tau_clear, t_obs, zeros, zeros, zeros, beta_clear, source, irradiance, beta_h, ds, weight,
+                     math.exp(t0))
+    for c, x in enumerate(lanes):
+        mean = -math.expm1(-x) / x if x != 0 else 1.0
+        assert out[0][c] == pytest.approx(tau_clear[c] + beta_clear[c] * ds, rel=1e-15, abs=1e-300)
+        assert out[1][c] == pytest.approx(t_obs[c] * math.exp(-x), rel=1e-12)
+        assert out[2][c] == pytest.approx(t_obs[c] * source[c] * ds * mean, rel=1e-11)
+        assert out[3][c] == pytest.approx(irradiance[c] * weight, rel=1e-15)
+        assert out[4][c] == pytest.approx(irradiance[c] * math.exp(-tau_clear[c]) * weight, rel=1e-12)
+
+
+def test_sky_lanes_hold_the_sky_table_wavelengths_innermost():
+    """The step loop's lane table (sky_lanes) is the sky table with the wavelengths innermost, the direct lanes
+    0-2 and the diffuse 4-6, its padding 0; and a bilinear lookup of its lanes is the table's own per wavelength."""
+    rng = np.random.default_rng(7)
+    sky = rng.random((6, 5, 9)).astype(np.float32)
+    lanes = march_cpu.sky_lanes(sky)
+    assert lanes.shape == (5, 9, 8) and lanes.dtype == np.float64 and lanes.flags.c_contiguous
+    for c in range(3):
+        assert np.array_equal(lanes[..., c], sky[c]) and np.array_equal(lanes[..., 4 + c], sky[3 + c])
+    assert not lanes[..., 3].any() and not lanes[..., 7].any()
+    corner = march_cpu.callable_from_python(march_cpu._corner_lanes)
+    at = march_cpu.callable_from_python(march_cpu._bilinear_at)
+    u0, v0, a, b = 2, 6, 0.3, 0.8
+    for o in (0, 4):
+        got = corner(lanes[u0, v0], lanes[u0, v0 + 1], lanes[u0 + 1, v0], lanes[u0 + 1, v0 + 1], o, a, b)
+        for c in range(3):
+            assert got[c] == pytest.approx(at(sky, o // 4 * 3 + c, u0, v0, a, b), rel=1e-6)
+        assert got[3] == 0.0
+    with pytest.raises(ValueError, match="6, nu, nmu"):
+        march_cpu.sky_lanes(sky[:3])
 
 
 def test_corner_prefetch_reads_nothing_and_compiles_to_cache_hints():
@@ -72,3 +102,31 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
     assert march_cpu.callable_from_python(march_cpu._clip)(3.0, 0.0, 1.0) == 1.0
     with pytest.raises(TypeError, match="callable_from_python"):  # not a crash of the interpreter
         march_cpu._clip(3.0, 0.0, 1.0)
+
+
+def test_the_march_compiles_with_the_slp_vectoriser_and_leaves_numbas_setting_as_it_was():
+    """march_rays compiles with LLVM's SLP vectoriser on (section 48 of docs/performance.md) and restores numba's
+    global setting afterwards, also when the compilation fails."""
+    assert isinstance(march_cpu.march_rays, march_cpu._VectorisingDispatcher)
+    seen = []
+
+    def probe(x):
+        return x + 1.0
+
+    dispatcher = march_cpu._vectorising(numba.njit(cache=False)(probe))
+    original = numba.core.registry.CPUDispatcher.compile
+
+    def spy(self, sig):
+        seen.append(numba.config.SLP_VECTORIZE)
+        return original(self, sig)
+
+    before = numba.config.SLP_VECTORIZE
+    numba.core.registry.CPUDispatcher.compile = spy
+    try:
+        assert dispatcher(1.0) == 2.0
+        with pytest.raises(Exception):
+            dispatcher("text")  # a typing error inside the compilation
+    finally:
+        numba.core.registry.CPUDispatcher.compile = original
+    assert seen and all(flag == 1 for flag in seen)
+    assert numba.config.SLP_VECTORIZE == before

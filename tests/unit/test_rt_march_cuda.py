@@ -41,8 +41,8 @@ def test_kernel_takes_the_cpu_kernels_arguments():
     assert march_cuda.kernel_arguments() == cpu
     assert body[:3] == ("first", "stop", "stride") and body[3:3 + len(cpu)] == cpu
     work = body[3 + len(cpu):]
-    assert work == ("edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tsp", "step_beta", "step_source",
-                    "step_irradiance", "vol", "vol32", "probe_at")
+    assert work == ("edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tsp", "ms_lanes", "vol", "vol32",
+                    "probe_at")
     # every function the kernel reaches is compiled for the device (none is left to call a CPU dispatcher); the two
     # entry points stay on the host (the CUDA path's per-ray set-up is the JAX one, swim.rt.march._prepare_chunk)
     names = {name for name, value in vars(march_cpu).items() if hasattr(value, "py_func")} - {"march_rays",
@@ -51,11 +51,11 @@ def test_kernel_takes_the_cpu_kernels_arguments():
 
 
 def test_work_sizes_are_the_cpu_kernels():
-    sizes = march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 5, 9)
-    assert sizes == (129, 257, 32, 24, 5, 9)
-    assert march_cuda.work_sizes(300, 128, 24, 8, 8, 16, 4, 3, 7)[:2] == (301, 17)
+    sizes = march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 5, 9, 41)
+    assert sizes == (129, 257, 32, 24, 5, 9, 41)
+    assert march_cuda.work_sizes(300, 128, 24, 8, 8, 16, 4, 3, 7, 2)[:2] == (301, 17)
     # a cloudless scene packs no species: the species work array keeps one element (CUDA has no empty local arrays)
-    assert march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 0, 2)[3:] == (19, 1, 2)
+    assert march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 0, 2, 2)[3:] == (19, 1, 2, 2)
 
 
 @pytest.mark.skipif(march_cuda.cuda_available(), reason="this machine has a GPU: the error is for those without one")
@@ -175,7 +175,8 @@ _PTX = """
     args = dict(zip(names, captured[0]))
     signature = tuple(numba.typeof(v) for v in captured[0])
     sizes = march_cuda.work_sizes(*(args[k] for k in ("n_before", "n_grid", "n_after", "n_probe", "n_probe_max",
-                                  "n_clear_probe", "refine_slots")), args["tau_species"].shape[1], args["volume"].shape[3])
+                                  "n_clear_probe", "refine_slots")), args["tau_species"].shape[1],
+                                  args["volume"].shape[3], args["ms_profile"].shape[2])
     # device functions ask the current GPU for its compute capability when they compile; there is none here
     dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
     kernel = march_cuda.cuda_march_kernel(*sizes)

@@ -1885,7 +1885,8 @@ def _numba_tables(consts, prepare=True):
         return a
 
     tables = {"p": p, "coef": coef, "beta_gas": arr(consts["beta_gas"]), "spectra": arr(consts["beta_gas_spectra"]),
-              "sky": arr(consts["sky"]), "diffuse_classes": arr(consts["diffuse_classes"]),
+              "sky": arr(consts["sky"]), "sky_lanes": _sky_lanes(consts["sky"]),
+              "diffuse_classes": arr(consts["diffuse_classes"]),
               "n_class": int(consts["class_aod"].shape[0]), "volume": arr(consts["volume"]),
               "terrain": arr(consts["terrain"]), "occupancy": arr(consts["occupancy"]),
               "angstrom": arr(consts["angstrom"]), "aerosol_ssa": arr(consts["aerosol_ssa"]),
@@ -1899,6 +1900,25 @@ def _numba_tables(consts, prepare=True):
         tables.update(ms_source=arr(np.asarray(source).reshape(source.shape[:4] + (-1,))), n_u=int(source.shape[4]),
                       aerosol_column=arr(consts["aerosol_column"]), class_aod=arr(consts["class_aod"]))
     return tables
+
+
+#: The last sky table's :func:`swim.rt.march_cpu.sky_lanes` (:func:`_sky_lanes`).
+_SKY_LANES = {}
+
+
+def _sky_lanes(sky):
+    """:func:`swim.rt.march_cpu.sky_lanes` of the sky table ``sky`` (6, nu, nmu), read-only, made once per table
+    and kept while the table lives: a render calls the kernels ~3 times (adaptive sampling's batches), a time series
+    or the Monte Carlo case's repeated view many more, and the copy (3 MB for 96 x 512 entries) took ~1 ms."""
+    from . import march_cpu
+
+    entry = _SKY_LANES.get("entry")
+    if entry is None or entry[0]() is not sky:
+        _SKY_LANES.clear()
+        lanes = march_cpu.sky_lanes(sky)
+        lanes.flags.writeable = False
+        _SKY_LANES["entry"] = entry = (weakref.ref(sky), lanes)
+    return entry[1]
 
 
 def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, tables, exact, n,
@@ -1951,9 +1971,9 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     march(
         *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
         *ray_class, ms_profile, settings.multiple_scattering,
-        settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"], t["sky"],
-        t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"], t["aerosol_ssa"],
-        t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
+        settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"],
+        t["sky_lanes"], t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"],
+        t["aerosol_ssa"], t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
         CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS, *out)

@@ -113,6 +113,29 @@ def _helper_jit(**options):
     return decorate
 
 
+class _VectorisingDispatcher(CPUDispatcher):
+    """The march kernel's dispatcher: compiles with LLVM's SLP (straight-line code) vectoriser on, which numba leaves
+    off by default (``NUMBA_SLP_VECTORIZE``). It vectorises the step's four wavelength lanes (:data:`LANES`): the
+    replayed march ~4-6 % faster (docs/performance.md, section 48). The setting is numba's global one, switched on
+    for this compilation (and the helpers it compiles and links) only."""
+
+    def compile(self, sig):
+        previous = numba.config.SLP_VECTORIZE
+        numba.config.SLP_VECTORIZE = 1
+        try:
+            return super().compile(sig)
+        finally:
+            numba.config.SLP_VECTORIZE = previous
+
+
+def _vectorising(dispatcher):
+    """``dispatcher`` compiling as :class:`_VectorisingDispatcher` (under ``NUMBA_DISABLE_JIT=1`` the plain
+    function, as it is)."""
+    if isinstance(dispatcher, CPUDispatcher):
+        dispatcher.__class__ = _VectorisingDispatcher
+    return dispatcher
+
+
 def callable_from_python(function):
     """A helper of the kernels compiled without a Python wrapper (:func:`_helper_jit`), made callable from Python
     (tests, debugging): a jitted shim that calls it (each call of this function makes and compiles a new shim: keep
@@ -530,47 +553,125 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
         edges[m] = s0 + frac * length
 
 
+#: Lanes of the step's wavelength arithmetic: the three wavelengths and one lane of padding, whose values are
+#: computed and never read. Four lanes of float64 fill a 256-bit vector register (section 48 of docs/performance.md).
+LANES = 4
+#: Columns of :func:`sky_lanes`' rows: the direct-sun lanes, then the skylight lanes.
+SKY_LANE_COLUMNS = 2 * LANES
+
+
+def sky_lanes(sky):
+    """The sky table (6, nu, nmu) of :func:`swim.rt.march.atmosphere_constants` (the sun's transmittance at 3
+    wavelengths, then the diffuse irradiance at 3) as the step loop reads it: (nu, nmu, 8) float64, the wavelengths
+    innermost, each group of three padded with a zero lane, so that one corner's lanes are one contiguous load.
+
+    Parameters
+    ----------
+    sky : array_like
+        Shape (6, nu, nmu) [-].
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (nu, nmu, 8) float64 [-], C-contiguous: ``[..., c]`` the sun's transmittance and ``[..., 4 + c]`` the
+        diffuse irradiance at wavelength c; columns 3 and 7 are 0.
+
+    Raises
+    ------
+    ValueError
+        If ``sky`` does not have 6 channels.
+    """
+    sky = np.asarray(sky)
+    if sky.ndim != 3 or sky.shape[0] != 6:
+        raise ValueError(f"sky table: expected shape (6, nu, nmu), got {sky.shape}")
+    lanes = np.zeros(sky.shape[1:] + (SKY_LANE_COLUMNS,))
+    lanes[..., 0:3] = np.moveaxis(sky[0:3], 0, -1)
+    lanes[..., LANES:LANES + 3] = np.moveaxis(sky[3:6], 0, -1)
+    return lanes
+
+
+@_helper_jit(inline="always")
+def _corner_lanes(r00, r01, r10, r11, o, a, b):
+    """Lanes o ... o + 3 of a bilinear lookup between the four corner rows of a lane table (:func:`sky_lanes`):
+    ``(r00 (1 - b) + r01 b) (1 - a) + (r10 (1 - b) + r11 b) a``, as :func:`_bilinear_at`."""
+    return (((r00[o] * (1 - b) + r01[o] * b) * (1 - a) + (r10[o] * (1 - b) + r11[o] * b) * a),
+            ((r00[o + 1] * (1 - b) + r01[o + 1] * b) * (1 - a) + (r10[o + 1] * (1 - b) + r11[o + 1] * b) * a),
+            ((r00[o + 2] * (1 - b) + r01[o + 2] * b) * (1 - a) + (r10[o + 2] * (1 - b) + r11[o + 2] * b) * a),
+            ((r00[o + 3] * (1 - b) + r01[o + 3] * b) * (1 - a) + (r10[o + 3] * (1 - b) + r11[o + 3] * b) * a))
+
+
+@_helper_jit(inline="always")
+def _profile_lanes(m0, m1, o, w):
+    """Lanes o ... o + 3 of the multiple-scattering profiles between two heights (rows m0, m1 of the ray's
+    ``ms_lanes``): ``m0 (1 - w) + m1 w``."""
+    return (m0[o] * (1 - w) + m1[o] * w, m0[o + 1] * (1 - w) + m1[o + 1] * w,
+            m0[o + 2] * (1 - w) + m1[o + 2] * w, m0[o + 3] * (1 - w) + m1[o + 3] * w)
+
+
+@_helper_jit(inline="always")
+def _mean_transmittance(x):
+    """The step's mean transmittance (1 - e^-x) / x and e^-x - 1 (which carries e^-tau to the observer to the next
+    step), per lane of optical depths x: for |x| < 0.1 in every lane (a step in clear air has x ~ 1e-3; x < 0 for the
+    terminal step back over the ground) one Taylor polynomial (relative error < 1e-11) without a division, else one
+    expm1 per lane. One test for all lanes keeps the lanes' arithmetic in one block, where LLVM vectorises it."""
+    x0, x1, x2, x3 = x
+    if max(max(abs(x0), abs(x1)), max(abs(x2), abs(x3))) < 0.1:  # (two-argument max: CUDA's)
+        m0 = 1.0 - x0 * (0.5 - x0 * (1.0 / 6 - x0 * (1.0 / 24 - x0 * (1.0 / 120 - x0 * (1.0 / 720 - x0 / 5040)))))
+        m1 = 1.0 - x1 * (0.5 - x1 * (1.0 / 6 - x1 * (1.0 / 24 - x1 * (1.0 / 120 - x1 * (1.0 / 720 - x1 / 5040)))))
+        m2 = 1.0 - x2 * (0.5 - x2 * (1.0 / 6 - x2 * (1.0 / 24 - x2 * (1.0 / 120 - x2 * (1.0 / 720 - x2 / 5040)))))
+        m3 = 1.0 - x3 * (0.5 - x3 * (1.0 / 6 - x3 * (1.0 / 24 - x3 * (1.0 / 120 - x3 * (1.0 / 720 - x3 / 5040)))))
+        return (m0, m1, m2, m3), (-x0 * m0, -x1 * m1, -x2 * m2, -x3 * m3)
+    e0, e1, e2, e3 = math.expm1(-x0), math.expm1(-x1), math.expm1(-x2), math.expm1(-x3)
+    return ((-e0 / x0 if x0 != 0.0 else 1.0, -e1 / x1 if x1 != 0.0 else 1.0, -e2 / x2 if x2 != 0.0 else 1.0,
+             -e3 / x3 if x3 != 0.0 else 1.0), (e0, e1, e2, e3))
+
+
 @_helper_jit(inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
-def _accumulate(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff, weight,
-                gas_ratio):
-    """One wavelength's accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth, the
-    transmittance to the observer, the clear-sky radiance (Eq. 3: the source times the step's mean transmittance)
+def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff,
+                      weight, gas_ratio):
+    """Each lane's (wavelength's) accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth,
+    the transmittance to the observer, the clear-sky radiance (Eq. 3: the source times the step's mean transmittance)
     and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-min(t0, 2) - e^-min(t1, 2);
     ``gas_ratio``: e^t0, so that ``t_obs * gas_ratio`` is the clear sky's e^-tau_clear without an exp: t_obs =
     e^-(tau_clear + t0), and t0 < 2 wherever the weight is > 0). A negative weight is a terminal step back
-    (:func:`swim.rt.march._terminal_step`), where t0 may exceed 2: it takes e^-tau_clear itself."""
-    x = (beta_clear + beta_h) * ds_eff
-    # the step's mean transmittance (1 - e^-x) / x and e^-x - 1, which carries e^-tau to the observer to the next
-    # step: for |x| < 0.1 (a step in clear air has x ~ 1e-3; x < 0 for the terminal step back over the ground)
-    # one Taylor polynomial gives both (relative error < 1e-11) without the division, beyond it one expm1
-    if -0.1 < x < 0.1:
-        step_mean = 1.0 - x * (0.5 - x * (1.0 / 6 - x * (1.0 / 24 - x * (1.0 / 120 - x * (1.0 / 720 - x / 5040)))))
-        em = -x * step_mean
-    else:
-        em = math.expm1(-x)
-        step_mean = -em / x
+    (:func:`swim.rt.march._terminal_step`), where t0 may exceed 2: it takes e^-tau_clear itself. Every argument but
+    the last four is a tuple of :data:`LANES` scalars, and so is each result."""
+    tc0, tc1, tc2, tc3 = tau_clear
+    to0, to1, to2, to3 = t_obs
+    lc0, lc1, lc2, lc3 = l_clear
+    in0, in1, in2, in3 = i_nogas
+    ig0, ig1, ig2, ig3 = i_gas
+    b0, b1, b2, b3 = beta_clear
+    s0, s1, s2, s3 = source
+    e0, e1, e2, e3 = irradiance_h
+    (m0, m1, m2, m3), (x0, x1, x2, x3) = _mean_transmittance(((b0 + beta_h) * ds_eff, (b1 + beta_h) * ds_eff,
+                                                               (b2 + beta_h) * ds_eff, (b3 + beta_h) * ds_eff))
     if weight > 0.0:
-        i_nogas += irradiance_h * weight
-        i_gas += irradiance_h * (t_obs * gas_ratio) * weight
+        in0, in1, in2, in3 = in0 + e0 * weight, in1 + e1 * weight, in2 + e2 * weight, in3 + e3 * weight
+        g = gas_ratio * weight
+        ig0, ig1, ig2, ig3 = ig0 + e0 * to0 * g, ig1 + e1 * to1 * g, ig2 + e2 * to2 * g, ig3 + e3 * to3 * g
     elif weight < 0.0:
-        i_nogas += irradiance_h * weight
-        i_gas += irradiance_h * math.exp(-tau_clear) * weight
-    l_clear += t_obs * source * (ds_eff * step_mean)
-    t_obs *= 1.0 + em
-    tau_clear += beta_clear * ds_eff
-    return tau_clear, t_obs, l_clear, i_nogas, i_gas
+        in0, in1, in2, in3 = in0 + e0 * weight, in1 + e1 * weight, in2 + e2 * weight, in3 + e3 * weight
+        ig0 += e0 * math.exp(-tc0) * weight
+        ig1 += e1 * math.exp(-tc1) * weight
+        ig2 += e2 * math.exp(-tc2) * weight
+        ig3 += e3 * math.exp(-tc3) * weight
+    return ((tc0 + b0 * ds_eff, tc1 + b1 * ds_eff, tc2 + b2 * ds_eff, tc3 + b3 * ds_eff),
+            (to0 * (1.0 + x0), to1 * (1.0 + x1), to2 * (1.0 + x2), to3 * (1.0 + x3)),
+            (lc0 + to0 * s0 * (ds_eff * m0), lc1 + to1 * s1 * (ds_eff * m1), lc2 + to2 * s2 * (ds_eff * m2),
+             lc3 + to3 * s3 * (ds_eff * m3)),
+            (in0, in1, in2, in3), (ig0, ig1, ig2, ig3))
 
 
 @_helper_jit()
 def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
-                     spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
+                     spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
                      i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32,
-                     probe_at):
+                     stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
     once: one code for the CPU's loop over all rays (one call) and a GPU thread's ray
     (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
@@ -584,7 +685,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     n_species = tau_species.shape[1]
     aerosol_3d = n_c > n_species + 2  # the 3-D aerosol's two channels (packed only where it is not zero)
     n_gas = beta_gas.shape[1]
-    nu_sky, nmu_sky = sky.shape[1], sky.shape[2]
+    nu_sky, nmu_sky = sky_lanes.shape[0], sky_lanes.shape[1]
     nu_class = diffuse_classes.shape[1] // n_class
     n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
     n_u = ms_profile.shape[2]
@@ -592,27 +693,32 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     dh = p[_P_DH]
     # the wavelengths' constants (and each ray's phase functions, below) as tuples of scalars, read once: read from
     # their arrays, they were read again at every step (the loop's stores may alias them, as far as LLVM knows);
-    # 3-4 % faster (docs/performance.md, section 47)
-    spec_r = (spectra[0, 0], spectra[0, 1], spectra[0, 2])
-    spec_a = (spectra[1, 0], spectra[1, 1], spectra[1, 2])
-    spec_s = (spectra[2, 0], spectra[2, 1], spectra[2, 2])
-    ang = (angstrom[0], angstrom[1], angstrom[2])
-    ssa_a = (aerosol_ssa[0], aerosol_ssa[1], aerosol_ssa[2])
-    ssa_s = (stratospheric_ssa[0], stratospheric_ssa[1], stratospheric_ssa[2])
+    # 3-4 % faster (docs/performance.md, section 47). One per lane (LANES): the padding lane's is the sky table's zero
+    # column, a value that the compiler cannot fold away, so that the four lanes' arithmetic stays alike (section 48)
+    pad = sky_lanes[0, 0, 3]
+    spec_r = (float(spectra[0, 0]), float(spectra[0, 1]), float(spectra[0, 2]), pad)
+    spec_a = (float(spectra[1, 0]), float(spectra[1, 1]), float(spectra[1, 2]), pad)
+    spec_s = (float(spectra[2, 0]), float(spectra[2, 1]), float(spectra[2, 2]), pad)
+    ang = (float(angstrom[0]), float(angstrom[1]), float(angstrom[2]), pad)
+    ssa_a = (float(aerosol_ssa[0]), float(aerosol_ssa[1]), float(aerosol_ssa[2]), pad)
+    ssa_s = (float(stratospheric_ssa[0]), float(stratospheric_ssa[1]), float(stratospheric_ssa[2]), pad)
     for r in range(first, stop, stride):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
         row = _ix(r)
         phase_r = p_rayleigh[row]
-        phase_a = (p_aerosol[row, 0], p_aerosol[row, 1], p_aerosol[row, 2])
-        phase_s = (p_stratospheric[row, 0], p_stratospheric[row, 1], p_stratospheric[row, 2])
+        phase_a = (p_aerosol[row, 0], p_aerosol[row, 1], p_aerosol[row, 2], p_aerosol[row, 2])
+        phase_s = (p_stratospheric[row, 0], p_stratospheric[row, 1], p_stratospheric[row, 2], p_stratospheric[row, 2])
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
-        # per wavelength (0, 1, 2): tau_clear, e^-(tau_clear + tau_h) to the observer (carried as a product),
-        # l_clear, i_nogas and i_gas
-        tc0 = tc1 = tc2 = 0.0
-        to0 = to1 = to2 = 1.0
-        lc0 = lc1 = lc2 = 0.0
-        in0 = in1 = in2 = 0.0
-        ig0 = ig1 = ig2 = 0.0
+        # per lane (the wavelengths 0, 1, 2 and the padding): tau_clear, e^-(tau_clear + tau_h) to the observer
+        # (carried as a product), l_clear, i_nogas and i_gas
+        tc = lc = i_ng = i_g = (0.0, 0.0, 0.0, 0.0)
+        to = (1.0, 1.0, 1.0, 1.0)
+        if use_ms:  # the ray's multiple-scattering profiles (9, n_u) as rows of lanes: ms_lanes[u, 4 * k + c]
+            for u in range(n_u):
+                for c in range(3):
+                    ms_lanes[u, c] = ms_profile[c, row, u]
+                    ms_lanes[u, LANES + c] = ms_profile[3 + c, row, u]
+                    ms_lanes[u, 2 * LANES + c] = ms_profile[6 + c, row, u]
         for c in range(n_species):  # element by element: a CUDA thread's local arrays take no slice assignments
             tsp[c] = 0.0
         th = 0.0
@@ -781,11 +887,12 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                             and pending + 3 <= refine_slots and saved[7] < refine_visible):
                         # the previous interval held a cloud face that its midpoint missed: back to the state
                         # before it, and its two halves, then this interval again
-                        tc0, tc1, tc2 = saved[0], saved[1], saved[2]
-                        to0, to1, to2 = saved[3], saved[4], saved[5]
-                        lc0, lc1, lc2 = saved[8], saved[9], saved[10]
-                        in0, in1, in2 = saved[11], saved[12], saved[13]
-                        ig0, ig1, ig2 = saved[14], saved[15], saved[16]
+                        # (the padding lane takes the last wavelength's state: its values are never read)
+                        tc = (saved[0], saved[1], saved[2], saved[2])
+                        to = (saved[3], saved[4], saved[5], saved[5])
+                        lc = (saved[8], saved[9], saved[10], saved[10])
+                        i_ng = (saved[11], saved[12], saved[13], saved[13])
+                        i_g = (saved[14], saved[15], saved[16], saved[16])
                         th, ict, gap_prev, s_last = saved[7], saved[6], saved[17], saved[18]
                         e_th = math.exp(-th)
                         for c in range(n_species):
@@ -809,11 +916,11 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         pending += 2
                         budget -= 1
                         continue
-                    saved[0], saved[1], saved[2] = tc0, tc1, tc2
-                    saved[3], saved[4], saved[5] = to0, to1, to2
-                    saved[8], saved[9], saved[10] = lc0, lc1, lc2
-                    saved[11], saved[12], saved[13] = in0, in1, in2
-                    saved[14], saved[15], saved[16] = ig0, ig1, ig2
+                    saved[0], saved[1], saved[2] = tc[0], tc[1], tc[2]
+                    saved[3], saved[4], saved[5] = to[0], to[1], to[2]
+                    saved[8], saved[9], saved[10] = lc[0], lc[1], lc[2]
+                    saved[11], saved[12], saved[13] = i_ng[0], i_ng[1], i_ng[2]
+                    saved[14], saved[15], saved[16] = i_g[0], i_g[1], i_g[2]
                     saved[6], saved[7], saved[17], saved[18] = ict, th, gap_prev, s_last
                     for c in range(n_species):
                         saved[19 + c] = tsp[c]
@@ -839,38 +946,56 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     u0, wu = _lerp_index(fu * (n_u - 1), n_u)
                 ua, ub = _ix(u0), _ix(u0 + 1)  # the multiple-scattering profiles' two heights
                 sun = t_cloud * shadow
-                for c in range(3):  # what each wavelength adds at this step (no state carried from step to step)
-                    beta_r = prof_r * spec_r[c]
-                    beta_a = prof_a * spec_a[c] + beta_a3 * ang[c]
-                    beta_s = prof_s * spec_s[c]
-                    irradiance = _bilinear_at(sky, c, su0, sv0, sa, sb) * sun
-                    if tau_a3_sun != 0.0:
-                        irradiance *= math.exp(-tau_a3_sun * ang[c])
-                    scat_a = beta_a * ssa_a[c]
-                    scat_s = beta_s * ssa_s[c]
-                    source = (beta_r * phase_r + scat_a * phase_a[c] + scat_s * phase_s[c]) * irradiance
-                    if use_ms:
-                        j_r = ms_profile[c, row, ua] * (1 - wu) + ms_profile[c, row, ub] * wu
-                        j_a = ms_profile[3 + c, row, ua] * (1 - wu) + ms_profile[3 + c, row, ub] * wu
-                        j_s = ms_profile[6 + c, row, ua] * (1 - wu) + ms_profile[6 + c, row, ub] * wu
-                        source += (beta_r * j_r + scat_a * j_a + scat_s * j_s) * t_cloud
-                    irradiance_h = irradiance
-                    if weight != 0.0 and in_grid:  # the skylight only where Eq. 12's weight needs it (< 0: a step back)
-                        if classes:
-                            diffuse = (_bilinear_at(diffuse_classes, c, cu0, cv0, ca, cb) * (1 - wc)
-                                       + _bilinear_at(diffuse_classes, c, cu1, cv1, ca1, cb1) * wc)
-                        else:
-                            diffuse = _bilinear_at(sky, 3 + c, su0, sv0, sa, sb)
-                        irradiance_h += 2.0 * diffuse * t_cloud
-                    step_beta[c] = beta_r + beta_a + beta_s
-                    step_source[c] = source
-                    step_irradiance[c] = irradiance_h
-                tc0, to0, lc0, in0, ig0 = _accumulate(tc0, to0, lc0, in0, ig0, step_beta[0], step_source[0],
-                                                      step_irradiance[0], beta_h, ds_eff, weight, gas_ratio)
-                tc1, to1, lc1, in1, ig1 = _accumulate(tc1, to1, lc1, in1, ig1, step_beta[1], step_source[1],
-                                                      step_irradiance[1], beta_h, ds_eff, weight, gas_ratio)
-                tc2, to2, lc2, in2, ig2 = _accumulate(tc2, to2, lc2, in2, ig2, step_beta[2], step_source[2],
-                                                      step_irradiance[2], beta_h, ds_eff, weight, gas_ratio)
+                # what each lane (wavelength) adds at this step, lane by lane in one block of arithmetic, the
+                # corners' lanes each one contiguous load: LLVM vectorises it across the lanes (section 48)
+                su0u, sv0u, su1u, sv1u = _ix(su0), _ix(sv0), _ix(su0 + 1), _ix(sv0 + 1)
+                r00, r01, r10, r11 = sky_lanes[su0u, sv0u], sky_lanes[su0u, sv1u], sky_lanes[su1u, sv0u], \
+                    sky_lanes[su1u, sv1u]
+                e0, e1, e2, e3 = _corner_lanes(r00, r01, r10, r11, 0, sa, sb)
+                e0, e1, e2, e3 = e0 * sun, e1 * sun, e2 * sun, e3 * sun
+                if tau_a3_sun != 0.0:
+                    e0 *= math.exp(-tau_a3_sun * ang[0])
+                    e1 *= math.exp(-tau_a3_sun * ang[1])
+                    e2 *= math.exp(-tau_a3_sun * ang[2])
+                    e3 *= math.exp(-tau_a3_sun * ang[3])
+                br0, br1, br2, br3 = prof_r * spec_r[0], prof_r * spec_r[1], prof_r * spec_r[2], prof_r * spec_r[3]
+                ba0, ba1 = prof_a * spec_a[0] + beta_a3 * ang[0], prof_a * spec_a[1] + beta_a3 * ang[1]
+                ba2, ba3 = prof_a * spec_a[2] + beta_a3 * ang[2], prof_a * spec_a[3] + beta_a3 * ang[3]
+                bs0, bs1, bs2, bs3 = prof_s * spec_s[0], prof_s * spec_s[1], prof_s * spec_s[2], prof_s * spec_s[3]
+                sa0, sa1, sa2, sa3 = ba0 * ssa_a[0], ba1 * ssa_a[1], ba2 * ssa_a[2], ba3 * ssa_a[3]
+                ss0, ss1, ss2, ss3 = bs0 * ssa_s[0], bs1 * ssa_s[1], bs2 * ssa_s[2], bs3 * ssa_s[3]
+                # the clear-sky source: single scattering (Eq. 3) and, where use_ms, the diffuse source's profiles
+                src0 = (br0 * phase_r + sa0 * phase_a[0] + ss0 * phase_s[0]) * e0
+                src1 = (br1 * phase_r + sa1 * phase_a[1] + ss1 * phase_s[1]) * e1
+                src2 = (br2 * phase_r + sa2 * phase_a[2] + ss2 * phase_s[2]) * e2
+                src3 = (br3 * phase_r + sa3 * phase_a[3] + ss3 * phase_s[3]) * e3
+                if use_ms:
+                    m0, m1 = ms_lanes[ua], ms_lanes[ub]
+                    jr0, jr1, jr2, jr3 = _profile_lanes(m0, m1, 0, wu)
+                    ja0, ja1, ja2, ja3 = _profile_lanes(m0, m1, LANES, wu)
+                    js0, js1, js2, js3 = _profile_lanes(m0, m1, 2 * LANES, wu)
+                    src0 += (br0 * jr0 + sa0 * ja0 + ss0 * js0) * t_cloud
+                    src1 += (br1 * jr1 + sa1 * ja1 + ss1 * js1) * t_cloud
+                    src2 += (br2 * jr2 + sa2 * ja2 + ss2 * js2) * t_cloud
+                    src3 += (br3 * jr3 + sa3 * ja3 + ss3 * js3) * t_cloud
+                irr = (e0, e1, e2, e3)
+                if weight != 0.0 and in_grid:  # the skylight only where Eq. 12's weight needs it (< 0: a step back)
+                    if classes:
+                        df0, df1, df2 = (_bilinear_at(diffuse_classes, 0, cu0, cv0, ca, cb) * (1 - wc)
+                                       + _bilinear_at(diffuse_classes, 0, cu1, cv1, ca1, cb1) * wc,
+                                       _bilinear_at(diffuse_classes, 1, cu0, cv0, ca, cb) * (1 - wc)
+                                       + _bilinear_at(diffuse_classes, 1, cu1, cv1, ca1, cb1) * wc,
+                                       _bilinear_at(diffuse_classes, 2, cu0, cv0, ca, cb) * (1 - wc)
+                                       + _bilinear_at(diffuse_classes, 2, cu1, cv1, ca1, cb1) * wc)
+                        df3 = df2
+                    else:
+                        df0, df1, df2, df3 = _corner_lanes(r00, r01, r10, r11, LANES, sa, sb)
+                    irr = (e0 + 2.0 * df0 * t_cloud, e1 + 2.0 * df1 * t_cloud, e2 + 2.0 * df2 * t_cloud,
+                           e3 + 2.0 * df3 * t_cloud)
+                tc, to, lc, i_ng, i_g = _accumulate_lanes(tc, to, lc, i_ng, i_g,
+                                                          (br0 + ba0 + bs0, br1 + ba1 + bs1, br2 + ba2 + bs2,
+                                                           br3 + ba3 + bs3), (src0, src1, src2, src3), irr, beta_h,
+                                                          ds_eff, weight, gas_ratio)
                 ict += sun * weight
                 th = t1
                 e_th = e_t1
@@ -890,10 +1015,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 s_last = s
                 if not alive:
                     break
-        tau_clear[r, 0], tau_clear[r, 1], tau_clear[r, 2] = tc0, tc1, tc2
-        l_clear[r, 0], l_clear[r, 1], l_clear[r, 2] = lc0, lc1, lc2
-        i_nogas[r, 0], i_nogas[r, 1], i_nogas[r, 2] = in0, in1, in2
-        i_gas[r, 0], i_gas[r, 1], i_gas[r, 2] = ig0, ig1, ig2
+        tau_clear[r, 0], tau_clear[r, 1], tau_clear[r, 2] = tc[0], tc[1], tc[2]
+        l_clear[r, 0], l_clear[r, 1], l_clear[r, 2] = lc[0], lc[1], lc[2]
+        i_nogas[r, 0], i_nogas[r, 1], i_nogas[r, 2] = i_ng[0], i_ng[1], i_ng[2]
+        i_gas[r, 0], i_gas[r, 1], i_gas[r, 2] = i_g[0], i_g[1], i_g[2]
         for c in range(n_species):
             tau_species[r, c] = tsp[c]
         tau_h[r] = th
@@ -999,9 +1124,10 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
                 ms_profile[c, r, u] = acc[u * 9 + c]
 
 
+@_vectorising
 @njit(**_JIT_KERNEL, nogil=True)
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
-               ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky, diffuse_classes,
+               ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky_lanes, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
                probe_spacing, n_probe_max, cell_slack, empty_steps, empty_cells_per_step, n_clear_probe, clear_power,
                clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, tau_clear,
@@ -1030,8 +1156,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3)
     [m], ``valid`` (n,) bool, the phase functions ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric``
     (n, 3), the aerosol class ``class_lower`` (n,) int and ``class_weight`` (n,), and ``ms_profile`` (9, n, n_u)
-    [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march.kernel_constants` (float32), scalars packed
-    by :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
+    [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march.kernel_constants` (float32), but for the sky
+    table, which the step loop reads as :func:`sky_lanes` (nu, nmu, 8) float64; scalars packed by
+    :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
     ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, p) of the volume's p packed species
     (:func:`swim.rt.march.packed_species`), the clear-sky radiance ``l_clear`` (n, 3),
     the Eq. 12 integrals ``i_nogas``, ``i_gas`` (n, 3) and ``i_cloud_t`` (n,), ``alive_out`` and ``hit_out``
@@ -1053,19 +1180,17 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     saved = np.empty(19 + tau_species.shape[1])
     # the species' optical depths along the ray, and what each wavelength adds at a step
     tsp = np.empty(n_species)
-    step_beta = np.empty(3)
-    step_source = np.empty(3)
-    step_irradiance = np.empty(3)
+    # the ray's multiple-scattering profiles as rows of lanes (its padding lanes stay 0)
+    ms_lanes = np.zeros((ms_profile.shape[2], 3 * LANES))
     vol = np.empty(n_c)
     vol32 = np.empty(n_c, np.float32)
     # the geometry of a block of occupancy probes (_probe_indices), then of a block of steps (_step_geometry)
     probe_at = np.empty((6, PROBE_BLOCK))
     _march_ray_range(0, start.shape[0], 1, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
-                     spectra, sky, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
+                     spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
                      i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tsp, step_beta, step_source, step_irradiance, vol, vol32,
-                     probe_at)
+                     stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at)

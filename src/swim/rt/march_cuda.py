@@ -36,7 +36,8 @@ DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_round_ha
                     "_height_and_indices", "_point_geometry", "_geometry_constants", "_probe_indices", "_step_geometry",
                     "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_bilinear_clamped", "_terrain_gap",
                     "_gap_along", "_terrain_crossing", "_lower_corner", "_prefetch_corners", "_probe_occupancy",
-                    "_adaptive_edges", "_clear_edges", "_invert_cdf", "_accumulate", "_march_ray_range")
+                    "_adaptive_edges", "_clear_edges", "_invert_cdf", "_corner_lanes", "_profile_lanes",
+                    "_mean_transmittance", "_accumulate_lanes", "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
 
@@ -104,17 +105,19 @@ def kernel_arguments() -> tuple:
     return tuple(inspect.signature(march_cpu.march_rays.py_func).parameters)
 
 
-def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels):
+def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels,
+               n_u):
     """Sizes of one ray's work arrays (as :func:`swim.rt.march_cpu.march_rays` allocates them): step edges,
-    probe densities, refinement slots, the saved state, species and volume channels. ``n_species``: the packed
-    species (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species array keeps one element
+    probe densities, refinement slots, the saved state, species and volume channels, and the heights of the
+    multiple-scattering profiles (``n_u``: ``ms_profile.shape[2]``). ``n_species``: the packed species
+    (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species array keeps one element
     (a local array of size 0 is not a CUDA array)."""
     return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
-            19 + n_species, max(n_species, 1), n_channels)
+            19 + n_species, max(n_species, 1), n_channels, n_u)
 
 
 @functools.lru_cache(maxsize=8)
-def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, fastmath=False):
+def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, n_u, fastmath=False):
     """The CUDA kernel of :func:`swim.rt.march_cpu.march_rays`: one thread per ray, the work arrays of
     :func:`work_sizes` in the thread's local memory (their sizes are compile-time constants, hence one kernel
     per combination). It takes ``march_rays``' arguments (:func:`kernel_arguments`), the outputs as device
@@ -136,20 +139,23 @@ def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, f
         "        stack_depth = cuda.local.array(N_SLOTS, int64)\n"
         "        saved = cuda.local.array(N_SAVED, float64)\n"
         "        tsp = cuda.local.array(N_SPECIES, float64)\n"
-        "        step_beta = cuda.local.array(3, float64)\n"
-        "        step_source = cuda.local.array(3, float64)\n"
-        "        step_irradiance = cuda.local.array(3, float64)\n"
+        "        ms_lanes = cuda.local.array((N_U, MS_LANE_COLUMNS), float64)\n"
+        "        for u in range(N_U):\n"
+        "            for c in range(MS_LANE_COLUMNS):\n"
+        "                ms_lanes[u, c] = 0.0\n"
         "        vol = cuda.local.array(N_CHANNELS, float64)\n"
         "        vol32 = cuda.local.array(N_CHANNELS, float32)\n"
         "        probe_at = cuda.local.array((6, PROBE_BLOCK), float64)\n"
         f"        march_ray_range(r, r + 1, 1, {names}, edges, cdf, stack_lo, stack_hi, stack_depth, saved, tsp,\n"
-        "                        step_beta, step_source, step_irradiance, vol, vol32, probe_at)\n"
+        "                        ms_lanes, vol, vol32, probe_at)\n"
     )
     namespace = {"cuda": cuda, "float64": numba.float64, "float32": numba.float32, "int64": numba.int64,
                  "march_ray_range": march_ray_range, "N_EDGES": n_edges, "N_CDF": n_cdf, "N_SLOTS": n_slots,
-                 "N_SAVED": n_saved, "N_SPECIES": n_species, "N_CHANNELS": n_channels,
+                 "N_SAVED": n_saved, "N_SPECIES": n_species, "N_CHANNELS": n_channels, "N_U": n_u,
+                 "MS_LANE_COLUMNS": 3 * march_cpu.LANES,
                  "PROBE_BLOCK": march_cpu.PROBE_BLOCK}
-    exec(compile(source, f"<swim.rt.march_cuda kernel {n_edges}/{n_cdf}/{n_slots}/{n_channels}>", "exec"), namespace)
+    name = f"<swim.rt.march_cuda kernel {n_edges}/{n_cdf}/{n_slots}/{n_channels}/{n_u}>"
+    exec(compile(source, name, "exec"), namespace)
     return cuda.jit(fastmath=fastmath)(namespace["march_rays_cuda"])
 
 
@@ -191,7 +197,7 @@ def march_rays(*args):
         return
     sizes = work_sizes(values["n_before"], values["n_grid"], values["n_after"], values["n_probe"],
                        values["n_probe_max"], values["n_clear_probe"], values["refine_slots"],
-                       values["tau_species"].shape[1], values["volume"].shape[3])
+                       values["tau_species"].shape[1], values["volume"].shape[3], values["ms_profile"].shape[2])
     kernel = cuda_march_kernel(*sizes)
     outputs = ("tau_clear", "tau_h", "tau_species", "l_clear", "i_nogas", "i_gas", "i_cloud_t", "alive_out", "hit_out",
                "s_hit_out", "samples_out")

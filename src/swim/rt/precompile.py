@@ -84,7 +84,7 @@ def _argument_types():
         **rays, "bounds": a(f8, 2), "valid": a(b1, 1), "p_rayleigh": a(f8, 1), "p_aerosol": a(f8, 2),
         "p_stratospheric": a(f8, 2), "class_lower": a(i4, 1), "class_weight": a(f8, 1), "ms_profile": a(f4, 3),
         "use_ms": b1, "n_before": i8, "n_grid": i8, "n_after": i8, "p": a(f8, 1), "coef": a(f8, 1),
-        "beta_gas": ro(f4, 2), "spectra": ro(f4, 2), "sky": ro(f4, 3), "diffuse_classes": ro(f4, 3), "n_class": i8,
+        "beta_gas": ro(f4, 2), "spectra": ro(f4, 2), "sky_lanes": ro(f8, 3), "diffuse_classes": ro(f4, 3), "n_class": i8,
         "volume": ro(f4, 4), "terrain": ro(f4, 3), "occupancy": ro(i1, 3), "angstrom": ro(f4, 1),
         "aerosol_ssa": ro(f4, 1), "stratospheric_ssa": ro(f4, 1), "n_probe": i8, "empty_weight": f8,
         "probe_spacing": f8, "n_probe_max": i8, "cell_slack": f8, "empty_steps": i8, "empty_cells_per_step": f8,
