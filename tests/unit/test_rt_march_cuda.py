@@ -130,8 +130,9 @@ _TABLES = """
 
     volume = np.arange(24, dtype=np.float32).reshape(2, 3, 4)
     occupancy = np.ones((2, 3, 4), np.uint8)
+    sky_lanes = np.arange(40, dtype=np.float64).reshape(1, 5, 8)
     def tables(v):
-        views = {"volume": v.view(), "occupancy": occupancy.view()}
+        views = {"volume": v.view(), "occupancy": occupancy.view(), "sky_lanes": sky_lanes.view()}
         for view in views.values():
             view.flags.writeable = False  # as swim.rt.march._numba_tables makes them, anew for every render
         return {**views, "n_class": 3}
@@ -142,6 +143,9 @@ _TABLES = """
     new = march_cuda.device_tables(tables(other))
     assert new["volume"] is not first["volume"]
     np.testing.assert_array_equal(new["volume"].copy_to_host(), other)
+    # the sky table's lanes: copied once too, and not again for a new volume
+    assert again["sky_lanes"] is first["sky_lanes"] and new["sky_lanes"] is first["sky_lanes"]
+    np.testing.assert_array_equal(new["sky_lanes"].copy_to_host(), sky_lanes)
     print("ok")
 """
 

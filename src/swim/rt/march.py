@@ -1909,7 +1909,9 @@ _SKY_LANES = {}
 def _sky_lanes(sky):
     """:func:`swim.rt.march_cpu.sky_lanes` of the sky table ``sky`` (6, nu, nmu), read-only, made once per table
     and kept while the table lives: a render calls the kernels ~3 times (adaptive sampling's batches), a time series
-    or the Monte Carlo case's repeated view many more, and the copy (3 MB for 96 x 512 entries) took ~1 ms."""
+    or the Monte Carlo case's repeated view many more, and the copy (3 MB for 96 x 512 entries) took ~1 ms. Kept by
+    the table itself, a JAX array, not by :func:`device_copies`, which identifies the owner of a numpy array's memory:
+    each host view of a JAX array has a new one."""
     from . import march_cpu
 
     entry = _SKY_LANES.get("entry")
@@ -1973,8 +1975,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         *ray_class, ms_profile, settings.multiple_scattering,
         settings.n_before, settings.n_grid, settings.n_after, t["p"], t["coef"], t["beta_gas"], t["spectra"],
         t["sky_lanes"], t["diffuse_classes"], t["n_class"], t["volume"], t["terrain"], t["occupancy"], t["angstrom"],
-        t["aerosol_ssa"], t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing), MAX_PROBES,
-        CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
+        t["aerosol_ssa"], t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing),
+        MAX_PROBES, CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS, *out)
     if kernel == "numba":  # composed in numba too: the clouds (section 35) and the ground (section 37)

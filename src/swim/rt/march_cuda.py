@@ -161,12 +161,14 @@ def cuda_march_kernel(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, n
 
 #: Device copies of the last tables' big arrays (:func:`device_tables`, :func:`swim.rt.march.device_copies`).
 _TABLE_COPIES = {}
+#: The same for the last sky table's lanes, kept apart: a new sun's sky does not copy the volume again.
+_SKY_LANE_COPIES = {}
 
 
 def device_tables(tables):
     """``tables`` (:func:`swim.rt.march._numba_tables`) with the arrays of :data:`swim.rt.march.HOST_CONSTANTS`
-    (the packed volume and the occupancy grid) on the GPU, copied once per host array
-    (:func:`swim.rt.march.device_copies`); the kernel's launches copy the small tables with the rays."""
+    (the packed volume and the occupancy grid) and the sky table's lanes (3 MB) on the GPU, copied once per host
+    array (:func:`swim.rt.march.device_copies`); the kernel's launches copy the small tables with the rays."""
     from numba import cuda
 
     from .march import HOST_CONSTANTS, device_copies
@@ -174,7 +176,8 @@ def device_tables(tables):
     def transfer(a):
         return cuda.to_device(np.ascontiguousarray(a))
 
-    return {**tables, **device_copies({key: tables[key] for key in HOST_CONSTANTS}, transfer, _TABLE_COPIES)}
+    return {**tables, **device_copies({key: tables[key] for key in HOST_CONSTANTS}, transfer, _TABLE_COPIES),
+            **device_copies({"sky_lanes": tables["sky_lanes"]}, transfer, _SKY_LANE_COPIES)}
 
 
 def march_rays(*args):
