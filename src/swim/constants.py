@@ -17,6 +17,12 @@ WAVELENGTHS_M = WAVELENGTHS_NM * 1e-9
 EARTH_RADIUS_M = 6_371_000.0
 #: Top of the model atmosphere for the clear-sky step (Step 2) [m] (paper, Sect. 3.3).
 ATMOSPHERE_TOP_M = 100_000.0
+#: Row of the kernels' clear-air height table (``beta_gas``: the Rayleigh, background and stratospheric aerosol
+#: profiles in rows 0-2) that holds the fraction of the vertical optical depth at 546 nm above each height
+#: (:func:`swim.rt.march.gas_column_above`).
+GAS_COLUMN_ROW = 3
+#: Least clear-air steps after the grid of a ray that rises out of it (:func:`swim.rt.march.after_step_counts`).
+AFTER_MIN_STEPS = 4
 #: Total solar irradiance at 1 AU [W m-2] (paper, Sect. 3.1).
 SOLAR_CONSTANT_W_M2 = 1362.0
 #: Angular radius of the solar disk seen from 1 AU [rad].

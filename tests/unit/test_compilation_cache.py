@@ -68,21 +68,26 @@ def test_numba_kernel_cache_follows_swim_cache_dir(tmp_path):
 
 def test_the_numba_cache_folder_changes_with_the_code_of_any_numba_module(tmp_path, monkeypatch):
     """numba checks only a function's own file for staleness, but a ground term compiled from ground_cpu.py bakes in
-    march_cpu.py's geometry: the digest that names the cache folder must change when any *_cpu.py module changes."""
+    march_cpu.py's geometry, and numba freezes the constants that compiled code reads from other modules: the digest
+    that names the cache folder must change when any *_cpu.py module or any of those modules changes."""
     import shutil
 
     import swim.rt.march_cpu as m
 
     rt = Path(m.__file__).parent
-    copy = tmp_path / "rt"
-    copy.mkdir()
+    copy = tmp_path / "swim" / "rt"
+    copy.mkdir(parents=True)
     for path in rt.glob("*_cpu.py"):
         shutil.copy(path, copy / path.name)
+    for name in m.CONSTANTS_READ_FROM:  # the modules whose constants numba freezes into the machine code
+        (copy / name).resolve().parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(rt / name, (copy / name).resolve())
     monkeypatch.setattr(m, "__file__", str(copy / "march_cpu.py"))
     before = m.numba_sources_digest()
     assert before == m.numba_sources_digest() and len(before) == 16
-    for name in ("march_cpu.py", "compose_cpu.py", "ground_cpu.py", "solar_cpu.py"):
-        (copy / name).write_text((copy / name).read_text() + "\n# changed\n")
+    for name in ("march_cpu.py", "compose_cpu.py", "ground_cpu.py", "solar_cpu.py", *m.CONSTANTS_READ_FROM):
+        path = (copy / name).resolve()
+        path.write_text(path.read_text() + "\n# changed\n")
         after = m.numba_sources_digest()
         assert after != before, name
         before = after

@@ -36,21 +36,32 @@ from numba.core import cgutils
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
+from ..constants import AFTER_MIN_STEPS, GAS_COLUMN_ROW
 from .cache_budget import hold_code_version, prune_code_versions
 from .compilation_cache import _disabled, cache_directory, serialise_numba_cache_writes
 
 
+#: The modules (relative to ``swim/rt``) whose module-level constants the compiled functions read: numba freezes
+#: such globals into the machine code (e.g. :data:`swim.constants.AFTER_MIN_STEPS`, the phase functions' constants
+#: in ``swim.rt.compose_cpu``), so a change to them must start a fresh cache too (:func:`numba_sources_digest`).
+CONSTANTS_READ_FROM = ("../constants.py", "../optics/phase.py", "march.py", "solar.py")
+
+
 def numba_sources_digest() -> str:
-    """A digest (16 hex digits) of the code of every module with numba-compiled functions (``swim/rt/*_cpu.py``).
+    """A digest (16 hex digits) of the code of every module with numba-compiled functions (``swim/rt/*_cpu.py``) and
+    of those whose constants they read (:data:`CONSTANTS_READ_FROM`).
 
     numba decides whether a cached compilation is stale from the time stamp of the function's own file only, and bakes
     the compiled functions it calls from other files (``swim.rt.ground_cpu`` calls this module's point geometry and
-    lookups, and ``swim.rt.compose_cpu``'s transmittance) into the caller's machine code: after a change to this file
-    a cached ``ground_radiance`` would keep running the old geometry. The cache therefore lives in a folder named by
-    this digest, so that any change to any of these modules starts a fresh one (docs/performance.md, section 37)."""
+    lookups, and ``swim.rt.compose_cpu``'s transmittance) into the caller's machine code, and the other modules'
+    constants as well: after a change to this file a cached ``ground_radiance`` would keep running the old geometry.
+    The cache therefore lives in a folder named by this digest, so that any change to any of these modules starts a
+    fresh one (docs/performance.md, sections 37 and 49)."""
     digest = hashlib.sha256()
-    for path in sorted(Path(__file__).parent.glob("*_cpu.py")):
-        digest.update(path.name.encode() + path.read_bytes())
+    rt = Path(__file__).parent
+    for path in [*sorted(rt.glob("*_cpu.py")), *(rt / name for name in CONSTANTS_READ_FROM)]:
+        if path.is_file():
+            digest.update(path.name.encode() + path.read_bytes())
     return digest.hexdigest()[:16]
 
 
@@ -535,6 +546,34 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_g
 
 
 @_helper_jit()
+def _height(q0, q1, q2, radius):
+    """Height [m] above the sphere of radius ``radius`` [m] of the point q (scene frame, rebased: the sphere's centre
+    at (0, 0, -radius)), in the form of :func:`_height_and_indices` that is stable near the sphere."""
+    r = math.sqrt(q0 * q0 + q1 * q1 + (q2 + radius) * (q2 + radius))
+    return (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
+
+
+@_helper_jit()
+def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
+    """:func:`swim.rt.march.after_step_counts` for one ray: its clear-air steps after the grid, which it leaves at
+    ``s_exit`` [m]; ``n_after`` where ``beta_gas`` has no column row (:data:`swim.constants.GAS_COLUMN_ROW`)."""
+    if beta_gas.shape[0] <= GAS_COLUMN_ROW:
+        return n_after
+    radius = p[_P_RADIUS]
+    e0, e1, e2 = st0 + s_exit * d0, st1 + s_exit * d1, st2 + s_exit * d2
+    if e0 * d0 + e1 * d1 + (e2 + radius) * d2 < 0:  # descending where it leaves: it may end on the ground
+        return n_after
+    s_low = _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, s_exit)
+    n_gas = beta_gas.shape[1]
+    g0, w = _lerp_index(_height(e0, e1, e2, radius) / p[_P_DH], n_gas)
+    above_exit = beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
+    g0, w = _lerp_index(_height(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2, radius) / p[_P_DH], n_gas)
+    above_low = beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
+    q = _clip(above_exit / max(above_low, 1e-30), 0.0, 1.0)
+    return min(max(int(math.ceil(n_after * math.sqrt(q))), min(AFTER_MIN_STEPS, n_after)), n_after)
+
+
+@_helper_jit()
 def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
     """Edges (n_steps + 1,) [m] that cut the cumulative step density ``cdf[:n_probe + 1]`` (unnormalised, over
     n_probe equal intervals of [s0, s0 + length]) into n_steps equal parts (``_edges_from_density`` of
@@ -761,6 +800,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 n_steps, s0, length, in_grid = n_grid, bounds[r, 0], bounds[r, 1] - bounds[r, 0], True
             else:
                 n_steps, s0, length, in_grid = n_after, bounds[r, 1], bounds[r, 2] - bounds[r, 1], False
+                if n_after > 0:
+                    n_steps = _after_steps(st0, st1, st2, d0, d1, d2, s0, n_after, p, beta_gas)
             if terminal:
                 pass  # no placed steps: one or two pending intervals (below), sampled as refined halves are
             elif n_steps == 0:
