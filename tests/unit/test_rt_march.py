@@ -990,15 +990,15 @@ def test_after_step_counts_follow_the_air_left_above_the_grid():
     assert dip[0] == np.clip(np.ceil(n_after * np.sqrt(q_at(exit_h) / q_at(tangent_height))), AFTER_MIN_STEPS,
                              n_after)
     # the numba helper, per ray
-    p, _ = march_cpu.pack_parameters(consts)
+    p, coef = march_cpu.pack_parameters(consts)
     after_steps = march_cpu.callable_from_python(march_cpu._after_steps)
     table = np.asarray(consts["beta_gas"])
     rays = [(start[r], up[r], bounds[r, 1], counts[r]) for r in range(n)]
     rays += [(flat_start[r], dirs[r], flat_bounds[r, 1], got[r]) for r in range(2)]
     rays += [(np.array([0.0, 0.0, 6e3]), down[0], 400e3, dip[0])]
     for origin, direction, s_exit, count in rays:
-        assert after_steps(*origin, *direction, s_exit, n_after, p, table) == count
-        assert after_steps(*origin, *direction, s_exit, n_after, p, table[:GAS_COLUMN_ROW]) == n_after
+        assert after_steps(*origin, *direction, s_exit, n_after, p, coef, table) == count
+        assert after_steps(*origin, *direction, s_exit, n_after, p, coef, table[:GAS_COLUMN_ROW]) == n_after
 
 
 def test_after_step_counts_keep_the_clear_airs_error_relative_to_the_ray():

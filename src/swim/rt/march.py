@@ -455,17 +455,18 @@ def _gas_at(h, mu_s, consts):
     return beta[:, :3], beta[:, 3:6], beta[:, 6:], sky[:, :3], sky[:, 3:]
 
 
-def lowest_point(start, direction, bounds, consts):
+def lowest_point(start, direction, bounds, consts, end=None):
     """The point of each ray closest to the earth's centre, clipped to the traced segment (n, 3).
 
     Rebased like ``start`` (scene frame minus (0, 0, R)): the observer for upward views, the ground for
     downward ones, the tangent point for limb views. Inputs: the chunk's rebased ``start`` (n, 3) [m], unit
-    ``direction`` (n, 3) and ``bounds`` (n, 3) [m] of :func:`ray_segments`.
+    ``direction`` (n, 3) and ``bounds`` (n, 3) [m] of :func:`ray_segments`; ``end`` (n,) [m]: the lowest point up
+    to there instead of the segment's end ``bounds[:, 2]``.
     """
     radius = consts["radius"]
     pz = start[:, 2] + radius
     s_low = jnp.clip(-(start[:, 0] * direction[:, 0] + start[:, 1] * direction[:, 1] + pz * direction[:, 2]),
-                     0.0, bounds[:, 2])
+                     0.0, bounds[:, 2] if end is None else end)
     return start + s_low[:, None] * direction
 
 
@@ -795,18 +796,10 @@ def after_step_counts(start, direction, bounds, n_after, consts):
     exit_point = start + s_exit[:, None] * direction
     rising = (exit_point[:, 0] * direction[:, 0] + exit_point[:, 1] * direction[:, 1]
               + (exit_point[:, 2] + radius) * direction[:, 2]) >= 0
-    # the lowest point before the exit: the ray's height is convex along it, lowest at its tangent point
-    s_low = jnp.clip(-(start[:, 0] * direction[:, 0] + start[:, 1] * direction[:, 1]
-                       + (start[:, 2] + radius) * direction[:, 2]), 0.0, s_exit)
-    low_point = start + s_low[:, None] * direction
-
-    def height(q):
-        r = jnp.sqrt(q[:, 0] ** 2 + q[:, 1] ** 2 + (q[:, 2] + radius) ** 2)
-        return (q[:, 0] ** 2 + q[:, 1] ** 2 + q[:, 2] ** 2 + 2 * radius * q[:, 2]) / (r + radius)
-
+    low_point = lowest_point(start, direction, bounds, consts, end=s_exit)  # the height is convex along a ray
     column = consts["beta_gas"][GAS_COLUMN_ROW:GAS_COLUMN_ROW + 1]
-    above_exit = _lerp_table(column, height(exit_point) / consts["dh"])[:, 0]
-    above_low = _lerp_table(column, height(low_point) / consts["dh"])[:, 0]
+    above_exit = _lerp_table(column, _point_geometry(exit_point, consts)[0] / consts["dh"])[:, 0]
+    above_low = _lerp_table(column, _point_geometry(low_point, consts)[0] / consts["dh"])[:, 0]
     q = jnp.clip(above_exit / jnp.maximum(above_low, 1e-30), 0.0, 1.0)
     steps = jnp.clip(jnp.ceil(n_after * jnp.sqrt(q)), min(AFTER_MIN_STEPS, n_after), n_after).astype(jnp.int32)
     return jnp.where(rising, steps, n_after)

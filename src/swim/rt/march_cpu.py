@@ -546,15 +546,14 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_g
 
 
 @_helper_jit()
-def _height(q0, q1, q2, radius):
-    """Height [m] above the sphere of radius ``radius`` [m] of the point q (scene frame, rebased: the sphere's centre
-    at (0, 0, -radius)), in the form of :func:`_height_and_indices` that is stable near the sphere."""
-    r = math.sqrt(q0 * q0 + q1 * q1 + (q2 + radius) * (q2 + radius))
-    return (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
+def _lowest_along(st0, st1, st2, d0, d1, d2, radius, end):
+    """:func:`swim.rt.march.lowest_point` for one ray: the distance [m] along it, within [0, end], of its point
+    closest to the earth's centre (the ray's height is convex along it)."""
+    return _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, end)
 
 
 @_helper_jit()
-def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
+def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, coef, beta_gas):
     """:func:`swim.rt.march.after_step_counts` for one ray: its clear-air steps after the grid, which it leaves at
     ``s_exit`` [m]; ``n_after`` where ``beta_gas`` has no column row (:data:`swim.constants.GAS_COLUMN_ROW`)."""
     if beta_gas.shape[0] <= GAS_COLUMN_ROW:
@@ -563,11 +562,13 @@ def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
     e0, e1, e2 = st0 + s_exit * d0, st1 + s_exit * d1, st2 + s_exit * d2
     if e0 * d0 + e1 * d1 + (e2 + radius) * d2 < 0:  # descending where it leaves: it may end on the ground
         return n_after
-    s_low = _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, s_exit)
+    s_low = _lowest_along(st0, st1, st2, d0, d1, d2, radius, s_exit)
     n_gas = beta_gas.shape[1]
-    g0, w = _lerp_index(_height(e0, e1, e2, radius) / p[_P_DH], n_gas)
+    h_exit = _point_geometry(e0, e1, e2, p, coef)[0]
+    h_low = _point_geometry(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2, p, coef)[0]
+    g0, w = _lerp_index(h_exit / p[_P_DH], n_gas)
     above_exit = beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
-    g0, w = _lerp_index(_height(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2, radius) / p[_P_DH], n_gas)
+    g0, w = _lerp_index(h_low / p[_P_DH], n_gas)
     above_low = beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
     q = _clip(above_exit / max(above_low, 1e-30), 0.0, 1.0)
     return min(max(int(math.ceil(n_after * math.sqrt(q))), min(AFTER_MIN_STEPS, n_after)), n_after)
@@ -800,8 +801,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 n_steps, s0, length, in_grid = n_grid, bounds[r, 0], bounds[r, 1] - bounds[r, 0], True
             else:
                 n_steps, s0, length, in_grid = n_after, bounds[r, 1], bounds[r, 2] - bounds[r, 1], False
-                if n_after > 0:
-                    n_steps = _after_steps(st0, st1, st2, d0, d1, d2, s0, n_after, p, beta_gas)
+                n_steps = _after_steps(st0, st1, st2, d0, d1, d2, s0, n_after, p, coef, beta_gas)
             if terminal:
                 pass  # no placed steps: one or two pending intervals (below), sampled as refined halves are
             elif n_steps == 0:
@@ -1098,8 +1098,7 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
     for r in range(start.shape[0]):
         st0, st1, st2 = start[r, 0], start[r, 1], start[r, 2]
         d0, d1, d2 = direction[r, 0], direction[r, 1], direction[r, 2]
-        # lowest_point: the point closest to the earth's centre, clipped to the traced segment
-        s_low = _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, bounds[r, 2])
+        s_low = _lowest_along(st0, st1, st2, d0, d1, d2, radius, bounds[r, 2])  # lowest_point
         q0, q1, q2 = st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2
         c0 = 0
         wc = 0.0
