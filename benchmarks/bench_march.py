@@ -97,7 +97,8 @@ def capture(scene_name, size, data):
 
 def load_variant(path):
     """``march_rays`` of a copy of march_cpu.py at ``path`` (relative imports made absolute, no disk cache)."""
-    source = re.sub(r"^from \.(\w+) import", r"from swim.rt.\1 import", Path(path).read_text(), flags=re.MULTILINE)
+    source = re.sub(r"^from \.\.(\w+) import", r"from swim.\1 import", Path(path).read_text(), flags=re.MULTILINE)
+    source = re.sub(r"^from \.(\w+) import", r"from swim.rt.\1 import", source, flags=re.MULTILINE)
     source = source.replace('"cache": _CACHE', '"cache": False')  # the kernels' and the helpers' options
     folder = Path(tempfile.mkdtemp(prefix="swim-march-variant-"))
     copy = folder / f"variant_{Path(path).stem}.py"
@@ -124,7 +125,7 @@ def reorder(calls, mode, seed=0):
     ``"shuffled"`` (a random permutation)."""
     from swim.rt import march_cpu
 
-    names = list(inspect.signature(march_cpu.march_rays.py_func).parameters)
+    names = list(inspect.signature(march_cpu.march_rays).parameters)
     per_ray = names[:names.index("ms_profile")]  # start ... class_weight: (n, ...) arrays
     i_ms = names.index("ms_profile")
     out = []
@@ -143,7 +144,7 @@ def reorder(calls, mode, seed=0):
 def with_setting(calls, **values):
     from swim.rt import march_cpu
 
-    names = list(inspect.signature(march_cpu.march_rays.py_func).parameters)
+    names = list(inspect.signature(march_cpu.march_rays).parameters)
     out = []
     for args in with_fresh_outputs(calls):
         for key, value in values.items():
@@ -206,7 +207,7 @@ def main(argv=None):
 
     calls = capture(args.scene, args.size, args.data)
     calls = calls[:args.chunks] if args.chunks else calls
-    names = list(inspect.signature(march_cpu.march_rays.py_func).parameters)
+    names = list(inspect.signature(march_cpu.march_rays).parameters)
     base = with_fresh_outputs(calls)
     runs = [("kernel", march_cpu.march_rays, base)]
     for path in args.variant:

@@ -60,11 +60,11 @@ def _in_fresh_cache(code, cache, timeout=300):
 
 @pytest.mark.slow
 def test_the_helper_compiles_the_march_into_the_disk_cache(tmp_path):
-    check = "from swim.rt import precompile; print(precompile.is_cached('march_rays'))"
+    check = "from swim.rt import precompile; print(precompile.is_cached('_march_ray_range'))"
     before = _in_fresh_cache(check, tmp_path)
     assert before.returncode == 0, before.stderr
     assert before.stdout.strip() == "False", "an empty cache folder must lack the kernel"
-    helper = _in_fresh_cache("from swim.rt.precompile import main; main(['march_rays'])", tmp_path)
+    helper = _in_fresh_cache("from swim.rt.precompile import main; main(['_march_ray_range'])", tmp_path)
     assert helper.returncode == 0, helper.stderr
     after = _in_fresh_cache(check, tmp_path)
     assert after.stdout.strip() == "True", after.stderr
@@ -126,6 +126,27 @@ def test_a_failing_helper_is_logged_and_leaves_the_march_to_the_render(monkeypat
     assert precompile._helper is None
     assert "exit code 3" in caplog.text and "compiling it here" in caplog.text and "no luck" in caplog.text
     precompile.wait()  # nothing left to wait for: returns at once
+
+
+def test_the_wait_does_the_renders_other_work_meanwhile_only_while_a_helper_runs(monkeypatch, caplog):
+    """wait(meanwhile=...) calls its functions while the helper compiles (a failing one is logged, not raised), and
+    calls nothing where no helper runs (a warm cache)."""
+    monkeypatch.delenv("SWIM_PRECOMPILE", raising=False)
+    monkeypatch.setattr(precompile, "WAITING_KERNELS", ())
+    monkeypatch.setattr(precompile, "_helper_needed", lambda: True)
+    monkeypatch.setattr(precompile, "_helper_command", lambda names: [sys.executable, "-c", "pass"])
+    called = []
+
+    def failing():
+        raise ValueError("no table")
+
+    with caplog.at_level(logging.INFO, logger="swim.rt.precompile"):
+        assert precompile.start("numba")
+        precompile.wait(meanwhile=(lambda: called.append("table"), failing))
+    assert called == ["table"]
+    assert "failing ahead of its first use failed: no table" in caplog.text
+    precompile.wait(meanwhile=(lambda: called.append("again"),))
+    assert called == ["table"], "no helper: nothing to do meanwhile"
 
 
 def test_a_helper_that_outlives_the_wait_is_stopped(monkeypatch, caplog):

@@ -11,7 +11,7 @@ import numba
 import numpy as np
 import pytest
 
-from swim.rt import march_cpu
+from swim.rt import march_cpu, precompile
 
 
 @pytest.mark.parametrize("lanes", [(0.0, 1e-9, 1e-4, 2e-3), (0.05, 0.0999999, 1e-6, 0.02), (0.1, 0.3, 2.0, 40.0),
@@ -88,7 +88,7 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
     the kernels that the render calls keep theirs; a helper stays callable through ``callable_from_python``."""
     from swim.rt import compose_cpu, ground_cpu, solar_cpu
 
-    kernels = {"march_rays", "prepare_rays", "compose_clouds", "ground_radiance", "_direct_rows", "_add_above"}
+    kernels = {"_march_ray_range", "prepare_rays", "compose_clouds", "ground_radiance", "_direct_rows", "_add_above"}
     seen = set()
     for module in (march_cpu, compose_cpu, ground_cpu, solar_cpu):
         for name, value in vars(module).items():
@@ -105,9 +105,9 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
 
 
 def test_the_march_compiles_with_the_slp_vectoriser_and_leaves_numbas_setting_as_it_was():
-    """march_rays compiles with LLVM's SLP vectoriser on (section 48 of docs/performance.md) and restores numba's
+    """The march (_march_ray_range) compiles with LLVM's SLP vectoriser on (section 48 of docs/performance.md) and restores numba's
     global setting afterwards, also when the compilation fails."""
-    assert isinstance(march_cpu.march_rays, march_cpu._VectorisingDispatcher)
+    assert isinstance(march_cpu._march_ray_range, march_cpu._VectorisingDispatcher)
     seen = []
 
     def probe(x):
@@ -130,3 +130,30 @@ def test_the_march_compiles_with_the_slp_vectoriser_and_leaves_numbas_setting_as
         numba.core.registry.CPUDispatcher.compile = original
     assert seen and all(flag == 1 for flag in seen)
     assert numba.config.SLP_VECTORIZE == before
+
+
+@pytest.mark.parametrize("sizes", [(12, 128, 28, 64, 256, 16, 32, 5, 9, 41), (300, 128, 24, 8, 8, 16, 0, 0, 2, 2)])
+def test_work_arrays_have_their_sizes_and_share_no_cache_line(sizes):
+    """march_rays' work arrays: the sizes of work_sizes (which the CUDA kernel's local arrays take too), the types
+    that _march_ray_range is compiled for, the multiple-scattering lanes zeroed, and each array on cache lines of its
+    own (docs/performance.md, section 50)."""
+    n_before, n_grid, n_after, n_probe, n_probe_max, n_clear, slots, n_species, n_channels, n_u = sizes
+    work = march_cpu.work_arrays(*march_cpu.work_sizes(*sizes))
+    names = list(precompile._argument_types()["_march_ray_range"])[-len(work):]
+    assert names == ["edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tsp", "ms_lanes", "vol", "vol32",
+                     "probe_at"]
+    shapes = [(max(n_before, n_grid, n_after) + 1,), (max(n_probe, n_probe_max, n_clear) + 1,), (slots,), (slots,),
+              (slots,), (19 + n_species,), (max(n_species, 1),), (n_u, 3 * march_cpu.LANES), (n_channels,),
+              (n_channels,), (6, march_cpu.PROBE_BLOCK)]
+    assert [a.shape for a in work] == shapes
+    types = precompile._argument_types()["_march_ray_range"]
+    assert [numba.typeof(a) for a in work] == [types[name] for name in names]
+    assert not work[7].any()
+    spans = []
+    for a in work:
+        if a.nbytes:
+            assert a.ctypes.data % march_cpu.CACHE_LINE == 0
+            first = a.ctypes.data // march_cpu.CACHE_LINE
+            spans.append((first, (a.ctypes.data + a.nbytes - 1) // march_cpu.CACHE_LINE))
+    spans.sort()
+    assert all(hi < lo for (_, hi), (lo, _) in zip(spans, spans[1:])), "two arrays share a cache line"

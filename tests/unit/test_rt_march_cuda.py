@@ -36,17 +36,16 @@ def _run(code, tmp_path, env=None, timeout=600):
 def test_kernel_takes_the_cpu_kernels_arguments():
     """One argument list: the CUDA kernel's is read off march_rays, and the loop over the rays takes it between the
     range of rays and the work arrays that each caller allocates (a change to one must reach the others)."""
-    cpu = tuple(inspect.signature(march_cpu.march_rays.py_func).parameters)
+    cpu = tuple(inspect.signature(march_cpu.march_rays).parameters)
     body = tuple(inspect.signature(march_cpu._march_ray_range.py_func).parameters)
     assert march_cuda.kernel_arguments() == cpu
     assert body[:3] == ("first", "stop", "stride") and body[3:3 + len(cpu)] == cpu
     work = body[3 + len(cpu):]
     assert work == ("edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tsp", "ms_lanes", "vol", "vol32",
                     "probe_at")
-    # every function the kernel reaches is compiled for the device (none is left to call a CPU dispatcher); the two
-    # entry points stay on the host (the CUDA path's per-ray set-up is the JAX one, swim.rt.march._prepare_chunk)
-    names = {name for name, value in vars(march_cpu).items() if hasattr(value, "py_func")} - {"march_rays",
-                                                                                              "prepare_rays"}
+    # every function the kernel reaches is compiled for the device (none is left to call a CPU dispatcher); the
+    # per-ray set-up stays on the host (the CUDA path's is the JAX one, swim.rt.march._prepare_chunk)
+    names = {name for name, value in vars(march_cpu).items() if hasattr(value, "py_func")} - {"prepare_rays"}
     assert names == set(march_cuda.DEVICE_FUNCTIONS)
 
 

@@ -703,7 +703,8 @@ def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, sou
             (in0, in1, in2, in3), (ig0, ig1, ig2, ig3))
 
 
-@_helper_jit()
+@_vectorising
+@njit(**_JIT_KERNEL, nogil=True)
 def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
@@ -713,9 +714,14 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
                      stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
-    once: one code for the CPU's loop over all rays (one call) and a GPU thread's ray
+    once (:func:`work_arrays`): one code for the CPU's loop over all rays (one call) and a GPU thread's ray
     (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
     arguments were passed anew every time), and numba's inlining of it failed.
+
+    This is the compiled kernel that :func:`march_rays` calls from Python, without the GIL, with LLVM's SLP
+    vectoriser on (:func:`_vectorising`). A compiled ``march_rays`` that allocated the work arrays and called this
+    took 1.5-2 s longer to compile on an empty cache (numba optimised and emitted the whole loop a second time
+    for it), for no gain at run time (docs/performance.md, section 50).
 
     A ray's accumulators (per wavelength: the clear-sky optical depth, the transmittance to the observer, the
     clear-sky radiance and the two Eq. 12 integrals) are scalars, which LLVM keeps in registers; as elements of
@@ -1164,8 +1170,49 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
                 ms_profile[c, r, u] = acc[u * 9 + c]
 
 
-@_vectorising
-@njit(**_JIT_KERNEL, nogil=True)
+def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels,
+               n_u):
+    """Sizes of one ray's work arrays (:func:`work_arrays`; a CUDA thread's local arrays,
+    :func:`swim.rt.march_cuda.cuda_march_kernel`): step edges, probe densities, refinement slots, the saved state,
+    species and volume channels, and the heights of the multiple-scattering profiles (``n_u``:
+    ``ms_profile.shape[2]``). ``n_species``: the packed species (:func:`swim.rt.march.packed_species`), none in a
+    cloudless scene, whose species array keeps one element (a local array of size 0 is not a CUDA array)."""
+    return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
+            19 + n_species, max(n_species, 1), n_channels, n_u)
+
+
+#: Bytes of a CPU cache line (:func:`work_arrays`).
+CACHE_LINE = 64
+
+
+def work_arrays(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, n_u):
+    """The work arrays of :func:`_march_ray_range` for the sizes of :func:`work_sizes`, which every ray of a call
+    uses in turn: step edges, the probes' cumulative density, the pending halves of refined steps (lower and upper
+    ends, depth), the state before the last accumulated grid interval (restored when the next one shows that a cloud
+    face lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
+    gap 17, s_last 18, the species' optical depths 19-), the species' optical depths along the ray, the ray's
+    multiple-scattering profiles as rows of lanes (zeros: their padding lanes stay 0), a volume sample in float64 and
+    float32, and the geometry of a block of occupancy probes or steps (:func:`_probe_indices`,
+    :func:`_step_geometry`).
+
+    They are views of one zeroed buffer, each starting on a cache line of its own, with a spare line before and after
+    the buffer. Allocated one by one with numpy, the 1024² render of the synthetic scene (two threads, each marching
+    its chunks with its own work arrays) took 3.03-3.05 s instead of 2.82-2.87 s (docs/performance.md, section 50)."""
+    specs = (((n_edges,), np.float64), ((n_cdf,), np.float64), ((n_slots,), np.float64), ((n_slots,), np.float64),
+             ((n_slots,), np.int64), ((n_saved,), np.float64), ((n_species,), np.float64),
+             ((n_u, 3 * LANES), np.float64), ((n_channels,), np.float64), ((n_channels,), np.float32),
+             ((6, PROBE_BLOCK), np.float64))
+    nbytes = [math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in specs]
+    spans = [-(-n // CACHE_LINE) * CACHE_LINE for n in nbytes]
+    buffer = np.zeros(sum(spans) + 3 * CACHE_LINE, np.uint8)
+    offset = CACHE_LINE + (-buffer.ctypes.data) % CACHE_LINE
+    arrays = []
+    for (shape, dtype), n, span in zip(specs, nbytes, spans):
+        arrays.append(buffer[offset:offset + n].view(dtype).reshape(shape))
+        offset += span
+    return tuple(arrays)
+
+
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky_lanes, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
@@ -1174,8 +1221,10 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
-    Compiled without the GIL, so that :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from
-    a thread pool (a ``parallel=True`` loop was as fast and took 29 s to compile instead of 7).
+    The compiled loop over the rays, :func:`_march_ray_range`, runs without the GIL, so that
+    :func:`swim.rt.march.trace_rays` runs chunks of rays on all cores from a thread pool (a ``parallel=True`` loop
+    was as fast and took 29 s to compile instead of 7); this function allocates its work arrays
+    (:func:`work_arrays`) and calls it.
 
     The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before`` steps placed
     by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^``clear_power`` plus
@@ -1206,31 +1255,12 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     (n,) int, the medium's samples the ray took (its steps, refined halves and steps undone by a refinement
     included; none after the ground; the terrain bisection's lookups not counted).
     """
-    n_c = volume.shape[3]
-    n_species = tau_species.shape[1]
-    # work arrays of every ray: step edges, the probes' cumulative density, the pending halves of refined steps
-    edges = np.empty(max(n_before, n_grid, n_after) + 1)
-    cdf = np.empty(max(n_probe, n_probe_max, n_clear_probe) + 1)
-    stack_lo = np.empty(refine_slots)
-    stack_hi = np.empty(refine_slots)
-    stack_depth = np.empty(refine_slots, np.int64)
-    # the state before the last accumulated grid interval, restored when the next one shows that a cloud face
-    # lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
-    # gap 17, s_last 18, the species' optical depths 19-
-    saved = np.empty(19 + tau_species.shape[1])
-    # the species' optical depths along the ray, and what each wavelength adds at a step
-    tsp = np.empty(n_species)
-    # the ray's multiple-scattering profiles as rows of lanes (its padding lanes stay 0)
-    ms_lanes = np.zeros((ms_profile.shape[2], 3 * LANES))
-    vol = np.empty(n_c)
-    vol32 = np.empty(n_c, np.float32)
-    # the geometry of a block of occupancy probes (_probe_indices), then of a block of steps (_step_geometry)
-    probe_at = np.empty((6, PROBE_BLOCK))
+    work = work_arrays(*work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots,
+                                   tau_species.shape[1], volume.shape[3], ms_profile.shape[2]))
     _march_ray_range(0, start.shape[0], 1, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
-                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at)
+                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, *work)

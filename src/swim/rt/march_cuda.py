@@ -102,18 +102,11 @@ def _device_functions():
 
 def kernel_arguments() -> tuple:
     """The argument names of :func:`swim.rt.march_cpu.march_rays`, which the CUDA kernel takes too."""
-    return tuple(inspect.signature(march_cpu.march_rays.py_func).parameters)
+    return tuple(inspect.signature(march_cpu.march_rays).parameters)
 
 
-def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels,
-               n_u):
-    """Sizes of one ray's work arrays (as :func:`swim.rt.march_cpu.march_rays` allocates them): step edges,
-    probe densities, refinement slots, the saved state, species and volume channels, and the heights of the
-    multiple-scattering profiles (``n_u``: ``ms_profile.shape[2]``). ``n_species``: the packed species
-    (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species array keeps one element
-    (a local array of size 0 is not a CUDA array)."""
-    return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
-            19 + n_species, max(n_species, 1), n_channels, n_u)
+#: Sizes of one ray's work arrays: the CPU kernel's (one definition for both).
+work_sizes = march_cpu.work_sizes
 
 
 @functools.lru_cache(maxsize=8)

@@ -3,18 +3,20 @@
 A process whose numba disk cache (:mod:`swim.rt.march_cpu`, ``$SWIM_CACHE_DIR/numba``) lacks the kernels compiles them
 at their first calls, one after the other: numba holds one compiler lock per process, so two threads cannot compile
 at once. The README's ``swim render`` on a new installation spent 24.7 s of its 27.5 s compiling, 14.3 s of it the
-march (:func:`swim.rt.march_cpu.march_rays`: numba's type inference of its step loop and ~50 helpers, then LLVM).
+march (:func:`swim.rt.march_cpu._march_ray_range`, which :func:`~swim.rt.march_cpu.march_rays` calls: numba's type
+inference of its step loop and ~50 helpers, then LLVM).
 
 A second process can compile at the same time. :func:`start`, called by :func:`swim.pipeline.render` before any
 work (and, through :func:`start_early`, by ``swim render`` before its other imports and the scene), finds the march
-missing from the disk cache and starts ``python -m swim.rt.precompile march_rays``, which
+missing from the disk cache and starts ``python -m swim.rt.precompile _march_ray_range``, which
 compiles it into that cache with the argument types that the render will pass (:func:`kernel_signature`). The
 render meanwhile reads the scene, builds the optics and runs Step 1a. Its first chunk (:func:`wait`, from
 :func:`swim.rt.march._trace_chunk_numba`) compiles the per-ray set-up, which it calls first, and the composition
 kernels, which it would compile after the march, then waits for the helper and loads the march from the cache.
 Measured with the README's render and an empty cache: 23.9-24.0 s → 16.1-17.5 s, 14.9-15.7 s since the command
-starts the helper (docs/performance.md, section 38), and 14.1-14.4 s since the kernels' helpers have no Python
-wrappers (section 40).
+starts the helper (docs/performance.md, section 38), 14.1-14.4 s since the kernels' helpers have no Python
+wrappers (section 40); as the march grew, 16.9-18.0 s by session 39, and 15.1-15.4 s since its loop over the rays is
+compiled as the kernel itself and the render builds the ground's tables while it waits (section 50).
 
 The helper is only an optimisation. A kernel whose types differ from :func:`kernel_signature`'s is compiled by the
 render as before; a helper that fails, cannot start or takes longer than :data:`WAIT_S` leaves the march to the
@@ -44,10 +46,10 @@ from .compilation_cache import switched_off
 log = logging.getLogger(__name__)
 
 #: The kernels whose types :func:`kernel_signature` knows, and their modules.
-KERNELS = {"march_rays": "swim.rt.march_cpu", "prepare_rays": "swim.rt.march_cpu",
+KERNELS = {"_march_ray_range": "swim.rt.march_cpu", "prepare_rays": "swim.rt.march_cpu",
            "compose_clouds": "swim.rt.compose_cpu", "ground_radiance": "swim.rt.ground_cpu"}
 #: Compiled by the helper process (the longest compilation by far).
-HELPER_KERNELS = ("march_rays",)
+HELPER_KERNELS = ("_march_ray_range",)
 #: Compiled by the render's first chunk while it waits for the helper (in the order the chunk calls them).
 WAITING_KERNELS = ("prepare_rays", "compose_clouds", "ground_radiance")
 #: Longest wait for the helper [s] (it compiles the march in ~12 s on 2 cores); then it is stopped and the render
@@ -112,7 +114,11 @@ def _argument_types():
         "backscatter": ro(f4, 1), "lambertian": b1, "compose_coefficients": a(f8, 1), "k": ro(f8, 1),
         "rpv_q": ro(f8, 1), "snow_table": ro(f8, 2), "snow_albedo": ro(f8, 1), "subsurface": ro(f8, 1),
         "fade_cells": ro(f8, 1), "out": a(f4, 2)}
-    return {"march_rays": march, "prepare_rays": prepare, "compose_clouds": compose, "ground_radiance": ground}
+    work = {"edges": a(f8, 1), "cdf": a(f8, 1), "stack_lo": a(f8, 1), "stack_hi": a(f8, 1), "stack_depth": a(i8, 1),
+            "saved": a(f8, 1), "tsp": a(f8, 1), "ms_lanes": a(f8, 2), "vol": a(f8, 1), "vol32": a(f4, 1),
+            "probe_at": a(f8, 2)}
+    ray_range = {"first": i8, "stop": i8, "stride": i8, **march, **work}
+    return {"_march_ray_range": ray_range, "prepare_rays": prepare, "compose_clouds": compose, "ground_radiance": ground}
 
 
 def kernel_signature(name: str) -> tuple:
@@ -174,7 +180,7 @@ def _helper_needed() -> bool:
     from . import march_cpu
 
     try:
-        return march_cpu._CACHE and not march_cpu.march_rays.signatures and not all(map(is_cached, HELPER_KERNELS))
+        return march_cpu._CACHE and not march_cpu._march_ray_range.signatures and not all(map(is_cached, HELPER_KERNELS))
     except Exception:  # e.g. NUMBA_DISABLE_JIT=1: plain Python functions, nothing to compile
         return False
 
@@ -234,11 +240,13 @@ def _jax_may_see_a_gpu() -> bool:
     return bool(metadata.entry_points(group="jax_plugins")) or util.find_spec("jax_plugins") is not None
 
 
-def wait() -> None:
+def wait(meanwhile=()) -> None:
     """Before a render's first march: compile :data:`WAITING_KERNELS` here (the per-ray set-up, which the chunk calls
-    next, and the composition kernels, which it would compile after the march), then wait for the helper that
-    :func:`start` began, so that the march is loaded from the disk cache rather than compiled a second time. Returns
-    at once where no helper was started."""
+    next, and the composition kernels, which it would compile after the march), call ``meanwhile``'s functions
+    (work that the render would do after the march, e.g. tables that a new installation builds once:
+    :func:`swim.rt.ground_cpu.ground_tables`), then wait for the helper that :func:`start` began, so that the march
+    is loaded from the disk cache rather than compiled a second time. Returns at once where no helper was started
+    (and calls nothing)."""
     global _helper
     if _helper is None:
         return
@@ -252,6 +260,11 @@ def wait() -> None:
                 _dispatcher(name).compile(kernel_signature(name))  # loads it where the disk cache has it
             except Exception as error:  # only ever a head start: the render compiles it at its first call
                 log.warning("compiling %s ahead of its first call failed: %s", name, error)
+        for function in meanwhile:
+            try:
+                function()
+            except Exception as error:  # only ever a head start: the render calls it again where it needs it
+                log.warning("%s ahead of its first use failed: %s", getattr(function, "__name__", function), error)
         log.info("%s ready in %.1f s; waiting for the helper process", ", ".join(WAITING_KERNELS),
                  time.perf_counter() - here)
         try:
