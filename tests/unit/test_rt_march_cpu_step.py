@@ -105,8 +105,8 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
 
 
 def test_the_march_compiles_with_the_slp_vectoriser_and_leaves_numbas_setting_as_it_was():
-    """The march (_march_ray_range) compiles with LLVM's SLP vectoriser on (section 48 of docs/performance.md) and restores numba's
-    global setting afterwards, also when the compilation fails."""
+    """The march (_march_ray_range) compiles with LLVM's SLP vectoriser on (section 48 of docs/performance.md) and
+    restores numba's global setting afterwards, also when the compilation fails."""
     assert isinstance(march_cpu._march_ray_range, march_cpu._VectorisingDispatcher)
     seen = []
 

@@ -2005,9 +2005,11 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     The chunk's arrays stay numpy arrays between the stages (the jitted stages take them as they are, and their
     outputs are fetched once): a JAX operation per slice or conversion cost ~30 dispatches per chunk, ~3 ms
     (docs/performance.md, section 20)."""
-    from . import ground_cpu, march_cpu, precompile
+    from . import march_cpu, precompile
 
     if kernel == "numba":  # a helper process compiling the march on a cold cache: its result loaded, not redone;
+        from . import ground_cpu
+
         precompile.wait(meanwhile=(ground_cpu.ground_tables,))  # the ground's tables built while it compiles
     march = march_cpu.march_rays
     if kernel == "cuda":

@@ -552,6 +552,14 @@ def _lowest_along(st0, st1, st2, d0, d1, d2, radius, end):
     return _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, end)
 
 
+@_helper_jit(inline="always")
+def _column_above(beta_gas, f):
+    """The fraction of the vertical optical depth above fractional height index ``f`` of the clear-air height table
+    (its row :data:`swim.constants.GAS_COLUMN_ROW`, clamped linear lookup)."""
+    g0, w = _lerp_index(f, beta_gas.shape[1])
+    return beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
+
+
 @_helper_jit()
 def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, coef, beta_gas):
     """:func:`swim.rt.march.after_step_counts` for one ray: its clear-air steps after the grid, which it leaves at
@@ -563,13 +571,9 @@ def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, coef, beta_gas):
     if e0 * d0 + e1 * d1 + (e2 + radius) * d2 < 0:  # descending where it leaves: it may end on the ground
         return n_after
     s_low = _lowest_along(st0, st1, st2, d0, d1, d2, radius, s_exit)
-    n_gas = beta_gas.shape[1]
-    h_exit = _point_geometry(e0, e1, e2, p, coef)[0]
-    h_low = _point_geometry(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2, p, coef)[0]
-    g0, w = _lerp_index(h_exit / p[_P_DH], n_gas)
-    above_exit = beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
-    g0, w = _lerp_index(h_low / p[_P_DH], n_gas)
-    above_low = beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
+    above_exit = _column_above(beta_gas, _point_geometry(e0, e1, e2, p, coef)[0] / p[_P_DH])
+    above_low = _column_above(beta_gas, _point_geometry(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2, p,
+                                                        coef)[0] / p[_P_DH])
     q = _clip(above_exit / max(above_low, 1e-30), 0.0, 1.0)
     return min(max(int(math.ceil(n_after * math.sqrt(q))), min(AFTER_MIN_STEPS, n_after)), n_after)
 

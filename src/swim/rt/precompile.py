@@ -118,7 +118,8 @@ def _argument_types():
             "saved": a(f8, 1), "tsp": a(f8, 1), "ms_lanes": a(f8, 2), "vol": a(f8, 1), "vol32": a(f4, 1),
             "probe_at": a(f8, 2)}
     ray_range = {"first": i8, "stop": i8, "stride": i8, **march, **work}
-    return {"_march_ray_range": ray_range, "prepare_rays": prepare, "compose_clouds": compose, "ground_radiance": ground}
+    return {"_march_ray_range": ray_range, "prepare_rays": prepare, "compose_clouds": compose,
+            "ground_radiance": ground}
 
 
 def kernel_signature(name: str) -> tuple:
@@ -180,7 +181,8 @@ def _helper_needed() -> bool:
     from . import march_cpu
 
     try:
-        return march_cpu._CACHE and not march_cpu._march_ray_range.signatures and not all(map(is_cached, HELPER_KERNELS))
+        return (march_cpu._CACHE and not march_cpu._march_ray_range.signatures
+                and not all(map(is_cached, HELPER_KERNELS)))
     except Exception:  # e.g. NUMBA_DISABLE_JIT=1: plain Python functions, nothing to compile
         return False
 
