@@ -115,7 +115,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--case", default="synthetic_allsky",
                         choices=sorted(k for k, v in bench_suite.CASES.items() if v["kind"] == "render"))
-    parser.add_argument("--size", type=int, default=512, help="image width [pixels] (panoramas: height = width / 2)")
+    parser.add_argument("--size", type=int, default=512, help="image width [pixels] (panoramas: height = width / 2; others square)")
     parser.add_argument("--variant", action="append", default=None, help="settings overrides (repeatable; see above)")
     parser.add_argument("--reference", default=DEFAULT_REFERENCE, help="settings overrides of the reference render")
     parser.add_argument("--adaptive", action="store_true", help="render every variant with adaptive sampling")
@@ -132,7 +132,7 @@ def main():
     spec = dict(bench_suite.CASES[args.case], data=str(args.data))
     if spec["scene"] == "synthetic":
         spec["scene_kwargs"] = dict(bench_suite.SYNTHETIC_GRID)
-    image = (args.size, args.size) if spec["camera"] == "allsky" else (args.size, args.size // 2)
+    image = (args.size, args.size // 2) if spec["camera"] == "panorama" else (args.size, args.size)
     kw = bench_suite.render_kwargs(spec, image=image)
     kw.pop("settings", None)  # each variant's own
     kw.pop("sampling", None)

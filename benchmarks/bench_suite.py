@@ -43,6 +43,14 @@ KATRINA_ALLSKY = {"lat": 24.7, "lon": -88.6, "height": 2.0}
 KATRINA_PANORAMA = {"lat": 24.2, "lon": -89.0, "height": 3000.0}  # the README's panorama vantage
 RICO_VIEW = {"height": 2.0, "sun_zenith": 30.0, "sun_azimuth": 135.0}  # swim.validation.mitsuba rico_ground_sza30
 GROUND = {"height": 2.0}  # at the scene's reference point (the domain centre)
+# a satellite 700 km over the scene's reference point: a perspective camera above 100 km without view angles looks
+# straight down (swim.pipeline.render); its field of view (30 deg: 375 km across the ground) within the 400 km
+# synthetic grid, so that every pixel sees the grid (the default would fit the grid's diagonal with a margin)
+ORBIT = {"height": 700e3}
+ORBIT_FOV_DEG = 30.0
+# Katrina's file is a 480 km part of a bigger domain, whose centre (the scene's reference point) lies on its edge: the
+# satellite over the part's centre, looking straight down
+KATRINA_ORBIT = {"lat": 23.74, "lon": -89.54, "height": 700e3, "look_at": [23.74, -89.54, 0.0]}
 ADAPTIVE = {"tolerance": 0.01, "coarse_spacing": 4}  # swim.rt.image_sampling.AdaptiveSampling() defaults
 
 CASES = {
@@ -52,6 +60,10 @@ CASES = {
     "rico_panorama": {"kind": "render", "scene": "rico", "camera": "panorama", "image": (2048, 1024), "view": RICO_VIEW},
     "synthetic_allsky": {"kind": "render", "scene": "synthetic", "camera": "allsky", "image": (1024, 1024), "view": GROUND},
     "synthetic_panorama": {"kind": "render", "scene": "synthetic", "camera": "panorama", "image": (2048, 1024), "view": GROUND},
+    "katrina_orbit": {"kind": "render", "scene": "katrina", "camera": "perspective", "image": (1024, 1024),
+                      "view": KATRINA_ORBIT, "fov_deg": ORBIT_FOV_DEG},
+    "synthetic_orbit": {"kind": "render", "scene": "synthetic", "camera": "perspective", "image": (1024, 1024),
+                        "view": ORBIT, "fov_deg": ORBIT_FOV_DEG},
     "conus_allsky": {"kind": "render", "scene": "conus", "camera": "allsky", "image": (1024, 1024), "view": GROUND, "crop": True},
     "conus_panorama": {"kind": "render", "scene": "conus", "camera": "panorama", "image": (2048, 1024), "view": GROUND,
                        "crop": True},
@@ -84,9 +96,10 @@ def _shrink(n, quick):
     return max(8, n // QUICK_FACTOR) if quick else n
 
 
-def camera_options(camera, image):
+def camera_options(camera, image, fov_deg=None):
     width, height = image
-    return {"size": width} if camera == "allsky" else {"width": width, "height": height}
+    options = {"size": width} if camera == "allsky" else {"width": width, "height": height}
+    return options if fov_deg is None else {**options, "fov_deg": fov_deg}
 
 
 def case_spec(name, args):
@@ -232,7 +245,7 @@ def render_kwargs(spec, image=None):
 
     import swim
 
-    kw = dict(spec["view"], camera=spec["camera"], camera_options=camera_options(spec["camera"], image or spec["image"]))
+    kw = dict(spec["view"], camera=spec["camera"], camera_options=camera_options(spec["camera"], image or spec["image"], spec.get("fov_deg")))
     if spec.get("crop") and "crop" in inspect.signature(swim.render).parameters:
         kw["crop"] = True
     if spec.get("backend", "auto") != "auto":
