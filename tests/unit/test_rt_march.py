@@ -900,11 +900,11 @@ def test_numba_clear_air_steps_match_the_jax_ones():
     expected = np.asarray(clear_step_edges(jnp.asarray(start, jnp.float32), jnp.asarray(dirs, jnp.float32),
                                            jnp.asarray(bounds[:, 1], jnp.float32),
                                            jnp.asarray(bounds[:, 2] - bounds[:, 1], jnp.float32), 24, consts))
-    p, coef = march_cpu.pack_parameters(consts)
+    p, _ = march_cpu.pack_parameters(consts)
     clear_edges = march_cpu.callable_from_python(march_cpu._clear_edges)
     for r in range(len(dirs)):
         cdf, edges = np.empty(CLEAR_PROBES + 1), np.empty(25)
-        clear_edges(*start[r], *dirs[r], bounds[r, 1], bounds[r, 2] - bounds[r, 1], 24, p, coef,
+        clear_edges(*start[r], *dirs[r], bounds[r, 1], bounds[r, 2] - bounds[r, 1], 24, p,
                     np.asarray(consts["beta_gas"]), np.asarray(consts["beta_gas_spectra"]), CLEAR_PROBES,
                     CLEAR_STEP_POWER, CLEAR_STEP_FLOOR, cdf, edges)
         np.testing.assert_allclose(edges, expected[:, r], rtol=0, atol=1e-4 * (bounds[r, 2] - bounds[r, 1]))
@@ -990,15 +990,15 @@ def test_after_step_counts_follow_the_air_left_above_the_grid():
     assert dip[0] == np.clip(np.ceil(n_after * np.sqrt(q_at(exit_h) / q_at(tangent_height))), AFTER_MIN_STEPS,
                              n_after)
     # the numba helper, per ray
-    p, coef = march_cpu.pack_parameters(consts)
+    p, _ = march_cpu.pack_parameters(consts)
     after_steps = march_cpu.callable_from_python(march_cpu._after_steps)
     table = np.asarray(consts["beta_gas"])
     rays = [(start[r], up[r], bounds[r, 1], counts[r]) for r in range(n)]
     rays += [(flat_start[r], dirs[r], flat_bounds[r, 1], got[r]) for r in range(2)]
     rays += [(np.array([0.0, 0.0, 6e3]), down[0], 400e3, dip[0])]
     for origin, direction, s_exit, count in rays:
-        assert after_steps(*origin, *direction, s_exit, n_after, p, coef, table) == count
-        assert after_steps(*origin, *direction, s_exit, n_after, p, coef, table[:GAS_COLUMN_ROW]) == n_after
+        assert after_steps(*origin, *direction, s_exit, n_after, p, table) == count
+        assert after_steps(*origin, *direction, s_exit, n_after, p, table[:GAS_COLUMN_ROW]) == n_after
 
 
 def test_after_step_counts_keep_the_clear_airs_error_relative_to_the_ray():

@@ -201,27 +201,17 @@ def pack_parameters(consts):
 
 
 @_helper_jit()
-def _cubic(u, v, c, o):
-    """:func:`swim.optics.volume._cubic` for coefficients c[o:o + 10]."""
-    return (c[o] + u * (c[o + 1] + u * (c[o + 3] + u * c[o + 6]) + v * (c[o + 4] + v * c[o + 8]))
-            + v * (c[o + 2] + v * (c[o + 5] + v * c[o + 9])) + u * u * v * c[o + 7])
-
-
-@_helper_jit()
-def _cubic_du(u, v, c, o):
-    return c[o + 1] + u * (2 * c[o + 3] + 3 * c[o + 6] * u + 2 * c[o + 7] * v) + v * (c[o + 4] + c[o + 8] * v)
-
-
-@_helper_jit()
-def _cubic_dv(u, v, c, o):
-    return c[o + 2] + v * (2 * c[o + 5] + 3 * c[o + 9] * v + 2 * c[o + 8] * u) + u * (c[o + 4] + c[o + 7] * u)
-
-
-@_helper_jit()
 def _index_map(uc, vc, du, dv, c, o):
-    """One index of :func:`swim.optics.volume.grid_indices`: the cubic at the clipped point (uc, vc) plus its
-    tangent plane over the distance (du, dv) beyond the box."""
-    return _cubic(uc, vc, c, o) + _cubic_du(uc, vc, c, o) * du + _cubic_dv(uc, vc, c, o) * dv
+    """One index of :func:`swim.optics.volume.grid_indices`: the cubic of :func:`swim.optics.volume._cubic` (its
+    coefficients c[o:o + 10]) at the clipped point (uc, vc) plus its tangent plane over the distance (du, dv) beyond
+    the box. One function rather than three (the cubic and its two derivatives): each compiled function costs
+    numba ~0.05 s on an empty cache, four times over for the literal offsets and types of ``c``."""
+    u, v = uc, vc
+    cubic = (c[o] + u * (c[o + 1] + u * (c[o + 3] + u * c[o + 6]) + v * (c[o + 4] + v * c[o + 8]))
+             + v * (c[o + 2] + v * (c[o + 5] + v * c[o + 9])) + u * u * v * c[o + 7])
+    cubic_du = c[o + 1] + u * (2 * c[o + 3] + 3 * c[o + 6] * u + 2 * c[o + 7] * v) + v * (c[o + 4] + c[o + 8] * v)
+    cubic_dv = c[o + 2] + v * (2 * c[o + 5] + 3 * c[o + 9] * v + 2 * c[o + 8] * u) + u * (c[o + 4] + c[o + 7] * u)
+    return cubic + cubic_du * du + cubic_dv * dv
 
 
 @intrinsic
@@ -276,13 +266,21 @@ def _clip(x, lo, hi):
 
 
 @_helper_jit(inline="always")
+def _radius_and_height(q0, q1, q2, radius):
+    """Distance from the Earth's centre [m] and height [m] of the point q (scene frame, rebased): for the callers
+    that need the height alone (the clear-air steps), without the grid indices of :func:`_point_geometry`, which
+    numba would inline and type for nothing (~0.5 s of a new installation's compilation)."""
+    pz = q2 + radius
+    r = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
+    return r, (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
+
+
+@_helper_jit(inline="always")
 def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c):
     """Distance from the Earth's centre [m], height [m] and grid indices (k, j, i) of the point q (scene frame,
     rebased) with the index map's cubic coefficients ``c`` (an array, or a tuple where a loop over points keeps them
     in registers): :func:`swim.rt.march._point_geometry` without the sun."""
-    pz = q2 + radius
-    r = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
-    h = (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
+    r, h = _radius_and_height(q0, q1, q2, radius)
     # swim.optics.volume.grid_indices: the cubic inside the box, its tangent plane beyond
     u = (radius * q0 / r - centre_u) / scale
     v = (radius * q1 / r - centre_v) / scale
@@ -525,7 +523,7 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
 
 
 @_helper_jit()
-def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra, n_probe, power, floor,
+def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, spectra, n_probe, power, floor,
                  cdf, edges):
     """:func:`swim.rt.march.clear_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
     n_gas = beta_gas.shape[1]
@@ -533,7 +531,7 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_g
     largest = 0.0
     for m in range(n_probe):  # the density at the probes first (in cdf[1:]), then its running sum
         s = s0 + (m + 0.5) / n_probe * length
-        h, _, _, _, _ = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+        _, h = _radius_and_height(st0 + s * d0, st1 + s * d1, st2 + s * d2, p[_P_RADIUS])
         g0, w = _lerp_index(h / p[_P_DH], n_gas)
         beta = 0.0
         for q in range(3):
@@ -561,7 +559,7 @@ def _column_above(beta_gas, f):
 
 
 @_helper_jit()
-def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, coef, beta_gas):
+def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
     """:func:`swim.rt.march.after_step_counts` for one ray: its clear-air steps after the grid, which it leaves at
     ``s_exit`` [m]; ``n_after`` where ``beta_gas`` has no column row (:data:`swim.constants.GAS_COLUMN_ROW`)."""
     if beta_gas.shape[0] <= GAS_COLUMN_ROW:
@@ -571,9 +569,9 @@ def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, coef, beta_gas):
     if e0 * d0 + e1 * d1 + (e2 + radius) * d2 < 0:  # descending where it leaves: it may end on the ground
         return n_after
     s_low = _lowest_along(st0, st1, st2, d0, d1, d2, radius, s_exit)
-    above_exit = _column_above(beta_gas, _point_geometry(e0, e1, e2, p, coef)[0] / p[_P_DH])
-    above_low = _column_above(beta_gas, _point_geometry(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2, p,
-                                                        coef)[0] / p[_P_DH])
+    above_exit = _column_above(beta_gas, _radius_and_height(e0, e1, e2, radius)[1] / p[_P_DH])
+    above_low = _column_above(beta_gas, _radius_and_height(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2,
+                                                           radius)[1] / p[_P_DH])
     q = _clip(above_exit / max(above_low, 1e-30), 0.0, 1.0)
     return min(max(int(math.ceil(n_after * math.sqrt(q))), min(AFTER_MIN_STEPS, n_after)), n_after)
 
@@ -811,7 +809,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 n_steps, s0, length, in_grid = n_grid, bounds[r, 0], bounds[r, 1] - bounds[r, 0], True
             else:
                 n_steps, s0, length, in_grid = n_after, bounds[r, 1], bounds[r, 2] - bounds[r, 1], False
-                n_steps = _after_steps(st0, st1, st2, d0, d1, d2, s0, n_after, p, coef, beta_gas)
+                n_steps = _after_steps(st0, st1, st2, d0, d1, d2, s0, n_after, p, beta_gas)
             if terminal:
                 pass  # no placed steps: one or two pending intervals (below), sampled as refined halves are
             elif n_steps == 0:
@@ -821,7 +819,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                                           empty_weight, probe_spacing, cell_slack, empty_steps, empty_cells_per_step,
                                           cdf, edges, probe_at)
             else:
-                _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, beta_gas, spectra,
+                _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, spectra,
                              n_clear_probe, clear_power, clear_floor, cdf, edges)
             taken = n_steps if length > 0 or terminal else 1
             m = 0

@@ -32,7 +32,7 @@ from . import march_cpu
 logger = logging.getLogger(__name__)
 
 #: The functions of :mod:`swim.rt.march_cpu` that the kernel calls, directly or through each other.
-DEVICE_FUNCTIONS = ("_cubic", "_cubic_du", "_cubic_dv", "_index_map", "_round_half_even", "_ix", "_clip",
+DEVICE_FUNCTIONS = ("_index_map", "_round_half_even", "_ix", "_clip", "_radius_and_height",
                     "_height_and_indices", "_point_geometry", "_geometry_constants", "_probe_indices", "_step_geometry",
                     "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_bilinear_clamped", "_terrain_gap",
                     "_gap_along", "_terrain_crossing", "_lower_corner", "_prefetch_corners", "_probe_occupancy",
