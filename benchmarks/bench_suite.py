@@ -45,12 +45,10 @@ RICO_VIEW = {"height": 2.0, "sun_zenith": 30.0, "sun_azimuth": 135.0}  # swim.va
 GROUND = {"height": 2.0}  # at the scene's reference point (the domain centre)
 # a satellite 700 km over the scene's reference point: a perspective camera above 100 km without view angles looks
 # straight down (swim.pipeline.render); its field of view (30 deg: 375 km across the ground) within the 400 km
-# synthetic grid, so that every pixel sees the grid (the default would fit the grid's diagonal with a margin)
+# synthetic grid and Katrina's 480 km one, so that every pixel sees the grid (the default would fit the grid's diagonal
+# with a margin)
 ORBIT = {"height": 700e3}
 ORBIT_FOV_DEG = 30.0
-# Katrina's file is a 480 km part of a bigger domain, whose centre (the scene's reference point) lies on its edge: the
-# satellite over the part's centre, looking straight down
-KATRINA_ORBIT = {"lat": 23.74, "lon": -89.54, "height": 700e3, "look_at": [23.74, -89.54, 0.0]}
 ADAPTIVE = {"tolerance": 0.01, "coarse_spacing": 4}  # swim.rt.image_sampling.AdaptiveSampling() defaults
 
 CASES = {
@@ -60,8 +58,8 @@ CASES = {
     "rico_panorama": {"kind": "render", "scene": "rico", "camera": "panorama", "image": (2048, 1024), "view": RICO_VIEW},
     "synthetic_allsky": {"kind": "render", "scene": "synthetic", "camera": "allsky", "image": (1024, 1024), "view": GROUND},
     "synthetic_panorama": {"kind": "render", "scene": "synthetic", "camera": "panorama", "image": (2048, 1024), "view": GROUND},
-    "katrina_orbit": {"kind": "render", "scene": "katrina", "camera": "perspective", "image": (1024, 1024),
-                      "view": KATRINA_ORBIT, "fov_deg": ORBIT_FOV_DEG},
+    "katrina_orbit": {"kind": "render", "scene": "katrina", "camera": "perspective", "image": (1024, 1024), "view": ORBIT,
+                      "fov_deg": ORBIT_FOV_DEG},
     "synthetic_orbit": {"kind": "render", "scene": "synthetic", "camera": "perspective", "image": (1024, 1024),
                         "view": ORBIT, "fov_deg": ORBIT_FOV_DEG},
     "conus_allsky": {"kind": "render", "scene": "conus", "camera": "allsky", "image": (1024, 1024), "view": GROUND, "crop": True},
