@@ -115,7 +115,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--case", default="synthetic_allsky",
                         choices=sorted(k for k, v in bench_suite.CASES.items() if v["kind"] == "render"))
-    parser.add_argument("--size", type=int, default=512, help="image width [pixels] (panoramas: height = width / 2; others square)")
+    parser.add_argument("--size", type=int, default=512,
+                        help="image width [pixels] (panoramas: height = width / 2; other cameras: square)")
     parser.add_argument("--variant", action="append", default=None, help="settings overrides (repeatable; see above)")
     parser.add_argument("--reference", default=DEFAULT_REFERENCE, help="settings overrides of the reference render")
     parser.add_argument("--adaptive", action="store_true", help="render every variant with adaptive sampling")

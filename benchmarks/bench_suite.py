@@ -58,8 +58,8 @@ CASES = {
     "rico_panorama": {"kind": "render", "scene": "rico", "camera": "panorama", "image": (2048, 1024), "view": RICO_VIEW},
     "synthetic_allsky": {"kind": "render", "scene": "synthetic", "camera": "allsky", "image": (1024, 1024), "view": GROUND},
     "synthetic_panorama": {"kind": "render", "scene": "synthetic", "camera": "panorama", "image": (2048, 1024), "view": GROUND},
-    "katrina_orbit": {"kind": "render", "scene": "katrina", "camera": "perspective", "image": (1024, 1024), "view": ORBIT,
-                      "fov_deg": ORBIT_FOV_DEG},
+    "katrina_orbit": {"kind": "render", "scene": "katrina", "camera": "perspective", "image": (1024, 1024),
+                      "view": ORBIT, "fov_deg": ORBIT_FOV_DEG},
     "synthetic_orbit": {"kind": "render", "scene": "synthetic", "camera": "perspective", "image": (1024, 1024),
                         "view": ORBIT, "fov_deg": ORBIT_FOV_DEG},
     "conus_allsky": {"kind": "render", "scene": "conus", "camera": "allsky", "image": (1024, 1024), "view": GROUND, "crop": True},
@@ -243,7 +243,8 @@ def render_kwargs(spec, image=None):
 
     import swim
 
-    kw = dict(spec["view"], camera=spec["camera"], camera_options=camera_options(spec["camera"], image or spec["image"], spec.get("fov_deg")))
+    options = camera_options(spec["camera"], image or spec["image"], spec.get("fov_deg"))
+    kw = dict(spec["view"], camera=spec["camera"], camera_options=options)
     if spec.get("crop") and "crop" in inspect.signature(swim.render).parameters:
         kw["crop"] = True
     if spec.get("backend", "auto") != "auto":

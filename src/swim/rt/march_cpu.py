@@ -201,12 +201,11 @@ def pack_parameters(consts):
 
 
 @_helper_jit()
-def _index_map(uc, vc, du, dv, c, o):
+def _index_map(u, v, du, dv, c, o):
     """One index of :func:`swim.optics.volume.grid_indices`: the cubic of :func:`swim.optics.volume._cubic` (its
-    coefficients c[o:o + 10]) at the clipped point (uc, vc) plus its tangent plane over the distance (du, dv) beyond
-    the box. One function rather than three (the cubic and its two derivatives): each compiled function costs
-    numba ~0.05 s on an empty cache, four times over for the literal offsets and types of ``c``."""
-    u, v = uc, vc
+    coefficients c[o:o + 10]) at the point (u, v), clipped to the fit's box, plus its tangent plane over the distance
+    (du, dv) beyond the box. One function rather than three (the cubic and its two derivatives): each compiled
+    function costs numba ~0.05 s on an empty cache, four times over for the literal offsets and types of ``c``."""
     cubic = (c[o] + u * (c[o + 1] + u * (c[o + 3] + u * c[o + 6]) + v * (c[o + 4] + v * c[o + 8]))
              + v * (c[o + 2] + v * (c[o + 5] + v * c[o + 9])) + u * u * v * c[o + 7])
     cubic_du = c[o + 1] + u * (2 * c[o + 3] + 3 * c[o + 6] * u + 2 * c[o + 7] * v) + v * (c[o + 4] + c[o + 8] * v)
