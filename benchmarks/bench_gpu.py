@@ -119,9 +119,7 @@ class CudaProbe:
         m = self.module
         names = m.kernel_arguments()
         values = dict(zip(names, self.captured))
-        sizes = m.work_sizes(*(values[k] for k in ("n_before", "n_grid", "n_after", "n_probe", "n_probe_max",
-                                                   "n_clear_probe", "refine_slots")),
-                             values["tau_species"].shape[1], values["volume"].shape[3])
+        sizes = m.kernel_work_sizes(values)
         device = [cuda.to_device(v) if hasattr(v, "shape") and not hasattr(v, "copy_to_host") else v
                   for v in (values[k] for k in names)]
         n = values["start"].shape[0]
@@ -132,6 +130,14 @@ class CudaProbe:
             cuda.synchronize()
 
         call()
+        kernel = m.cuda_march_kernel(*sizes)
+        try:  # the compiled kernel's registers and local memory per thread (spills show as local memory)
+            self.resources = {"regs_per_thread": kernel.get_regs_per_thread(),
+                              "local_mem_per_thread": kernel.get_local_mem_per_thread()}
+            self.resources = {k: (list(v.values())[0] if isinstance(v, dict) else v) for k, v in self.resources.items()}
+        except Exception as exc:  # noqa: BLE001 - numba-cuda versions differ; the timing matters more
+            self.resources = {"error": repr(exc)}
+        print(f"CUDA kernel: {self.resources}", flush=True)
         return _median_time(call, repeats)[0], int(n)
 
 
@@ -178,7 +184,8 @@ def run_scene(name, args, probe, out_dir):
         row = {"scene": name, "backend": args.backend, "chunk": chunk, "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
                "render_fps": 1 / warm, "trace_s": trace_s, "kernel_chunk_s": kernel_s, "kernel_chunk_rays": kernel_rays,
                "kernel_rays_per_s": kernel_rays_per_s, "kernel_fps": kernel_rays_per_s / rays,
-               "march_samples": float(image.attrs.get("march_samples", float("nan"))), "gpu_memory_mb": gpu_memory()}
+               "march_samples": float(image.attrs.get("march_samples", float("nan"))), "gpu_memory_mb": gpu_memory(),
+               "kernel_resources": getattr(probe, "resources", None)}
         rows.append(row)
         print(f"{name} chunk {chunk}: cold {cold:.2f} s, warm {warm:.3f} s ({1 / warm:.2f} frames/s), trace "
               f"{trace_s:.3f} s, kernel {kernel_s * 1e3:.2f} ms per {kernel_rays} rays -> {row['kernel_fps']:.1f} "

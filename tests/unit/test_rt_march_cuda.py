@@ -57,6 +57,20 @@ def test_work_sizes_are_the_cpu_kernels():
     assert march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 0, 2, 2)[3:] == (19, 1, 2, 2)
 
 
+def test_numba_cuda_that_cannot_compile_with_this_numpy_says_so(monkeypatch):
+    """numba-cuda 0.30.4 with NumPy 2.5 fails at its first compilation (numpy.row_stack is gone, seen on an H100
+    machine): the cuda backend says so before any work, naming both packages, instead of a traceback from numba."""
+    def lowering_fails():
+        raise AttributeError("module 'numpy' has no attribute 'row_stack'")
+
+    monkeypatch.setattr(march_cuda, "cuda_available", lambda: True)
+    monkeypatch.setattr(march_cuda, "_load_cuda_lowering", lowering_fails)
+    with pytest.raises(SwimInputError, match=r"numba-cuda cannot compile with NumPy .*row_stack.*NumPy < 2\.5"):
+        march_cuda.require_cuda()
+    monkeypatch.setattr(march_cuda, "_load_cuda_lowering", lambda: None)
+    march_cuda.require_cuda()  # a working pair: no error
+
+
 @pytest.mark.skipif(march_cuda.cuda_available(), reason="this machine has a GPU: the error is for those without one")
 def test_cuda_backend_without_a_gpu_says_so(tmp_path):
     """Before any work: the settings, a render, and the CLI (exit code 2, no image written)."""
@@ -177,9 +191,7 @@ _PTX = """
     march_cpu.march_rays = cpu_march
     args = dict(zip(names, captured[0]))
     signature = tuple(numba.typeof(v) for v in captured[0])
-    sizes = march_cuda.work_sizes(*(args[k] for k in ("n_before", "n_grid", "n_after", "n_probe", "n_probe_max",
-                                  "n_clear_probe", "refine_slots")), args["tau_species"].shape[1],
-                                  args["volume"].shape[3], args["ms_profile"].shape[2])
+    sizes = march_cuda.kernel_work_sizes(args)
     # device functions ask the current GPU for its compute capability when they compile; there is none here
     dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=(9, 0))
     kernel = march_cuda.cuda_march_kernel(*sizes)

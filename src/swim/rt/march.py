@@ -148,8 +148,9 @@ class MarchSettings:
         the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, ~5x faster on a
         CPU: the default scene's 255^2 all-sky in 1.0 s against 4.6-5.1 s; docs/performance.md, sections 8 and
         18); "cuda" compiles that same per-ray code for an NVIDIA GPU, one thread per ray (:mod:`swim.rt.march_cuda`,
-        numba-cuda; opt-in until its speed is measured, docs/performance.md, section 22); "auto" takes numba
-        when JAX's default device is the CPU, else jax.
+        numba-cuda; opt-in: on an H100 its images match numba's, but it renders no faster than the JAX kernel,
+        docs/performance.md, sections 22 and 52); "auto" takes numba when JAX's default device is the CPU, else
+        jax.
     """
 
     n_before: int = 12
@@ -2029,9 +2030,16 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         aerosol_class = (class_lower, class_weight.astype(np.float32)[:, None])
         ms_profile = ms  # with settings.multiple_scattering off, a (9, 1, 2) placeholder that the march never reads
     else:
-        aerosol_class, ms = jax.device_get(_prepare_chunk(start, direction, bounds, consts, settings))
-        # a writable copy (the kernel's compiled types), or zeros; rows beyond n are not read
-        ms_profile = np.array(ms) if ms is not None else np.zeros((9, n, 2), np.float32)
+        aerosol_class, ms = _prepare_chunk(start, direction, bounds, consts, settings)
+        aerosol_class = jax.device_get(aerosol_class)
+        if ms is None:  # zeros that the march never reads
+            ms_profile = np.zeros((9, n, 2), np.float32)
+        elif hasattr(ms, "__cuda_array_interface__"):
+            # on a GPU the kernel reads JAX's array in place: 9 x chunk x n_u float32 (~0.4 GB per 262 144 rays)
+            # not fetched to the host and copied back (docs/performance.md, section 52); rows beyond n are not read
+            ms_profile = ms.block_until_ready()
+        else:  # JAX on the CPU (numba's CUDA simulator): a writable copy, the kernel's compiled types
+            ms_profile = np.array(ms)
     # in the order of march_rays' outputs (its last arguments but the sample counts, which go to the caller alone)
     state = {"tau_clear": np.empty((padded, 3)), "tau_h": np.empty(padded),
              "tau_species": np.empty((padded, tables["species_matrix"].shape[0])), "l_clear": np.empty((padded, 3)),

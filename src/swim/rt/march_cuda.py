@@ -56,11 +56,33 @@ def cuda_available() -> bool:
 
 
 def require_cuda():
-    """Raise :class:`~swim.errors.SwimInputError` unless numba-cuda sees a GPU (or runs its simulator)."""
+    """Raise :class:`~swim.errors.SwimInputError` unless numba-cuda sees a GPU (or runs its simulator) and can
+    compile for it with the installed NumPy."""
     if not cuda_available():
         raise SwimInputError("MarchSettings.backend='cuda' needs an NVIDIA GPU that numba-cuda can use "
                              "(pip install 'swim-imagery[cuda]', i.e. numba-cuda; NUMBA_ENABLE_CUDASIM=1 runs its "
                              "simulator instead)")
+    try:
+        _load_cuda_lowering()
+    except AttributeError as exc:
+        raise SwimInputError(
+            f"MarchSettings.backend='cuda': the installed numba-cuda cannot compile with NumPy {np.__version__} "
+            f"({exc}). numba-cuda 0.30 registers numpy.row_stack, which NumPy 2.5 removed: install NumPy < 2.5 or a "
+            "numba-cuda release that supports your NumPy") from exc
+
+
+def _load_cuda_lowering():
+    """Import numba-cuda's lowering registry, which its first compilation would import anyway: numba-cuda 0.30.4
+    fails there with NumPy 2.5 (an AttributeError for ``numpy.row_stack``; seen on an H100 machine, session 41).
+    Nothing to check in numba's simulator or where the module does not exist."""
+    from numba.core import config
+
+    if config.ENABLE_CUDASIM:
+        return
+    try:
+        import numba.cuda.cudaimpl  # noqa: F401
+    except ImportError:  # pragma: no cover - a numba-cuda layout without it
+        return
 
 
 def _max2(a, b):
@@ -107,6 +129,13 @@ def kernel_arguments() -> tuple:
 
 #: Sizes of one ray's work arrays: the CPU kernel's (one definition for both).
 work_sizes = march_cpu.work_sizes
+
+
+def kernel_work_sizes(values) -> tuple:
+    """:func:`work_sizes` for a call's arguments (``values``: a mapping from :func:`kernel_arguments` to values)."""
+    return work_sizes(values["n_before"], values["n_grid"], values["n_after"], values["n_probe"],
+                      values["n_probe_max"], values["n_clear_probe"], values["refine_slots"],
+                      values["tau_species"].shape[1], values["volume"].shape[3], values["ms_profile"].shape[2])
 
 
 @functools.lru_cache(maxsize=8)
@@ -191,10 +220,7 @@ def march_rays(*args):
     n = values["start"].shape[0]
     if n == 0:
         return
-    sizes = work_sizes(values["n_before"], values["n_grid"], values["n_after"], values["n_probe"],
-                       values["n_probe_max"], values["n_clear_probe"], values["refine_slots"],
-                       values["tau_species"].shape[1], values["volume"].shape[3], values["ms_profile"].shape[2])
-    kernel = cuda_march_kernel(*sizes)
+    kernel = cuda_march_kernel(*kernel_work_sizes(values))
     outputs = ("tau_clear", "tau_h", "tau_species", "l_clear", "i_nogas", "i_gas", "i_cloud_t", "alive_out", "hit_out",
                "s_hit_out", "samples_out")
     device = {}
@@ -203,6 +229,11 @@ def march_rays(*args):
         if isinstance(value, np.ndarray):
             value = cuda.to_device(np.ascontiguousarray(value)) if name not in outputs else \
                 cuda.device_array(value.shape, value.dtype)
+        elif hasattr(value, "__cuda_array_interface__") and not hasattr(value, "copy_to_host"):
+            # another library's GPU array (JAX's multiple-scattering profiles), read in place; it must be ready
+            # (block_until_ready). Wrapped here: numba-cuda 0.30 types such an argument through DLPack on a stream
+            # that JAX refuses (CUDA_ERROR_INVALID_HANDLE)
+            value = cuda.as_cuda_array(value, sync=False)
         device[name] = value
     blocks = -(-n // THREADS_PER_BLOCK)
     kernel[blocks, THREADS_PER_BLOCK](*(device[name] for name in names))
