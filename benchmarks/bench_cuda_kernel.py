@@ -98,11 +98,6 @@ def launcher(values, kernel, threads=None):
     return run
 
 
-def resources(kernel):
-    out = {"regs_per_thread": kernel.get_regs_per_thread(), "local_mem_per_thread": kernel.get_local_mem_per_thread()}
-    return {k: (list(v.values())[0] if isinstance(v, dict) else v) for k, v in out.items()}
-
-
 def variants(values, repeats):
     from numba import cuda
 
@@ -114,7 +109,8 @@ def variants(values, repeats):
         kernel = base if regs is None else cuda.jit(max_registers=regs)(base.py_func)
         for threads in (64, 128, 256):
             seconds, _ = launcher(values, kernel, threads)(repeats)
-            row = {"max_registers": regs, "threads_per_block": threads, **resources(kernel), "kernel_ms": 1e3 * seconds}
+            row = {"max_registers": regs, "threads_per_block": threads, **bench_gpu.kernel_resources(kernel),
+                   "kernel_ms": 1e3 * seconds}
             print(row, flush=True)
             rows.append(row)
     return rows

@@ -123,22 +123,28 @@ class CudaProbe:
         device = [cuda.to_device(v) if hasattr(v, "shape") and not hasattr(v, "copy_to_host") else v
                   for v in (values[k] for k in names)]
         n = values["start"].shape[0]
-        launch = m.cuda_march_kernel(*sizes)[-(-n // m.THREADS_PER_BLOCK), m.THREADS_PER_BLOCK]
+        kernel = m.cuda_march_kernel(*sizes)
+        launch = kernel[-(-n // m.THREADS_PER_BLOCK), m.THREADS_PER_BLOCK]
 
         def call():
             launch(*device)
             cuda.synchronize()
 
         call()
-        kernel = m.cuda_march_kernel(*sizes)
-        try:  # the compiled kernel's registers and local memory per thread (spills show as local memory)
-            self.resources = {"regs_per_thread": kernel.get_regs_per_thread(),
-                              "local_mem_per_thread": kernel.get_local_mem_per_thread()}
-            self.resources = {k: (list(v.values())[0] if isinstance(v, dict) else v) for k, v in self.resources.items()}
-        except Exception as exc:  # noqa: BLE001 - numba-cuda versions differ; the timing matters more
-            self.resources = {"error": repr(exc)}
+        self.resources = kernel_resources(kernel)
         print(f"CUDA kernel: {self.resources}", flush=True)
         return _median_time(call, repeats)[0], int(n)
+
+
+def kernel_resources(kernel):
+    """A compiled numba-cuda kernel's registers and local memory [bytes] per thread (spills show as local memory),
+    for its one compiled signature; ``{"error": ...}`` where this numba-cuda cannot say (the timing matters more)."""
+    try:
+        out = {"regs_per_thread": kernel.get_regs_per_thread(),
+               "local_mem_per_thread": kernel.get_local_mem_per_thread()}
+    except Exception as exc:  # noqa: BLE001 - numba-cuda versions differ
+        return {"error": repr(exc)}
+    return {k: (list(v.values())[0] if isinstance(v, dict) else v) for k, v in out.items()}
 
 
 def gpu_memory():
