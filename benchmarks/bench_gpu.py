@@ -236,9 +236,11 @@ def run_scene(name, args, probe, out_dir):
 
 
 def profile_render(name, scene, kw, probe, out_dir):
-    """Where a warm render spends its time: the host's Python functions (cProfile, top 40 by cumulative and by
-    own time, to ``profile_<scene>_host.txt``; a render with a new sun to ``profile_<scene>_newsun_host.txt``) and the device's kernels for one captured chunk (JAX's profiler,
-    time summed per kernel name, to ``profile_<scene>_device.txt``)."""
+    """Where a warm render spends its time: the main thread's wall clock (``wall_profile.WallSampler``, to
+    ``profile_<scene>_wall.txt`` and, with a new sun, ``profile_<scene>_newsun_wall.txt``), the host's Python
+    functions (cProfile, top 40 by cumulative and by own time, to ``profile_<scene>_host.txt``; a render with a new
+    sun to ``profile_<scene>_newsun_host.txt``) and the device's kernels for one captured chunk (JAX's profiler, time
+    summed per kernel name, to ``profile_<scene>_device.txt``)."""
     import cProfile
     import glob
     import gzip
@@ -250,6 +252,14 @@ def profile_render(name, scene, kw, probe, out_dir):
 
     import swim
 
+    from wall_profile import WallSampler
+
+    # wall-clock samples of the main thread first (no cProfile overhead): a warm render, then one with a new sun
+    for label, extra in (("wall", {}), ("newsun_wall", {"sun_zenith": 43.0, "sun_azimuth": 190.0})):
+        with WallSampler() as sampler:
+            swim.render(scene, **{**kw, **extra})
+        (out_dir / f"profile_{name}_{label}.txt").write_text(sampler.report())
+        print(f"{name} {label}: " + "\n".join(sampler.report(12).splitlines()[:30]), flush=True)
     # a warm render, and one with a new sun (Step 1a and the kernel constants anew: a time series' frame)
     for label, extra in (("host", {}), ("newsun_host", {"sun_zenith": 41.0, "sun_azimuth": 200.0})):
         prof = cProfile.Profile()

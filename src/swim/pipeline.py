@@ -59,6 +59,9 @@ COLOUR_BLOCK_ROWS = 128
 #: Images of fewer pixels skip the C heap's trims after the march and at the end of :func:`render`: they free a few
 #: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of a 41 x 41 render; swim.memory).
 TRIM_MIN_PIXELS = 1 << 16
+#: Scenes of at least this many bytes are hashed on several threads (:func:`_fingerprint`): below it the pool's
+#: overhead (~0.1 ms) is not worth it.
+FINGERPRINT_THREADED_BYTES = 64 << 20
 #: The outputs of :func:`swim.rt.march.trace_rays` that become images of :func:`render`.
 IMAGE_OUTPUTS = ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_hydrometeor")
 
@@ -67,14 +70,17 @@ def _fingerprint(scene: xr.Dataset) -> str:
     """Digest of a scene's values, coordinates and attributes (what its optical volume depends on).
 
     The scene as given to :func:`render` (cropped, not yet validated: the same values validate to the same
-    scene, and a warm render then skips the validation's float64 copies). One streaming XXH3-128 digest
-    (``xxhash``) of each variable's name, dims, dtype, shape and attributes and of its values, in the variables'
-    order, then the scene's attributes (:mod:`swim.digest`): the 12 MB RICO LES takes ~0.4 ms per render (7 ms with
-    SHA-256 on the thread pool), the 0.47 GB of the 400 x 400 x 60 benchmark scene ~18 ms (docs/performance.md,
-    section 20)."""
-    digest = xxhash.xxh3_128()
-    for name in sorted(scene.variables):
+    scene, and a warm render then skips the validation's float64 copies). A streaming XXH3-128 digest (``xxhash``)
+    of each variable's name, dims, dtype, shape and attributes and of its values (:mod:`swim.digest`); then one of
+    those digests, in the variables' sorted order, and of the scene's attributes. The variables of a big scene are
+    hashed on up to 8 threads (xxhash releases the GIL): the 12 MB RICO LES takes ~0.4 ms per render (7 ms with
+    SHA-256 on the thread pool), the 0.47 GB of the 400 x 400 x 60 benchmark scene ~17 ms on one core here and
+    75 ms on one core of the H100 machine's host (docs/performance.md, sections 20 and 53)."""
+    names = sorted(scene.variables)
+
+    def variable_digest(name):
         var = scene.variables[name]
+        digest = xxhash.xxh3_128()
         # the attributes too: validation checks the units, and a warm render does not validate again
         digest.update(f"{name}{var.dims}{var.dtype}{var.shape}{_attrs_text(var.attrs)}".encode())
         values = var.values
@@ -82,6 +88,11 @@ def _fingerprint(scene: xr.Dataset) -> str:
             digest.update(repr(values.tolist()).encode())
         else:
             update_with_array(digest, values)
+        return digest.digest()
+
+    size = sum(scene.variables[name].nbytes for name in names)
+    parts = parallel_map(variable_digest, names, min(threads(), 8) if size >= FINGERPRINT_THREADED_BYTES else 1)
+    digest = xxhash.xxh3_128(b"".join(parts))
     digest.update(_attrs_text(scene.attrs).encode())
     return digest.hexdigest()
 
@@ -124,6 +135,34 @@ def _phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type
     cos_theta = np.concatenate([np.asarray(cos_theta, np.float32), np.zeros(padded - n, np.float32)])
     out = _phase_functions_jit(cos_theta, np.float32(depolarization), aerosol_type, stratospheric_type)
     return tuple(np.asarray(value)[:n] for value in out)
+
+
+def _scene_directions(camera, rotation):
+    """The camera's pixels' unit view directions in the scene frame, (ny * nx, 3) float64 (zeros where not valid), and
+    the flat indices of its valid pixels (n,) in tile order (:func:`swim.rt.image_sampling.tile_order`): read-only,
+    computed once for the last two cameras and rotations (a time series' frames and the renders of one view share
+    them; ~0.1 s per 1024^2 frame on the H100 machine's host, docs/performance.md, section 53).
+    ``rotation``: :func:`swim.frames.enu_to_scene_rotation` (3, 3)."""
+    try:
+        return _scene_directions_of(camera, np.asarray(rotation, dtype=float).tobytes())
+    except TypeError:  # a camera with unhashable options is computed every time
+        return _compute_scene_directions(camera, np.asarray(rotation, dtype=float))
+
+
+@functools.lru_cache(maxsize=2)
+def _scene_directions_of(camera, rotation_bytes):
+    out = _compute_scene_directions(camera, np.frombuffer(rotation_bytes).reshape(3, 3))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+def _compute_scene_directions(camera, rotation):
+    dirs_enu, valid = camera.cached_directions()
+    dirs = np.nan_to_num(dirs_enu.reshape(-1, 3)) @ rotation
+    dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-12)
+    flat = np.flatnonzero(valid.reshape(-1))
+    return dirs, flat[tile_order(flat, camera.shape)]
 
 
 @functools.partial(jax.jit, static_argnames=("aerosol_type", "stratospheric_type"))
@@ -372,8 +411,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     cam = make_camera(camera, **options)
     dirs_enu, valid = cam.cached_directions()
     rotation = enu_to_scene_rotation(lat, lon, lat0, lon0)
-    dirs_scene = np.nan_to_num(dirs_enu.reshape(-1, 3)) @ rotation
-    dirs_scene /= np.maximum(np.linalg.norm(dirs_scene, axis=1, keepdims=True), 1e-12)
+    dirs_scene, valid_pixels = _scene_directions(cam, rotation)
     observer = geodetic_to_scene(lat, lon, height_asl, lat0, lon0)
     sun_enu_observer = sun_scene @ rotation.T
 
@@ -426,11 +464,16 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     # extra ray towards the sun for the direct-beam transmittance of the sun's disk (with the first batch).
     sun_out = {}
 
-    def trace_tiled(flat, progress_rays=None):
+    def trace_tiled(flat, progress_rays=None, tiled=False):
         """Trace the pixels ``flat`` in tile order (neighbouring pixels one after the other: they cross the same
-        cells): that order (indices into ``flat``) and the rays' outputs in it."""
-        order = tile_order(flat, cam.shape)
-        dirs = np.vstack([dirs_scene[flat[order]], sun_scene[None]]) if not sun_out else dirs_scene[flat[order]]
+        cells): that order (indices into ``flat``) and the rays' outputs in it. With ``tiled``, ``flat`` is already
+        in tile order (:func:`_scene_directions`) and traced as it is (the order: None)."""
+        order = None if tiled else tile_order(flat, cam.shape)
+        pixels = flat if tiled else flat[order]
+        dirs = np.empty((len(pixels) + (not sun_out), 3))
+        np.take(dirs_scene, pixels, axis=0, out=dirs[:len(pixels)])
+        if not sun_out:
+            dirs[-1] = sun_scene
         result = trace_directions(dirs, progress_rays)
         if not sun_out:
             sun_out.update({key: value[-1] for key, value in result.items()})
@@ -453,9 +496,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     if sampling is None:
         log.info("tracing %d rays (%s camera %s)", int(valid.sum()) + 1, camera, cam.shape)
         traced = valid.reshape(-1)
-        flat = np.flatnonzero(traced)
-        order, rays = trace_tiled(flat, progress)
-        pixels = flat[order]
+        pixels = valid_pixels  # every valid pixel, in tile order
+        _, rays = trace_tiled(pixels, progress, tiled=True)
         for key in IMAGE_OUTPUTS:  # each written once, straight into its image, one output at a time
             value = rays.pop(key)
             plane = np.full((value.shape[1] if value.ndim == 2 else 1, ny * nx), np.nan, value.dtype)

@@ -47,7 +47,7 @@ def worker_pool(n: int) -> ThreadPoolExecutor:
     n = int(n)
     if n < 1:
         raise ValueError(f"worker_pool: n must be >= 1, got {n}")
-    if threading.current_thread().name.startswith(_PREFIX):
+    if in_worker_thread():
         raise RuntimeError("swim's worker pools must not be used from their own worker threads (deadlock)")
     with _LOCK:
         if _POOLS_PID[0] != os.getpid():  # a forked child: the parent's threads are not here
@@ -57,6 +57,11 @@ def worker_pool(n: int) -> ThreadPoolExecutor:
         if pool is None:
             pool = _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix=f"{_PREFIX}-{n}")
         return pool
+
+
+def in_worker_thread() -> bool:
+    """Whether the calling thread is one of swim's pool threads (which must not wait on the pools)."""
+    return threading.current_thread().name.startswith(_PREFIX)
 
 
 def parallel_map(fn, items, max_threads: int) -> list:

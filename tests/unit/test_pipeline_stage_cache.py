@@ -146,15 +146,22 @@ def test_a_lazy_scene_is_not_read_again_but_its_changes_are_seen(tmp_path, caplo
     assert float(np.nanmax(clear["tau_hydrometeor"].values)) == 0.0
 
 
-def test_scene_digest_sees_every_value_and_attribute(monkeypatch):
-    """The stage cache's key of an in-memory scene (one streaming digest; a non-contiguous array copied in blocks
-    of rows): equal scenes give equal digests, also when an array is laid out otherwise; one changed value (in a
-    contiguous array, or in the last block of a non-contiguous one) or one changed attribute gives another."""
+@pytest.mark.parametrize("threaded", [False, True])
+def test_scene_digest_sees_every_value_and_attribute(monkeypatch, threaded):
+    """The stage cache's key of an in-memory scene (a streaming digest per variable, on several threads for a big
+    scene; a non-contiguous array copied in blocks of rows): equal scenes give equal digests, also when an array is
+    laid out otherwise, and the same on threads as on one; one changed value (in a contiguous array, or in the last
+    block of a non-contiguous one) or one changed attribute gives another."""
     import swim.digest
 
     monkeypatch.setattr(swim.digest, "BLOCK_BYTES", 256)  # a non-contiguous 3-D field spans many blocks
     scene = swim.default_scene()
+    serial = pipeline._fingerprint(scene)
+    if threaded:  # every scene counts as big, on 3 threads
+        monkeypatch.setattr(pipeline, "FINGERPRINT_THREADED_BYTES", 0)
+        monkeypatch.setenv("SWIM_NUM_THREADS", "3")
     digest = pipeline._fingerprint(scene)
+    assert digest == serial
     assert pipeline._fingerprint(scene.copy(deep=True)) == digest
     name = next(n for n in scene.data_vars if scene[n].ndim == 3)
     changed = scene.copy(deep=True)
@@ -173,3 +180,28 @@ def test_scene_digest_sees_every_value_and_attribute(monkeypatch):
     attrs = scene.copy(deep=True)
     attrs[name].attrs["units"] = "g m-3"
     assert pipeline._fingerprint(attrs) != digest
+
+
+def test_scene_directions_are_the_camera_s_rotated_and_shared_by_equal_views():
+    """The rays' directions in the scene frame (cached per camera and rotation): unit vectors, the camera's ENU
+    directions times the rotation, zero outside its pixels; its valid pixels once each, in tile order; equal cameras
+    and rotations share them (read-only), another rotation gets its own."""
+    from swim.frames import enu_to_scene_rotation
+    from swim.geometry.cameras import make_camera
+    from swim.rt.image_sampling import tile_order
+
+    camera = make_camera("allsky", size=33)
+    dirs_enu, valid = camera.cached_directions()
+    flat = np.flatnonzero(valid.reshape(-1))
+    for lat, lon in ((40.0, -105.0), (41.0, -104.0)):
+        rotation = enu_to_scene_rotation(lat, lon, 40.0, -105.0)
+        dirs, pixels = pipeline._scene_directions(camera, rotation)
+        assert dirs.shape == (33 * 33, 3) and not dirs.flags.writeable and not pixels.flags.writeable
+        np.testing.assert_allclose(dirs[flat], dirs_enu.reshape(-1, 3)[flat] @ rotation, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(dirs[flat], axis=1), 1.0, atol=1e-12)
+        assert not dirs[~valid.reshape(-1)].any()
+        np.testing.assert_array_equal(pixels, flat[tile_order(flat, camera.shape)])
+        again = pipeline._scene_directions(make_camera("allsky", size=33), rotation.copy())
+        assert again[0] is dirs and again[1] is pixels
+    other = pipeline._scene_directions(camera, enu_to_scene_rotation(40.0, -105.0, 40.0, -105.0))
+    assert not np.allclose(other[0][flat], dirs[flat])

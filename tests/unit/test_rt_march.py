@@ -1,5 +1,6 @@
 """The JAX ray march against the slow NumPy reference and against analytic clear-sky limits."""
 
+import threading
 from dataclasses import replace
 
 import numpy as np
@@ -453,14 +454,39 @@ def test_chunk_follows_the_device_unless_given(monkeypatch):
 
 @pytest.mark.parametrize("chunk", [64, 256])
 def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
-    """The JAX kernel marches a chunk while the next is prepared (outputs collected one chunk behind): several
-    chunks, a short last one among them, give the same rays in the same order as one big call."""
+    """The JAX kernel marches a chunk on a worker thread while the next is prepared (outputs collected one chunk
+    behind): several chunks, a short last one among them, give the same rays in the same order as one big call."""
     origins, dirs = _random_rays(600, seed=3)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     one = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="jax", chunk=1024))[0]
     many = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="jax", chunk=chunk))[0]
     for key in ("radiance", "tau_hydrometeor", "surface"):
         np.testing.assert_allclose(many[key], one[key], rtol=1e-5, atol=1e-7, err_msg=key)
+
+
+def test_a_jax_chunk_s_error_reaches_the_caller_and_the_next_call_works(monkeypatch):
+    """The JAX kernel's chunks run on a worker thread: an error in one of them is raised by trace_rays itself (not
+    lost in the thread, no partial output), and the next call, on the same worker, traces every ray."""
+    from swim.rt import march
+
+    origins, dirs = _random_rays(300, seed=5)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    settings = MarchSettings(backend="jax", chunk=64)
+    plain, calls = march._trace_chunk, []
+
+    def failing(*args, **kwargs):
+        calls.append(threading.current_thread().name)
+        if len(calls) == 2:
+            raise FloatingPointError("chunk 2 failed")
+        return plain(*args, **kwargs)
+
+    monkeypatch.setattr(march, "_trace_chunk", failing)
+    with pytest.raises(FloatingPointError, match="chunk 2 failed"):
+        _trace(_tiny_scene(), origins, dirs, sun, settings=settings)
+    assert all(name.startswith("swim-worker") for name in calls)
+    monkeypatch.setattr(march, "_trace_chunk", plain)
+    out = _trace(_tiny_scene(), origins, dirs, sun, settings=settings)[0]
+    assert out["radiance"].shape == (300, 3) and np.all(np.isfinite(out["radiance"]))
 
 
 @pytest.mark.parametrize("threads, n_levels", [(1, 5), (3, 7), (4, 2), (8, 160)])

@@ -59,7 +59,8 @@ from ..optics.phase import (
 )
 from ..errors import SwimInputError
 from ..surface.lighting import SURFACE_MODELS, surface_radiance
-from ..workers import in_blocks, parallel_map, threads, worker_pool  # threads: also swim.rt.march.threads
+from ..workers import (in_blocks, in_worker_thread, parallel_map, threads,  # threads: also swim.rt.march.threads
+                       worker_pool)
 from .gas import GasTables
 from .solar import transmittance_delta_eddington
 
@@ -1782,9 +1783,10 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
     del blocks
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
-    lengths = np.diff(np.concatenate([np.zeros((len(origins), 1)), seg["bounds"]], axis=1), axis=1)
-    settings = replace(settings, **{name: 0 for name, length in zip(("n_before", "n_grid", "n_after"), lengths.T)
-                                    if not np.any(length > 0)})
+    bounds = seg["bounds"]
+    settings = replace(settings, **{name: 0 for name, length in zip(
+        ("n_before", "n_grid", "n_after"), (bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1]))
+        if not np.any(length > 0)})
     n = len(origins)
     chunk = batch = settings.resolved_chunk()
     steps = settings.n_before + settings.n_grid + settings.n_after
@@ -1817,6 +1819,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         # chunks marched at once, one per core (the numba kernel runs without the GIL)
         workers = min(cores, -(-n // chunk))
         pool = worker_pool(workers) if workers > 1 else None
+    # the JAX kernel's chunks are marched one after the other, on one worker thread when there are several chunks
+    jax_pool = worker_pool(1) if backend == "jax" and n > chunk and not in_worker_thread() else None
 
     def finished(out, hi):
         for key, value in out.items():
@@ -1843,10 +1847,16 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             if backend == "jax":
                 args = list(map(jnp.asarray, args))
                 rays = {key: jnp.asarray(value) for key, value in rays.items()}
-                out = _trace_chunk(*args, rays, consts, *_chunk_probes(*args[:3], consts, settings))
-                # dispatched asynchronously: the device marches this chunk while the host prepares the next one;
-                # the one before is collected now (two chunks' outputs at most are held)
-                pending.append((functools.partial(_host_rows, out, hi - lo), hi, None))
+                job = functools.partial(_trace_chunk_jax, args, rays, consts,
+                                        *_chunk_probes(*args[:3], consts, settings), hi - lo)
+                if jax_pool is None:
+                    finished(job(), hi)
+                    continue
+                # On a GPU the call returns only when the march is done (XLA reads its while loop's condition on
+                # the host every step): a worker thread waits for it while this one prepares the next chunk
+                # (docs/performance.md, section 53); the one before is collected now (two chunks at most are held)
+                future = jax_pool.submit(job)
+                pending.append((future.result, hi, future.cancel))
                 if len(pending) > 1:
                     collect, done_hi, _ = pending.popleft()
                     finished(collect(), done_hi)
@@ -1935,6 +1945,11 @@ def _buffer_identity(a):
 def _host_rows(out, n):
     """The first n rows of a chunk's device outputs as host arrays (waits for the device)."""
     return {key: np.asarray(value)[:n] for key, value in out.items()}
+
+
+def _trace_chunk_jax(args, rays, consts, settings, probes, n):
+    """One chunk through the JAX kernel (:func:`_trace_chunk`), its first ``n`` rows' outputs as host arrays."""
+    return _host_rows(_trace_chunk(*args, rays, consts, settings, probes), n)
 
 
 def _pad_rows(a, pad):
