@@ -78,8 +78,8 @@ class WallSampler:
         return False
 
     def report(self, top: int = 40) -> str:
-        """Tables of the functions by inclusive samples, by the innermost project frame, and by own samples, each
-        with its share of the wall-clock time [s]."""
+        """Four tables, each row with its share of the wall-clock time [s]: the functions by inclusive samples, the
+        innermost project frame, that frame's line, and the innermost frame of any code (own samples)."""
         per = self.seconds / max(self.samples, 1)
         lines = [f"{self.samples} samples over {self.seconds:.3f} s (one per {per * 1e3:.2f} ms)"]
         for title, counter in (("inclusive (the function or anything it called)", self.inclusive),
