@@ -49,6 +49,11 @@ GROUND = {"height": 2.0}  # at the scene's reference point (the domain centre)
 # with a margin)
 ORBIT = {"height": 700e3}
 ORBIT_FOV_DEG = 30.0
+# the same satellite 8 deg of latitude south of the synthetic scene's reference point (scenes.SYNTHETIC_REFERENCE),
+# looking at it (a view zenith of 49 deg there) with a 12 deg field of view: the image's upper rows see past the grid's
+# far edge, where rays leave the grid sideways on their way down to the ground (docs/performance.md, sections 51, 54)
+ORBIT_OBLIQUE = {"lat": 27.0, "lon": -100.0, "height": 700e3, "look_at": [35.0, -100.0, 0.0]}
+ORBIT_OBLIQUE_FOV_DEG = 12.0
 ADAPTIVE = {"tolerance": 0.01, "coarse_spacing": 4}  # swim.rt.image_sampling.AdaptiveSampling() defaults
 
 CASES = {
@@ -62,6 +67,8 @@ CASES = {
                       "view": ORBIT, "fov_deg": ORBIT_FOV_DEG},
     "synthetic_orbit": {"kind": "render", "scene": "synthetic", "camera": "perspective", "image": (1024, 1024),
                         "view": ORBIT, "fov_deg": ORBIT_FOV_DEG},
+    "synthetic_orbit_oblique": {"kind": "render", "scene": "synthetic", "camera": "perspective", "image": (1024, 1024),
+                                "view": ORBIT_OBLIQUE, "fov_deg": ORBIT_OBLIQUE_FOV_DEG},
     "conus_allsky": {"kind": "render", "scene": "conus", "camera": "allsky", "image": (1024, 1024), "view": GROUND, "crop": True},
     "conus_panorama": {"kind": "render", "scene": "conus", "camera": "panorama", "image": (2048, 1024), "view": GROUND,
                        "crop": True},

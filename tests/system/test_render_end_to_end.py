@@ -111,10 +111,10 @@ def test_default_scene_renders_with_no_file():
     n_traced = int(inside.sum()) + 1
     assert 0.7 * 63 * 63 < n_traced < 0.85 * 63 * 63
     # the samples of the traced rays alone: every step of every ray in the lockstep JAX kernel, each ray's own count
-    # (at least one, at most its steps plus three per refinement) in the per-ray kernels
+    # (at least one, at most its steps plus three per refinement) in the per-ray kernels; the end step included
     samples = image.attrs["march_samples"]
     settings = MarchSettings()
-    nominal = settings.n_before + settings.n_grid + settings.n_after
+    nominal = settings.n_before + settings.n_grid + settings.n_after + 1
     if image.attrs["march_backend"] == "jax":
         assert samples == n_traced * nominal
     else:

@@ -376,8 +376,9 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     """``steps``: the numba kernel counts the samples each ray takes, the lockstep JAX kernel every step of every
     ray. Without refinement and without the empty-space limit a ray that never meets the ground takes every step
     of its segments (one for a segment of zero length); one that meets it stops there (and takes its terminal
-    steps). Refined halves add samples, and the empty-space limit takes samples off rays through clear air. A ray
-    that rises out of the grid takes its own count of clear-air steps after it (after_step_counts)."""
+    steps), and one that ends on the sea-level sphere takes one more, of zero length there (the end step). Refined
+    halves add samples, and the empty-space limit takes samples off rays through clear air. A ray that rises out of
+    the grid takes its own count of clear-air steps after it (after_step_counts)."""
     import jax.numpy as jnp
 
     from swim.rt.march import after_step_counts
@@ -389,7 +390,7 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     out = {backend: _trace(scene, origins, dirs, sun, settings=replace(plain, backend=backend))
            for backend in ("jax", "numba")}
     (jax_out, _), (numba_out, (volume, transmittance, gas, _)) = out["jax"], out["numba"]
-    nominal = plain.n_before + plain.n_grid + plain.n_after
+    nominal = plain.n_before + plain.n_grid + plain.n_after + 1  # the end step
     np.testing.assert_array_equal(jax_out["steps"], nominal)
     consts = kernel_constants(volume, transmittance, gas, sun)
     seg = ray_segments(origins, dirs, grid_geometry(volume), top=float(consts["top"]))
@@ -404,9 +405,9 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     ground = numba_out["surface"]
     assert 30 < ground.sum() < 270, "rays must both meet the ground and miss it"
     np.testing.assert_array_equal(numba_out["steps"][~ground], full[~ground])
-    # a ray whose segments end at the ground meets it in its last step; one that meets the terrain stops early;
-    # both then take one or two terminal steps, up to the crossing (swim.rt.march._terminal_step)
-    assert np.all((numba_out["steps"][ground] >= 1) & (numba_out["steps"][ground] <= full[ground] + 2))
+    # a ray whose segments end at the ground meets it in its last step or its end step; one that meets the terrain
+    # stops early; both then take one or two terminal steps, up to the crossing (swim.rt.march._terminal_step)
+    assert np.all((numba_out["steps"][ground] >= 1) & (numba_out["steps"][ground] <= full[ground] + 3))
     assert (numba_out["steps"][ground] < full[ground]).sum() > 10
 
     refined, _ = _trace(scene, origins, dirs, sun, settings=replace(plain, backend="numba", tau_refine=0.1))
@@ -866,6 +867,40 @@ def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean():
         assert surface[1] > 3 * surface[2], (backend, surface)  # near the edge: the edge cells' own ground
         assert abs(surface[3] / surface[4] - 1) < 1e-3, (backend, surface)  # far beyond: the edge mean
         assert surface[2] < surface[3] < surface[1], (backend, surface)
+
+
+@pytest.mark.parametrize("backend", ["jax", "numba"])
+def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
+    """Beyond the grid the terrain keeps its edge heights, so a ray that leaves the grid sideways on its way down meets
+    the ground above the sea-level sphere, where its segment after the grid ends. No later step finds a crossing in
+    the far half of that segment's last step: the ray's zero-length end step does (docs/performance.md, section 54).
+    Without it all 57 of these rays ended on the sea-level sphere, up to 1.2 km too far, with the air under the
+    terrain in their path (a view from orbit 8 deg off nadir had 2 % errors and stripes beyond the grid's far edge).
+    Against the analytic crossing (the sphere of radius R + the terrain's height) and the NumPy reference."""
+    n, spacing, terrain = 12, 400.0, 20.0
+    x = (np.arange(n) - n / 2 + 0.5) * spacing
+    z = np.arange(0.0, 5000.0, 250.0) + 125.0
+    scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=30.0, reference_lon=10.0,
+                              terrain_height=np.full((n, n), terrain), cloud_liquid_content=np.zeros((z.size, n, n)),
+                              land_mask=1.0)
+    dirs = np.array([enu_from_azimuth_zenith(90.0, zenith) for zenith in np.linspace(92.0, 120.0, 57)])
+    origins = np.tile([0.0, 0.0, EARTH_RADIUS_M + 3000.0], (len(dirs), 1))
+    sun = enu_from_azimuth_zenith(200.0, 40.0)
+    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun,
+                                                      settings=MarchSettings(backend=backend))
+    b = np.sum(origins * dirs, axis=1)
+    crossing = -b - np.sqrt(b * b - np.sum(origins ** 2, axis=1) + (EARTH_RADIUS_M + terrain) ** 2)
+    seg = ray_segments(origins, dirs, grid_geometry(volume))
+    assert np.all(seg["bounds"][:, 2] > seg["bounds"][:, 1]) and seg["ends_on_ground"].all(), \
+        "every ray must leave the grid and end on the sea-level sphere"
+    assert out["surface"].all()
+    np.testing.assert_allclose(out["distance"], crossing, atol=2.0)  # 0.7 m: the bisection's 2^-10 of a step
+    for k in range(0, len(dirs), 3):
+        ref = reference_trace_ray(origins[k], dirs[k], volume, transmittance, gas, sun, phase["p_rayleigh"][k],
+                                  phase["p_aerosol"][k], step_m=20.0, p_stratospheric=phase["p_stratospheric"][k])
+        assert ref["surface"]
+        np.testing.assert_allclose(out["tau_clear"][k], ref["tau_clear"], rtol=0.005)  # 0.16 %; 2.6 % without
+        np.testing.assert_allclose(out["radiance"][k], ref["radiance"], rtol=0.005)
 
 
 def _clear_segments():

@@ -1138,6 +1138,10 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
                                clear_step_edges(start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1],
                                                 settings.n_after, consts, steps=steps),
                                settings.n_after, False, *args, steps=steps)
+    # one more step, of zero length at each ray's end: where that end lies on the sea-level sphere, below the terrain
+    # (which beyond the grid keeps its edge's heights), its sample detects a crossing in the far half of the ray's
+    # last step, which no later step would (docs/performance.md, section 54); elsewhere it adds nothing
+    state = _march_segment(state, start, direction, jnp.stack([bounds[:, 2], bounds[:, 2]]), 1, False, *args)
     state["s_hit"] = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
     state = _terminal_step(state, start, direction, *args)
     state["tau_species"] = state["tau_species"] @ consts["species_matrix"]  # all of SPECIES, 0 where not packed
@@ -1757,7 +1761,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         ``tau_clear`` (n, 3); ``surface`` (n,) bool; ``distance`` (n,) [m] to the ground or NaN; ``steps`` (n,)
         the volume samples each ray took: as marched by the per-ray kernels ("numba", "cuda": refined halves
         included, none after the ground, :func:`swim.rt.march_cpu.march_rays`), the lockstep count
-        ``n_before + n_grid + n_after`` for the JAX kernel, whose rays all take every step of their chunk.
+        ``n_before + n_grid + n_after + 1`` for the JAX kernel, whose rays all take every step of their chunk.
 
     Raises
     ------
@@ -1789,7 +1793,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         if not np.any(length > 0)})
     n = len(origins)
     chunk = batch = settings.resolved_chunk()
-    steps = settings.n_before + settings.n_grid + settings.n_after
+    steps = settings.n_before + settings.n_grid + settings.n_after + 1  # the end step (_march_rays)
     backend = settings.resolved_backend()
     if backend == "numba":
         # chunks of equal size (at most the chunk setting), as many as a multiple of the cores: a small batch (a small

@@ -542,6 +542,12 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, sp
     _invert_cdf(s0, length, n_steps, n_probe, cdf, edges)
 
 
+@_helper_jit(inline="always")
+def _descending_at(st0, st1, st2, d0, d1, d2, s, radius):
+    """Whether a ray comes closer to the earth's centre at distance s [m] along it."""
+    return (st0 + s * d0) * d0 + (st1 + s * d1) * d1 + (st2 + s * d2 + radius) * d2 < 0
+
+
 @_helper_jit()
 def _lowest_along(st0, st1, st2, d0, d1, d2, radius, end):
     """:func:`swim.rt.march.lowest_point` for one ray: the distance [m] along it, within [0, end], of its point
@@ -564,9 +570,9 @@ def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
     if beta_gas.shape[0] <= GAS_COLUMN_ROW:
         return n_after
     radius = p[_P_RADIUS]
-    e0, e1, e2 = st0 + s_exit * d0, st1 + s_exit * d1, st2 + s_exit * d2
-    if e0 * d0 + e1 * d1 + (e2 + radius) * d2 < 0:  # descending where it leaves: it may end on the ground
+    if _descending_at(st0, st1, st2, d0, d1, d2, s_exit, radius):  # where it leaves: it may end on the ground
         return n_after
+    e0, e1, e2 = st0 + s_exit * d0, st1 + s_exit * d1, st2 + s_exit * d2
     s_low = _lowest_along(st0, st1, st2, d0, d1, d2, radius, s_exit)
     above_exit = _column_above(beta_gas, _radius_and_height(e0, e1, e2, radius)[1] / p[_P_DH])
     above_low = _column_above(beta_gas, _radius_and_height(st0 + s_low * d0, st1 + s_low * d1, st2 + s_low * d2,
@@ -594,6 +600,9 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
         edges[m] = s0 + frac * length
 
 
+#: Depth [m] under the terrain below which a ray's end on the sea-level sphere takes the zero-length end step
+#: (:func:`_march_ray_range`): far above float64 round-off at the earth's radius, far below any height that matters.
+END_STEP_GAP = 1e-3
 #: Lanes of the step's wavelength arithmetic: the three wavelengths and one lane of padding, whose values are
 #: computed and never read. Four lanes of float64 fill a 256-bit vector register (section 48 of docs/performance.md).
 LANES = 4
@@ -785,6 +794,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         s_hit = bounds[r, 2]
         for segment in range(4):
             terminal = segment == 3
+            end_step = False
             if terminal:
                 # swim.rt.march._terminal_step: from the start of the step in which the ray met the ground (whose
                 # sample may lie far inside the terrain, and which added nothing) to the refined crossing, or
@@ -809,18 +819,32 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             else:
                 n_steps, s0, length, in_grid = n_after, bounds[r, 1], bounds[r, 2] - bounds[r, 1], False
                 n_steps = _after_steps(st0, st1, st2, d0, d1, d2, s0, n_after, p, beta_gas)
+                # a ray still alive that ends on the sea-level sphere under the terrain (which beyond the grid keeps
+                # its edge's heights) takes one more step, of zero length at that end: its sample detects a crossing
+                # in the far half of the ray's last step, which no later step would (docs/performance.md, 54.);
+                # not where the terrain is at sea level, whose crossing is that end (a gap of ~1e-9 m either way)
+                end_step = (_descending_at(st0, st1, st2, d0, d1, d2, bounds[r, 2], p[_P_RADIUS])
+                            and _gap_along(bounds[r, 2], st0, st1, st2, d0, d1, d2, p, coef, terrain) < -END_STEP_GAP)
             if terminal:
                 pass  # no placed steps: one or two pending intervals (below), sampled as refined halves are
-            elif n_steps == 0:
+            elif n_steps == 0 and not end_step:
                 continue
             elif in_grid:
                 n_steps = _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
                                           empty_weight, probe_spacing, cell_slack, empty_steps, empty_cells_per_step,
                                           cdf, edges, probe_at)
-            else:
+            elif n_steps > 0:
                 _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, spectra,
                              n_clear_probe, clear_power, clear_floor, cdf, edges)
+            # a segment of zero length takes one step there (after the grid: the zero-length end step)
             taken = n_steps if length > 0 or terminal else 1
+            if end_step:
+                if n_steps > 0 and length > 0:
+                    edges[_ix(n_steps + 1)] = edges[_ix(n_steps)]
+                    taken = n_steps + 1
+                else:
+                    edges[0] = edges[1] = s0 + max(length, 0.0)
+                    taken = 1
             m = 0
             block_first = block_stop = 0  # the steps whose geometry is in probe_at (_step_geometry)
             pending = 0
@@ -1174,11 +1198,12 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
 def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels,
                n_u):
     """Sizes of one ray's work arrays (:func:`work_arrays`; a CUDA thread's local arrays,
-    :func:`swim.rt.march_cuda.cuda_march_kernel`): step edges, probe densities, refinement slots, the saved state,
-    species and volume channels, and the heights of the multiple-scattering profiles (``n_u``:
-    ``ms_profile.shape[2]``). ``n_species``: the packed species (:func:`swim.rt.march.packed_species`), none in a
-    cloudless scene, whose species array keeps one element (a local array of size 0 is not a CUDA array)."""
-    return (max(n_before, n_grid, n_after) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
+    :func:`swim.rt.march_cuda.cuda_march_kernel`): step edges (one more after the grid, for the zero-length step at
+    the end of a ray that ends on the sea-level sphere), probe densities, refinement slots, the saved state, species
+    and volume channels, and the heights of the multiple-scattering profiles (``n_u``: ``ms_profile.shape[2]``).
+    ``n_species``: the packed species (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species
+    array keeps one element (a local array of size 0 is not a CUDA array)."""
+    return (max(n_before, n_grid, n_after + 1) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
             19 + n_species, max(n_species, 1), n_channels, n_u)
 
 
