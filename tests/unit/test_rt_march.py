@@ -872,7 +872,7 @@ def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean():
 @pytest.mark.parametrize("backend", ["jax", "numba"])
 def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
     """Beyond the grid the terrain keeps its edge heights, so a ray that leaves the grid sideways on its way down meets
-    the ground above the sea-level sphere, where its segment after the grid ends. No later step finds a crossing in
+    the ground before its segment after the grid ends (on the sea-level sphere). No later step finds a crossing in
     the far half of that segment's last step: the ray's zero-length end step does (docs/performance.md, section 54).
     Without it all 57 of these rays ended on the sea-level sphere, up to 1.2 km too far, with the air under the
     terrain in their path (a view from orbit 8 deg off nadir had 2 % errors and stripes beyond the grid's far edge).
