@@ -57,7 +57,9 @@ ORBIT_FOV_DEG = 30.0
 _LAT0, _LON0, _ = SYNTHETIC_REFERENCE
 ORBIT_OBLIQUE = {"lat": _LAT0 - 8.0, "lon": _LON0, "height": 700e3, "look_at": [_LAT0, _LON0, 0.0]}
 ORBIT_OBLIQUE_FOV_DEG = 12.0
-ADAPTIVE = {"tolerance": 0.01, "coarse_spacing": 4}  # swim.rt.image_sampling.AdaptiveSampling() defaults
+# swim.rt.image_sampling.AdaptiveSampling() defaults (since session 44; before: tolerance 0.01, coarse spacing 4, no
+# edge tests, docs/performance.md, section 56)
+ADAPTIVE = {"tolerance": 0.0085, "coarse_spacing": 8, "edge_test_size": 8}
 
 CASES = {
     "katrina_allsky": {"kind": "render", "scene": "katrina", "camera": "allsky", "image": (1024, 1024), "view": KATRINA_ALLSKY},

@@ -42,10 +42,26 @@ def exact(function, shape):
     return function(y, x)
 
 
+def expected_first_pixels(shape, spacing, edge_test_size):
+    """The pixels that the first batch traces, from the rule in the module's docstring: the lattice, the centre of
+    each cell with a pixel between its corners, and the midpoints of the edges of cells at least ``edge_test_size``
+    pixels high or wide."""
+    rows, cols = (np.unique(np.append(np.arange(0, n, spacing), n - 1)) for n in shape)
+    pixels = {(int(r), int(c)) for r in rows for c in cols}
+    for y0, y1 in zip(rows[:-1], rows[1:]):
+        for x0, x1 in zip(cols[:-1], cols[1:]):
+            yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
+            if y1 - y0 > 1 or x1 - x0 > 1:
+                pixels.add((int(yc), int(xc)))
+            if edge_test_size and max(y1 - y0, x1 - x0) >= edge_test_size:
+                pixels |= {(int(y0), int(xc)), (int(y1), int(xc)), (int(yc), int(x0)), (int(yc), int(x1))}
+    return {y * shape[1] + x for y, x in pixels}
+
+
 @pytest.mark.parametrize("shape", [(1, 7), (2, 2), (3, 3), (5, 17), (33, 33), (40, 61), (64, 64)])
-@pytest.mark.parametrize("spacing", [2, 4, 8])
-def test_bilinear_image_is_reproduced_exactly_over_shapes(shape, spacing):
-    sampling = AdaptiveSampling(coarse_spacing=spacing)
+@pytest.mark.parametrize("spacing, edge_test_size", [(2, 0), (4, 0), (8, 0), (4, 4), (8, 8), (16, 8)])
+def test_bilinear_image_is_reproduced_exactly_over_shapes(shape, spacing, edge_test_size):
+    sampling = AdaptiveSampling(coarse_spacing=spacing, edge_test_size=edge_test_size)
     values, traced = sample_image_adaptive(make_trace(bilinear_function, shape), np.ones(shape, bool), sampling)
     radiance, tau, _ = exact(bilinear_function, shape)
     np.testing.assert_allclose(values["radiance"], radiance, rtol=1e-12, atol=1e-12)
@@ -54,12 +70,49 @@ def test_bilinear_image_is_reproduced_exactly_over_shapes(shape, spacing):
     # integer outputs (march steps) count the traced pixels only
     assert np.array_equal(values["steps"] > 0, traced.reshape(-1))
     if min(shape) > spacing:
-        # every cell is smooth: the lattice and the centre of each cell larger than 2 x 2 pixels are traced
-        rows, cols = (np.unique(np.append(np.arange(0, n, spacing), n - 1)) for n in shape)
-        h, w = np.meshgrid(np.diff(rows), np.diff(cols), indexing="ij")
-        assert traced.sum() == rows.size * cols.size + np.count_nonzero((h > 1) | (w > 1))
+        # every cell is smooth: the lattice and each cell's tested pixels are traced, and nothing else
+        assert set(np.flatnonzero(traced)) == expected_first_pixels(shape, spacing, edge_test_size)
     if min(shape) >= 4 * spacing:
-        assert traced.sum() < 1.5 * 2 / spacing**2 * traced.size
+        assert traced.sum() < 1.5 * (4 if edge_test_size else 2) / spacing**2 * traced.size
+
+
+@pytest.mark.parametrize("shape", [(65, 65), (64, 97)])
+def test_a_smooth_image_is_traced_on_the_lattice_of_half_the_spacing_with_edge_tests(shape):
+    """With edge tests in the coarse cells, a smooth image's traced pixels are the lattice of every 4th row and
+    column (the coarse lattice of 8, its cells' centres and their edges' midpoints) over the whole cells of 8: 1/16
+    of the pixels, where centre tests alone at a spacing of 4 trace 1/8."""
+    values, traced = sample_image_adaptive(make_trace(bilinear_function, shape), np.ones(shape, bool),
+                                           AdaptiveSampling(coarse_spacing=8, edge_test_size=8))
+    on_lattice = np.zeros(shape, bool)
+    on_lattice[::4, ::4] = True
+    full = (slice(0, (shape[0] - 1) // 8 * 8 + 1), slice(0, (shape[1] - 1) // 8 * 8 + 1))  # the whole cells of 8
+    assert np.array_equal(traced[full], on_lattice[full])
+    assert traced.sum() < 1.3 / 16 * traced.size
+    old = sample_image_adaptive(make_trace(bilinear_function, shape), np.ones(shape, bool),
+                                AdaptiveSampling(coarse_spacing=4, edge_test_size=0))[1]
+    assert traced.sum() < 0.6 * old.sum()
+    np.testing.assert_allclose(values["radiance"], exact(bilinear_function, shape)[0], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("spot", [(0, 4), (8, 4), (4, 0), (4, 8)])
+def test_a_feature_at_an_edge_midpoint_is_found_by_the_edge_test_and_missed_without(spot):
+    """A one-pixel spot at the midpoint of an edge of the first 8-pixel cell touches neither the cell's corners nor
+    its centre: centre tests alone interpolate it away, edge tests find it and trace it."""
+    def spot_image(y, x):
+        on = (y == spot[0]) & (x == spot[1])
+        radiance = np.where(on[:, None], 1.0, 0.2) * np.ones((1, 3))
+        return radiance, np.zeros(y.shape), np.zeros(y.shape, bool)
+
+    shape = (17, 17)
+    radiance, _, _ = exact(spot_image, shape)
+    at = spot[0] * shape[1] + spot[1]
+    found, traced = sample_image_adaptive(make_trace(spot_image, shape), np.ones(shape, bool),
+                                          AdaptiveSampling(coarse_spacing=8, edge_test_size=8))
+    np.testing.assert_allclose(found["radiance"], radiance, rtol=1e-12, atol=0)
+    assert traced.reshape(-1)[at]
+    missed, traced = sample_image_adaptive(make_trace(spot_image, shape), np.ones(shape, bool),
+                                           AdaptiveSampling(coarse_spacing=8, edge_test_size=0))
+    assert not traced.reshape(-1)[at] and np.allclose(missed["radiance"][at], 0.2)
 
 
 @pytest.mark.parametrize("spacing", [4, 8])
@@ -194,17 +247,16 @@ def test_masks_without_valid_lattice_pixels(pattern):
 def test_each_cells_centre_is_traced_with_the_batch_before_its_test():
     # the lattice with its cells' centres, then each level's edge midpoints with the children's centres: three
     # batches for a spacing of 4 (the levels 4 and 2), and no pixel asked for twice
-    shape, calls = (40, 61), []
-    values, traced = sample_image_adaptive(make_trace(disk_function, shape, calls), np.ones(shape, bool),
-                                           AdaptiveSampling(coarse_spacing=4))
-    assert len(calls) == 3
-    asked = np.concatenate(calls)
-    assert np.unique(asked).size == asked.size and np.array_equal(np.sort(asked), np.flatnonzero(traced))
-    rows, cols = (np.unique(np.append(np.arange(0, n, 4), n - 1)) for n in shape)
-    lattice = (rows[:, None] * shape[1] + cols[None, :]).reshape(-1)
-    yc, xc = (rows[:-1] + rows[1:]) // 2, (cols[:-1] + cols[1:]) // 2
-    first_centres = (yc[:, None] * shape[1] + xc[None, :]).reshape(-1)
-    assert set(calls[0]) == set(lattice) | set(first_centres)
+    # (for a spacing of 8 with edge tests: the levels 8, 4 and 2)
+    shape = (40, 61)
+    for spacing, edge_test_size, batches in ((4, 0, 3), (8, 8, 4)):
+        calls = []
+        values, traced = sample_image_adaptive(make_trace(disk_function, shape, calls), np.ones(shape, bool),
+                                               AdaptiveSampling(coarse_spacing=spacing, edge_test_size=edge_test_size))
+        assert len(calls) == batches
+        asked = np.concatenate(calls)
+        assert np.unique(asked).size == asked.size and np.array_equal(np.sort(asked), np.flatnonzero(traced))
+        assert set(calls[0]) == expected_first_pixels(shape, spacing, edge_test_size)
 
 
 def test_progress_reaches_all_valid_pixels():
@@ -218,7 +270,8 @@ def test_progress_reaches_all_valid_pixels():
 
 @pytest.mark.parametrize("kwargs", [{"tolerance": 0.0}, {"tolerance": -0.1}, {"tolerance": float("nan")},
                                     {"coarse_spacing": 1}, {"coarse_spacing": 2.5}, {"radiance_floor": -1.0},
-                                    {"tau_floor": float("inf")}, {"tau_tolerance": 0.0}, {"tau_tolerance": -1.0}])
+                                    {"tau_floor": float("inf")}, {"tau_tolerance": 0.0}, {"tau_tolerance": -1.0},
+                                    {"edge_test_size": -1}, {"edge_test_size": 8.0}])
 def test_bad_settings_raise_naming_the_field(kwargs):
     with pytest.raises(SwimInputError, match=f"AdaptiveSampling.{next(iter(kwargs))}"):
         AdaptiveSampling(**kwargs)

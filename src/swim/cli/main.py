@@ -118,9 +118,10 @@ def render(
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),
     adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
-                                  "the image is not smooth, interpolating the rest (big images 2-4x faster; "
+                                  "the image is not smooth, interpolating the rest (big images 3-6x faster; "
                                   "docs/rendering.md)."),
-    tolerance: float = typer.Option(0.01, help="Relative radiance error allowed where --adaptive interpolates [-]."),
+    tolerance: Optional[float] = typer.Option(None, help="Relative radiance error allowed where --adaptive "
+                                              "interpolates [-] (default: AdaptiveSampling().tolerance, 0.0085)."),
     tau_tolerance: Optional[float] = typer.Option(None, "--tau-tolerance",
                                                   help="Relative error of the line-of-sight hydrometeor optical depth "
                                                        "allowed where --adaptive interpolates [-] (default: "
@@ -196,8 +197,9 @@ def render(
             background = AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
         else:
             background = AerosolBackground(type_name=aerosol, **strat)
-        sampling = AdaptiveSampling(tolerance=tolerance, **({} if tau_tolerance is None else
-                                                            {"tau_tolerance": tau_tolerance})) if adaptive else None
+        given = {name: value for name, value in (("tolerance", tolerance), ("tau_tolerance", tau_tolerance))
+                 if value is not None}
+        sampling = AdaptiveSampling(**given) if adaptive else None
         target = None
         if look_at is not None:
             try:
