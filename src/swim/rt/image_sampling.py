@@ -264,11 +264,13 @@ def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
     tests = [(yc * nx + xc, ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy))]
     edged = _edge_tested(cells, sampling.edge_test_size)
     if edged.any():
-        zero, one = np.zeros(len(cells)), np.ones(len(cells))
+        zero = np.zeros(len(cells))
+        edges = ((y0 * nx + xc, (1 - wx, wx, zero, zero)), (y1 * nx + xc, (zero, zero, 1 - wx, wx)),
+                 (yc * nx + x0, (1 - wy, zero, wy, zero)), (yc * nx + x1, (zero, 1 - wy, zero, wy)))
+        centre, centre_weights = tests[0]
         # a cell without edge tests tests its centre again in their place (the same result)
-        tests += [(np.where(edged, pixel, tests[0][0]), tuple(np.where(edged, w, c) for w, c in zip(weights, tests[0][1])))
-                  for pixel, weights in ((y0 * nx + xc, (1 - wx, wx, zero, zero)), (y1 * nx + xc, (zero, zero, 1 - wx, wx)),
-                                         (yc * nx + x0, (1 - wy, zero, wy, zero)), (yc * nx + x1, (zero, 1 - wy, zero, wy)))]
+        tests += [(np.where(edged, pixel, centre),
+                   tuple(np.where(edged, w, wc) for w, wc in zip(weights, centre_weights))) for pixel, weights in edges]
     centre = tests[0][0]
     ok = np.ones(len(cells), bool)
     for p in corners + [pixel for pixel, _ in tests]:
