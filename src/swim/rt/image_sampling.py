@@ -60,7 +60,7 @@ class AdaptiveSampling:
         Cells at least this many pixels high or wide [pixels] test the midpoints of their four edges too, each
         against the linear interpolation of its edge's corners (0: centres only, as before session 44). A cell
         that splits traces those midpoints anyway, so the tests cost rays only where cells are smooth; with the
-        default coarse spacing and tolerance they trace 10-27 % fewer rays than a spacing of 4 with centre tests
+        default coarse spacing and tolerance they trace 10-28 % fewer rays than a spacing of 4 with centre tests
         alone at a 1 % tolerance, with a smaller 99.9th percentile of the interpolation's error
         (docs/performance.md, section 56). Default 8.
     """
