@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_suite  # noqa: E402  (benchmarks/ on the path first)
-from bench_settings import _value  # noqa: E402
+import bench_settings  # noqa: E402
 
 DEFAULT_CASES = ("synthetic_allsky", "katrina_allsky", "rico_allsky")
 #: The variants run when none is given: the defaults and the sampling before session 44.
@@ -48,23 +48,17 @@ CLOUD_TAU = 0.3
 
 
 def parse_variant(text):
-    """``"coarse_spacing=8,tolerance=0.01"`` -> AdaptiveSampling overrides (dict).
+    """``"coarse_spacing=8,tolerance=0.01"`` -> AdaptiveSampling overrides (dict): ``bench_settings.parse_variant``
+    with every item taken as an ``adaptive.`` one.
 
     Raises
     ------
     SystemExit
         If an item is not ``name=value`` or names no field of AdaptiveSampling.
     """
-    from swim.rt.image_sampling import AdaptiveSampling
-
-    names = set(AdaptiveSampling.__dataclass_fields__)
-    out = {}
-    for item in filter(None, (part.strip() for part in text.split(","))):
-        name, sep, value = item.partition("=")
-        if not sep or name not in names:
-            raise SystemExit(f"bad variant item {item!r}: expected name=value with name one of {sorted(names)}")
-        out[name] = _value(value)
-    return out
+    items = filter(None, (part.strip() for part in text.split(",")))
+    _, sampling = bench_settings.parse_variant(",".join(f"adaptive.{item}" for item in items))
+    return sampling or {}
 
 
 def full_image(case, size, data, cache: Path):

@@ -199,8 +199,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         y0, y1, x0, x1 = cells.T
         yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
         edged = _edge_tested(cells, sampling.edge_test_size)
-        y0, y1, x0, x1, ye, xe = y0[edged], y1[edged], x0[edged], x1[edged], yc[edged], xc[edged]
-        return np.concatenate([yc * nx + xc, y0 * nx + xe, y1 * nx + xe, ye * nx + x0, ye * nx + x1])
+        return np.concatenate([yc * nx + xc, *_edge_midpoints(*(a[edged] for a in (y0, y1, x0, x1, yc, xc)), nx)])
 
     def inner(cells):  # the cells with a pixel between their corners (one of at most 2 x 2 pixels has only corners)
         return cells[(cells[:, 1] - cells[:, 0] > 1) | (cells[:, 3] - cells[:, 2] > 1)]
@@ -230,7 +229,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
             np.stack([yc, y1, x0, xc], axis=1), np.stack([yc, y1, xc, x1], axis=1)])
         # A cell one pixel high (or wide) splits only across: drop the empty halves.
         cells = inner(children[(children[:, 1] > children[:, 0]) & (children[:, 3] > children[:, 2])])
-        run(np.concatenate([y0 * nx + xc, y1 * nx + xc, yc * nx + x0, yc * nx + x1, tested(cells)]))
+        run(np.concatenate([*_edge_midpoints(y0, y1, x0, x1, yc, xc, nx), tested(cells)]))
     _fill(values, traced, valid_flat, smooth_levels, nx, max_threads)
     return _finish(values, traced, ny, nx, trace), traced.reshape(ny, nx)
 
@@ -240,6 +239,12 @@ def _finish(values, traced, ny, nx, trace):
         values = {key: np.zeros((ny * nx,) + np.asarray(v).shape[1:], np.asarray(v).dtype)
                   for key, v in trace(np.zeros(0, np.int64)).items()}
     return values
+
+
+def _edge_midpoints(y0, y1, x0, x1, yc, xc, nx):
+    """Flat indices of the midpoints of cells' top, bottom, left and right edges (each (m,)), from their corner rows
+    and columns and their centre's (m,)."""
+    return y0 * nx + xc, y1 * nx + xc, yc * nx + x0, yc * nx + x1
 
 
 def _edge_tested(cells, size):
@@ -265,8 +270,9 @@ def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
     edged = _edge_tested(cells, sampling.edge_test_size)
     if edged.any():
         zero = np.zeros(len(cells))
-        edges = ((y0 * nx + xc, (1 - wx, wx, zero, zero)), (y1 * nx + xc, (zero, zero, 1 - wx, wx)),
-                 (yc * nx + x0, (1 - wy, zero, wy, zero)), (yc * nx + x1, (zero, 1 - wy, zero, wy)))
+        # the corners' weights at the top, bottom, left and right edges' midpoints
+        edges = zip(_edge_midpoints(y0, y1, x0, x1, yc, xc, nx), ((1 - wx, wx, zero, zero), (zero, zero, 1 - wx, wx),
+                                                                   (1 - wy, zero, wy, zero), (zero, 1 - wy, zero, wy)))
         centre, centre_weights = tests[0]
         # a cell without edge tests tests its centre again in their place (the same result)
         tests += [(np.where(edged, pixel, centre),
