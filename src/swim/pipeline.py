@@ -341,7 +341,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     xarray.Dataset
         ``radiance`` (wavelength, y, x) [1]: solar-relative spectral radiance L' (Eq. 2) at 615/546/450 nm;
         ``rgb`` (y, x, channel) uint8 sRGB; ``view_azimuth``, ``view_zenith`` (y, x) [deg] in the observer's
-        frame; ``tau_hydrometeor`` (y, x); ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``;
+        frame; ``tau_hydrometeor`` (y, x) [1], the hydrometeor optical depth along the line of sight (``stop_tau``
+        of :class:`MarchSettings`, 50, where a ray that does not look down stops in opaque cloud: a lower bound);
+        ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``;
         attributes with the sun, observer, time and camera, ``traced_pixels`` (pixels whose ray was
         marched), ``march_samples`` (the volume samples the march took: per ray as marched by the "numba" and
         "cuda" kernels, the lockstep count of every ray's steps for "jax"; :func:`swim.rt.march.trace_rays`) and
@@ -550,7 +552,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "radiance_cloud": (dims3, planes.pop("radiance_cloud").astype(np.float32, copy=False), {"units": "1", "long_name": "hydrometeor part of L'"}),
         "radiance_surface": (dims3, planes.pop("radiance_surface").astype(np.float32, copy=False), {"units": "1", "long_name": "ground part of L'"}),
         "tau_hydrometeor": (("y", "x"), planes.pop("tau_hydrometeor")[0].astype(np.float32, copy=False), {
-            "units": "1", "long_name": "hydrometeor optical depth along the line of sight"}),
+            "units": "1", "long_name": "hydrometeor optical depth along the line of sight",
+            "comment": f"rays that do not look down stop where it passes {settings.stop_tau:g} (opaque): there it is "
+                       f"{settings.stop_tau:g}, a lower bound" if settings.stop_tau else "the whole line of sight"}),
         "rgb": (("y", "x", "channel"), rgb, {"long_name": "true-colour image, 8-bit sRGB"}),
         "view_azimuth": (("y", "x"), view_az.astype(np.float32), {"units": "degree", "long_name": "view azimuth, clockwise from north"}),
         "view_zenith": (("y", "x"), view_zen.astype(np.float32), {"units": "degree", "long_name": "view zenith angle"}),

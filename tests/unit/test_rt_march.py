@@ -86,14 +86,24 @@ def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume, settings, 
         assert gas.aerosol_class_aod.size >= 3, "the plume must give several column classes"
     assert out["tau_hydrometeor"].max() > 1.0, "the test rays must cross cloud"
     assert out["surface"].sum() >= 3, "some rays must reach the ground"
+    opaque_rays = 0
     for n in range(len(dirs)):
         ref = reference_trace_ray(origins[n], dirs[n], volume, transmittance, gas, sun,
                                   phase["p_rayleigh"][n], phase["p_aerosol"][n], step_m=20.0,
                                   p_stratospheric=phase["p_stratospheric"][n])
+        # the reference marches the whole line of sight; a ray that does not look down stops where its optical
+        # depth passes stop_tau (MarchSettings.stop_tau), with the same radiance and no ground seen behind
+        if dirs[n, 2] >= 0 and ref["tau_hydrometeor"] > 1.1 * settings.stop_tau:
+            opaque_rays += 1
+            assert out["tau_hydrometeor"][n] == settings.stop_tau, f"ray {n}"
+            assert not out["surface"][n], f"ray {n}"
+            np.testing.assert_allclose(out["radiance"][n], ref["radiance"], rtol=0.04, atol=2e-4)
+            continue
         assert out["surface"][n] == ref["surface"], f"ray {n}"
         assert out["tau_hydrometeor"][n] == pytest.approx(ref["tau_hydrometeor"], rel=0.03, abs=1e-3)
         np.testing.assert_allclose(out["tau_clear"][n], ref["tau_clear"], rtol=0.03)
         np.testing.assert_allclose(out["radiance"][n], ref["radiance"], rtol=0.04, atol=2e-4)
+    assert opaque_rays >= 1, "a ray must stop in opaque cloud"
 
 
 @pytest.mark.parametrize("backend", ["jax", "numba"])
@@ -219,7 +229,9 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
 
 @pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("chunk", True), ("chunk", 4096.0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0), ("empty_steps", -1), ("empty_steps", 2.5),
                                           ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2"),
-                                          ("probe_spacing", 1e-20), ("tau_refine", -0.5), ("tau_refine", float("inf"))])
+                                          ("probe_spacing", 1e-20), ("tau_refine", -0.5), ("tau_refine", float("inf")),
+                                          ("stop_tau", 10.0), ("stop_tau", -50.0), ("stop_tau", float("inf")),
+                                          ("stop_tau", True), ("stop_tau", "50")])
 def test_march_settings_reject_bad_counts(field, value):
     with pytest.raises(SwimInputError, match=f"MarchSettings.{field}"):
         MarchSettings(**{field: value})
@@ -372,13 +384,42 @@ def test_numba_set_up_matches_the_jax_set_up(plume):
     assert np.all(untouched == -1.0) and np.array_equal(lower[same], lower_jax[same])
 
 
+@pytest.mark.parametrize("backend", ["jax", "numba"])
+def test_rays_that_do_not_look_down_stop_in_opaque_cloud_with_the_same_radiance(backend):
+    """MarchSettings.stop_tau: a ray that does not look down stops where its hydrometeor optical depth passes 50.
+    Against the same rays marched to their ends (``stop_tau=0``): every radiance the same (what lies behind
+    reaches the observer through e^-50, and Eq. 14's c1 = e^-(tau/10)^2 leaves the cloud radiance seen from below
+    independent of tau), the optical depth 50 where it was larger, no ground seen behind it, fewer samples; rays
+    that look down unchanged (their cloud-top reflection, Eqs. 24-26, needs the whole optical depth)."""
+    origins, dirs = _random_rays(600, seed=3)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    scene = _tiny_scene()
+    scene["cloud_liquid_content"] = scene["cloud_liquid_content"] * 8.0  # more rays through opaque cloud
+    stop, full = (_trace(scene, origins, dirs, sun, settings=MarchSettings(stop_tau=tau, backend=backend))[0]
+                  for tau in (50.0, 0.0))
+    up = dirs[:, 2] >= 0
+    opaque = up & (full["tau_hydrometeor"] > 50.0 * 1.05)
+    assert opaque.sum() >= 10 and (up & ~opaque).sum() >= 50, "rays must cross opaque cloud and miss it"
+    for key in ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface"):
+        np.testing.assert_allclose(stop[key], full[key], rtol=1e-5, atol=1e-9, err_msg=key)
+    np.testing.assert_array_equal(stop["tau_hydrometeor"][opaque], 50.0)
+    assert np.all(stop["tau_hydrometeor"][up] <= 50.0)
+    assert not stop["surface"][opaque].any()
+    for key in ("tau_hydrometeor", "surface"):
+        np.testing.assert_array_equal(stop[key][~up], full[key][~up], err_msg=key)
+    if backend == "numba":  # the lockstep kernel takes every step of every ray
+        assert np.all(stop["steps"][opaque] < full["steps"][opaque])
+        np.testing.assert_array_equal(stop["steps"][~opaque], full["steps"][~opaque])
+
+
 def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     """``steps``: the numba kernel counts the samples each ray takes, the lockstep JAX kernel every step of every
     ray. Without refinement and without the empty-space limit a ray that never meets the ground takes every step
     of its segments (one for a segment of zero length); one that meets it stops there (and takes its terminal
     steps), and one that ends on the sea-level sphere takes one more, of zero length there (the end step). Refined
     halves add samples, and the empty-space limit takes samples off rays through clear air. A ray that rises out of
-    the grid takes its own count of clear-air steps after it (after_step_counts)."""
+    the grid takes its own count of clear-air steps after it (after_step_counts). Rays do not stop in opaque cloud
+    here (``stop_tau=0``)."""
     import jax.numpy as jnp
 
     from swim.rt.march import after_step_counts
@@ -386,7 +427,7 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     origins, dirs = _random_rays(300)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     scene = _tiny_scene()
-    plain = MarchSettings(tau_refine=0.0, empty_steps=0)
+    plain = MarchSettings(tau_refine=0.0, empty_steps=0, stop_tau=0)
     out = {backend: _trace(scene, origins, dirs, sun, settings=replace(plain, backend=backend))
            for backend in ("jax", "numba")}
     (jax_out, _), (numba_out, (volume, transmittance, gas, _)) = out["jax"], out["numba"]

@@ -115,6 +115,10 @@ def render(
                                                     "change of it at a cloud face, near the observer: thicker "
                                                     "steps and faces are halved (default: "
                                                     "MarchSettings().tau_refine, 0.25; 0 turns it off)."),
+    stop_tau: Optional[float] = typer.Option(None, "--stop-tau",
+                                             help="Hydrometeor optical depth at which rays that do not look down "
+                                                  "stop: opaque, the radiance unchanged (default: "
+                                                  "MarchSettings().stop_tau, 50; 0 marches every ray to its end)."),
     lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                                     "columns the camera can see (big grids; docs/rendering.md)."),
     adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
@@ -211,7 +215,8 @@ def render(
                                  **({} if probes is None else {"n_probe": probes}),
                                  **({} if empty_steps is None else {"empty_steps": empty_steps}),
                                  **({} if probe_spacing is None else {"probe_spacing": probe_spacing}),
-                                 **({} if tau_refine is None else {"tau_refine": tau_refine}))
+                                 **({} if tau_refine is None else {"tau_refine": tau_refine}),
+                                 **({} if stop_tau is None else {"stop_tau": stop_tau}))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                       settings=settings, white_level=white_level, sampling=sampling)

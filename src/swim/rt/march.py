@@ -131,6 +131,14 @@ class MarchSettings:
         cloud face, recursively (:func:`_march_grid_refined`), so that the face is sampled where its light comes
         from. 0 turns this off. Default 0.25: against 0.5 the 99th percentile of a 1024² all-sky's error falls
         from 2.3 to 1.8 % for ~1-3 % more samples (docs/performance.md, sections 44 and 46).
+    stop_tau : float
+        Hydrometeor optical depth [-] along a ray at which a ray that does not look down (view zenith <= 90 deg)
+        stops: beyond it nothing reaches the observer (e^-50 ~ 2e-22) and the cloud radiance of Eqs. 12-23 seen
+        from below no longer depends on the optical depth (Eq. 14's c1 = e^-(tau/10)^2 < 1e-10 at 50), so the
+        radiance is the same as if the ray went on. Such a ray's ``tau_hydrometeor`` is ``stop_tau`` (a lower bound
+        of the line of sight's: "opaque"), and it does not see the ground behind. Rays that look down keep going
+        (the cloud-top reflection of Eqs. 24-26 depends on the whole optical depth). 0 turns it off; otherwise at
+        least :data:`STOP_TAU_MIN`. Default 50 (docs/rendering.md, "Opaque rays"; docs/performance.md, section 57).
     chunk : int or None
         Rays per kernel call; None (the default): :data:`CPU_CHUNK` on a CPU, :data:`GPU_CHUNK` when the JAX
         kernel runs on a GPU (:meth:`resolved_chunk`). Small chunks keep the kernel's working set in the CPU
@@ -161,6 +169,7 @@ class MarchSettings:
     n_probe: int = 64
     probe_spacing: float = 2.0
     tau_refine: float = 0.25
+    stop_tau: float = 50.0
     chunk: int | None = None
     multiple_scattering: bool = True
     surface: str = "brdf"
@@ -179,6 +188,11 @@ class MarchSettings:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
                     or not np.isfinite(value) or value < 0 or 0 < value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be {what}, got {value!r}")
+        value = self.stop_tau
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(value) or not (value == 0 or value >= STOP_TAU_MIN):
+            raise SwimInputError(f"MarchSettings.stop_tau must be 0 (off) or a finite optical depth >= "
+                                 f"{STOP_TAU_MIN:g} [-], got {value!r}")
         if self.surface not in SURFACE_MODELS:
             raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
         if self.backend not in BACKENDS:
@@ -808,10 +822,12 @@ def after_step_counts(start, direction, bounds, n_after, consts):
 
 
 def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class,
-                   tau_refine=0.0, steps=None, terminal=False):
+                   tau_refine=0.0, steps=None, terminal=False, stop_tau=0.0):
     """Accumulate one ray segment with n_steps midpoint steps between ``edges`` (n_steps + 1, n) [m] (see the
     module docstring), or each ray its own ``steps`` (n,) <= n_steps of them (:func:`grid_step_edges`); in the
-    grid, thick steps and cloud faces are refined down to ``tau_refine`` (:func:`_march_grid_refined`).
+    grid, thick steps and cloud faces are refined down to ``tau_refine`` (:func:`_march_grid_refined`), and a ray
+    that does not look down stops where its hydrometeor optical depth passes ``stop_tau`` (> 0; 0: never), once
+    past :data:`REFINE_VISIBLE_TAU` before the step (:attr:`MarchSettings.stop_tau`).
 
     ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only;
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
@@ -899,15 +915,25 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         hit_lo = jnp.where(hit_now, st["s_last"], st["hit_lo"])
         hit_hi = jnp.where(hit_now, s, st["hit_hi"])
         hit_from = jnp.where(hit_now, s_lo, st["hit_from"])
+        tau_species = st["tau_species"] + beta_sp * ds_eff[:, None]
+        alive = st["alive"] & ~hit_now
+        if in_grid and stop_tau > 0:
+            # opaque (MarchSettings.stop_tau): the ray stops at stop_tau, its species in the proportions they had
+            # there; past REFINE_VISIBLE_TAU before the step, so that no roll-back can undo it
+            stopped = alive & (t1 > stop_tau) & (t0 >= REFINE_VISIBLE_TAU) & (direction[:, 2] >= 0)
+            tau_species = jnp.where(stopped[:, None], tau_species * (stop_tau / jnp.maximum(t1, stop_tau))[:, None],
+                                    tau_species)
+            t1 = jnp.where(stopped, jnp.asarray(stop_tau, t1.dtype), t1)
+            alive = alive & ~stopped
         return {
             "tau_clear": st["tau_clear"] + beta_clear * ds_eff[:, None],
             "tau_h": t1,
-            "tau_species": st["tau_species"] + beta_sp * ds_eff[:, None],
+            "tau_species": tau_species,
             "l_clear": l_clear,
             "i_nogas": i_nogas,
             "i_gas": i_gas,
             "i_cloud_t": i_cloud_t,
-            "alive": st["alive"] & ~hit_now,
+            "alive": alive,
             "hit": st["hit"] | hit_now,
             "hit_s": hit_s,
             "hit_lo": hit_lo,
@@ -940,6 +966,9 @@ REFINE_DEPTH = 6
 REFINE_BUDGET = 16
 REFINE_VISIBLE_TAU = 8.0
 REFINE_SLOTS = REFINE_DEPTH + 4
+#: Least :attr:`MarchSettings.stop_tau` [-] (but 0): at 40 the cloud radiance seen from below is still within 1e-7 of
+#: its value for an infinite optical depth (Eq. 14's c1 = e^-16) and e^-40 of what lies behind reaches the observer.
+STOP_TAU_MIN = 40.0
 
 
 def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None):
@@ -1131,7 +1160,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
                                        consts, n_probe=settings.n_probe, probes=count, cells=cells,
                                        empty_steps=empty_steps)
         state = _march_segment(state, start, direction, edges, settings.n_grid, True, *args,
-                               tau_refine=float(settings.tau_refine), steps=steps if empty_steps else None)
+                               tau_refine=float(settings.tau_refine), steps=steps if empty_steps else None,
+                               stop_tau=float(settings.stop_tau))
     if settings.n_after:
         steps = after_step_counts(start, direction, bounds, settings.n_after, consts)
         state = _march_segment(state, start, direction,
@@ -2078,7 +2108,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         t["aerosol_ssa"], t["stratospheric_ssa"], settings.n_probe, EMPTY_STEP_WEIGHT, float(settings.probe_spacing),
         MAX_PROBES, CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
-        TERRAIN_BISECTIONS, *out)
+        TERRAIN_BISECTIONS, float(settings.stop_tau), *out)
     if kernel == "numba":  # composed in numba too: the clouds (section 35) and the ground (section 37)
         return {**_compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, ray_class, n),
                 "steps": samples.astype(np.int32)}

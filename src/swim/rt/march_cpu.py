@@ -720,9 +720,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
-                     refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
-                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf, stack_lo,
-                     stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
+                     refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
+                     l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf,
+                     stack_lo, stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
     once (:func:`work_arrays`): one code for the CPU's loop over all rays (one call) and a GPU thread's ray
     (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
@@ -1083,6 +1083,13 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     hit = True
                 if terminal and pending == 0:
                     alive = False
+                if stop_tau > 0 and th > stop_tau and t0 >= refine_visible and d2 >= 0 and alive and not terminal:
+                    # opaque (MarchSettings.stop_tau): the ray stops at stop_tau, its species in the proportions
+                    # they had there; past refine_visible before the step, so that no roll-back can undo it
+                    for c in range(n_species):
+                        tsp[c] *= stop_tau / th
+                    th = stop_tau
+                    alive = False
                 gap_prev = gap
                 s_last = s
                 if not alive:
@@ -1243,8 +1250,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky_lanes, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
                probe_spacing, n_probe_max, cell_slack, empty_steps, empty_cells_per_step, n_clear_probe, clear_power,
-               clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, tau_clear,
-               tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out):
+               clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, stop_tau,
+               tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out,
+               samples_out):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     The compiled loop over the rays, :func:`_march_ray_range`, runs without the GIL, so that
@@ -1264,7 +1272,10 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the
     previous interval's length exceeds it sends the ray back to its state before that interval, which is halved;
     recursively to ``max_depth`` levels, at most ``refine_budget`` times per ray, with at most ``refine_slots``
-    pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray stops at the ground (the lockstep kernel
+    pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray that does not look down (``direction``'s
+    vertical component >= 0) stops where its hydrometeor optical depth passes ``stop_tau`` > 0, once it was past
+    ``refine_visible`` before the step: its optical depth is then ``stop_tau`` and its species' keep their
+    proportions (:attr:`swim.rt.march.MarchSettings.stop_tau`). A ray stops at the ground (the lockstep kernel
     goes on with zero-length steps that add nothing), and a segment of zero length takes one step (to see whether it
     starts under the terrain) instead of all of them.
 
@@ -1288,5 +1299,5 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                      spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
                      empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
-                     refine_budget, refine_visible, refine_slots, n_bisections, tau_clear, tau_h, tau_species, l_clear,
-                     i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, *work)
+                     refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
+                     l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, *work)

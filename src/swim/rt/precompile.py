@@ -92,7 +92,7 @@ def _argument_types():
         "aerosol_ssa": ro(f4, 1), "stratospheric_ssa": ro(f4, 1), "n_probe": i8, "empty_weight": f8,
         "probe_spacing": f8, "n_probe_max": i8, "cell_slack": f8, "empty_steps": i8, "empty_cells_per_step": f8,
         "n_clear_probe": i8, "clear_power": f8, "clear_floor": f8, "tau_refine": f8, "max_depth": i8,
-        "refine_budget": i8, "refine_visible": f8, "refine_slots": i8, "n_bisections": i8,
+        "refine_budget": i8, "refine_visible": f8, "refine_slots": i8, "n_bisections": i8, "stop_tau": f8,
         # outputs
         "tau_clear": a(f8, 2), "tau_h": a(f8, 1), "tau_species": a(f8, 2), "l_clear": a(f8, 2), "i_nogas": a(f8, 2),
         "i_gas": a(f8, 2), "i_cloud_t": a(f8, 1), "alive_out": a(b1, 1), "hit_out": a(b1, 1), "s_hit_out": a(f8, 1),
