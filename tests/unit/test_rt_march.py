@@ -409,7 +409,8 @@ def test_rays_that_do_not_look_down_stop_in_opaque_cloud_with_the_same_radiance(
         np.testing.assert_array_equal(stop[key][~up], full[key][~up], err_msg=key)
     if backend == "numba":  # the lockstep kernel takes every step of every ray
         assert np.all(stop["steps"][opaque] < full["steps"][opaque])
-        np.testing.assert_array_equal(stop["steps"][~opaque], full["steps"][~opaque])
+        calm = ~up | (full["tau_hydrometeor"] <= 50.0)  # rays that cannot have stopped
+        np.testing.assert_array_equal(stop["steps"][calm], full["steps"][calm])
 
 
 def test_per_ray_kernel_counts_the_samples_each_ray_takes():
