@@ -553,8 +553,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "radiance_surface": (dims3, planes.pop("radiance_surface").astype(np.float32, copy=False), {"units": "1", "long_name": "ground part of L'"}),
         "tau_hydrometeor": (("y", "x"), planes.pop("tau_hydrometeor")[0].astype(np.float32, copy=False), {
             "units": "1", "long_name": "hydrometeor optical depth along the line of sight",
-            "comment": f"rays that do not look down stop where it passes {settings.stop_tau:g} (opaque): there it is "
-                       f"{settings.stop_tau:g}, a lower bound" if settings.stop_tau else "the whole line of sight"}),
+            "comment": (f"rays that do not look down stop where it passes {settings.stop_tau:g} (opaque): there it "
+                        f"is {settings.stop_tau:g}, a lower bound") if settings.stop_tau
+                       else "the whole line of sight"}),
         "rgb": (("y", "x", "channel"), rgb, {"long_name": "true-colour image, 8-bit sRGB"}),
         "view_azimuth": (("y", "x"), view_az.astype(np.float32), {"units": "degree", "long_name": "view azimuth, clockwise from north"}),
         "view_zenith": (("y", "x"), view_zen.astype(np.float32), {"units": "degree", "long_name": "view zenith angle"}),

@@ -182,17 +182,15 @@ class MarchSettings:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
+        # each 0 or a finite number >= its least value
         for name, what, least in (("probe_spacing", f"0 or a finite number of cells >= {MIN_PROBE_SPACING}",
-                                    MIN_PROBE_SPACING), ("tau_refine", "a finite optical depth >= 0", 0.0)):
+                                    MIN_PROBE_SPACING), ("tau_refine", "a finite optical depth >= 0", 0.0),
+                                  ("stop_tau", f"0 (off) or a finite optical depth >= {STOP_TAU_MIN:g} [-]",
+                                   STOP_TAU_MIN)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
                     or not np.isfinite(value) or value < 0 or 0 < value < least:
                 raise SwimInputError(f"MarchSettings.{name} must be {what}, got {value!r}")
-        value = self.stop_tau
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                or not np.isfinite(value) or not (value == 0 or value >= STOP_TAU_MIN):
-            raise SwimInputError(f"MarchSettings.stop_tau must be 0 (off) or a finite optical depth >= "
-                                 f"{STOP_TAU_MIN:g} [-], got {value!r}")
         if self.surface not in SURFACE_MODELS:
             raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
         if self.backend not in BACKENDS:
