@@ -413,6 +413,51 @@ def test_shapes(shape, out):
         np.testing.assert_allclose(xyz.reshape(-1, 3)[j], sc.solar_relative_to_XYZ(flat[:, j]), rtol=1e-12)
 
 
+def _srgb8_by_numpy_chain(rad, white_level, gamut):
+    """The colour stage as the chain of the public NumPy functions (solar_relative_to_srgb8's documented steps)."""
+    rad = np.asarray(rad, dtype=float)
+    invalid = np.isnan(rad).any(axis=0)
+    rgb = sc.XYZ_to_display_rgb(sc.solar_relative_to_XYZ(np.where(invalid, 0.0, rad)), white_level, gamut=gamut)
+    out = sc.encode_srgb8(rgb)
+    out[invalid] = 0
+    return out
+
+
+@pytest.mark.parametrize("gamut", sc.GAMUT_MAPPINGS)
+@pytest.mark.parametrize("shape", [(3,), (3, 7), (3, 64, 48)])
+def test_the_compiled_colour_stage_gives_the_numpy_chains_codes(shape, gamut):
+    """solar_relative_to_srgb8 runs one compiled pass per pixel (swim.color.srgb_cpu) and sends the pixels whose
+    quadratic spectrum needs clipping to the clipped spectral sum: every code as the chain of the NumPy functions,
+    over skies, overexposed clouds, saturated colours outside the sRGB gamut, spectra that dip below 0, NaN."""
+    rng = np.random.default_rng(len(shape) * 7 + sc.GAMUT_MAPPINGS.index(gamut))
+    n = int(np.prod(shape[1:]))
+    kinds = [rng.uniform(0.0, 0.3, (3, n)) * [[0.4], [0.7], [1.0]],   # blue skies
+             rng.uniform(0.5, 8.0, (3, n)),                            # clouds, overexposed at the white level
+             rng.uniform(0.0, 1.5, (3, n)) ** 3,                       # saturated: out of gamut, dipping spectra
+             np.abs(rng.normal(0.0, 1.0, (3, n)))]
+    for rad in kinds:
+        rad = rad.reshape(shape)
+        if n > 1:
+            rad[(1,) + (0,) * (len(shape) - 1)] = np.nan
+        for white_level in (1.5, 4.0):
+            np.testing.assert_array_equal(sc.solar_relative_to_srgb8(rad, white_level, gamut=gamut),
+                                          _srgb8_by_numpy_chain(rad, white_level, gamut))
+    # both branches of the compiled pass were taken: pixels that need the clipped sum, and pixels that do not
+    from swim.color.spectrum import _DEFAULT_WAVELENGTHS, _may_clip_quadratic, _monomial_solve
+
+    coefficients = kinds[2].T @ _monomial_solve(_DEFAULT_WAVELENGTHS).T
+    assert 0 < _may_clip_quadratic(coefficients).sum() < n or n < 8
+
+
+def test_the_compiled_colour_stage_takes_float32_and_any_layout():
+    rng = np.random.default_rng(3)
+    rad = rng.uniform(0.0, 2.0, (3, 40, 30)).astype(np.float32)
+    expected = _srgb8_by_numpy_chain(rad, 1.5, "preserve_hue")
+    np.testing.assert_array_equal(sc.solar_relative_to_srgb8(rad), expected)
+    np.testing.assert_array_equal(sc.solar_relative_to_srgb8(rad[:, 10:20]), expected[10:20])
+    np.testing.assert_array_equal(sc.solar_relative_to_srgb8(np.asfortranarray(rad)), expected)
+
+
 def test_nan_pixels_are_black_and_do_not_leak():
     rad = np.full((3, 4, 5), 1.0)
     rad[:, 0, 0] = np.nan

@@ -30,7 +30,7 @@ def test_the_argument_types_name_every_parameter_of_the_kernel(name):
 
 
 def test_the_signatures_are_those_a_render_calls_the_kernels_with(monkeypatch):
-    """A render whose rays end on the ground calls all four kernels, each with exactly the types the helper and
+    """A render whose rays end on the ground calls all five kernels, each with exactly the types the helper and
     wait() compile for, or their work would be wasted (the argument types recorded at the calls, no helper)."""
     monkeypatch.setenv("SWIM_PRECOMPILE", "0")
     expected = {name: {precompile.kernel_signature(name)} for name in precompile.KERNELS}

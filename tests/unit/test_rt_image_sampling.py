@@ -299,3 +299,56 @@ def test_tile_order_is_a_permutation_that_visits_tiles_one_after_the_other(shape
     assert np.all(np.diff(flat[order])[same] > 0)
     if tile == 1:
         assert np.array_equal(flat[order], flat)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_compiled_fill_interpolates_each_cell_in_the_values_precision_finer_cells_last(dtype):
+    """swim.rt.fill_cpu against a per-cell NumPy reference: every untraced valid pixel of a cell is the bilinear
+    interpolation of its corners, with the four weights computed in float64 and rounded once to the values'
+    precision and the products summed corner by corner, bit for bit; a pixel shared with a later (finer) cell takes
+    that cell's value; traced and invalid pixels are left alone; booleans copy the first corner, counts are 0."""
+    from swim.rt.fill_cpu import fill_cells, fill_cells_from_corner
+
+    ny, nx = 17, 26
+    rng = np.random.default_rng(5)
+    values = rng.uniform(0.1, 3.0, (ny * nx, 3)).astype(dtype)
+    flags = rng.random(ny * nx) < 0.5
+    counts = rng.integers(1, 50, ny * nx).astype(np.int32)
+    coarse = np.array([[0, 8, 0, 8], [0, 8, 8, 16], [8, 16, 16, 25]])
+    fine = np.array([[8, 12, 0, 4], [12, 16, 4, 8], [0, 4, 16, 20], [8, 9, 0, 3]])  # one cell a single row high
+    cells = np.concatenate([coarse, fine])
+    traced = np.zeros(ny * nx, bool)
+    for y0, y1, x0, x1 in cells:
+        traced[[y0 * nx + x0, y0 * nx + x1, y1 * nx + x0, y1 * nx + x1]] = True
+    traced[3 * nx + 5] = True  # a traced pixel inside a cell keeps its value
+    valid = np.ones(ny * nx, bool)
+    valid[10 * nx + 1] = False
+
+    original = values.copy()
+    expected, expected_flags, expected_counts = values.copy(), flags.copy(), counts.copy()
+    for y0, y1, x0, x1 in cells:
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                pix = y * nx + x
+                if traced[pix] or not valid[pix]:
+                    continue
+                wy, wx = (y - y0) / (y1 - y0), (x - x0) / (x1 - x0)
+                w = np.array([(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy]).astype(dtype)
+                corners = [y0 * nx + x0, y0 * nx + x1, y1 * nx + x0, y1 * nx + x1]
+                acc = values[corners[0]] * w[0]
+                for c, wc in zip(corners[1:], w[1:]):
+                    acc = acc + values[c] * wc
+                expected[pix] = acc
+                expected_flags[pix] = flags[corners[0]]
+                expected_counts[pix] = 0
+    fill_cells(values, cells, traced, valid, nx)
+    fill_cells_from_corner(flags, cells, traced, valid, nx, False)
+    fill_cells_from_corner(counts, cells, traced, valid, nx, True)
+    assert values.tobytes() == expected.tobytes()
+    np.testing.assert_array_equal(flags, expected_flags)
+    np.testing.assert_array_equal(counts, expected_counts)
+    # the cases that the comparison covers: the pixel (8, 2) on the common edge of a coarse and a fine cell, whose
+    # value along the coarse cell's edge differs; a traced and an invalid pixel inside cells, unchanged
+    along_coarse_edge = original[8 * nx] * dtype(1 - 2 / 8) + original[8 * nx + 8] * dtype(2 / 8)
+    assert np.abs(values[8 * nx + 2] - along_coarse_edge).max() > 1e-3
+    np.testing.assert_array_equal(values[[3 * nx + 5, 10 * nx + 1]], original[[3 * nx + 5, 10 * nx + 1]])

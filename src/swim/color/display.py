@@ -20,7 +20,13 @@ import functools
 import numpy as np
 
 from swim.color._tables import colour_science_data, unknown_transform
-from swim.color.spectrum import solar_relative_to_XYZ
+from swim.color.spectrum import (
+    _DEFAULT_WAVELENGTHS,
+    _check_wavelengths,
+    _linear_matrix,
+    _monomial_solve,
+    solar_relative_to_XYZ,
+)
 from swim.errors import SwimInputError
 
 __all__ = [
@@ -301,6 +307,9 @@ def solar_relative_to_srgb8(
     r = np.asarray(radiance, dtype=float)
     if np.isinf(r).any():
         raise SwimInputError("radiance (solar-relative L') contains infinite values; use NaN to mark invalid pixels")
+    if (gamut in GAMUT_MAPPINGS and r.ndim >= 1 and r.shape[0] == 3
+            and (wavelengths_nm is None or _check_wavelengths(wavelengths_nm) == _DEFAULT_WAVELENGTHS)):
+        return _srgb8_compiled(r, w, gamut)
     invalid = np.isnan(r).any(axis=0) if r.ndim >= 1 else np.isnan(r)
     if invalid.any():
         r = np.where(invalid, 0.0, r)
@@ -308,3 +317,21 @@ def solar_relative_to_srgb8(
     out = encode_srgb8(rgb)
     out[invalid] = 0
     return out
+
+
+def _srgb8_compiled(radiance, white_level, gamut):
+    """:func:`solar_relative_to_srgb8` at the default wavelengths in one compiled pass per pixel
+    (:func:`swim.color.srgb_cpu.srgb8_pixels`, ~6x faster than the NumPy chain); the pixels whose spectrum needs
+    clipping (rare) through the NumPy chain. ``radiance`` (3, ...) float64 without infinities."""
+    from swim.color.srgb_cpu import srgb8_pixels
+
+    wl = _DEFAULT_WAVELENGTHS
+    flat = np.ascontiguousarray(radiance.reshape(3, -1))
+    out = np.empty((flat.shape[1], 3), np.uint8)
+    need = np.empty(flat.shape[1], bool)
+    transform = CHROMATIC_ADAPTATION_TRANSFORM
+    srgb8_pixels(flat, _linear_matrix(wl), _monomial_solve(wl), display_matrix(transform) / white_level,
+                 _luminance_row(transform), gamut == "preserve_hue", out, need)
+    if need.any():
+        out[need] = encode_srgb8(XYZ_to_display_rgb(solar_relative_to_XYZ(flat[:, need]), white_level, gamut=gamut))
+    return out.reshape(radiance.shape[1:] + (3,))

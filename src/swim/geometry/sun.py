@@ -16,6 +16,8 @@ implemented by ``pvlib.solarposition.get_solarposition(method="nrel_numpy")`` an
 
 from __future__ import annotations
 
+import functools
+
 import logging
 import math
 import numbers
@@ -200,12 +202,20 @@ def sun_position(time, lat, lon, altitude_m=0.0) -> SunPosition:
     Reda and Andreas (2004), Solar Energy 76, 577-589; pvlib ``get_solarposition`` and
     ``nrel_earthsun_distance``.
     """
-    import pvlib.solarposition as solpos  # lazy: pvlib pulls in scipy/pandas machinery
-
     ts = parse_time_utc(time, "time")
     lat_v = _real("lat", lat, -90.0, 90.0)
     lon_v = (_real("lon", lon) + 180.0) % 360.0 - 180.0
     alt = _real("altitude_m", altitude_m, -1000.0, 100000.0, unit="m")
+    return _spa(ts, lat_v, lon_v, alt)
+
+
+@functools.lru_cache(maxsize=64)
+def _spa(ts, lat_v, lon_v, alt) -> SunPosition:
+    """:func:`sun_position` of validated arguments, remembered: a render asks for the same sun twice (the crop's and
+    its own) and a series of frames often for the same instant, and pvlib's SPA takes ~8 ms a call
+    (:class:`SunPosition` is immutable)."""
+    import pvlib.solarposition as solpos  # lazy: pvlib pulls in scipy/pandas machinery
+
     index = pd.DatetimeIndex([ts])
     df = solpos.get_solarposition(index, lat_v, lon_v, altitude=alt, method="nrel_numpy", delta_t=DELTA_T_S)
     dist = solpos.nrel_earthsun_distance(index, delta_t=DELTA_T_S)

@@ -218,9 +218,10 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
         smooth = _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling)
         smooth_levels.append(cells[smooth])
-        for pix, _, _, _ in _fill_groups(traced, valid_flat, smooth_levels[-1], nx, pixels_only=True):  # progress
-            filled[pix] = True
-        report()
+        if progress is not None:  # the pixels that the fill will interpolate count as done (~10 ms a level)
+            for pix, _, _, _ in _fill_groups(traced, valid_flat, smooth_levels[-1], nx, pixels_only=True):
+                filled[pix] = True
+            report()
         split = cells[~smooth]
         y0, y1, x0, x1 = split.T
         yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
@@ -327,37 +328,20 @@ def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
     coarse to fine: a pixel on the edge of cells of two levels takes the finer cell's value, as when each level
     was filled before the next was traced), from their corners; one thread per output array.
 
-    Each target pixel's corners and weights are computed once and serve every output array (one ``np.take`` per
-    corner and array into one scratch array). The weights are computed in float64 and rounded once to each float
-    array's precision, as before the fill moved to the end: float32 outputs come out bit for bit the same, and need
-    no float64 temporaries."""
-    groups = [group for cells in levels for group in _fill_groups(traced, valid_flat, cells, nx)]
-    if not groups:
+    Float arrays go through the compiled :func:`swim.rt.fill_cpu.fill_cells`, one pass per array over the cells'
+    pixels with the weights rounded once to the array's precision (0.17 s → ~0.03 s of a 1024^2 all-sky's end;
+    the NumPy gathers it replaced gave the same bits, docs/performance.md, section 58). Booleans are copied from a
+    corner (the corners of a smooth cell agree), integers (step counts) are 0."""
+    if not any(len(cells) for cells in levels):
         return
-    cast = {}  # per float dtype, per group: the four corners' weights in that precision, (k, 1, ...) for broadcasting
-    for a in values.values():
-        if a.dtype != bool and a.dtype.kind not in "iu" and (a.dtype, a.ndim) not in cast:
-            shape = (-1,) + (1,) * (a.ndim - 1)
-            cast[a.dtype, a.ndim] = [tuple(wt.astype(a.dtype).reshape(shape) for wt in
-                                           ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy))
-                                     for _, _, _, (wy, wx) in groups]
+    from .fill_cpu import fill_cells, fill_cells_from_corner
+
+    cells = np.ascontiguousarray(np.concatenate([c for c in levels if len(c)]), dtype=np.int64)
 
     def fill_one(a):
-        if a.dtype == bool:  # the corners agree (the test of a smooth cell)
-            for pix, c00, _, _ in groups:
-                a[pix] = a[c00]
-        elif a.dtype.kind in "iu":
-            for pix, _, _, _ in groups:
-                a[pix] = 0
+        if a.dtype == bool or a.dtype.kind in "iu":
+            fill_cells_from_corner(a.reshape(-1), cells, traced, valid_flat, nx, a.dtype != bool)
         else:
-            for (pix, c00, (h, w), _), weights in zip(groups, cast[a.dtype, a.ndim]):
-                acc = np.take(a, c00, axis=0)
-                acc *= weights[0]
-                scratch = np.empty_like(acc)
-                for offset, weight in zip((w, h * nx, h * nx + w), weights[1:]):
-                    np.take(a, c00 + offset, axis=0, out=scratch)
-                    scratch *= weight
-                    acc += scratch
-                a[pix] = acc
+            fill_cells(a.reshape(a.shape[0], -1), cells, traced, valid_flat, nx)
 
     parallel_map(fill_one, list(values.values()), max_threads)

@@ -47,11 +47,13 @@ log = logging.getLogger(__name__)
 
 #: The kernels whose types :func:`kernel_signature` knows, and their modules.
 KERNELS = {"_march_ray_range": "swim.rt.march_cpu", "prepare_rays": "swim.rt.march_cpu",
-           "compose_clouds": "swim.rt.compose_cpu", "ground_radiance": "swim.rt.ground_cpu"}
+           "compose_clouds": "swim.rt.compose_cpu", "ground_radiance": "swim.rt.ground_cpu",
+           "srgb8_pixels": "swim.color.srgb_cpu"}
 #: Compiled by the helper process (the longest compilation by far).
 HELPER_KERNELS = ("_march_ray_range",)
-#: Compiled by the render's first chunk while it waits for the helper (in the order the chunk calls them).
-WAITING_KERNELS = ("prepare_rays", "compose_clouds", "ground_radiance")
+#: Compiled by the render's first chunk while it waits for the helper (in the order the chunk calls them; the colour
+#: stage's kernel, ~0.9 s on an empty cache, last: the render calls it after the march).
+WAITING_KERNELS = ("prepare_rays", "compose_clouds", "ground_radiance", "srgb8_pixels")
 #: Longest wait for the helper [s] (it compiles the march in ~12 s on 2 cores); then it is stopped and the render
 #: compiles the march itself.
 WAIT_S = 180.0
@@ -68,7 +70,8 @@ def _dispatcher(name):
 
 def _argument_types():
     """The numba type of each argument of each kernel in :data:`KERNELS`, by parameter name, as
-    :func:`swim.rt.march._trace_chunk_numba` and :func:`swim.rt.march._compose_numba` call them: per-chunk arrays
+    :func:`swim.rt.march._trace_chunk_numba`, :func:`swim.rt.march._compose_numba` and the colour stage
+    (:func:`swim.color.display.solar_relative_to_srgb8`) call them: per-chunk arrays
     are fresh C-contiguous numpy arrays, the render's tables C-contiguous and marked read-only
     (:func:`swim.rt.march._numba_tables`), Python ints int64."""
     from numba import types
@@ -114,12 +117,14 @@ def _argument_types():
         "backscatter": ro(f4, 1), "lambertian": b1, "compose_coefficients": a(f8, 1), "k": ro(f8, 1),
         "rpv_q": ro(f8, 1), "snow_table": ro(f8, 2), "snow_albedo": ro(f8, 1), "subsurface": ro(f8, 1),
         "fade_cells": ro(f8, 1), "out": a(f4, 2)}
+    colour = {"radiance": a(f8, 2), "to_xyz": ro(f8, 2), "monomial": ro(f8, 2), "to_rgb": a(f8, 2),
+              "luminance": ro(f8, 1), "preserve_hue": b1, "out": a(types.uint8, 2), "need": a(b1, 1)}
     work = {"edges": a(f8, 1), "cdf": a(f8, 1), "stack_lo": a(f8, 1), "stack_hi": a(f8, 1), "stack_depth": a(i8, 1),
             "saved": a(f8, 1), "tsp": a(f8, 1), "ms_lanes": a(f8, 2), "vol": a(f8, 1), "vol32": a(f4, 1),
             "probe_at": a(f8, 2)}
     ray_range = {"first": i8, "stop": i8, "stride": i8, **march, **work}
     return {"_march_ray_range": ray_range, "prepare_rays": prepare, "compose_clouds": compose,
-            "ground_radiance": ground}
+            "ground_radiance": ground, "srgb8_pixels": colour}
 
 
 def kernel_signature(name: str) -> tuple:

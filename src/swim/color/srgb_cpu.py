@@ -1,0 +1,103 @@
+"""The colour stage of :func:`swim.color.solar_relative_to_srgb8` one pixel at a time on the CPU (numba).
+
+:func:`~swim.color.solar_relative_to_srgb8` in NumPy makes ~20 passes over an image, in float64, with a temporary per
+pass: 0.26-0.39 s for a 1024 x 1024 image on one core of the 2-core benchmark machine, 0.22 s of a warm 1024^2 render
+on both (its last stage, while the march's threads are idle). This kernel does the same arithmetic for each pixel in
+one pass: ~0.05 s on one core. JAX's fused version of it took 0.11 s (and 0.7 s to compile), so numba
+(docs/performance.md, section 58).
+
+The arithmetic is that of the NumPy functions, step by step and in their order (paper, Sect. 3.8):
+
+1. ``XYZ = M @ L'`` (:func:`swim.color.spectrum.solar_relative_to_XYZ`'s exact matrix, valid where the interpolating
+   quadratic of the three wavelengths is >= 0 between 380 and 780 nm). A pixel whose quadratic may be negative there
+   (:func:`swim.color.spectrum._may_clip_quadratic`; rare in rendered skies) is only flagged: the caller computes it
+   with the clipped spectral sum in NumPy.
+2. ``rgb = (display_matrix / white_level) @ XYZ`` and the gamut mapping of
+   :func:`swim.color.display.XYZ_to_display_rgb` ("preserve_hue" or "clip").
+3. :func:`swim.color.display.encode_srgb8`: clipped to [0, 1], the sRGB transfer function, rounded to 0-255.
+
+``tests/unit/test_color.py`` holds it to the NumPy chain.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..rt.march_cpu import _CACHE
+
+# no fast-math: the same IEEE arithmetic as the NumPy chain, so that the codes agree (a pixel near a code's edge
+# may still round the other way where NumPy's matrix products sum in another order)
+_JIT = {"cache": _CACHE, "error_model": "numpy", "nogil": True}
+
+
+@njit(**_JIT)
+def _encode(v):
+    """:func:`swim.color.display.encode_srgb8` of one linear value [-]: clipped to [0, 1], the sRGB transfer
+    function (IEC 61966-2-1), rounded half to even to 0-255."""
+    v = min(max(v, 0.0), 1.0)
+    e = 12.92 * v if v <= 0.0031308 else 1.055 * v ** (1 / 2.4) - 0.055
+    return np.uint8(np.rint(e * 255.0))
+
+
+@njit(**_JIT)
+def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, out, need):
+    """8-bit sRGB of pixels whose three-wavelength spectrum needs no clipping.
+
+    Parameters
+    ----------
+    radiance : numpy.ndarray
+        Shape (3, n) float64: solar-relative radiance L' [-] (paper Eq. 2) at the three wavelengths; a pixel with a NaN
+        channel is black.
+    to_xyz : numpy.ndarray
+        Shape (3, 3) float64: XYZ from L' (:func:`swim.color.spectrum._linear_matrix`).
+    monomial : numpy.ndarray
+        Shape (3, 3) float64: the quadratic's coefficients (a, b, c) in t from L'
+        (:func:`swim.color.spectrum._monomial_solve`).
+    to_rgb : numpy.ndarray
+        Shape (3, 3) float64: linear display RGB from XYZ, the exposure included (``display_matrix / white_level``).
+    luminance : numpy.ndarray
+        Shape (3,) float64: luminance from display RGB (:func:`swim.color.display._luminance_row`).
+    preserve_hue : bool
+        The "preserve_hue" gamut mapping; False: "clip".
+    out : numpy.ndarray
+        Shape (n, 3) uint8, written: the sRGB codes (R, G, B); left as it is where ``need``.
+    need : numpy.ndarray
+        Shape (n,) bool, written: True where the quadratic may be negative (the caller's clipped spectral sum).
+    """
+    for p in range(radiance.shape[1]):
+        l0, l1, l2 = radiance[0, p], radiance[1, p], radiance[2, p]
+        need[p] = False
+        if l0 != l0 or l1 != l1 or l2 != l2:
+            out[p, 0] = out[p, 1] = out[p, 2] = 0
+            continue
+        # swim.color.spectrum._may_clip_quadratic: the minimum of a t^2 + b t + c over t in [-1, 1]
+        a = monomial[0, 0] * l0 + monomial[0, 1] * l1 + monomial[0, 2] * l2
+        b = monomial[1, 0] * l0 + monomial[1, 1] * l1 + monomial[1, 2] * l2
+        c = monomial[2, 0] * l0 + monomial[2, 1] * l1 + monomial[2, 2] * l2
+        lo = min(a - b + c, a + b + c)
+        if a > 0.0 and abs(-b / (2.0 * a)) < 1.0:
+            lo = min(lo, c - b * b / (4.0 * a))
+        if lo < 0.0:
+            need[p] = True
+            continue
+        x = to_xyz[0, 0] * l0 + to_xyz[0, 1] * l1 + to_xyz[0, 2] * l2
+        y = to_xyz[1, 0] * l0 + to_xyz[1, 1] * l1 + to_xyz[1, 2] * l2
+        z = to_xyz[2, 0] * l0 + to_xyz[2, 1] * l1 + to_xyz[2, 2] * l2
+        r = to_rgb[0, 0] * x + to_rgb[0, 1] * y + to_rgb[0, 2] * z
+        g = to_rgb[1, 0] * x + to_rgb[1, 1] * y + to_rgb[1, 2] * z
+        bl = to_rgb[2, 0] * x + to_rgb[2, 1] * y + to_rgb[2, 2] * z
+        if preserve_hue:
+            smallest = min(min(r, g), bl)
+            if smallest < 0.0:  # towards the grey of the same luminance until the smallest channel is 0
+                lum = r * luminance[0] + g * luminance[1] + bl * luminance[2]
+                if lum > 0.0:
+                    f = lum / (lum - smallest)
+                    r, g, bl = (max(lum + f * (r - lum), 0.0), max(lum + f * (g - lum), 0.0),
+                                max(lum + f * (bl - lum), 0.0))
+                else:
+                    r = g = bl = 0.0
+            largest = max(max(r, g), bl)
+            if largest > 1.0:  # brightness saturates, chromaticity kept
+                r, g, bl = r / largest, g / largest, bl / largest
+        out[p, 0], out[p, 1], out[p, 2] = _encode(r), _encode(g), _encode(bl)
