@@ -265,26 +265,28 @@ def resolve_sun(time, scene, sun_zenith=None, sun_azimuth=None) -> SunPosition:
 
 
 def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
-    """Solar-relative radiance (3, ny, nx) of the sun's disk, spreading 4 pi T_direct over the disk's pixels."""
+    """The sun's disk: the flat indices (k,) of its pixels and their solar-relative radiance (3,), which spreads
+    4 pi T_direct over the disk's pixels; no pixels where the sun is outside the image or its disk covers none.
+
+    Only its pixels are returned (rather than an image of zeros that a render added to its radiance: two passes
+    over 24 MB of float64 for a 1024^2 image, docs/performance.md, section 58)."""
+    none = np.zeros(0, np.int64), np.zeros(3)
     row, col = camera.pixel_of_direction(np.asarray(sun_enu)[None, :])
-    disk = np.zeros((3,) + dirs_enu.shape[:2])
     if not (np.isfinite(row[0]) and np.isfinite(col[0])):
-        return disk
+        return none
     ny, nx = dirs_enu.shape[:2]
     r = int(np.clip(np.rint(row[0]), 0, ny - 1))
     c = int(np.clip(np.rint(col[0]), 0, nx - 1))
     neighbour = dirs_enu[r, c + 1] if c + 1 < nx else dirs_enu[r, c - 1]
     pitch = float(np.arccos(np.clip(np.dot(dirs_enu[r, c], neighbour), -1, 1))) if valid[r, c] else 0.0
     if not np.isfinite(pitch) or pitch <= 0:
-        return disk
+        return none
     radius = max(SUN_ANGULAR_RADIUS_RAD, 0.75 * pitch)
     cos_angle = dirs_enu @ sun_enu  # NaN outside the camera's pixels, where the comparison below is False
-    inside = valid & (cos_angle >= np.cos(radius))
-    count = int(inside.sum())
-    if count == 0:
-        return disk
-    disk[:, inside] = (4 * np.pi * np.asarray(transmittance) / (count * pitch**2))[:, None]
-    return disk
+    pixels = np.flatnonzero(valid & (cos_angle >= np.cos(radius)))
+    if pixels.size == 0:
+        return none
+    return pixels, 4 * np.pi * np.asarray(transmittance, dtype=float) / (pixels.size * pitch**2)
 
 
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
@@ -531,8 +533,12 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
     if white_level is None:
         white_level = SPACE_WHITE_LEVEL if height_asl > SPACE_VIEW_HEIGHT_M else DEFAULT_WHITE_LEVEL
-    disk = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
-    radiance = planes.pop("radiance") + disk
+    disk_pixels, disk_radiance = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
+    radiance = planes.pop("radiance")  # (3, ny, nx) float32
+    if disk_pixels.size:  # the disk added in float64, rounded once to the output's float32
+        flat = radiance.reshape(3, -1)
+        flat[:, disk_pixels] = flat[:, disk_pixels] + disk_radiance[:, None]
+        radiance = flat.reshape(radiance.shape)
     # the colour stage is per pixel and works in float64: in blocks of rows, to bound its temporaries, on up to 8
     # cores (NumPy releases the GIL; 0.19 s for a 1024^2 image on one core here, 0.33 s on the H100's host)
     starts = range(0, ny, COLOUR_BLOCK_ROWS)
@@ -546,7 +552,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
     dims3 = ("wavelength", "y", "x")
     data = {
-        "radiance": (dims3, radiance.astype(np.float32), {
+        "radiance": (dims3, radiance.astype(np.float32, copy=False), {
             "units": "1", "long_name": "solar-relative spectral radiance L' = 4 pi L / E_TOA (Albers et al. 2020, Eq. 2)"}),
         "radiance_clear": (dims3, planes.pop("radiance_clear").astype(np.float32, copy=False), {"units": "1", "long_name": "gas and aerosol part of L'"}),
         "radiance_cloud": (dims3, planes.pop("radiance_cloud").astype(np.float32, copy=False), {"units": "1", "long_name": "hydrometeor part of L'"}),
