@@ -62,12 +62,14 @@ def parse_variant(text):
 
 
 def full_image(case, size, data, cache: Path):
-    """Every pixel of ``case`` traced at ``size``: dict of valid (ny, nx), radiance (n, 3), tau (n,), surface (n,),
-    steps (n,) and view_zenith (ny, nx), n = ny * nx; read from ``cache`` if there."""
+    """Every pixel of ``case`` traced at ``size``: dict of valid (ny, nx), radiance (n, 3), radiance_clear (n, 3), tau
+    (n,), surface (n,), steps (n,) and view_zenith (ny, nx), n = ny * nx; read from ``cache`` if there (a cached
+    image from before session 46, without radiance_clear, is traced again)."""
     path = cache / f"sampling-full-{case}-{size}.npz"
     if path.exists():
         with np.load(path) as f:
-            return dict(f)
+            if "radiance_clear" in f.files:
+                return dict(f)
     import swim
     import swim.pipeline as pipeline
     from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive
@@ -83,7 +85,7 @@ def full_image(case, size, data, cache: Path):
     def keep(trace, valid, sampling, *args, **kwargs):  # the sampler's own arrays, before the image's assembly
         values, traced = sample_image_adaptive(trace, valid, sampling, *args, **kwargs)
         kept.update(valid=valid.copy(), **{key: np.array(values[key]) for key in
-                                           ("radiance", "tau_hydrometeor", "surface", "steps")})
+                                           ("radiance", "radiance_clear", "tau_hydrometeor", "surface", "steps")})
         return values, traced
 
     original = pipeline.sample_image_adaptive
@@ -92,7 +94,8 @@ def full_image(case, size, data, cache: Path):
         out = swim.render(bench_suite.load_scene(spec), sampling=AdaptiveSampling(coarse_spacing=10**6), **kw)
     finally:
         pipeline.sample_image_adaptive = original
-    result = {"valid": kept["valid"], "radiance": kept["radiance"], "tau": kept["tau_hydrometeor"],
+    result = {"valid": kept["valid"], "radiance": kept["radiance"], "radiance_clear": kept["radiance_clear"],
+              "tau": kept["tau_hydrometeor"],
               "surface": kept["surface"], "steps": kept["steps"], "view_zenith": out["view_zenith"].values}
     cache.mkdir(parents=True, exist_ok=True)
     np.savez(path, **result)
@@ -106,8 +109,8 @@ def replay(full, overrides, rim_deg):
     radiance, tau, surface, steps = full["radiance"], full["tau"], full["surface"], full["steps"]
 
     def trace(flat):
-        return {"radiance": radiance[flat], "tau_hydrometeor": tau[flat], "surface": surface[flat],
-                "steps": steps[flat]}
+        return {"radiance": radiance[flat], "radiance_clear": full["radiance_clear"][flat],
+                "tau_hydrometeor": tau[flat], "surface": surface[flat], "steps": steps[flat]}
 
     sampling = AdaptiveSampling(**overrides)
     values, traced = sample_image_adaptive(trace, full["valid"], sampling)

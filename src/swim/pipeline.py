@@ -511,9 +511,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         march_samples = int(rays["steps"].sum())
         del rays
     else:
-        log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, tau tolerance %g, "
-                 "coarse spacing %d, edge tests in cells of %d pixels)", camera, cam.shape, int(valid.sum()),
-                 sampling.tolerance, sampling.tau_tolerance, sampling.coarse_spacing, sampling.edge_test_size)
+        log.info("tracing adaptively (%s camera %s, %d valid pixels, tolerance %g, tau tolerance %g, clear tolerance "
+                 "%g, coarse spacing %d, edge tests in cells of %d pixels)", camera, cam.shape, int(valid.sum()),
+                 sampling.tolerance, sampling.tau_tolerance, sampling.clear_tolerance, sampling.coarse_spacing,
+                 sampling.edge_test_size)
         out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress, max_threads=min(threads(), 8))
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
@@ -598,7 +599,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "sampling": "every pixel" if sampling is None else (
             f"adaptive (tolerance {sampling.tolerance:g}, coarse spacing {sampling.coarse_spacing}, "
             f"radiance floor {sampling.radiance_floor:g}, tau tolerance {sampling.tau_tolerance:g}, "
-            f"tau floor {sampling.tau_floor:g}, edge tests in cells of {sampling.edge_test_size} pixels)"),
+            f"tau floor {sampling.tau_floor:g}, clear tolerance {sampling.clear_tolerance:g}, "
+            f"edge tests in cells of {sampling.edge_test_size} pixels)"),
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"

@@ -115,6 +115,34 @@ def test_a_feature_at_an_edge_midpoint_is_found_by_the_edge_test_and_missed_with
     assert not traced.reshape(-1)[at] and np.allclose(missed["radiance"][at], 0.2)
 
 
+def test_the_clear_air_test_finds_a_jump_of_the_air_in_front_of_opaque_cloud_that_the_others_miss():
+    """Opaque cloud whose visible face jumps from a near cloud to a far one along a line: the total radiance and the
+    capped line-of-sight optical depth are the same on both sides, the air in front of the cloud (radiance_clear) is
+    brighter beyond. The clear-air test traces the line's pixels; without it (clear_tolerance 0), or with a trace
+    that does not return radiance_clear, the cells are interpolated over it."""
+    def faces(y, x):
+        far = x >= 11
+        clear = np.where(far[:, None], 0.30, 0.10) * np.ones((1, 3))
+        return np.full((y.size, 3), 0.8), np.full(y.shape, 50.0), np.zeros(y.shape, bool), clear
+
+    shape = (17, 33)
+    y, x = np.indices(shape).reshape(2, -1)
+
+    def trace(flat, with_clear=True):
+        radiance, tau, surface, clear = faces(y[flat], x[flat])
+        out = {"radiance": radiance, "tau_hydrometeor": tau, "surface": surface}
+        return {**out, "radiance_clear": clear} if with_clear else out
+
+    valid = np.ones(shape, bool)
+    found, traced = sample_image_adaptive(trace, valid, AdaptiveSampling())
+    assert traced.reshape(-1)[(x == 10) | (x == 11)].all()  # both sides of the jump, in every row
+    np.testing.assert_allclose(found["radiance_clear"], faces(y, x)[3], rtol=1e-12, atol=0)
+    for sampling, tracer in ((AdaptiveSampling(clear_tolerance=0.0), trace),
+                             (AdaptiveSampling(), lambda flat: trace(flat, with_clear=False))):
+        _, traced = sample_image_adaptive(tracer, valid, sampling)
+        assert not traced.reshape(-1)[(x == 10) | (x == 11)].any()
+
+
 @pytest.mark.parametrize("spacing", [4, 8])
 def test_sharp_edge_is_refined_to_single_pixels(spacing):
     shape = (45, 70)
@@ -271,7 +299,8 @@ def test_progress_reaches_all_valid_pixels():
 @pytest.mark.parametrize("kwargs", [{"tolerance": 0.0}, {"tolerance": -0.1}, {"tolerance": float("nan")},
                                     {"coarse_spacing": 1}, {"coarse_spacing": 2.5}, {"radiance_floor": -1.0},
                                     {"tau_floor": float("inf")}, {"tau_tolerance": 0.0}, {"tau_tolerance": -1.0},
-                                    {"edge_test_size": -1}, {"edge_test_size": 8.0}])
+                                    {"edge_test_size": -1}, {"edge_test_size": 8.0}, {"clear_tolerance": -0.01},
+                                    {"clear_tolerance": float("inf")}, {"clear_tolerance": "0.05"}])
 def test_bad_settings_raise_naming_the_field(kwargs):
     with pytest.raises(SwimInputError, match=f"AdaptiveSampling.{next(iter(kwargs))}"):
         AdaptiveSampling(**kwargs)

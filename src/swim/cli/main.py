@@ -130,6 +130,10 @@ def render(
                                                   help="Relative error of the line-of-sight hydrometeor optical depth "
                                                        "allowed where --adaptive interpolates [-] (default: "
                                                        "AdaptiveSampling().tau_tolerance, 0.05)."),
+    clear_tolerance: Optional[float] = typer.Option(None, "--clear-tolerance",
+                                                    help="Relative error of the radiance of the air in front of the "
+                                                         "clouds allowed where --adaptive interpolates [-] (default: "
+                                                         "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested)."),
     backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
                                 "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
@@ -201,8 +205,8 @@ def render(
             background = AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
         else:
             background = AerosolBackground(type_name=aerosol, **strat)
-        given = {name: value for name, value in (("tolerance", tolerance), ("tau_tolerance", tau_tolerance))
-                 if value is not None}
+        given = {name: value for name, value in (("tolerance", tolerance), ("tau_tolerance", tau_tolerance),
+                                                 ("clear_tolerance", clear_tolerance)) if value is not None}
         sampling = AdaptiveSampling(**given) if adaptive else None
         target = None
         if look_at is not None:
