@@ -30,4 +30,5 @@ def test_quoted_defaults_are_the_settings_classes_own():
                     f"{defaults[field]}")
                 quoted.append(field)
     # the options that quote a class default (a help text reworded so that the pattern misses it fails here)
-    assert {"n_grid", "n_probe", "probe_spacing", "tau_refine", "stop_tau", "tau_tolerance", "clear_tolerance"} <= set(quoted)
+    assert {"n_grid", "n_probe", "probe_spacing", "tau_refine", "stop_tau", "tau_tolerance",
+            "clear_tolerance"} <= set(quoted)

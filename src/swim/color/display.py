@@ -302,6 +302,12 @@ def solar_relative_to_srgb8(
     SwimInputError
         If the radiance shape does not match the wavelengths, it contains +-inf, or
         ``white_level`` / ``gamut`` are invalid.
+
+    Notes
+    -----
+    At the default wavelengths the chain runs in one compiled pass per pixel
+    (:func:`swim.color.srgb_cpu.srgb8_pixels`), with the NumPy functions' arithmetic and codes; a pixel
+    whose spectrum needs clipping goes through them (docs/colour.md, "Performance").
     """
     w = _check_white_level(white_level)
     r = np.asarray(radiance, dtype=float)

@@ -17,7 +17,6 @@ implemented by ``pvlib.solarposition.get_solarposition(method="nrel_numpy")`` an
 from __future__ import annotations
 
 import functools
-
 import logging
 import math
 import numbers

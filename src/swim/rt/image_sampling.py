@@ -144,8 +144,9 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     trace : callable
         ``trace(pixels)`` with flat pixel indices (n,) into the (ny, nx) image returns a dict of arrays
         (n, ...): at least ``radiance`` (n, C) [-], ``tau_hydrometeor`` (n,) [-] and ``surface`` (n,) bool;
-        ``radiance_clear`` (n, C) [-], where given, enters the test of ``sampling.clear_tolerance``. Float arrays are interpolated, boolean ones copied from the corners (which agree), integer ones
-        (e.g. step counts) are 0 where interpolated.
+        ``radiance_clear`` (n, C) [-], where given, enters the test of ``sampling.clear_tolerance``. Float arrays
+        are interpolated, boolean ones copied from the corners (which agree), integer ones (e.g. step counts) are 0
+        where interpolated.
     valid : numpy.ndarray
         Shape (ny, nx) bool: the camera's pixels that have a ray; the others are never traced and stay 0.
     sampling : AdaptiveSampling
