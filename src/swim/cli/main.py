@@ -68,6 +68,12 @@ def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the st
                         handlers=[RichHandler(console=console, show_path=False)])
 
 
+def _given(**options):
+    """The options that were given on the command line (not None): the settings classes keep their own defaults
+    for the others."""
+    return {name: value for name, value in options.items() if value is not None}
+
+
 @app.command()
 def render(
     scene: Optional[Path] = typer.Argument(None, help="Scene file (WRF wrfout netCDF, WPS geo_em/met_em netCDF, canonical "
@@ -205,9 +211,8 @@ def render(
             background = AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
         else:
             background = AerosolBackground(type_name=aerosol, **strat)
-        given = {name: value for name, value in (("tolerance", tolerance), ("tau_tolerance", tau_tolerance),
-                                                 ("clear_tolerance", clear_tolerance)) if value is not None}
-        sampling = AdaptiveSampling(**given) if adaptive else None
+        sampling = AdaptiveSampling(**_given(tolerance=tolerance, tau_tolerance=tau_tolerance,
+                                             clear_tolerance=clear_tolerance)) if adaptive else None
         target = None
         if look_at is not None:
             try:
@@ -215,12 +220,9 @@ def render(
                 assert len(target) == 3
             except (ValueError, AssertionError):
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
-        settings = MarchSettings(surface=surface, backend=backend, **({} if steps is None else {"n_grid": steps}),
-                                 **({} if probes is None else {"n_probe": probes}),
-                                 **({} if empty_steps is None else {"empty_steps": empty_steps}),
-                                 **({} if probe_spacing is None else {"probe_spacing": probe_spacing}),
-                                 **({} if tau_refine is None else {"tau_refine": tau_refine}),
-                                 **({} if stop_tau is None else {"stop_tau": stop_tau}))
+        settings = MarchSettings(surface=surface, backend=backend, **_given(
+            n_grid=steps, n_probe=probes, empty_steps=empty_steps, probe_spacing=probe_spacing, tau_refine=tau_refine,
+            stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                       settings=settings, white_level=white_level, sampling=sampling)
@@ -230,7 +232,7 @@ def render(
                                      "--end would be the same")
             # a cluster's workers open a plain scene file themselves (no scene sent through the scheduler)
             source = None if scene is None or albedo_image is not None else (
-                scene, {**({} if time is None else {"time": time}), **place}, lazy)
+                scene, {**_given(time=time), **place}, lazy)
             _render_series(ds, source, time, end, every, workers, scheduler, out, netcdf, common)
             return
         out = Path("swim.png") if out is None else out

@@ -229,9 +229,13 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
         smooth = _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling)
         smooth_levels.append(cells[smooth])
-        if progress is not None:  # the pixels that the fill will interpolate count as done (~10 ms a level)
-            for pix, _, _, _ in _fill_groups(traced, valid_flat, smooth_levels[-1], nx, pixels_only=True):
-                filled[pix] = True
+        if progress is not None:  # the pixels that the fill will interpolate count as done
+            from .fill_cpu import fill_cells_from_corner
+
+            # the cells' untraced valid pixels take the value of their first corner, which is traced: True
+            filled |= traced
+            fill_cells_from_corner(filled, np.ascontiguousarray(smooth_levels[-1], dtype=np.int64), traced,
+                                   valid_flat, nx, False)
             report()
         split = cells[~smooth]
         y0, y1, x0, x1 = split.T
@@ -312,31 +316,6 @@ def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
     return ok
 
 
-def _fill_groups(traced, valid_flat, cells, nx, pixels_only=False):
-    """The pixels of cells (m, 4) that are valid and not traced, by cell size: per size (h, w) the pixels (k,), the
-    flat index of their cells' upper left corners (k,), and their offsets down and across in their cells as
-    fractions (k,) [-]; the cells' four corners are ``c00``, ``c00 + w``, ``c00 + h * nx`` and ``c00 + h * nx + w``.
-    With ``pixels_only`` the pixels alone (the rest None)."""
-    if not len(cells):
-        return
-    heights, widths = cells[:, 1] - cells[:, 0], cells[:, 3] - cells[:, 2]
-    size_key = heights * (int(widths.max()) + 1) + widths  # one integer per size: np.unique(axis=0) was ~10x slower
-    for key in np.unique(size_key):
-        group = cells[size_key == key]
-        h, w = int(group[0, 1] - group[0, 0]), int(group[0, 3] - group[0, 2])
-        y0, x0 = group[:, 0], group[:, 2]
-        dy, dx = np.arange(h + 1), np.arange(w + 1)
-        pix = ((y0[:, None, None] + dy[None, :, None]) * nx + x0[:, None, None] + dx[None, None, :]).reshape(-1)
-        target = ~traced[pix] & valid_flat[pix]
-        if pixels_only:
-            yield pix[target], None, (h, w), None
-            continue
-        wy = np.broadcast_to((dy / h)[None, :, None], (len(group), h + 1, w + 1)).reshape(-1)[target]
-        wx = np.broadcast_to((dx / w)[None, None, :], (len(group), h + 1, w + 1)).reshape(-1)[target]
-        c00 = np.repeat(y0 * nx + x0, (h + 1) * (w + 1))[target]
-        yield pix[target], c00, (h, w), (wy, wx)
-
-
 def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
     """Bilinear interpolation of the untraced pixels of the smooth cells of every level (a list of (m, 4) arrays,
     coarse to fine: a pixel on the edge of cells of two levels takes the finer cell's value, as when each level
@@ -353,7 +332,7 @@ def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
     cells = np.ascontiguousarray(np.concatenate([c for c in levels if len(c)]), dtype=np.int64)
 
     def fill_one(a):
-        if a.dtype == bool or a.dtype.kind in "iu":
+        if a.dtype.kind in "biu":
             fill_cells_from_corner(a.reshape(-1), cells, traced, valid_flat, nx, a.dtype != bool)
         else:
             fill_cells(a.reshape(a.shape[0], -1), cells, traced, valid_flat, nx)
