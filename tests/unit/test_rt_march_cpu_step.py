@@ -56,7 +56,7 @@ def test_sky_lanes_hold_the_sky_table_wavelengths_innermost():
     at = march_cpu.callable_from_python(march_cpu._bilinear_at)
     u0, v0, a, b = 2, 6, 0.3, 0.8
     for o in (0, 4):
-        got = corner(lanes[u0, v0], lanes[u0, v0 + 1], lanes[u0 + 1, v0], lanes[u0 + 1, v0 + 1], o, a, b)
+        got = corner(lanes, u0, v0, u0 + 1, v0 + 1, o, a, b)
         for c in range(3):
             assert got[c] == pytest.approx(at(sky, o // 4 * 3 + c, u0, v0, a, b), rel=1e-6)
         assert got[3] == 0.0
@@ -157,3 +157,24 @@ def test_work_arrays_have_their_sizes_and_share_no_cache_line(sizes):
             spans.append((first, (a.ctypes.data + a.nbytes - 1) // march_cpu.CACHE_LINE))
     spans.sort()
     assert all(hi < lo for (_, hi), (lo, _) in zip(spans, spans[1:])), "two arrays share a cache line"
+
+
+@pytest.mark.slow
+def test_the_kernel_changes_reference_counts_only_of_its_arguments():
+    """The march kernel's loops take no array views (``volume[k, j, i]``, a table's row): numba raises and lowers a
+    view's reference count with atomic instructions on a count that every thread shares, which took ~1/4 of the
+    march's cycles (docs/performance.md, section 60). In the compiled kernel (its helpers inlined) the only
+    reference counts that change are its arguments', once per call."""
+    import re
+
+    # compiled here, the render's signature, with the kernel's options but the disk cache (which keeps no IR)
+    fresh = numba.njit(**{**march_cpu._JIT_KERNEL, "cache": False}, nogil=True)(march_cpu._march_ray_range.py_func)
+    signature = precompile.kernel_signature("_march_ray_range")
+    fresh.compile(signature)
+    ir = fresh.inspect_llvm(signature)
+    body = re.search(r"^define [^\n]*@_ZN4swim2rt9march_cpu16_march_ray_range[^\n]*\n(.*?)^}", ir, re.S | re.M)
+    assert body is not None
+    operands = re.findall(r"call void @NRT_(?:incref|decref)\(ptr (?:[\w ]+ )?(%[\w.]+)\)", body.group(1))
+    assert operands, "no reference counts at all: the IR's form changed, so this test no longer sees them"
+    views = sorted(set(op for op in operands if not op.startswith("%arg.")))
+    assert not views, views

@@ -641,21 +641,28 @@ def sky_lanes(sky):
 
 
 @_helper_jit(inline="always")
-def _corner_lanes(r00, r01, r10, r11, o, a, b):
-    """Lanes o ... o + 3 of a bilinear lookup between the four corner rows of a lane table (:func:`sky_lanes`):
-    ``(r00 (1 - b) + r01 b) (1 - a) + (r10 (1 - b) + r11 b) a``, as :func:`_bilinear_at`."""
-    return (((r00[o] * (1 - b) + r01[o] * b) * (1 - a) + (r10[o] * (1 - b) + r11[o] * b) * a),
-            ((r00[o + 1] * (1 - b) + r01[o + 1] * b) * (1 - a) + (r10[o + 1] * (1 - b) + r11[o + 1] * b) * a),
-            ((r00[o + 2] * (1 - b) + r01[o + 2] * b) * (1 - a) + (r10[o + 2] * (1 - b) + r11[o + 2] * b) * a),
-            ((r00[o + 3] * (1 - b) + r01[o + 3] * b) * (1 - a) + (r10[o + 3] * (1 - b) + r11[o + 3] * b) * a))
+def _corner_lane(lanes, u0, v0, u1, v1, o, a, b):
+    """Lane o of a bilinear lookup between the four corner rows (u0, v0) ... (u1, v1) of a lane table
+    (:func:`sky_lanes`): ``(r00 (1 - b) + r01 b) (1 - a) + (r10 (1 - b) + r11 b) a``, as :func:`_bilinear_at`."""
+    return ((lanes[u0, v0, o] * (1 - b) + lanes[u0, v1, o] * b) * (1 - a)
+            + (lanes[u1, v0, o] * (1 - b) + lanes[u1, v1, o] * b) * a)
 
 
 @_helper_jit(inline="always")
-def _profile_lanes(m0, m1, o, w):
-    """Lanes o ... o + 3 of the multiple-scattering profiles between two heights (rows m0, m1 of the ray's
-    ``ms_lanes``): ``m0 (1 - w) + m1 w``."""
-    return (m0[o] * (1 - w) + m1[o] * w, m0[o + 1] * (1 - w) + m1[o + 1] * w,
-            m0[o + 2] * (1 - w) + m1[o + 2] * w, m0[o + 3] * (1 - w) + m1[o + 3] * w)
+def _corner_lanes(lanes, u0, v0, u1, v1, o, a, b):
+    """Lanes o ... o + 3 of :func:`_corner_lane`. The table is indexed element by element: a row taken as a view
+    (``lanes[u0, v0]``) is a new array whose reference count numba raises and lowers with atomic instructions,
+    which took ~1/4 of the march's cycles over all its views (docs/performance.md, section 60)."""
+    return (_corner_lane(lanes, u0, v0, u1, v1, o, a, b), _corner_lane(lanes, u0, v0, u1, v1, o + 1, a, b),
+            _corner_lane(lanes, u0, v0, u1, v1, o + 2, a, b), _corner_lane(lanes, u0, v0, u1, v1, o + 3, a, b))
+
+
+@_helper_jit(inline="always")
+def _profile_lanes(lanes, u0, u1, o, w):
+    """Lanes o ... o + 3 of the multiple-scattering profiles between two heights (rows u0, u1 of the ray's
+    ``ms_lanes``): ``m0 (1 - w) + m1 w``, element by element (no row views: :func:`_corner_lanes`)."""
+    return (lanes[u0, o] * (1 - w) + lanes[u1, o] * w, lanes[u0, o + 1] * (1 - w) + lanes[u1, o + 1] * w,
+            lanes[u0, o + 2] * (1 - w) + lanes[u1, o + 2] * w, lanes[u0, o + 3] * (1 - w) + lanes[u1, o + 3] * w)
 
 
 @_helper_jit(inline="always")
@@ -921,13 +928,14 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         w_i0 = np.float32(1 - fi)
                         ka, ja, ia = _ix(k0), _ix(j0), _ix(i0)
                         kb, jb, ib = _ix(k0 + 1), _ix(j0 + 1), _ix(i0 + 1)
-                        a00, a01 = volume[ka, ja, ia], volume[ka, jb, ia]
-                        a10, a11 = volume[kb, ja, ia], volume[kb, jb, ia]
-                        b00, b01 = volume[ka, ja, ib], volume[ka, jb, ib]
-                        b10, b11 = volume[kb, ja, ib], volume[kb, jb, ib]
+                        # element by element, not through views of the corners' channels (volume[ka, ja, ia]):
+                        # each view's reference count is raised and lowered with atomic instructions, on a count
+                        # that every thread shares (docs/performance.md, section 60)
                         for c in range(n_c):
-                            vol32[c] = (w_i0 * (w00 * a00[c] + w01 * a01[c] + w10 * a10[c] + w11 * a11[c])
-                                        + w_i1 * (w00 * b00[c] + w01 * b01[c] + w10 * b10[c] + w11 * b11[c]))
+                            vol32[c] = (w_i0 * (w00 * volume[ka, ja, ia, c] + w01 * volume[ka, jb, ia, c]
+                                                + w10 * volume[kb, ja, ia, c] + w11 * volume[kb, jb, ia, c])
+                                        + w_i1 * (w00 * volume[ka, ja, ib, c] + w01 * volume[ka, jb, ib, c]
+                                                  + w10 * volume[kb, ja, ib, c] + w11 * volume[kb, jb, ib, c]))
                         for c in range(n_c):
                             vol[c] = vol32[c]
                     else:
@@ -1021,9 +1029,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 # what each lane (wavelength) adds at this step, lane by lane in one block of arithmetic, the
                 # corners' lanes each one contiguous load: LLVM vectorises it across the lanes (section 48)
                 su0u, sv0u, su1u, sv1u = _ix(su0), _ix(sv0), _ix(su0 + 1), _ix(sv0 + 1)
-                r00, r01, r10, r11 = sky_lanes[su0u, sv0u], sky_lanes[su0u, sv1u], sky_lanes[su1u, sv0u], \
-                    sky_lanes[su1u, sv1u]
-                e0, e1, e2, e3 = _corner_lanes(r00, r01, r10, r11, 0, sa, sb)
+                e0, e1, e2, e3 = _corner_lanes(sky_lanes, su0u, sv0u, su1u, sv1u, 0, sa, sb)
                 e0, e1, e2, e3 = e0 * sun, e1 * sun, e2 * sun, e3 * sun
                 if tau_a3_sun != 0.0:
                     e0 *= math.exp(-tau_a3_sun * ang[0])
@@ -1042,10 +1048,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 src2 = (br2 * phase_r + sa2 * phase_a[2] + ss2 * phase_s[2]) * e2
                 src3 = (br3 * phase_r + sa3 * phase_a[3] + ss3 * phase_s[3]) * e3
                 if use_ms:
-                    m0, m1 = ms_lanes[ua], ms_lanes[ub]
-                    jr0, jr1, jr2, jr3 = _profile_lanes(m0, m1, 0, wu)
-                    ja0, ja1, ja2, ja3 = _profile_lanes(m0, m1, LANES, wu)
-                    js0, js1, js2, js3 = _profile_lanes(m0, m1, 2 * LANES, wu)
+                    jr0, jr1, jr2, jr3 = _profile_lanes(ms_lanes, ua, ub, 0, wu)
+                    ja0, ja1, ja2, ja3 = _profile_lanes(ms_lanes, ua, ub, LANES, wu)
+                    js0, js1, js2, js3 = _profile_lanes(ms_lanes, ua, ub, 2 * LANES, wu)
                     src0 += (br0 * jr0 + sa0 * ja0 + ss0 * js0) * t_cloud
                     src1 += (br1 * jr1 + sa1 * ja1 + ss1 * js1) * t_cloud
                     src2 += (br2 * jr2 + sa2 * ja2 + ss2 * js2) * t_cloud
@@ -1061,7 +1066,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                                        + _bilinear_at(diffuse_classes, 2, cu1, cv1, ca1, cb1) * wc)
                         df3 = df2
                     else:
-                        df0, df1, df2, df3 = _corner_lanes(r00, r01, r10, r11, LANES, sa, sb)
+                        df0, df1, df2, df3 = _corner_lanes(sky_lanes, su0u, sv0u, su1u, sv1u, LANES, sa, sb)
                     irr = (e0 + 2.0 * df0 * t_cloud, e1 + 2.0 * df1 * t_cloud, e2 + 2.0 * df2 * t_cloud,
                            e3 + 2.0 * df3 * t_cloud)
                 tc, to, lc, i_ng, i_g = _accumulate_lanes(tc, to, lc, i_ng, i_g,
