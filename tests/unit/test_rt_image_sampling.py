@@ -170,12 +170,14 @@ def test_feature_at_a_cell_centre_is_found():
     np.testing.assert_allclose(values["radiance"], radiance, rtol=1e-12, atol=0)
 
 
-def test_invalid_pixels_are_never_traced_and_stay_zero():
+@pytest.mark.parametrize("outside", [0.0, np.nan])
+def test_invalid_pixels_are_never_traced_and_keep_the_outside_value(outside):
     shape = (48, 48)
     yy, xx = np.indices(shape)
     valid = (yy - 23.5) ** 2 + (xx - 23.5) ** 2 <= 24.0**2  # an all-sky camera's circle
     calls = []
-    values, traced = sample_image_adaptive(make_trace(bilinear_function, shape, calls), valid, AdaptiveSampling())
+    values, traced = sample_image_adaptive(make_trace(bilinear_function, shape, calls), valid, AdaptiveSampling(),
+                                           outside=outside)
     asked = np.concatenate(calls)
     assert valid.reshape(-1)[asked].all()
     assert np.unique(asked).size == asked.size  # no pixel traced twice
@@ -183,7 +185,11 @@ def test_invalid_pixels_are_never_traced_and_stay_zero():
     radiance, _, _ = exact(bilinear_function, shape)
     flat_valid = valid.reshape(-1)
     np.testing.assert_allclose(values["radiance"][flat_valid], radiance[flat_valid], rtol=1e-12, atol=1e-12)
-    assert np.all(values["radiance"][~flat_valid] == 0)
+    # float outputs take the outside value there (all of them, and no valid pixel does), the others 0
+    for key in ("radiance", "tau_hydrometeor"):
+        np.testing.assert_array_equal(values[key][~flat_valid], outside)
+        assert np.all(np.isfinite(values[key][flat_valid]))
+    assert not values["surface"][~flat_valid].any() and np.all(values["steps"][~flat_valid] == 0)
 
 
 def test_tolerance_bounds_the_error_of_a_smooth_curved_image():
@@ -381,3 +387,92 @@ def test_the_compiled_fill_interpolates_each_cell_in_the_values_precision_finer_
     along_coarse_edge = original[8 * nx] * dtype(1 - 2 / 8) + original[8 * nx + 8] * dtype(2 / 8)
     assert np.abs(values[8 * nx + 2] - along_coarse_edge).max() > 1e-3
     np.testing.assert_array_equal(values[[3 * nx + 5, 10 * nx + 1]], original[[3 * nx + 5, 10 * nx + 1]])
+
+
+def _smooth_cells_numpy(values, valid_flat, traced, cells, nx, sampling):
+    """The cells' test as NumPy gathers over all cells at once (the sampler's own until session 47): the reference
+    that swim.rt.smooth_cpu's per-cell kernels must reproduce."""
+    y0, y1, x0, x1 = cells.T
+    yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
+    corners = [y0 * nx + x0, y0 * nx + x1, y1 * nx + x0, y1 * nx + x1]
+    wy = (yc - y0) / np.maximum(y1 - y0, 1)
+    wx = (xc - x0) / np.maximum(x1 - x0, 1)
+    tests = [(yc * nx + xc, ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy))]
+    size = sampling.edge_test_size
+    edged = (np.maximum(y1 - y0, x1 - x0) >= size) if size > 0 else np.zeros(len(cells), bool)
+    zero = np.zeros(len(cells))
+    midpoints = (y0 * nx + xc, y1 * nx + xc, yc * nx + x0, yc * nx + x1)
+    edge_weights = ((1 - wx, wx, zero, zero), (zero, zero, 1 - wx, wx), (1 - wy, zero, wy, zero),
+                    (zero, 1 - wy, zero, wy))
+    centre, centre_weights = tests[0]
+    tests += [(np.where(edged, pixel, centre), tuple(np.where(edged, w, wc) for w, wc in zip(weights, centre_weights)))
+              for pixel, weights in zip(midpoints, edge_weights)]
+    ok = np.ones(len(cells), bool)
+    for p in corners + [pixel for pixel, _ in tests]:
+        ok &= valid_flat[p] & traced[p]
+    for p in corners + [pixel for pixel, _ in tests[1:]]:
+        ok &= values["surface"][p] == values["surface"][centre]
+    checks = [("radiance", sampling.tolerance, sampling.radiance_floor),
+              ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)]
+    if sampling.clear_tolerance > 0:
+        checks.append(("radiance_clear", sampling.clear_tolerance, sampling.radiance_floor))
+    for key, tolerance, floor in checks:
+        v = values[key].reshape(values[key].shape[0], -1)
+        c = [v[p] for p in corners]
+        for pixel, weights in tests:
+            with np.errstate(invalid="ignore"):  # 0 * inf
+                predicted = sum(w[:, None] * ci for w, ci in zip(weights, c))
+                actual = v[pixel]
+                scale = np.maximum(np.abs(actual), np.abs(predicted))
+                ok &= np.all(np.abs(actual - predicted) <= tolerance * scale + floor, axis=1)
+    return ok
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("edge_test_size", [0, 5, 8])
+@pytest.mark.parametrize("clear_tolerance", [0.0, 0.05])
+def test_the_compiled_cell_test_decides_as_the_numpy_gathers(dtype, edge_test_size, clear_tolerance):
+    """swim.rt.smooth_cpu (through image_sampling._smooth_cells) against the NumPy test it replaced, cell for cell,
+    on images that make every part of the test decide: values that are exactly bilinear (pass), noise at the
+    tolerance's edge (both ways), NaN and inf values, pixels without a ray or not traced, the ground beside the
+    sky, and cells of every size from 1 x 2 pixels to 16 x 16, with and without edge tests."""
+    from swim.rt.image_sampling import _smooth_cells
+
+    ny, nx = 64, 70
+    rng = np.random.default_rng(47 + edge_test_size)
+    y, x = np.mgrid[0:ny, 0:nx]
+    planar = (0.3 + 0.01 * y + 0.02 * x + 1e-4 * x * y).reshape(-1)
+    sampling = AdaptiveSampling(tolerance=0.02, tau_tolerance=0.05, clear_tolerance=clear_tolerance,
+                                edge_test_size=edge_test_size)
+    # relative noise spread around the tolerances: about half the tested pixels pass
+    noise = lambda k: 1 + rng.uniform(-0.06, 0.06, (ny * nx, k)) * (rng.random((ny * nx, 1)) < 0.5)
+    values = {"radiance": (planar[:, None] * [1.0, 0.8, 0.6] * noise(3)).astype(dtype),
+              "tau_hydrometeor": (10 * planar * noise(1)[:, 0]).astype(dtype),
+              "radiance_clear": (0.1 * planar[:, None] * [1.0, 0.9, 0.7] * noise(3)).astype(dtype),
+              "surface": rng.random(ny * nx) < 0.05}
+    values["radiance"][rng.random(ny * nx) < 0.01, 1] = np.nan
+    values["radiance_clear"][rng.random(ny * nx) < 0.005, 2] = np.inf
+    valid = rng.random(ny * nx) > 0.03
+    traced = rng.random(ny * nx) > 0.03
+    cells = []
+    for size in (1, 2, 3, 4, 5, 8, 16):
+        for y0 in range(0, ny - size, max(size, 2) + 1):
+            for x0 in range(0, nx - 2 * size, 2 * size + 1):
+                cells.append((y0, y0 + size, x0, x0 + 2 * size if size < 3 else x0 + size))
+    cells = np.array(cells, np.int64)
+    got = _smooth_cells(values, valid, traced, cells, nx, sampling)
+    expected = _smooth_cells_numpy(values, valid, traced, cells, nx, sampling)
+    np.testing.assert_array_equal(got, expected)
+    # every way of deciding occurs: some cells pass, and more fail than the rays and surfaces alone would fail
+    assert 0.1 < expected.mean() < 0.9
+    bare = AdaptiveSampling(tolerance=1e9, tau_tolerance=1e9, clear_tolerance=1e9 if clear_tolerance else 0.0,
+                            edge_test_size=edge_test_size)
+    only_rays = _smooth_cells_numpy(values, valid, traced, cells, nx, bare)
+    assert np.any(only_rays & ~expected) and not np.all(only_rays)
+    # exactly bilinear values pass wherever the rays and surfaces allow (float64 rounding within the tolerance)
+    exact = {**values, "radiance": np.repeat(planar[:, None], 3, 1).astype(dtype),
+             "tau_hydrometeor": planar.astype(dtype), "radiance_clear": np.repeat(planar[:, None], 3, 1).astype(dtype)}
+    exact["surface"] = np.zeros(ny * nx, bool)
+    passed = _smooth_cells(exact, valid, traced, cells, nx, AdaptiveSampling(tolerance=1e-3, tau_tolerance=1e-3,
+                                                                              edge_test_size=edge_test_size))
+    np.testing.assert_array_equal(passed, _smooth_cells_numpy(exact, valid, traced, cells, nx, bare))

@@ -136,7 +136,8 @@ def _lattice(n, spacing):
     return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
 
 
-def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSampling(), progress=None, max_threads=1):
+def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSampling(), progress=None, max_threads=1,
+                          outside=0.0):
     """Sample an image by tracing a quadtree of its pixels and interpolating its smooth cells.
 
     Parameters
@@ -148,20 +149,24 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         are interpolated, boolean ones copied from the corners (which agree), integer ones (e.g. step counts) are 0
         where interpolated.
     valid : numpy.ndarray
-        Shape (ny, nx) bool: the camera's pixels that have a ray; the others are never traced and stay 0.
+        Shape (ny, nx) bool: the camera's pixels that have a ray; the others are never traced and keep ``outside``
+        (float outputs) or 0.
     sampling : AdaptiveSampling
     progress : callable, optional
         Called with (pixels done, valid pixels) after each batch of rays.
     max_threads : int
-        Threads [-] that interpolate the smooth cells' pixels, one output array each (NumPy's gathers release the
+        Threads [-] that interpolate the smooth cells' pixels, one output array each (the compiled fill releases the
         GIL), at the end: the cells of every level are interpolated then, coarse to fine, which gives what filling
         them level by level gives (only traced pixels enter the test of a cell, and a pixel traced later keeps its
         traced value).
+    outside : float
+        Value of the float outputs at the pixels without a ray (``valid`` False): NaN lets an image's planes be
+        made without a masking pass (:func:`swim.pipeline.render`).
 
     Returns
     -------
     values : dict of numpy.ndarray
-        Shape (ny * nx, ...) per key of ``trace``'s result; 0 at invalid pixels.
+        Shape (ny * nx, ...) per key of ``trace``'s result; ``outside`` (float) or 0 at invalid pixels.
     traced : numpy.ndarray
         Shape (ny, nx) bool: the pixels that were traced (the others are interpolated or invalid).
 
@@ -197,14 +202,14 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         for key, value in result.items():
             value = np.asarray(value)
             if key not in values:
-                values[key] = np.zeros((ny * nx,) + value.shape[1:], value.dtype)
+                values[key] = _image_array(ny * nx, value, outside)
             values[key][flat] = value
         traced[flat] = True
         report()
 
     if sampling.coarse_spacing >= min(ny, nx) or min(ny, nx) < 3:
         run(np.flatnonzero(valid_flat))
-        return _finish(values, traced, ny, nx, trace), traced.reshape(ny, nx)
+        return _finish(values, traced, ny, nx, trace, outside), traced.reshape(ny, nx)
 
     def tested(cells):  # the pixels that the cells' tests read besides their corners
         y0, y1, x0, x1 = cells.T
@@ -225,9 +230,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     run(np.concatenate([(rows[:, None] * nx + cols[None, :]).reshape(-1), tested(cells)]))
     smooth_levels = []  # the smooth cells (m, 4) of each level, coarse to fine: interpolated at the end
     while cells.size:
-        y0, y1, x0, x1 = cells.T
-        yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
-        smooth = _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling)
+        smooth = _smooth_cells(values, valid_flat, traced, cells, nx, sampling)
         smooth_levels.append(cells[smooth])
         if progress is not None:  # the pixels that the fill will interpolate count as done
             from .fill_cpu import fill_cells_from_corner
@@ -247,13 +250,21 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         cells = inner(children[(children[:, 1] > children[:, 0]) & (children[:, 3] > children[:, 2])])
         run(np.concatenate([*_edge_midpoints(y0, y1, x0, x1, yc, xc, nx), tested(cells)]))
     _fill(values, traced, valid_flat, smooth_levels, nx, max_threads)
-    return _finish(values, traced, ny, nx, trace), traced.reshape(ny, nx)
+    return _finish(values, traced, ny, nx, trace, outside), traced.reshape(ny, nx)
 
 
-def _finish(values, traced, ny, nx, trace):
+def _image_array(n, value, outside):
+    """An output's array for all ``n`` pixels of the image, shaped and typed as a batch's ``value`` (m, ...):
+    ``outside`` where it is float, else 0, until its pixels are traced or interpolated."""
+    value = np.asarray(value)
+    if value.dtype.kind == "f":
+        return np.full((n,) + value.shape[1:], outside, value.dtype)
+    return np.zeros((n,) + value.shape[1:], value.dtype)
+
+
+def _finish(values, traced, ny, nx, trace, outside):
     if not values:  # nothing valid: ask for the keys with an empty batch
-        values = {key: np.zeros((ny * nx,) + np.asarray(v).shape[1:], np.asarray(v).dtype)
-                  for key, v in trace(np.zeros(0, np.int64)).items()}
+        values = {key: _image_array(ny * nx, v, outside) for key, v in trace(np.zeros(0, np.int64)).items()}
     return values
 
 
@@ -271,48 +282,29 @@ def _edge_tested(cells, size):
     return np.maximum(cells[:, 1] - cells[:, 0], cells[:, 3] - cells[:, 2]) >= size
 
 
-def _smooth_cells(values, valid_flat, traced, cells, yc, xc, nx, sampling):
+def _smooth_cells(values, valid_flat, traced, cells, nx, sampling):
     """Cells (m,) whose traced centre matches the bilinear interpolation of their corners and, in cells of at least
     ``sampling.edge_test_size`` pixels, whose edges' traced midpoints match the linear interpolation of their edges'
-    corners."""
-    if not values:  # nothing traced yet (no valid pixel so far): no cell can be interpolated
-        return np.zeros(len(cells), bool)
-    y0, y1, x0, x1 = cells.T
-    corners = [y0 * nx + x0, y0 * nx + x1, y1 * nx + x0, y1 * nx + x1]
-    wy = (yc - y0) / np.maximum(y1 - y0, 1)
-    wx = (xc - x0) / np.maximum(x1 - x0, 1)
-    # each test: the tested pixel (m,), and the weights (m,) of the four corners c00, c01, c10, c11 at it
-    tests = [(yc * nx + xc, ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy))]
-    edged = _edge_tested(cells, sampling.edge_test_size)
-    if edged.any():
-        zero = np.zeros(len(cells))
-        # the corners' weights at the top, bottom, left and right edges' midpoints
-        edges = zip(_edge_midpoints(y0, y1, x0, x1, yc, xc, nx), ((1 - wx, wx, zero, zero), (zero, zero, 1 - wx, wx),
-                                                                   (1 - wy, zero, wy, zero), (zero, 1 - wy, zero, wy)))
-        centre, centre_weights = tests[0]
-        # a cell without edge tests tests its centre again in their place (the same result)
-        tests += [(np.where(edged, pixel, centre),
-                   tuple(np.where(edged, w, wc) for w, wc in zip(weights, centre_weights))) for pixel, weights in edges]
-    centre = tests[0][0]
+    corners, in the radiance, the hydrometeor optical depth and (``sampling.clear_tolerance`` > 0) the clear-air
+    radiance; their corners and tested pixels all traced and all seeing the ground or all the sky.
+
+    One compiled pass per output over the cells (:mod:`swim.rt.smooth_cpu`): the NumPy gathers it replaces took ~0.09
+    s of a 1024^2 all-sky's three levels while the march's threads waited, for the same decisions
+    (docs/performance.md, section 60)."""
+    from .smooth_cpu import cells_match, cells_traced_alike
+
     ok = np.ones(len(cells), bool)
-    for p in corners + [pixel for pixel, _ in tests]:
-        ok &= valid_flat[p] & traced[p]
-    surface = values["surface"]
-    for p in corners + [pixel for pixel, _ in tests[1:]]:
-        ok &= surface[p] == surface[centre]
+    if not values:  # nothing traced yet (no valid pixel so far): no cell can be interpolated
+        return ~ok
+    cells = np.ascontiguousarray(cells, dtype=np.int64)
+    size = int(sampling.edge_test_size)
+    cells_traced_alike(ok, cells, nx, size, valid_flat, traced, values["surface"])
     checks = [("radiance", sampling.tolerance, sampling.radiance_floor),
               ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)]
     if sampling.clear_tolerance > 0 and "radiance_clear" in values:
         checks.append(("radiance_clear", sampling.clear_tolerance, sampling.radiance_floor))
     for key, tolerance, floor in checks:
-        v = values[key].reshape(values[key].shape[0], -1)
-        c = [v[p] for p in corners]
-        for pixel, weights in tests:
-            predicted = sum(w[:, None] * ci for w, ci in zip(weights, c))
-            actual = v[pixel]
-            scale = np.maximum(np.abs(actual), np.abs(predicted))
-            with np.errstate(invalid="ignore"):
-                ok &= np.all(np.abs(actual - predicted) <= tolerance * scale + floor, axis=1)
+        cells_match(ok, values[key].reshape(values[key].shape[0], -1), cells, nx, size, float(tolerance), float(floor))
     return ok
 
 
