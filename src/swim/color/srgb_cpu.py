@@ -24,11 +24,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..rt.march_cpu import _CACHE
-
 # no fast-math: the same IEEE arithmetic as the NumPy chain, so that the codes agree (a pixel near a code's edge
 # may still round the other way where NumPy's matrix products sum in another order)
-_JIT = {"cache": _CACHE, "error_model": "numpy", "nogil": True}
+from ..rt.march_cpu import _JIT_EXACT as _JIT
 
 
 @njit(**_JIT)

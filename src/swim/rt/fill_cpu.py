@@ -15,9 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .march_cpu import _CACHE
-
-_JIT = {"cache": _CACHE, "error_model": "numpy", "nogil": True}
+from .march_cpu import _JIT_EXACT as _JIT
 
 
 @njit(**_JIT)

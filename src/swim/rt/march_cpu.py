@@ -88,6 +88,9 @@ _JIT_KERNEL = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
 #: would otherwise compile (and cache) for each of them, an empty cache compiles the march and its set-up ~2.5 s
 #: (17 %) faster (docs/performance.md, section 40).
 _JIT_HELPER = {**_JIT_KERNEL, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+#: Kernels that must give the bits of the NumPy code they replace (the colour stage, adaptive sampling's fill and
+#: cells' test): no fast-math (no contraction into FMAs, no reassociation), without the GIL.
+_JIT_EXACT = {"cache": _CACHE, "error_model": "numpy", "nogil": True}
 
 
 class _CompiledOnlyDispatcher(CPUDispatcher):

@@ -17,9 +17,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from .march_cpu import _CACHE
-
-_JIT = {"cache": _CACHE, "error_model": "numpy", "nogil": True}
+from .march_cpu import _JIT_EXACT as _JIT
 
 
 @njit(**_JIT)
