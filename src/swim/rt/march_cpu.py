@@ -39,6 +39,7 @@ from numba.extending import intrinsic
 from ..constants import AFTER_MIN_STEPS, GAS_COLUMN_ROW
 from .cache_budget import hold_code_version, prune_code_versions
 from .compilation_cache import _disabled, cache_directory, serialise_numba_cache_writes
+from .numba_target import choose_cpu_features
 
 
 #: The modules (relative to ``swim/rt``) whose module-level constants the compiled functions read: numba freezes
@@ -65,6 +66,9 @@ def numba_sources_digest() -> str:
     return digest.hexdigest()[:16]
 
 
+# before numba sets up its CPU target (the first compilation or cache load): AVX-512 left out on Intel CPUs,
+# where the march ran 8-23 % slower with it (swim.rt.numba_target)
+choose_cpu_features()
 _CACHE = not _disabled()
 if _CACHE and not numba.config.CACHE_DIR:
     # numba caches compiled functions beside the source by default, which an installed package may not allow;

@@ -174,6 +174,11 @@ def _helper_environment() -> dict:
 
     env = dict(os.environ)
     env["NUMBA_CACHE_DIR"] = str(march_cpu.numba.config.CACHE_DIR)
+    # the CPU and the features this process compiles for (swim.rt.numba_target): numba's cache keys its entries by
+    # them, and the helper, a fresh process, could choose others (this one's target may have been set up before
+    # swim's choice)
+    _, cpu_name, features = march_cpu._march_ray_range.targetctx.codegen().magic_tuple()
+    env["NUMBA_CPU_NAME"], env["NUMBA_CPU_FEATURES"] = cpu_name, features
     env["SWIM_PRECOMPILE_HELPER"] = "1"  # no JAX set-up in the helper (swim.rt's import; ~0.4 s of its start)
     root = str(Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
