@@ -1759,6 +1759,54 @@ def padded_batch_size(n, chunk):
     return int(min(chunk, max(MIN_BATCH, 1 << int(np.ceil(np.log2(max(n, 1)))))))
 
 
+#: Fewest rays of a chunk before the last round of :func:`chunk_spans` (a chunk's fixed cost is ~1 ms).
+TAIL_CHUNK = 512
+
+
+def chunk_spans(n, chunk, cores, least=TAIL_CHUNK):
+    """The chunks [lo, hi) of a batch of n rays that ``cores`` workers march on the CPU, in order: each round of
+    ``cores`` chunks takes half of the rays left, split evenly (at most ``chunk`` rays per chunk), until such chunks
+    would be smaller than ``least``: the last round takes what is left, split evenly. Chunks thus shrink towards the
+    batch's end.
+
+    This is "factoring" (Hummel, Schonberg and Flynn 1992, "Factoring: a method for scheduling parallel loops",
+    Commun. ACM 35(8), 90-101, doi:10.1145/135226.135232). A ray's cost varies ~10-fold across an image (the horizon's
+    rays cross far more cells than the zenith's), so chunks of equal size left one core marching the batch's last
+    chunk alone for 0.04-0.15 s of a 1024^2 all-sky's three batches while the other waited (docs/performance.md,
+    section 61); with chunks this small at the end, it waits for a small one. A small batch (a small image, a level of
+    adaptive sampling) still runs on every core from the start.
+
+    Parameters
+    ----------
+    n : int
+        Rays in the batch, >= 0.
+    chunk : int
+        Most rays per chunk, >= 1.
+    cores : int
+        Workers, >= 1.
+    least : int
+        Fewest rays per chunk but in the last round (whose chunks are < 2 ``least``), >= 1.
+
+    Returns
+    -------
+    list of tuple of int
+        (lo, hi) per chunk: consecutive, covering range(n).
+    """
+    spans, lo = [], 0
+    while lo < n:
+        left = n - lo
+        size = min(-(-left // (2 * cores)), chunk)
+        if size < least and -(-left // cores) <= chunk:  # the last round: what is left, split evenly
+            k = min(cores, left)
+            ends = lo + np.cumsum([left // k + (q < left % k) for q in range(k)])  # the bigger chunks first
+            return spans + [(int(a), int(b)) for a, b in zip([lo, *ends[:-1]], ends)]
+        for _ in range(cores):
+            if lo < n:
+                spans.append((lo, min(lo + size, n)))
+                lo = spans[-1][1]
+    return spans
+
+
 def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, settings: MarchSettings = MarchSettings(),
                progress=None):
     """March rays and return per-ray radiance components (numpy arrays).
@@ -1823,14 +1871,11 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     chunk = batch = settings.resolved_chunk()
     steps = settings.n_before + settings.n_grid + settings.n_after + 1  # the end step (_march_rays)
     backend = settings.resolved_backend()
+    spans = [(lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
     if backend == "numba":
-        # chunks of equal size (at most the chunk setting), as many as a multiple of the cores: a small batch (a small
-        # image, a level of adaptive sampling) then runs on every core instead of in one chunk on one, and no
-        # core waits for a last, smaller chunk; the JAX stages around the kernel still see the padded sizes of
-        # the chunk setting (padded_batch_size), so nothing is compiled anew
+        # chunks that shrink towards the batch's end, so that all cores finish together (chunk_spans)
         cores = threads()
-        n_chunks = cores * -(-n // (cores * chunk))
-        chunk = min(max(-(-n // n_chunks), min(MIN_BATCH, n)), chunk)
+        spans = chunk_spans(n, chunk, cores)
     if backend in ("numba", "cuda"):
         tables = _numba_tables(consts, prepare=backend == "numba")
         if backend == "cuda":
@@ -1849,7 +1894,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     held = []  # the first chunks' jobs, one per worker, submitted together (below)
     if backend == "numba":
         # chunks marched at once, one per core (the numba kernel runs without the GIL)
-        workers = min(cores, -(-n // chunk))
+        workers = min(cores, len(spans))
         pool = worker_pool(workers) if workers > 1 else None
     # the JAX kernel's chunks are marched one after the other, on one worker thread when there are several chunks
     jax_pool = worker_pool(1) if backend == "jax" and n > chunk and not in_worker_thread() else None
@@ -1863,8 +1908,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
             progress(hi, n)
 
     try:
-        for lo in range(0, n, chunk):
-            hi = min(lo + chunk, n)
+        for lo, hi in spans:
             pad = padded_batch_size(hi - lo, batch) - (hi - lo)
 
             def take(a, dtype=np.float32, first=0):
