@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
-from ..constants import AFTER_MIN_STEPS, BACKSCATTER_FRACTION, EARTH_RADIUS_M, GAS_COLUMN_ROW, SPECIES
+from ..constants import AFTER_MIN_STEPS, BACKSCATTER_FRACTION, CELL_PROBES, EARTH_RADIUS_M, GAS_COLUMN_ROW, SPECIES
 from ..frames import ray_sphere_intersections
 from ..optics.volume import grid_indices
 from ..optics.phase import (
@@ -610,10 +610,8 @@ def probe_counts(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBE
     segment crosses more than ``n_probe * probe_spacing`` cells one per ``probe_spacing`` cells, at most
     :data:`MAX_PROBES`.
 
-    A segment's length in cells is the Chebyshev length of its path in grid indices (the largest of the index
-    changes, summed between its ``n_probe`` probes and extended by the half intervals at its ends): the number of
-    cells the ray passes along its dominant axis. ``probe_spacing`` 0 gives ``n_probe`` for every ray, and so does
-    ``n_probe`` 1 (a single probe measures no length).
+    A segment's length in cells is the Chebyshev length of its path in grid indices (:func:`segment_cells`): the
+    number of cells the ray passes along its dominant axis. ``probe_spacing`` 0 gives ``n_probe`` for every ray.
     """
     if not probe_spacing:
         return jnp.full(start.shape[:1], n_probe, jnp.int32)
@@ -622,16 +620,29 @@ def probe_counts(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBE
 
 def probe_counts_and_cells(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBES,
                            probe_spacing=MarchSettings.probe_spacing):
-    """:func:`probe_counts` (n,) int32 and the grid segments' lengths in cells (n,) [-] that they come from (the
-    Chebyshev length of ``n_probe`` probes; ``probe_spacing`` 0 gives ``n_probe`` probes for every ray)."""
-    k, j, i = _probe_indices(start, direction, s0, length, consts, n_probe)
-    cells = _segment_cells(k, j, i, n_probe)
+    """:func:`probe_counts` (n,) int32 and the grid segments' lengths in cells (n,) [-] that they come from
+    (:func:`segment_cells`; ``probe_spacing`` 0 gives ``n_probe`` probes for every ray)."""
+    cells = segment_cells(start, direction, s0, length, consts)
     if not probe_spacing:
         return jnp.full(start.shape[:1], n_probe, jnp.int32), cells
     # CELL_SLACK: a ray along a grid axis crosses a whole number of cells, which must not round up in float32
     # here and not in float64 in the numba kernel (or the other way round)
     need = jnp.ceil(cells / probe_spacing - CELL_SLACK)
     return jnp.clip(need, n_probe, max(MAX_PROBES, n_probe)).astype(jnp.int32), cells
+
+
+def segment_cells(start, direction, s0, length, consts):
+    """Length in cells (n,) [-] of each ray's grid segment [s0, s0 + length] [m]: the Chebyshev length of its path
+    in grid indices, measured at :data:`CELL_PROBES` points (the middles of equal intervals; the largest index change
+    between neighbouring points, summed and extended by the half intervals at the ends), the cells the ray passes
+    along its dominant axis.
+
+    Measured apart from the occupancy probes, at fewer points: the march probed every ray's occupancy at ``n_probe``
+    points for its length alone before probing it again at the count that length asks for (every ray of a 1024^2
+    all-sky of the 400 x 400 x 60 scene, whose 160 levels make even the zenith's ray cross more than ``n_probe``
+    times ``probe_spacing`` cells), ~1/4 of the march's probes (docs/performance.md, section 61)."""
+    k, j, i = _probe_indices(start, direction, s0, length, consts, CELL_PROBES)
+    return _segment_cells(k, j, i, CELL_PROBES)
 
 
 def _segment_cells(k, j, i, n_probe):
@@ -673,8 +684,8 @@ def grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCC
     n_steps, as in :func:`adaptive_step_edges`.
 
     ``probes`` (n,): each ray's probe count (:func:`probe_counts`, at most ``n_probe``), or None for ``n_probe``
-    each; ``cells``: the segments' lengths in cells of :func:`probe_counts_and_cells` (needed with ``probes``
-    and ``empty_steps``; without ``probes`` they come from the probes here).
+    each; ``cells``: the segments' lengths in cells of :func:`segment_cells` (needed with ``probes`` and
+    ``empty_steps``; without ``probes`` they are measured here).
     """
     n = start.shape[0]
     count = jnp.full((n,), n_probe, jnp.int32) if probes is None else jnp.minimum(probes.astype(jnp.int32), n_probe)
@@ -690,7 +701,7 @@ def grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCC
         if cells is None:
             if probes is not None:
                 raise ValueError("grid_step_edges: cells are needed with probes (probe_counts_and_cells)")
-            cells = _segment_cells(k, j, i, n_probe)
+            cells = segment_cells(start, direction, s0, length, consts)
         n_occupied = jnp.sum(occupied & own, axis=0).astype(jnp.float32)
         n_empty = count.astype(jnp.float32) - n_occupied
         total = n_occupied + empty_weight * n_empty

@@ -36,7 +36,7 @@ from numba.core import cgutils
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
-from ..constants import AFTER_MIN_STEPS, GAS_COLUMN_ROW
+from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW
 from .cache_budget import hold_code_version, prune_code_versions
 from .compilation_cache import _disabled, cache_directory, serialise_numba_cache_writes
 from .numba_target import choose_cpu_features
@@ -462,16 +462,26 @@ def _prefetch_corners(volume, count, step_at):
 
 
 @_helper_jit()
+def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_at):
+    """:func:`swim.rt.march.segment_cells` for one ray: the length in cells of the grid segment [s0, s0 + length]
+    [m], from the grid indices of :data:`swim.constants.CELL_PROBES` points (one block of :func:`_probe_indices`)."""
+    n = CELL_PROBES
+    _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n, 0, n, p, coef, shape, probe_at)
+    cells = 0.0
+    for b in range(1, n):
+        cells += max(abs(probe_at[0, b] - probe_at[0, b - 1]),
+                     max(abs(probe_at[1, b] - probe_at[1, b - 1]), abs(probe_at[2, b] - probe_at[2, b - 1])))
+    return cells * (n / (n - 1.0))
+
+
+@_helper_jit()
 def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf, probe_at):
     """Probe the occupancy at n_probe equal intervals of a grid segment: the unnormalised cumulative step density
-    in ``cdf[:n_probe + 1]``; returns the segment's length in cells (:func:`swim.rt.march.probe_counts_and_cells`)
-    and the number of occupied probes. The probes' indices are computed in blocks of ``probe_at.shape[1]``
-    (:func:`_probe_indices`), then looked up one by one."""
+    in ``cdf[:n_probe + 1]``; returns the number of occupied probes. The probes' indices are computed in blocks of
+    ``probe_at.shape[1]`` (:func:`_probe_indices`), then looked up one by one."""
     nk, ny, nx = occupancy.shape
     cdf[0] = 0.0
-    cells = 0.0
     occupied = 0
-    kp = jp = ip = 0.0
     block = probe_at.shape[1]
     for first in range(0, n_probe, block):
         count = min(block, n_probe - first)
@@ -479,18 +489,12 @@ def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, 
                        probe_at)
         for b in range(count):
             m = first + b
-            k, j, i = probe_at[0, b], probe_at[1, b], probe_at[2, b]
-            if m > 0:
-                cells += max(abs(k - kp), max(abs(j - jp), abs(i - ip)))
-            kp, jp, ip = k, j, i
             if occupancy[int(probe_at[3, b]), int(probe_at[4, b]), int(probe_at[5, b])] > 0:
                 occupied += 1
                 cdf[m + 1] = cdf[m] + 1.0
             else:
                 cdf[m + 1] = cdf[m] + empty_weight
-    if n_probe > 1:
-        cells *= n_probe / (n_probe - 1.0)
-    return cells, occupied
+    return occupied
 
 
 @_helper_jit()
@@ -498,15 +502,15 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
                     probe_spacing, cell_slack, empty_steps, empty_cells_per_step, cdf, edges, probe_at):
     """:func:`swim.rt.march.grid_step_edges` for one ray, written into ``edges`` (steps + 1,); returns its number
     of steps. With the probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
-    probe_spacing`` cells is probed again, once per ``probe_spacing`` cells (at most ``cdf.size - 1`` probes)."""
-    cells, occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe,
-                                       empty_weight, cdf, probe_at)
+    probe_spacing`` cells (:func:`_segment_cells`) is probed once per ``probe_spacing`` cells instead (at most
+    ``cdf.size - 1`` probes)."""
+    cells = _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy.shape, probe_at)
     # clamped before the conversion to an integer (a tiny spacing would overflow it)
     need = min(math.ceil(cells / probe_spacing - cell_slack), cdf.shape[0] - 1.0) if probe_spacing > 0 else 0.0
     if need > n_probe:
         n_probe = int(need)
-        _, occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe,
-                                       empty_weight, cdf, probe_at)
+    occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight,
+                                cdf, probe_at)
     # empty-space skipping: the empty intervals get at most max(empty_steps, empty cells / empty_cells_per_step)
     # steps, the occupied ones keep their density (and the ray takes fewer steps in all)
     empty = n_probe - occupied
