@@ -485,15 +485,13 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         return order, result
 
     def trace_pixels(flat, progress_rays=None):
-        # the adaptive sampler's: outputs in the order of the pixels asked for, only those that the image and the
-        # sampler's test read (the sampler keeps and interpolates every array it is given)
+        # the adaptive sampler's: the outputs in tile order with that order (the sampler scatters each into its
+        # image once; put back into the order of flat first, each was copied twice: ~0.01 s of a 1024^2 all-sky
+        # while the cores idled), only those that the image and the sampler's test read (the sampler keeps and
+        # interpolates every array it is given)
         order, result = trace_tiled(flat, progress_rays)
-        for key in list(result):
-            value = result.pop(key)
-            if key in IMAGE_OUTPUTS or key in ("surface", "steps"):
-                result[key] = np.empty_like(value)
-                result[key][order] = value
-        return result
+        kept = (*IMAGE_OUTPUTS, "surface", "steps")
+        return order, {key: value for key, value in result.items() if key in kept}
 
     ny, nx = cam.shape
     planes = {}  # image outputs (channel, y, x), NaN outside the camera's pixels

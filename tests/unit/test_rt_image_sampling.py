@@ -476,3 +476,25 @@ def test_the_compiled_cell_test_decides_as_the_numpy_gathers(dtype, edge_test_si
     passed = _smooth_cells(exact, valid, traced, cells, nx, AdaptiveSampling(tolerance=1e-3, tau_tolerance=1e-3,
                                                                               edge_test_size=edge_test_size))
     np.testing.assert_array_equal(passed, _smooth_cells_numpy(exact, valid, traced, cells, nx, bare))
+
+
+@pytest.mark.parametrize("shape", [(5, 17), (40, 61)])
+def test_a_tracer_may_return_its_rows_in_its_own_order(shape):
+    """trace(pixels) -> (order, arrays), the rows those of pixels[order] (the pipeline's tile order): the same image
+    and the same traced pixels as a tracer that returns them in the order asked for. A tracer whose order were
+    ignored would put each pixel's values at another pixel."""
+    plain = make_trace(disk_function, shape)
+    rng = np.random.default_rng(3)
+
+    def shuffled(flat):
+        order = rng.permutation(len(flat))
+        return order, plain(np.asarray(flat)[order])
+
+    valid = np.ones(shape, bool)
+    valid[0, :3] = False
+    expected, traced_expected = sample_image_adaptive(plain, valid, AdaptiveSampling(coarse_spacing=4))
+    values, traced = sample_image_adaptive(shuffled, valid, AdaptiveSampling(coarse_spacing=4))
+    np.testing.assert_array_equal(traced, traced_expected)
+    assert set(values) == set(expected)
+    for key in expected:
+        np.testing.assert_array_equal(values[key], expected[key])

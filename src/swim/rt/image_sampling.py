@@ -147,7 +147,9 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         (n, ...): at least ``radiance`` (n, C) [-], ``tau_hydrometeor`` (n,) [-] and ``surface`` (n,) bool;
         ``radiance_clear`` (n, C) [-], where given, enters the test of ``sampling.clear_tolerance``. Float arrays
         are interpolated, boolean ones copied from the corners (which agree), integer ones (e.g. step counts) are 0
-        where interpolated.
+        where interpolated. It may also return ``(order, arrays)``: the arrays' rows are then those of the pixels
+        ``pixels[order]`` (a tracer that traces them in another order need not put them back: each is scattered
+        into the image once).
     valid : numpy.ndarray
         Shape (ny, nx) bool: the camera's pixels that have a ray; the others are never traced and keep ``outside``
         (float outputs) or 0.
@@ -199,11 +201,15 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         if flat.size == 0:
             return
         result = trace(flat)
+        pixels = flat
+        if isinstance(result, tuple):  # (order, arrays): rows in the order of flat[order]
+            order, result = result
+            pixels = flat if order is None else flat[order]
         for key, value in result.items():
             value = np.asarray(value)
             if key not in values:
                 values[key] = _image_array(ny * nx, value, outside)
-            values[key][flat] = value
+            values[key][pixels] = value
         traced[flat] = True
         report()
 
@@ -264,7 +270,9 @@ def _image_array(n, value, outside):
 
 def _finish(values, traced, ny, nx, trace, outside):
     if not values:  # nothing valid: ask for the keys with an empty batch
-        values = {key: _image_array(ny * nx, v, outside) for key, v in trace(np.zeros(0, np.int64)).items()}
+        result = trace(np.zeros(0, np.int64))
+        result = result[1] if isinstance(result, tuple) else result
+        values = {key: _image_array(ny * nx, v, outside) for key, v in result.items()}
     return values
 
 
