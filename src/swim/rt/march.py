@@ -640,7 +640,7 @@ def segment_cells(start, direction, s0, length, consts):
     Measured apart from the occupancy probes, at fewer points: the march probed every ray's occupancy at ``n_probe``
     points for its length alone before probing it again at the count that length asks for (every ray of a 1024^2
     all-sky of the 400 x 400 x 60 scene, whose 160 levels make even the zenith's ray cross more than ``n_probe``
-    times ``probe_spacing`` cells), ~1/4 of the march's probes (docs/performance.md, section 61)."""
+    times ``probe_spacing`` cells): 64 of a ray's ~147 probes there (docs/performance.md, section 61)."""
     k, j, i = _probe_indices(start, direction, s0, length, consts, CELL_PROBES)
     return _segment_cells(k, j, i, CELL_PROBES)
 
@@ -1770,7 +1770,8 @@ def padded_batch_size(n, chunk):
     return int(min(chunk, max(MIN_BATCH, 1 << int(np.ceil(np.log2(max(n, 1)))))))
 
 
-#: Fewest rays of a chunk before the last round of :func:`chunk_spans` (a chunk's fixed cost is ~1 ms).
+#: Fewest rays of a chunk before the last round of :func:`chunk_spans` (each chunk has fixed costs of its own: its
+#: job's Python calls and arrays).
 TAIL_CHUNK = 512
 
 
