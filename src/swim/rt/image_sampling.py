@@ -200,11 +200,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         flat = np.flatnonzero(wanted & valid_flat & ~traced)
         if flat.size == 0:
             return
-        result = trace(flat)
-        pixels = flat
-        if isinstance(result, tuple):  # (order, arrays): rows in the order of flat[order]
-            order, result = result
-            pixels = flat if order is None else flat[order]
+        pixels, result = _rows_of(trace(flat), flat)
         for key, value in result.items():
             value = np.asarray(value)
             if key not in values:
@@ -259,6 +255,15 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     return _finish(values, traced, ny, nx, trace, outside), traced.reshape(ny, nx)
 
 
+def _rows_of(result, flat):
+    """A tracer's result for the pixels ``flat``, as (the pixels of its rows, its arrays): its arrays and ``flat``, or
+    for ``(order, arrays)`` the arrays and ``flat[order]`` (:func:`sample_image_adaptive`'s ``trace``)."""
+    if not isinstance(result, tuple):
+        return flat, result
+    order, arrays = result
+    return (flat if order is None else flat[order]), arrays
+
+
 def _image_array(n, value, outside):
     """An output's array for all ``n`` pixels of the image, shaped and typed as a batch's ``value`` (m, ...):
     ``outside`` where it is float, else 0, until its pixels are traced or interpolated."""
@@ -270,9 +275,8 @@ def _image_array(n, value, outside):
 
 def _finish(values, traced, ny, nx, trace, outside):
     if not values:  # nothing valid: ask for the keys with an empty batch
-        result = trace(np.zeros(0, np.int64))
-        result = result[1] if isinstance(result, tuple) else result
-        values = {key: _image_array(ny * nx, v, outside) for key, v in result.items()}
+        empty = np.zeros(0, np.int64)
+        values = {key: _image_array(ny * nx, v, outside) for key, v in _rows_of(trace(empty), empty)[1].items()}
     return values
 
 

@@ -67,7 +67,7 @@ def numba_sources_digest() -> str:
 
 
 # before numba sets up its CPU target (the first compilation or cache load): AVX-512 left out on Intel CPUs,
-# where the march ran 8-23 % slower with it (swim.rt.numba_target)
+# where the replayed march ran ~10 % slower with it (swim.rt.numba_target)
 choose_cpu_features()
 _CACHE = not _disabled()
 if _CACHE and not numba.config.CACHE_DIR:
