@@ -231,3 +231,32 @@ def test_the_kernel_changes_no_reference_count_inside_its_loops():
     assert len(looped) > 100  # the loops over rays, segments, steps and channels
     in_loops = sorted(name for name, text in looped.items() if counted.search(text))
     assert not in_loops, in_loops
+
+
+def test_probes_round_to_the_nearest_cell_as_numpy_does_halves_to_even():
+    """The probes' nearest cell (_round_half_even) is NumPy's (and jnp.round's) rounding: halves to the even
+    integer, negative values, magnitudes at and beyond 2^51 and NaN included; compiled as the kernel compiles it
+    (fast-math's reassociation must not fold its shift away)."""
+    rounded = march_cpu.callable_from_python(march_cpu._round_half_even)
+    rng = np.random.default_rng(3)
+    values = np.concatenate([np.arange(-8.5, 8.6, 0.5), [0.49999999999999994, -0.49999999999999994, 1e-300, -0.0],
+                             rng.uniform(-500.0, 500.0, 200), [2.0 ** 51 - 0.5, 2.0 ** 51 + 1, 2.0 ** 52 + 2, -2.0 ** 60,
+                                                              1e300, np.inf, -np.inf]])
+    for x in values:
+        assert rounded(float(x)) == np.round(x), x
+    assert np.isnan(rounded(float("nan")))
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86 instructions")
+def test_the_probes_loop_converts_no_float_to_an_integer():
+    """_probe_indices' loop rounds in floating point: x86 converts float64 to int64 in vectors only with AVX-512,
+    which the kernels leave out on Intel CPUs (swim.rt.numba_target), and scalar conversions there made the loop
+    take ~6 % of the march's time more (docs/performance.md, section 62)."""
+    fresh = numba.njit(cache=False, fastmath=march_cpu._FASTMATH, error_model="numpy")(
+        march_cpu._probe_indices.py_func)
+    probe_at = np.zeros((6, march_cpu.PROBE_BLOCK))
+    p = np.zeros(32)
+    coef = np.zeros(20)
+    fresh(0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 10.0, 8, 0, 8, p, coef, (3, 4, 5), probe_at)
+    asm = fresh.inspect_asm(fresh.signatures[0])
+    assert "cvttsd2si" not in asm and "cvttpd2qq" not in asm

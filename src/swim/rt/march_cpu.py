@@ -113,7 +113,7 @@ def _helper_jit(**options):
     ----------
     **options
         numba options beside :data:`_JIT_HELPER`'s (disk cache, fast-math, no Python or C wrapper), e.g.
-        ``inline="always"``.
+        ``inline="always"``, or in place of one of them (``fastmath=False``).
 
     Returns
     -------
@@ -123,7 +123,7 @@ def _helper_jit(**options):
     """
 
     def decorate(function):
-        dispatcher = njit(**_JIT_HELPER, **options)(function)
+        dispatcher = njit(**{**_JIT_HELPER, **options})(function)
         if isinstance(dispatcher, CPUDispatcher):  # not so under NUMBA_DISABLE_JIT=1: the plain function
             dispatcher.__class__ = _CompiledOnlyDispatcher
         return dispatcher
@@ -247,14 +247,28 @@ def _prefetch(typingctx, array, k, j, i):
     return sig, codegen
 
 
-@_helper_jit()
+#: 1.5 * 2^52: added to a float64 of magnitude below :data:`ROUNDING_LIMIT`, it leaves no fraction bits, so the sum is
+#: that number rounded to the nearest whole one, halves to the even one (IEEE 754's default rounding); subtracting it
+#: again is exact (:func:`_round_half_even`).
+ROUNDING_SHIFT = 6755399441055744.0
+#: 2^51: the magnitude below which :data:`ROUNDING_SHIFT` rounds; from 2^52 on, every float64 is a whole number.
+ROUNDING_LIMIT = 2251799813685248.0
+
+
+@_helper_jit(fastmath=False)  # fast-math's reassociation would fold (x + shift) - shift into x
 def _round_half_even(x):
     """``jnp.round``: to the nearest integer, halves to the even one (a probe on a grid-aligned ray lands on
-    exact halves, and rounding them otherwise would place the steps differently from the JAX kernel)."""
-    r = math.floor(x + 0.5)
-    if r - x == 0.5 and 0.5 * r != math.floor(0.5 * r):  # odd: no float modulo (a library call), so that
-        r -= 1.0                                          # a loop of these vectorises (_probe_indices)
-    return r
+    exact halves, and rounding them otherwise would place the steps differently from the JAX kernel).
+
+    By adding and subtracting :data:`ROUNDING_SHIFT`: float arithmetic alone, which LLVM vectorises in
+    :func:`_probe_indices`' loop. ``math.floor`` returns an integer in numba, and without AVX-512 (the kernels'
+    target on Intel CPUs, :mod:`swim.rt.numba_target`) x86 has no vector conversion of float64 to int64: each of its
+    two floors a round became two scalar conversions, and the probes' loop took 6 % of the march's time more
+    (docs/performance.md, section 62). Magnitudes from 2^51 on (whole numbers from 2^52 on; a probe far beyond the
+    grid, clipped to it after) and NaN are returned as they are."""
+    if not abs(x) < ROUNDING_LIMIT:
+        return x
+    return (x + ROUNDING_SHIFT) - ROUNDING_SHIFT
 
 
 @_helper_jit(inline="always")
