@@ -945,6 +945,48 @@ def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
         np.testing.assert_allclose(out["radiance"][k], ref["radiance"], rtol=0.005)
 
 
+def test_samples_above_the_terrains_top_skip_its_lookup_and_meet_the_ground_alike(monkeypatch):
+    """The numba kernel looks the terrain up only below its highest point (march_cpu.pack_parameters'
+    TERRAIN_TOP_MARGIN; docs/performance.md, section 62). Rays from 6 km down and from 300 m up and down onto the tiny scene's
+    600 m hill, its flanks and the plain around it, and rays that graze it sideways: where they meet the ground,
+    with what radiance and optical depths, the same as when every sample looks it up (to round-off: the sample
+    before the crossing is then looked up when the crossing is found, not when it is taken)."""
+    from swim.rt import march_cpu
+
+    scene = _tiny_scene()
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    dirs, origins = [], []
+    for height, zeniths in ((6000.0, np.linspace(95.0, 175.0, 17)), (300.0, np.linspace(80.0, 100.0, 11))):
+        for az in (0.0, 70.0, 160.0, 290.0, 315.0):
+            for zen in zeniths:
+                dirs.append(enu_from_azimuth_zenith(az, zen))
+                origins.append([1500.0, -1500.0, EARTH_RADIUS_M + height])
+    dirs, origins = np.array(dirs), np.array(origins)
+    settings = MarchSettings(backend="numba")
+    skipping = _trace(scene, origins, dirs, sun, settings=settings)[0]
+    monkeypatch.setattr(march_cpu, "TERRAIN_TOP_MARGIN", np.inf)
+    looking_up = _trace(scene, origins, dirs, sun, settings=settings)[0]
+    assert skipping["surface"].sum() > 100 and (~skipping["surface"]).sum() > 10
+    np.testing.assert_array_equal(skipping["surface"], looking_up["surface"])
+    for key in ("distance", "radiance", "tau_clear", "tau_hydrometeor", "radiance_clear"):
+        np.testing.assert_allclose(skipping[key], looking_up[key], rtol=1e-9, atol=1e-9, err_msg=key)
+
+
+def test_the_terrains_top_is_packed_for_the_step_loop():
+    """pack_parameters' last entry: the terrain's highest point plus the margin; infinite (every sample looks the
+    terrain up) without terrain or where it is not finite."""
+    from swim.rt import march_cpu
+
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    consts = _kernel_constants(_tiny_scene(), sun)[1]
+    p, _ = march_cpu.pack_parameters(consts)
+    highest = float(np.max(np.asarray(consts["terrain"])))
+    assert 590.0 < highest < 610.0
+    assert p[march_cpu._P_TERRAIN_TOP] == highest + march_cpu.TERRAIN_TOP_MARGIN
+    for terrain in (None, np.full((1, 3, 3), np.nan, np.float32)):
+        assert march_cpu.pack_parameters({**consts, "terrain": terrain})[0][march_cpu._P_TERRAIN_TOP] == np.inf
+
+
 def _clear_segments():
     """Rays from the tiny grid's top straight up (after the grid) and from 800 km straight down (before it)."""
     sun = enu_from_azimuth_zenith(135.0, 40.0)

@@ -180,15 +180,22 @@ def callable_from_python(function):
 
 #: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
 _P_RADIUS, _P_SUN, _P_ZBOTTOM, _P_DZ, _P_CENTRE, _P_SCALE, _P_BOUNDS, _P_DH, _P_TOP = 0, 1, 4, 5, 6, 8, 9, 13, 14
-_N_PARAMETERS = 15
+_P_TERRAIN_TOP = 15
+_N_PARAMETERS = 16
+#: Height above the terrain's highest point [m] from which the step loop looks the terrain up no more: a bilinear
+#: lookup of the terrain (a weighted mean of four of its heights) never exceeds that point, so a sample higher up
+#: is above the ground (:func:`pack_parameters`); the metre covers the lookup's round-off many times over.
+TERRAIN_TOP_MARGIN = 1.0
 #: Occupancy probes, or steps, whose geometry is computed together in one vectorised loop (:func:`_probe_indices`,
 #: :func:`_step_geometry`): four AVX-512 vectors of float64; a GPU thread's local array of 6 x this.
 PROBE_BLOCK = 32
 
 
 def pack_parameters(consts):
-    """The scalars of :func:`swim.rt.march.kernel_constants` as one float64 vector (15,) and the index map's
-    cubic coefficients (20,)."""
+    """The scalars of :func:`swim.rt.march.kernel_constants` as one float64 vector (16,) and the index map's
+    cubic coefficients (20,). Its last entry is the height [m] above which no sample can be under the terrain: the
+    terrain's (``consts["terrain"]``) highest point plus :data:`TERRAIN_TOP_MARGIN`, or infinity where there is no
+    terrain or it is not finite everywhere (every sample then looks it up)."""
     p = np.zeros(_N_PARAMETERS)
     index_map = consts["index_map"]
     p[_P_RADIUS] = float(consts["radius"])
@@ -203,6 +210,9 @@ def pack_parameters(consts):
         p[_P_BOUNDS:_P_BOUNDS + 4] = (-np.inf, np.inf, -np.inf, np.inf)
     p[_P_DH] = float(consts["dh"])
     p[_P_TOP] = float(consts["top"])
+    terrain = consts.get("terrain")
+    highest = float(np.max(np.asarray(terrain))) if terrain is not None and np.size(terrain) else math.inf
+    p[_P_TERRAIN_TOP] = highest + TERRAIN_TOP_MARGIN if math.isfinite(highest) else math.inf
     coef = np.asarray(index_map["index_map_coefficients"], dtype=float).reshape(20)
     return p, coef
 
@@ -779,6 +789,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     n_u = ms_profile.shape[2]
     top = p[_P_TOP]
     dh = p[_P_DH]
+    terrain_top = p[_P_TERRAIN_TOP]
     # the wavelengths' constants (and each ray's phase functions, below) as tuples of scalars, read once: read from
     # their arrays, they were read again at every step (the loop's stores may alias them, as far as LLVM knows);
     # 3-4 % faster (docs/performance.md, section 47). One per lane (LANES): the padding lane's is the sky table's zero
@@ -926,8 +937,13 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 prof_s = beta_gas[2, _ix(g0)] * (1 - w) + beta_gas[2, _ix(g0 + 1)] * w
                 fm = (mu_s + 1.0) * 0.5
                 su0, sv0, sa, sb = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
-                gap = _terrain_gap(h, j, i, terrain)
+                # the terrain looked up only below its highest point (pack_parameters): ~4 % of the march's time
+                # (docs/performance.md, section 62); above it, the gap is unknown (infinite) until it is needed,
+                # which is when the next sample meets the ground: then it is looked up at that earlier sample
+                gap = _terrain_gap(h, j, i, terrain) if h <= terrain_top else math.inf
                 hit_now = alive and gap < 0 and not terminal
+                if hit_now and gap_prev == math.inf:
+                    gap_prev = _gap_along(s_last, st0, st1, st2, d0, d1, d2, p, coef, terrain)
                 frac = _clip(gap_prev / max(gap_prev - gap, 1e-6), 0.0, 1.0) if hit_now else 1.0
                 ds_eff = ds if alive and not hit_now else 0.0
                 # the corners of the skylight of the ray's aerosol column class, where there are classes (a flag
