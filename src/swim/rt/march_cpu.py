@@ -386,7 +386,7 @@ def _bilinear_index(nu, nv, fu, fv):
 def _lerp_index(f, n):
     """Lower index and weight of a clamped linear lookup at fractional index f in a table axis of n entries."""
     f = _clip(f, 0.0, n - 1.001)
-    i0 = int(math.floor(f))
+    i0 = int(f)  # f >= 0: truncation is the floor, without math.floor's rounding first
     return i0, f - i0
 
 
@@ -462,8 +462,9 @@ def _lower_corner(k, j, i, nk, ny, nx):
     corner (k0, j0, i0) of the cell whose eight corners a trilinear sample there reads (clamped so that k0 + 1 etc.
     are cells too): the step loop's volume sample and :func:`_prefetch_corners`."""
     if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:
-        return (True, int(_clip(math.floor(k), 0.0, nk - 2.0)), int(_clip(math.floor(j), 0.0, ny - 2.0)),
-                int(_clip(math.floor(i), 0.0, nx - 2.0)))
+        # >= 0 here, so truncation is the floor: numba's math.floor returns an integer, which the clip turned back
+        # into a float and int() into an integer again (docs/performance.md, section 62)
+        return True, int(min(k, nk - 2.0)), int(min(j, ny - 2.0)), int(min(i, nx - 2.0))
     return False, 0, 0, 0
 
 
