@@ -947,9 +947,9 @@ def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
 
 def test_samples_above_the_terrains_top_skip_its_lookup_and_meet_the_ground_alike(monkeypatch):
     """The numba kernel looks the terrain up only below its highest point (march_cpu.pack_parameters'
-    TERRAIN_TOP_MARGIN; docs/performance.md, section 62). Rays from 6 km down and from 300 m up and down onto the tiny scene's
-    600 m hill, its flanks and the plain around it, and rays that graze it sideways: where they meet the ground,
-    with what radiance and optical depths, the same as when every sample looks it up (to round-off: the sample
+    TERRAIN_TOP_MARGIN; docs/performance.md, section 62). Rays from 6 km down and from 300 m up and down onto the
+    tiny scene's 600 m hill, its flanks and the plain around it, and rays that graze it sideways: where they meet the
+    ground, with what radiance and optical depths, the same as when every sample looks it up (to round-off: the sample
     before the crossing is then looked up when the crossing is found, not when it is taken)."""
     from swim.rt import march_cpu
 

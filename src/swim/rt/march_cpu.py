@@ -187,7 +187,7 @@ _N_PARAMETERS = 16
 #: is above the ground (:func:`pack_parameters`); the metre covers the lookup's round-off many times over.
 TERRAIN_TOP_MARGIN = 1.0
 #: Occupancy probes, or steps, whose geometry is computed together in one vectorised loop (:func:`_probe_indices`,
-#: :func:`_step_geometry`): four AVX-512 vectors of float64; a GPU thread's local array of 6 x this.
+#: :func:`_step_geometry`): four vectors of float64 with AVX-512, eight without; a GPU thread's local array of 6 x this.
 PROBE_BLOCK = 32
 
 
@@ -272,8 +272,8 @@ def _round_half_even(x):
 
     By adding and subtracting :data:`ROUNDING_SHIFT`: float arithmetic alone, which LLVM vectorises in
     :func:`_probe_indices`' loop. ``math.floor`` returns an integer in numba, and without AVX-512 (the kernels'
-    target on Intel CPUs, :mod:`swim.rt.numba_target`) x86 has no vector conversion of float64 to int64: each of its
-    two floors a round became two scalar conversions, and the probes' loop took 6 % of the march's time more
+    target on Intel CPUs, :mod:`swim.rt.numba_target`) x86 has no vector conversion of float64 to int64: a round's
+    two floors became four scalar conversions, and the probes' loop took 8.2 % of the march's time instead of 4.0 %
     (docs/performance.md, section 62). Magnitudes from 2^51 on (whole numbers from 2^52 on; a probe far beyond the
     grid, clipped to it after) and NaN are returned as they are."""
     if not abs(x) < ROUNDING_LIMIT:
