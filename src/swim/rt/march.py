@@ -1883,11 +1883,12 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     chunk = batch = settings.resolved_chunk()
     steps = settings.n_before + settings.n_grid + settings.n_after + 1  # the end step (_march_rays)
     backend = settings.resolved_backend()
-    spans = [(lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
     if backend == "numba":
         # chunks that shrink towards the batch's end, so that all cores finish together (chunk_spans)
         cores = threads()
         spans = chunk_spans(n, chunk, cores)
+    else:
+        spans = [(lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
     if backend in ("numba", "cuda"):
         tables = _numba_tables(consts, prepare=backend == "numba")
         if backend == "cuda":
