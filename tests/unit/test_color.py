@@ -497,3 +497,60 @@ def test_typical_scene_colours():
     assert sky[2] > sky[1] > sky[0]
     assert sky.max() < base.min()
     np.testing.assert_array_equal(top, [255, 255, 255])
+
+
+def test_the_code_tables_hold_the_exact_steps_of_the_srgb_encoding():
+    """swim.color.srgb_cpu.code_tables: each step is the first float64 at which the pow-based encoding (the
+    compiled _encode, IEC 61966-2-1's transfer function rounded to 0-255) gives the next code, and the float
+    before it still the code below; the steps rise, and each bin of the start table holds at most one."""
+    from swim.color.srgb_cpu import CODE_BINS, _encode, code_tables
+
+    steps, start = code_tables()
+    assert steps.shape == (257,) and start.shape == (CODE_BINS + 1,)
+    assert steps[0] == -np.inf and steps[-1] == np.inf and np.all(np.diff(steps) > 0)
+    for k in range(255):
+        assert _encode(steps[k + 1]) == k + 1
+        assert _encode(np.nextafter(steps[k + 1], 0.0)) == k
+    # at most one step between a bin's first value and the next bin's
+    assert np.diff(start).max() == 1
+    # 12.92 * 255 codes per unit of linear value at the steepest: the first step, at half a code
+    assert steps[1] == pytest.approx(0.5 / 255 / 12.92, rel=1e-12)
+
+
+@pytest.mark.parametrize("draw", ["uniform", "cubed", "tiny", "out of range", "at the steps"])
+def test_the_table_encoding_gives_the_pow_encodings_codes(draw):
+    """The colour kernel's branch-free table lookup (swim.color.srgb_cpu._encode_by_table) against the pow-based
+    encoding it replaced, value for value: uniform and dark-weighted values, values near 0 (the linear segment),
+    values outside [0, 1] and NaN, and every step with the 3 floats on either side."""
+    from numba import njit
+
+    from swim.color.srgb_cpu import _encode, _encode_by_table, code_tables
+
+    steps, start = code_tables()
+    rng = np.random.default_rng(len(draw))
+    if draw == "uniform":
+        v = rng.random(200_000)
+    elif draw == "cubed":
+        v = rng.random(200_000) ** 3
+    elif draw == "tiny":
+        v = 10.0 ** rng.uniform(-12, -2, 200_000)
+    elif draw == "out of range":
+        v = np.concatenate([rng.uniform(-2, 0, 1000), rng.uniform(1, 5, 1000), [0.0, -0.0, 1.0, np.nan, np.inf,
+                                                                              -np.inf, 1e308, -1e308]])
+    else:
+        v = steps[1:256, None].copy()
+        v = np.concatenate([v, *(np.nextafter(v, side) for side in (-1.0, 2.0))], axis=1)
+        v = np.concatenate([v, np.nextafter(v[:, 1:2], -1.0), np.nextafter(np.nextafter(v[:, 1:2], -1.0), -1.0),
+                            np.nextafter(v[:, 2:3], 2.0), np.nextafter(np.nextafter(v[:, 2:3], 2.0), 2.0)], axis=1)
+        v = v.reshape(-1)
+
+    @njit
+    def both(v, steps, start, by_pow, by_table):
+        for i in range(v.size):
+            by_pow[i] = _encode(v[i]) if v[i] == v[i] else 0  # NaN: black, as the kernel's caller makes it
+            by_table[i] = _encode_by_table(v[i], steps, start)
+
+    by_pow, by_table = np.empty(v.size, np.uint8), np.empty(v.size, np.uint8)
+    both(v, steps, start, by_pow, by_table)
+    np.testing.assert_array_equal(by_table, by_pow)
+    assert len(np.unique(by_pow)) > {"out of range": 1, "tiny": 20}.get(draw, 100)  # up to 0.01: codes 0-25

@@ -498,3 +498,60 @@ def test_a_tracer_may_return_its_rows_in_its_own_order(shape):
     assert set(values) == set(expected)
     for key in expected:
         np.testing.assert_array_equal(values[key], expected[key])
+
+
+def _split_cells_numpy(cells, smooth, nx, ny, edge_size):
+    """The next level in NumPy (the sampler's own until session 50): the reference for swim.rt.smooth_cpu's
+    split_cells. Returns the children (k, 4) and the mask of the pixels to trace."""
+    split = cells[~smooth]
+    y0, y1, x0, x1 = split.T
+    yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
+    children = np.concatenate([
+        np.stack([y0, yc, x0, xc], axis=1), np.stack([y0, yc, xc, x1], axis=1),
+        np.stack([yc, y1, x0, xc], axis=1), np.stack([yc, y1, xc, x1], axis=1)])
+    children = children[(children[:, 1] > children[:, 0]) & (children[:, 3] > children[:, 2])]
+    children = children[(children[:, 1] - children[:, 0] > 1) | (children[:, 3] - children[:, 2] > 1)]
+    wanted = np.zeros(ny * nx, bool)
+    wanted[np.concatenate([y0 * nx + xc, y1 * nx + xc, yc * nx + x0, yc * nx + x1])] = True
+    wanted[_tested_numpy(children, nx, edge_size)] = True
+    return children, wanted
+
+
+def _tested_numpy(cells, nx, edge_size):
+    y0, y1, x0, x1 = cells.T
+    yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
+    edged = (np.maximum(y1 - y0, x1 - x0) >= edge_size) if edge_size > 0 else np.zeros(len(cells), bool)
+    return np.concatenate([yc * nx + xc, *(p[edged] for p in (y0 * nx + xc, y1 * nx + xc, yc * nx + x0,
+                                                              yc * nx + x1))])
+
+
+@pytest.mark.parametrize("edge_size", [0, 3, 8])
+def test_the_compiled_split_gives_the_numpy_children_and_pixels(edge_size):
+    """swim.rt.smooth_cpu.split_cells and mark_tested against the NumPy they replaced: the same children in the
+    same order (the fill's order) and the same pixels to trace, for cells of every shape from 1 x 2 pixels (which
+    split only across, or not at all) to 16 x 9, half of them smooth."""
+    from swim.rt.smooth_cpu import mark_tested, split_cells
+
+    ny, nx = 80, 90
+    rng = np.random.default_rng(50 + edge_size)
+    cells = []
+    for h, w in ((1, 2), (2, 1), (2, 2), (2, 3), (3, 3), (4, 4), (5, 8), (8, 8), (16, 9)):
+        for _ in range(12):
+            y0, x0 = rng.integers(0, ny - h), rng.integers(0, nx - w)
+            cells.append((y0, y0 + h, x0, x0 + w))
+    cells = np.array(cells, np.int64)
+    smooth = rng.random(len(cells)) < 0.5
+    expected_children, expected_wanted = _split_cells_numpy(cells, smooth, nx, ny, edge_size)
+    wanted = np.zeros(ny * nx, bool)
+    children = split_cells(cells, smooth, nx, edge_size, wanted)
+    np.testing.assert_array_equal(children, expected_children)
+    np.testing.assert_array_equal(wanted, expected_wanted)
+    # the cases occur: cells that split into fewer than four children, and children with edge tests
+    assert len(children) < 4 * np.count_nonzero(~smooth)
+    tested = np.zeros(ny * nx, bool)
+    mark_tested(cells, nx, edge_size, tested)
+    reference = np.zeros(ny * nx, bool)
+    reference[_tested_numpy(cells, nx, edge_size)] = True
+    np.testing.assert_array_equal(tested, reference)
+    if edge_size:
+        assert tested.sum() > len({(y0 + y1) // 2 * nx + (x0 + x1) // 2 for y0, y1, x0, x1 in cells})

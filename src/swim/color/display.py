@@ -329,7 +329,7 @@ def _srgb8_compiled(radiance, white_level, gamut):
     """:func:`solar_relative_to_srgb8` at the default wavelengths in one compiled pass per pixel
     (:func:`swim.color.srgb_cpu.srgb8_pixels`, ~6x faster than the NumPy chain); the pixels whose spectrum needs
     clipping (rare) through the NumPy chain. ``radiance`` (3, ...) float64 without infinities."""
-    from swim.color.srgb_cpu import srgb8_pixels
+    from swim.color.srgb_cpu import code_tables, srgb8_pixels
 
     wl = _DEFAULT_WAVELENGTHS
     flat = np.ascontiguousarray(radiance.reshape(3, -1))
@@ -337,7 +337,7 @@ def _srgb8_compiled(radiance, white_level, gamut):
     need = np.empty(flat.shape[1], bool)
     transform = CHROMATIC_ADAPTATION_TRANSFORM
     srgb8_pixels(flat, _linear_matrix(wl), _monomial_solve(wl), display_matrix(transform) / white_level,
-                 _luminance_row(transform), gamut == "preserve_hue", out, need)
+                 _luminance_row(transform), gamut == "preserve_hue", *code_tables(), out, need)
     if need.any():
         out[need] = encode_srgb8(XYZ_to_display_rgb(solar_relative_to_XYZ(flat[:, need]), white_level, gamut=gamut))
     return out.reshape(radiance.shape[1:] + (3,))

@@ -14,12 +14,18 @@ The arithmetic is that of the NumPy functions, step by step and in their order (
    with the clipped spectral sum in NumPy.
 2. ``rgb = (display_matrix / white_level) @ XYZ`` and the gamut mapping of
    :func:`swim.color.display.XYZ_to_display_rgb` ("preserve_hue" or "clip").
-3. :func:`swim.color.display.encode_srgb8`: clipped to [0, 1], the sRGB transfer function, rounded to 0-255.
+3. :func:`swim.color.display.encode_srgb8`: clipped to [0, 1], the sRGB transfer function, rounded to 0-255. The
+   kernel finds each code among the 255 linear values at which the code steps up (:func:`code_tables`, found once
+   with the transfer function itself) instead of computing a ``pow`` per channel: three ``pow`` were half of a
+   pixel's ~57 ns (docs/performance.md, section 63).
 
 ``tests/unit/test_color.py`` holds it to the NumPy chain.
 """
 
 from __future__ import annotations
+
+import functools
+import math
 
 import numpy as np
 from numba import njit
@@ -38,8 +44,60 @@ def _encode(v):
     return np.uint8(np.rint(e * 255.0))
 
 
+#: Bins of [0, 1] in whose first value the table's search for a code starts (:func:`code_tables`): the transfer
+#: function rises by at most 12.92 * 255 ~ 3295 codes per unit of its linear value, so a bin holds at most one step.
+CODE_BINS = 4096
+
+
+@functools.lru_cache(maxsize=1)
+def code_tables():
+    """The linear values at which :func:`_encode`'s code steps up, and the code at the start of each bin of [0, 1].
+
+    Each step is found with ``_encode`` itself (its Python function, with the same libm ``pow`` as the compiled
+    one): from the sRGB transfer function's inverse at the code's lower edge, walked float by float to the first
+    value that ``_encode`` gives the higher code. A value's code is then the number of steps at or below it, for any
+    value at which ``_encode`` does not decrease (it rises with its argument, as the transfer function does).
+
+    Returns
+    -------
+    steps : numpy.ndarray
+        Shape (257,) float64, read-only: -inf, then for k = 0..254 the smallest float64 v in [0, 1] with
+        ``_encode(v) >= k + 1``, then +inf.
+    start : numpy.ndarray
+        Shape (CODE_BINS + 1,) int64, read-only: the code of ``b / CODE_BINS``.
+    """
+    encode = _encode.py_func
+    steps = np.empty(257)
+    steps[0], steps[256] = -np.inf, np.inf
+    for k in range(255):
+        edge = (k + 0.5) / 255.0  # the encoded value at which rounding reaches k + 1
+        v = edge / 12.92 if edge <= 12.92 * 0.0031308 else ((edge + 0.055) / 1.055) ** 2.4
+        v = min(max(v, 0.0), 1.0)
+        while v > 0.0 and encode(math.nextafter(v, 0.0)) >= k + 1:
+            v = math.nextafter(v, 0.0)
+        while encode(v) < k + 1:
+            v = math.nextafter(v, 2.0)
+        steps[k + 1] = v
+    start = np.searchsorted(steps[1:256], np.arange(CODE_BINS + 1) / CODE_BINS, side="right").astype(np.int64)
+    steps.flags.writeable = False
+    start.flags.writeable = False
+    return steps, start
+
+
 @njit(**_JIT)
-def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, out, need):
+def _encode_by_table(v, steps, start):
+    """:func:`_encode` of one linear value [-] from :func:`code_tables`: the code at the start of its bin, corrected
+    by the one step that may lie between that start and the value (either side: ``v * CODE_BINS`` is rounded), with
+    comparisons and no branch (3.3 ns a value here, against 11.5 for the ``pow``; loops that walk across the steps
+    took 31 ns, their branches mispredicted)."""
+    v = v if v > 0.0 else 0.0  # NaN too
+    v = v if v < 1.0 else 1.0
+    code = start[int(v * CODE_BINS)]
+    return np.uint8(code + (v >= steps[code + 1]) - (v < steps[code]))
+
+
+@njit(**_JIT)
+def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, steps, start, out, need):
     """8-bit sRGB of pixels whose three-wavelength spectrum needs no clipping.
 
     Parameters
@@ -58,6 +116,8 @@ def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, ou
         Shape (3,) float64: luminance from display RGB (:func:`swim.color.display._luminance_row`).
     preserve_hue : bool
         The "preserve_hue" gamut mapping; False: "clip".
+    steps, start : numpy.ndarray
+        Shapes (257,) float64 and (CODE_BINS + 1,) int64: :func:`code_tables`.
     out : numpy.ndarray
         Shape (n, 3) uint8, written: the sRGB codes (R, G, B); left as it is where ``need``.
     need : numpy.ndarray
@@ -98,4 +158,6 @@ def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, ou
             largest = max(max(r, g), bl)
             if largest > 1.0:  # brightness saturates, chromaticity kept
                 r, g, bl = r / largest, g / largest, bl / largest
-        out[p, 0], out[p, 1], out[p, 2] = _encode(r), _encode(g), _encode(bl)
+        out[p, 0] = _encode_by_table(r, steps, start)
+        out[p, 1] = _encode_by_table(g, steps, start)
+        out[p, 2] = _encode_by_table(bl, steps, start)

@@ -191,12 +191,10 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         if progress is not None and total:
             progress(int(np.count_nonzero((traced | filled) & valid_flat)), total)
 
-    def run(flat):
-        # the new valid pixels among ``flat``, each once, in increasing order: a mask over the image, not np.unique's
-        # sort, which took 135-154 ms of the synthetic 1024^2 all-sky's three batches (131 000-347 000 pixels with
-        # duplicates) on the main thread while the cores idled; the mask takes 1-3 ms (docs/performance.md, 37.)
-        wanted = np.zeros(ny * nx, bool)
-        wanted[np.asarray(flat, dtype=np.int64).reshape(-1)] = True
+    def run(wanted):
+        # the new valid pixels among those ``wanted`` (a mask over the image), in increasing order: not np.unique's
+        # sort of a list with duplicates, which took 135-154 ms of the synthetic 1024^2 all-sky's three batches
+        # (131 000-347 000 pixels) on the main thread while the cores idled (docs/performance.md, 37.)
         flat = np.flatnonzero(wanted & valid_flat & ~traced)
         if flat.size == 0:
             return
@@ -210,26 +208,26 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         report()
 
     if sampling.coarse_spacing >= min(ny, nx) or min(ny, nx) < 3:
-        run(np.flatnonzero(valid_flat))
+        run(valid_flat)
         return _finish(values, traced, ny, nx, trace, outside), traced.reshape(ny, nx)
 
-    def tested(cells):  # the pixels that the cells' tests read besides their corners
-        y0, y1, x0, x1 = cells.T
-        yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
-        edged = _edge_tested(cells, sampling.edge_test_size)
-        return np.concatenate([yc * nx + xc, *_edge_midpoints(*(a[edged] for a in (y0, y1, x0, x1, yc, xc)), nx)])
+    from .smooth_cpu import mark_tested, split_cells
 
-    def inner(cells):  # the cells with a pixel between their corners (one of at most 2 x 2 pixels has only corners)
-        return cells[(cells[:, 1] - cells[:, 0] > 1) | (cells[:, 3] - cells[:, 2] > 1)]
-
+    size = int(sampling.edge_test_size)
     rows, cols = _lattice(ny, sampling.coarse_spacing), _lattice(nx, sampling.coarse_spacing)
     y0, x0 = np.meshgrid(rows[:-1], cols[:-1], indexing="ij")
     y1, x1 = np.meshgrid(rows[1:], cols[1:], indexing="ij")
-    cells = inner(np.stack([y0.ravel(), y1.ravel(), x0.ravel(), x1.ravel()], axis=1))
+    cells = np.stack([y0.ravel(), y1.ravel(), x0.ravel(), x1.ravel()], axis=1)
+    # the cells with a pixel between their corners (one of at most 2 x 2 pixels has only corners)
+    cells = np.ascontiguousarray(cells[(cells[:, 1] - cells[:, 0] > 1) | (cells[:, 3] - cells[:, 2] > 1)])
     # The lattice and its cells' tested pixels in one batch, and below the split cells' edge midpoints with their
-    # children's tested pixels: each cell's are traced whatever its test finds, so the batches trace what one batch
-    # per step traced (the same pixels, tests and image) with fewer waits for a batch's last rays.
-    run(np.concatenate([(rows[:, None] * nx + cols[None, :]).reshape(-1), tested(cells)]))
+    # children's tested pixels (swim.rt.smooth_cpu): each cell's are traced whatever its test finds, so the batches
+    # trace what one batch per step traced (the same pixels, tests and image) with fewer waits for a batch's last rays.
+    wanted = np.zeros((ny, nx), bool)
+    wanted[np.ix_(rows, cols)] = True
+    wanted = wanted.reshape(-1)
+    mark_tested(cells, nx, size, wanted)
+    run(wanted)
     smooth_levels = []  # the smooth cells (m, 4) of each level, coarse to fine: interpolated at the end
     while cells.size:
         smooth = _smooth_cells(values, valid_flat, traced, cells, nx, sampling)
@@ -242,15 +240,9 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
             fill_cells_from_corner(filled, np.ascontiguousarray(smooth_levels[-1], dtype=np.int64), traced,
                                    valid_flat, nx, False)
             report()
-        split = cells[~smooth]
-        y0, y1, x0, x1 = split.T
-        yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
-        children = np.concatenate([
-            np.stack([y0, yc, x0, xc], axis=1), np.stack([y0, yc, xc, x1], axis=1),
-            np.stack([yc, y1, x0, xc], axis=1), np.stack([yc, y1, xc, x1], axis=1)])
-        # A cell one pixel high (or wide) splits only across: drop the empty halves.
-        cells = inner(children[(children[:, 1] > children[:, 0]) & (children[:, 3] > children[:, 2])])
-        run(np.concatenate([*_edge_midpoints(y0, y1, x0, x1, yc, xc, nx), tested(cells)]))
+        wanted = np.zeros(ny * nx, bool)
+        cells = split_cells(cells, smooth, nx, size, wanted)
+        run(wanted)
     _fill(values, traced, valid_flat, smooth_levels, nx, max_threads)
     return _finish(values, traced, ny, nx, trace, outside), traced.reshape(ny, nx)
 
@@ -278,20 +270,6 @@ def _finish(values, traced, ny, nx, trace, outside):
         empty = np.zeros(0, np.int64)
         values = {key: _image_array(ny * nx, v, outside) for key, v in _rows_of(trace(empty), empty)[1].items()}
     return values
-
-
-def _edge_midpoints(y0, y1, x0, x1, yc, xc, nx):
-    """Flat indices of the midpoints of cells' top, bottom, left and right edges (each (m,)), from their corner rows
-    and columns and their centre's (m,)."""
-    return y0 * nx + xc, y1 * nx + xc, yc * nx + x0, yc * nx + x1
-
-
-def _edge_tested(cells, size):
-    """Cells (m, 4) at least ``size`` pixels high or wide (none where ``size`` is 0): those whose test reads the
-    midpoints of their edges too."""
-    if size <= 0:
-        return np.zeros(len(cells), bool)
-    return np.maximum(cells[:, 1] - cells[:, 0], cells[:, 3] - cells[:, 2]) >= size
 
 
 def _smooth_cells(values, valid_flat, traced, cells, nx, sampling):

@@ -1,4 +1,4 @@
-"""Adaptive sampling's test of its cells, one cell at a time on the CPU (numba).
+"""Adaptive sampling's cells, one cell at a time on the CPU (numba): their test and their split.
 
 :func:`swim.rt.image_sampling._smooth_cells` decides which cells of a level are interpolated: their tested pixels
 (the centre, and in cells of at least ``edge_test_size`` pixels the midpoints of the four edges) must match the
@@ -11,10 +11,15 @@ pass (docs/performance.md, section 60).
 Bit for bit NumPy's decision: the weights are computed in float64 as ``(yc - y0) / max(y1 - y0, 1)``, the
 interpolation is summed corner by corner in the same order without fused multiply-adds (no fast-math), and a NaN
 anywhere fails the test as NumPy's comparisons do.
+
+:func:`split_cells` and :func:`mark_tested` then give the next level's cells and mark the pixels to trace for them in
+one pass each: NumPy's column views, stacks and index arrays for that took ~30 ms of the same render's levels, again
+while the march's threads waited (docs/performance.md, section 63).
 """
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 from .march_cpu import _JIT_EXACT as _JIT
@@ -118,3 +123,81 @@ def cells_match(ok, values, cells, nx, edge_size, tolerance, floor):
                     and _matches(values, right, corners, 0.0, 1 - wy, 0.0, wy, tolerance, floor))
         if not good:
             ok[q] = False
+
+
+@njit(**_JIT)
+def mark_tested(cells, nx, edge_size, wanted):
+    """Set ``wanted`` at the pixels that the cells' tests read besides their corners, in place: each cell's centre,
+    and in cells at least ``edge_size`` pixels high or wide the midpoints of its four edges.
+
+    Parameters
+    ----------
+    cells : numpy.ndarray
+        Shape (m, 4) int64: the cells' first and last rows and columns (y0, y1, x0, x1) [pixels].
+    nx : int
+        Image width [pixels].
+    edge_size : int
+        As :func:`cells_traced_alike`.
+    wanted : numpy.ndarray
+        Shape (ny * nx,) bool: the pixels to trace; set to True at the tested pixels.
+    """
+    for q in range(cells.shape[0]):
+        yc, xc, _, edged, edges = _tested_pixels(cells[q, 0], cells[q, 1], cells[q, 2], cells[q, 3], nx, edge_size)
+        wanted[yc * nx + xc] = True
+        if edged:
+            for p in edges:
+                wanted[p] = True
+
+
+@njit(**_JIT)
+def split_cells(cells, smooth, nx, edge_size, wanted):
+    """The next level of the quadtree: the four children of each cell that is not smooth, and the pixels they need.
+
+    A cell splits at its centre (``yc = (y0 + y1) // 2``, ``xc`` alike) into its top-left, top-right, bottom-left
+    and bottom-right quarters; the children are ordered by quarter first, then by their parent's order in
+    ``cells`` (as :func:`swim.rt.image_sampling.sample_image_adaptive` stacked them). A child without area (a parent
+    one pixel high or wide splits only across) or without a pixel between its corners (at most 2 x 2 pixels) is
+    dropped. ``wanted`` is set at the midpoints of the split cells' four edges and at the children's tested pixels
+    (:func:`mark_tested`).
+
+    Parameters
+    ----------
+    cells : numpy.ndarray
+        Shape (m, 4) int64: the level's cells (y0, y1, x0, x1) [pixels].
+    smooth : numpy.ndarray
+        Shape (m,) bool: the cells that are interpolated (not split).
+    nx, edge_size
+        As :func:`mark_tested`.
+    wanted : numpy.ndarray
+        Shape (ny * nx,) bool: the pixels to trace, set in place.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (k, 4) int64: the children, k <= 4 (m - smooth.sum()).
+    """
+    n_split = 0
+    for q in range(cells.shape[0]):
+        if not smooth[q]:
+            n_split += 1
+    children = np.empty((4 * n_split, 4), np.int64)
+    k = 0
+    for quarter in range(4):
+        for q in range(cells.shape[0]):
+            if smooth[q]:
+                continue
+            y0, y1, x0, x1 = cells[q, 0], cells[q, 1], cells[q, 2], cells[q, 3]
+            yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
+            if quarter == 0:  # the split cell's edge midpoints, once
+                wanted[y0 * nx + xc] = True
+                wanted[y1 * nx + xc] = True
+                wanted[yc * nx + x0] = True
+                wanted[yc * nx + x1] = True
+            top, bottom = (y0, yc) if quarter < 2 else (yc, y1)
+            left, right = (x0, xc) if quarter % 2 == 0 else (xc, x1)
+            if bottom > top and right > left and (bottom - top > 1 or right - left > 1):
+                children[k, 0], children[k, 1], children[k, 2], children[k, 3] = top, bottom, left, right
+                k += 1
+    children = children[:k]
+    mark_tested(children, nx, edge_size, wanted)
+    return children
