@@ -340,8 +340,9 @@ def test_tile_order_is_a_permutation_that_visits_tiles_one_after_the_other(shape
 def test_the_compiled_fill_interpolates_each_cell_in_the_values_precision_finer_cells_last(dtype):
     """swim.rt.fill_cpu against a per-cell NumPy reference: every untraced valid pixel of a cell is the bilinear
     interpolation of its corners, with the four weights computed in float64 and rounded once to the values'
-    precision and the products summed corner by corner, bit for bit; a pixel shared with a later (finer) cell takes
-    that cell's value; traced and invalid pixels are left alone; booleans copy the first corner, counts are 0."""
+    precision and the products summed corner by corner, bit for bit, in every array of the pass; a pixel shared
+    with a later (finer) cell takes that cell's value, also when bands of rows are filled apart; traced and invalid
+    pixels are left alone; booleans copy the first corner, counts are 0."""
     from swim.rt.fill_cpu import fill_cells, fill_cells_from_corner
 
     ny, nx = 17, 26
@@ -376,10 +377,21 @@ def test_the_compiled_fill_interpolates_each_cell_in_the_values_precision_finer_
                 expected[pix] = acc
                 expected_flags[pix] = flags[corners[0]]
                 expected_counts[pix] = 0
-    fill_cells(values, cells, traced, valid, nx)
+    # with a second array of one channel (its expected values: the first channel's), in bands of rows that split
+    # cells (rows 0-6 and 7-16: the pixel (8, 2) and its cells in the second), as threads run it
+    single = np.ascontiguousarray(original[:, :1])
+    for y_lo, y_hi in ((0, 7), (7, ny)):
+        fill_cells((values, single), cells, traced, valid, nx, y_lo, y_hi)
     fill_cells_from_corner(flags, cells, traced, valid, nx, False)
     fill_cells_from_corner(counts, cells, traced, valid, nx, True)
     assert values.tobytes() == expected.tobytes()
+    assert single.tobytes() == np.ascontiguousarray(expected[:, :1]).tobytes()
+    # a band writes its rows alone
+    banded = original.copy()
+    fill_cells((banded,), cells, traced, valid, nx, 7, 9)
+    rows = np.arange(ny * nx) // nx
+    assert banded[(rows >= 7) & (rows < 9)].tobytes() == expected[(rows >= 7) & (rows < 9)].tobytes()
+    assert banded[(rows < 7) | (rows >= 9)].tobytes() == original[(rows < 7) | (rows >= 9)].tobytes()
     np.testing.assert_array_equal(flags, expected_flags)
     np.testing.assert_array_equal(counts, expected_counts)
     # the cases that the comparison covers: the pixel (8, 2) on the common edge of a coarse and a fine cell, whose

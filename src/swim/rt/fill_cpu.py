@@ -4,7 +4,8 @@
 every target pixel, then four gathers and three products per pixel and output array, each a pass with temporaries:
 0.17 s of a warm 1024^2 adaptive all-sky on 2 cores (~810 000 target pixels, 13 float channels), at the end of the
 render while the march's threads were idle. This kernel walks the cells and their pixels and does the same
-float32 arithmetic in one pass per output (docs/performance.md, section 58).
+float32 arithmetic in one pass per output (docs/performance.md, section 58), and since session 50 in one pass over
+all the float outputs, the pixels' weights computed once, on bands of rows in parallel (section 63).
 
 Bit for bit NumPy's result: the weights are computed in float64 as ``dy / h`` and ``dx / w`` and rounded once to
 float32, and the four corners' products are summed in the same order, without fused multiply-adds.
@@ -19,15 +20,17 @@ from .march_cpu import _JIT_EXACT as _JIT
 
 
 @njit(**_JIT)
-def fill_cells(values, cells, traced, valid, nx):
-    """Bilinear interpolation of the untraced, valid pixels of cells from their corners, in place.
+def fill_cells(arrays, cells, traced, valid, nx, y_lo, y_hi):
+    """Bilinear interpolation of the untraced, valid pixels of cells from their corners, in place, in the pixel rows
+    ``y_lo <= y < y_hi``: every array of ``arrays`` with the weights computed once per pixel.
 
     Parameters
     ----------
-    values : numpy.ndarray
-        Shape (ny * nx, C) float32 or float64: one output of the sampler, its traced pixels set; the cells' other
-        pixels are written. Cells later in ``cells`` overwrite the pixels they share with earlier ones (a pixel on
-        the edge of a coarse and a fine cell takes the fine cell's value when the levels come coarse to fine).
+    arrays : tuple of numpy.ndarray
+        Each of shape (ny * nx, C) (C may differ), all float32 or all float64: outputs of the sampler, their traced
+        pixels set; the cells' other pixels are written. Cells later in ``cells`` overwrite the pixels they share
+        with earlier ones (a pixel on the edge of a coarse and a fine cell takes the fine cell's value when the
+        levels come coarse to fine).
     cells : numpy.ndarray
         Shape (m, 4) int64: the cells' first and last rows and columns (y0, y1, x0, x1) [pixels], y1 > y0 and
         x1 > x0, within the image.
@@ -36,15 +39,19 @@ def fill_cells(values, cells, traced, valid, nx):
         written).
     nx : int
         Image width [pixels].
+    y_lo, y_hi : int
+        The rows [pixels] written: threads that take disjoint bands of rows write disjoint pixels, each in the
+        cells' order, so together they give what one pass over all rows gives.
     """
-    n_c = values.shape[1]
-    weights = np.empty(4, values.dtype)  # assigned in float64, each rounded once to the values' precision
+    weights = np.empty(4, arrays[0].dtype)  # assigned in float64, each rounded once to the values' precision
     for q in range(cells.shape[0]):
         y0, y1, x0, x1 = cells[q, 0], cells[q, 1], cells[q, 2], cells[q, 3]
+        if y1 < y_lo or y0 >= y_hi:
+            continue
         h, w = y1 - y0, x1 - x0
         c00 = y0 * nx + x0
         c01, c10, c11 = c00 + w, c00 + h * nx, c00 + h * nx + w
-        for dy in range(h + 1):
+        for dy in range(max(y0, y_lo) - y0, min(y1, y_hi - 1) - y0 + 1):
             wy = dy / h
             for dx in range(w + 1):
                 pix = c00 + dy * nx + dx
@@ -56,12 +63,13 @@ def fill_cells(values, cells, traced, valid, nx):
                 weights[2] = (1 - wx) * wy
                 weights[3] = wx * wy
                 w00, w01, w10, w11 = weights[0], weights[1], weights[2], weights[3]
-                for c in range(n_c):
-                    acc = values[c00, c] * w00
-                    acc += values[c01, c] * w01
-                    acc += values[c10, c] * w10
-                    acc += values[c11, c] * w11
-                    values[pix, c] = acc
+                for values in arrays:
+                    for c in range(values.shape[1]):
+                        acc = values[c00, c] * w00
+                        acc += values[c01, c] * w01
+                        acc += values[c10, c] * w10
+                        acc += values[c11, c] * w11
+                        values[pix, c] = acc
 
 
 @njit(**_JIT)

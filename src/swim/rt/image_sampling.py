@@ -25,6 +25,7 @@ gives the measured errors on real scenes.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -301,22 +302,25 @@ def _smooth_cells(values, valid_flat, traced, cells, nx, sampling):
 def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
     """Bilinear interpolation of the untraced pixels of the smooth cells of every level (a list of (m, 4) arrays,
     coarse to fine: a pixel on the edge of cells of two levels takes the finer cell's value, as when each level
-    was filled before the next was traced), from their corners; one thread per output array.
+    was filled before the next was traced), from their corners.
 
-    Float arrays go through the compiled :func:`swim.rt.fill_cpu.fill_cells`, one pass per array over the cells'
-    pixels with the weights rounded once to the array's precision (0.17 s → ~0.03 s of a 1024^2 all-sky's end;
-    the NumPy gathers it replaced gave the same bits, docs/performance.md, section 58). Booleans are copied from a
-    corner (the corners of a smooth cell agree), integers (step counts) are 0."""
+    Float arrays go through the compiled :func:`swim.rt.fill_cpu.fill_cells`, all of one precision in one pass over
+    the cells' pixels (the weights computed once per pixel and rounded once to the arrays' precision), on bands of
+    image rows, one per thread: 0.17 s of a 1024^2 all-sky's end in NumPy, ~0.03 s compiled one output at a time, the
+    NumPy gathers giving the same bits (docs/performance.md, sections 58 and 63). Booleans are copied from a corner
+    (the corners of a smooth cell agree), integers (step counts) are 0, one array per thread."""
     if not any(len(cells) for cells in levels):
         return
     from .fill_cpu import fill_cells, fill_cells_from_corner
 
     cells = np.ascontiguousarray(np.concatenate([c for c in levels if len(c)]), dtype=np.int64)
-
-    def fill_one(a):
-        if a.dtype.kind in "biu":
-            fill_cells_from_corner(a.reshape(-1), cells, traced, valid_flat, nx, a.dtype != bool)
-        else:
-            fill_cells(a.reshape(a.shape[0], -1), cells, traced, valid_flat, nx)
-
-    parallel_map(fill_one, list(values.values()), max_threads)
+    ny = traced.size // nx
+    tasks = []
+    for dtype in sorted({a.dtype.str for a in values.values() if a.dtype.kind == "f"}):
+        arrays = tuple(a.reshape(a.shape[0], -1) for a in values.values() if a.dtype.str == dtype)
+        bands = max(1, min(int(max_threads), ny))
+        tasks += [functools.partial(fill_cells, arrays, cells, traced, valid_flat, nx, q * ny // bands,
+                                    (q + 1) * ny // bands) for q in range(bands)]
+    tasks += [functools.partial(fill_cells_from_corner, a.reshape(-1), cells, traced, valid_flat, nx, a.dtype != bool)
+              for a in values.values() if a.dtype.kind in "biu"]
+    parallel_map(lambda task: task(), tasks, max_threads)
