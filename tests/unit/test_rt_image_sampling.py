@@ -443,11 +443,13 @@ def _smooth_cells_numpy(values, valid_flat, traced, cells, nx, sampling):
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("edge_test_size", [0, 5, 8])
 @pytest.mark.parametrize("clear_tolerance", [0.0, 0.05])
-def test_the_compiled_cell_test_decides_as_the_numpy_gathers(dtype, edge_test_size, clear_tolerance):
+def test_the_compiled_cell_test_decides_as_the_numpy_gathers(dtype, edge_test_size, clear_tolerance, monkeypatch):
     """swim.rt.smooth_cpu (through image_sampling._smooth_cells) against the NumPy test it replaced, cell for cell,
     on images that make every part of the test decide: values that are exactly bilinear (pass), noise at the
     tolerance's edge (both ways), NaN and inf values, pixels without a ray or not traced, the ground beside the
-    sky, and cells of every size from 1 x 2 pixels to 16 x 16, with and without edge tests."""
+    sky, and cells of every size from 1 x 2 pixels to 16 x 16, with and without edge tests; on one thread and on
+    three, each testing a block of the cells."""
+    from swim.rt import image_sampling
     from swim.rt.image_sampling import _smooth_cells
 
     ny, nx = 64, 70
@@ -475,6 +477,8 @@ def test_the_compiled_cell_test_decides_as_the_numpy_gathers(dtype, edge_test_si
     got = _smooth_cells(values, valid, traced, cells, nx, sampling)
     expected = _smooth_cells_numpy(values, valid, traced, cells, nx, sampling)
     np.testing.assert_array_equal(got, expected)
+    monkeypatch.setattr(image_sampling, "SMOOTH_BLOCK_CELLS", len(cells) // 4)  # three uneven blocks
+    np.testing.assert_array_equal(_smooth_cells(values, valid, traced, cells, nx, sampling, max_threads=3), expected)
     # every way of deciding occurs: some cells pass, and more fail than the rays and surfaces alone would fail
     assert 0.1 < expected.mean() < 0.9
     bare = AdaptiveSampling(tolerance=1e9, tau_tolerance=1e9, clear_tolerance=1e9 if clear_tolerance else 0.0,

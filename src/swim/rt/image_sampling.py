@@ -98,6 +98,8 @@ class AdaptiveSampling:
                                  f"got {self.edge_test_size!r}")
 
 
+#: Fewest cells [-] per thread of :func:`_smooth_cells` (a 1024^2 image's levels have 16 000-110 000).
+SMOOTH_BLOCK_CELLS = 4096
 #: Side of the square tiles in which :func:`tile_order` puts the pixels [pixels].
 TRACE_TILE = 8
 
@@ -158,10 +160,10 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     progress : callable, optional
         Called with (pixels done, valid pixels) after each batch of rays.
     max_threads : int
-        Threads [-] that interpolate the smooth cells' pixels, one output array each (the compiled fill releases the
-        GIL), at the end: the cells of every level are interpolated then, coarse to fine, which gives what filling
-        them level by level gives (only traced pixels enter the test of a cell, and a pixel traced later keeps its
-        traced value).
+        Threads [-] that test a level's cells (blocks of cells) and interpolate the smooth cells' pixels (bands of
+        rows; the compiled kernels release the GIL). The cells of every level are interpolated at the end, coarse to
+        fine, which gives what filling them level by level gives (only traced pixels enter the test of a cell, and a
+        pixel traced later keeps its traced value).
     outside : float
         Value of the float outputs at the pixels without a ray (``valid`` False): NaN lets an image's planes be
         made without a masking pass (:func:`swim.pipeline.render`).
@@ -231,7 +233,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     run(wanted)
     smooth_levels = []  # the smooth cells (m, 4) of each level, coarse to fine: interpolated at the end
     while cells.size:
-        smooth = _smooth_cells(values, valid_flat, traced, cells, nx, sampling)
+        smooth = _smooth_cells(values, valid_flat, traced, cells, nx, sampling, max_threads)
         smooth_levels.append(cells[smooth])
         if progress is not None:  # the pixels that the fill will interpolate count as done
             from .fill_cpu import fill_cells_from_corner
@@ -273,7 +275,7 @@ def _finish(values, traced, ny, nx, trace, outside):
     return values
 
 
-def _smooth_cells(values, valid_flat, traced, cells, nx, sampling):
+def _smooth_cells(values, valid_flat, traced, cells, nx, sampling, max_threads=1):
     """Cells (m,) whose traced centre matches the bilinear interpolation of their corners and, in cells of at least
     ``sampling.edge_test_size`` pixels, whose edges' traced midpoints match the linear interpolation of their edges'
     corners, in the radiance, the hydrometeor optical depth and (``sampling.clear_tolerance`` > 0) the clear-air
@@ -281,7 +283,8 @@ def _smooth_cells(values, valid_flat, traced, cells, nx, sampling):
 
     One compiled pass per output over the cells (:mod:`swim.rt.smooth_cpu`): the NumPy gathers it replaces took ~0.09
     s of a 1024^2 all-sky's three levels while the march's threads waited, for the same decisions
-    (docs/performance.md, section 60)."""
+    (docs/performance.md, section 60). Each cell is tested on its own, so the cells are split into up to
+    ``max_threads`` blocks tested at once (the kernels release the GIL; section 63)."""
     from .smooth_cpu import cells_match, cells_traced_alike
 
     ok = np.ones(len(cells), bool)
@@ -289,13 +292,21 @@ def _smooth_cells(values, valid_flat, traced, cells, nx, sampling):
         return ~ok
     cells = np.ascontiguousarray(cells, dtype=np.int64)
     size = int(sampling.edge_test_size)
-    cells_traced_alike(ok, cells, nx, size, valid_flat, traced, values["surface"])
     checks = [("radiance", sampling.tolerance, sampling.radiance_floor),
               ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)]
     if sampling.clear_tolerance > 0 and "radiance_clear" in values:
         checks.append(("radiance_clear", sampling.clear_tolerance, sampling.radiance_floor))
-    for key, tolerance, floor in checks:
-        cells_match(ok, values[key].reshape(values[key].shape[0], -1), cells, nx, size, float(tolerance), float(floor))
+
+    def test(block):
+        lo, hi = block
+        cells_traced_alike(ok[lo:hi], cells[lo:hi], nx, size, valid_flat, traced, values["surface"])
+        for key, tolerance, floor in checks:
+            cells_match(ok[lo:hi], values[key].reshape(values[key].shape[0], -1), cells[lo:hi], nx, size,
+                        float(tolerance), float(floor))
+
+    # blocks of at least SMOOTH_BLOCK_CELLS cells: below, a thread's hand-over costs more than the cells' tests
+    blocks = max(1, min(int(max_threads), len(cells) // SMOOTH_BLOCK_CELLS))
+    parallel_map(test, [(q * len(cells) // blocks, (q + 1) * len(cells) // blocks) for q in range(blocks)], blocks)
     return ok
 
 
