@@ -571,3 +571,19 @@ def test_the_compiled_split_gives_the_numpy_children_and_pixels(edge_size):
     np.testing.assert_array_equal(tested, reference)
     if edge_size:
         assert tested.sum() > len({(y0 + y1) // 2 * nx + (x0 + x1) // 2 for y0, y1, x0, x1 in cells})
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32, bool])
+@pytest.mark.parametrize("channels", [1, 3])
+def test_the_compiled_scatter_writes_what_numpy_fancy_assignment_writes(dtype, channels):
+    """swim.rt.fill_cpu.scatter_rows against ``image[pixels] = rows``: pixels in any order, the others untouched."""
+    from swim.rt.fill_cpu import scatter_rows
+
+    rng = np.random.default_rng(channels)
+    image = rng.integers(0, 2, (500, channels)).astype(dtype)
+    pixels = rng.choice(500, 137, replace=False).astype(np.int64)
+    rows = rng.integers(0, 9, (137, channels)).astype(dtype)
+    expected = image.copy()
+    expected[pixels] = rows
+    scatter_rows(image, pixels, rows)
+    np.testing.assert_array_equal(image, expected)

@@ -97,3 +97,26 @@ def fill_cells_from_corner(values, cells, traced, valid, nx, zero):
                         values[pix] = 0
                     else:
                         values[pix] = corner
+
+
+@njit(**_JIT)
+def scatter_rows(image, pixels, rows):
+    """``image[pixels] = rows``, in place: a batch's traced outputs written into the sampler's image array.
+
+    NumPy's fancy assignment of a 1024^2 all-sky's ~200 000 traced rows into its 7 image arrays took ~26 ms of the
+    render, on the main thread while the march's threads waited; this loop, one array per thread, ~5 ms
+    (docs/performance.md, section 63).
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        Shape (ny * nx, C): one output of the sampler (a 1-D output as (ny * nx, 1)).
+    pixels : numpy.ndarray
+        Shape (m,) int64: flat pixel indices, each within the image.
+    rows : numpy.ndarray
+        Shape (m, C), of the image's dtype: the values of those pixels.
+    """
+    for q in range(pixels.shape[0]):
+        pix = pixels[q]
+        for c in range(rows.shape[1]):
+            image[pix, c] = rows[q, c]

@@ -202,11 +202,23 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         if flat.size == 0:
             return
         pixels, result = _rows_of(trace(flat), flat)
-        for key, value in result.items():
-            value = np.asarray(value)
-            if key not in values:
-                values[key] = _image_array(ny * nx, value, outside)
-            values[key][pixels] = value
+        pixels = np.ascontiguousarray(pixels, dtype=np.int64)
+        result = {key: np.asarray(value) for key, value in result.items()}
+        new = {key for key in result if key not in values}
+        for key in result:  # the arrays made in the trace's order; their pages first written by the threads below
+            if key in new:
+                values[key] = np.empty((ny * nx,) + result[key].shape[1:], result[key].dtype)
+
+        def scatter(key):
+            from .fill_cpu import scatter_rows
+
+            image = values[key]
+            if key in new:
+                image.fill(outside if image.dtype.kind == "f" else 0)
+            scatter_rows(image.reshape(ny * nx, -1), pixels,
+                         np.ascontiguousarray(result[key].reshape(len(pixels), -1), dtype=image.dtype))
+
+        parallel_map(scatter, list(result), max_threads)
         traced[flat] = True
         report()
 
