@@ -1756,6 +1756,9 @@ def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIU
 #: Rays per call of :func:`ray_segments` and of a ``ray_phase`` function in :func:`trace_rays` (bounds their
 #: temporaries).
 SEGMENT_BLOCK = 65536
+#: Fewest rays per block of :func:`ray_segments` in :func:`trace_rays` when a batch is split between threads: a
+#: smaller block's hand-over to a thread costs more than its rays' segments (~0.1 us a ray).
+SEGMENT_MIN_BLOCK = 8192
 #: Smallest batch of rays the kernel is compiled for (:func:`padded_batch_size`).
 MIN_BATCH = 256
 
@@ -1866,12 +1869,16 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     if len(origins) == 0:
         raise SwimInputError("trace_rays needs at least one ray, got none")
     # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB; on up to 8 cores
-    # (NumPy releases the GIL in its loops: 0.33 s -> 0.22 s for a 1024^2 all-sky on a 16-core host)
-    def segments(lo):
-        return ray_segments(origins[lo:lo + SEGMENT_BLOCK], directions[lo:lo + SEGMENT_BLOCK], geometry,
-                            top=float(consts["top"]))
+    # (NumPy releases the GIL in its loops: 0.33 s -> 0.22 s for a 1024^2 all-sky on a 16-core host), a block per
+    # thread at least where there are SEGMENT_MIN_BLOCK rays per thread (an adaptive render's batches of 20 000-70 000
+    # rays were one block, on one thread while the others waited: docs/performance.md, section 63)
+    workers = min(threads(), 8)
+    block = min(SEGMENT_BLOCK, max(SEGMENT_MIN_BLOCK, -(-len(origins) // workers)))
 
-    blocks = parallel_map(segments, range(0, len(origins), SEGMENT_BLOCK), min(threads(), 8))
+    def segments(lo):
+        return ray_segments(origins[lo:lo + block], directions[lo:lo + block], geometry, top=float(consts["top"]))
+
+    blocks = parallel_map(segments, range(0, len(origins), block), workers)
     seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
     del blocks
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
