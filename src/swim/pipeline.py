@@ -519,8 +519,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                                             outside=np.nan)
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
+
         def plane(a):  # (ny * nx, C) -> (C, ny, nx): NumPy's copy without the GIL, the arrays on several threads
-            return np.ascontiguousarray(a.reshape(ny, nx, -1).transpose(2, 0, 1)) if a.ndim == 2 else a.reshape(1, ny, nx)
+            if a.ndim == 1:
+                return a.reshape(1, ny, nx)
+            return np.ascontiguousarray(a.reshape(ny, nx, -1).transpose(2, 0, 1))
 
         planes.update(zip(IMAGE_OUTPUTS, parallel_map(plane, [out.pop(key) for key in IMAGE_OUTPUTS],
                                                       min(threads(), 8))))
