@@ -204,17 +204,15 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         pixels, result = _rows_of(trace(flat), flat)
         pixels = np.ascontiguousarray(pixels, dtype=np.int64)
         result = {key: np.asarray(value) for key, value in result.items()}
-        new = {key for key in result if key not in values}
-        for key in result:  # the arrays made in the trace's order; their pages first written by the threads below
-            if key in new:
-                values[key] = np.empty((ny * nx,) + result[key].shape[1:], result[key].dtype)
+        new = [key for key in result if key not in values]
+        for key in new:  # made in the trace's order; their pages first written (blanked) by the threads below
+            values[key] = _image_array(ny * nx, result[key])
+        from .fill_cpu import scatter_rows
 
         def scatter(key):
-            from .fill_cpu import scatter_rows
-
             image = values[key]
             if key in new:
-                image.fill(outside if image.dtype.kind == "f" else 0)
+                _blank(image, outside)
             scatter_rows(image.reshape(ny * nx, -1), pixels,
                          np.ascontiguousarray(result[key].reshape(len(pixels), -1), dtype=image.dtype))
 
@@ -271,19 +269,25 @@ def _rows_of(result, flat):
     return (flat if order is None else flat[order]), arrays
 
 
-def _image_array(n, value, outside):
-    """An output's array for all ``n`` pixels of the image, shaped and typed as a batch's ``value`` (m, ...):
-    ``outside`` where it is float, else 0, until its pixels are traced or interpolated."""
+def _image_array(n, value):
+    """An output's array (unwritten) for all ``n`` pixels of the image, shaped and typed as a batch's ``value``
+    (m, ...)."""
     value = np.asarray(value)
-    if value.dtype.kind == "f":
-        return np.full((n,) + value.shape[1:], outside, value.dtype)
-    return np.zeros((n,) + value.shape[1:], value.dtype)
+    return np.empty((n,) + value.shape[1:], value.dtype)
+
+
+def _blank(image, outside):
+    """``image`` set, in place, to what its pixels hold until they are traced or interpolated: ``outside`` where it
+    is float, else 0; returns it."""
+    image.fill(outside if image.dtype.kind == "f" else 0)
+    return image
 
 
 def _finish(values, traced, ny, nx, trace, outside):
     if not values:  # nothing valid: ask for the keys with an empty batch
         empty = np.zeros(0, np.int64)
-        values = {key: _image_array(ny * nx, v, outside) for key, v in _rows_of(trace(empty), empty)[1].items()}
+        values = {key: _blank(_image_array(ny * nx, v), outside)
+                  for key, v in _rows_of(trace(empty), empty)[1].items()}
     return values
 
 
