@@ -5,6 +5,7 @@ Usage::
     python benchmarks/bench_march.py --scene synthetic --size 512                  # time per sample and per ray
     python benchmarks/bench_march.py --scene rico --size 512 --experiments         # + cache and fixed-cost splits
     python benchmarks/bench_march.py --scene synthetic --variant /tmp/my_march_cpu.py --repeats 15
+    python benchmarks/bench_march.py --scene synthetic --variant /tmp/my_march_cpu.py --repeats 8 --interleave
     python benchmarks/bench_march.py --scene mc --size 41 --flush 64 --repeats 15       # the Monte Carlo case's view
 
 A render's timing moves by 10-20 % on this project's shared 2-core machine, which hides a change of a few per
@@ -21,7 +22,14 @@ outside the caches (what a small render sees).
 
 ``--variant FILE.py`` replays the same inputs through another implementation of ``march_rays`` (a copy of
 ``src/swim/rt/march_cpu.py`` with a change; its relative imports are rewritten to ``swim.rt.``) and reports the
-largest difference of its outputs from the installed kernel's. ``--experiments`` adds three splits of the time:
+largest difference of its outputs from the installed kernel's. ``--interleave`` alternates the kernels chunk by
+chunk instead of pass by pass and adds each one's time over the installed kernel's, with its range over the passes:
+the machine's load then falls alike on all of them, and two kernels' time ratio moves by ~1-3 % from pass to pass,
+where whole passes taken in turn differ by 5-10 % (docs/performance.md, section 64). Use it to judge a change of a
+few per cent, against a plain copy of march_cpu.py replayed beside it: a copy compiled in this process ran 0.98-1.01
+times the installed kernel's time (loaded from numba's disk cache) in session 51.
+
+``--experiments`` adds three splits of the time:
 
 * ``one ray per chunk``: every ray of a chunk replaced by the chunk's middle ray, so the tables it reads stay in
   the caches: the kernel's cost without cache misses (its arithmetic, branches and L1 reads);
@@ -180,6 +188,39 @@ def replay(runs, repeats, flush_mb=0):
     return result
 
 
+def replay_interleaved(runs, repeats):
+    """Time each (label, march, calls) of ``runs`` chunk by chunk: every chunk is replayed by each run in turn (the
+    order reversed from one chunk to the next), ``repeats`` passes after one warm-up pass. Load that changes over
+    more than a chunk's time (tens of ms) then falls alike on every run: the runs' time ratios to the first run
+    move by ~1 % from pass to pass, where whole passes taken in turn (:func:`replay`) move by 5-10 % on this
+    project's shared machine. Returns :func:`replay`'s dict, each entry with ``ratio`` (its total time over the first
+    run's) and ``pass_ratios`` added."""
+    for _, march, calls in runs:
+        for args in calls:
+            march(*args)
+    seconds = {label: [0.0] * repeats for label, _, _ in runs}
+    n_chunks = len(runs[0][2])
+    for rep in range(repeats):
+        for c in range(n_chunks):
+            order = runs if (rep + c) % 2 == 0 else runs[::-1]
+            for label, march, calls in order:
+                t0 = time.perf_counter()
+                march(*calls[c])
+                seconds[label][rep] += time.perf_counter() - t0
+    result = {}
+    first = seconds[runs[0][0]]
+    for label, _, calls in runs:
+        rays = sum(args[0].shape[0] for args in calls)
+        samples = sum(int(args[-1].sum()) for args in calls)
+        best = min(seconds[label])
+        result[label] = {"seconds": seconds[label], "min_s": best, "median_s": statistics.median(seconds[label]),
+                         "rays": rays, "samples": samples, "samples_per_ray": samples / rays,
+                         "ns_per_sample": best / samples * 1e9, "us_per_ray": best / rays * 1e6,
+                         "ratio": sum(seconds[label]) / sum(first),
+                         "pass_ratios": [a / b for a, b in zip(seconds[label], first)]}
+    return result
+
+
 def max_difference(a_calls, b_calls):
     """Largest absolute difference between the outputs of two replays of the same inputs."""
     worst = 0.0
@@ -198,6 +239,8 @@ def main(argv=None):
     parser.add_argument("--variant", action="append", default=[], help="another march_cpu.py to replay (repeatable)")
     parser.add_argument("--flush", type=float, default=0.0, help="MB written before each pass (caches cold)")
     parser.add_argument("--experiments", action="store_true", help="cache and fixed-cost splits (see the docstring)")
+    parser.add_argument("--interleave", action="store_true",
+                        help="alternate the runs chunk by chunk instead of pass by pass (see the docstring)")
     parser.add_argument("--data", type=Path, default=bench_suite.DATA)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
@@ -218,7 +261,9 @@ def main(argv=None):
         runs += [("one ray per chunk", march_cpu.march_rays, reorder(calls, "one ray")),
                  ("rays shuffled", march_cpu.march_rays, reorder(calls, "shuffled")),
                  ("one step per segment", march_cpu.march_rays, one_step)]
-    result = replay(runs, args.repeats, args.flush)
+    if args.interleave and args.flush:
+        parser.error("--interleave replays chunk by chunk: --flush (before each whole pass) does not apply")
+    result = replay_interleaved(runs, args.repeats) if args.interleave else replay(runs, args.repeats, args.flush)
     for label, _, replayed in runs[1:1 + len(args.variant)]:
         result[label]["max_output_difference"] = max_difference(base, replayed)
     if args.experiments:
@@ -227,15 +272,20 @@ def main(argv=None):
         result["setup_share"] = result["setup_per_ray_us"] / full["us_per_ray"]
 
     flushed = f", {args.flush:g} MB written before each pass" if args.flush else ""
+    mode = "runs alternating chunk by chunk" if args.interleave else "runs alternating pass by pass"
     print(f"\n{args.scene}, {args.size}² all-sky: {len(calls)} chunks of rays (the first {calls[0][0].shape[0]}); "
-          f"one thread, best of {args.repeats}{flushed}\n")
-    print("| run | rays | samples/ray | min [s] | median [s] | ns/sample | µs/ray | max output difference |")
-    print("|---|---|---|---|---|---|---|---|")
+          f"one thread, {mode}, best of {args.repeats}{flushed}\n")
+    ratio_head = " time / kernel's (passes) |" if args.interleave else ""
+    print(f"| run | rays | samples/ray | min [s] | median [s] | ns/sample | µs/ray | max output difference |"
+          f"{ratio_head}")
+    print("|---|---|---|---|---|---|---|---|" + ("---|" if args.interleave else ""))
     for label, _, _ in runs:
         r = result[label]
         diff = f"{r['max_output_difference']:.3g}" if "max_output_difference" in r else ""
+        ratio = (f" {r['ratio']:.3f} ({min(r['pass_ratios']):.3f}-{max(r['pass_ratios']):.3f}) |"
+                 if args.interleave else "")
         print(f"| {label} | {r['rays']} | {r['samples_per_ray']:.1f} | {r['min_s']:.3f} | {r['median_s']:.3f} | "
-              f"{r['ns_per_sample']:.1f} | {r['us_per_ray']:.2f} | {diff} |")
+              f"{r['ns_per_sample']:.1f} | {r['us_per_ray']:.2f} | {diff} |{ratio}")
     if args.experiments:
         print(f"\nset-up per ray (probes, step placement, outputs): {result['setup_per_ray_us']:.2f} µs, "
               f"{100 * result['setup_share']:.0f} % of the kernel's time")
@@ -244,7 +294,7 @@ def main(argv=None):
     out = args.out or bench_suite.RESULTS / f"march-{args.scene}-{stamp}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"scene": args.scene, "size": args.size, "chunks": len(calls), "repeats": args.repeats,
-           "flush_mb": args.flush,
+           "flush_mb": args.flush, "interleaved": args.interleave,
            "machine": bench_suite.machine_info(), "git": bench_suite.git_info(), "results": result}
     out.write_text(json.dumps(doc, indent=1, default=float))
     print(f"\nwritten: {out}")
