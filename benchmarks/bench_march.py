@@ -177,15 +177,18 @@ def replay(runs, repeats, flush_mb=0):
             for args in calls:
                 march(*args)
             seconds[label].append(time.perf_counter() - t0)
-    result = {}
-    for label, _, calls in runs:
-        rays = sum(args[0].shape[0] for args in calls)
-        samples = sum(int(args[-1].sum()) for args in calls)
-        best = min(seconds[label])
-        result[label] = {"seconds": seconds[label], "min_s": best, "median_s": statistics.median(seconds[label]),
-                         "rays": rays, "samples": samples, "samples_per_ray": samples / rays,
-                         "ns_per_sample": best / samples * 1e9, "us_per_ray": best / rays * 1e6}
-    return result
+    return {label: _summary(seconds[label], calls) for label, _, calls in runs}
+
+
+def _summary(seconds, calls):
+    """A run's passes ``seconds`` [s] over the replay ``calls``: best and median pass, rays, samples, ns a sample and
+    µs a ray (of the best pass)."""
+    rays = sum(args[0].shape[0] for args in calls)
+    samples = sum(int(args[-1].sum()) for args in calls)
+    best = min(seconds)
+    return {"seconds": seconds, "min_s": best, "median_s": statistics.median(seconds), "rays": rays,
+            "samples": samples, "samples_per_ray": samples / rays, "ns_per_sample": best / samples * 1e9,
+            "us_per_ray": best / rays * 1e6}
 
 
 def replay_interleaved(runs, repeats):
@@ -207,18 +210,9 @@ def replay_interleaved(runs, repeats):
                 t0 = time.perf_counter()
                 march(*calls[c])
                 seconds[label][rep] += time.perf_counter() - t0
-    result = {}
     first = seconds[runs[0][0]]
-    for label, _, calls in runs:
-        rays = sum(args[0].shape[0] for args in calls)
-        samples = sum(int(args[-1].sum()) for args in calls)
-        best = min(seconds[label])
-        result[label] = {"seconds": seconds[label], "min_s": best, "median_s": statistics.median(seconds[label]),
-                         "rays": rays, "samples": samples, "samples_per_ray": samples / rays,
-                         "ns_per_sample": best / samples * 1e9, "us_per_ray": best / rays * 1e6,
-                         "ratio": sum(seconds[label]) / sum(first),
-                         "pass_ratios": [a / b for a, b in zip(seconds[label], first)]}
-    return result
+    return {label: {**_summary(seconds[label], calls), "ratio": sum(seconds[label]) / sum(first),
+                    "pass_ratios": [a / b for a, b in zip(seconds[label], first)]} for label, _, calls in runs}
 
 
 def max_difference(a_calls, b_calls):
