@@ -19,6 +19,7 @@ from swim.rt.march import (
     grid_geometry,
     kernel_constants,
     ray_segments,
+    ray_segments_compiled,
     trace_rays,
 )
 from swim.rt.reference import reference_trace_ray
@@ -170,13 +171,14 @@ def test_clear_sky_matches_plane_parallel_single_scattering(sun_zenith, n_grid):
         np.testing.assert_allclose(out["radiance"][n], expected, rtol=0.01)
 
 
-def test_ray_segments_for_ground_and_space_observers():
+@pytest.mark.parametrize("segments", [ray_segments, ray_segments_compiled], ids=["numpy", "compiled"])
+def test_ray_segments_for_ground_and_space_observers(segments):
     scene = _tiny_scene()
     geometry = grid_geometry(build_optical_volume(scene))
     up = np.array([0.0, 0.0, 1.0])
     ground = np.array([0.0, 0.0, EARTH_RADIUS_M + 2.0])
     space = np.array([0.0, 0.0, EARTH_RADIUS_M + 36_000e3])
-    seg = ray_segments(np.array([ground, space, space]), np.array([up, -up, up]), geometry)
+    seg = segments(np.array([ground, space, space]), np.array([up, -up, up]), geometry)
     # Ground looking up: starts at the observer inside the grid, leaves the grid at its top, ends at 100 km.
     assert seg["valid"][0] and not seg["ends_on_ground"][0]
     assert seg["bounds"][0, 0] == 0.0

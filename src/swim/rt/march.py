@@ -280,7 +280,8 @@ def grid_geometry(volume) -> GridGeometry:
 
 
 def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, radius=EARTH_RADIUS_M):
-    """Clip rays to the atmosphere, the sea-level sphere and the model grid (host side, float64).
+    """Clip rays to the atmosphere, the sea-level sphere and the model grid (host side, float64), with NumPy: the
+    reference of :func:`ray_segments_compiled`, which :func:`trace_rays` calls.
 
     Parameters
     ----------
@@ -313,20 +314,22 @@ def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, rad
     shell_in = np.where(np.isfinite(k1), np.maximum(k1, 0.0), np.inf)
     shell_out = np.where(np.isfinite(k2), k2, -np.inf)
     _, ny, nx = geometry.shape
-    # The affine bounds are widened by the affine fit's error and the height-dependent scale of (x, y).
-    margin = 1.0 + geometry.top / radius * max(nx, ny) + geometry.affine_residual_cells
-    ij0 = (o[:, :2] - geometry.origin) @ geometry.inverse.T
-    dij = d[:, :2] @ geometry.inverse.T
+    margin = _lateral_margin(geometry, radius)
+    rel_x, rel_y = o[:, 0] - geometry.origin[0], o[:, 1] - geometry.origin[1]
     lo = np.full(len(o), -np.inf)
     hi = np.full(len(o), np.inf)
     for axis, n in ((0, nx), (1, ny)):
         a, b = -margin, n - 1 + margin
-        rate = dij[:, axis]
+        # the inverse affine map element by element, not a matrix product: BLAS's fused multiply-adds differ from
+        # one CPU to another, and the compiled twin (swim.rt.segments_cpu) takes these operations in this order
+        row = geometry.inverse[axis]
+        at = rel_x * row[0] + rel_y * row[1]
+        rate = d[:, 0] * row[0] + d[:, 1] * row[1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            e1 = (a - ij0[:, axis]) / rate
-            e2 = (b - ij0[:, axis]) / rate
+            e1 = (a - at) / rate
+            e2 = (b - at) / rate
         still = np.abs(rate) < 1e-12
-        inside = (ij0[:, axis] >= a) & (ij0[:, axis] <= b)
+        inside = (at >= a) & (at <= b)
         e_lo = np.where(still, np.where(inside, -np.inf, np.inf), np.minimum(e1, e2))
         e_hi = np.where(still, np.where(inside, np.inf, -np.inf), np.maximum(e1, e2))
         lo = np.maximum(lo, e_lo)
@@ -342,6 +345,25 @@ def ray_segments(origins, directions, geometry: GridGeometry, top=100_000.0, rad
     bounds = np.stack([s_a - s_start, s_b - s_start, s_end - s_start], axis=1)
     bounds = np.where(valid[:, None], bounds, 0.0)
     return {"start": start, "bounds": bounds, "ends_on_ground": hits_sea & valid, "valid": valid}
+
+
+def _lateral_margin(geometry: GridGeometry, radius):
+    """Cells [-] by which :func:`ray_segments` widens the grid's lateral index bounds: the affine fit's error and
+    the height-dependent scale of (x, y)."""
+    _, ny, nx = geometry.shape
+    return 1.0 + geometry.top / radius * max(nx, ny) + geometry.affine_residual_cells
+
+
+def ray_segments_compiled(origins, directions, geometry: GridGeometry, top=100_000.0, radius=EARTH_RADIUS_M):
+    """:func:`ray_segments` one ray at a time in compiled code (:mod:`swim.rt.segments_cpu`): the same arguments
+    and dict, ~4x faster on a CPU (no float64 temporaries); what :func:`trace_rays` calls. The same operations in the
+    same order, so the same results where NumPy's ``einsum`` sums three terms as this machine's does, else within
+    float64 round-off (docs/performance.md, section 65)."""
+    from .segments_cpu import ray_segments_compiled as compiled
+
+    _, ny, nx = geometry.shape
+    return compiled(origins, directions, geometry.origin, geometry.inverse, (ny, nx), _lateral_margin(geometry, radius),
+                    radius, top, geometry.top)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -1753,11 +1775,11 @@ def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIU
     }
 
 
-#: Rays per call of :func:`ray_segments` and of a ``ray_phase`` function in :func:`trace_rays` (bounds their
-#: temporaries).
+#: Rays per call of :func:`ray_segments_compiled` and of a ``ray_phase`` function in :func:`trace_rays` (bounds the
+#: phase functions' temporaries).
 SEGMENT_BLOCK = 65536
-#: Fewest rays per block of :func:`ray_segments` in :func:`trace_rays` when a batch is split between threads: a
-#: smaller block's hand-over to a thread costs more than its rays' segments (~0.1 us a ray).
+#: Fewest rays per block of :func:`ray_segments_compiled` in :func:`trace_rays` when a batch is split between threads:
+#: a smaller block's hand-over to a thread costs more than its rays' segments (~0.02-0.03 us a ray).
 SEGMENT_MIN_BLOCK = 8192
 #: Smallest batch of rays the kernel is compiled for (:func:`padded_batch_size`).
 MIN_BATCH = 256
@@ -1868,15 +1890,16 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                                  f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
     if len(origins) == 0:
         raise SwimInputError("trace_rays needs at least one ray, got none")
-    # in blocks: ray_segments' float64 temporaries for a whole 1024^2 image would be ~300 MB; on up to 8 cores
-    # (NumPy releases the GIL in its loops: 0.33 s -> 0.22 s for a 1024^2 all-sky on a 16-core host), a block per
-    # thread at least where there are SEGMENT_MIN_BLOCK rays per thread (an adaptive render's batches of 20 000-70 000
-    # rays were one block, on one thread while the others waited: docs/performance.md, section 63)
+    # compiled (ray_segments_compiled: ~40 -> ~7 ms of a warm 1024^2 adaptive all-sky, docs/performance.md, section
+    # 65), in blocks on up to 8 cores (the kernel runs without the GIL), a block per thread at least where there are
+    # SEGMENT_MIN_BLOCK rays per thread (an adaptive render's batches of 20 000-70 000 rays were one block, on one
+    # thread while the others waited: section 63)
     workers = min(threads(), 8)
     block = min(SEGMENT_BLOCK, max(SEGMENT_MIN_BLOCK, -(-len(origins) // workers)))
 
     def segments(lo):
-        return ray_segments(origins[lo:lo + block], directions[lo:lo + block], geometry, top=float(consts["top"]))
+        return ray_segments_compiled(origins[lo:lo + block], directions[lo:lo + block], geometry,
+                                     top=float(consts["top"]))
 
     blocks = parallel_map(segments, range(0, len(origins), block), workers)
     seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
