@@ -356,9 +356,10 @@ def _lateral_margin(geometry: GridGeometry, radius):
 
 def ray_segments_compiled(origins, directions, geometry: GridGeometry, top=100_000.0, radius=EARTH_RADIUS_M):
     """:func:`ray_segments` one ray at a time in compiled code (:mod:`swim.rt.segments_cpu`): the same arguments
-    and dict, ~4x faster on a CPU (no float64 temporaries); what :func:`trace_rays` calls. The same operations in the
-    same order, so the same results where NumPy's ``einsum`` sums three terms as this machine's does, else within
-    float64 round-off (docs/performance.md, section 65)."""
+    and dict, ~10x faster on a CPU (no float64 temporaries: 47 -> 4.7 ms for 200 000 rays on one thread here);
+    what :func:`trace_rays` calls. The same operations in the same order, so the same results where NumPy's
+    ``einsum`` sums three terms as this machine's does, else within float64 round-off (docs/performance.md,
+    section 65)."""
     from .segments_cpu import ray_segments_compiled as compiled
 
     _, ny, nx = geometry.shape
