@@ -360,11 +360,19 @@ def ray_segments_compiled(origins, directions, geometry: GridGeometry, top=100_0
     what :func:`trace_rays` calls. The same operations in the same order, so the same results where NumPy's
     ``einsum`` sums three terms as this machine's does, else within float64 round-off (docs/performance.md,
     section 65)."""
-    from .segments_cpu import ray_segments_compiled as compiled
+    from .segments_cpu import ray_segments_into
 
+    o = np.ascontiguousarray(origins, dtype=np.float64)
+    d = np.ascontiguousarray(directions, dtype=np.float64)
+    n = len(o)
+    out = {"start": np.empty((n, 3)), "bounds": np.empty((n, 3)), "ends_on_ground": np.empty(n, np.bool_),
+           "valid": np.empty(n, np.bool_)}
     _, ny, nx = geometry.shape
-    return compiled(origins, directions, geometry.origin, geometry.inverse, (ny, nx), _lateral_margin(geometry, radius),
-                    radius, top, geometry.top)
+    ray_segments_into(o, d, np.ascontiguousarray(geometry.origin, dtype=np.float64),
+                      np.ascontiguousarray(geometry.inverse, dtype=np.float64), (ny, nx),
+                      float(_lateral_margin(geometry, radius)), float(radius), float(top), float(geometry.top),
+                      out["start"], out["bounds"], out["ends_on_ground"], out["valid"])
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -1891,7 +1899,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                                  f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
     if len(origins) == 0:
         raise SwimInputError("trace_rays needs at least one ray, got none")
-    # compiled (ray_segments_compiled: ~40 -> ~7 ms of a warm 1024^2 adaptive all-sky, docs/performance.md, section
+    # compiled (ray_segments_compiled: ~45 -> ~7 ms of a warm 1024^2 adaptive all-sky, docs/performance.md, section
     # 65), in blocks on up to 8 cores (the kernel runs without the GIL), a block per thread at least where there are
     # SEGMENT_MIN_BLOCK rays per thread (an adaptive render's batches of 20 000-70 000 rays were one block, on one
     # thread while the others waited: section 63)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from .march_cpu import _JIT_EXACT as _JIT
@@ -90,17 +89,3 @@ def ray_segments_into(origins, directions, affine_origin, inverse, shape_yx, mar
         ends_on_ground[r] = hits_sea and is_valid
         valid[r] = is_valid
 
-
-def ray_segments_compiled(origins, directions, affine_origin, inverse, shape_yx, margin, radius, top, grid_top):
-    """The arrays of :func:`swim.rt.march.ray_segments` from :func:`ray_segments_into`: a dict of ``start`` (n, 3)
-    [m], ``bounds`` (n, 3) [m], ``ends_on_ground`` (n,) bool and ``valid`` (n,) bool."""
-    o = np.ascontiguousarray(origins, dtype=np.float64)
-    d = np.ascontiguousarray(directions, dtype=np.float64)
-    n = len(o)
-    out = {"start": np.empty((n, 3)), "bounds": np.empty((n, 3)), "ends_on_ground": np.empty(n, np.bool_),
-           "valid": np.empty(n, np.bool_)}
-    ray_segments_into(o, d, np.ascontiguousarray(affine_origin, dtype=np.float64),
-                      np.ascontiguousarray(inverse, dtype=np.float64), (int(shape_yx[0]), int(shape_yx[1])),
-                      float(margin), float(radius), float(top), float(grid_top), out["start"], out["bounds"],
-                      out["ends_on_ground"], out["valid"])
-    return out
