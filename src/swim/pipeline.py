@@ -43,11 +43,12 @@ from .rt.march import (
     packed_species,
     padded_batch_size,
     share_packed_channels,
+    shared_packed_volume,
     threads,
     trace_rays,
     volume_constants,
 )
-from .rt.solar import solar_transmittance
+from .rt.solar import solar_transmittance, step1a_levels
 from .workers import parallel_map
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,9 @@ COLOUR_BLOCK_ROWS = 128
 #: Images of fewer pixels skip the C heap's trims after the march and at the end of :func:`render`: they free a few
 #: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of a 41 x 41 render; swim.memory).
 TRIM_MIN_PIXELS = 1 << 16
+#: Images of at least this many traced pixels are scattered into their planes on several threads (:func:`render`):
+#: below it the pool's overhead (~0.02 ms a task) is not worth it.
+PLANES_THREADED_PIXELS = 1 << 16
 #: Scenes of at least this many bytes are hashed on several threads (:func:`_fingerprint`): below it the pool's
 #: overhead (~0.1 ms) is not worth it.
 FINGERPRINT_THREADED_BYTES = 64 << 20
@@ -432,15 +436,22 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         # The grid is packed first and the volume's extinctions become views of the packed channels, so the
         # grid is held once before Step 1a's fields are made (docs/performance.md, memory); species that are zero
         # everywhere are not packed (a march through fewer channels reads fewer cache lines, section 31)
-        species = packed_species(volume)
-        packed = pack_volume(volume, species)
-        share_packed_channels(volume, packed, species)
+        # the species packed and Step 1a's levels with extinction depend on the volume alone: a new sun (a time
+        # series' frame) reuses them (their scans read every species' extinction: ~0.1 and ~0.2 s for the 400 x 400
+        # x 60 scene on this project's 2 cores, docs/performance.md, section 66)
+        species = _STAGE_CACHE.get(("packed species", fingerprint), lambda: packed_species(volume))
+        # a new sun refills the packed volume's Step 1a channels in place: the grid's channels are the same
+        packed = shared_packed_volume(volume, species)
+        if packed is None:
+            packed = pack_volume(volume, species)
+            share_packed_channels(volume, packed, species)
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
         # Step 1a, only the fields that the kernel constants read, which copy them into the packed volume: Step
         # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160)
+        nonzero_levels = _STAGE_CACHE.get(("step 1a levels", fingerprint), lambda: step1a_levels(volume))
         transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
-                                            backend=settings.backend)
+                                            backend=settings.backend, nonzero_levels=nonzero_levels)
         constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
         del transmittance
         release_free_memory()  # Step 1a's freed levels, before the ray march
@@ -500,12 +511,22 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         traced = valid.reshape(-1)
         pixels = valid_pixels  # every valid pixel, in tile order
         _, rays = trace_tiled(pixels, progress, tiled=True)
-        for key in IMAGE_OUTPUTS:  # each written once, straight into its image, one output at a time
-            value = rays.pop(key)
-            plane = np.full((value.shape[1] if value.ndim == 2 else 1, ny * nx), np.nan, value.dtype)
-            plane[:, pixels] = value.T if value.ndim == 2 else value
-            planes[key] = plane.reshape(-1, ny, nx)
-        del value, plane
+        outputs = {key: rays.pop(key) for key in IMAGE_OUTPUTS}
+        planes = {key: np.empty((value.shape[1] if value.ndim == 2 else 1, ny * nx), value.dtype)
+                  for key, value in outputs.items()}
+
+        def scatter(row):  # one channel of one output: NaN, then its pixels (NumPy's scatter without the GIL)
+            key, channel = row
+            value, plane = outputs[key], planes[key][channel]
+            np.copyto(plane, np.nan)
+            plane[pixels] = value[:, channel] if value.ndim == 2 else value
+
+        # every channel at once on the pools' threads: the 13 channels' scatters of a 1024^2 all-sky took 77 ms
+        # one after the other on a GPU machine's host while the device idled (docs/performance.md, section 66)
+        parallel_map(scatter, [(key, c) for key, plane in planes.items() for c in range(plane.shape[0])],
+                     min(threads(), 8) if pixels.size >= PLANES_THREADED_PIXELS else 1)
+        planes = {key: plane.reshape(-1, ny, nx) for key, plane in planes.items()}
+        del outputs
         march_samples = int(rays["steps"].sum())
         del rays
     else:

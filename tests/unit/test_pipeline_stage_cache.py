@@ -205,3 +205,24 @@ def test_scene_directions_are_the_camera_s_rotated_and_shared_by_equal_views():
         assert again[0] is dirs and again[1] is pixels
     other = pipeline._scene_directions(camera, enu_to_scene_rotation(40.0, -105.0, 40.0, -105.0))
     assert not np.allclose(other[0][flat], dirs[flat])
+
+
+@pytest.mark.parametrize("backend", ["numba", "jax"])
+def test_a_new_sun_refills_the_packed_volume_in_place(backend):
+    """A new sun reuses the packed grid (its Step 1a channels filled again, no second copy of the grid) and the
+    kernel's device copies of it are made again: every image equals a render from an empty cache."""
+    pipeline._STAGE_CACHE.clear()
+    scene = swim.default_scene()
+    settings = swim.MarchSettings(backend=backend)
+    packed = []
+    suns = (40.0, 65.0, 40.0)
+    images = []
+    for zenith in suns:
+        images.append(_render(scene, sun_zenith=zenith, settings=settings)["radiance"].values)
+        packed.append(pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"])
+    assert packed[1] is packed[0] and packed[2] is packed[0]
+    assert not packed[0].flags.writeable
+    assert not np.array_equal(images[0], images[1])  # the suns differ enough to tell a stale Step 1a apart
+    for zenith, image in zip(suns, images):
+        pipeline._STAGE_CACHE.clear()
+        np.testing.assert_array_equal(image, _render(scene, sun_zenith=zenith, settings=settings)["radiance"].values)

@@ -712,6 +712,43 @@ def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
     np.testing.assert_array_equal(got["occupancy"], occupancy)
 
 
+@pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
+def test_a_new_sun_refills_the_shared_packed_volume(aerosol_plume):
+    """shared_packed_volume finds the packed volume that a shared volume's extinctions view (None before sharing or
+    for another layout); refilled with a second sun's Step 1a, it equals a volume packed anew for that sun, and the
+    JAX kernel's device copy of the first sun's channels is dropped."""
+    from swim.rt import march
+    from swim.rt.march import (pack_volume, packed_species, share_packed_channels, shared_packed_volume,
+                               volume_constants)
+    from swim.rt.solar import step1a_levels
+
+    sun_1, sun_2 = enu_from_azimuth_zenith(135.0, 40.0), enu_from_azimuth_zenith(250.0, 70.0)
+    volume = build_optical_volume(_tiny_scene(aerosol_plume))
+    species = packed_species(volume)
+    assert shared_packed_volume(volume, species) is None  # the volume's own arrays
+    packed = pack_volume(volume, species)
+    share_packed_channels(volume, packed, species)
+    assert shared_packed_volume(volume, species) is packed
+    assert shared_packed_volume(volume, species[:-1]) is None  # not the layout of these species
+    first = volume_constants(volume, solar_transmittance(volume, sun_1), packed=packed, species=species)
+    on_device = march._device_constants(first)["volume"]
+    np.testing.assert_array_equal(np.asarray(on_device), packed)
+
+    levels = step1a_levels(volume)
+    assert levels[0].any() and levels[1].any() == aerosol_plume
+    again = volume_constants(volume, solar_transmittance(volume, sun_2, nonzero_levels=levels),
+                             packed=shared_packed_volume(volume, species), species=species)
+    assert again["volume"] is packed and not packed.flags.writeable
+    fresh_volume = build_optical_volume(_tiny_scene(aerosol_plume))
+    fresh = volume_constants(fresh_volume, solar_transmittance(fresh_volume, sun_2), species=species)
+    np.testing.assert_allclose(again["volume"], fresh["volume"], rtol=1e-6, atol=1e-7)
+    # the second sun's T and terrain shadow differ from the first's device copy, which must not be served again
+    assert not np.array_equal(np.asarray(on_device)[..., -2:], packed[..., -2:])
+    np.testing.assert_array_equal(np.asarray(march._device_constants(again)["volume"]), packed)
+    with pytest.raises(SwimInputError, match="nonzero_levels"):
+        solar_transmittance(volume, sun_2, nonzero_levels=(levels[0][:-1], levels[1]))
+
+
 @pytest.mark.parametrize("backend", ["jax", "numba"])
 def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(backend):
     """Packing the species that are zero everywhere (rain, snow and graupel in the tiny scene) changes no output of

@@ -1665,6 +1665,41 @@ def _fill_channels(packed, values, first):
     in_blocks(fill, packed.shape[0])
 
 
+def shared_packed_volume(volume, species):
+    """The packed volume that an optical volume's extinctions are views of (:func:`share_packed_channels`), so that
+    a new sun refills its Step 1a channels in place (:func:`volume_constants`) instead of packing the grid again.
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        Optical volume (:func:`swim.optics.volume.build_optical_volume`).
+    species : tuple of int
+        The species packed (indices into :data:`swim.constants.SPECIES`, :func:`packed_species`).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Shape (level, y, x, channel) float32: the packed volume whose first ``len(species)`` channels (and, with a
+        3-D aerosol, the next) the volume's ``extinction`` (and ``aerosol_extinction``) are views of; None where
+        they are not (a volume not yet shared, or shared with another layout), and the caller packs it anew.
+
+    A new sun's repacking copied the whole grid (0.7 GB for the 400 x 400 x 60 scene's 160 levels and 7 channels,
+    0.25-1.5 s on this project's 2 cores) and held two packed volumes at once (docs/performance.md, section 66).
+    """
+    n = len(species)
+    channels = volume["extinction"].values
+    packed = _owner(channels)
+    if not (isinstance(packed, np.ndarray) and packed.ndim == 4 and packed.dtype == np.float32
+            and packed.shape[-1] in (n + 2, n + 4) and channels.shape == (n,) + packed.shape[:-1]):
+        return None
+    if _buffer_identity(channels) != _buffer_identity(np.moveaxis(packed[..., :n], -1, 0)):
+        return None
+    if packed_aerosol_3d(packed.shape[-1], n) and (_owner(volume["aerosol_extinction"].values) is not packed or (
+            _buffer_identity(volume["aerosol_extinction"].values) != _buffer_identity(packed[..., n]))):
+        return None
+    return packed
+
+
 def volume_constants(volume, transmittance, occupancy=None, packed=None, species=None):
     """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
     channel) and the occupancy grid (level, y, x) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
@@ -1674,7 +1709,8 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     it is not referenced by the result, so a caller that keeps only this frees Step 1a's fields. ``occupancy``:
     the volume's :func:`occupancy_grid` (read-only), which does not depend on the sun, where the caller keeps it
     from an earlier sun; default: computed here. ``packed``: the volume's :func:`pack_volume`, whose Step 1a
-    channels are filled here (in place); default: packed here. ``species``: the species packed (indices into
+    channels are filled here (in place; also an earlier sun's, :func:`shared_packed_volume`, whose device copies
+    are then dropped); default: packed here. ``species``: the species packed (indices into
     :data:`swim.constants.SPECIES`; default :func:`packed_species`), which the result's ``species_matrix``
     expands to all of them."""
     geometry = grid_geometry(volume)
@@ -1691,6 +1727,9 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     if packed.shape[:-1] != values[0].shape:
         raise ValueError(f"packed volume of shape {packed.shape} does not match Step 1a's fields {values[0].shape}")
 
+    # a packed volume filled before (an earlier sun's): its device copies hold the old channels
+    forget_device_copies_of(packed)
+    packed.flags.writeable = True  # read-only for the kernels and the views; owned, so this may be set again
     _fill_channels(packed, values, n_grid)
     packed.flags.writeable = False
     if occupancy is None:
@@ -2024,6 +2063,9 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
 #: Device copies of the last kernel constants' host arrays for the JAX kernel (:func:`_device_constants`,
 #: :func:`device_copies`).
 _DEVICE_COPIES = {}
+#: Every cache that :func:`device_copies` has served (the JAX kernel's, the CUDA kernel's), for
+#: :func:`forget_device_copies_of`.
+_COPY_CACHES = [_DEVICE_COPIES]
 
 
 def _device_constants(consts):
@@ -2039,6 +2081,8 @@ def device_copies(hosts, transfer, cache):
     copies go before new ones are made, and they are dropped with their host arrays, so a new sun or a cleared
     stage cache never keeps an old volume on the device. Serves the JAX kernel (:func:`_device_constants`) and the
     CUDA one (:func:`swim.rt.march_cuda.device_tables`)."""
+    if not any(known is cache for known in _COPY_CACHES):
+        _COPY_CACHES.append(cache)  # for forget_device_copies_of
     owners = [_owner(a) for a in hosts.values()]
     identities = [_buffer_identity(a) for a in hosts.values()]
     entry = cache.get("entry")
@@ -2050,6 +2094,16 @@ def device_copies(hosts, transfer, cache):
         cache["entry"] = entry
         weakref.finalize(owners[0], _forget_device_copies, cache, token)
     return entry[1]
+
+
+def forget_device_copies_of(host):
+    """Drop the device copies (:func:`device_copies`, every cache) of the host array ``host`` or of any view of the
+    array that owns its memory: its values are about to change in place."""
+    owner = _owner(host)
+    for cache in _COPY_CACHES:
+        entry = cache.get("entry")
+        if entry is not None and any(ref() is owner for ref in entry[0]):
+            cache.clear()
 
 
 def _forget_device_copies(cache, token):

@@ -200,7 +200,43 @@ def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
     return taus
 
 
-def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None, backend="auto") -> xr.Dataset:
+def step1a_levels(volume: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """The levels of an optical volume that hold hydrometeors and 3-D aerosol: Step 1a sweeps each field only up
+    to its highest such level (:func:`solar_transmittance`).
+
+    They depend on the volume alone, so a render keeps them for a new sun (a time series' frame): the scan reads
+    every species' extinction, ~0.2 s of a new sun's Step 1a for the 400 x 400 x 60 scene where the extinctions
+    are views of the packed volume's channels (docs/performance.md, section 66).
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        Optical volume from :func:`swim.optics.volume.build_optical_volume`.
+
+    Returns
+    -------
+    hydrometeor_levels, aerosol_levels : numpy.ndarray
+        Shape (level,) bool each: a level with any non-zero hydrometeor extinction (any species) and with any
+        non-zero 3-D aerosol extinction.
+    """
+    from ..workers import in_blocks
+
+    beta = volume["extinction"].values
+    aerosol = volume["aerosol_extinction"].values
+    nk = volume["level"].size
+    hydro_levels, aerosol_levels = np.zeros(nk, bool), np.zeros(nk, bool)
+
+    def find(k0, k1):  # not reshape: the fields may be strided views (no copies)
+        for n in range(beta.shape[0]):
+            hydro_levels[k0:k1] |= beta[n, k0:k1].any(axis=(1, 2))
+        aerosol_levels[k0:k1] = aerosol[k0:k1].any(axis=(1, 2))
+
+    in_blocks(find, nk)  # on every core (NumPy's reductions release the GIL)
+    return hydro_levels, aerosol_levels
+
+
+def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None, backend="auto",
+                        nonzero_levels=None) -> xr.Dataset:
     """Step 1a: optical depth towards the sun and cloud transmittance T at every grid point.
 
     Parameters
@@ -218,6 +254,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         numba is installed, as :meth:`swim.rt.march.MarchSettings.resolved_backend` does; "cuda" (the march's GPU
         kernel) takes JAX when JAX runs on a GPU, else numba. Both give the same optical depths to float32
         round-off.
+    nonzero_levels : tuple of numpy.ndarray, optional
+        The volume's :func:`step1a_levels`, if the caller kept them from an earlier sun; default: scanned here.
 
     Returns
     -------
@@ -236,7 +274,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     ------
     SwimInputError
         If ``variables`` names a variable that is not one of these, or ``backend`` is not one of
-        :data:`swim.rt.march.BACKENDS` (or is "numba" or "cuda" without numba installed).
+        :data:`swim.rt.march.BACKENDS` (or is "numba" or "cuda" without numba installed), or ``nonzero_levels``
+        are not two arrays of the volume's levels.
 
     References
     ----------
@@ -286,14 +325,11 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     # level above it), are swept: above it the optical depth towards the sun is 0. This is what makes a flat
     # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing; and only
     # those levels are ever held as sweep input and output (memory: docs/performance.md).
-    hydro_levels, aerosol_levels = np.zeros(nk, bool), np.zeros(nk, bool)
-
-    def find(k0, k1):  # not reshape: the fields may be strided views (no copies)
-        for n in range(beta.shape[0]):
-            hydro_levels[k0:k1] |= beta[n, k0:k1].any(axis=(1, 2))
-        aerosol_levels[k0:k1] = aerosol[k0:k1].any(axis=(1, 2))
-
-    in_blocks(find, nk)
+    hydro_levels, aerosol_levels = (step1a_levels(volume) if nonzero_levels is None
+                                    else (np.asarray(a, bool) for a in nonzero_levels))
+    if hydro_levels.shape != (nk,) or aerosol_levels.shape != (nk,):
+        raise SwimInputError(f"solar_transmittance: nonzero_levels must be two boolean arrays of shape ({nk},) (the "
+                             f"volume's step1a_levels), got shapes {hydro_levels.shape} and {aerosol_levels.shape}")
     tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol_levels}
     swept = [c for c in range(4) if tops[c].any()]
     taus = {}
