@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import threading
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -58,7 +59,8 @@ SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
 #: Image rows per call of the colour stage in :func:`render` (bounds its float64 temporaries).
 COLOUR_BLOCK_ROWS = 128
 #: Images of fewer pixels skip the C heap's trims after the march and at the end of :func:`render`: they free a few
-#: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of a 41 x 41 render; swim.memory).
+#: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of a 41 x 41 render; swim.memory). So do
+#: renders whose march runs on a GPU.
 TRIM_MIN_PIXELS = 1 << 16
 #: Images of at least this many traced pixels are scattered into their planes on several threads (:func:`render`):
 #: below it the pool's overhead (~0.02 ms a task) is not worth it.
@@ -293,6 +295,32 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
     return pixels, 4 * np.pi * np.asarray(transmittance, dtype=float) / (pixels.size * pitch**2)
 
 
+#: Renders running in this process (threads: a dask worker's, a caller's own), with their lock: a new sun refills
+#: the shared packed volume in place only where its render is the only one (:func:`render`).
+_RENDERS_IN_PROGRESS = [0]
+_RENDERS_LOCK = threading.Lock()
+
+
+def _counted_render(fn):
+    """``fn`` (:func:`render`) counted in :data:`_RENDERS_IN_PROGRESS` while it runs."""
+    @functools.wraps(fn)
+    def counted(*args, **kwargs):
+        with _RENDERS_LOCK:
+            _RENDERS_IN_PROGRESS[0] += 1
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            with _RENDERS_LOCK:
+                _RENDERS_IN_PROGRESS[0] -= 1
+    return counted
+
+
+def _rendering_alone() -> bool:
+    with _RENDERS_LOCK:
+        return _RENDERS_IN_PROGRESS[0] <= 1
+
+
+@_counted_render
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
            aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
@@ -440,8 +468,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         # series' frame) reuses them (their scans read every species' extinction: ~0.1 and ~0.2 s for the 400 x 400
         # x 60 scene on this project's 2 cores, docs/performance.md, section 66)
         species = _STAGE_CACHE.get(("packed species", fingerprint), lambda: packed_species(volume))
-        # a new sun refills the packed volume's Step 1a channels in place: the grid's channels are the same
-        packed = shared_packed_volume(volume, species)
+        # A new sun refills the packed volume's Step 1a channels in place (the grid's channels are the same), where
+        # this render is the only one in the process: beside others (a dask worker's threads) one of them may still
+        # march through that volume with its own sun, and this one packs the grid anew
+        packed = shared_packed_volume(volume, species) if _rendering_alone() else None
         if packed is None:
             packed = pack_volume(volume, species)
             share_packed_channels(volume, packed, species)
@@ -551,7 +581,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         march_samples = int(out["steps"].sum())
         del out
 
-    trim = ny * nx >= TRIM_MIN_PIXELS
+    # Not where the march ran on a GPU: its chunks lived on the device, and on an H100 machine's host (16 cores, JAX's
+    # runtime threads and their heaps) the two trims took 30-40 ms of a 0.4 s frame for ~0.2 GB of a 7 GB peak
+    # (docs/performance.md, section 66)
+    trim = ny * nx >= TRIM_MIN_PIXELS and not settings.on_accelerator()
     if trim:
         release_free_memory()  # the march's freed chunks, before the image is assembled
     t_direct = np.exp(-(sun_out["tau_clear"] + sun_out["tau_hydrometeor"]))

@@ -17,6 +17,7 @@ import logging
 import numbers
 import os
 import socket
+import threading
 import time as wall_clock
 from pathlib import Path
 
@@ -123,7 +124,14 @@ def _opened(path: str, opening: tuple):
         stat = os.stat(path)
     except OSError:
         raise SwimInputError(f"scene file not found: {path}") from None
-    return _opened_version(path, opening, stat.st_mtime_ns, stat.st_size)
+    # One thread at a time: a worker's threads (dask's threads_per_worker) would otherwise all miss the cache and
+    # open the file at once, and netCDF-C/HDF5 calls from two threads crashed the process (a segmentation fault in
+    # 2 of 8 runs of tests/system/test_series.py's cluster test) or failed with "NetCDF: HDF error"
+    with _OPEN_LOCK:
+        return _opened_version(path, opening, stat.st_mtime_ns, stat.st_size)
+
+
+_OPEN_LOCK = threading.Lock()
 
 
 @functools.lru_cache(maxsize=2)

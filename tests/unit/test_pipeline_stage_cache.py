@@ -226,3 +226,42 @@ def test_a_new_sun_refills_the_packed_volume_in_place(backend):
     for zenith, image in zip(suns, images):
         pipeline._STAGE_CACHE.clear()
         np.testing.assert_array_equal(image, _render(scene, sun_zenith=zenith, settings=settings)["radiance"].values)
+
+
+def test_a_new_sun_beside_another_render_packs_the_grid_anew():
+    """Where another render runs in the process (a dask worker's threads), it may still march through the shared
+    packed volume with its own sun: a new sun then packs the grid anew instead of refilling that volume."""
+    pipeline._STAGE_CACHE.clear()
+    scene = swim.default_scene()
+    first = _render(scene, sun_zenith=40.0)
+    packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
+    before = packed.copy()
+    with pipeline._RENDERS_LOCK:
+        pipeline._RENDERS_IN_PROGRESS[0] += 1  # another render, still marching with the first sun
+    try:
+        _render(scene, sun_zenith=65.0)
+    finally:
+        with pipeline._RENDERS_LOCK:
+            pipeline._RENDERS_IN_PROGRESS[0] -= 1
+    assert pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"] is not packed
+    np.testing.assert_array_equal(packed, before)  # the first sun's volume untouched
+    assert pipeline._RENDERS_IN_PROGRESS[0] == 0
+    pipeline._STAGE_CACHE.clear()
+    np.testing.assert_array_equal(first["radiance"].values, _render(scene, sun_zenith=40.0)["radiance"].values)
+
+
+def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
+    """The C heap's trims (swim.memory) follow a big image's march on the host's cores, not one on a GPU."""
+    from swim.rt.march import MarchSettings
+
+    calls = []
+    monkeypatch.setattr(pipeline, "release_free_memory", lambda: calls.append(1) or True)
+    scene = swim.default_scene()
+    size = {"size": 257}  # 51 900 valid pixels of 66 049: past TRIM_MIN_PIXELS
+    assert 257 * 257 >= pipeline.TRIM_MIN_PIXELS
+    swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0)
+    assert len(calls) >= 2
+    calls.clear()
+    monkeypatch.setattr(MarchSettings, "on_accelerator", lambda self: True)
+    swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0)
+    assert calls == []

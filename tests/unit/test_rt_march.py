@@ -491,10 +491,13 @@ def test_chunk_follows_the_device_unless_given(monkeypatch):
     assert MarchSettings().resolved_chunk() == (march.CPU_CHUNK if on_cpu else march.GPU_CHUNK)
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert MarchSettings().resolved_chunk() == march.GPU_CHUNK  # the JAX kernel on a GPU: big chunks
+    assert MarchSettings().on_accelerator() and MarchSettings(backend="jax").on_accelerator()
     assert MarchSettings(backend="numba").resolved_chunk() == march.CPU_CHUNK  # numba runs on the host's cores
+    assert not MarchSettings(backend="numba").on_accelerator()
     assert MarchSettings(chunk=8192).resolved_chunk() == 8192
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     assert MarchSettings(backend="jax").resolved_chunk() == march.CPU_CHUNK
+    assert not MarchSettings(backend="jax").on_accelerator()
 
 
 @pytest.mark.parametrize("chunk", [64, 256])

@@ -225,9 +225,13 @@ class MarchSettings:
         another accelerator) and :data:`CPU_CHUNK` elsewhere."""
         if self.chunk is not None:
             return int(self.chunk)
+        return GPU_CHUNK if self.on_accelerator() else CPU_CHUNK
+
+    def on_accelerator(self) -> bool:
+        """Whether the march runs on a GPU (or another accelerator): the CUDA kernel, or the JAX kernel where JAX's
+        default device is not the CPU."""
         backend = self.resolved_backend()
-        on_accelerator = backend == "cuda" or (backend == "jax" and jax.default_backend() != "cpu")
-        return GPU_CHUNK if on_accelerator else CPU_CHUNK
+        return backend == "cuda" or (backend == "jax" and jax.default_backend() != "cpu")
 
 
 #: Rays per kernel call on a CPU (:meth:`MarchSettings.resolved_chunk`): small enough for its caches.

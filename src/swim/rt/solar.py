@@ -341,9 +341,11 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     for c in swept:
         groups.setdefault(levels_of[c] if backend == "numba" else max(levels_of.values()), []).append(c)
     for n_levels, group in sorted(groups.items()):  # the smallest first: the biggest sweep's memory comes last
-        # with a zero last row and column, which the numba sweep reads beside the grid's far edge
-        padded = np.zeros((len(group), n_levels, shape[0] + 1, shape[1] + 1), np.float32)
-        fields = padded[:, :, :shape[0], :shape[1]]
+        if backend == "numba":  # with a zero last row and column, which it reads beside the grid's far edge
+            padded = np.zeros((len(group), n_levels, shape[0] + 1, shape[1] + 1), np.float32)
+            fields = padded[:, :, :shape[0], :shape[1]]
+        else:  # JAX's input contiguous as filled: no copy before its transfer (~0.4 GB at 400 x 400 x 160)
+            padded = fields = np.empty((len(group), n_levels) + shape, np.float32)
 
         def fill(k0, k1):  # levels k0..k1 of every swept field of the group
             for row, c in enumerate(group):
@@ -363,7 +365,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
                         workers=threads())[:, :, :shape[0], :shape[1]]
             del padded, fields
         else:
-            device = jnp.asarray(np.ascontiguousarray(fields))
+            device = jnp.asarray(fields)
             del padded, fields  # the host copy goes before the sweep's output is made
             out = np.asarray(_sweep(device, float(di), float(dj), float(path_per_level), n_sub))
             del device
