@@ -316,6 +316,7 @@ def _counted_render(fn):
 
 
 def _rendering_alone() -> bool:
+    """Whether the calling render is the only one running in this process (:data:`_RENDERS_IN_PROGRESS`)."""
     with _RENDERS_LOCK:
         return _RENDERS_IN_PROGRESS[0] <= 1
 
