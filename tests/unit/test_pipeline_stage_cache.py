@@ -265,3 +265,28 @@ def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
     monkeypatch.setattr(MarchSettings, "on_accelerator", lambda self: True)
     swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0)
     assert calls == []
+
+
+@pytest.mark.parametrize("variant", ["clear sky", "3-D aerosol"])
+def test_a_new_sun_refills_the_packed_volume_of_a_clear_or_smoky_scene(variant):
+    """The in-place refill with no hydrometeor channel at all (a clear sky) and with the 3-D aerosol's two
+    channels: the same packed array for both suns, and the second sun's image that of an empty cache."""
+    scene = swim.default_scene().copy(deep=True)
+    if variant == "clear sky":
+        for name in [v for v in scene.data_vars if v.endswith("_content")]:
+            scene[name].values[...] = 0.0
+    else:
+        extinction = np.zeros(scene["cloud_liquid_content"].shape)
+        extinction[: extinction.shape[0] // 3, 20:50, 20:50] = 2e-4
+        scene["aerosol_extinction"] = (scene["cloud_liquid_content"].dims, extinction, {"units": "m-1"})
+    pipeline._STAGE_CACHE.clear()
+    first = _render(scene, sun_zenith=30.0)["radiance"].values
+    packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
+    species = pipeline._STAGE_CACHE._entries["packed species"][1]
+    assert (len(species) == 0) == (variant == "clear sky")
+    assert packed.shape[-1] == len(species) + (2 if variant == "clear sky" else 4)  # + the aerosol's two channels
+    second = _render(scene, sun_zenith=60.0)["radiance"].values
+    assert pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"] is packed
+    assert not np.array_equal(first, second)
+    pipeline._STAGE_CACHE.clear()
+    np.testing.assert_array_equal(second, _render(scene, sun_zenith=60.0)["radiance"].values)
