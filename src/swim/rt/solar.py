@@ -380,8 +380,9 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         swept (zero everywhere) is a read-only broadcast of ``above``: it takes no memory."""
         if c not in taus:
             return np.broadcast_to(np.float32(above), (nk,) + shape)
-        a = np.full((nk,) + shape, above, np.float32)
         swept_levels = taus[c].shape[0]
+        a = np.empty((nk,) + shape, np.float32)
+        a[swept_levels:] = above  # each level written once: the swept ones below
         # in blocks of levels, so the transform's temporaries stay small (a whole field of each took ~0.5 GB
         # of a render's peak memory at 400 x 400 x 160: docs/performance.md, memory)
         for k0 in range(0, swept_levels, TRANSFORM_LEVELS):
