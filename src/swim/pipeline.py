@@ -389,6 +389,13 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     SwimInputError
         Bad scene, observer below the terrain or out of reach, bad camera options or time; a march kernel
         (``settings.backend``) that cannot run here (numba missing, or no GPU for "cuda").
+
+    Notes
+    -----
+    The renders of a process share the last scene's stages: the optical volume, the packed grid and Step 1a. A
+    render of the same scene and sun reuses them; a new sun (a time series' frame) redoes Step 1a only, into the
+    same packed grid where no other render is running, else into a new one. Renders may run on several threads
+    at once (a dask worker's); docs/performance.md, section 66.
     """
     if not isinstance(scene, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
