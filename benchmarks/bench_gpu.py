@@ -21,6 +21,9 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   allow at 1024 x 1024 (the rays of the render / rays per second of the kernel);
 * with ``--sun-series N``: the time per frame of N renders with a new sun each (a fixed camera's time series:
   Step 1a and the kernel constants are redone every frame);
+* with ``--sampling``: an adaptively sampled render (the suite's ``ADAPTIVE`` settings), its time, the pixels it
+  traced and its radiance's error against the same device's image with every pixel traced (median and 99th
+  percentile of the relative difference);
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
   device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
@@ -205,11 +208,18 @@ def run_scene(name, args, probe, out_dir):
         from swim.rt.image_sampling import AdaptiveSampling
 
         kw_a = {**kw, "sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)}
-        swim.render(scene, **kw_a)
+        adaptive = swim.render(scene, **kw_a)
         warm, runs = _median_time(lambda: swim.render(scene, **kw_a), args.repeats)
+        # its error against the same device's image with every pixel traced (what the interpolation costs there)
+        a, b = adaptive["radiance"].values, first["radiance"].values
+        ok = np.isfinite(a) & np.isfinite(b)
+        rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(b[ok]), 1e-3)
         rows.append({"scene": name, "chunk": kw["settings"].resolved_chunk(), "sampling": bench_suite.ADAPTIVE, "render_s": warm,
-                     "render_runs": runs, "render_fps": 1 / warm})
-        print(f"{name} adaptive, chunk {kw['settings'].resolved_chunk()}: warm {warm:.3f} s ({1 / warm:.2f} frames/s)", flush=True)
+                     "render_runs": runs, "render_fps": 1 / warm, "traced_pixels": int(adaptive.attrs["traced_pixels"]),
+                     "vs_every_pixel_median": float(np.median(rel)), "vs_every_pixel_p99": float(np.percentile(rel, 99))})
+        print(f"{name} adaptive, chunk {kw['settings'].resolved_chunk()}: warm {warm:.3f} s ({1 / warm:.2f} frames/s), "
+              f"{int(adaptive.attrs['traced_pixels'])} pixels traced, against every pixel: median "
+              f"{rows[-1]['vs_every_pixel_median']:.2e}, p99 {rows[-1]['vs_every_pixel_p99']:.2e}", flush=True)
     if args.sun_series:
         # a time series seen by a fixed camera: every frame has a new sun (Step 1a and the kernel constants anew)
         runs = []
@@ -363,7 +373,8 @@ def main(argv=None):
                          "'trace' column is then the time in the kernel's calls, copies included)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
-    ap.add_argument("--sampling", action="store_true", help="also an adaptively sampled render (last chunk size)")
+    ap.add_argument("--sampling", action="store_true",
+                    help="also an adaptively sampled render (last chunk size) and its error against every pixel traced")
     ap.add_argument("--sun-series", type=int, default=0,
                     help="also N frames with a new sun each (a fixed camera's time series; median of frames 2..N)")
     ap.add_argument("--profile", action="store_true", help="also profile a warm render (host) and a chunk (device)")
