@@ -1696,10 +1696,11 @@ def shared_packed_volume(volume, species):
     if not (isinstance(packed, np.ndarray) and packed.ndim == 4 and packed.dtype == np.float32
             and packed.shape[-1] in (n + 2, n + 4) and channels.shape == (n,) + packed.shape[:-1]):
         return None
-    if _buffer_identity(channels) != _buffer_identity(np.moveaxis(packed[..., :n], -1, 0)):
-        return None
-    if packed_aerosol_3d(packed.shape[-1], n) and (_owner(volume["aerosol_extinction"].values) is not packed or (
-            _buffer_identity(volume["aerosol_extinction"].values) != _buffer_identity(packed[..., n]))):
+    # each view and the packed channels it must be: the same memory, shape and strides
+    views = [(channels, np.moveaxis(packed[..., :n], -1, 0))]
+    if packed_aerosol_3d(packed.shape[-1], n):
+        views.append((volume["aerosol_extinction"].values, packed[..., n]))
+    if any(_buffer_identity(view) != _buffer_identity(expected) for view, expected in views):
         return None
     return packed
 
