@@ -20,13 +20,14 @@ console = Console(stderr=True)
 def cache(
     clear: bool = typer.Option(False, "--clear", help="Remove the caches' files (the next render builds and compiles "
                                "them again)."),
-    kind: Optional[List[str]] = typer.Option(None, "--kind", help="Only this cache: gas, surface, colour, jax or numba "
-                                             "(repeatable; default: all)."),
+    kind: Optional[List[str]] = typer.Option(None, "--kind", help="Only this cache: gas, surface, colour, jax, "
+                                             "jax-export or numba (repeatable; default: all)."),
 ):
     """List swim's disk caches (folder, files, size, budget), or clear them with --clear.
 
-    The gas, surface and JAX caches each stay below SWIM_CACHE_MAX_MB megabytes (default 1024), least recently
-    used entries removed first; numba keeps the machine code of the last three versions of swim's kernels.
+    The gas, surface, colour, JAX and JAX export caches each stay below SWIM_CACHE_MAX_MB megabytes (default 1024),
+    least recently used entries removed first; numba keeps the machine code of the last three versions of swim's
+    kernels.
     """
     from ..rt.cache_budget import CODE_VERSIONS, KINDS, cache_usage, clear_caches
 

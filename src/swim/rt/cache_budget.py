@@ -1,6 +1,6 @@
 """Bounded disk caches: what swim keeps in ``$SWIM_CACHE_DIR`` stays below a budget, and can be listed and cleared.
 
-swim keeps five caches on disk (:func:`swim.rt.compilation_cache.cache_directory`):
+swim keeps six caches on disk (:func:`swim.rt.compilation_cache.cache_directory`):
 
 ========  ===========================================================  =============================================
 kind      what                                                         bound
@@ -13,13 +13,15 @@ colour    colour-science's colour matching functions and sRGB and      :func:`ma
           a few kB per version), so that a render does not import it
 jax       JAX's compiled executables                                   :func:`max_bytes`, JAX's own LRU eviction
                                                                        (``jax_compilation_cache_max_size``)
+jax-      the JAX kernels' traced programs                             :func:`max_bytes`, least recently used first
+export    (:mod:`swim.rt.export_cache`, ~0.3 MB each)
 numba     numba's machine code, one folder per version of the code     the :data:`CODE_VERSIONS` most recently used
           (:func:`swim.rt.march_cpu.numba_sources_digest`, ~13 MB)     folders
 ========  ===========================================================  =============================================
 
 Without bounds they only grow: every new scene aerosol profile or albedo adds a table of up to 42 MB, and every
 upgrade of swim adds new tables and a new numba folder (a development machine held 28 GB of tables after two days).
-``SWIM_CACHE_MAX_MB`` sets the budget of each of the first four kinds (default :data:`DEFAULT_MAX_MB`); entries are
+``SWIM_CACHE_MAX_MB`` sets the budget of each of the first five kinds (default :data:`DEFAULT_MAX_MB`); entries are
 removed, least recently used first, when a new one is written. ``swim cache`` lists the caches and
 ``swim cache --clear`` empties them (:func:`cache_usage`, :func:`clear_caches`).
 """
@@ -40,7 +42,7 @@ from .compilation_cache import cache_directory
 log = logging.getLogger(__name__)
 
 #: The caches, in the order ``swim cache`` lists them.
-KINDS = ("gas", "surface", "colour", "jax", "numba")
+KINDS = ("gas", "surface", "colour", "jax", "jax-export", "numba")
 #: Budget of each of the table and JAX caches [MB] (``SWIM_CACHE_MAX_MB`` overrides it): ~24 of the largest gas tables.
 DEFAULT_MAX_MB = 1024
 #: numba code versions kept (each a folder named by its code's digest): the current one and the two used before it,
@@ -62,8 +64,8 @@ class CacheUsage:
 
 
 def max_bytes() -> int:
-    """Budget of each of the gas, surface and JAX caches [bytes]: ``SWIM_CACHE_MAX_MB`` [MB], default
-    :data:`DEFAULT_MAX_MB`.
+    """Budget of each of the gas, surface, colour, JAX and JAX export caches [bytes]: ``SWIM_CACHE_MAX_MB`` [MB],
+    default :data:`DEFAULT_MAX_MB`.
 
     Raises
     ------
@@ -92,11 +94,11 @@ def _remove(path: Path) -> int:
         return 0
 
 
-def prune_least_recently_used(folder: Path, limit_bytes: int, keep: Path | None = None) -> int:
-    """Remove the least recently used entries (``*.pkl``, by modification time, which a read refreshes) of ``folder``
-    until the rest fit in ``limit_bytes`` [bytes], never ``keep`` (the entry just written); and unfinished writes
-    older than :data:`STALE_TMP_S`. Returns the bytes removed. Files that vanish meanwhile (another process pruning)
-    are skipped."""
+def prune_least_recently_used(folder: Path, limit_bytes: int, keep: Path | None = None, suffix: str = ".pkl") -> int:
+    """Remove the least recently used entries (files ending in ``suffix``, by modification time, which a read refreshes)
+    of ``folder`` until the rest fit in ``limit_bytes`` [bytes], never ``keep`` (the entry just written); and
+    unfinished writes older than :data:`STALE_TMP_S`. Returns the bytes removed. Files that vanish meanwhile (another
+    process pruning) are skipped."""
     entries = []
     removed = 0
     now = time.time()
@@ -112,7 +114,7 @@ def prune_least_recently_used(folder: Path, limit_bytes: int, keep: Path | None 
         if item.name.endswith(".tmp"):
             if now - stat.st_mtime > STALE_TMP_S:
                 removed += _remove(Path(item.path))
-        elif item.name.endswith(".pkl"):
+        elif item.name.endswith(suffix):
             entries.append((stat.st_mtime, stat.st_size, Path(item.path)))
     total = sum(size for _, size, _ in entries)
     for _, size, path in sorted(entries, key=lambda e: e[0]):
@@ -142,7 +144,7 @@ def mark_used(path: Path) -> None:
 _CODE_VERSION = re.compile(r"[0-9a-f]{16}")
 #: Endings of the files that swim's (and JAX's) caches write: nothing else in their folders is ever removed.
 _OWN_FILES = {"gas": (".pkl", ".tmp"), "surface": (".pkl", ".tmp"), "colour": (".pkl", ".tmp"),
-              "jax": ("-cache", "-atime", ".lockfile")}
+              "jax": ("-cache", "-atime", ".lockfile"), "jax-export": (".jaxexport", ".tmp")}
 #: Name of the lock file by which live processes hold their code version's numba folder (:func:`hold_code_version`).
 IN_USE = ".in-use"
 _held = None  # this process's shared lock on its code version's folder (an open file), kept for its lifetime

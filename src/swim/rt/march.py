@@ -61,6 +61,7 @@ from ..errors import SwimInputError
 from ..surface.lighting import SURFACE_MODELS, surface_radiance
 from ..workers import (in_blocks, in_worker_thread, parallel_map, threads,  # threads: also swim.rt.march.threads
                        worker_pool)
+from .export_cache import exported_jit
 from .gas import GasTables
 from .solar import transmittance_delta_eddington
 
@@ -1348,7 +1349,7 @@ def _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface):
     }
 
 
-@functools.partial(jax.jit, static_argnames=("settings",))
+@exported_jit(static_argnames=("settings",))  # a new process reads the traced program (~1.1 s on a CPU)
 def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings: MarchSettings, probes=None):
     """One chunk of rays through the JAX kernel: set-up, lockstep march and composition in one program
     (``probes``: see :func:`_march_rays`)."""
@@ -1357,10 +1358,10 @@ def _trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, 
     return _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class)
 
 
-_prepare_chunk = jax.jit(_prepare_rays, static_argnames=("settings",))
+_prepare_chunk = exported_jit(_prepare_rays, static_argnames=("settings",))
 
 
-@functools.partial(jax.jit, static_argnames=("n_probe", "probe_spacing"))
+@exported_jit(static_argnames=("n_probe", "probe_spacing"))
 def _probe_counts_chunk(start, direction, bounds, consts, n_probe, probe_spacing):
     return probe_counts_and_cells(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], consts, n_probe,
                                   probe_spacing)
@@ -1380,7 +1381,7 @@ def _chunk_probes(start, direction, bounds, consts, settings: MarchSettings):
     return settings, (probes, cells)
 
 
-_compose_chunk = jax.jit(_compose, static_argnames=("settings", "ground"))
+_compose_chunk = exported_jit(_compose, static_argnames=("settings", "ground"))
 
 
 def surface_fields(volume, transmittance):

@@ -20,7 +20,6 @@ accuracy").
 
 from __future__ import annotations
 
-import functools
 import logging
 
 import jax
@@ -30,6 +29,7 @@ import xarray as xr
 
 from ..constants import BACKSCATTER_FRACTION
 from ..errors import SwimInputError
+from .export_cache import exported_jit
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +159,7 @@ DIRECT_LEVELS = 16
 TRANSFORM_LEVELS = 16
 
 
-@functools.partial(jax.jit, static_argnames=("n_sub", "block"))
+@exported_jit(static_argnames=("n_sub", "block"))
 def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
     """Sweep (C, nk, ny, nx) extinction fields along the sun; returns optical depths (nk, C, ny, nx) (the
     order the sweep builds them in: a transpose would copy them).
