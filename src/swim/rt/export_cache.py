@@ -5,10 +5,10 @@ process still traces each jitted function in Python and lowers it to StableHLO b
 For the lockstep march (:func:`swim.rt.march._trace_chunk`) that is ~1.1 s of a new process's first render on a CPU
 (0.8 s of tracing, 0.3 s of lowering: docs/performance.md, section 67; ~3 s under cProfile on a GPU host, section
 66). :func:`exported_jit` wraps a function like ``jax.jit`` and, the first time a process calls it with given static
-arguments and input shapes, loads the function's serialized ``jax.export.Exported`` from ``$SWIM_CACHE_DIR/jax-export`` instead of
-tracing it; where there is none, it exports the function, writes it there and calls the export. The export's
-StableHLO is the traced function's, so the results are the same bit for bit, and its compilation is then found in
-JAX's persistent cache by the later processes.
+arguments and input shapes, loads the function's serialized ``jax.export.Exported`` from
+``$SWIM_CACHE_DIR/jax-export`` instead of tracing it; where there is none, it exports the function, writes it there
+and calls the export. The export's StableHLO is the traced function's, so the results are the same bit for bit, and
+its compilation is then found in JAX's persistent cache by the later processes.
 
 An entry's key holds the whole swim package's code (:func:`swim.rt.compilation_cache.package_sources`), the JAX and
 jaxlib versions, the platform, the x64 switch, the function's name, its static arguments' ``repr`` and its inputs'
