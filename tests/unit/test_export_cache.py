@@ -111,15 +111,25 @@ def test_switched_off_it_writes_nothing_and_traces_as_jit_does(cache_dir, monkey
     assert np.isfinite(np.asarray(out["y"])).all()
 
 
-def test_a_static_argument_without_a_stable_repr_is_not_cached(cache_dir):
-    class Opaque:  # hashable, but its repr holds an address that another process would not share
-        power, scale = 2, 1.0
+class _Opaque:  # hashable, but its repr holds an address that another process would not share
+    power, scale = 2, 1.0
 
+
+@dataclass(frozen=True, eq=False)
+class _LongTable:  # hashable (by identity); its repr shortens the array with "...", so it does not name the values
+    values: np.ndarray
+    power: int = 2
+    scale: float = 1.0
+
+
+@pytest.mark.parametrize("options", [_Opaque(), _LongTable(np.arange(5000.0))], ids=["address", "shortened array"])
+def test_a_static_argument_whose_repr_does_not_name_it_is_not_cached(cache_dir, options):
     kernel = ExportedJit(_kernel, static_argnames=("options",))
     x, table = _inputs()
-    out = kernel(x, table, Opaque())
+    out = kernel(x, table, options)
     assert kernel.exported == 0 and not cache_dir.exists()
-    assert out["y"].shape == x.shape
+    np.testing.assert_array_equal(np.asarray(out["y"]), np.asarray(jax.jit(
+        _kernel, static_argnames=("options",))(x, table, options)["y"]))
 
 
 def test_the_cache_is_listed_bounded_and_cleared(cache_dir, monkeypatch):

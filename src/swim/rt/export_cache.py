@@ -102,7 +102,9 @@ class ExportedJit:
     def _program(self, statics, names, dynamic, tree, leaf_keys):
         """The callable that runs this program: the cached export, a new one, or (failing both) plain ``jit``."""
         static_text = repr(statics)
-        if " at 0x" in static_text:  # an argument without a stable repr: no key that a later process could find
+        # an argument without a stable repr (an address) or with a shortened one (a long array's "..."): no key that
+        # names the program
+        if " at 0x" in static_text or "..." in static_text:
             return self._plain(statics, names)
         text = repr((_code_digest(), jax.default_backend(), bool(jax.config.jax_enable_x64),
                      f"{self.function.__module__}.{self.function.__qualname__}", static_text, str(tree), leaf_keys))
