@@ -87,6 +87,25 @@ def test_new_static_arguments_shapes_and_input_trees_are_new_programs(cache_dir)
         _kernel, static_argnames=("options",))(x, table, _Options(), np.float32(0.25))["y"]))
 
 
+def test_gradients_and_batches_through_a_cached_program_are_jax_jits(cache_dir):
+    """An exported program has no derivative or batching rule: inside a transformation the function is traced."""
+    x, table = _inputs()
+    _new_process()(x, table, _Options())  # the program on disk
+    kernel = _new_process()
+    plain = jax.jit(_kernel, static_argnames=("options",))
+
+    def loss(fun):
+        return lambda v: jnp.sum(fun(v, table, _Options())["y"])
+
+    np.testing.assert_array_equal(np.asarray(jax.grad(loss(kernel))(x)), np.asarray(jax.grad(loss(plain))(x)))
+    rows = np.stack([x, x[::-1]])
+    np.testing.assert_array_equal(np.asarray(jax.vmap(lambda v: kernel(v, table, _Options())["y"])(rows)),
+                                  np.asarray(jax.vmap(lambda v: plain(v, table, _Options())["y"])(rows)))
+    assert kernel.loaded == 0 and kernel.exported == 0  # never read inside the transformations
+    kernel(x, table, _Options())
+    assert kernel.loaded == 1  # outside them, it is
+
+
 def test_a_damaged_entry_is_exported_again(cache_dir):
     x, table = _inputs()
     _new_process()(x, table, _Options())

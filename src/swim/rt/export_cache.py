@@ -63,7 +63,9 @@ def _leaf_key(leaf):
 class ExportedJit:
     """``jax.jit(function, static_argnames=...)`` whose traced programs persist between processes.
 
-    Call it as the function itself. See the module docstring; :func:`exported_jit` makes one."""
+    Call it as the function itself. See the module docstring; :func:`exported_jit` makes one. Inside a JAX
+    transformation (``jax.grad``, ``jax.vmap``, an enclosing ``jax.jit``) it is ``jax.jit`` itself: an exported
+    program has no derivative or batching rule."""
 
     def __init__(self, function, static_argnames=()):
         self.function = function
@@ -84,6 +86,9 @@ class ExportedJit:
         names = tuple(name for name in bound.arguments if name not in self.static_argnames)
         dynamic = tuple(bound.arguments[name] for name in names)
         leaves, tree = jax.tree_util.tree_flatten(dynamic)
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+            # inside a transformation (grad, vmap, an outer jit): an export has no derivative or batching rule
+            return self.jitted(*args, **kwargs)
         key = (statics, tree, tuple(_leaf_key(leaf) for leaf in leaves))
         call = self._calls.get(key)
         if call is None:
