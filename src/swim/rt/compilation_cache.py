@@ -63,7 +63,7 @@ def disk_cached(kind: str, key, build, sources=()):
     for source in sources:
         digest.update(Path(source).read_bytes())
     path = cache_directory(kind) / f"{digest.hexdigest()[:40]}.pkl"
-    from .cache_budget import mark_used, max_bytes, prune_least_recently_used
+    from .cache_budget import mark_used, max_bytes
 
     try:
         with open(path, "rb") as f:
@@ -75,16 +75,24 @@ def disk_cached(kind: str, key, build, sources=()):
     limit = max_bytes()  # a bad SWIM_CACHE_MAX_MB is reported before the build, not after it
     result = build()
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # write-then-rename, so that a concurrent reader never sees half a file
-        with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as f:
-            pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(f.name, path)
+        store_entry(path, lambda f: pickle.dump(result, f, protocol=pickle.HIGHEST_PROTOCOL), limit)
     except OSError as err:
         log.info("could not cache %s (%s)", kind, err)
-        return result
-    prune_least_recently_used(path.parent, limit, keep=path)
     return result
+
+
+def store_entry(path: Path, write, limit_bytes: int, suffix: str = ".pkl") -> None:
+    """Write one entry of a disk cache: ``write(f)`` fills an open binary ``*.tmp`` file beside ``path``, which is then
+    renamed to ``path`` (so that a concurrent reader never sees half a file; a killed writer's ``*.tmp`` is removed
+    later), and the folder's least recently used entries (ending in ``suffix``) go until it fits in ``limit_bytes``
+    (:func:`swim.rt.cache_budget.prune_least_recently_used`). Raises OSError where the folder cannot be written."""
+    from .cache_budget import prune_least_recently_used
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as f:
+        write(f)
+    os.replace(f.name, path)
+    prune_least_recently_used(path.parent, limit_bytes, keep=path, suffix=suffix)
 
 
 def serialise_numba_cache_writes() -> None:

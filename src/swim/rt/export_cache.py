@@ -26,15 +26,13 @@ import functools
 import hashlib
 import inspect
 import logging
-import os
-import tempfile
 import threading
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from .compilation_cache import cache_directory, package_sources, switched_off
+from .compilation_cache import cache_directory, package_sources, store_entry, switched_off
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +117,7 @@ class ExportedJit:
         except ImportError as err:  # JAX < 0.4.30
             log.info("no jax.export (%s): %s is traced in every process", err, self.function.__qualname__)
             return self._plain(statics, names)
-        from .cache_budget import mark_used, max_bytes, prune_least_recently_used
+        from .cache_budget import mark_used, max_bytes
 
         try:
             program = export.deserialize(bytearray(path.read_bytes()))
@@ -144,13 +142,8 @@ class ExportedJit:
             log.info("%s is traced in every process: it could not be exported (%s)", self.function.__qualname__, err)
             return self._plain(statics, names)
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            # write-then-rename, so that a concurrent reader never sees half a file
-            with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as f:
-                f.write(data)
-            os.replace(f.name, path)
+            store_entry(path, lambda f: f.write(data), limit, suffix=SUFFIX)
             self.exported += 1
-            prune_least_recently_used(path.parent, limit, keep=path, suffix=SUFFIX)
         except OSError as err:
             log.info("could not cache %s's traced program (%s)", self.function.__qualname__, err)
         return jax.jit(program.call)
