@@ -23,7 +23,8 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   Step 1a and the kernel constants are redone every frame);
 * with ``--sampling``: an adaptively sampled render (the suite's ``ADAPTIVE`` settings), its time, the pixels it
   traced and its radiance's error against the same device's image with every pixel traced (median and 99th
-  percentile of the relative difference);
+  percentile of the relative difference); with ``--profile`` too, the main thread's wall clock in a warm adaptive
+  frame (``profile_<scene>_adaptive_wall.txt``);
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
   device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
@@ -220,6 +221,13 @@ def run_scene(name, args, probe, out_dir):
         print(f"{name} adaptive, chunk {kw['settings'].resolved_chunk()}: warm {warm:.3f} s ({1 / warm:.2f} frames/s), "
               f"{int(adaptive.attrs['traced_pixels'])} pixels traced, against every pixel: median "
               f"{rows[-1]['vs_every_pixel_median']:.2e}, p99 {rows[-1]['vs_every_pixel_p99']:.2e}", flush=True)
+        if args.profile and out_dir:
+            from wall_profile import WallSampler
+
+            with WallSampler() as sampler:  # the main thread's wall clock in a warm adaptive frame
+                swim.render(scene, **kw_a)
+            (Path(out_dir) / f"profile_{name}_adaptive_wall.txt").write_text(sampler.report())
+            print(f"{name} adaptive_wall: " + "\n".join(sampler.report(12).splitlines()[:30]), flush=True)
     if args.sun_series:
         # a time series seen by a fixed camera: every frame has a new sun (Step 1a and the kernel constants anew)
         runs = []

@@ -500,6 +500,51 @@ def test_chunk_follows_the_device_unless_given(monkeypatch):
     assert not MarchSettings(backend="jax").on_accelerator()
 
 
+def test_the_grid_loop_unrolled_gives_the_same_state(monkeypatch):
+    """The lockstep grid loop with 2 or 3 iterations per test of its condition (as on a GPU) leaves every ray as one
+    iteration per test does: an iteration leaves a finished ray unchanged. A toy medium whose slab faces fall inside
+    steps makes the rays split steps and roll back; its optical depth is then the slab's to a fraction of a step."""
+    import jax
+    import jax.numpy as jnp
+
+    from swim.rt import march
+
+    n, n_steps, length, beta = 64, 16, 16.0, 0.6
+    rng = np.random.default_rng(4)
+    a = rng.uniform(0.3, 8.0, n).astype(np.float32)  # each ray's slab [a, b] [m], faces off the steps' edges
+    b = (a + rng.uniform(1.5, 6.0, n)).astype(np.float32)
+    edges = jnp.asarray(np.linspace(0.0, length, n_steps + 1, dtype=np.float32)[:, None].repeat(n, 1))
+    steps = jnp.asarray(rng.integers(n_steps // 2, n_steps + 1, n).astype(np.int32))  # rays' own step counts
+
+    def sample(st, s_lo, ds):
+        s = s_lo + 0.5 * ds
+        beta_h = jnp.where((s >= a) & (s <= b), beta, 0.0).astype(jnp.float32)
+        return {"tau_h": st["tau_h"] + beta_h * ds, "alive": st["alive"], "calls": st["calls"] + 1}, beta_h
+
+    state = {"tau_h": jnp.zeros(n, jnp.float32), "alive": jnp.ones(n, bool), "calls": jnp.zeros(n, jnp.int32)}
+
+    def march_with(unroll):
+        run = jax.jit(lambda st, e, k: march._march_grid_refined(st, sample, e, n_steps, 0.25, k, unroll=unroll))
+        return {key: np.asarray(value) for key, value in run(state, edges, steps).items()}
+
+    one, two, three = march_with(1), march_with(2), march_with(3)
+    for key in one:
+        np.testing.assert_array_equal(two[key], one[key], err_msg=key)
+        np.testing.assert_array_equal(three[key], one[key], err_msg=key)
+    # against the slab's optical depth: closer than the midpoint rule's without refinement
+    ends = np.asarray(edges)[np.asarray(steps), 0]
+    exact = beta * np.clip(np.minimum(b, ends) - a, 0.0, None)
+    mid = (np.arange(n_steps) + 0.5) * (length / n_steps)
+    inside = (mid[:, None] >= a) & (mid[:, None] <= b) & (np.arange(n_steps)[:, None] < np.asarray(steps))
+    plain = beta * (length / n_steps) * inside.sum(axis=0)
+    assert one["calls"].max() > n_steps and np.all(one["calls"] >= np.asarray(steps))  # refinements were taken
+    assert np.abs(one["tau_h"] - exact).mean() < 0.5 * np.abs(plain - exact).mean()
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert march.grid_loop_unroll() == march.GRID_LOOP_UNROLL_ACCELERATOR
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    assert march.grid_loop_unroll() == 1
+
+
 @pytest.mark.parametrize("chunk", [64, 256])
 def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
     """The JAX kernel marches a chunk on a worker thread while the next is prepared (outputs collected one chunk

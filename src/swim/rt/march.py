@@ -1016,7 +1016,22 @@ REFINE_SLOTS = REFINE_DEPTH + 4
 STOP_TAU_MIN = 40.0
 
 
-def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None):
+def grid_loop_unroll() -> int:
+    """Iterations of the lockstep grid loop per test of its condition (:func:`_march_grid_refined`):
+    :data:`GRID_LOOP_UNROLL_ACCELERATOR` where JAX's default device is a GPU (or another accelerator), 1 on a CPU."""
+    return 1 if jax.default_backend() == "cpu" else GRID_LOOP_UNROLL_ACCELERATOR
+
+
+#: Iterations of the lockstep grid loop per test of its condition on an accelerator. On a GPU XLA copies the while
+#: loop's condition to the host after every iteration and launches the next from there. An H100 marched a 262 144-ray
+#: chunk of the synthetic scene in 58.1-58.8 ms with one iteration per test, 48.7-50.6 ms with two and 46.4-46.6 ms
+#: with four (Katrina: 53.6-53.7, 44.5-46.2 and 42.0-42.4 ms), the same bits (docs/performance.md, section 68). The
+#: loop's body is compiled that many times: the first compilation of a 1024^2 frame's kernel on the H100 took ~55 s
+#: instead of ~25-40 s. On a CPU there is no such round trip (1).
+GRID_LOOP_UNROLL_ACCELERATOR = 4
+
+
+def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, unroll=None):
     """The grid segment of :func:`_march_segment` with steps refined where a cloud face may lie, while the ray's
     own hydrometeor optical depth is below :data:`REFINE_VISIBLE_TAU` (at most :data:`REFINE_DEPTH` levels of
     halving and :data:`REFINE_BUDGET` refinements per ray):
@@ -1037,6 +1052,9 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None):
     fit): every iteration each ray takes its next interval (the last pending one, or its next step), samples it
     and either accumulates it, pushes its halves, or rolls back, until it has taken its n_steps (or its own
     ``steps`` (n,)) steps. :mod:`swim.rt.march_cpu` does the same per ray.
+
+    ``unroll``: iterations per test of the loop's condition (None: :func:`grid_loop_unroll`); an iteration leaves
+    a finished ray unchanged, so any value gives the same state.
     """
     n = edges.shape[1]
     slots = REFINE_SLOTS
@@ -1102,7 +1120,14 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None):
     carry = (state, jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32), jnp.zeros((n, slots), jnp.float32),
              jnp.zeros((n, slots), jnp.float32), jnp.zeros((n, slots), jnp.int32), jnp.full(n, REFINE_BUDGET, jnp.int32),
              dict(state), prev)
-    return jax.lax.while_loop(lambda c: ~jnp.all(finished(c)), body, carry)[0]
+    unroll = grid_loop_unroll() if unroll is None else int(unroll)
+
+    def bodies(c):  # a finished ray's iteration leaves it as it is, so the loop may run past its last one
+        for _ in range(unroll):
+            c = body(c)
+        return c
+
+    return jax.lax.while_loop(lambda c: ~jnp.all(finished(c)), bodies, carry)[0]
 
 
 #: Bisection steps that refine a terrain crossing found between two samples of the march (2^-10 of a step:
@@ -2132,7 +2157,9 @@ def _buffer_identity(a):
 
 def _host_rows(out, n):
     """The first n rows of a chunk's device outputs as host arrays (waits for the device)."""
-    return {key: np.asarray(value)[:n] for key, value in out.items()}
+    # one device_get starts every output's copy before waiting for any: on an H100 a warm 1024^2 adaptive frame took
+    # 10-25 ms less than with one blocking copy per output (docs/performance.md, section 68)
+    return {key: value[:n] for key, value in jax.device_get(out).items()}
 
 
 def _trace_chunk_jax(args, rays, consts, settings, probes, n):
