@@ -1016,19 +1016,19 @@ REFINE_SLOTS = REFINE_DEPTH + 4
 STOP_TAU_MIN = 40.0
 
 
+#: Iterations of the lockstep grid loop per test of its condition on an accelerator. On a GPU XLA copies the while
+#: loop's condition to the host after every iteration and launches the next from there. An H100 marched a 262 144-ray
+#: chunk of the synthetic scene in 58.1-58.8 ms with one iteration per test, 48.7-50.6 ms with two and 46.4-47.8 ms
+#: with four (Katrina: 53.6-53.7, 44.5-46.2 and 42.0-44.3 ms), the same bits (docs/performance.md, section 68). The
+#: loop's body is compiled that many times: a fresh H100 machine's first 1024^2 render compiled for 52-55 s with four
+#: against 39-43 s with two. On a CPU there is no such round trip (1).
+GRID_LOOP_UNROLL_ACCELERATOR = 4
+
+
 def grid_loop_unroll() -> int:
     """Iterations of the lockstep grid loop per test of its condition (:func:`_march_grid_refined`):
     :data:`GRID_LOOP_UNROLL_ACCELERATOR` where JAX's default device is a GPU (or another accelerator), 1 on a CPU."""
     return 1 if jax.default_backend() == "cpu" else GRID_LOOP_UNROLL_ACCELERATOR
-
-
-#: Iterations of the lockstep grid loop per test of its condition on an accelerator. On a GPU XLA copies the while
-#: loop's condition to the host after every iteration and launches the next from there. An H100 marched a 262 144-ray
-#: chunk of the synthetic scene in 58.1-58.8 ms with one iteration per test, 48.7-50.6 ms with two and 46.4-46.6 ms
-#: with four (Katrina: 53.6-53.7, 44.5-46.2 and 42.0-42.4 ms), the same bits (docs/performance.md, section 68). The
-#: loop's body is compiled that many times: the first compilation of a 1024^2 frame's kernel on the H100 took ~55 s
-#: instead of ~25-40 s. On a CPU there is no such round trip (1).
-GRID_LOOP_UNROLL_ACCELERATOR = 4
 
 
 def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, unroll=None):
