@@ -221,13 +221,8 @@ def run_scene(name, args, probe, out_dir):
         print(f"{name} adaptive, chunk {kw['settings'].resolved_chunk()}: warm {warm:.3f} s ({1 / warm:.2f} frames/s), "
               f"{int(adaptive.attrs['traced_pixels'])} pixels traced, against every pixel: median "
               f"{rows[-1]['vs_every_pixel_median']:.2e}, p99 {rows[-1]['vs_every_pixel_p99']:.2e}", flush=True)
-        if args.profile and out_dir:
-            from wall_profile import WallSampler
-
-            with WallSampler() as sampler:  # the main thread's wall clock in a warm adaptive frame
-                swim.render(scene, **kw_a)
-            (Path(out_dir) / f"profile_{name}_adaptive_wall.txt").write_text(sampler.report())
-            print(f"{name} adaptive_wall: " + "\n".join(sampler.report(12).splitlines()[:30]), flush=True)
+        if args.profile and out_dir:  # the main thread's wall clock in a warm adaptive frame
+            wall_profile_render(name, "adaptive_wall", scene, kw_a, Path(out_dir))
     if args.sun_series:
         # a time series seen by a fixed camera: every frame has a new sun (Step 1a and the kernel constants anew)
         runs = []
@@ -253,6 +248,18 @@ def run_scene(name, args, probe, out_dir):
     return {"scene_s": scene_s, "rows": rows}
 
 
+def wall_profile_render(name, label, scene, kw, out_dir):
+    """The main thread's wall clock in one render (``wall_profile.WallSampler``), to ``profile_<name>_<label>.txt``."""
+    import swim
+
+    from wall_profile import WallSampler
+
+    with WallSampler() as sampler:
+        swim.render(scene, **kw)
+    (out_dir / f"profile_{name}_{label}.txt").write_text(sampler.report())
+    print(f"{name} {label}: " + "\n".join(sampler.report(12).splitlines()[:30]), flush=True)
+
+
 def profile_render(name, scene, kw, probe, out_dir):
     """Where a warm render spends its time: the main thread's wall clock (``wall_profile.WallSampler``, to
     ``profile_<scene>_wall.txt`` and, with a new sun, ``profile_<scene>_newsun_wall.txt``), the host's Python
@@ -270,14 +277,9 @@ def profile_render(name, scene, kw, probe, out_dir):
 
     import swim
 
-    from wall_profile import WallSampler
-
     # wall-clock samples of the main thread first (no cProfile overhead): a warm render, then one with a new sun
     for label, extra in (("wall", {}), ("newsun_wall", {"sun_zenith": 43.0, "sun_azimuth": 190.0})):
-        with WallSampler() as sampler:
-            swim.render(scene, **{**kw, **extra})
-        (out_dir / f"profile_{name}_{label}.txt").write_text(sampler.report())
-        print(f"{name} {label}: " + "\n".join(sampler.report(12).splitlines()[:30]), flush=True)
+        wall_profile_render(name, label, scene, {**kw, **extra}, out_dir)
     # a warm render, and one with a new sun (Step 1a and the kernel constants anew: a time series' frame)
     for label, extra in (("host", {}), ("newsun_host", {"sun_zenith": 41.0, "sun_azimuth": 200.0})):
         prof = cProfile.Profile()

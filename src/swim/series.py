@@ -117,6 +117,10 @@ def _output_paths(pattern, frames, what) -> list[Path | None]:
     return paths
 
 
+#: One opening of a scene file at a time in a process (:func:`_opened`).
+_OPEN_LOCK = threading.Lock()
+
+
 def _opened(path: str, opening: tuple):
     """A scene file opened once per process and version of the file (a worker's frames share it and its optical
     volume; a file rewritten under the same name, such as an hourly "latest" forecast, is opened again)."""
@@ -129,9 +133,6 @@ def _opened(path: str, opening: tuple):
     # 2 of 8 runs of tests/system/test_series.py's cluster test) or failed with "NetCDF: HDF error"
     with _OPEN_LOCK:
         return _opened_version(path, opening, stat.st_mtime_ns, stat.st_size)
-
-
-_OPEN_LOCK = threading.Lock()
 
 
 @functools.lru_cache(maxsize=2)

@@ -2298,7 +2298,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     ground = bool(np.any(_ends_on_surface(state, ends_on_ground)[:n]))
     out = _compose_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, state, aerosol_class,
                          ground=ground)
-    return {**{key: value[:n] for key, value in jax.device_get(out).items()}, "steps": samples.astype(np.int32)}
+    return {**_host_rows(out, n), "steps": samples.astype(np.int32)}
 
 
 def _pad_state(state, n, tables):
