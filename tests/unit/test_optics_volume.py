@@ -89,7 +89,8 @@ def test_resample_columns_of_a_sparse_field_matches_numpy_interp_per_column(shap
     """A cloud fills few model levels: target levels whose model levels are zero in every column of a block are
     left zero without interpolating. Against numpy.interp per column, for a field that is zero on most levels,
     non-zero on one level in a single column, and zero everywhere; over the whole grid and in blocks of columns
-    that split the cloudy levels' columns."""
+    that split the cloudy levels' columns; and given by its non-zero cells alone (``ColumnInterpolation.cells``, which
+    build_optical_volume uses), the same bits."""
     from swim.optics.volume import ColumnInterpolation
 
     rng = np.random.default_rng(sum(shape) + 1)
@@ -111,6 +112,12 @@ def test_resample_columns_of_a_sparse_field_matches_numpy_interp_per_column(shap
         parts = [interpolation.columns(flat[:, c0:c1], c0, c1) for c0, c1 in ((0, cut), (cut, flat.shape[1]))
                  if c1 > c0]
         np.testing.assert_array_equal(np.concatenate(parts, axis=1), out.reshape(levels.size, -1), err_msg=name)
+        # the compiled path of build_optical_volume: the same field given by its non-zero cells, the same bits
+        for c0, c1 in ((0, cut), (cut, flat.shape[1]), (0, flat.shape[1])):
+            block = np.ascontiguousarray(flat[:, c0:c1], dtype=np.float32)
+            where = np.flatnonzero(block)
+            sparse = interpolation.cells(where, block.ravel()[where], nz, c0, c1)
+            np.testing.assert_array_equal(sparse, out.reshape(levels.size, -1)[:, c0:c1], err_msg=name)
     assert interpolation(layer).any() and not interpolation(fields["zero"]).any()
 
 

@@ -190,7 +190,8 @@ class ColumnInterpolation:
 
     ``k0`` (nk, ncol) int32: the model level at or below each target level (clipped to [0, nz - 2]); ``w``
     (nk, ncol) float32: the weight of level k0 + 1; ``zero`` (nk, ncol) bool: target levels below the terrain
-    or above half a layer over the top model level.
+    or above half a layer over the top model level. The heights must increase along the first axis in every column
+    (as :func:`swim.io.scene.validate_scene` ensures) and the levels must increase.
     """
 
     def __init__(self, height, terrain, levels):
@@ -203,40 +204,16 @@ class ColumnInterpolation:
         # int32 and float32 keep the (nk, ncol) work arrays small (heights to a millimetre at 20 km).
         self.k0 = np.empty((nk, ncol), dtype=np.int32)
         self.w = np.empty((nk, ncol), dtype=np.float32)
-
-        def weights(c0, c1):
-            n = c1 - c0
-            cols = np.arange(n)
-            # Number of model levels below each target level, by counting (the levels of every column increase):
-            # level z lies below targets k >= searchsorted(levels, h[z], "right"). O(nz ncol + nk ncol) memory,
-            # where comparing all pairs took nk x nz x ncol (1.5e9 for a 400 x 400 x 60 grid). Each model level
-            # adds one count per column (cols are distinct: a plain fancy +=), and the running sum over the target
-            # levels is taken row by row in place: numpy's cumsum along the first axis of a C-ordered array took
-            # 0.3 s for 160 x 160 000 (docs/performance.md, section 41).
-            counts = np.zeros((nk + 1, n), dtype=np.int32)
-            flat = counts.reshape(-1)
-            for z in range(nz):
-                flat[np.searchsorted(levels, h[z, c0:c1], side="right") * np.intp(n) + cols] += 1
-            k0 = counts[:-1]
-            for k in range(1, nk):
-                k0[k] += k0[k - 1]
-            np.clip(k0, 1, nz - 1, out=k0)
-            k0 -= 1
-            self.k0[:, c0:c1] = k0
-            # The heights either side of each target level, by one flat take per target level: numpy's
-            # take_along_axis builds index arrays of the whole (nk, ncol) and was 3-4x slower.
-            h32 = h[:, c0:c1].astype(np.float32).reshape(-1)
-            for k in range(nk):
-                below = k0[k] * np.intp(n) + cols  # intp: no int32 overflow past 2**31 values
-                h0 = h32.take(below)
-                thickness = h32.take(below + n)
-                thickness -= h0
-                np.divide(np.float32(levels[k]) - h0, thickness, out=self.w[k, c0:c1])
-
-        in_blocks(weights, ncol)  # blocks of columns on every core
-        np.clip(self.w, 0.0, 1.0, out=self.w)
+        self.zero = np.empty((nk, ncol), dtype=bool)  # below the terrain or above half a layer over the top level
         top = h[-1] + 0.5 * (h[-1] - h[-2])
-        self.zero = (levels[:, None] > top[None, :]) | (levels[:, None] < np.asarray(terrain, dtype=float).reshape(1, -1))
+        ground = np.asarray(terrain, dtype=float).reshape(-1)
+        from .columns_cpu import column_weights
+
+        # one compiled pass per block of columns (a merge of each column's model levels with the regular ones), on
+        # every core: NumPy's searchsorted per model level, running counts and takes per level, 0.3 s for 400 x 400
+        # x 60 (docs/performance.md, section 69), gave the same values
+        in_blocks(lambda c0, c1: column_weights(h[:, c0:c1], levels, top[c0:c1], ground[c0:c1], self.k0[:, c0:c1],
+                                                self.w[:, c0:c1], self.zero[:, c0:c1]), ncol)
         self.shape = (levels.size,) + height.shape[1:]
         self._spans = {}  # (c0, c1) -> the lowest and highest model level each target level reads there
 
@@ -260,7 +237,7 @@ class ColumnInterpolation:
         cols = np.arange(n)
         out = np.zeros((self.k0.shape[0], n), dtype=np.float32)
         for k in np.flatnonzero(self._reads_values(v.reshape(nz, n), c0, c1)):
-            row = out[k]  # one flat take per target level (as in __init__)
+            row = out[k]  # one flat take per target level
             below = self.k0[k, c0:c1] * np.intp(n) + cols
             lower = v.take(below)
             v.take(below + n, out=row)
@@ -270,17 +247,44 @@ class ColumnInterpolation:
             row[self.zero[k, c0:c1]] = 0.0
         return out
 
+    def cells(self, where, values, nz, c0, c1, out=None):
+        """Columns ``c0:c1`` of a sparse field on the regular levels, (nk, c1 - c0) float32: the same values as
+        :meth:`columns` of the dense field, which is zero but at the flat positions ``where`` (int64, increasing, C
+        order of its shape (nz, c1 - c0)), where it holds ``values`` (float32). One compiled pass over the target
+        levels that may read those cells (:func:`swim.optics.columns_cpu.resample_cells`), written into ``out``
+        ((nk, c1 - c0) float32 of zeros, e.g. a view of the volume; a new array if None)."""
+        n = c1 - c0
+        if out is None:
+            out = np.zeros((self.k0.shape[0], n), dtype=np.float32)
+        if where.size == 0:
+            return out
+        span_lo, span_hi = self._span(c0, c1)
+        # the target levels whose model levels meet those with values: a range, since both bounds grow with the level
+        meets = np.flatnonzero((span_hi >= where[0] // n) & (span_lo <= where[-1] // n))
+        if meets.size:
+            from .columns_cpu import resample_cells
+
+            resample_cells(where, values, nz, self.k0[:, c0:c1], self.w[:, c0:c1], self.zero[:, c0:c1],
+                           int(meets[0]), int(meets[-1]) + 1, out)
+        return out
+
+    def _span(self, c0, c1):
+        """The lowest and the highest model level (nk,) that each target level reads in columns ``c0:c1`` (all fields
+        share them)."""
+        key = (c0, c1)
+        span = self._spans.get(key)
+        if span is None:
+            k0 = self.k0[:, c0:c1]
+            span = self._spans[key] = (k0.min(axis=1), k0.max(axis=1) + 1)
+        return span
+
     def _reads_values(self, values, c0, c1):
         """(nk,) bool: whether target level k reads a model level that is not zero in every column of ``values``
         (nz, c1 - c0), i.e. whether some column's levels k0 or k0 + 1 there hold a value."""
-        key = (c0, c1)
-        span = self._spans.get(key)
-        if span is None:  # the model levels that each target level reads in these columns (all fields share them)
-            k0 = self.k0[:, c0:c1]
-            span = self._spans[key] = (k0.min(axis=1), k0.max(axis=1) + 1)
+        lowest, highest = self._span(c0, c1)
         # nonzero model levels counted from the bottom: any in [lowest, highest] is a difference of two counts
         count = np.concatenate(([0], np.cumsum(np.any(values != 0, axis=1))))
-        return count[span[1] + 1] > count[span[0]]
+        return count[highest + 1] > count[lowest]
 
 
 def resample_columns(values, height, terrain, levels, interpolation: ColumnInterpolation | None = None):
@@ -397,23 +401,30 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
         radius_all = scene[radius_name].values if radius_name in scene else None
 
         def eq7_block(block, n=n, name=name, species=species, content_all=content_all, radius_all=radius_all):
+            from .columns_cpu import gather_cells, scan_content
+
             j0, j1 = block
-            content = np.asarray(content_all[:, j0:j1], dtype=float)
-            lowest, highest = content.min(), content.max()
-            if not (lowest >= 0.0 and highest < np.inf):  # NaN fails both
-                bad = ~np.isfinite(content) | (content < 0)
-                raise SwimInputError(f"{name} must be finite and >= 0 [kg m-3]; got {int(bad.sum())} values such as "
-                                     f"{content[bad].flat[0]!r}")
-            if highest == 0.0:
+            content = content_all[:, j0:j1]  # a view: the compiled scan reads it in place
+            cells = nz * (j1 - j0) * nx
+            where, values = np.empty(cells, np.int64), np.empty(cells, np.float64)
+            # one pass: the check of the values and the cloudy cells (1-10 % of a model's cells), where Eq. 7 is
+            # computed: elsewhere beta is 0 (docs/performance.md, sections 42 and 69)
+            bad, present = scan_content(content, where, values)
+            if bad:
+                content = np.asarray(content, dtype=float)
+                wrong = ~np.isfinite(content) | (content < 0)
+                raise SwimInputError(f"{name} must be finite and >= 0 [kg m-3]; got {int(wrong.sum())} values such as "
+                                     f"{content[wrong].flat[0]!r}")
+            if present == 0:
                 return  # the block's extinction stays 0
-            # Eq. 7 where there is content only (1-10 % of a model's cells; elsewhere beta is 0): the same values
-            # as over the whole block, at a fraction of its float64 passes (docs/performance.md, section 42)
-            cloudy = content > 0
-            present = content[cloudy]
-            radius = effective_radius(species, present, None if radius_all is None else radius_all[:, j0:j1][cloudy])
-            beta = np.zeros(content.shape, np.float32)
-            beta[cloudy] = extinction_coefficient_stephens1978(present, radius, HYDROMETEOR_DENSITY[species])
-            flat[n, :, j0 * nx:j1 * nx] = interpolation.columns(beta, j0 * nx, j1 * nx)
+            where, values = where[:present], values[:present]
+            given = None
+            if radius_all is not None:
+                given = np.empty(present, np.float64)
+                gather_cells(radius_all[:, j0:j1], where, given)
+            radius = effective_radius(species, values, given)
+            beta = extinction_coefficient_stephens1978(values, radius, HYDROMETEOR_DENSITY[species]).astype(np.float32)
+            interpolation.cells(where, beta, nz, j0 * nx, j1 * nx, out=flat[n, :, j0 * nx:j1 * nx])  # in place
 
         parallel_map(eq7_block, blocks, workers)  # an error in a block (bad values) is raised here
 
