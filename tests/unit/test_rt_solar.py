@@ -205,3 +205,28 @@ def test_unknown_sweep_backend_is_rejected():
     volume = build_optical_volume(scene, dz=100.0)
     with pytest.raises(SwimInputError, match="backend must be"):
         solar_transmittance(volume, enu_from_azimuth_zenith(0.0, 30.0), backend="opencl")
+
+
+@pytest.mark.parametrize("packed", [False, True])
+def test_species_sums_are_the_extinction_and_its_backscatter_weighted_sum(packed):
+    """The sweep's first two fields in one pass (swim.rt.solar_cpu.species_sums): the sum over the species and the
+    sum weighted by the backscatter fractions, against NumPy's float64 sums, for the species as separate fields and as
+    adjacent channels of a packed volume (strided views, as a render gives them), levels k0:k1 written into strided
+    views of the sweep's padded input."""
+    from swim.rt.solar_cpu import species_sums
+
+    rng = np.random.default_rng(3)
+    n, nk, ny, nx = 5, 9, 6, 7
+    values = (rng.random((n, nk, ny, nx)) * (rng.random((n, nk, ny, nx)) > 0.5)).astype(np.float32) * 1e-2
+    extinction = np.moveaxis(np.ascontiguousarray(np.moveaxis(values, 0, -1)), -1, 0) if packed else values
+    assert np.array_equal(extinction, values) and extinction.flags.c_contiguous != packed
+    weights = np.array([BACKSCATTER_FRACTION[s] for s in ("cloud_liquid", "cloud_ice", "rain", "snow", "graupel")],
+                       np.float32)
+    padded = np.full((2, nk, ny + 1, nx + 1), np.nan, np.float32)
+    k0, k1 = 2, 8
+    species_sums(extinction, weights, k0, k1, padded[0, :k1 - k0, :ny, :nx], padded[1, :k1 - k0, :ny, :nx])
+    expected = (values[:, k0:k1].astype(float).sum(axis=0),
+                np.tensordot(weights.astype(float), values[:, k0:k1].astype(float), axes=1))
+    for got, want in zip(padded[:, :k1 - k0, :ny, :nx], expected):
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=0)
+    assert np.isnan(padded[:, k1 - k0:]).all() and np.isnan(padded[:, :, ny]).all()  # nothing beyond the views

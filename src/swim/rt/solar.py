@@ -284,7 +284,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
     from ..workers import in_blocks, threads
-    from .march import BACKENDS, MarchSettings, species_sum
+    from .march import BACKENDS, MarchSettings
+    from .solar_cpu import species_sums
 
     names = STEP1A_VARIABLES if variables is None else tuple(variables)
     unknown = sorted(set(names) - set(STEP1A_VARIABLES))
@@ -316,7 +317,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     nk = levels.size
     shape = beta.shape[2:]  # (ny, nx)
     # by the volume's own species coordinate: after share_packed_channels it names only the packed species
-    b = [np.float32(BACKSCATTER_FRACTION[str(name)]) for name in volume["species"].values]
+    b = np.array([BACKSCATTER_FRACTION[str(name)] for name in volume["species"].values], np.float32)
     # The swept fields: 0 hydrometeor extinction, 1 its backscatter-weighted sum, 2 the terrain (zero at and
     # above the surface, so a sunlit slope does not shade itself; opaque a full level below it), 3 the 3-D
     # aerosol. The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D
@@ -350,8 +351,10 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
 
         def fill(k0, k1):  # levels k0..k1 of every swept field of the group
             for row, c in enumerate(group):
-                if c < 2:  # in float32, one matrix-vector product per cell where the species are packed
-                    species_sum(beta, None if c == 0 else b, k0, k1, out=fields[row, k0:k1])
+                if c == 0:  # with field 1 (the same levels, so the same group), in one pass over the species
+                    species_sums(beta, b, k0, k1, fields[row, k0:k1], fields[group.index(1), k0:k1])
+                elif c == 1:
+                    continue
                 elif c == 2:
                     fields[row, k0:k1] = np.clip((terrain[None] - levels[k0:k1, None, None]) / dz, 0.0, 1.0) * (
                         TERRAIN_OPACITY_PER_CELL / dz)
