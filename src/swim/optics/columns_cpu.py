@@ -5,10 +5,10 @@ resampling of a block of columns onto the regular levels.
 steps was a pass of its own over a block of rows (the content's minimum and maximum, the mask of cloudy cells, their
 values, a zeroed extinction array, the scatter into it, one ``take`` per target level), and the weights of the
 resampling were found by one ``searchsorted`` per model level: 1.0-1.4 s for the 400 x 400 x 60 scene with all five
-species on this project's 2 cores. These kernels do each in one pass and give the same bits: the weights and the
-interpolation in float32, operation by operation as NumPy rounds them (no fast-math, so no contraction into FMAs),
-and the physics of Eq. 7 stays in :mod:`swim.optics.hydrometeors`, on the cloudy cells only
-(docs/performance.md, section 69).
+species on this project's 2 cores. These kernels do each in one pass (0.39-0.50 s) and give the same bits: the weights
+and the interpolation in float32, operation by operation as NumPy rounds them (no fast-math, so no contraction into
+FMAs), and the physics of Eq. 7 stays in :mod:`swim.optics.hydrometeors`, on the cloudy cells only (docs/performance.md,
+section 69).
 
 They release the GIL, so :func:`swim.workers.in_blocks` and :func:`swim.workers.parallel_map` run them on every core,
 a block of columns each.

@@ -123,10 +123,10 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
     species of ``extinction`` (species, level, y, x) [m-1] and ``weighted`` = its sum weighted by ``weights``
     (species,) float32 (the backscatter fractions), each (k1 - k0, y, x) float32 (any strides), in float32.
 
-    Where the species are channels of the packed volume (adjacent in memory, :func:`swim.rt.march.
-    share_packed_channels`), each cell's species are one cache line's read for both sums: two calls of
-    :func:`swim.rt.march.species_sum` read the volume twice (0.17-0.18 s of a new sun's Step 1a for the 400 x 400 x 60
-    scene; docs/performance.md, section 69)."""
+    Where the species are channels of the packed volume (adjacent in memory,
+    :func:`swim.rt.march.share_packed_channels`), each cell's species are one cache line's read for both sums: two
+    calls of :func:`swim.rt.march.species_sum` read the volume twice (the fill 0.17-0.18 → 0.12-0.14 s of a new sun's
+    Step 1a for the 400 x 400 x 60 scene; docs/performance.md, section 69)."""
     n, _, ny, nx = extinction.shape
     for k in range(k0, k1):
         for j in range(ny):
