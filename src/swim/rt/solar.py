@@ -350,15 +350,13 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
             padded = fields = np.empty((len(group), n_levels) + shape, np.float32)
 
         def fill(k0, k1):  # levels k0..k1 of every swept field of the group
+            if 0 in group:  # fields 0 and 1 share their levels, so their group: one pass over the species for both
+                species_sums(beta, b, k0, k1, fields[group.index(0), k0:k1], fields[group.index(1), k0:k1])
             for row, c in enumerate(group):
-                if c == 0:  # with field 1 (the same levels, so the same group), in one pass over the species
-                    species_sums(beta, b, k0, k1, fields[row, k0:k1], fields[group.index(1), k0:k1])
-                elif c == 1:
-                    continue
-                elif c == 2:
+                if c == 2:
                     fields[row, k0:k1] = np.clip((terrain[None] - levels[k0:k1, None, None]) / dz, 0.0, 1.0) * (
                         TERRAIN_OPACITY_PER_CELL / dz)
-                else:
+                elif c == 3:
                     fields[row, k0:k1] = aerosol[k0:k1]
 
         in_blocks(fill, n_levels)  # on every core (NumPy's loops release the GIL)
