@@ -11,7 +11,9 @@ Each repeat builds, from the same validated scene, what :func:`swim.render` buil
 the optical volume (Eq. 7 and the resampling onto regular levels, :func:`swim.optics.volume.build_optical_volume`),
 the packed volume that the kernels read (:func:`swim.rt.march.pack_volume`, its channels then shared with the
 optical volume), the occupancy grid of the empty-space skipping (:func:`swim.rt.march.occupancy_grid`) and Step 1a
-for one sun (:func:`swim.rt.solar.solar_transmittance`, the fields the kernels read). It prints the best and the
+for one sun (:func:`swim.rt.solar.solar_transmittance`, the fields the kernels read, in the packed volume's
+channels: :func:`swim.rt.march.volume_constants`; its swept levels, :func:`swim.rt.solar.step1a_levels`, found
+before the packing as a render finds them). It prints the best and the
 median of each stage over the repeats after a first, warm-up one (numba's kernels loaded, NumPy's pools made). On
 this project's shared 2-core machine alternate runs of the two codes: a figure moves by 10-20 % from hour to hour
 (docs/performance.md, section 41).
@@ -29,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-STAGES = ("optical volume", "packing", "occupancy grid", "Step 1a", "all four")
+STAGES = ("optical volume", "packing", "occupancy grid", "Step 1a and its channels", "all four")
 
 
 def main():
@@ -55,18 +57,28 @@ def main():
         t0 = time.perf_counter()
         volume = build_optical_volume(scene)
         t1 = time.perf_counter()
+        # as a render does it: the levels that Step 1a sweeps found before the packing makes the extinctions strided
+        # views (a scan through them took ~5x longer), and counted as Step 1a's
+        levels = solar.step1a_levels(volume)
+        t_levels = time.perf_counter() - t1
+        t1 = time.perf_counter()
         species = march.packed_species(volume)
         packed = march.pack_volume(volume, species)
         march.share_packed_channels(volume, packed, species)
         t2 = time.perf_counter()
         occupancy = march.occupancy_grid(volume)
         t3 = time.perf_counter()
-        transmittance = solar.solar_transmittance(volume, sun, variables=march.KERNEL_STEP1A_VARIABLES)
+        # as a render does it: the fields written into the packed channels where this code can (section 70 of
+        # docs/performance.md), else made and then copied there by volume_constants
+        out = march.step1a_channel_views(packed, species) if hasattr(march, "step1a_channel_views") else None
+        transmittance = solar.solar_transmittance(volume, sun, variables=march.KERNEL_STEP1A_VARIABLES,
+                                                  nonzero_levels=levels, **({"out": out} if out else {}))
+        march.volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
         t4 = time.perf_counter()
         if repeat:
-            for stage, seconds in zip(STAGES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0)):
+            for stage, seconds in zip(STAGES, (t1 - t0 - t_levels, t2 - t1, t3 - t2, t4 - t3 + t_levels, t4 - t0)):
                 times[stage].append(seconds)
-        del volume, packed, occupancy, transmittance
+        del volume, packed, occupancy, transmittance, out
     print(f"swim from {Path(swim.__file__).parents[1]}: synthetic {args.grid} x {args.grid} x 60, sun at zenith "
           f"{args.sun_zenith:g} deg, {args.repeats} repeats after a warm-up\n")
     print("| stage | best [s] | median [s] |\n|---|---|---|")

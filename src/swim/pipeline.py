@@ -45,6 +45,7 @@ from .rt.march import (
     padded_batch_size,
     share_packed_channels,
     shared_packed_volume,
+    step1a_channel_views,
     threads,
     trace_rays,
     volume_constants,
@@ -488,10 +489,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
             share_packed_channels(volume, packed, species)
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
-        # Step 1a, only the fields that the kernel constants read, which copy them into the packed volume: Step
-        # 1a's own arrays are freed at once (~100 MB per field at 400 x 400 x 160)
+        # Step 1a, only the fields that the kernel constants read, written straight into the packed volume's
+        # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy (docs/performance.md, 70.)
         transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
-                                            backend=settings.backend, nonzero_levels=nonzero_levels)
+                                            backend=settings.backend, nonzero_levels=nonzero_levels,
+                                            out=step1a_channel_views(packed, species))
         constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
         del transmittance
         release_free_memory()  # Step 1a's freed levels, before the ray march

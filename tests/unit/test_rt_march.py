@@ -762,6 +762,47 @@ def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
 
 
 @pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
+def test_step_1a_written_into_the_packed_channels_gives_the_same_constants(aerosol_plume, monkeypatch):
+    """A render has Step 1a write its fields straight into the packed volume's channels (step1a_channel_views, the
+    ``out`` of solar_transmittance): every cell of those channels is written (also above the swept levels, where a
+    refilled volume holds an earlier sun's values), volume_constants copies nothing, the JAX kernel's device copy of
+    the earlier values is dropped, and the constants equal those of fields made and then copied (T to float32
+    round-off: numba's float32 arithmetic against XLA's)."""
+    from swim.rt import march
+    from swim.rt.march import (KERNEL_STEP1A_VARIABLES, pack_volume, packed_species, share_packed_channels,
+                               step1a_channel_views, volume_constants)
+
+    sun_1, sun_2 = enu_from_azimuth_zenith(135.0, 40.0), enu_from_azimuth_zenith(250.0, 70.0)
+    fresh_volume = build_optical_volume(_tiny_scene(aerosol_plume))
+    expected = volume_constants(fresh_volume, solar_transmittance(fresh_volume, sun_2))
+
+    volume = build_optical_volume(_tiny_scene(aerosol_plume))
+    species = packed_species(volume)
+    packed = pack_volume(volume, species)
+    share_packed_channels(volume, packed, species)
+    first = volume_constants(volume, solar_transmittance(volume, sun_1), packed=packed, species=species)
+    on_device = march._device_constants(first)["volume"]
+    views = step1a_channel_views(packed, species)
+    assert set(views) == set(KERNEL_STEP1A_VARIABLES if aerosol_plume else KERNEL_STEP1A_VARIABLES[1:])
+    assert march._device_constants(first)["volume"] is not on_device, "the old device copy must be dropped"
+    for view in views.values():
+        assert np.shares_memory(view, packed) and view.flags.writeable
+        view[...] = np.nan  # whatever an earlier sun left there: every cell must be written again
+
+    copies = []
+    monkeypatch.setattr(march, "_fill_channels", lambda *args: copies.append(args))
+    transmittance = solar_transmittance(volume, sun_2, variables=KERNEL_STEP1A_VARIABLES, out=views)
+    for name, view in views.items():
+        assert transmittance[name].values is view, name
+    got = volume_constants(volume, transmittance, packed=packed, species=species)
+    assert copies == [], "the fields are in place: nothing to copy"
+    assert got["volume"] is packed and not packed.flags.writeable
+    assert np.isfinite(packed).all()
+    np.testing.assert_allclose(packed, expected["volume"], rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(packed[..., :len(species)], expected["volume"][..., :len(species)])
+
+
+@pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
 def test_a_new_sun_refills_the_shared_packed_volume(aerosol_plume):
     """shared_packed_volume finds the packed volume that a shared volume's extinctions view (None before sharing or
     for another layout); refilled with a second sun's Step 1a, it equals a volume packed anew for that sun, and the

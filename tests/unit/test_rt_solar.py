@@ -174,6 +174,65 @@ def test_selected_variables_match_the_full_result_and_unknown_names_are_rejected
         solar_transmittance(volume, sun, variables=("cloud_transmittance", "tau"))
 
 
+@pytest.mark.parametrize("backend", ["jax", "numba"])
+@pytest.mark.parametrize("layout", ["contiguous", "channels"])
+def test_fields_written_into_given_arrays_are_those_made_anew(backend, layout):
+    """``out``: the fields a render reads written into the caller's arrays (contiguous ones, or channels of one
+    array as the packed volume's are) equal the ones solar_transmittance makes itself, for a scene with cloud,
+    terrain and a 3-D aerosol and one with nothing to sweep (T, the shadow, 1 and the aerosol's depth 0 everywhere),
+    T to float32 round-off, the others exactly; the result's variables are the given arrays."""
+    n, spacing = 21, 500.0
+    x = (np.arange(n) - n // 2) * spacing
+    z = np.arange(0.0, 4000.0, 100.0) + 50.0
+    zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
+    cloud = 4e-4 * (np.abs(zz - 2000) < 400) * (np.abs(xx) < 1500) * (np.abs(yy) < 1500)
+    terrain = 900.0 * np.exp(-((x[None, :] + 2000) / 1200.0) ** 2 - (x[:, None] / 3000.0) ** 2)
+    aerosol = 2e-4 * np.exp(-zz / 1500.0) * (xx > 0)
+    full_scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0, terrain_height=terrain,
+                                   cloud_liquid_content=cloud, cloud_liquid_effective_radius=RADIUS,
+                                   aerosol_extinction=aerosol)
+    empty_scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0)
+    sun = enu_from_azimuth_zenith(250.0, 55.0)
+    names = ("aerosol_tau_sun", "cloud_transmittance", "terrain_shadow")
+    for scene in (full_scene, empty_scene):
+        volume = build_optical_volume(scene, dz=100.0)
+        shape = volume["extinction"].shape[1:]
+        made = solar_transmittance(volume, sun, variables=names, backend=backend)
+        if layout == "channels":
+            packed = np.full(shape + (5,), np.nan, np.float32)
+            out = {name: packed[..., 1 + c] for c, name in enumerate(names)}
+        else:
+            out = {name: np.full(shape, np.nan, np.float32) for name in names}
+        written = solar_transmittance(volume, sun, variables=names, backend=backend, out=out)
+        for name in names:
+            assert written[name].values is out[name], name
+            assert np.isfinite(out[name]).all(), name
+        np.testing.assert_allclose(out["cloud_transmittance"], made["cloud_transmittance"].values, rtol=1e-6, atol=0)
+        np.testing.assert_array_equal(out["aerosol_tau_sun"], made["aerosol_tau_sun"].values)
+        np.testing.assert_allclose(out["terrain_shadow"], made["terrain_shadow"].values, rtol=1e-6, atol=1e-30)
+        if layout == "channels":
+            assert np.isnan(packed[..., [0, 4]]).all(), "nothing beyond the given channels"
+    assert float(out["cloud_transmittance"].min()) == 1.0 and float(out["aerosol_tau_sun"].max()) == 0.0
+    assert float(made["cloud_transmittance"].min()) == 1.0  # (the empty scene's, last)
+
+
+def test_arrays_to_write_into_are_checked():
+    volume = build_optical_volume(_slab_scene(n=9)[0], dz=100.0)
+    sun = enu_from_azimuth_zenith(0.0, 30.0)
+    shape = volume["extinction"].shape[1:]
+    wanted = ("cloud_transmittance", "terrain_shadow")
+    good = np.zeros(shape, np.float32)
+    with pytest.raises(SwimInputError, match="out names 'tau_sun'"):
+        solar_transmittance(volume, sun, variables=wanted + ("tau_sun",), out={"tau_sun": good})
+    with pytest.raises(SwimInputError, match="out names 'aerosol_tau_sun'"):  # not asked for
+        solar_transmittance(volume, sun, variables=wanted, out={"aerosol_tau_sun": good})
+    read_only = np.zeros(shape, np.float32)
+    read_only.flags.writeable = False
+    for bad in (np.zeros(shape, np.float64), np.zeros(shape[1:], np.float32), read_only, good.tolist()):
+        with pytest.raises(SwimInputError, match=r"out\['cloud_transmittance'\] must be a writeable float32 array"):
+            solar_transmittance(volume, sun, variables=wanted, out={"cloud_transmittance": bad})
+
+
 @pytest.mark.parametrize("zenith, azimuth", [(0.0, 0.0), (35.0, 200.0), (68.0, 75.0), (84.0, 310.0)])
 def test_cpu_sweep_matches_the_jax_sweep(zenith, azimuth):
     """The numba sweep (swim.rt.solar_cpu) is the JAX sweep's sums in another order: all Step 1a fields must agree

@@ -1731,6 +1731,36 @@ def shared_packed_volume(volume, species):
     return packed
 
 
+def step1a_channel_views(packed, species):
+    """The packed volume's Step 1a channels (:data:`KERNEL_STEP1A_VARIABLES`, the 3-D aerosol's only where it is
+    packed) as writeable views (level, y, x) by variable name, for :func:`swim.rt.solar.solar_transmittance` to write
+    a new sun's fields into (its ``out``); :func:`volume_constants` then finds them in place and copies nothing.
+
+    Parameters
+    ----------
+    packed : numpy.ndarray
+        Shape (level, y, x, channel) float32: a packed volume that this process owns (:func:`pack_volume`,
+        :func:`shared_packed_volume`); its device copies are dropped (its values are about to change) and it is made
+        writeable until :func:`volume_constants` has filled it.
+    species : tuple of int
+        The species packed (indices into :data:`swim.constants.SPECIES`, :func:`packed_species`).
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        ``aerosol_tau_sun`` (with a 3-D aerosol), ``cloud_transmittance`` and ``terrain_shadow``.
+
+    The fields were made whole (~100 MB each at 400 x 400 x 160, all held until the copy) and then copied into the
+    channels: one compiled pass instead takes 0.04-0.08 s off a new sun's 0.63-0.68 s for the 400 x 400 x 60 scene
+    (docs/performance.md, section 70)."""
+    aerosol_3d = packed_aerosol_3d(packed.shape[-1], len(species))
+    names = KERNEL_STEP1A_VARIABLES if aerosol_3d else KERNEL_STEP1A_VARIABLES[1:]
+    first = packed.shape[-1] - len(names)
+    forget_device_copies_of(packed)
+    packed.flags.writeable = True
+    return {name: packed[..., first + c] for c, name in enumerate(names)}
+
+
 def volume_constants(volume, transmittance, occupancy=None, packed=None, species=None):
     """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
     channel) and the occupancy grid (level, y, x) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
@@ -1741,9 +1771,10 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     the volume's :func:`occupancy_grid` (read-only), which does not depend on the sun, where the caller keeps it
     from an earlier sun; default: computed here. ``packed``: the volume's :func:`pack_volume`, whose Step 1a
     channels are filled here (in place; also an earlier sun's, :func:`shared_packed_volume`, whose device copies
-    are then dropped); default: packed here. ``species``: the species packed (indices into
-    :data:`swim.constants.SPECIES`; default :func:`packed_species`), which the result's ``species_matrix``
-    expands to all of them."""
+    are then dropped); default: packed here. Step 1a's fields that are already the packed channels (written there by
+    :func:`swim.rt.solar.solar_transmittance` through :func:`step1a_channel_views`) are not copied. ``species``: the
+    species packed (indices into :data:`swim.constants.SPECIES`; default :func:`packed_species`), which the result's
+    ``species_matrix`` expands to all of them."""
     geometry = grid_geometry(volume)
     if species is None:
         species = packed_species(volume)
@@ -1761,7 +1792,14 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     # a packed volume filled before (an earlier sun's): its device copies hold the old channels
     forget_device_copies_of(packed)
     packed.flags.writeable = True  # read-only for the kernels and the views; owned, so this may be set again
-    _fill_channels(packed, values, n_grid)
+    # the fields not written in place already (step1a_channel_views), channel by channel as they lie
+    missing = [c for c, value in enumerate(values)
+               if _buffer_identity(value) != _buffer_identity(packed[..., n_grid + c])]
+    if len(missing) == len(values):
+        _fill_channels(packed, values, n_grid)
+    else:
+        for c in missing:
+            _fill_channels(packed, [values[c]], n_grid + c)
     packed.flags.writeable = False
     if occupancy is None:
         occupancy = occupancy_grid(volume)

@@ -40,6 +40,8 @@ TERRAIN_OPACITY_PER_CELL = 8.0
 MIN_SUN_ELEVATION_SINE = 0.01
 #: Variables of :func:`solar_transmittance`.
 STEP1A_VARIABLES = ("tau_sun", "b_tau_sun", "terrain_shadow", "aerosol_tau_sun", "cloud_transmittance", "transmittance")
+#: Variables of :func:`solar_transmittance` that it can write into the caller's arrays (``out``): those of a render.
+OUT_VARIABLES = ("aerosol_tau_sun", "cloud_transmittance", "terrain_shadow")
 #: 1 - g per unit backscatter fraction b in :func:`transmittance_delta_eddington` [-]: with 1 - g = (7/3) b
 #: the delta-Eddington transmittance of a thick layer equals Eq. 4's (T1 -> mu0 / (b tau_v)) at z0 = 60 deg,
 #: and the paper's b of cloud liquid (0.063) gives g = 0.853, the asymmetry parameter of stratus droplets
@@ -237,7 +239,7 @@ def step1a_levels(volume: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
 
 
 def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None, backend="auto",
-                        nonzero_levels=None) -> xr.Dataset:
+                        nonzero_levels=None, out=None) -> xr.Dataset:
     """Step 1a: optical depth towards the sun and cloud transmittance T at every grid point.
 
     Parameters
@@ -257,6 +259,12 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         round-off.
     nonzero_levels : tuple of numpy.ndarray, optional
         The volume's :func:`step1a_levels`, if the caller kept them from an earlier sun; default: scanned here.
+    out : dict of str to numpy.ndarray, optional
+        Arrays to write some of :data:`OUT_VARIABLES` into instead of new ones (e.g. the packed volume's channels,
+        :func:`swim.rt.march.step1a_channel_views`): each (level, y, x) float32, writeable, of any strides; the
+        result's variables are these arrays. They are written in one compiled pass
+        (:func:`swim.rt.solar_cpu.step1a_channels`), T in float32 as :func:`transmittance_delta_eddington` computes
+        it (the same values within float32 round-off). Default: new arrays.
 
     Returns
     -------
@@ -276,7 +284,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     SwimInputError
         If ``variables`` names a variable that is not one of these, or ``backend`` is not one of
         :data:`swim.rt.march.BACKENDS` (or is "numba" or "cuda" without numba installed), or ``nonzero_levels``
-        are not two arrays of the volume's levels.
+        are not two arrays of the volume's levels, or ``out`` names a variable that is not both requested and one of
+        :data:`OUT_VARIABLES`, or one of its arrays is not a writeable float32 array of the volume's shape.
 
     References
     ----------
@@ -293,6 +302,17 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         raise SwimInputError(f"solar_transmittance: unknown variables {unknown}; expected some of {STEP1A_VARIABLES}")
     if backend not in BACKENDS:
         raise SwimInputError(f"solar_transmittance: backend must be one of {BACKENDS}, got {backend!r}")
+    outputs = dict(out or {})  # (the loop below reuses the name out)
+    for name, array in outputs.items():
+        if name not in OUT_VARIABLES or name not in names:
+            raise SwimInputError(f"solar_transmittance: out names {name!r}; expected requested variables among "
+                                 f"{OUT_VARIABLES}")
+        expected = tuple(volume["extinction"].shape[1:])
+        if not (isinstance(array, np.ndarray) and array.dtype == np.float32 and array.shape == expected
+                and array.flags.writeable):
+            raise SwimInputError(f"solar_transmittance: out[{name!r}] must be a writeable float32 array of shape "
+                                 f"{expected} (level, y, x), got {type(array).__name__} "
+                                 f"{getattr(array, 'dtype', '')} {getattr(array, 'shape', '')}")
     backend = MarchSettings(backend=backend).resolved_backend()  # "numba" without numba raises there
     if backend == "cuda":  # the march's GPU kernel: the sweep where JAX runs, or on the host's cores
         backend = "jax" if jax.default_backend() != "cpu" else "numba"
@@ -411,7 +431,12 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     recipes = {"tau_sun": (0, None, 0.0), "b_tau_sun": (1, None, 0.0), "terrain_shadow": (2, shadow, 1.0),
                "aerosol_tau_sun": (3, None, 0.0), "cloud_transmittance": (0, cloud_t, 1.0)}
     data = {}
+    if outputs:
+        _write_step1a_channels(outputs, taus, mu0, shape)
+        data = {name: (dims, outputs[name], attrs[name]) for name in outputs}
     for name in names:  # one field at a time, so only the requested ones are ever held
+        if name in data:
+            continue
         if name == "transmittance":  # T times the terrain shadow, each made once if it is asked for too
             parts = [data[part][1] if part in data else full(*recipes[part])
                      for part in ("cloud_transmittance", "terrain_shadow")]
@@ -419,4 +444,26 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         else:
             value = full(*recipes[name])
         data[name] = (dims, value, attrs[name])
-    return xr.Dataset(data, coords={"level": volume["level"]})
+    return xr.Dataset({name: data[name] for name in names}, coords={"level": volume["level"]})
+
+
+def _write_step1a_channels(out, taus, mu0, shape):
+    """:data:`OUT_VARIABLES` of :func:`solar_transmittance` into the arrays ``out`` from the swept optical depths
+    ``taus`` (by swept field), level blocks on every core (:func:`swim.rt.solar_cpu.step1a_channels`)."""
+    from ..workers import in_blocks
+    from .solar_cpu import step1a_channels
+
+    # a field that was not swept: a stand-in of one level (and strided, as the swept fields and the packed channels
+    # are, so that one compiled version of the kernel serves: numba compiles one per memory layout)
+    stand_in = np.zeros((1,) + shape[:-1] + (shape[-1] + 1,), np.float32)[..., :shape[-1]]
+    swept = [(taus[c].shape[0], taus[c]) if c in taus else (0, stand_in) for c in range(4)]
+    targets = [(name in out, out.get(name, stand_in)) for name in ("cloud_transmittance", "terrain_shadow",
+                                                                   "aerosol_tau_sun")]
+    nk = next(iter(out.values())).shape[0]
+
+    def write(k0, k1):
+        step1a_channels(k0, k1, np.float32(mu0), swept[0][0], swept[0][1], swept[1][1], swept[2][0], swept[2][1],
+                        swept[3][0], swept[3][1], targets[0][1], targets[1][1], targets[2][1], targets[0][0],
+                        targets[1][0], targets[2][0])
+
+    in_blocks(write, nk)

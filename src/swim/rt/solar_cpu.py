@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from ..workers import parallel_map
+from .solar import ONE_MINUS_G_PER_BACKSCATTER
 from .march_cpu import _JIT_EXACT, _JIT_KERNEL, _helper_jit
 
 
@@ -139,6 +140,54 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
                     b += weights[c] * value
                 total[k - k0, j, i] = a
                 weighted[k - k0, j, i] = b
+
+
+@njit(**_JIT_EXACT)
+def step1a_channels(k0, k1, mu0, n_hydro, tau, b_tau, n_terrain, terrain_tau, n_aerosol, aerosol_tau, cloud_t,
+                    shadow, aerosol, write_cloud, write_shadow, write_aerosol):  # pragma: no cover - compiled
+    """Levels ``k0:k1`` of the render's three Step 1a fields from the swept optical depths, written in one pass:
+    ``cloud_t`` = T (:func:`swim.rt.solar.transmittance_delta_eddington`, in float32 as the JAX function), ``shadow``
+    = e^-(the terrain's optical depth) and ``aerosol`` = the 3-D aerosol's optical depth towards the sun, each
+    (nk, ny, nx) float32 of any strides (the packed volume's channels: a cell's channels one cache line's write).
+
+    The swept fields (``tau``, ``b_tau``, ``terrain_tau``, ``aerosol_tau``: (levels, ny, nx) float32, any strides)
+    hold their first ``n_hydro``, ``n_terrain`` and ``n_aerosol`` levels; above them T and the shadow are 1 and the
+    aerosol's optical depth 0 (0 levels: a field that nothing makes). An output whose ``write_*`` flag is False is
+    not written. In NumPy, each field was made whole and then copied into the packed volume's channel: three
+    strided passes over it (docs/performance.md, section 70)."""
+    ny, nx = cloud_t.shape[1], cloud_t.shape[2]
+    c73 = np.float32(ONE_MINUS_G_PER_BACKSCATTER)
+    k_mu = np.float32(0.5) + np.float32(0.75) * mu0
+    one_minus_k = np.float32(1.0) - k_mu
+    three_mu = np.float32(0.75) * mu0
+    one = np.float32(1.0)
+    tiny = np.float32(1e-30)
+    for k in range(k0, k1):
+        for j in range(ny):
+            if write_cloud:
+                if k < n_hydro:
+                    for i in range(nx):
+                        x = c73 * b_tau[k, j, i]  # (1 - g) tau_s
+                        one_minus_g = min(max(x / max(tau[k, j, i], tiny), np.float32(0.0)), one)
+                        tau_prime = x * (np.float32(2.0) - one_minus_g)
+                        cloud_t[k, j, i] = (k_mu + one_minus_k * np.exp(-tau_prime)) / (one + three_mu * x)
+                else:
+                    for i in range(nx):
+                        cloud_t[k, j, i] = one
+            if write_shadow:
+                if k < n_terrain:
+                    for i in range(nx):
+                        shadow[k, j, i] = np.exp(-terrain_tau[k, j, i])
+                else:
+                    for i in range(nx):
+                        shadow[k, j, i] = one
+            if write_aerosol:
+                if k < n_aerosol:
+                    for i in range(nx):
+                        aerosol[k, j, i] = aerosol_tau[k, j, i]
+                else:
+                    for i in range(nx):
+                        aerosol[k, j, i] = np.float32(0.0)
 
 
 def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
