@@ -141,9 +141,8 @@ def test_terrain_casts_a_shadow(backend):
     assert shadow[level, n // 2, west_foot] > 0.95
 
 
-def test_selected_variables_match_the_full_result_and_unknown_names_are_rejected():
-    """A render asks only for the Step 1a fields its kernel reads; they must be those of the full result, for a
-    scene with cloud, terrain (a shadow) and a 3-D aerosol, and a scene with nothing to sweep at all."""
+def _full_and_empty_scenes():
+    """A scene with cloud, terrain (a shadow) and a 3-D aerosol, and one with nothing to sweep at all."""
     n, spacing = 21, 500.0
     x = (np.arange(n) - n // 2) * spacing
     z = np.arange(0.0, 4000.0, 100.0) + 50.0
@@ -155,6 +154,13 @@ def test_selected_variables_match_the_full_result_and_unknown_names_are_rejected
                                    cloud_liquid_content=cloud, cloud_liquid_effective_radius=RADIUS,
                                    aerosol_extinction=aerosol)
     empty_scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0)
+    return full_scene, empty_scene
+
+
+def test_selected_variables_match_the_full_result_and_unknown_names_are_rejected():
+    """A render asks only for the Step 1a fields its kernel reads; they must be those of the full result, for a
+    scene with cloud, terrain (a shadow) and a 3-D aerosol, and a scene with nothing to sweep at all."""
+    full_scene, empty_scene = _full_and_empty_scenes()
     sun = enu_from_azimuth_zenith(250.0, 55.0)
     wanted = ("cloud_transmittance", "terrain_shadow", "aerosol_tau_sun")
     for scene in (full_scene, empty_scene):
@@ -181,17 +187,7 @@ def test_fields_written_into_given_arrays_are_those_made_anew(backend, layout):
     array as the packed volume's are) equal the ones solar_transmittance makes itself, for a scene with cloud,
     terrain and a 3-D aerosol and one with nothing to sweep (T, the shadow, 1 and the aerosol's depth 0 everywhere),
     T to float32 round-off, the others exactly; the result's variables are the given arrays."""
-    n, spacing = 21, 500.0
-    x = (np.arange(n) - n // 2) * spacing
-    z = np.arange(0.0, 4000.0, 100.0) + 50.0
-    zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
-    cloud = 4e-4 * (np.abs(zz - 2000) < 400) * (np.abs(xx) < 1500) * (np.abs(yy) < 1500)
-    terrain = 900.0 * np.exp(-((x[None, :] + 2000) / 1200.0) ** 2 - (x[:, None] / 3000.0) ** 2)
-    aerosol = 2e-4 * np.exp(-zz / 1500.0) * (xx > 0)
-    full_scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0, terrain_height=terrain,
-                                   cloud_liquid_content=cloud, cloud_liquid_effective_radius=RADIUS,
-                                   aerosol_extinction=aerosol)
-    empty_scene = scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0)
+    full_scene, empty_scene = _full_and_empty_scenes()
     sun = enu_from_azimuth_zenith(250.0, 55.0)
     names = ("aerosol_tau_sun", "cloud_transmittance", "terrain_shadow")
     for scene in (full_scene, empty_scene):
