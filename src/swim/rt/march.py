@@ -1678,19 +1678,19 @@ def pack_volume(volume, species=None):
     n_channels = len(species) + (4 if with_aerosol else 2)
     packed = np.empty(extinction.shape[1:] + (n_channels,), np.float32)
 
-    _fill_channels(packed, grid, 0)
+    _fill_channels(packed, dict(enumerate(grid)))
     return packed
 
 
-def _fill_channels(packed, values, first):
-    """``packed[..., first + c] = values[c]`` for each of ``values`` (level, y, x), on every core: level by level,
-    each level's channels one after the other while its cache lines are in the caches (0.056 s for the 400 x 400 x 60
-    scene's grid, 0.136 s channel by channel; docs/performance.md, section 41). A transpose and a concatenate would
-    each copy the whole volume."""
+def _fill_channels(packed, values):
+    """``packed[..., c] = value`` for each channel c and its ``value`` (level, y, x) of the dict ``values``, on every
+    core: level by level, each level's channels one after the other while its cache lines are in the caches (0.056 s
+    for the 400 x 400 x 60 scene's grid, 0.136 s channel by channel; docs/performance.md, section 41). A transpose and
+    a concatenate would each copy the whole volume."""
     def fill(k0, k1):
         for k in range(k0, k1):
-            for c, value in enumerate(values):
-                packed[k, ..., first + c] = value[k]
+            for c, value in values.items():
+                packed[k, ..., c] = value[k]
 
     in_blocks(fill, packed.shape[0])
 
@@ -1792,14 +1792,11 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     # a packed volume filled before (an earlier sun's): its device copies hold the old channels
     forget_device_copies_of(packed)
     packed.flags.writeable = True  # read-only for the kernels and the views; owned, so this may be set again
-    # the fields not written in place already (step1a_channel_views), channel by channel as they lie
-    missing = [c for c, value in enumerate(values)
-               if _buffer_identity(value) != _buffer_identity(packed[..., n_grid + c])]
-    if len(missing) == len(values):
-        _fill_channels(packed, values, n_grid)
-    else:
-        for c in missing:
-            _fill_channels(packed, [values[c]], n_grid + c)
+    # the fields that are not in their channels already (step1a_channel_views)
+    missing = {n_grid + c: value for c, value in enumerate(values)
+               if _buffer_identity(value) != _buffer_identity(packed[..., n_grid + c])}
+    if missing:
+        _fill_channels(packed, missing)
     packed.flags.writeable = False
     if occupancy is None:
         occupancy = occupancy_grid(volume)

@@ -302,12 +302,12 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         raise SwimInputError(f"solar_transmittance: unknown variables {unknown}; expected some of {STEP1A_VARIABLES}")
     if backend not in BACKENDS:
         raise SwimInputError(f"solar_transmittance: backend must be one of {BACKENDS}, got {backend!r}")
-    outputs = dict(out or {})  # (the loop below reuses the name out)
-    for name, array in outputs.items():
+    out = dict(out or {})
+    expected = tuple(volume["extinction"].shape[1:])
+    for name, array in out.items():
         if name not in OUT_VARIABLES or name not in names:
             raise SwimInputError(f"solar_transmittance: out names {name!r}; expected requested variables among "
                                  f"{OUT_VARIABLES}")
-        expected = tuple(volume["extinction"].shape[1:])
         if not (isinstance(array, np.ndarray) and array.dtype == np.float32 and array.shape == expected
                 and array.flags.writeable):
             raise SwimInputError(f"solar_transmittance: out[{name!r}] must be a writeable float32 array of shape "
@@ -383,16 +383,16 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         if backend == "numba":
             from .solar_cpu import sweep
 
-            out = sweep(padded, float(di), float(dj), float(path_per_level), n_sub, DIRECT_LEVELS,
-                        workers=threads())[:, :, :shape[0], :shape[1]]
+            depths = sweep(padded, float(di), float(dj), float(path_per_level), n_sub, DIRECT_LEVELS,
+                           workers=threads())[:, :, :shape[0], :shape[1]]
             del padded, fields
         else:
             device = jnp.asarray(fields)
             del padded, fields  # the host copy goes before the sweep's output is made
-            out = np.asarray(_sweep(device, float(di), float(dj), float(path_per_level), n_sub))
+            depths = np.asarray(_sweep(device, float(di), float(dj), float(path_per_level), n_sub))
             del device
-        taus.update({c: out[:, row] for row, c in enumerate(group)})
-        del out
+        taus.update({c: depths[:, row] for row, c in enumerate(group)})
+        del depths
     log.info("Step 1a sweep (%s): %d sub-steps per level, max tau_sun %.1f", backend, n_sub,
              float(taus[0].max()) if 0 in taus else 0.0)
 
@@ -431,9 +431,9 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     recipes = {"tau_sun": (0, None, 0.0), "b_tau_sun": (1, None, 0.0), "terrain_shadow": (2, shadow, 1.0),
                "aerosol_tau_sun": (3, None, 0.0), "cloud_transmittance": (0, cloud_t, 1.0)}
     data = {}
-    if outputs:
-        _write_step1a_channels(outputs, taus, mu0, shape)
-        data = {name: (dims, outputs[name], attrs[name]) for name in outputs}
+    if out:
+        _write_step1a_channels(out, taus, mu0, shape)
+        data = {name: (dims, out[name], attrs[name]) for name in out}
     for name in names:  # one field at a time, so only the requested ones are ever held
         if name in data:
             continue
