@@ -57,6 +57,56 @@ def test_nan_height():
         validate_scene(ds)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+@pytest.mark.parametrize("layout", ["contiguous", "transposed"])
+def test_scan_of_a_field_is_numpys(dtype, layout):
+    """validate_scene's compiled pass over a 3-D field (swim.io.scan_cpu, blocks of levels on every core): the copy
+    is the field in float64 (C order, no memory shared) and the counts of non-finite and negative values and the
+    finite values' min and max are NumPy's, with the bad values in different blocks of levels."""
+    from swim.io.scene import _copied_and_scanned
+
+    rng = np.random.default_rng(3)
+    field = (rng.normal(size=(9, 7, 8)) * 100).astype(dtype)
+    if layout == "transposed":
+        field = np.ascontiguousarray(field.transpose(2, 1, 0)).transpose(2, 1, 0)
+        assert not field.flags.c_contiguous
+    if np.issubdtype(dtype, np.floating):
+        field[0, 1, 2] = np.nan
+        field[8, 6, 7] = np.inf
+        field[4, 0, 0] = -np.inf
+    copy, stats = _copied_and_scanned(field)
+    assert copy.dtype == np.float64 and copy.flags.c_contiguous and not np.shares_memory(copy, field)
+    np.testing.assert_array_equal(copy, field.astype(np.float64))
+    finite = field[np.isfinite(field)].astype(np.float64)
+    assert stats == {"not finite": field.size - finite.size, "negative": int((finite < 0).sum()),
+                     "min": finite.min(), "max": finite.max()}
+    assert stats["not finite"] == (3 if np.issubdtype(dtype, np.floating) else 0) and stats["negative"] > 100
+
+
+def test_float32_transposed_scene_is_validated_as_given():
+    """A scene of float32 fields with their dims in another order (strided after the transpose): the validated
+    copy holds the same values in float64, and bad values in several blocks of levels are all counted."""
+    nz = 9
+    z = np.linspace(100.0, 8100.0, nz)
+    lwc = np.zeros((nz, NY, NX), np.float32)
+    lwc[1, 1, 1], lwc[7, 2, 3] = 2e-4, 3e-4
+    ds = _scene(z=z, cloud_liquid_content=lwc)
+    ds["cloud_liquid_content"] = ds["cloud_liquid_content"].astype(np.float32).transpose("x", "z", "y")
+    out = validate_scene(ds)
+    np.testing.assert_array_equal(out["cloud_liquid_content"].values, lwc.astype(np.float64))
+    assert out["cloud_liquid_content"].dtype == np.float64
+    bad = ds.copy(deep=True)
+    bad["cloud_liquid_content"][0, 0, 0] = np.nan  # (x, z, y): level 0
+    bad["cloud_liquid_content"][1, nz - 1, 2] = np.inf  # the top level
+    with pytest.raises(SwimInputError, match=r"cloud_liquid_content.*2 non-finite"):
+        validate_scene(bad)
+    height = ds["height"].values.copy()
+    height[nz - 1, 0, 0] = height[nz - 2, 0, 0]  # not strictly increasing at the top of one column
+    height[1, 3, 5] = height[0, 3, 5] - 1.0  # and near the bottom of another
+    with pytest.raises(SwimInputError, match=rf"increase strictly.*2 of {NY * NX} column"):
+        validate_scene(ds.assign(height=(("z", "y", "x"), height)))
+
+
 def test_negative_content_raises():
     ds = _scene()
     ds["cloud_liquid_content"][1, 1, 1] = -1e-6

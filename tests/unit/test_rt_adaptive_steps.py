@@ -50,33 +50,6 @@ def test_dilation_by_one_cell_is_scipys_maximum_filter(shape):
         np.testing.assert_array_equal(got, maximum_filter(mask.astype(np.int8), size=3).astype(bool))
 
 
-@pytest.mark.parametrize("packed_layout", [True, False])
-@pytest.mark.parametrize("n_species", [0, 1, 5])
-def test_species_sum_is_the_weighted_sum_over_species(packed_layout, n_species):
-    """The volume's extinction summed over species, with and without weights, over levels k0:k1, written into a
-    strided output: as a float64 sum would give, within float32 round-off, for a contiguous volume and for a
-    view of a packed one (the species adjacent in memory)."""
-    from swim.rt.march import species_sum
-
-    rng = np.random.default_rng(n_species)
-    nk, ny, nx = 6, 5, 7
-    if packed_layout:
-        packed = rng.random((nk, ny, nx, n_species + 3), dtype=np.float32)
-        extinction = np.moveaxis(packed[..., :n_species], -1, 0)
-    else:
-        extinction = rng.random((n_species, nk, ny, nx), dtype=np.float32)
-    weights = rng.random(n_species)
-    for w in (None, weights):
-        expected = np.einsum("skyx,s->kyx", extinction.astype(float), np.ones(n_species) if w is None else w)
-        got = species_sum(extinction, w)
-        assert got.dtype == np.float32 and got.shape == (nk, ny, nx)
-        np.testing.assert_allclose(got, expected, rtol=1e-6, atol=0)
-        padded = np.full((nk, ny + 1, nx + 1), -1.0, np.float32)
-        species_sum(extinction, w, 2, 5, out=padded[2:5, :ny, :nx])
-        np.testing.assert_allclose(padded[2:5, :ny, :nx], expected[2:5], rtol=1e-6, atol=0)
-        assert np.all(padded[:2] == -1) and np.all(padded[5:] == -1) and np.all(padded[:, ny] == -1)
-
-
 def test_occupancy_marks_cloud_dilated_by_one_level_and_nothing_else():
     volume = build_optical_volume(_scene())
     occupancy = occupancy_grid(volume)
@@ -89,6 +62,43 @@ def test_occupancy_marks_cloud_dilated_by_one_level_and_nothing_else():
     dz = float(volume.attrs["dz"])
     # flat sea-level terrain and no 3-D aerosol: only the cloud, widened by one level up and down
     assert occupied_levels.min() == cloud_levels.min() - dz and occupied_levels.max() == cloud_levels.max() + dz
+
+
+@pytest.mark.parametrize("shared", [False, True], ids=["own extinction", "packed channels"])
+def test_occupancy_is_the_float32_species_sum_and_the_raised_terrain_dilated(shared):
+    """The compiled occupancy (swim.rt.occupancy_cpu, level blocks on every core) marks what the NumPy formula
+    marks: the species' sum above OCCUPIED_EXTINCTION, or a level at most dz above the highest terrain of
+    the 3 x 3 columns around (where it is raised above 1 m), dilated by one cell; for a volume's own contiguous
+    extinction and for its views of the packed volume's channels. Patchy cloud of two species, many cells within
+    a factor of 2 of the threshold, so that a wrong sum or a wrong species is seen."""
+    from scipy.ndimage import maximum_filter
+
+    from swim.rt.march import (OCCUPIED_EXTINCTION, dilated_by_one_cell, pack_volume, packed_species,
+                               share_packed_channels)
+
+    scene = _scene(terrain_peak=1200.0)
+    rng = np.random.default_rng(5)
+    shape = scene["cloud_liquid_content"].shape
+    # contents whose extinction straddles the threshold (liquid ~1.5e-3 m-1 per 1e-6 kg m-3 at 10 um radius)
+    for name in ("cloud_liquid_content", "snow_content"):
+        scene[name] = (scene["cloud_liquid_content"].dims, np.where(rng.random(shape) < 0.3,
+                                                                    10 ** rng.uniform(-10, -7, shape), 0.0))
+    volume = build_optical_volume(scene)
+    if shared:
+        species = packed_species(volume)
+        share_packed_channels(volume, pack_volume(volume, species), species)
+    extinction = volume["extinction"].values
+    assert volume["extinction"].shape[0] == (2 if shared else 5)
+    total = extinction.astype(np.float64).sum(axis=0)  # (float32 round-off moves no cell of this scene)
+    near = (total > OCCUPIED_EXTINCTION / 2) & (total < 2 * OCCUPIED_EXTINCTION)
+    assert near.sum() > 100, "the test needs cells near the threshold"
+    top = maximum_filter(volume["terrain_height"].values, size=3)
+    terrain = (volume["level"].values[:, None, None] <= top[None] + float(volume.attrs["dz"])) & (top[None] > 1.0)
+    assert terrain.any() and not terrain.all()
+    expected = dilated_by_one_cell((total > OCCUPIED_EXTINCTION) | terrain)
+    got = occupancy_grid(volume)
+    assert got.dtype == np.int8 and not got.flags.writeable
+    np.testing.assert_array_equal(got.view(bool), expected)
 
 
 def test_occupancy_marks_raised_terrain_and_aerosol_edges():

@@ -725,8 +725,8 @@ def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():
         assert np.shares_memory(volume[name].values, consts["volume"]), name
         np.testing.assert_array_equal(volume[name].values, values, err_msg=name)
     again = kernel_constants(volume, solar_transmittance(volume, sun_2), gas, sun_2)["volume"]
-    # Step 1a sums the species of the packed channels as one matrix-vector product per cell and those of the
-    # volume's own (species, level, y, x) array species by species (swim.rt.march.species_sum): float32 round-off
+    # Step 1a sums the species in float32 (swim.rt.solar_cpu.species_sums), here of the packed channels and there of
+    # the volume's own (species, level, y, x) array: the same to float32 round-off
     np.testing.assert_allclose(again, expected, rtol=1e-6, atol=1e-7)
     assert np.array_equal(again[..., -1], expected[..., -1]), "the terrain shadow does not depend on the species"
 
@@ -750,8 +750,8 @@ def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
     assert np.shares_memory(shared["extinction"].values, packed)
     assert not shared["extinction"].values.flags.writeable, "the shared channels must be read-only views"
     again = solar_transmittance(shared, sun)
-    # the species summed over the packed channels by a matrix-vector product, over the volume's own array species
-    # by species (swim.rt.march.species_sum): the same to float32 round-off
+    # the species summed in float32 (swim.rt.solar_cpu.species_sums) over the packed channels and over the volume's
+    # own array: the same to float32 round-off
     for name in transmittance.data_vars:
         np.testing.assert_allclose(again[name].values, transmittance[name].values, rtol=1e-6, atol=1e-7, err_msg=name)
     np.testing.assert_array_equal(again["terrain_shadow"].values, transmittance["terrain_shadow"].values)

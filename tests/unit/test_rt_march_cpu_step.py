@@ -87,12 +87,13 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
     CPython and C wrappers (an empty cache compiles the march ~17 % faster, docs/performance.md section 40), and
     the kernels that the render calls keep theirs; a helper stays callable through ``callable_from_python``."""
     from swim.optics import columns_cpu
-    from swim.rt import compose_cpu, ground_cpu, solar_cpu
+    from swim.rt import compose_cpu, ground_cpu, occupancy_cpu, solar_cpu
 
     kernels = {"_march_ray_range", "prepare_rays", "compose_clouds", "ground_radiance", "_direct_rows", "_add_above",
-               "species_sums", "step1a_channels", "column_weights", "scan_content", "gather_cells", "resample_cells"}
+               "species_sums", "step1a_channels", "column_weights", "scan_content", "gather_cells", "resample_cells",
+               "occupied_cells"}
     seen = set()
-    for module in (march_cpu, compose_cpu, ground_cpu, solar_cpu, columns_cpu):
+    for module in (march_cpu, compose_cpu, ground_cpu, solar_cpu, columns_cpu, occupancy_cpu):
         for name, value in vars(module).items():
             if not isinstance(value, numba.core.registry.CPUDispatcher) or value.py_func.__module__ != module.__name__:
                 continue

@@ -288,13 +288,39 @@ def _check_dims(name: str, da: xr.DataArray, dims: tuple[str, ...]) -> xr.DataAr
     return da.transpose(*dims)
 
 
-def _finite_or_raise(name: str, values: np.ndarray) -> None:
-    bad = ~np.isfinite(values)
-    if bad.any():
+def _finite_or_raise(name: str, values: np.ndarray, not_finite: int | None = None) -> None:
+    """Raise if ``values`` holds NaN or inf (``not_finite``: their count, where a scan has counted them)."""
+    if not_finite is None:
+        not_finite = int(np.count_nonzero(~np.isfinite(values)))
+    if not_finite:
         raise SwimInputError(
-            f"scene variable '{name}' has {int(bad.sum())} non-finite value(s) (NaN or inf) out of {values.size}; "
+            f"scene variable '{name}' has {int(not_finite)} non-finite value(s) (NaN or inf) out of {values.size}; "
             f"every value must be finite ({_UNITS.get(name, '')})"
         )
+
+
+def _copied_and_scanned(values) -> tuple[np.ndarray, dict]:
+    """A float64 copy of a 3-D array (level, y, x) and its statistics: ``not finite`` and ``negative`` (counts),
+    ``min`` and ``max`` (of the finite values), from one compiled pass in blocks of levels on every core
+    (:func:`swim.io.scan_cpu.copy_and_scan`)."""
+    from ..workers import in_blocks
+    from .scan_cpu import STATS, copy_and_scan
+
+    source = np.asarray(values)
+    if source.dtype not in (np.float32, np.float64):  # one compiled version per dtype: the others converted first
+        source = source.astype(np.float64)
+    copy = np.empty(source.shape, np.float64)
+    blocks = []
+
+    def scan(k0, k1):
+        stats = np.zeros(len(STATS))
+        copy_and_scan(source, copy, k0, k1, stats)
+        blocks.append(stats)
+
+    in_blocks(scan, source.shape[0])
+    stats = np.array(blocks).reshape(-1, len(STATS))
+    return copy, {"not finite": int(stats[:, 0].sum()), "negative": int(stats[:, 1].sum()),
+                  "min": float(stats[:, 2].min(initial=np.inf)), "max": float(stats[:, 3].max(initial=-np.inf))}
 
 
 def _new_attrs(name: str, old: dict) -> dict:
@@ -304,8 +330,11 @@ def _new_attrs(name: str, old: dict) -> dict:
     return attrs
 
 
-def _clip_noise(name: str, values: np.ndarray) -> np.ndarray:
-    """Raise on negative values below -1e-12, clip the numerical noise in [-1e-12, 0) to 0 (logged)."""
+def _clip_noise(name: str, values: np.ndarray, negative: int | None = None) -> np.ndarray:
+    """Raise on negative values below -1e-12, clip the numerical noise in [-1e-12, 0) to 0 (logged). ``negative``:
+    the count of negative values, where a scan has counted them."""
+    if negative == 0:
+        return values
     neg = values < 0
     if not neg.any():
         return values
@@ -386,17 +415,21 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
     nz, ny, nx = height_da.shape
     if min(nz, ny, nx) < 1:
         raise SwimInputError(f"scene grid is empty: (z, y, x) = {(nz, ny, nx)}")
-    height = np.array(height_da.values, dtype=float)
-    _finite_or_raise("height", height)
-    if height.max() > 100_000.0:
-        raise SwimInputError(f"height: max {height.max():.4g} m is above 100 km; expected metres above sea level")
-    if height.max() <= 25.0:
+    height, stats = _copied_and_scanned(height_da.values)
+    _finite_or_raise("height", height, stats["not finite"])
+    if stats["max"] > 100_000.0:
+        raise SwimInputError(f"height: max {stats['max']:.4g} m is above 100 km; expected metres above sea level")
+    if stats["max"] <= 25.0:
         raise SwimInputError(
-            f"height: max {height.max():.4g} m; a scene only 25 m deep is implausible: expected metres above sea "
+            f"height: max {stats['max']:.4g} m; a scene only 25 m deep is implausible: expected metres above sea "
             "level, not km"
         )
     if nz > 1:
-        bad_cols = np.any(np.diff(height, axis=0) <= 0, axis=0)
+        from ..workers import in_blocks
+        from .scan_cpu import flag_non_increasing
+
+        bad_cols = np.zeros((ny, nx), bool)
+        in_blocks(lambda j0, j1: flag_non_increasing(height, j0, j1, bad_cols), ny)
         if bad_cols.any():
             raise SwimInputError(
                 f"height must increase strictly with z in every column; {int(bad_cols.sum())} of {ny * nx} column(s) "
@@ -436,17 +469,17 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
         if da.shape != (nz, ny, nx):
             raise SwimInputError(f"scene variable '{name}' has shape {da.shape}; expected (z, y, x) = {(nz, ny, nx)}")
         _check_units(name, da)
-        return da, np.array(da.values, dtype=float)
+        return (da,) + _copied_and_scanned(da.values)
 
     # ---- hydrometeor contents
     contents: dict[str, np.ndarray] = {}
     for species, name in zip(SPECIES, CONTENT_VARIABLES):
         if name not in ds.variables:
             continue
-        da, values = _volume(name)
-        _finite_or_raise(name, values)
-        values = _clip_noise(name, values)
-        vmax = float(values.max())
+        da, values, stats = _volume(name)
+        _finite_or_raise(name, values, stats["not finite"])
+        values = _clip_noise(name, values, stats["negative"])
+        vmax = max(stats["max"], 0.0) if stats["negative"] else stats["max"]  # the noise clipped to 0
         if vmax > MAX_CONTENT_KG_M3:
             raise SwimInputError(
                 f"{name}: max {vmax:.4g} kg m-3 exceeds {MAX_CONTENT_KG_M3:g} kg m-3 ({MAX_CONTENT_KG_M3 * 1e3:g} g m-3), "
@@ -468,7 +501,7 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
             continue
         if species not in contents:
             raise SwimInputError(f"scene has '{name}' but no '{species}_content'; give both or drop the radius")
-        da, values = _volume(name)
+        da, values, _ = _volume(name)
         cloudy = contents[species] > 0
         r = values[cloudy]
         bad = ~np.isfinite(r) | (r < RADIUS_RANGE_M[0]) | (r > RADIUS_RANGE_M[1])
@@ -486,12 +519,12 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
     # ---- aerosol
     if "aerosol_extinction" in ds.variables:
         name = "aerosol_extinction"
-        da, values = _volume(name)
-        _finite_or_raise(name, values)
-        values = _clip_noise(name, values)
-        if values.max() > MAX_AEROSOL_EXTINCTION_M1:
+        da, values, stats = _volume(name)
+        _finite_or_raise(name, values, stats["not finite"])
+        values = _clip_noise(name, values, stats["negative"])
+        if stats["max"] > MAX_AEROSOL_EXTINCTION_M1:
             raise SwimInputError(
-                f"{name}: max {values.max():.4g} m-1 exceeds {MAX_AEROSOL_EXTINCTION_M1:g} m-1 (visibility < 80 m); "
+                f"{name}: max {stats['max']:.4g} m-1 exceeds {MAX_AEROSOL_EXTINCTION_M1:g} m-1 (visibility < 80 m); "
                 "expected m-1 at 550 nm (km-1 must be multiplied by 1e-3)"
             )
         out[name] = xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))

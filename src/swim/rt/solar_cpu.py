@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..workers import parallel_map
+from ..workers import in_blocks, parallel_map
 from .solar import ONE_MINUS_G_PER_BACKSCATTER
 from .march_cpu import _JIT_EXACT, _JIT_KERNEL, _helper_jit
 
@@ -93,10 +93,11 @@ def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, midpoints, r
 
 
 @njit(**_JIT_KERNEL, nogil=True)
-def _add_above(taus, ny, nx, di, dj, block):
+def _add_above(taus, ny, nx, di, dj, block, ch_first, ch_end):
     """Level by level from the top: add to ``taus[k]`` the optical depth of level min(k + block, top), bilinearly
-    interpolated where the sun ray from level k crosses it (zero outside the grid)."""
-    nk, c = taus.shape[0], taus.shape[1]
+    interpolated where the sun ray from level k crosses it (zero outside the grid), for the fields (channels)
+    ``ch_first:ch_end``: the fields are independent, so each may be a thread's."""
+    nk = taus.shape[0]
     for n in range(nk - 1):
         k = nk - 2 - n
         top = min(k + block, nk - 1)
@@ -109,7 +110,7 @@ def _add_above(taus, ny, nx, di, dj, block):
             j0 = int(math.floor(jj))
             fj = jj - j0
             n, x0 = end - first, first + offset
-            for ch in range(c):
+            for ch in range(ch_first, ch_end):
                 above = taus[top, ch]
                 out = taus[k, ch, j, first:end]  # 1-D slices indexed from 0, as in _direct_rows
                 a0, a1 = above[j0, x0:x0 + n], above[j0, x0 + 1:x0 + 1 + n]
@@ -126,7 +127,7 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
 
     Where the species are channels of the packed volume (adjacent in memory,
     :func:`swim.rt.march.share_packed_channels`), each cell's species are one cache line's read for both sums: two
-    calls of :func:`swim.rt.march.species_sum` read the volume twice (the fill 0.17-0.18 → 0.12-0.14 s of a new sun's
+    sums over the species (one a weighted sum) read the volume twice (the fill 0.17-0.18 → 0.12-0.14 s of a new sun's
     Step 1a for the 400 x 400 x 60 scene; docs/performance.md, section 69)."""
     n, _, ny, nx = extinction.shape
     for k in range(k0, k1):
@@ -224,11 +225,16 @@ def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
     if midpoints:
         # One point per level, half-way between two levels: the mean of the two levels is taken once per level
         # here, in place from the bottom up (level k + 1 is still the input when level k is replaced), rather than
-        # by each of the 16 rays through it (the direct integrals 1.4x faster: docs/performance.md, section 41)
-        for k in range(nk - 1):
-            fields[:, k] += fields[:, k + 1]
-            fields[:, k] *= np.float32(0.5)
+        # by each of the 16 rays through it (the direct integrals 1.4x faster: docs/performance.md, section 41);
+        # blocks of rows on every core (NumPy releases the GIL)
+        def mean_of_levels(j0, j1):
+            for k in range(nk - 1):
+                fields[:, k, j0:j1] += fields[:, k + 1, j0:j1]
+                fields[:, k, j0:j1] *= np.float32(0.5)
+
+        in_blocks(mean_of_levels, ny1)
     args = (fields, taus, ny, nx, float(di), float(dj), scale, int(n_sub), int(block), midpoints)
     parallel_map(lambda r: _direct_rows(*args, bounds[r], bounds[r + 1]), range(len(bounds) - 1), len(bounds) - 1)
-    _add_above(taus, ny, nx, float(di), float(dj), int(block))
+    # the fields one per thread (levels must be added from the top down, one after the other)
+    in_blocks(lambda c0, c1: _add_above(taus, ny, nx, float(di), float(dj), int(block), c0, c1), c)
     return taus
