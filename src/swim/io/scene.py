@@ -27,6 +27,7 @@ import xarray as xr
 from ..constants import DEFAULT_EFFECTIVE_RADIUS, EARTH_RADIUS_M, SPECIES, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import orthographic_xy, scene_to_geodetic
+from ..workers import in_blocks
 
 logger = logging.getLogger(__name__)
 
@@ -302,8 +303,7 @@ def _finite_or_raise(name: str, values: np.ndarray, not_finite: int | None = Non
 def _copied_and_scanned(values) -> tuple[np.ndarray, dict]:
     """A float64 copy of a 3-D array (level, y, x) and its statistics: ``not finite`` and ``negative`` (counts),
     ``min`` and ``max`` (of the finite values), from one compiled pass in blocks of levels on every core
-    (:func:`swim.io.scan_cpu.copy_and_scan`)."""
-    from ..workers import in_blocks
+    (:func:`swim.io.scan_cpu.copy_and_scan`; numba is imported at the first scan, not with :mod:`swim`)."""
     from .scan_cpu import STATS, copy_and_scan
 
     source = np.asarray(values)
@@ -425,7 +425,6 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
             "level, not km"
         )
     if nz > 1:
-        from ..workers import in_blocks
         from .scan_cpu import flag_non_increasing
 
         bad_cols = np.zeros((ny, nx), bool)
