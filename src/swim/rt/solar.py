@@ -292,7 +292,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8; Joseph et al. (1976),
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
-    from ..workers import in_blocks, threads
+    from ..workers import in_blocks
     from .march import BACKENDS, MarchSettings
     from .solar_cpu import species_sums
 
@@ -383,8 +383,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         if backend == "numba":
             from .solar_cpu import sweep
 
-            depths = sweep(padded, float(di), float(dj), float(path_per_level), n_sub, DIRECT_LEVELS,
-                           workers=threads())[:, :, :shape[0], :shape[1]]
+            depths = sweep(padded, float(di), float(dj), float(path_per_level), n_sub,
+                           DIRECT_LEVELS)[:, :, :shape[0], :shape[1]]
             del padded, fields
         else:
             device = jnp.asarray(fields)

@@ -9,9 +9,9 @@ which a compiled loop vectorises: this module computes the same sums ~5x faster 
 measurement the project's rule asks for before numba is used ("numba only where a measurement shows JAX cannot
 serve").
 
-The work is split in two: the direct integrals of every level (rows independent, on a thread pool, one block of
-rows per core, without the GIL), then, level by level from the top, the optical depth interpolated from the
-level ``block`` above (a sequential dependency, one lookup per point). Both follow
+The work is split in two: the direct integrals of every level (rows independent, one block of rows per core,
+without the GIL), then, level by level from the top, the optical depth interpolated from the level ``block`` above
+(a sequential dependency, one lookup per point; one swept field per core). Both follow
 Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4 (Step 1a), as :func:`swim.rt.solar._sweep` does;
 ``tests/unit/test_rt_solar.py`` holds the two to each other.
 """
@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..workers import in_blocks, parallel_map
+from ..workers import in_blocks
 from .solar import ONE_MINUS_G_PER_BACKSCATTER
 from .march_cpu import _JIT_EXACT, _JIT_KERNEL, _helper_jit
 
@@ -191,7 +191,7 @@ def step1a_channels(k0, k1, mu0, n_hydro, tau, b_tau, n_terrain, terrain_tau, n_
                         aerosol[k, j, i] = np.float32(0.0)
 
 
-def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
+def sweep(fields, di, dj, path_per_level, n_sub, block):
     """:func:`swim.rt.solar._sweep` on the CPU.
 
     Parameters
@@ -208,8 +208,6 @@ def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
         Points per level of the direct integral.
     block : int
         Levels integrated directly (:data:`swim.rt.solar.DIRECT_LEVELS`).
-    workers : int
-        Threads for the direct integrals.
 
     Returns
     -------
@@ -220,7 +218,6 @@ def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
     ny, nx = ny1 - 1, nx1 - 1
     taus = np.zeros((nk, c, ny1, nx1), np.float32)
     scale = float(path_per_level) / n_sub
-    bounds = np.linspace(0, ny, max(1, min(int(workers), ny)) + 1).astype(int)
     midpoints = int(n_sub) == 1
     if midpoints:
         # One point per level, half-way between two levels: the mean of the two levels is taken once per level
@@ -234,7 +231,7 @@ def sweep(fields, di, dj, path_per_level, n_sub, block, workers=1):
 
         in_blocks(mean_of_levels, ny1)
     args = (fields, taus, ny, nx, float(di), float(dj), scale, int(n_sub), int(block), midpoints)
-    parallel_map(lambda r: _direct_rows(*args, bounds[r], bounds[r + 1]), range(len(bounds) - 1), len(bounds) - 1)
+    in_blocks(lambda j0, j1: _direct_rows(*args, j0, j1), ny)  # blocks of rows on every core
     # the fields one per thread (levels must be added from the top down, one after the other)
     in_blocks(lambda c0, c1: _add_above(taus, ny, nx, float(di), float(dj), int(block), c0, c1), c)
     return taus
