@@ -25,6 +25,11 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   traced and its radiance's error against the same device's image with every pixel traced (median and 99th
   percentile of the relative difference); with ``--profile`` too, the main thread's wall clock in a warm adaptive
   frame (``profile_<scene>_adaptive_wall.txt``);
+* with ``--grid-kernel``: the march of the grid segment (``MarchSettings.grid_kernel``: ``fused``, the Pallas kernel of
+  :mod:`swim.rt.march_pallas`; ``fused-march``, the clear-air segments in it too; ``lockstep``, XLA's loops; ``auto`` by
+  default); with ``--against lockstep fused-march`` the captured chunk is also marched by those (device time and outputs
+  against the render's kernel), and ``--fused-blocks 64x2 256x4`` times the render's fused kernel on it with other rays
+  per program and warps;
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
   device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
@@ -178,7 +183,7 @@ def run_scene(name, args, probe, out_dir):
     first = None
     for chunk in args.chunks:
         # 0: the default (MarchSettings.resolved_chunk: GPU_CHUNK on a GPU)
-        kw["settings"] = replace(MarchSettings(backend=args.backend), chunk=chunk or None)
+        kw["settings"] = replace(MarchSettings(backend=args.backend, grid_kernel=args.grid_kernel), chunk=chunk or None)
         chunk = kw["settings"].resolved_chunk()
         t0 = time.perf_counter()
         image = swim.render(scene, **kw)  # cold for this chunk size: compiles its kernel shapes
@@ -191,7 +196,7 @@ def run_scene(name, args, probe, out_dir):
         kernel_s, kernel_rays = probe.kernel_time()
         rays = int(image.attrs["traced_pixels"]) + 1
         kernel_rays_per_s = kernel_rays / kernel_s
-        row = {"scene": name, "backend": args.backend, "chunk": chunk, "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
+        row = {"scene": name, "backend": args.backend, "grid_kernel": kw["settings"].resolved_grid_kernel(), "chunk": chunk, "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
                "render_fps": 1 / warm, "trace_s": trace_s, "kernel_chunk_s": kernel_s, "kernel_chunk_rays": kernel_rays,
                "kernel_rays_per_s": kernel_rays_per_s, "kernel_fps": kernel_rays_per_s / rays,
                "march_samples": float(image.attrs.get("march_samples", float("nan"))), "gpu_memory_mb": gpu_memory(),
@@ -201,6 +206,12 @@ def run_scene(name, args, probe, out_dir):
               f"{trace_s:.3f} s, kernel {kernel_s * 1e3:.2f} ms per {kernel_rays} rays -> {row['kernel_fps']:.1f} "
               f"frames/s of the kernel alone", flush=True)
         first = first or image
+        if args.out:
+            from PIL import Image
+
+            Image.fromarray(image["rgb"].values).save(Path(args.out).parent / f"gpu_{name}_allsky_{chunk}.png")
+    for kernel in args.against if args.backend == "jax" else ():
+        rows.append(compare_kernels(name, probe, kernel))
     if args.barriers:
         rows.append(compare_barriers(name, scene, kw, probe, args.repeats))
     if args.profile and out_dir:
@@ -241,6 +252,8 @@ def run_scene(name, args, probe, out_dir):
         except Exception as exc:  # a host without a working numba must not lose the GPU figures
             rows.append({"scene": name, "compare": "numba", "error": repr(exc)})
             print(f"{name}: no comparison with numba: {exc!r}", flush=True)
+    if args.fused_blocks and args.backend == "jax":  # last: it clears JAX's caches, so a later render would reload
+        rows.extend(sweep_fused_blocks(name, probe, args.fused_blocks))
     if out_dir:
         from PIL import Image
 
@@ -349,6 +362,95 @@ def compare_barriers(name, scene, kw, probe, repeats):
     return row
 
 
+def _chunk_outputs(probe, settings):
+    """(device time of one call, outputs as numpy arrays) of the captured chunk with other ``settings``."""
+    import jax
+    import numpy as np
+
+    args, kwargs = probe.captured
+    kwargs = {**kwargs}
+    if "settings" in kwargs:
+        kwargs["settings"] = settings
+    else:  # positional: start, direction, bounds, ends_on_ground, valid, rays, consts, settings[, probes]
+        args = list(args)
+        args[7] = settings
+    call = lambda: jax.block_until_ready(probe.trace_chunk(*args, **kwargs))  # noqa: E731
+    t0 = time.perf_counter()
+    out = call()
+    first = time.perf_counter() - t0
+    seconds, _ = _median_time(call, 5)
+    return seconds, first, {key: np.asarray(value) for key, value in out.items()}
+
+
+def _captured_settings(probe):
+    args, kwargs = probe.captured
+    return kwargs["settings"] if "settings" in kwargs else args[7]
+
+
+def compare_kernels(name, probe, kernel):
+    """The captured chunk marched with ``kernel`` (``MarchSettings.grid_kernel``): its device time and outputs against
+    the render's."""
+    import numpy as np
+
+    settings = _captured_settings(probe)
+    base_s, _, base = _chunk_outputs(probe, settings)
+    lock_s, compile_s, lock = _chunk_outputs(probe, replace(settings, grid_kernel=kernel))
+    valid = np.asarray(probe.captured[0][4]).astype(bool)
+    a, b = base["radiance"][valid].astype(float), lock["radiance"][valid].astype(float)
+    ok = np.isfinite(a) & np.isfinite(b)
+    rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(b[ok]), 1e-3)
+    row = {"scene": name, "compare": kernel, "grid_kernel": settings.resolved_grid_kernel(),
+           "grid_kernel_chunk_s": base_s, "other_kernel_chunk_s": lock_s, "other_first_call_s": compile_s,
+           "speed_up": lock_s / base_s, "radiance_median": float(np.median(rel)),
+           "radiance_p99": float(np.percentile(rel, 99)), "radiance_max": float(rel.max()),
+           "rays_off_by_1pct": int(np.sum(rel.reshape(-1, 3).max(axis=1) > 0.01) if rel.size % 3 == 0 else -1),
+           "nonfinite": int(np.sum(~ok)), "tau_h_max_diff": float(np.nanmax(np.abs(
+               base["tau_hydrometeor"][valid].astype(float) - lock["tau_hydrometeor"][valid].astype(float))))}
+    print(f"{name}: chunk of {valid.size} rays: {settings.resolved_grid_kernel()} {base_s * 1e3:.2f} ms, {kernel} "
+          f"{lock_s * 1e3:.2f} ms (first call {compile_s:.1f} s): x{row['speed_up']:.2f}; radiance against {kernel} "
+          f"median {row['radiance_median']:.2e}, p99 {row['radiance_p99']:.2e}, max {row['radiance_max']:.2e}, "
+          f"{row['rays_off_by_1pct']} rays > 1 %", flush=True)
+    return row
+
+
+def sweep_fused_blocks(name, probe, blocks):
+    """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS")."""
+    import jax
+
+    from swim.rt import march_pallas
+
+    settings = replace(_captured_settings(probe), grid_kernel="fused")
+    rows = []
+    saved = march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS
+    # the module's constants are read when the kernel is traced: no programs from the export cache, whose key is the code
+    export = os.environ.get("SWIM_JAX_EXPORT")
+    os.environ["SWIM_JAX_EXPORT"] = "0"
+    try:
+        for text in blocks:
+            rays, warps = (int(x) for x in text.split("x"))
+            march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = rays, warps
+            jax.clear_caches()
+            probe.trace_chunk.forget_programs()
+            try:
+                seconds, first, _ = _chunk_outputs(probe, settings)
+            except Exception as exc:  # noqa: BLE001 - one configuration's failure must not lose the others
+                rows.append({"scene": name, "fused_block": text, "error": repr(exc)[:500]})
+                print(f"{name}: fused {text}: {exc!r}"[:400], flush=True)
+                continue
+            rows.append({"scene": name, "fused_block": text, "block_chunk_s": seconds, "first_call_s": first})
+            print(f"{name}: fused kernel, {rays} rays x {warps} warps per program: {seconds * 1e3:.2f} ms per chunk "
+                  f"(first call {first:.1f} s)", flush=True)
+    finally:
+        march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = saved
+        if export is None:
+            os.environ.pop("SWIM_JAX_EXPORT")
+        else:
+            os.environ["SWIM_JAX_EXPORT"] = export
+        jax.clear_caches()
+        probe.trace_chunk.forget_programs()
+    return rows
+
+
 def compare_numba(name, scene, kw, first):
     """Radiance of the JAX render ``first`` against the numba kernel's render of the same view."""
     import numpy as np
@@ -381,6 +483,13 @@ def main(argv=None):
     ap.add_argument("--backend", choices=("jax", "cuda"), default="jax",
                     help="the march's kernel: JAX's lockstep march, or the per-ray CUDA kernel (numba-cuda; its "
                          "'trace' column is then the time in the kernel's calls, copies included)")
+    kernels = ("auto", "lockstep", "fused", "fused-march")
+    ap.add_argument("--grid-kernel", choices=kernels, default="auto",
+                    help="the JAX kernel's march of the grid segment (MarchSettings.grid_kernel)")
+    ap.add_argument("--against", nargs="*", choices=kernels[1:], default=[],
+                    help="also march the captured chunk with these grid kernels: time and outputs against the render's")
+    ap.add_argument("--fused-blocks", nargs="*", default=[],
+                    help="also time the fused grid kernel on the captured chunk with RAYSxWARPS per program")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
     ap.add_argument("--sampling", action="store_true",

@@ -40,6 +40,8 @@ log = logging.getLogger(__name__)
 KIND = "jax-export"
 #: Ending of the cache's entries.
 SUFFIX = ".jaxexport"
+#: The custom call of a Pallas kernel on an NVIDIA GPU (Triton), which the cache exports with the rest.
+TRITON_CALL = "__gpu$xla.gpu.triton"
 
 
 @functools.lru_cache(maxsize=1)
@@ -136,7 +138,10 @@ class ExportedJit:
             return self.function(**dict(zip(names, values)), **fixed)
 
         try:
-            program = export.export(jax.jit(with_statics))(*dynamic)
+            # the fused grid march's Triton call (swim.rt.march_pallas): XLA promises no compatibility of its
+            # custom call across versions, which the key's JAX and jaxlib versions already pin
+            checks = [export.DisabledSafetyCheck.custom_call(TRITON_CALL)]
+            program = export.export(jax.jit(with_statics), disabled_checks=checks)(*dynamic)
             data = program.serialize()
         except Exception as err:  # noqa: BLE001  (no flatbuffers, or an operation that JAX does not export)
             log.info("%s is traced in every process: it could not be exported (%s)", self.function.__qualname__, err)

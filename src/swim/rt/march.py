@@ -161,6 +161,16 @@ class MarchSettings:
         numba-cuda; opt-in: on an H100 its images match numba's, but it renders no faster than the JAX kernel,
         docs/performance.md, sections 22 and 52); "auto" takes numba when JAX's default device is the CPU, else
         jax.
+    grid_kernel : {"auto", "lockstep", "fused", "fused-march"}
+        How the JAX kernel marches the grid segment with refinement (``tau_refine`` > 0): "lockstep", one XLA
+        program per iteration of every ray's march (:func:`_march_grid_refined`); "fused", one Pallas kernel whose
+        Triton programs keep a block of rays' state in registers for the whole segment
+        (:func:`swim.rt.march_pallas.march_grid_fused`; same equations, same results to float32 rounding; on a
+        CPU it runs in Pallas's interpreter, slowly: for checks only); "fused-march", the clear air before and after
+        the grid and the zero-length step at each ray's end in the same kernel too
+        (:func:`swim.rt.march_pallas.march_segments_fused`; not yet timed on a GPU). "auto" takes "fused" where JAX's
+        default device is a GPU that Pallas can compile for, else "lockstep" (docs/performance.md, section 72). The
+        numba and CUDA backends ignore it.
     """
 
     n_before: int = 12
@@ -175,6 +185,7 @@ class MarchSettings:
     multiple_scattering: bool = True
     surface: str = "brdf"
     backend: str = "auto"
+    grid_kernel: str = "auto"
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "n_probe", "chunk"):
@@ -196,6 +207,8 @@ class MarchSettings:
             raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
         if self.backend not in BACKENDS:
             raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.grid_kernel not in GRID_KERNELS:
+            raise SwimInputError(f"MarchSettings.grid_kernel must be one of {GRID_KERNELS}, got {self.grid_kernel!r}")
 
     def resolved_backend(self) -> str:
         """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
@@ -215,6 +228,15 @@ class MarchSettings:
         if self.backend != "auto":
             return self.backend
         return "numba" if jax.default_backend() == "cpu" and _numba_available() else "jax"
+
+    def resolved_grid_kernel(self) -> str:
+        """The JAX kernel's march of the grid segment (:attr:`grid_kernel`): "auto" resolved to "fused" where JAX's
+        default device is a GPU and Pallas can lower to Triton there, else "lockstep"."""
+        if self.grid_kernel != "auto":
+            return self.grid_kernel
+        from .march_pallas import pallas_triton_available
+
+        return "fused" if pallas_triton_available() else "lockstep"
 
     def resolved_empty_steps(self) -> int:
         """Most grid steps in a ray's empty space (:attr:`empty_steps`, None resolved to ``n_grid // 4``); 0: no
@@ -244,6 +266,8 @@ GPU_CHUNK = 262144
 
 #: Kernels of the step loop (:attr:`MarchSettings.backend`).
 BACKENDS = ("auto", "jax", "numba", "cuda")
+#: Marches of the grid segment in the JAX kernel (:attr:`MarchSettings.grid_kernel`).
+GRID_KERNELS = ("auto", "lockstep", "fused", "fused-march")
 
 
 @functools.lru_cache(maxsize=None)
@@ -1192,6 +1216,14 @@ def _terminal_step(state, start, direction, rays, consts, ms_profile, aerosol_cl
     return dict(state, alive=alive, s_hit=s_hit)
 
 
+def fused_fits(n) -> bool:
+    """Whether a batch of n rays fills whole blocks of the fused grid kernel (:data:`swim.rt.march_pallas.BLOCK_RAYS`);
+    the batches of :func:`padded_batch_size` do (powers of two of at least :data:`MIN_BATCH`, or the chunk)."""
+    from .march_pallas import BLOCK_RAYS
+
+    return n % BLOCK_RAYS == 0
+
+
 def _prepare_rays(start, direction, bounds, consts, settings: MarchSettings):
     """Per-ray set-up before the march: the aerosol column class and the diffuse-source height profiles (or
     None) at each ray's lowest point."""
@@ -1217,31 +1249,49 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
         "hit_from": jnp.zeros(n, jnp.float32),
         "gap": jnp.full(n, 1e9, jnp.float32), "s_last": jnp.zeros(n, jnp.float32),
     }
+    from .march_pallas import Segment, march_grid_fused, march_segments_fused
+
     zero = jnp.zeros(n, jnp.float32)
     args = (rays, consts, ms, aerosol_class)
+    tau_refine, stop_tau = float(settings.tau_refine), float(settings.stop_tau)
+    segments = []  # the ray's segments in order, each's step edges placed from the geometry alone
     if settings.n_before:
-        state = _march_segment(state, start, direction,
-                               clear_step_edges(start, direction, zero, bounds[:, 0], settings.n_before, consts),
-                               settings.n_before, False, *args)
+        segments.append(Segment(clear_step_edges(start, direction, zero, bounds[:, 0], settings.n_before, consts),
+                                settings.n_before))
     if settings.n_grid:
         count, cells = (None, None) if probes is None else probes
         empty_steps = settings.resolved_empty_steps()
         edges, steps = grid_step_edges(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], settings.n_grid,
                                        consts, n_probe=settings.n_probe, probes=count, cells=cells,
                                        empty_steps=empty_steps)
-        state = _march_segment(state, start, direction, edges, settings.n_grid, True, *args,
-                               tau_refine=float(settings.tau_refine), steps=steps if empty_steps else None,
-                               stop_tau=float(settings.stop_tau))
+        segments.append(Segment(edges, settings.n_grid, steps if empty_steps else None, in_grid=True,
+                                refined=tau_refine > 0))
     if settings.n_after:
         steps = after_step_counts(start, direction, bounds, settings.n_after, consts)
-        state = _march_segment(state, start, direction,
-                               clear_step_edges(start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1],
-                                                settings.n_after, consts, steps=steps),
-                               settings.n_after, False, *args, steps=steps)
+        segments.append(Segment(clear_step_edges(start, direction, bounds[:, 1], bounds[:, 2] - bounds[:, 1],
+                                                 settings.n_after, consts, steps=steps), settings.n_after, steps))
     # one more step, of zero length at each ray's end: where that end lies on the sea-level sphere, below the terrain
     # (which beyond the grid keeps its edge's heights), its sample detects a crossing in the far half of the ray's
     # last step, which no later step would (docs/performance.md, section 54); elsewhere it adds nothing
-    state = _march_segment(state, start, direction, jnp.stack([bounds[:, 2], bounds[:, 2]]), 1, False, *args)
+    segments.append(Segment(jnp.stack([bounds[:, 2], bounds[:, 2]]), 1))
+    # the fused kernel marches whole blocks of rays: a batch of another size (a chunk set by hand) is marched by the
+    # lockstep loops
+    kernel = settings.resolved_grid_kernel()
+    fused = kernel in ("fused", "fused-march") and fused_fits(n)
+    interpret = jax.default_backend() == "cpu"
+    if fused and kernel == "fused-march":
+        state = march_segments_fused(state, start, direction, tuple(segments), rays, consts, ms, aerosol_class,
+                                     tau_refine, stop_tau, interpret=interpret)
+    else:
+        for seg in segments:
+            if fused and seg.refined:
+                state = march_grid_fused(state, start, direction, seg.edges, seg.n_steps, rays, consts, ms,
+                                         aerosol_class, tau_refine, steps=seg.steps, stop_tau=stop_tau,
+                                         interpret=interpret)
+            else:
+                state = _march_segment(state, start, direction, seg.edges, seg.n_steps, seg.in_grid, *args,
+                                       tau_refine=tau_refine if seg.refined else 0.0, steps=seg.steps,
+                                       stop_tau=stop_tau if seg.in_grid else 0.0)
     state["s_hit"] = jnp.where(state["hit"], refine_terrain_hit(start, direction, state, consts), bounds[:, 2])
     state = _terminal_step(state, start, direction, *args)
     state["tau_species"] = state["tau_species"] @ consts["species_matrix"]  # all of SPECIES, 0 where not packed

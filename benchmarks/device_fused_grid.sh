@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# The fused grid march (swim.rt.march_pallas) on a lent GPU: the script given to the `device` tool in session 58
+# (docs/performance.md, section 72). Run from the repository root there, with the wheels swim needs beyond that
+# machine's image in .whl/ and the Katrina file in .devdata/wrf_katrina/ (both carried). STAGE=compare (the default):
+# the 1024^2 all-sky views with the fused kernel, each scene's captured chunk against the kernels in $AGAINST (default:
+# the lockstep loops and "fused-march", which session 58 could not time any more); STAGE=profile:
+# where a warm frame's time goes (bench_gpu.py --profile), more block shapes, and the README's render in two new
+# processes (the second reads the exported program with its Triton call). Results go to $OUT/results.tar.gz (the
+# device tool returns at most 8 files).
+set -u
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
+export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1 SWIM_CACHE_DIR=/tmp/swim-cache SWIM_PRECOMPILE=0
+OUT=${OUT:-/tmp/out}
+RES=/tmp/results
+mkdir -p "$OUT" "$RES"
+trap 'tar -C "$RES" -czf "$OUT/results.tar.gz" . ; ls -la "$RES"' EXIT
+quiet() { grep -v "^WARNING\|^I0000\|absl"; }
+nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
+python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
+if [ "${STAGE:-compare}" = compare ]; then
+    timeout "${SYNTHETIC_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --against ${AGAINST:-lockstep fused-march} \
+        --fused-blocks ${BLOCKS:-64x2 256x8} --sampling --out "$RES/fused-synthetic.json" 2>&1 | quiet
+    timeout "${KATRINA_S:-150}" python3 benchmarks/bench_gpu.py --scenes katrina --data .devdata --against ${AGAINST:-lockstep fused-march} \
+        --sampling --out "$RES/fused-katrina.json" 2>&1 | quiet
+else
+    timeout "${SYNTHETIC_S:-240}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --profile \
+        --sampling --fused-blocks ${BLOCKS:-256x4 128x2} --out "$RES/profile-synthetic.json" 2>&1 | quiet
+    for k in 1 2; do  # the README's render at 1024^2 in new processes: the second reads the first's caches
+        t0=$(date +%s.%N)
+        timeout 150 python3 -m swim.cli.main render --size 1024 --out "$RES/readme-$k.png" 2>&1 | quiet
+        echo "README render at 1024^2, new process $k: $(python3 -c "import sys, time; print(f'{time.time() - float(sys.argv[1]):.2f}')" "$t0") s"
+    done
+    ls "$SWIM_CACHE_DIR"/* | head -20
+fi

@@ -1,0 +1,508 @@
+"""The ray march's segments as one fused GPU kernel (Pallas on Triton): the grid's refined march, and the clear air.
+
+The lockstep JAX march (:func:`swim.rt.march._march_grid_refined`) runs one iteration of every ray's march as ~20
+XLA kernels that pass the rays' state (~90 values a ray: the accumulators, their snapshot for roll-backs, the pending
+intervals) through device memory; on an H100 that iteration's traffic, not its arithmetic, sets the time (~270 us
+per 262 144 rays, 173 iterations a chunk: docs/performance.md, sections 18 and 68). The per-ray CUDA kernel
+(:mod:`swim.rt.march_cuda`) keeps the state in registers but its threads diverge between the march's phases (5.4 of
+a warp's 32 threads active, section 52).
+
+This kernel keeps both virtues: the same lockstep iteration, written branch-free over a block of rays as
+:func:`~swim.rt.march._march_grid_refined` is, but inside one Triton program per block of :data:`BLOCK_RAYS` rays,
+so that the state stays in registers for the whole segment and a warp's threads always run the same instructions.
+The tables (packed volume, terrain, gas and sky tables, the rays' step edges and diffuse-source profiles) are read
+by gathers from device memory (their caches).
+
+:func:`march_grid_fused` marches the grid segment with refinement (``MarchSettings.grid_kernel="fused"``, the default on
+GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/performance.md, section 72);
+:func:`march_segments_fused` marches consecutive segments in one kernel, the clear air before and after the grid too
+(``"fused-march"``: the ~10 ms per chunk of XLA loops and copies left around the grid kernel; not yet timed on a GPU).
+Each computes what :func:`swim.rt.march._march_segment` computes for its segments, the same equations in the same
+order (Eqs. 3, 8 and 12 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020; see that function), so its state agrees
+with the XLA kernel's to float32 rounding; ``tests/unit/test_rt_march_pallas.py`` holds it to that in Pallas's
+interpreter on CPUs. Each 3-vector of the XLA kernel (a quantity at the three wavelengths, a point) is three (B,)
+vectors here: Triton's blocks must be powers of two in every dimension.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from ..constants import GAS_COLUMN_ROW
+from ..optics.volume import _cubic, _cubic_du, _cubic_dv
+
+log = logging.getLogger(__name__)
+
+#: Rays per Triton program (a block of the lockstep march) and the program's warps: one ray per thread.
+BLOCK_RAYS = 128
+NUM_WARPS = 4
+
+#: The state of :func:`swim.rt.march._march_segment` that the kernel carries, with the number of columns of each
+#: (0: one (n,) array; "species": one per packed species); the booleans travel as int32.
+_VECTORS = ("tau_clear", "l_clear", "i_nogas", "i_gas")
+_SCALARS = ("tau_h", "i_cloud_t", "hit_s", "hit_lo", "hit_hi", "hit_from", "gap", "s_last")
+_FLAGS = ("alive", "hit")
+
+
+@functools.lru_cache(maxsize=1)
+def pallas_triton_available() -> bool:
+    """Whether JAX's default device is a GPU and Pallas can lower to Triton there (the CUDA plugin's Triton calls)."""
+    if jax.default_backend() != "gpu":
+        return False
+    try:
+        from jax.experimental import pallas  # noqa: F401
+        from jax.experimental.pallas import triton  # noqa: F401
+    except Exception as err:  # noqa: BLE001 - an old JAX, or one without Pallas: the lockstep kernel serves
+        log.info("no Pallas Triton backend (%s): the grid is marched by the lockstep XLA kernel", err)
+        return False
+    return True
+
+
+def _state_columns(n_sp):
+    """Names of the kernel's state columns, in order."""
+    names = [f"{key}{c}" for key in _VECTORS for c in range(3)] + list(_SCALARS)
+    names += [f"tau_species{c}" for c in range(n_sp)]
+    return names + list(_FLAGS)
+
+
+def _params(consts, has_bounds):
+    """The kernel's scalar constants as one float32 vector, and each one's position in it (name -> index)."""
+    index_map = consts["index_map"]
+    parts = {
+        "radius": consts["radius"], "sun": consts["sun"], "z_bottom": consts["z_bottom"], "dz": consts["dz"],
+        "dh": consts["dh"], "top": consts["top"], "centre": index_map["index_map_centre"],
+        "scale": index_map["index_map_scale"], "coef": index_map["index_map_coefficients"],
+        "spectra": consts["beta_gas_spectra"], "angstrom": consts["angstrom"], "aerosol_ssa": consts["aerosol_ssa"],
+        "stratospheric_ssa": consts["stratospheric_ssa"],
+    }
+    if has_bounds:
+        parts["bounds"] = index_map["index_map_bounds"]
+    position, values, at = {}, [], 0
+    for name, value in parts.items():
+        flat = jnp.ravel(jnp.asarray(value, jnp.float32))
+        position[name] = (at, flat.shape[0])
+        values.append(flat)
+        at += flat.shape[0]
+    return jnp.concatenate(values), position
+
+
+def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_profile, aerosol_class, tau_refine,
+                     steps=None, stop_tau=0.0, interpret=False, block_rays=None, num_warps=None):
+    """The grid segment of :func:`swim.rt.march._march_segment` with refinement (``in_grid``, ``tau_refine`` > 0), as
+    one Pallas kernel (:func:`march_segments_fused` with that one segment).
+
+    Parameters
+    ----------
+    state : dict
+        The march's state before the grid (:func:`swim.rt.march._march_rays`): (n,) and (n, 3) float32 arrays,
+        ``alive`` and ``hit`` (n,) bool, ``tau_species`` (n, n_species).
+    start, direction : jax.Array
+        Shape (n, 3): rebased ray origins [m] and unit directions.
+    edges : jax.Array
+        Shape (n_steps + 1, n): the grid steps' edges along each ray [m] (:func:`swim.rt.march.grid_step_edges`).
+    n_steps : int
+        Grid steps per ray (static).
+    rays : dict
+        ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric`` (n, 3): phase functions [-].
+    consts : dict
+        The kernel constants (:func:`swim.rt.march.kernel_constants`, the volume on the device).
+    ms_profile : jax.Array or None
+        (9, n, n_u) diffuse-source profiles (:func:`swim.rt.march.diffuse_source_profiles`), or None.
+    aerosol_class : tuple
+        (n,) int32 lower class and (n, 1) weight (:func:`swim.rt.march.aerosol_class_weights`).
+    tau_refine : float
+        Refinement threshold [-] (> 0, static).
+    steps : jax.Array, optional
+        (n,) int32 steps of each ray (<= n_steps); None: n_steps each.
+    stop_tau : float
+        Hydrometeor optical depth [-] at which a ray that does not look down stops (0: never; static).
+    interpret : bool
+        Run in Pallas's interpreter (CPUs; the tests) instead of compiling for a GPU.
+    block_rays, num_warps : int, optional
+        Rays per Triton program (a power of two that divides n) and its warps (None: :data:`BLOCK_RAYS`,
+        :data:`NUM_WARPS`).
+
+    Returns
+    -------
+    dict
+        The state after the grid segment, as :func:`swim.rt.march._march_segment` returns it.
+
+    Raises
+    ------
+    ValueError
+        If n is not a multiple of ``block_rays``.
+    """
+    segment = Segment(edges, n_steps, steps, in_grid=True, refined=True)
+    return march_segments_fused(state, start, direction, (segment,), rays, consts, ms_profile, aerosol_class,
+                                tau_refine, stop_tau, interpret, block_rays, num_warps)
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One segment of a ray's march for :func:`march_segments_fused`: its step ``edges`` (n_steps + 1, n) [m], the
+    step count ``n_steps`` (static), each ray's own count ``steps`` (n,) <= n_steps or None, whether it lies in the
+    grid (``in_grid``: the volume is sampled) and whether its steps are refined at cloud faces (``refined``: the grid
+    segment with ``tau_refine`` > 0, :func:`swim.rt.march._march_grid_refined`)."""
+
+    edges: object
+    n_steps: int
+    steps: object = None
+    in_grid: bool = False
+    refined: bool = False
+
+
+def march_segments_fused(state, start, direction, segments, rays, consts, ms_profile, aerosol_class, tau_refine=0.0,
+                         stop_tau=0.0, interpret=False, block_rays=None, num_warps=None):
+    """Consecutive segments of :func:`swim.rt.march._march_segment` (not its terminal step) in one Pallas kernel, the
+    rays' state in registers from the first segment's first step to the last segment's last.
+
+    ``segments``: :class:`Segment` each, in the order in which the rays cross them (e.g. the clear air before the
+    grid, the grid, the clear air after it and the zero-length step at each ray's end); the other arguments as
+    :func:`march_grid_fused` takes them. Returns the state after the last segment.
+
+    Raises
+    ------
+    ValueError
+        If n is not a multiple of ``block_rays``.
+    """
+    from jax.experimental import pallas as pl
+
+    from .march import REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, packed_aerosol_3d
+
+    block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
+    num_warps = NUM_WARPS if num_warps is None else int(num_warps)
+    n = start.shape[0]
+    if n % block_rays:
+        raise ValueError(f"march_segments_fused: {n} rays are not a multiple of block_rays={block_rays}")
+    volume = consts["volume"]
+    nk, ny, nx, n_c = volume.shape
+    n_sp = consts["species_matrix"].shape[0]
+    aerosol_3d = packed_aerosol_3d(n_c, n_sp)
+    has_bounds = "index_map_bounds" in consts["index_map"]
+    params, position = _params(consts, has_bounds)
+    n_gas = consts["beta_gas"].shape[1]
+    n_sky, nu_sky, nmu_sky = consts["sky"].shape
+    n_class = consts["class_aod"].shape[0]
+    diffuse_table = consts["diffuse_classes"]
+    nu_d, nmu_d = diffuse_table.shape[1] // n_class, diffuse_table.shape[2]
+    multiple_scattering = ms_profile is not None
+    n_u = ms_profile.shape[2] if multiple_scattering else 1
+    columns = _state_columns(n_sp)
+    slots = REFINE_SLOTS
+    f32 = jnp.float32
+
+    # per-ray inputs, one (n,) column each
+    ray_columns = [start[:, c] for c in range(3)] + [direction[:, c] for c in range(3)]
+    ray_columns += [rays["p_rayleigh"]] + [rays["p_aerosol"][:, c] for c in range(3)]
+    ray_columns += [rays["p_stratospheric"][:, c] for c in range(3)]
+    ray_columns = [a.astype(f32) for a in ray_columns]
+    ray_columns += [aerosol_class[0].astype(jnp.int32), aerosol_class[1][:, 0].astype(f32)]
+    # each segment's own step counts: where a segment has none, its n_steps
+    ray_columns += [(jnp.full(n, seg.n_steps) if seg.steps is None else seg.steps).astype(jnp.int32) for seg in segments]
+    state_columns = []
+    for key in _VECTORS:
+        state_columns += [state[key][:, c] for c in range(3)]
+    state_columns += [state[key] for key in _SCALARS]
+    state_columns += [state["tau_species"][:, c] for c in range(n_sp)]
+    state_columns += [state[key].astype(jnp.int32) for key in _FLAGS]
+    tables = [params, consts["beta_gas"][:GAS_COLUMN_ROW].reshape(-1), consts["sky"].reshape(-1),
+              volume.reshape(-1), consts["terrain"].reshape(-1),
+              diffuse_table.reshape(-1) if n_class > 1 else jnp.zeros(1, f32),
+              ms_profile.reshape(-1) if multiple_scattering else jnp.zeros(1, f32)]
+    tables += [seg.edges.astype(f32).reshape(-1) for seg in segments]
+    n_rays_in, n_state, n_tables = len(ray_columns), len(state_columns), len(tables)
+
+    def kernel(*refs):
+        ray_refs = refs[:n_rays_in]
+        state_refs = refs[n_rays_in:n_rays_in + n_state]
+        p_ref, gas_ref, sky_ref, vol_ref, terrain_ref, diffuse_ref, ms_ref, *edges_refs = \
+            refs[n_rays_in + n_state:n_rays_in + n_state + n_tables]
+        out_refs = refs[n_rays_in + n_state + n_tables:]
+        ray = pl.program_id(0) * block_rays + jnp.arange(block_rays, dtype=jnp.int32)
+
+        def scalar(name, k=0):
+            return p_ref[position[name][0] + k]
+
+        radius = scalar("radius")
+        sun = [scalar("sun", c) for c in range(3)]
+        z_bottom, dz, dh, top = scalar("z_bottom"), scalar("dz"), scalar("dh"), scalar("top")
+        cx, cy, scale = scalar("centre", 0), scalar("centre", 1), scalar("scale")
+        coef = [[scalar("coef", 10 * a + b) for b in range(10)] for a in range(2)]
+        bounds = [scalar("bounds", b) for b in range(4)] if has_bounds else None
+        spectra = [[scalar("spectra", 3 * a + b) for b in range(3)] for a in range(3)]
+        angstrom = [scalar("angstrom", c) for c in range(3)]
+        aerosol_ssa = [scalar("aerosol_ssa", c) for c in range(3)]
+        strat_ssa = [scalar("stratospheric_ssa", c) for c in range(3)]
+
+        inputs = [r[...] for r in ray_refs]
+        q0, direction3 = inputs[0:3], inputs[3:6]
+        p_r, p_a, p_s = inputs[6], inputs[7:10], inputs[10:13]
+        c0, wc, step_counts = inputs[13], inputs[14], inputs[15:]
+
+        def bilinear(ref, n_ch, nu, nv, fu, fv, channel_base=0):
+            """:func:`swim.rt.march._bilinear_table` of a flat channel-major (C, nu, nv) table: a list of (B,)."""
+            fu = jnp.clip(fu, 0.0, nu - 1.001)
+            fv = jnp.clip(fv, 0.0, nv - 1.001)
+            u0 = jnp.floor(fu).astype(jnp.int32)
+            v0 = jnp.floor(fv).astype(jnp.int32)
+            a = fu - u0
+            b = fv - v0
+            r = u0 * nv + v0
+            out = []
+            for c in range(channel_base, channel_base + n_ch):
+                t = c * nu * nv + r
+                out.append((ref[t] * (1 - b) + ref[t + 1] * b) * (1 - a)
+                           + (ref[t + nv] * (1 - b) + ref[t + nv + 1] * b) * a)
+            return out
+
+        def trilinear(k, j, i):
+            """:func:`swim.rt.march.trilinear` of the packed volume (its GPU form: a scalar gather per channel and
+            corner), ``outside`` 0 but the last two channels' 1: a list of n_c (B,)."""
+            inside = (k >= 0) & (k <= nk - 1) & (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
+            k0 = jnp.clip(jnp.floor(k), 0, nk - 2).astype(jnp.int32)
+            j0 = jnp.clip(jnp.floor(j), 0, ny - 2).astype(jnp.int32)
+            i0 = jnp.clip(jnp.floor(i), 0, nx - 2).astype(jnp.int32)
+            fk = jnp.clip(k - k0, 0.0, 1.0)
+            fj = jnp.clip(j - j0, 0.0, 1.0)
+            fi = jnp.clip(i - i0, 0.0, 1.0)
+            base = ((k0 * ny + j0) * nx + i0) * n_c
+            row_step, plane_step = nx * n_c, ny * nx * n_c
+            vol = []
+            for c in range(n_c):
+                def row(b):
+                    return vol_ref[b + c] * (1 - fi) + vol_ref[b + c + n_c] * fi
+
+                def plane(b):
+                    return row(b) * (1 - fj) + row(b + row_step) * fj
+
+                vol.append(jnp.where(inside, plane(base) * (1 - fk) + plane(base + plane_step) * fk,
+                                     0.0 if c < n_c - 2 else 1.0))
+            return vol
+
+        def sample(st, s_lo, ds, in_grid):
+            """:func:`swim.rt.march._march_segment`'s ``sample`` (not the terminal step's)."""
+            s = s_lo + 0.5 * ds
+            q = [q0[c] + s * direction3[c] for c in range(3)]
+            # _point_geometry
+            pz = q[2] + radius
+            r = jnp.sqrt(q[0] ** 2 + q[1] ** 2 + pz ** 2)
+            h = (q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + 2 * radius * q[2]) / (r + radius)
+            mu_s = (q[0] * sun[0] + q[1] * sun[1] + pz * sun[2]) / r
+            u = (radius * q[0] / r - cx) / scale
+            v = (radius * q[1] / r - cy) / scale
+            if has_bounds:
+                uc, vc = jnp.clip(u, bounds[0], bounds[1]), jnp.clip(v, bounds[2], bounds[3])
+                du, dv = u - uc, v - vc
+                i, j = (_cubic(uc, vc, c) + _cubic_du(uc, vc, c) * du + _cubic_dv(uc, vc, c) * dv for c in coef)
+            else:
+                i, j = (_cubic(u, v, c) for c in coef)
+            k = (h - z_bottom) / dz
+            # _gas_at: the three extinction profiles, then sky's sun transmittance and diffuse irradiance
+            f = jnp.clip(h / dh, 0.0, n_gas - 1.001)
+            g0 = jnp.floor(f).astype(jnp.int32)
+            w = f - g0
+            profile = [gas_ref[c * n_gas + g0] * (1 - w) + gas_ref[c * n_gas + g0 + 1] * w for c in range(3)]
+            beta_r, beta_a, beta_s = ([profile[a] * spectra[a][b] for b in range(3)] for a in range(3))
+            height_u = jnp.sqrt(jnp.clip(h / top, 0.0, 1.0))
+            fm = (mu_s + 1.0) * 0.5 * (nmu_sky - 1)
+            sky = bilinear(sky_ref, n_sky, nu_sky, nmu_sky, height_u * (nu_sky - 1), fm)
+            t_sun, diffuse = sky[:3], sky[3:]
+            if in_grid:  # trilinear (the GPU form: a scalar gather per channel and corner)
+                vol = trilinear(k, j, i)
+                beta_sp = vol[:n_sp]
+                t_cloud, shadow = vol[-2], vol[-1]
+            else:
+                beta_sp, t_cloud, shadow = [], jnp.ones_like(h), jnp.ones_like(h)
+            if in_grid and aerosol_3d:
+                beta_a3 = [vol[n_sp] * angstrom[b] for b in range(3)]
+                t_aerosol = [jnp.exp(-vol[n_sp + 1] * angstrom[b]) for b in range(3)]
+            else:
+                beta_a3 = [jnp.zeros_like(h)] * 3
+                t_aerosol = [jnp.ones_like(h)] * 3
+            ground = bilinear(terrain_ref, 1, ny, nx, jnp.clip(j, 0, ny - 1), jnp.clip(i, 0, nx - 1))[0]
+            gap = h - ground
+            alive = st["alive"]
+            hit_now = alive & (gap < 0)
+            frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
+            ds_eff = jnp.where(alive & ~hit_now, ds, 0.0)
+            cloud_sun = t_cloud * shadow
+            irradiance = [t_sun[b] * cloud_sun * t_aerosol[b] for b in range(3)]
+            if in_grid and n_class > 1:  # diffuse_at: the ray's aerosol class, between two stacked tables
+                fu = jnp.clip(height_u * (nu_d - 1), 0.0, nu_d - 1.001)
+                fm_d = (mu_s + 1.0) * 0.5 * (nmu_d - 1)
+                lower = bilinear(diffuse_ref, 3, n_class * nu_d, nmu_d, c0 * nu_d + fu, fm_d)
+                upper = bilinear(diffuse_ref, 3, n_class * nu_d, nmu_d, (c0 + 1) * nu_d + fu, fm_d)
+                diffuse = [lower[b] * (1 - wc) + upper[b] * wc for b in range(3)]
+            from .march import SKYLIGHT_SCALAR_FACTOR
+
+            irradiance_h = ([irradiance[b] + SKYLIGHT_SCALAR_FACTOR * diffuse[b] * t_cloud for b in range(3)] if in_grid
+                            else irradiance)
+            beta_clear = [beta_r[b] + beta_a[b] + beta_a3[b] + beta_s[b] for b in range(3)]
+            beta_h = functools.reduce(lambda a, b: a + b, beta_sp) if beta_sp else jnp.zeros_like(h)
+            if multiple_scattering:  # _profile_at: the ray's own profile
+                fu = jnp.clip(height_u * (n_u - 1), 0.0, n_u - 1.001)
+                u0 = jnp.floor(fu).astype(jnp.int32)
+                wu = fu - u0
+                at = ray * n_u + u0
+                j9 = [ms_ref[c * n * n_u + at] * (1 - wu) + ms_ref[c * n * n_u + at + 1] * wu for c in range(9)]
+            t0 = st["tau_h"]
+            t1 = t0 + beta_h * ds_eff
+            weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
+            weight = jnp.where(t1 >= t0, jnp.maximum(weight, 0.0), weight)
+            new = {}
+            for b in range(3):
+                x = (beta_clear[b] + beta_h) * ds_eff
+                big = jnp.abs(x) > 1e-4
+                step_mean = jnp.where(big, -jnp.expm1(-x) / jnp.where(big, x, 1.0), 1.0 - 0.5 * x)
+                t_obs = jnp.exp(-(st[f"tau_clear{b}"] + t0))
+                scat_a = (beta_a[b] + beta_a3[b]) * aerosol_ssa[b]
+                scat_s = beta_s[b] * strat_ssa[b]
+                source = (beta_r[b] * p_r + scat_a * p_a[b] + scat_s * p_s[b]) * irradiance[b]
+                if multiple_scattering:
+                    source = source + (beta_r[b] * j9[b] + scat_a * j9[3 + b] + scat_s * j9[6 + b]) * t_cloud
+                new[f"l_clear{b}"] = st[f"l_clear{b}"] + t_obs * source * (ds_eff * step_mean)
+                new[f"i_nogas{b}"] = st[f"i_nogas{b}"] + irradiance_h[b] * weight
+                new[f"i_gas{b}"] = st[f"i_gas{b}"] + irradiance_h[b] * jnp.exp(-st[f"tau_clear{b}"]) * weight
+                new[f"tau_clear{b}"] = st[f"tau_clear{b}"] + beta_clear[b] * ds_eff
+            new["i_cloud_t"] = st["i_cloud_t"] + cloud_sun * weight
+            new["hit_s"] = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
+            new["hit_lo"] = jnp.where(hit_now, st["s_last"], st["hit_lo"])
+            new["hit_hi"] = jnp.where(hit_now, s, st["hit_hi"])
+            new["hit_from"] = jnp.where(hit_now, s_lo, st["hit_from"])
+            tau_species = [st[f"tau_species{c}"] + beta_sp[c] * ds_eff if beta_sp else st[f"tau_species{c}"]
+                           for c in range(n_sp)]
+            alive = alive & ~hit_now
+            if in_grid and stop_tau > 0:
+                stopped = alive & (t1 > stop_tau) & (t0 >= REFINE_VISIBLE_TAU) & (direction3[2] >= 0)
+                scale_sp = stop_tau / jnp.maximum(t1, stop_tau)
+                tau_species = [jnp.where(stopped, t * scale_sp, t) for t in tau_species]
+                t1 = jnp.where(stopped, jnp.asarray(stop_tau, f32), t1)
+                alive = alive & ~stopped
+            new["tau_h"] = t1
+            for c in range(n_sp):
+                new[f"tau_species{c}"] = tau_species[c]
+            new["alive"] = alive
+            new["hit"] = st["hit"] | hit_now
+            new["gap"] = gap
+            new["s_last"] = s
+            return new, beta_h
+
+        def pick(stack, index):
+            """stack[index] of a list of (B,) slots."""
+            out = stack[0]
+            for slot in range(1, slots):
+                out = jnp.where(index == slot, stack[slot], out)
+            return out
+
+        def refined_body(carry, edges_ref, last):
+            st, m, pending, stack_lo, stack_hi, stack_depth, budget, saved, prev = carry
+            stacked = pending > 0
+            top_slot = jnp.maximum(pending - 1, 0)
+            next_step = jnp.maximum(jnp.minimum(m, last - 1), 0)
+            done = ~stacked & (m >= last)
+            lo = jnp.where(stacked, pick(stack_lo, top_slot), edges_ref[next_step * n + ray])
+            hi = jnp.where(stacked, pick(stack_hi, top_slot), edges_ref[(next_step + 1) * n + ray])
+            depth = jnp.where(stacked, pick(stack_depth, top_slot), 0)
+            ds = jnp.where(done, 0.0, hi - lo)
+            new, beta_h = sample(st, lo, ds, True)
+            base = pending - stacked.astype(jnp.int32)
+            live = ~done & (budget > 0) & st["alive"]
+            adjacent = prev["valid"] & (prev["hi"] == lo)
+            change = jnp.where(adjacent, jnp.abs(beta_h - prev["beta_h"]), 0.0)
+            rollback = (live & adjacent & (prev["depth"] < REFINE_DEPTH)
+                        & (change * (prev["hi"] - prev["lo"]) > tau_refine) & (base + 3 <= slots)
+                        & (saved["tau_h"] < REFINE_VISIBLE_TAU))
+            refine = (live & ~rollback & (depth < REFINE_DEPTH) & (st["tau_h"] < REFINE_VISIBLE_TAU)
+                      & (base + 2 <= slots) & (jnp.maximum(beta_h, change) * ds > tau_refine))
+            keep = ~done & ~refine & ~rollback
+            save = keep & live
+            saved = {key: jnp.where(save, st[key], value) for key, value in saved.items()}
+            st = {key: jnp.where(keep, value, jnp.where(rollback, saved[key], st[key])) for key, value in new.items()}
+            mid = lo + 0.5 * ds
+            prev_mid = prev["lo"] + 0.5 * (prev["hi"] - prev["lo"])
+            new_lo, new_hi, new_depth = [], [], []
+            for slot in range(slots):
+                first, second = refine & (base == slot), refine & (base + 1 == slot)
+                again, p_second, p_first = (rollback & (base + d == slot) for d in range(3))
+                new_lo.append(jnp.where(first | p_second, jnp.where(first, mid, prev_mid),
+                                        jnp.where(second | again, lo, jnp.where(p_first, prev["lo"], stack_lo[slot]))))
+                new_hi.append(jnp.where(first | again, hi,
+                                        jnp.where(second, mid, jnp.where(p_second, prev["hi"],
+                                                                         jnp.where(p_first, prev_mid, stack_hi[slot])))))
+                new_depth.append(jnp.where(first | second, depth + 1,
+                                           jnp.where(again, depth,
+                                                     jnp.where(p_second | p_first, prev["depth"] + 1, stack_depth[slot]))))
+            prev = {"valid": save | (prev["valid"] & ~rollback), "lo": jnp.where(save, lo, prev["lo"]),
+                    "hi": jnp.where(save, hi, prev["hi"]), "beta_h": jnp.where(save, beta_h, prev["beta_h"]),
+                    "depth": jnp.where(save, depth, prev["depth"])}
+            pending = base + 2 * refine.astype(jnp.int32) + 3 * rollback.astype(jnp.int32)
+            m = m + (~stacked & ~done).astype(jnp.int32)
+            budget = budget - refine.astype(jnp.int32) - rollback.astype(jnp.int32)
+            return st, m, pending, new_lo, new_hi, new_depth, budget, saved, prev
+
+        def refined(st, edges_ref, last):
+            """:func:`swim.rt.march._march_grid_refined` of the block: until each ray has taken its steps."""
+            def unfinished(carry):
+                _, m, pending, *_ = carry
+                return jnp.max(((pending != 0) | (m < last)).astype(jnp.int32)) > 0
+
+            zero_f = jnp.zeros((block_rays,), f32)
+            zero_i = jnp.zeros((block_rays,), jnp.int32)
+            prev = {"valid": zero_i != 0, "lo": zero_f, "hi": zero_f, "beta_h": zero_f, "depth": zero_i}
+            carry = (st, zero_i, zero_i, [zero_f] * slots, [zero_f] * slots, [zero_i] * slots,
+                     jnp.full((block_rays,), REFINE_BUDGET, jnp.int32), dict(st), prev)
+            return jax.lax.while_loop(unfinished, lambda c: refined_body(c, edges_ref, last), carry)[0]
+
+        def plain(st, edges_ref, last, n_steps, in_grid):
+            """:func:`swim.rt.march._march_segment`'s loop of ``n_steps`` midpoint steps; a ray's steps beyond its
+            own count ``last`` leave it as it is."""
+            def body(m, st):
+                s_lo = edges_ref[m * n + ray]
+                ds = edges_ref[(m + 1) * n + ray] - s_lo
+                new = sample(st, s_lo, ds, in_grid)[0]
+                taken = m < last
+                return {key: jnp.where(taken, value, st[key]) for key, value in new.items()}
+
+            return jax.lax.fori_loop(0, n_steps, body, st)
+
+        values = [r[...] for r in state_refs]
+        st = dict(zip(columns, values))
+        st["alive"], st["hit"] = st["alive"] != 0, st["hit"] != 0
+        for seg, edges_ref, last in zip(segments, edges_refs, step_counts):
+            if seg.refined:
+                st = refined(st, edges_ref, last)
+            else:
+                st = plain(st, edges_ref, last, seg.n_steps, seg.in_grid)
+        for name, ref in zip(columns, out_refs):
+            value = st[name]
+            ref[...] = value.astype(jnp.int32) if name in _FLAGS else value
+
+    block = pl.BlockSpec((block_rays,), lambda b: (b,))
+    whole = [pl.BlockSpec(t.shape, lambda b: (0,)) for t in tables]
+    out_shape = [jax.ShapeDtypeStruct((n,), jnp.int32 if name in _FLAGS else f32) for name in columns]
+    compiler_params = None
+    if not interpret:
+        from jax.experimental.pallas import triton as pl_triton
+
+        compiler_params = pl_triton.CompilerParams(num_warps=num_warps, num_stages=1)
+    outs = pl.pallas_call(
+        kernel, out_shape=out_shape, grid=(n // block_rays,),
+        in_specs=[block] * (n_rays_in + n_state) + whole, out_specs=[block] * len(columns),
+        compiler_params=compiler_params, interpret=interpret, name="swim_fused_march",
+    )(*ray_columns, *state_columns, *tables)
+    out = dict(zip(columns, outs))
+    result = dict(state)
+    for key in _VECTORS:
+        result[key] = jnp.stack([out[f"{key}{c}"] for c in range(3)], axis=1)
+    for key in _SCALARS:
+        result[key] = out[key]
+    result["tau_species"] = (jnp.stack([out[f"tau_species{c}"] for c in range(n_sp)], axis=1) if n_sp
+                             else state["tau_species"])
+    for key in _FLAGS:
+        result[key] = out[key] != 0
+    return result

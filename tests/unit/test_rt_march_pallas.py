@@ -1,0 +1,77 @@
+"""The fused grid march (swim.rt.march_pallas) against the lockstep XLA loop it replaces on GPUs.
+
+No GPU is needed: on a CPU the Pallas kernel runs in Pallas's interpreter, the same program that Triton compiles
+on a GPU (its lowering is checked on the H100/H200 machines, docs/performance.md, section 72).
+"""
+
+import jax
+import numpy as np
+import pytest
+
+from swim.errors import SwimInputError
+from swim.frames import enu_from_azimuth_zenith
+from swim.rt import march_pallas
+from swim.rt.gas import AerosolBackground
+from swim.rt.march import MarchSettings
+
+from test_rt_march import _random_rays, _tiny_scene, _trace
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["plume, multiple scattering, 5 aerosol classes",
+                                  "no plume, single scattering, at most 4 empty steps"])
+def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
+    """Rays from the ground, inside the grid and from 20 km (looking down) through cloud, the smoke plume (aerosol
+    classes, the 3-D aerosol channels), terrain and the grid's edges: every output of the render's kernel within
+    float32 rounding of the lockstep loops', with refinement, opaque stops and (second case) each ray's own step count;
+    the grid segment alone in the Pallas kernel ("fused") and the clear air before and after it too ("fused-march",
+    whose rays from 20 km take the steps before the grid and whose rays from the ground the steps after it; the second
+    case checks "fused-march" alone, whose grid segment is "fused"'s kernel code)."""
+    plume = case.startswith("plume")
+    kernels = ("fused", "fused-march") if plume else ("fused-march",)
+    extra = {} if plume else {"multiple_scattering": False, "empty_steps": 4, "n_probe": 16}
+    scene = _tiny_scene(plume)
+    origins, dirs = _random_rays(256, seed=1)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    aerosol = AerosolBackground(stratospheric_aod_550=0.2)
+    out = {kernel: _trace(scene, origins, dirs, sun, aerosol=aerosol,
+                          settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=256, **extra))[0]
+           for kernel in ("lockstep",) + kernels}
+    lockstep = out["lockstep"]
+    assert lockstep["surface"].sum() > 40 and (lockstep["tau_hydrometeor"] > 1.0).sum() > 10, \
+        "rays must hit ground and cloud"
+    for kernel in kernels:
+        fused = out[kernel]
+        np.testing.assert_array_equal(fused["surface"], lockstep["surface"], err_msg=kernel)
+        for key in ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear", "tau_hydrometeor"):
+            np.testing.assert_allclose(fused[key], lockstep[key], rtol=1e-5, atol=1e-7, err_msg=f"{kernel}: {key}")
+        # NaN where no ground
+        np.testing.assert_allclose(fused["distance"], lockstep["distance"], rtol=1e-6, atol=1e-3, err_msg=kernel)
+
+
+def test_grid_kernel_setting_is_checked_and_resolved(monkeypatch):
+    with pytest.raises(SwimInputError, match="grid_kernel must be one of"):
+        MarchSettings(grid_kernel="triton")
+    assert MarchSettings(grid_kernel="fused").resolved_grid_kernel() == "fused"
+    assert MarchSettings(grid_kernel="lockstep").resolved_grid_kernel() == "lockstep"
+    assert MarchSettings(grid_kernel="fused-march").resolved_grid_kernel() == "fused-march"
+    march_pallas.pallas_triton_available.cache_clear()
+    try:
+        assert MarchSettings().resolved_grid_kernel() == "lockstep"  # this CPU: the XLA loop
+        monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+        march_pallas.pallas_triton_available.cache_clear()
+        assert MarchSettings().resolved_grid_kernel() == "fused"  # Pallas's Triton backend imports without a GPU
+    finally:
+        monkeypatch.undo()
+        march_pallas.pallas_triton_available.cache_clear()
+
+
+def test_rays_that_fill_no_whole_block_are_refused():
+    """The kernel refuses them; the JAX march then takes the lockstep loop (a chunk set by hand to such a size)."""
+    from swim.rt.march import fused_fits, padded_batch_size
+
+    assert not fused_fits(100) and fused_fits(256)
+    assert all(fused_fits(padded_batch_size(n, 262144)) for n in (1, 200, 5000, 262144, 10**6))
+    with pytest.raises(ValueError, match="not a multiple of block_rays=128"):
+        march_pallas.march_grid_fused({}, np.zeros((100, 3), np.float32), np.zeros((100, 3), np.float32), None, 8,
+                                      {}, {}, None, None, 0.25)
