@@ -432,30 +432,37 @@ def _lerp_table(table, f):
     return _materialise(jnp.stack([t[i0] * (1 - w) + t[i0 + 1] * w for t in table], axis=-1))
 
 
-def _bilinear_table(table, fu, fv):
-    """Bilinear interpolation of a channel-major (C, nu, nv) table at fractional indices, clamped: (n_pts, C)."""
-    n_c, nu, nv = table.shape
+def bilinear_gathers(flat, shape, fu, fv, prepare=None):
+    """Bilinear interpolation of a flattened channel-major (C, nu, nv) table at fractional indices fu, fv, clamped: a
+    list of C arrays shaped like fu. ``flat`` is an array or a Pallas ref (:mod:`swim.rt.march_pallas`: the same
+    indexing reads it); ``prepare`` is applied to the cell's offset and the weights before the gathers
+    (:func:`_materialise` in :func:`_bilinear_table`)."""
+    n_c, nu, nv = shape
     fu = jnp.clip(fu, 0.0, nu - 1.001)
     fv = jnp.clip(fv, 0.0, nv - 1.001)
     u0 = jnp.floor(fu).astype(jnp.int32)
     v0 = jnp.floor(fv).astype(jnp.int32)
     a = fu - u0
     b = fv - v0
-    r, a, b = _materialise((u0 * nv + v0, a, b))
-    flat = table.reshape(n_c, nu * nv)
-    return _materialise(jnp.stack([(t[r] * (1 - b) + t[r + 1] * b) * (1 - a) + (t[r + nv] * (1 - b) + t[r + nv + 1] * b) * a
-                                   for t in flat], axis=-1))
+    r = u0 * nv + v0
+    if prepare is not None:
+        r, a, b = prepare((r, a, b))
+    out = []
+    for c in range(n_c):
+        t = c * nu * nv + r
+        out.append((flat[t] * (1 - b) + flat[t + 1] * b) * (1 - a) + (flat[t + nv] * (1 - b) + flat[t + nv + 1] * b) * a)
+    return out
 
 
-def trilinear(volume, k, j, i, outside):
-    """Trilinear sample of a (nk, ny, nx, C) volume at fractional indices: (n_pts, C); ``outside`` (C,) beyond it.
+def _bilinear_table(table, fu, fv):
+    """Bilinear interpolation of a channel-major (C, nu, nv) table at fractional indices, clamped: (n_pts, C)."""
+    return _materialise(jnp.stack(bilinear_gathers(table.reshape(-1), table.shape, fu, fv, _materialise), axis=-1))
 
-    The channels of a cell stay adjacent in memory (one cache line for all of them). On a CPU each of the 8
-    corners is read as one row of C channels: with JAX 0.10 the kernel marches 1.9x faster so than with one scalar
-    gather per channel and corner, the reverse of what an older XLA did (see the note above :func:`_lerp_table`;
-    docs/performance.md, section 18). On a GPU the scalar gathers from the flattened volume stay: rows were 6 %
-    slower on an H100."""
-    nk, ny, nx, n_c = volume.shape
+
+def _cell_weights(shape, k, j, i):
+    """The lower corner (k0, j0, i0) of the cell around fractional indices k, j, i of a (nk, ny, nx, ...) volume,
+    clamped to the volume, the weights (fk, fj, fi) of its far corners and whether the point lies inside."""
+    nk, ny, nx = shape[:3]
     inside = (k >= 0) & (k <= nk - 1) & (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
     k0 = jnp.clip(jnp.floor(k), 0, nk - 2).astype(jnp.int32)
     j0 = jnp.clip(jnp.floor(j), 0, ny - 2).astype(jnp.int32)
@@ -463,21 +470,19 @@ def trilinear(volume, k, j, i, outside):
     fk = jnp.clip(k - k0, 0.0, 1.0)
     fj = jnp.clip(j - j0, 0.0, 1.0)
     fi = jnp.clip(i - i0, 0.0, 1.0)
-    if jax.default_backend() == "cpu":
-        cells = volume.reshape(-1, n_c)
-        cell = (k0 * ny + j0) * nx + i0
-        fk, fj, fi = fk[:, None], fj[:, None], fi[:, None]
+    return inside, k0, j0, i0, fk, fj, fi
 
-        def corner(dk, dj, di):
-            return cells[cell + (dk * ny + dj) * nx + di]
 
-        def plane(dk):
-            return ((corner(dk, 0, 0) * (1 - fi) + corner(dk, 0, 1) * fi) * (1 - fj)
-                    + (corner(dk, 1, 0) * (1 - fi) + corner(dk, 1, 1) * fi) * fj)
-
-        return jnp.where(inside[:, None], plane(0) * (1 - fk) + plane(1) * fk, outside[None, :])
-    base, fk, fj, fi, inside = _materialise((((k0 * ny + j0) * nx + i0) * n_c, fk, fj, fi, inside))
-    flat = volume.reshape(-1)
+def trilinear_gathers(flat, shape, k, j, i, outside, prepare=None):
+    """Trilinear sample of a flattened (nk, ny, nx, C) volume at fractional indices, one scalar gather per channel and
+    corner: a list of C arrays shaped like k, each ``outside[c]`` beyond the volume. ``flat`` is an array or a Pallas
+    ref (:mod:`swim.rt.march_pallas`: the same indexing reads it); ``prepare`` is applied to the corner's offset and
+    the weights before the gathers (:func:`_materialise` in :func:`trilinear`)."""
+    ny, nx, n_c = shape[1:]
+    inside, k0, j0, i0, fk, fj, fi = _cell_weights(shape, k, j, i)
+    base = ((k0 * ny + j0) * nx + i0) * n_c
+    if prepare is not None:
+        base, fk, fj, fi, inside = prepare((base, fk, fj, fi, inside))
     row_step, plane_step = nx * n_c, ny * nx * n_c
     channels = []
     for c in range(n_c):
@@ -488,7 +493,34 @@ def trilinear(volume, k, j, i, outside):
             return row(b) * (1 - fj) + row(b + row_step) * fj
 
         channels.append(jnp.where(inside, plane(base) * (1 - fk) + plane(base + plane_step) * fk, outside[c]))
-    return _materialise(jnp.stack(channels, axis=-1))
+    return channels
+
+
+def trilinear(volume, k, j, i, outside):
+    """Trilinear sample of a (nk, ny, nx, C) volume at fractional indices: (n_pts, C); ``outside`` (C,) beyond it.
+
+    The channels of a cell stay adjacent in memory (one cache line for all of them). On a CPU each of the 8
+    corners is read as one row of C channels: with JAX 0.10 the kernel marches 1.9x faster so than with one scalar
+    gather per channel and corner, the reverse of what an older XLA did (see the note above :func:`_lerp_table`;
+    docs/performance.md, section 18). On a GPU the scalar gathers from the flattened volume stay
+    (:func:`trilinear_gathers`): rows were 6 % slower on an H100."""
+    if jax.default_backend() != "cpu":
+        return _materialise(jnp.stack(trilinear_gathers(volume.reshape(-1), volume.shape, k, j, i, outside,
+                                                        _materialise), axis=-1))
+    nk, ny, nx, n_c = volume.shape
+    inside, k0, j0, i0, fk, fj, fi = _cell_weights(volume.shape, k, j, i)
+    cells = volume.reshape(-1, n_c)
+    cell = (k0 * ny + j0) * nx + i0
+    fk, fj, fi = fk[:, None], fj[:, None], fi[:, None]
+
+    def corner(dk, dj, di):
+        return cells[cell + (dk * ny + dj) * nx + di]
+
+    def plane(dk):
+        return ((corner(dk, 0, 0) * (1 - fi) + corner(dk, 0, 1) * fi) * (1 - fj)
+                + (corner(dk, 1, 0) * (1 - fi) + corner(dk, 1, 1) * fi) * fj)
+
+    return jnp.where(inside[:, None], plane(0) * (1 - fk) + plane(1) * fk, outside[None, :])
 
 
 def bilinear_clamped(field, j, i):

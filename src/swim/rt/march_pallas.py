@@ -172,7 +172,8 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     """
     from jax.experimental import pallas as pl
 
-    from .march import REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, packed_aerosol_3d
+    from .march import (REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR,
+                        bilinear_gathers, packed_aerosol_3d, trilinear_gathers)
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
@@ -193,6 +194,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     multiple_scattering = ms_profile is not None
     n_u = ms_profile.shape[2] if multiple_scattering else 1
     columns = _state_columns(n_sp)
+    outside = [0.0] * (n_c - 2) + [1.0, 1.0]  # the volume's channels beyond it: no cloud, sunlit
     slots = REFINE_SLOTS
     f32 = jnp.float32
 
@@ -244,46 +246,6 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
         p_r, p_a, p_s = inputs[6], inputs[7:10], inputs[10:13]
         c0, wc, step_counts = inputs[13], inputs[14], inputs[15:]
 
-        def bilinear(ref, n_ch, nu, nv, fu, fv, channel_base=0):
-            """:func:`swim.rt.march._bilinear_table` of a flat channel-major (C, nu, nv) table: a list of (B,)."""
-            fu = jnp.clip(fu, 0.0, nu - 1.001)
-            fv = jnp.clip(fv, 0.0, nv - 1.001)
-            u0 = jnp.floor(fu).astype(jnp.int32)
-            v0 = jnp.floor(fv).astype(jnp.int32)
-            a = fu - u0
-            b = fv - v0
-            r = u0 * nv + v0
-            out = []
-            for c in range(channel_base, channel_base + n_ch):
-                t = c * nu * nv + r
-                out.append((ref[t] * (1 - b) + ref[t + 1] * b) * (1 - a)
-                           + (ref[t + nv] * (1 - b) + ref[t + nv + 1] * b) * a)
-            return out
-
-        def trilinear(k, j, i):
-            """:func:`swim.rt.march.trilinear` of the packed volume (its GPU form: a scalar gather per channel and
-            corner), ``outside`` 0 but the last two channels' 1: a list of n_c (B,)."""
-            inside = (k >= 0) & (k <= nk - 1) & (j >= 0) & (j <= ny - 1) & (i >= 0) & (i <= nx - 1)
-            k0 = jnp.clip(jnp.floor(k), 0, nk - 2).astype(jnp.int32)
-            j0 = jnp.clip(jnp.floor(j), 0, ny - 2).astype(jnp.int32)
-            i0 = jnp.clip(jnp.floor(i), 0, nx - 2).astype(jnp.int32)
-            fk = jnp.clip(k - k0, 0.0, 1.0)
-            fj = jnp.clip(j - j0, 0.0, 1.0)
-            fi = jnp.clip(i - i0, 0.0, 1.0)
-            base = ((k0 * ny + j0) * nx + i0) * n_c
-            row_step, plane_step = nx * n_c, ny * nx * n_c
-            vol = []
-            for c in range(n_c):
-                def row(b):
-                    return vol_ref[b + c] * (1 - fi) + vol_ref[b + c + n_c] * fi
-
-                def plane(b):
-                    return row(b) * (1 - fj) + row(b + row_step) * fj
-
-                vol.append(jnp.where(inside, plane(base) * (1 - fk) + plane(base + plane_step) * fk,
-                                     0.0 if c < n_c - 2 else 1.0))
-            return vol
-
         def sample(st, s_lo, ds, in_grid):
             """:func:`swim.rt.march._march_segment`'s ``sample`` (not the terminal step's)."""
             s = s_lo + 0.5 * ds
@@ -310,10 +272,10 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             beta_r, beta_a, beta_s = ([profile[a] * spectra[a][b] for b in range(3)] for a in range(3))
             height_u = jnp.sqrt(jnp.clip(h / top, 0.0, 1.0))
             fm = (mu_s + 1.0) * 0.5 * (nmu_sky - 1)
-            sky = bilinear(sky_ref, n_sky, nu_sky, nmu_sky, height_u * (nu_sky - 1), fm)
+            sky = bilinear_gathers(sky_ref, (n_sky, nu_sky, nmu_sky), height_u * (nu_sky - 1), fm)
             t_sun, diffuse = sky[:3], sky[3:]
             if in_grid:  # trilinear (the GPU form: a scalar gather per channel and corner)
-                vol = trilinear(k, j, i)
+                vol = trilinear_gathers(vol_ref, (nk, ny, nx, n_c), k, j, i, outside)
                 beta_sp = vol[:n_sp]
                 t_cloud, shadow = vol[-2], vol[-1]
             else:
@@ -324,7 +286,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             else:
                 beta_a3 = [jnp.zeros_like(h)] * 3
                 t_aerosol = [jnp.ones_like(h)] * 3
-            ground = bilinear(terrain_ref, 1, ny, nx, jnp.clip(j, 0, ny - 1), jnp.clip(i, 0, nx - 1))[0]
+            ground = bilinear_gathers(terrain_ref, (1, ny, nx), jnp.clip(j, 0, ny - 1), jnp.clip(i, 0, nx - 1))[0]
             gap = h - ground
             alive = st["alive"]
             hit_now = alive & (gap < 0)
@@ -335,11 +297,9 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             if in_grid and n_class > 1:  # diffuse_at: the ray's aerosol class, between two stacked tables
                 fu = jnp.clip(height_u * (nu_d - 1), 0.0, nu_d - 1.001)
                 fm_d = (mu_s + 1.0) * 0.5 * (nmu_d - 1)
-                lower = bilinear(diffuse_ref, 3, n_class * nu_d, nmu_d, c0 * nu_d + fu, fm_d)
-                upper = bilinear(diffuse_ref, 3, n_class * nu_d, nmu_d, (c0 + 1) * nu_d + fu, fm_d)
+                lower = bilinear_gathers(diffuse_ref, (3, n_class * nu_d, nmu_d), c0 * nu_d + fu, fm_d)
+                upper = bilinear_gathers(diffuse_ref, (3, n_class * nu_d, nmu_d), (c0 + 1) * nu_d + fu, fm_d)
                 diffuse = [lower[b] * (1 - wc) + upper[b] * wc for b in range(3)]
-            from .march import SKYLIGHT_SCALAR_FACTOR
-
             irradiance_h = ([irradiance[b] + SKYLIGHT_SCALAR_FACTOR * diffuse[b] * t_cloud for b in range(3)] if in_grid
                             else irradiance)
             beta_clear = [beta_r[b] + beta_a[b] + beta_a3[b] + beta_s[b] for b in range(3)]
