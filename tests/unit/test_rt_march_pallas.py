@@ -75,3 +75,14 @@ def test_rays_that_fill_no_whole_block_are_refused():
     with pytest.raises(ValueError, match="not a multiple of block_rays=128"):
         march_pallas.march_grid_fused({}, np.zeros((100, 3), np.float32), np.zeros((100, 3), np.float32), None, 8,
                                       {}, {}, None, None, 0.25)
+
+
+def test_cli_refuses_an_unknown_grid_kernel_before_any_work(tmp_path):
+    from typer.testing import CliRunner
+
+    from swim.cli.main import app
+
+    out = tmp_path / "sky.png"
+    result = CliRunner().invoke(app, ["render", "--grid-kernel", "triton", "--size", "9", "--out", str(out)])
+    assert result.exit_code == 2 and "grid_kernel must be one of" in result.output
+    assert not out.exists()

@@ -142,6 +142,10 @@ def render(
                                                          "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested)."),
     backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
                                 "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
+    grid_kernel: str = typer.Option("auto", "--grid-kernel", help="The JAX kernel's march of the grid: auto (fused on "
+                                    "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
+                                    "kernel), or fused-march (the clear air in it too; docs/performance.md, section "
+                                    "72)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -220,7 +224,7 @@ def render(
                 assert len(target) == 3
             except (ValueError, AssertionError):
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
-        settings = MarchSettings(surface=surface, backend=backend, **_given(
+        settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, **_given(
             n_grid=steps, n_probe=probes, empty_steps=empty_steps, probe_spacing=probe_spacing, tau_refine=tau_refine,
             stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,

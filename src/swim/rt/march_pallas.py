@@ -42,8 +42,9 @@ log = logging.getLogger(__name__)
 BLOCK_RAYS = 128
 NUM_WARPS = 4
 
-#: The state of :func:`swim.rt.march._march_segment` that the kernel carries, with the number of columns of each
-#: (0: one (n,) array; "species": one per packed species); the booleans travel as int32.
+#: The state of :func:`swim.rt.march._march_segment` that the kernel carries, one (n,) column each: the quantities at
+#: the three wavelengths (three columns each), the per-ray numbers, then (:func:`_state_columns`) the packed species'
+#: optical depths and the flags, which travel as int32.
 _VECTORS = ("tau_clear", "l_clear", "i_nogas", "i_gas")
 _SCALARS = ("tau_h", "i_cloud_t", "hit_s", "hit_lo", "hit_hi", "hit_from", "gap", "s_last")
 _FLAGS = ("alive", "hit")
