@@ -57,9 +57,12 @@ def pallas_triton_available() -> bool:
         return False
     try:
         from jax.experimental import pallas  # noqa: F401
-        from jax.experimental.pallas import triton  # noqa: F401
+        from jax.experimental.pallas import triton
     except Exception as err:  # noqa: BLE001 - an old JAX, or one without Pallas: the lockstep kernel serves
         log.info("no Pallas Triton backend (%s): the grid is marched by the lockstep XLA kernel", err)
+        return False
+    if not hasattr(triton, "CompilerParams"):  # older releases named it otherwise (TritonCompilerParams)
+        log.info("this JAX's Pallas has no triton.CompilerParams: the grid is marched by the lockstep XLA kernel")
         return False
     return True
 
