@@ -7,6 +7,14 @@
 # where a warm frame's time goes (bench_gpu.py --profile), more block shapes, and the README's render in two new
 # processes (the second reads the exported program with its Triton call). Results go to $OUT/results.tar.gz (the
 # device tool returns at most 8 files).
+#
+# Preparing the carried folders here (both are in .git/info/exclude):
+#   for p in netCDF4 cftime pvlib pytz colour-science; do python3 -m pip download -q --no-deps --only-binary=:all: \
+#       --python-version 3.12 --implementation cp --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 \
+#       --platform manylinux2014_x86_64 --platform manylinux1_x86_64 -d .whl $p; done
+#   mkdir -p .devdata/wrf_katrina && cp ../shared/data/wrf_katrina/ci_test_file.nc .devdata/wrf_katrina/
+# then: device run "STAGE=compare bash benchmarks/device_fused_grid.sh" with carry [".whl", ".devdata"] (~330 s of
+# device time with a fresh machine's compilations; session 58's STAGE=profile run took 257 s).
 set -u
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
 export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1 SWIM_CACHE_DIR=/tmp/swim-cache SWIM_PRECOMPILE=0
