@@ -423,13 +423,22 @@ def _materialise(x):
     return jax.lax.optimization_barrier(x)
 
 
-def _lerp_table(table, f):
-    """Linear interpolation of a channel-major (C, n) table at fractional indices f (n_pts,), clamped: (n_pts, C)."""
-    n = table.shape[1]
+def lerp_gathers(flat, n_channels, n, f, row=0, stride=None):
+    """Linear interpolation of a flattened channel-major table along rows of n values, at fractional indices f,
+    clamped: a list of ``n_channels`` arrays shaped like f. Channel c's row starts at ``c * stride + row`` (``stride``
+    None: n; ``row`` may be per point, as each ray's own profile in :func:`_profile_at`). ``flat`` is an array or a
+    Pallas ref (:mod:`swim.rt.march_pallas`: the same indexing reads it)."""
+    stride = n if stride is None else stride
     f = jnp.clip(f, 0.0, n - 1.001)
     i0 = jnp.floor(f).astype(jnp.int32)
     w = f - i0
-    return _materialise(jnp.stack([t[i0] * (1 - w) + t[i0 + 1] * w for t in table], axis=-1))
+    at = row + i0
+    return [flat[c * stride + at] * (1 - w) + flat[c * stride + at + 1] * w for c in range(n_channels)]
+
+
+def _lerp_table(table, f):
+    """Linear interpolation of a channel-major (C, n) table at fractional indices f (n_pts,), clamped: (n_pts, C)."""
+    return _materialise(jnp.stack(lerp_gathers(table.reshape(-1), *table.shape, f), axis=-1))
 
 
 def bilinear_gathers(flat, shape, fu, fv, prepare=None):
@@ -654,11 +663,9 @@ def _profile_at(profile, h, consts):
     """Linear interpolation of channel-major per-ray profiles (C, n, n_u) on u = sqrt(h / H_top) at the rays'
     heights h (n,): (n, C)."""
     n_c, n, n_u = profile.shape
-    f = jnp.clip(jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (n_u - 1), 0.0, n_u - 1.001)
-    i0 = jnp.floor(f).astype(jnp.int32)
-    w = f - i0
-    idx = jnp.arange(n) * n_u + i0
-    return _materialise(jnp.stack([t[idx] * (1 - w) + t[idx + 1] * w for t in profile.reshape(n_c, n * n_u)], axis=-1))
+    u = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (n_u - 1)
+    return _materialise(jnp.stack(lerp_gathers(profile.reshape(-1), n_c, n_u, u, row=jnp.arange(n) * n_u,
+                                               stride=n * n_u), axis=-1))
 
 
 #: Default occupancy probes per ray along the grid segment (:func:`adaptive_step_edges`, :attr:`MarchSettings.n_probe`).

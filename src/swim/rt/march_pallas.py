@@ -177,7 +177,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     from jax.experimental import pallas as pl
 
     from .march import (REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR,
-                        bilinear_gathers, packed_aerosol_3d, trilinear_gathers)
+                        bilinear_gathers, lerp_gathers, packed_aerosol_3d, trilinear_gathers)
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
@@ -269,10 +269,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
                 i, j = (_cubic(u, v, c) for c in coef)
             k = (h - z_bottom) / dz
             # _gas_at: the three extinction profiles, then sky's sun transmittance and diffuse irradiance
-            f = jnp.clip(h / dh, 0.0, n_gas - 1.001)
-            g0 = jnp.floor(f).astype(jnp.int32)
-            w = f - g0
-            profile = [gas_ref[c * n_gas + g0] * (1 - w) + gas_ref[c * n_gas + g0 + 1] * w for c in range(3)]
+            profile = lerp_gathers(gas_ref, 3, n_gas, h / dh)
             beta_r, beta_a, beta_s = ([profile[a] * spectra[a][b] for b in range(3)] for a in range(3))
             height_u = jnp.sqrt(jnp.clip(h / top, 0.0, 1.0))
             fm = (mu_s + 1.0) * 0.5 * (nmu_sky - 1)
@@ -309,11 +306,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             beta_clear = [beta_r[b] + beta_a[b] + beta_a3[b] + beta_s[b] for b in range(3)]
             beta_h = functools.reduce(lambda a, b: a + b, beta_sp) if beta_sp else jnp.zeros_like(h)
             if multiple_scattering:  # _profile_at: the ray's own profile
-                fu = jnp.clip(height_u * (n_u - 1), 0.0, n_u - 1.001)
-                u0 = jnp.floor(fu).astype(jnp.int32)
-                wu = fu - u0
-                at = ray * n_u + u0
-                j9 = [ms_ref[c * n * n_u + at] * (1 - wu) + ms_ref[c * n * n_u + at + 1] * wu for c in range(9)]
+                j9 = lerp_gathers(ms_ref, 9, n_u, height_u * (n_u - 1), row=ray * n_u, stride=n * n_u)
             t0 = st["tau_h"]
             t1 = t0 + beta_h * ds_eff
             weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
