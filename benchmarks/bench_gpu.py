@@ -30,6 +30,9 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   default); with ``--against lockstep fused-march`` the captured chunk is also marched by those (device time and outputs
   against the render's kernel), and ``--fused-blocks 64x2 256x4`` times the render's fused kernel on it with other rays
   per program and warps;
+* with ``--ray-table``: warm renders with the camera's rays kept on the device (``MarchSettings.ray_table``,
+  :mod:`swim.rt.ray_table`) and without, taking turns: every pixel, adaptive (with ``--sampling``) and a new sun
+  every frame (with ``--sun-series N``), each one's median and the largest radiance difference between the two;
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
   device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
@@ -156,6 +159,52 @@ def kernel_resources(kernel):
     return {k: (list(v.values())[0] if isinstance(v, dict) else v) for k, v in out.items()}
 
 
+def compare_ray_table(name, scene, kw, args):
+    """Warm renders with and without ``MarchSettings.ray_table``, taking turns (``args.repeats`` each): every pixel,
+    adaptive with ``args.sampling``, and a new sun every frame with ``args.sun_series``; each variant's median and
+    runs, and the largest relative radiance difference between the two images (section 73 of docs/performance.md)."""
+    import numpy as np
+
+    import swim
+
+    variants = [("every pixel", {})]
+    if args.sampling:
+        from swim.rt.image_sampling import AdaptiveSampling
+
+        variants.append(("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)}))
+    if args.sun_series:
+        variants.append(("new sun", {"new_sun": True}))
+    rows = []
+    for label, extra in variants:
+        new_sun = extra.pop("new_sun", False)
+        runs, images = {False: [], True: []}, {}
+        for k in range(1 + args.repeats):  # the first round compiles the table's programs: not counted
+            for kept in (False, True):
+                # a sun of its own for each render (the other variant's would be reused)
+                step = 2 * k + kept
+                sun = {"sun_zenith": 30.0 + 0.5 * step, "sun_azimuth": 135.0 + step} if new_sun else {}
+                settings = replace(kw["settings"], ray_table=kept)
+                t0 = time.perf_counter()
+                image = swim.render(scene, **{**kw, **extra, **sun, "settings": settings})
+                if k:
+                    runs[kept].append(time.perf_counter() - t0)
+                images[kept] = image
+        row = {"scene": name, "ray_table": label, "without_s": statistics.median(runs[False]),
+               "with_s": statistics.median(runs[True]), "without_runs": runs[False], "with_runs": runs[True],
+               "traced_pixels": [int(images[x].attrs["traced_pixels"]) for x in (False, True)]}
+        apart = ""
+        if not new_sun:  # (with a new sun the two images are of different suns)
+            a, b = images[False]["radiance"].values, images[True]["radiance"].values
+            ok = np.isfinite(a) & np.isfinite(b)
+            rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(a[ok]), 1e-3)
+            row.update(max_rel_diff=float(rel.max()), p99_rel_diff=float(np.percentile(rel, 99)))
+            apart = f"; radiance apart by p99 {row['p99_rel_diff']:.1e}, max {row['max_rel_diff']:.1e}"
+        rows.append(row)
+        print(f"{name} ray table, {label}: without {row['without_s']:.3f} s, with {row['with_s']:.3f} s "
+              f"({row['without_s'] / row['with_s']:.2f}x){apart}", flush=True)
+    return rows
+
+
 def gpu_memory():
     import jax
 
@@ -212,6 +261,8 @@ def run_scene(name, args, probe, out_dir):
             Image.fromarray(image["rgb"].values).save(Path(args.out).parent / f"gpu_{name}_allsky_{chunk}.png")
     for kernel in args.against if args.backend == "jax" else ():
         rows.append(compare_kernels(name, probe, kernel))
+    if args.ray_table and args.backend == "jax":
+        rows.extend(compare_ray_table(name, scene, kw, args))
     if args.barriers:
         rows.append(compare_barriers(name, scene, kw, probe, args.repeats))
     if args.profile and out_dir:
@@ -497,6 +548,8 @@ def main(argv=None):
     ap.add_argument("--sun-series", type=int, default=0,
                     help="also N frames with a new sun each (a fixed camera's time series; median of frames 2..N)")
     ap.add_argument("--profile", action="store_true", help="also profile a warm render (host) and a chunk (device)")
+    ap.add_argument("--ray-table", action="store_true",
+                    help="also time warm renders with MarchSettings.ray_table against without, taking turns")
     ap.add_argument("--barriers", action="store_true",
                     help="also the kernel with its CPU optimisation barriers forced on (section 18 of docs/performance.md)")
     ap.add_argument("--compare", action="store_true", help="also render with numba on the host and compare")

@@ -5,8 +5,11 @@
 # the 1024^2 all-sky views with the fused kernel, each scene's captured chunk against the kernels in $AGAINST (default:
 # the lockstep loops and "fused-march", which session 58 could not time any more); STAGE=profile:
 # where a warm frame's time goes (bench_gpu.py --profile), more block shapes, and the README's render in two new
-# processes (the second reads the exported program with its Triton call). Results go to $OUT/results.tar.gz (the
-# device tool returns at most 8 files).
+# processes (the second reads the exported program with its Triton call); STAGE=table (session 59, the next GPU
+# session's first run, ~300 s): the synthetic 1024^2 all-sky's captured chunk with "fused" against "fused-march", and
+# warm frames with the camera's rays kept on the device (MarchSettings.ray_table, swim.rt.ray_table) against without,
+# taking turns: every pixel, adaptive and a new sun every frame (docs/performance.md, section 73). Results go to
+# $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
 #   for p in netCDF4 cftime pvlib pytz colour-science; do python3 -m pip download -q --no-deps --only-binary=:all: \
@@ -25,7 +28,10 @@ trap 'tar -C "$RES" -czf "$OUT/results.tar.gz" . ; ls -la "$RES"' EXIT
 quiet() { grep -v "^WARNING\|^I0000\|absl"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
-if [ "${STAGE:-compare}" = compare ]; then
+if [ "${STAGE:-compare}" = table ]; then
+    timeout "${SYNTHETIC_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --against fused-march \
+        --ray-table --sampling --sun-series 3 --out "$RES/table-synthetic.json" 2>&1 | quiet
+elif [ "${STAGE:-compare}" = compare ]; then
     timeout "${SYNTHETIC_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --against ${AGAINST:-lockstep fused-march} \
         --fused-blocks ${BLOCKS:-64x2 256x8} --sampling --out "$RES/fused-synthetic.json" 2>&1 | quiet
     timeout "${KATRINA_S:-150}" python3 benchmarks/bench_gpu.py --scenes katrina --data .devdata --against ${AGAINST:-lockstep fused-march} \

@@ -517,6 +517,16 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         return trace_rays(np.broadcast_to(observer, dirs.shape), dirs, consts, geometry, ray_phase, settings,
                           progress_rays)
 
+    # MarchSettings.ray_table (the JAX kernel): the camera's rays kept on the device, computed once per camera,
+    # observer and grid; a batch sends its rows' indices, and the phase functions are computed there too
+    table = table_rows = phase_inputs = None
+    if settings.ray_table and backend == "jax":
+        from .rt.ray_table import PhaseInputs, camera_ray_table
+
+        table, table_rows = camera_ray_table(observer, dirs_scene, valid_pixels, geometry, consts, settings)
+        phase_inputs = PhaseInputs(tuple(float(x) for x in sun_scene), float(gas.depolarization), aerosol.type,
+                                   aerosol.stratospheric)
+
     # Only the camera's valid pixels are traced (an all-sky image's corners are 21 % of its pixels), plus one
     # extra ray towards the sun for the direct-beam transmittance of the sun's disk (with the first batch).
     sun_out = {}
@@ -527,6 +537,17 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         in tile order (:func:`_scene_directions`) and traced as it is (the order: None)."""
         order = None if tiled else tile_order(flat, cam.shape)
         pixels = flat if tiled else flat[order]
+        if table is not None:
+            from .rt.ray_table import build_ray_table, trace_table_rows
+
+            # the sun's ray (not the camera's, so not in the table) with the first batch
+            extra = None if sun_out else build_ray_table(observer, sun_scene[None], geometry, consts, settings)
+            result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, progress_rays,
+                                      extra=extra)
+            if extra is not None:
+                sun_out.update({key: value[-1] for key, value in result.items()})
+                result = {key: value[:-1] for key, value in result.items()}
+            return order, result
         dirs = np.empty((len(pixels) + (not sun_out), 3))
         np.take(dirs_scene, pixels, axis=0, out=dirs[:len(pixels)])
         if not sun_out:

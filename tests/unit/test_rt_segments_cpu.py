@@ -77,3 +77,19 @@ def test_compiled_segments_take_any_array_layout():
     got = ray_segments_compiled(np.asfortranarray(origins), np.asfortranarray(directions), geometry)
     for key in expected:
         np.testing.assert_array_equal(got[key], expected[key])
+
+
+def test_segments_in_blocks_on_threads_are_the_segments_of_all_rays(monkeypatch):
+    """ray_segments_parallel (trace_rays's and the ray table's): blocks of rays on the pools' threads, put back in
+    order, give what one call over all the rays gives, bit for bit."""
+    from swim.rt import march
+
+    monkeypatch.setattr(march, "SEGMENT_MIN_BLOCK", 1000)  # 20 000 rays: several blocks on every thread
+    monkeypatch.setenv("SWIM_NUM_THREADS", "3")
+    geometry = _geometry()
+    origins, directions = _rays(20_000, seed=11)
+    expected = ray_segments_compiled(origins, directions, geometry, top=80_000.0)
+    got = march.ray_segments_parallel(origins, directions, geometry, top=80_000.0)
+    assert set(got) == set(expected)
+    for key, value in expected.items():
+        np.testing.assert_array_equal(got[key], value, err_msg=key)

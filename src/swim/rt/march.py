@@ -171,6 +171,12 @@ class MarchSettings:
         (:func:`swim.rt.march_pallas.march_segments_fused`; not yet timed on a GPU). "auto" takes "fused" where JAX's
         default device is a GPU that Pallas can compile for, else "lockstep" (docs/performance.md, section 72). The
         numba and CUDA backends ignore it.
+    ray_table : bool
+        Keep the camera's rays on the device between frames (:mod:`swim.rt.ray_table`, the JAX kernel only): the
+        rays' segments, starts, directions and occupancy probes are computed once per camera, observer and grid, and
+        a batch of pixels sends only its rows' indices; the phase functions are computed on the device. The same
+        kernel and results to float32 rounding of the scattering angle's cosine. Default False: not yet timed on a
+        GPU (docs/performance.md, section 73). The numba and CUDA backends ignore it.
     """
 
     n_before: int = 12
@@ -186,6 +192,7 @@ class MarchSettings:
     surface: str = "brdf"
     backend: str = "auto"
     grid_kernel: str = "auto"
+    ray_table: bool = False
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "n_probe", "chunk"):
@@ -209,6 +216,8 @@ class MarchSettings:
             raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.grid_kernel not in GRID_KERNELS:
             raise SwimInputError(f"MarchSettings.grid_kernel must be one of {GRID_KERNELS}, got {self.grid_kernel!r}")
+        if not isinstance(self.ray_table, (bool, np.bool_)):
+            raise SwimInputError(f"MarchSettings.ray_table must be True or False, got {self.ray_table!r}")
 
     def resolved_backend(self) -> str:
         """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
@@ -402,6 +411,22 @@ def ray_segments_compiled(origins, directions, geometry: GridGeometry, top=100_0
                       float(_lateral_margin(geometry, radius)), float(radius), float(top), float(geometry.top),
                       out["start"], out["bounds"], out["ends_on_ground"], out["valid"])
     return out
+
+
+def ray_segments_parallel(origins, directions, geometry: GridGeometry, top=100_000.0):
+    """:func:`ray_segments_compiled` in blocks on up to 8 cores (the kernel runs without the GIL), a block per thread
+    at least where there are :data:`SEGMENT_MIN_BLOCK` rays per thread: what :func:`trace_rays` and
+    :func:`swim.rt.ray_table.build_ray_table` call. Compiled, ~45 -> ~7 ms of a warm 1024^2 adaptive all-sky
+    (docs/performance.md, section 65); an adaptive render's batches of 20 000-70 000 rays were one block, on one
+    thread while the others waited (section 63). The same arguments and dict as :func:`ray_segments`."""
+    workers = min(threads(), 8)
+    block = min(SEGMENT_BLOCK, max(SEGMENT_MIN_BLOCK, -(-len(origins) // workers)))
+
+    def segments(lo):
+        return ray_segments_compiled(origins[lo:lo + block], directions[lo:lo + block], geometry, top=top)
+
+    blocks = parallel_map(segments, range(0, len(origins), block), workers)
+    return {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -2056,20 +2081,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                                  f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
     if len(origins) == 0:
         raise SwimInputError("trace_rays needs at least one ray, got none")
-    # compiled (ray_segments_compiled: ~45 -> ~7 ms of a warm 1024^2 adaptive all-sky, docs/performance.md, section
-    # 65), in blocks on up to 8 cores (the kernel runs without the GIL), a block per thread at least where there are
-    # SEGMENT_MIN_BLOCK rays per thread (an adaptive render's batches of 20 000-70 000 rays were one block, on one
-    # thread while the others waited: section 63)
-    workers = min(threads(), 8)
-    block = min(SEGMENT_BLOCK, max(SEGMENT_MIN_BLOCK, -(-len(origins) // workers)))
-
-    def segments(lo):
-        return ray_segments_compiled(origins[lo:lo + block], directions[lo:lo + block], geometry,
-                                     top=float(consts["top"]))
-
-    blocks = parallel_map(segments, range(0, len(origins), block), workers)
-    seg = {key: np.concatenate([b[key] for b in blocks]) for key in blocks[0]} if len(blocks) > 1 else blocks[0]
-    del blocks
+    seg = ray_segments_parallel(origins, directions, geometry, top=float(consts["top"]))
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
     bounds = seg["bounds"]
     settings = replace(settings, **{name: 0 for name, length in zip(

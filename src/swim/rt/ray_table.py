@@ -1,0 +1,367 @@
+"""A camera's rays kept on the device for the JAX kernel (:attr:`swim.rt.march.MarchSettings.ray_table`).
+
+A GPU frame of the JAX kernel did most of its work on the host (docs/performance.md, sections 53, 66, 72): for every
+batch of rays the host clipped the rays to the grid (:func:`swim.rt.march.ray_segments_compiled`), evaluated the
+phase functions on the device and copied them back, padded and converted ten per-ray arrays chunk by chunk and sent
+them to the device again. For a camera that does not move, none of that changes between frames except the phase
+functions, which follow the sun. A :class:`RayTable` holds, on the device, what every pixel's ray needs that the sun
+does not change: its start, direction, segments (before, in and after the grid), whether it ends on the sea-level
+sphere and the occupancy probes of its grid segment (:func:`swim.rt.march.probe_counts_and_cells`). A batch of
+pixels (every pixel, or a level of adaptive sampling) then sends only its rows' indices: the rows are gathered and
+the phase functions computed in one compiled call on the device (:func:`_gather_rows`), and the chunks are marched by
+the same compiled program as :func:`swim.rt.march.trace_rays` marches them (:func:`swim.rt.march._trace_chunk`),
+queued one after the other without waiting for the host in between.
+
+The phase functions' scattering-angle cosine is the float32 dot product of the direction and the sun's direction on
+the device, where the host computes it in float64 and rounds it: the radiance differs by a few 1e-6 relative (the
+aerosol's forward peak magnifies the cosine's float32 rounding). Everything else is what :func:`swim.rt.march.trace_rays` computes for the same rays
+(``tests/unit/test_rt_ray_table.py``).
+
+Not yet timed on a GPU (no GPU was lent to the session that wrote it): ``MarchSettings.ray_table`` is off by default
+until a GPU session has measured it (``benchmarks/bench_gpu.py --ray-table``).
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+import logging
+import weakref
+from dataclasses import dataclass, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import SwimInputError
+from ..optics.rayleigh import rayleigh_phase_function
+from . import march
+from .march import (MAX_PROBES, GridGeometry, MarchSettings, _device_constants, _host_rows, padded_batch_size,
+                    probe_counts_and_cells, ray_segments_parallel)
+
+log = logging.getLogger(__name__)
+
+#: Rays per block in which a table's probes are computed on the device (bounds the probes' temporaries).
+TABLE_BLOCK = 1 << 18
+#: Chunks whose outputs may wait on the device before the oldest is copied to the host.
+PENDING_CHUNKS = 3
+
+
+@dataclass(frozen=True)
+class PhaseInputs:
+    """What the rays' phase functions depend on besides their directions (:func:`swim.pipeline.render`'s
+    ``ray_phase``): the sun's unit direction in the scene frame (3,), the air's depolarization factor [-] and the
+    background and stratospheric aerosol types (:class:`swim.optics.aerosol_types.AerosolType`)."""
+
+    sun_scene: tuple
+    depolarization: float
+    aerosol_type: object
+    stratospheric_type: object
+
+
+@dataclass(eq=False)
+class RayTable:
+    """A camera's rays on the device (see the module docstring); build with :func:`build_ray_table`.
+
+    Attributes
+    ----------
+    start, direction, bounds : jax.Array
+        Shape (n, 3) float32: the rays' rebased starts [m], unit directions and distances [m] to the grid's entry,
+        its exit and the ray's end (:func:`swim.rt.march.ray_segments`).
+    ends_on_ground, valid : jax.Array
+        Shape (n,) bool.
+    probes, cells : jax.Array or None
+        Shape (n,): each ray's occupancy probes (int32) and its grid segment's length in cells (float32),
+        :func:`swim.rt.march.probe_counts_and_cells` (None where ``settings.probe_spacing`` or ``n_grid`` is 0).
+    probes_host : numpy.ndarray or None
+        The probes (n,) int32 on the host, for each chunk's ``n_probe`` without a copy from the device.
+    segments_host : numpy.ndarray
+        Shape (n, 3) bool: whether each ray's segment before, in and after the grid has a length.
+    key : tuple
+        What the table was built for (:func:`camera_ray_table`'s cache).
+    """
+
+    start: jax.Array
+    direction: jax.Array
+    bounds: jax.Array
+    ends_on_ground: jax.Array
+    valid: jax.Array
+    probes: jax.Array | None
+    cells: jax.Array | None
+    probes_host: np.ndarray | None
+    segments_host: np.ndarray
+    key: tuple = ()
+
+    @property
+    def size(self) -> int:
+        """Rays in the table."""
+        return int(self.segments_host.shape[0])
+
+
+def _probe_key(settings: MarchSettings):
+    """The settings that a table's probes depend on."""
+    return (settings.n_probe, float(settings.probe_spacing), settings.n_grid)
+
+
+def build_ray_table(origins, directions, geometry: GridGeometry, consts, settings: MarchSettings, key=()) -> RayTable:
+    """The rays ``origins``, ``directions`` as a :class:`RayTable` on JAX's default device.
+
+    Parameters
+    ----------
+    origins, directions : array_like
+        Shape (n, 3) or broadcastable to it: scene-frame origins [m] and unit directions, finite.
+    geometry : GridGeometry
+    consts : dict
+        Kernel constants (:func:`swim.rt.march.kernel_constants`): ``top`` [m] and the grid's index map.
+    settings : MarchSettings
+        ``n_probe``, ``probe_spacing`` and ``n_grid`` set the probes.
+    key : tuple
+        Stored as the table's ``key``.
+
+    Returns
+    -------
+    RayTable
+
+    Raises
+    ------
+    SwimInputError
+        If there are no rays or they are not finite (n, 3) arrays.
+    """
+    directions = np.asarray(directions, dtype=float)
+    origins = np.broadcast_to(np.asarray(origins, dtype=float), directions.shape)
+    for name, value in (("origins", origins), ("directions", directions)):
+        if value.ndim != 2 or value.shape[-1] != 3 or not np.all(np.isfinite(value)):
+            raise SwimInputError(f"build_ray_table: {name} must be a finite (n, 3) array [m for origins, unit vectors "
+                                 f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
+    if len(directions) == 0:
+        raise SwimInputError("build_ray_table needs at least one ray, got none")
+    seg = ray_segments_parallel(origins, directions, geometry, top=float(consts["top"]))
+    bounds = seg["bounds"]
+    lengths = np.stack([bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1]], axis=1) > 0
+    start = jnp.asarray(seg["start"].astype(np.float32))
+    direction = jnp.asarray(directions.astype(np.float32))
+    bounds_d = jnp.asarray(bounds.astype(np.float32))
+    probes = cells = probes_host = None
+    if settings.probe_spacing and settings.n_grid:
+        device = _device_constants(consts)
+        parts = [_table_probes(start[lo:lo + TABLE_BLOCK], direction[lo:lo + TABLE_BLOCK],
+                               bounds_d[lo:lo + TABLE_BLOCK], device, settings.n_probe, float(settings.probe_spacing))
+                 for lo in range(0, len(directions), TABLE_BLOCK)]
+        probes = jnp.concatenate([p for p, _ in parts])
+        cells = jnp.concatenate([c for _, c in parts])
+        probes_host = np.asarray(probes)
+    return RayTable(start, direction, bounds_d, jnp.asarray(seg["ends_on_ground"]), jnp.asarray(seg["valid"]),
+                    probes, cells, probes_host, lengths, key)
+
+
+@functools.partial(jax.jit, static_argnames=("n_probe", "probe_spacing"))
+def _table_probes(start, direction, bounds, consts, n_probe, probe_spacing):
+    return probe_counts_and_cells(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], consts, n_probe,
+                                  probe_spacing)
+
+
+#: The last table of :func:`camera_ray_table`: (weak reference to the directions, table, rows of the pixels).
+_LAST_TABLE = {}
+
+
+def camera_ray_table(observer, directions, pixels, geometry: GridGeometry, consts, settings: MarchSettings):
+    """The :class:`RayTable` of a camera's pixels ``pixels`` seen from ``observer``, and each pixel's row in it;
+    the last one is kept and reused while the same directions array (a camera's cached directions,
+    :func:`swim.pipeline._scene_directions`), observer, grid geometry, atmosphere top and probe settings come again.
+
+    Parameters
+    ----------
+    observer : array_like
+        Shape (3,) [m], scene frame.
+    directions : numpy.ndarray
+        Shape (m, 3): the unit directions of the camera's pixels (flat image order), scene frame.
+    pixels : numpy.ndarray
+        Shape (n,) int: the flat indices of the pixels to put in the table, in the table's order.
+    geometry : GridGeometry
+    consts : dict
+        Kernel constants (:func:`swim.rt.march.kernel_constants`).
+    settings : MarchSettings
+
+    Returns
+    -------
+    tuple
+        (:class:`RayTable` of n rays, ``rows`` (m,) int64: each pixel's row in the table, -1 where it has none).
+    """
+    observer = np.asarray(observer, dtype=float)
+    key = (observer.tobytes(), np.asarray(pixels).tobytes(), _geometry_key(geometry), float(consts["top"]),
+           _probe_key(settings), jax.default_backend())
+    entry = _LAST_TABLE.get("entry")
+    if entry is not None and entry[0]() is directions and entry[1].key == key:
+        return entry[1], entry[2]
+    _LAST_TABLE.clear()  # the old table's device arrays go before the new ones are made
+    pixels = np.asarray(pixels)
+    table = build_ray_table(observer, np.asarray(directions)[pixels], geometry, consts, settings, key=key)
+    rows = np.full(len(directions), -1, np.int64)
+    rows[pixels] = np.arange(len(pixels))
+    rows.flags.writeable = False
+    try:
+        _LAST_TABLE["entry"] = (weakref.ref(directions), table, rows)
+    except TypeError:  # no weak reference to it: not kept
+        pass
+    return table, rows
+
+
+def forget_ray_tables():
+    """Drop the kept table (:func:`camera_ray_table`) and its device memory."""
+    _LAST_TABLE.clear()
+
+
+def _geometry_key(geometry: GridGeometry):
+    return (np.asarray(geometry.origin, float).tobytes(), np.asarray(geometry.matrix, float).tobytes(),
+            float(geometry.z_bottom), float(geometry.dz), tuple(geometry.shape), float(geometry.top),
+            float(geometry.affine_residual_cells))
+
+
+@functools.partial(jax.jit, static_argnames=("aerosol_type", "stratospheric_type"))
+def _gather_rows(table_arrays, extra_arrays, rows, sun, depolarization, aerosol_type, stratospheric_type):
+    """A chunk's per-ray inputs of :func:`swim.rt.march._trace_chunk` from the table's rows ``rows`` (n,) (rows past
+    the table's end: the rows of ``extra_arrays``, a second table's), with the phase functions of
+    :func:`swim.pipeline._phase_functions` at their scattering angles (the sun ``sun`` (3,))."""
+    size = table_arrays[0].shape[0]
+
+    def take(a, e):
+        if a is None:
+            return None
+        taken = jnp.take(a, jnp.minimum(rows, size - 1), axis=0)
+        if e is None:
+            return taken
+        other = jnp.take(e, jnp.clip(rows - size, 0, e.shape[0] - 1), axis=0)
+        return jnp.where((rows >= size).reshape((-1,) + (1,) * (a.ndim - 1)), other, taken)
+
+    extra_arrays = (None,) * len(table_arrays) if extra_arrays is None else extra_arrays
+    start, direction, bounds, ends_on_ground, valid, probes, cells = (
+        take(a, e) for a, e in zip(table_arrays, extra_arrays))
+    cos_theta = scattering_cosine(direction, sun)
+    rays = {"cos_theta": cos_theta, "cos_view_zenith": direction[:, 2],
+            "p_rayleigh": rayleigh_phase_function(cos_theta, depolarization),
+            "p_aerosol": aerosol_type.phase_function(cos_theta),
+            "p_stratospheric": stratospheric_type.phase_function(cos_theta)}
+    return (start, direction, bounds, ends_on_ground, valid), rays, (probes, cells)
+
+
+def scattering_cosine(direction, sun):
+    """The cosine of the scattering angle between unit directions ``direction`` (n, 3) and ``sun`` (3,), float32,
+    accurate near the sun.
+
+    The phase functions of thin cloud peak within a degree of the sun (Eq. 13's ``g = 0.99^tau``: ``d ln p / d cos``
+    ~ 3e4 there, ~0.2 % per unit in the last place of a float32 cosine near 1), so the cosine should be the float32
+    rounding of its exact value, as the host's float64 dot product rounded once gives it. A float32 dot product of
+    float32 directions is off by up to 2 units in the last place there, and differs from the host's rounding for 38 %
+    of directions within 3 degrees of the sun; ``1 - |d - s|^2 / 2`` is off by at most 0.54 units and differs for 0.7
+    % (the difference of two close vectors loses nothing, and their float32 norms do not enter). So the cosine is that
+    below 60 degrees, and the dot product (whose error no phase function magnifies there) beyond. Written out, not a
+    matrix product: XLA may take a float32 dot on a GPU's tensor cores at reduced precision."""
+    d0, d1, d2 = direction[:, 0], direction[:, 1], direction[:, 2]
+    half_chord = 0.5 * ((d0 - sun[0]) ** 2 + (d1 - sun[1]) ** 2 + (d2 - sun[2]) ** 2)
+    dot = d0 * sun[0] + d1 * sun[1] + d2 * sun[2]
+    return jnp.where(half_chord < 0.5, 1.0 - half_chord, dot)
+
+
+def _arrays(table: RayTable):
+    return (table.start, table.direction, table.bounds, table.ends_on_ground, table.valid, table.probes, table.cells)
+
+
+def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings: MarchSettings = MarchSettings(),
+                     progress=None, extra: RayTable | None = None):
+    """March the rays of a :class:`RayTable`'s rows with the JAX kernel; the outputs of
+    :func:`swim.rt.march.trace_rays` for those rays.
+
+    Parameters
+    ----------
+    table : RayTable
+    rows : array_like
+        Shape (m,) int: rows of the table, in the order of the outputs.
+    consts : dict
+        Kernel constants (:func:`swim.rt.march.kernel_constants`) of the render.
+    phase : PhaseInputs
+        The sun and the types whose phase functions the rays take.
+    settings : MarchSettings
+        As for :func:`swim.rt.march.trace_rays` (its ``backend`` must resolve to "jax"; its ``probe_spacing``,
+        ``n_probe`` and ``n_grid`` those the tables were built with).
+    progress : callable, optional
+        Called with (rays done, rays total) after each chunk.
+    extra : RayTable, optional
+        Rays that are not the camera's (the sun's, for its disk), marched after ``rows`` with the first chunk's:
+        their outputs follow those of ``rows``.
+
+    Returns
+    -------
+    dict of numpy.ndarray
+        As :func:`swim.rt.march.trace_rays`'s, each (m + extra rays, ...).
+
+    Raises
+    ------
+    SwimInputError
+        If there are no rows, a row is outside the table, or ``settings`` does not resolve to the JAX kernel.
+    """
+    rows = np.asarray(rows)
+    if rows.ndim != 1 or rows.size == 0 or not np.issubdtype(rows.dtype, np.integer):
+        raise SwimInputError(f"trace_table_rows: rows must be a non-empty (m,) integer array, got shape {rows.shape} "
+                             f"of {rows.dtype}")
+    if rows.min() < 0 or rows.max() >= table.size:
+        raise SwimInputError(f"trace_table_rows: rows must be in [0, {table.size}), got {rows.min()}..{rows.max()}")
+    if settings.resolved_backend() != "jax":
+        raise SwimInputError(f"trace_table_rows marches with the JAX kernel; MarchSettings.backend="
+                             f"{settings.backend!r} resolves to {settings.resolved_backend()!r}")
+    segments_host, probes_host = table.segments_host, table.probes_host
+    if extra is not None:  # the extra rays as rows past the table's end
+        rows = np.concatenate([rows, table.size + np.arange(extra.size)])
+        segments_host = np.concatenate([segments_host, extra.segments_host])
+        if probes_host is not None and extra.probes_host is not None:
+            probes_host = np.concatenate([probes_host, extra.probes_host])
+    # the same program as trace_rays's chunks: the table's switch is not the kernel's
+    settings = replace(settings, ray_table=False)
+    # segments of zero length for every ray of the batch need no steps (trace_rays)
+    has = segments_host[rows].any(axis=0)
+    settings = replace(settings, **{name: 0 for name, there in zip(("n_before", "n_grid", "n_after"), has)
+                                    if not there})
+    n = len(rows)
+    steps = settings.n_before + settings.n_grid + settings.n_after + 1
+    chunk = settings.resolved_chunk()
+    device = _device_constants(consts)
+    table_arrays = _arrays(table)
+    extra_arrays = None if extra is None else _arrays(extra)
+    sun = jnp.asarray(np.asarray(phase.sun_scene, dtype=np.float32))
+    depolarization = np.float32(phase.depolarization)
+    with_probes = bool(settings.probe_spacing and settings.n_grid and table.probes is not None)
+    outputs = {}
+    pending = collections.deque()
+
+    def collect():
+        out, lo, hi = pending.popleft()
+        for key, value in _host_rows(out, hi - lo).items():
+            if key not in outputs:
+                outputs[key] = np.empty((n,) + value.shape[1:], value.dtype)
+            outputs[key][lo:hi] = value
+        if progress is not None:
+            progress(hi, n)
+
+    for lo in range(0, n, chunk):
+        hi = min(lo + chunk, n)
+        part = rows[lo:hi]
+        pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
+        if pad:
+            part = np.concatenate([part, np.repeat(part[-1:], pad)])
+        chunk_settings = settings
+        if with_probes:
+            most = int(probes_host[rows[lo:hi]].max())
+            if most > settings.n_probe:  # as swim.rt.march._chunk_probes: the next power of two above the most
+                chunk_settings = replace(settings, n_probe=int(min(MAX_PROBES, 1 << int(np.ceil(np.log2(most))))))
+        chunk_extra = extra_arrays if extra is not None and part.max() >= table.size else None
+        args, rays, probes = _gather_rows(table_arrays, chunk_extra, jnp.asarray(part.astype(np.int32)), sun,
+                                          depolarization, phase.aerosol_type, phase.stratospheric_type)
+        # queued on the device behind the chunk before: no copy to the host in between
+        # (looked up in its module each time: benchmarks/bench_gpu.py wraps it)
+        pending.append((march._trace_chunk(*args, rays, device, chunk_settings, probes if with_probes else None),
+                        lo, hi))
+        if len(pending) > PENDING_CHUNKS:
+            collect()
+    while pending:
+        collect()
+    outputs["steps"] = np.full(n, steps, np.int32)
+    return outputs

@@ -1,0 +1,153 @@
+"""A camera's rays kept on the device (swim.rt.ray_table, MarchSettings.ray_table) against the per-batch rays of
+swim.rt.march.trace_rays: the same kernel, so the same outputs but for the float32 rounding of the phase functions'
+scattering-angle cosine, which the table computes on the device."""
+
+import numpy as np
+import pytest
+
+import swim
+from swim.errors import SwimInputError
+from swim.frames import enu_from_azimuth_zenith
+from swim.rt import ray_table
+from swim.rt.gas import AerosolBackground
+from swim.rt.image_sampling import AdaptiveSampling
+from swim.rt.march import MarchSettings, grid_geometry
+
+from test_rt_march import _random_rays, _tiny_scene, _trace
+
+KEYS = ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear")
+
+
+def test_table_rows_give_trace_rays_outputs():
+    """Rows of a table in a shuffled order, across two chunks, with an extra ray after them (the sun's in a render):
+    each output that of trace_rays for the same rays, from the ground, inside the grid and from 20 km through cloud,
+    the smoke plume, terrain and the grid's edges."""
+    scene = _tiny_scene(True)
+    origins, dirs = _random_rays(300, seed=4)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    aerosol = AerosolBackground(stratospheric_aod_550=0.2)
+    settings = MarchSettings(backend="jax", chunk=256)
+    rows = np.random.default_rng(5).permutation(len(dirs))[:290]  # not every row, not in order
+    extra_index = np.setdiff1d(np.arange(len(dirs)), rows)[0]
+    order = np.concatenate([rows, [extra_index]])
+    reference, (volume, _, gas, _) = _trace(scene, origins[order], dirs[order], sun, aerosol=aerosol, settings=settings)
+    assert reference["surface"].sum() > 40 and (reference["tau_hydrometeor"] > 1.0).sum() > 10, \
+        "rays must hit ground and cloud"
+    from swim.rt.march import kernel_constants
+    from swim.rt.solar import solar_transmittance
+
+    consts = kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
+    geometry = grid_geometry(volume)
+    table = ray_table.build_ray_table(origins, dirs, geometry, consts, settings)
+    extra = ray_table.build_ray_table(origins[[extra_index]], dirs[[extra_index]], geometry, consts, settings)
+    assert table.size == len(dirs) and extra.size == 1
+    phase = ray_table.PhaseInputs(tuple(sun), gas.depolarization, aerosol.type, aerosol.stratospheric)
+    seen = []
+    out = ray_table.trace_table_rows(table, rows, consts, phase, settings, progress=lambda done, n: seen.append(
+        (done, n)), extra=extra)
+    assert seen == [(256, 291), (291, 291)]
+    np.testing.assert_array_equal(out["surface"], reference["surface"])
+    np.testing.assert_array_equal(out["steps"], reference["steps"])
+    np.testing.assert_allclose(out["tau_hydrometeor"], reference["tau_hydrometeor"], rtol=1e-6, atol=1e-7)
+    for key in KEYS:  # a few 1e-6: the aerosol's forward peak magnifies the cosine's float32 rounding
+        np.testing.assert_allclose(out[key], reference[key], rtol=2e-5, atol=1e-7, err_msg=key)
+    np.testing.assert_allclose(out["distance"], reference["distance"], rtol=1e-6, atol=1e-3)
+
+
+def test_scattering_cosine_is_accurate_near_the_sun():
+    """Within 3 degrees of the sun the float32 cosine is within 0.6 units in the last place of the exact one (the
+    host's float64 value rounded: 0.5), where a float32 dot product is off by up to 2; elsewhere within 3e-7."""
+    rng = np.random.default_rng(0)
+    sun = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+    a = np.cross(sun, [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(sun, a)
+    for largest, tolerance in ((3.0, 0.6 * np.spacing(np.float32(1)) / 2), (180.0, 3e-7)):
+        angle = np.radians(rng.uniform(0.0, largest, 50_000))
+        phi = rng.uniform(0.0, 2 * np.pi, angle.size)
+        d = (np.cos(angle)[:, None] * sun
+             + np.sin(angle)[:, None] * (np.cos(phi)[:, None] * a + np.sin(phi)[:, None] * b))
+        got = np.asarray(ray_table.scattering_cosine(d.astype(np.float32), sun.astype(np.float32)), dtype=float)
+        assert np.abs(got - d @ sun).max() <= tolerance, largest
+
+
+def test_table_rows_are_checked():
+    scene = _tiny_scene()
+    origins, dirs = _random_rays(8)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    settings = MarchSettings(backend="jax", chunk=256)
+    from swim.optics.volume import build_optical_volume
+    from swim.rt.gas import build_gas_tables
+    from swim.rt.march import kernel_constants
+    from swim.rt.solar import solar_transmittance
+
+    volume = build_optical_volume(scene)
+    consts = kernel_constants(volume, solar_transmittance(volume, sun), build_gas_tables(AerosolBackground()), sun)
+    table = ray_table.build_ray_table(origins, dirs, grid_geometry(volume), consts, settings)
+    aerosol = AerosolBackground()
+    phase = ray_table.PhaseInputs(tuple(sun), 0.03, aerosol.type, aerosol.stratospheric)
+    with pytest.raises(SwimInputError, match=r"rows must be in \[0, 8\)"):
+        ray_table.trace_table_rows(table, [0, 8], consts, phase, settings)
+    with pytest.raises(SwimInputError, match="non-empty"):
+        ray_table.trace_table_rows(table, np.array([], int), consts, phase, settings)
+    with pytest.raises(SwimInputError, match="JAX kernel"):
+        ray_table.trace_table_rows(table, [0], consts, phase, MarchSettings(backend="numba"))
+    with pytest.raises(SwimInputError, match="directions must be a finite"):
+        ray_table.build_ray_table(origins, dirs * np.nan, grid_geometry(volume), consts, settings)
+    with pytest.raises(SwimInputError, match="ray_table must be True or False"):
+        MarchSettings(ray_table="yes")
+
+
+@pytest.mark.parametrize("sampling", [None, AdaptiveSampling()], ids=["every pixel", "adaptive"])
+def test_render_with_the_table_gives_the_same_image(sampling):
+    """The default scene's all-sky with the camera's rays on the device: the same pixels traced, the same samples,
+    the same 8-bit image and radiance to float32 rounding; the second frame (another sun) reuses the table."""
+    scene = swim.default_scene()
+    ray_table.forget_ray_tables()
+    images = {}
+    for kept in (False, True):
+        for sun_zenith in (40.0, 60.0):
+            images[kept, sun_zenith] = swim.render(
+                scene, camera="allsky", camera_options={"size": 48}, sun_zenith=sun_zenith, sun_azimuth=120.0,
+                settings=MarchSettings(backend="jax", chunk=1024, ray_table=kept), sampling=sampling)
+            if kept:
+                entry = ray_table._LAST_TABLE["entry"]
+                if sun_zenith == 40.0:
+                    first = entry[1]
+                else:
+                    assert entry[1] is first, "a new sun must reuse the camera's table"
+    for sun_zenith in (40.0, 60.0):
+        a, b = images[False, sun_zenith], images[True, sun_zenith]
+        assert a.attrs["traced_pixels"] == b.attrs["traced_pixels"]
+        assert a.attrs["march_samples"] == b.attrs["march_samples"]
+        np.testing.assert_array_equal(a["rgb"].values, b["rgb"].values)
+        np.testing.assert_allclose(a.attrs["direct_transmittance"], b.attrs["direct_transmittance"], rtol=1e-6)
+        # within 5 degrees of the sun thin cloud's forward peak moves by ~0.2 % per unit in the last place of the
+        # float32 cosine, which the two paths may round apart (test_scattering_cosine_is_accurate_near_the_sun)
+        sun = enu_from_azimuth_zenith(a.attrs["sun_azimuth_deg"], a.attrs["sun_zenith_deg"])
+        view = np.stack([np.asarray(enu_from_azimuth_zenith(az, zen)) for az, zen in zip(
+            a["view_azimuth"].values.ravel(), a["view_zenith"].values.ravel())]).reshape(a["view_zenith"].shape + (3,))
+        near = np.degrees(np.arccos(np.clip(np.nan_to_num(view) @ sun, -1, 1))) < 5.0
+        for key in ("radiance", "radiance_clear", "radiance_cloud", "tau_hydrometeor"):
+            x, y = a[key].values, b[key].values
+            np.testing.assert_array_equal(np.isnan(x), np.isnan(y), err_msg=key)
+            far = ~near if x.ndim == 2 else np.broadcast_to(~near, x.shape)
+            np.testing.assert_allclose(y[far], x[far], rtol=2e-5, atol=1e-7, err_msg=key)
+            np.testing.assert_allclose(y[~far], x[~far], rtol=3e-3, err_msg=key)
+    assert (images[True, 40.0]["radiance"] != images[True, 60.0]["radiance"]).any()
+    ray_table.forget_ray_tables()
+    assert not ray_table._LAST_TABLE
+
+
+def test_camera_table_is_rebuilt_for_another_observer():
+    scene = swim.default_scene()
+    ray_table.forget_ray_tables()
+    settings = MarchSettings(backend="jax", chunk=1024, ray_table=True)
+    swim.render(scene, camera="allsky", camera_options={"size": 16}, sun_zenith=40.0, sun_azimuth=120.0,
+                settings=settings)
+    first = ray_table._LAST_TABLE["entry"][1]
+    swim.render(scene, camera="allsky", camera_options={"size": 16}, sun_zenith=40.0, sun_azimuth=120.0,
+                settings=settings, height=50.0)
+    second = ray_table._LAST_TABLE["entry"][1]
+    assert second is not first and second.key != first.key
+    ray_table.forget_ray_tables()
