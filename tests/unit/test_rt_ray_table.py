@@ -71,18 +71,43 @@ def test_scattering_cosine_is_accurate_near_the_sun():
         assert np.abs(got - d @ sun).max() <= tolerance, largest
 
 
-def test_table_rows_are_checked():
-    scene = _tiny_scene()
-    origins, dirs = _random_rays(8)
-    sun = enu_from_azimuth_zenith(135.0, 40.0)
-    settings = MarchSettings(backend="jax", chunk=256)
+def _volume_and_constants():
     from swim.optics.volume import build_optical_volume
     from swim.rt.gas import build_gas_tables
     from swim.rt.march import kernel_constants
     from swim.rt.solar import solar_transmittance
 
-    volume = build_optical_volume(scene)
-    consts = kernel_constants(volume, solar_transmittance(volume, sun), build_gas_tables(AerosolBackground()), sun)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    volume = build_optical_volume(_tiny_scene())
+    return volume, kernel_constants(volume, solar_transmittance(volume, sun), build_gas_tables(AerosolBackground()),
+                                    sun)
+
+
+def test_camera_table_is_kept_for_the_same_arrays_only():
+    """The kept table serves the same directions and pixels arrays (identity: a camera's cached, read-only ones) and
+    observer again, and is rebuilt for a copy of the directions; each pixel's row is its place in ``pixels``."""
+    volume, consts = _volume_and_constants()
+    geometry = grid_geometry(volume)
+    settings = MarchSettings(backend="jax", chunk=256)
+    _, dirs = _random_rays(30, seed=2)
+    pixels = np.array([4, 0, 9, 17, 3])
+    observer = np.array([0.0, 0.0, 6_371_008.8 + 20.0])
+    ray_table.forget_ray_tables()
+    table, rows = ray_table.camera_ray_table(observer, dirs, pixels, geometry, consts, settings)
+    assert table.size == 5 and rows[9] == 2 and rows[1] == -1 and not rows.flags.writeable
+    again, _ = ray_table.camera_ray_table(observer.copy(), dirs, pixels, geometry, consts, settings)
+    assert again is table
+    other, _ = ray_table.camera_ray_table(observer, dirs.copy(), pixels, geometry, consts, settings)
+    assert other is not table
+    np.testing.assert_array_equal(np.asarray(other.direction), np.asarray(table.direction))
+    ray_table.forget_ray_tables()
+
+
+def test_table_rows_are_checked():
+    origins, dirs = _random_rays(8)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    settings = MarchSettings(backend="jax", chunk=256)
+    volume, consts = _volume_and_constants()
     table = ray_table.build_ray_table(origins, dirs, grid_geometry(volume), consts, settings)
     aerosol = AerosolBackground()
     phase = ray_table.PhaseInputs(tuple(sun), 0.03, aerosol.type, aerosol.stratospheric)
@@ -113,9 +138,9 @@ def test_render_with_the_table_gives_the_same_image(sampling):
             if kept:
                 entry = ray_table._LAST_TABLE["entry"]
                 if sun_zenith == 40.0:
-                    first = entry[1]
+                    first = entry[2]
                 else:
-                    assert entry[1] is first, "a new sun must reuse the camera's table"
+                    assert entry[2] is first, "a new sun must reuse the camera's table"
     for sun_zenith in (40.0, 60.0):
         a, b = images[False, sun_zenith], images[True, sun_zenith]
         assert a.attrs["traced_pixels"] == b.attrs["traced_pixels"]
@@ -145,9 +170,9 @@ def test_camera_table_is_rebuilt_for_another_observer():
     settings = MarchSettings(backend="jax", chunk=1024, ray_table=True)
     swim.render(scene, camera="allsky", camera_options={"size": 16}, sun_zenith=40.0, sun_azimuth=120.0,
                 settings=settings)
-    first = ray_table._LAST_TABLE["entry"][1]
+    first = ray_table._LAST_TABLE["entry"][2]
     swim.render(scene, camera="allsky", camera_options={"size": 16}, sun_zenith=40.0, sun_azimuth=120.0,
                 settings=settings, height=50.0)
-    second = ray_table._LAST_TABLE["entry"][1]
+    second = ray_table._LAST_TABLE["entry"][2]
     assert second is not first and second.key != first.key
     ray_table.forget_ray_tables()

@@ -160,14 +160,16 @@ def _table_probes(start, direction, bounds, consts, n_probe, probe_spacing):
                                   probe_spacing)
 
 
-#: The last table of :func:`camera_ray_table`: (weak reference to the directions, table, rows of the pixels).
+#: The last table of :func:`camera_ray_table`: (weak references to the directions and the pixels, table, rows).
 _LAST_TABLE = {}
 
 
 def camera_ray_table(observer, directions, pixels, geometry: GridGeometry, consts, settings: MarchSettings):
     """The :class:`RayTable` of a camera's pixels ``pixels`` seen from ``observer``, and each pixel's row in it;
-    the last one is kept and reused while the same directions array (a camera's cached directions,
-    :func:`swim.pipeline._scene_directions`), observer, grid geometry, atmosphere top and probe settings come again.
+    the last one is kept and reused while the same arrays ``directions`` and ``pixels`` (a camera's cached ones,
+    :func:`swim.pipeline._scene_directions`, which are read-only), observer, grid geometry, atmosphere top and probe
+    settings come again. Arrays are recognised by identity, not by their values (hashing a 1024^2 camera's would take
+    milliseconds every frame): pass arrays that are not changed in place.
 
     Parameters
     ----------
@@ -185,23 +187,24 @@ def camera_ray_table(observer, directions, pixels, geometry: GridGeometry, const
     Returns
     -------
     tuple
-        (:class:`RayTable` of n rays, ``rows`` (m,) int64: each pixel's row in the table, -1 where it has none).
+        (:class:`RayTable` of n rays, ``rows`` (m,) int64, read-only: each pixel's row in the table, -1 where it has
+        none).
     """
     observer = np.asarray(observer, dtype=float)
-    key = (observer.tobytes(), np.asarray(pixels).tobytes(), _geometry_key(geometry), float(consts["top"]),
-           _probe_key(settings), jax.default_backend())
+    key = (observer.tobytes(), _geometry_key(geometry), float(consts["top"]), _probe_key(settings),
+           jax.default_backend())
     entry = _LAST_TABLE.get("entry")
-    if entry is not None and entry[0]() is directions and entry[1].key == key:
-        return entry[1], entry[2]
+    if entry is not None and entry[0]() is directions and entry[1]() is pixels and entry[2].key == key:
+        return entry[2], entry[3]
     _LAST_TABLE.clear()  # the old table's device arrays go before the new ones are made
-    pixels = np.asarray(pixels)
-    table = build_ray_table(observer, np.asarray(directions)[pixels], geometry, consts, settings, key=key)
+    index = np.asarray(pixels)
+    table = build_ray_table(observer, np.asarray(directions)[index], geometry, consts, settings, key=key)
     rows = np.full(len(directions), -1, np.int64)
-    rows[pixels] = np.arange(len(pixels))
+    rows[index] = np.arange(len(index))
     rows.flags.writeable = False
     try:
-        _LAST_TABLE["entry"] = (weakref.ref(directions), table, rows)
-    except TypeError:  # no weak reference to it: not kept
+        _LAST_TABLE["entry"] = (weakref.ref(directions), weakref.ref(pixels), table, rows)
+    except TypeError:  # no weak reference to them (not numpy arrays): not kept
         pass
     return table, rows
 
