@@ -176,3 +176,27 @@ def test_camera_table_is_rebuilt_for_another_observer():
     second = ray_table._LAST_TABLE["entry"][2]
     assert second is not first and second.key != first.key
     ray_table.forget_ray_tables()
+
+
+def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
+    """``swim render --ray-table`` sets MarchSettings.ray_table (off without it)."""
+    from typer.testing import CliRunner
+
+    import swim.pipeline
+    from swim.cli.main import app
+
+    seen = []
+    real = swim.pipeline.render
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["settings"].ray_table)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(swim.pipeline, "render", spy)
+    for flag in (["--ray-table"], []):
+        out = tmp_path / f"sky{len(flag)}.png"
+        result = CliRunner().invoke(app, ["render", *flag, "--size", "9", "--sun-zenith", "40", "--sun-azimuth",
+                                          "100", "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        assert out.exists()
+    assert seen == [True, False]

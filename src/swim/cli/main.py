@@ -146,6 +146,9 @@ def render(
                                     "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
                                     "kernel), or fused-march (the clear air in it too; docs/performance.md, section "
                                     "72)."),
+    ray_table: bool = typer.Option(False, "--ray-table", help="Keep the camera's rays on the device between the "
+                                   "frames of a series (the JAX kernel: MarchSettings.ray_table; not yet timed on a "
+                                   "GPU, docs/performance.md, section 73)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -224,9 +227,9 @@ def render(
                 assert len(target) == 3
             except (ValueError, AssertionError):
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
-        settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, **_given(
-            n_grid=steps, n_probe=probes, empty_steps=empty_steps, probe_spacing=probe_spacing, tau_refine=tau_refine,
-            stop_tau=stop_tau))
+        settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
+                                 **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
+                                          probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                       settings=settings, white_level=white_level, sampling=sampling)
