@@ -145,9 +145,16 @@ def build_ray_table(origins, directions, geometry: GridGeometry, consts, setting
     probes = cells = probes_host = None
     if settings.probe_spacing and settings.n_grid:
         device = _device_constants(consts)
-        parts = [_table_probes(start[lo:lo + TABLE_BLOCK], direction[lo:lo + TABLE_BLOCK],
-                               bounds_d[lo:lo + TABLE_BLOCK], device, settings.n_probe, float(settings.probe_spacing))
-                 for lo in range(0, len(directions), TABLE_BLOCK)]
+        n = len(directions)
+        parts = []
+        for lo in range(0, n, TABLE_BLOCK):
+            # each block padded to a size of padded_batch_size (its last row repeated): a few compiled shapes serve
+            # every camera
+            hi = min(lo + TABLE_BLOCK, n)
+            take = np.minimum(np.arange(lo, lo + padded_batch_size(hi - lo, TABLE_BLOCK)), hi - 1)
+            p, c = _table_probes(start[take], direction[take], bounds_d[take], device, settings.n_probe,
+                                 float(settings.probe_spacing))
+            parts.append((p[:hi - lo], c[:hi - lo]))
         probes = jnp.concatenate([p for p, _ in parts])
         cells = jnp.concatenate([c for _, c in parts])
         probes_host = np.asarray(probes)
