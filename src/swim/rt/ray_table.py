@@ -77,7 +77,8 @@ class RayTable:
     probes_host : numpy.ndarray or None
         The probes (n,) int32 on the host, for each chunk's ``n_probe`` without a copy from the device.
     segments_host : numpy.ndarray
-        Shape (n, 3) bool: whether each ray's segment before, in and after the grid has a length.
+        Shape (n,) uint8: which of each ray's segments before, in and after the grid have a length (bits 0, 1, 2), one
+        byte a ray so that a batch's rows are gathered and or-ed cheaply.
     key : tuple
         What the table was built for (:func:`camera_ray_table`'s cache).
     """
@@ -138,7 +139,8 @@ def build_ray_table(origins, directions, geometry: GridGeometry, consts, setting
         raise SwimInputError("build_ray_table needs at least one ray, got none")
     seg = ray_segments_parallel(origins, directions, geometry, top=float(consts["top"]))
     bounds = seg["bounds"]
-    lengths = np.stack([bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1]], axis=1) > 0
+    lengths = ((bounds[:, 0] > 0).astype(np.uint8) | ((bounds[:, 1] - bounds[:, 0] > 0).astype(np.uint8) << 1)
+               | ((bounds[:, 2] - bounds[:, 1] > 0).astype(np.uint8) << 2))
     start = jnp.asarray(seg["start"].astype(np.float32))
     direction = jnp.asarray(directions.astype(np.float32))
     bounds_d = jnp.asarray(bounds.astype(np.float32))
@@ -328,7 +330,8 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
     # the same program as trace_rays's chunks: the table's switch is not the kernel's
     settings = replace(settings, ray_table=False)
     # segments of zero length for every ray of the batch need no steps (trace_rays)
-    has = segments_host[rows].any(axis=0)
+    bits = int(np.bitwise_or.reduce(segments_host[rows]))
+    has = [bool(bits >> c & 1) for c in range(3)]
     settings = replace(settings, **{name: 0 for name, there in zip(("n_before", "n_grid", "n_after"), has)
                                     if not there})
     n = len(rows)

@@ -1,0 +1,127 @@
+"""The host's work in a JAX-kernel frame, measured without a GPU: the march replaced by a stand-in of negligible cost.
+
+Usage::
+
+    python benchmarks/bench_host.py                              # synthetic 1024² all-sky, every pixel and adaptive
+    python benchmarks/bench_host.py --size 512 --repeats 7 --profile
+
+On a GPU, a warm frame of the JAX kernel is mostly host work (docs/performance.md, sections 53, 66, 72): the rays'
+segments, the phase functions, the chunks' inputs and outputs, adaptive sampling between its batches, the image's
+planes and the colour stage, while the device's march of a 1024² all-sky takes tens of milliseconds. On a CPU that host
+work hides behind the JAX kernel's march (seconds). This script measures it on any machine: it replaces the compiled
+chunk (:func:`swim.rt.march._trace_chunk`) by a stand-in that returns outputs of the right shapes, with some structure
+so that adaptive sampling refines (a smooth sky with sharp-edged "clouds" by direction), at a cost of a few
+milliseconds per chunk, and times warm renders of the suite's all-sky view with the JAX kernel, taking turns between
+``MarchSettings.ray_table`` off and on (the camera's rays kept on the device, section 73). What it reports is the frame
+without its march: the host's share that a GPU frame pays, on this machine's cores (a GPU machine's host has more and
+faster ones). ``--profile`` adds a wall-clock profile of one frame of each variant (:mod:`wall_profile`).
+
+The images are not physical: only the times mean something. Results go to ``benchmarks/results/host-<UTC date and
+time>.json`` (``--out`` to change).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from dataclasses import replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT))
+
+import bench_suite  # noqa: E402  (the suite's scenes, views and render options)
+
+
+def stand_in_chunk():
+    """A compiled stand-in for ``_trace_chunk``: the same arguments and output keys, values from the directions."""
+    import jax
+    import jax.numpy as jnp
+
+    @jax.jit
+    def chunk(start, direction, bounds, ends_on_ground, valid, rays, consts):
+        d = direction
+        sky = 0.4 + 0.2 * jnp.sin(3.0 * d) + 0.1 * rays["p_rayleigh"][:, None]
+        cloud = jnp.where((jnp.sin(40.0 * d[:, 0]) * jnp.sin(40.0 * d[:, 1]) > 0.3)[:, None], 0.5, 0.0) * jnp.ones(3)
+        radiance = jnp.where(valid[:, None], sky + cloud, 0.0)
+        tau = 20.0 * (cloud[:, 0] > 0)
+        zeros = jnp.zeros_like(radiance)
+        surface = ends_on_ground & (d[:, 2] < 0)
+        return {"radiance": radiance, "radiance_clear": sky, "radiance_cloud": cloud, "radiance_surface": zeros,
+                "tau_hydrometeor": tau, "tau_clear": 0.1 + zeros, "surface": surface,
+                "distance": jnp.where(surface, bounds[:, 2], jnp.nan)}
+
+    def trace_chunk(start, direction, bounds, ends_on_ground, valid, rays, consts, settings, probes=None):
+        return chunk(start, direction, bounds, ends_on_ground, valid, rays, consts)
+
+    return trace_chunk
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scene", default="synthetic", choices=("synthetic", "katrina", "rico"))
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--profile", action="store_true", help="a wall-clock profile of one frame of each variant")
+    ap.add_argument("--data", type=Path, default=bench_suite.DATA)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args(argv)
+
+    import jax
+
+    import swim
+    import swim.rt.march as march
+    from swim.rt.image_sampling import AdaptiveSampling
+    from swim.rt.march import MarchSettings
+
+    spec = json.loads(json.dumps(bench_suite.CASES[f"{args.scene}_allsky"]))
+    spec.update(data=str(args.data), image=[args.size, args.size])
+    if args.scene == "synthetic":
+        spec["scene_kwargs"] = dict(bench_suite.SYNTHETIC_GRID)
+    scene = bench_suite.load_scene(spec)
+    kw = bench_suite.render_kwargs(spec)
+    base = replace(kw["settings"], backend="jax") if "settings" in kw else MarchSettings(backend="jax")
+    march._trace_chunk = stand_in_chunk()
+    samplings = {"every pixel": None, "adaptive": AdaptiveSampling(**bench_suite.ADAPTIVE)}
+    rows = []
+    for label, sampling in samplings.items():
+        runs = {False: [], True: []}
+        traced = {}
+        for k in range(1 + args.repeats):  # the first round compiles (and builds the table): not counted
+            for kept in (False, True):
+                t0 = time.perf_counter()
+                image = swim.render(scene, **{**kw, "settings": replace(base, ray_table=kept), "sampling": sampling})
+                if k:
+                    runs[kept].append(time.perf_counter() - t0)
+                traced[kept] = int(image.attrs["traced_pixels"])
+        row = {"sampling": label, "without_s": statistics.median(runs[False]), "with_s": statistics.median(runs[True]),
+               "without_runs": runs[False], "with_runs": runs[True], "traced_pixels": traced[False]}
+        if traced[False] != traced[True]:
+            row["traced_pixels_with_table"] = traced[True]
+        rows.append(row)
+        print(f"{args.scene} {args.size}² {label}: host work without the table {row['without_s']:.3f} s, with it "
+              f"{row['with_s']:.3f} s ({traced[False]} pixels traced)", flush=True)
+        if args.profile:
+            from wall_profile import WallSampler
+
+            for kept in (False, True):
+                with WallSampler() as sampler:
+                    swim.render(scene, **{**kw, "settings": replace(base, ray_table=kept), "sampling": sampling})
+                text = sampler.report()
+                row[f"profile_{'with' if kept else 'without'}"] = text
+                print(f"\n### {label}, ray table {'on' if kept else 'off'}\n{text[:3000]}", flush=True)
+    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H%M%SZ")
+    out = args.out or ROOT / "results" / f"host-{args.scene}-{stamp}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"scene": args.scene, "size": args.size, "repeats": args.repeats,
+                               "machine": bench_suite.machine_info(),
+                               "jax_backend": jax.default_backend(), "rows": rows}, indent=1))
+    print(f"written: {out}")
+
+
+if __name__ == "__main__":
+    main()
