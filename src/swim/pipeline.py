@@ -538,10 +538,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         order = None if tiled else tile_order(flat, cam.shape)
         pixels = flat if tiled else flat[order]
         if table is not None:
-            from .rt.ray_table import build_ray_table, trace_table_rows
+            from .rt.ray_table import single_ray_table, trace_table_rows
 
             # the sun's ray (not the camera's, so not in the table) with the first batch
-            extra = None if sun_out else build_ray_table(observer, sun_scene[None], geometry, consts, settings)
+            extra = None if sun_out else single_ray_table(observer, sun_scene, geometry, consts, settings)
             result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, progress_rays,
                                       extra=extra)
             if extra is not None:

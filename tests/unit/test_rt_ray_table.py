@@ -100,7 +100,12 @@ def test_camera_table_is_kept_for_the_same_arrays_only():
     other, _ = ray_table.camera_ray_table(observer, dirs.copy(), pixels, geometry, consts, settings)
     assert other is not table
     np.testing.assert_array_equal(np.asarray(other.direction), np.asarray(table.direction))
+    # the sun's one-row table: kept for the same sun, made anew for another
+    sun = ray_table.single_ray_table(observer, dirs[0], geometry, consts, settings)
+    assert sun.size == 1 and ray_table.single_ray_table(observer, dirs[0].copy(), geometry, consts, settings) is sun
+    assert ray_table.single_ray_table(observer, dirs[1], geometry, consts, settings) is not sun
     ray_table.forget_ray_tables()
+    assert not ray_table._LAST_TABLE and not ray_table._LAST_RAY
 
 
 def test_table_rows_are_checked():

@@ -219,9 +219,30 @@ def camera_ray_table(observer, directions, pixels, geometry: GridGeometry, const
     return table, rows
 
 
+#: The last table of :func:`single_ray_table`: (key, table).
+_LAST_RAY = {}
+
+
+def single_ray_table(origin, direction, geometry: GridGeometry, consts, settings: MarchSettings) -> RayTable:
+    """A one-row :class:`RayTable` of the ray from ``origin`` (3,) [m] along the unit ``direction`` (3,) (the sun's
+    ray of a render, for its disk: :func:`trace_table_rows`'s ``extra``); the last one is kept, so that a frame with
+    the same sun, observer, grid and settings does not build it again (~15 ms of a warm 1024^2 frame's host work on
+    this project's CPU: ``benchmarks/bench_host.py``)."""
+    origin, direction = np.asarray(origin, dtype=float), np.asarray(direction, dtype=float)
+    key = (origin.tobytes(), direction.tobytes(), _geometry_key(geometry), float(consts["top"]), _probe_key(settings),
+           jax.default_backend())
+    entry = _LAST_RAY.get("entry")
+    if entry is not None and entry[0] == key:
+        return entry[1]
+    table = build_ray_table(origin, direction[None], geometry, consts, settings, key=key)
+    _LAST_RAY["entry"] = (key, table)
+    return table
+
+
 def forget_ray_tables():
-    """Drop the kept table (:func:`camera_ray_table`) and its device memory."""
+    """Drop the kept tables (:func:`camera_ray_table`, :func:`single_ray_table`) and their device memory."""
     _LAST_TABLE.clear()
+    _LAST_RAY.clear()
 
 
 def _geometry_key(geometry: GridGeometry):
