@@ -29,10 +29,10 @@ from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
 from .io.scene import validate_scene
 from .memory import release_free_memory
-from .optics.rayleigh import rayleigh_phase_function
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
 from .rt.image_sampling import AdaptiveSampling, sample_image_adaptive, tile_order
+from .rt.ray_table import phase_functions
 from .rt.march import (
     KERNEL_STEP1A_VARIABLES,
     MarchSettings,
@@ -174,8 +174,7 @@ def _compute_scene_directions(camera, rotation):
 
 @functools.partial(jax.jit, static_argnames=("aerosol_type", "stratospheric_type"))
 def _phase_functions_jit(cos_theta, depolarization, aerosol_type, stratospheric_type):
-    return (rayleigh_phase_function(cos_theta, depolarization), aerosol_type.phase_function(cos_theta),
-            stratospheric_type.phase_function(cos_theta))
+    return phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type)
 
 
 class _StageCache:
@@ -521,7 +520,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     # observer and grid; a batch sends its rows' indices, and the phase functions are computed there too
     table = table_rows = phase_inputs = None
     if settings.ray_table and backend == "jax":
-        from .rt.ray_table import PhaseInputs, camera_ray_table
+        from .rt.ray_table import PhaseInputs, camera_ray_table, single_ray_table, trace_table_rows
 
         table, table_rows = camera_ray_table(observer, dirs_scene, valid_pixels, geometry, consts, settings)
         phase_inputs = PhaseInputs(tuple(float(x) for x in sun_scene), float(gas.depolarization), aerosol.type,
@@ -538,8 +537,6 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         order = None if tiled else tile_order(flat, cam.shape)
         pixels = flat if tiled else flat[order]
         if table is not None:
-            from .rt.ray_table import single_ray_table, trace_table_rows
-
             # the sun's ray (not the camera's, so not in the table) with the first batch
             extra = None if sun_out else single_ray_table(observer, sun_scene, geometry, consts, settings)
             result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, progress_rays,

@@ -413,6 +413,24 @@ def ray_segments_compiled(origins, directions, geometry: GridGeometry, top=100_0
     return out
 
 
+def check_rays(caller, origins, directions):
+    """Raise :class:`SwimInputError` naming ``caller`` unless ``origins`` and ``directions`` are finite (n, 3) arrays
+    [m, unit vectors] with n >= 1 (what :func:`trace_rays` and :func:`swim.rt.ray_table.build_ray_table` take)."""
+    for name, value in (("origins", origins), ("directions", directions)):
+        value = np.asarray(value, dtype=float)
+        if value.ndim != 2 or value.shape[-1] != 3 or not np.all(np.isfinite(value)):
+            raise SwimInputError(f"{caller}: {name} must be a finite (n, 3) array [m for origins, unit vectors "
+                                 f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
+    if len(origins) == 0:
+        raise SwimInputError(f"{caller} needs at least one ray, got none")
+
+
+def without_empty_segments(settings: MarchSettings, has) -> MarchSettings:
+    """``settings`` with no steps for the segments (before, in, after the grid) that ``has`` (3 bools) says no ray
+    of a batch has: a batch of observers inside the grid marches nothing before it."""
+    return replace(settings, **{name: 0 for name, there in zip(("n_before", "n_grid", "n_after"), has) if not there})
+
+
 def ray_segments_parallel(origins, directions, geometry: GridGeometry, top=100_000.0):
     """:func:`ray_segments_compiled` in blocks on up to 8 cores (the kernel runs without the GIL), a block per thread
     at least where there are :data:`SEGMENT_MIN_BLOCK` rays per thread: what :func:`trace_rays` and
@@ -1514,10 +1532,15 @@ def _chunk_probes(start, direction, bounds, consts, settings: MarchSettings):
         return settings, None
     probes, cells = _probe_counts_chunk(start, direction, bounds, consts, settings.n_probe,
                                         float(settings.probe_spacing))
-    most = int(jnp.max(probes))
+    return with_probes_for(settings, int(jnp.max(probes))), (probes, cells)
+
+
+def with_probes_for(settings: MarchSettings, most: int) -> MarchSettings:
+    """``settings`` whose ``n_probe`` holds a chunk whose rays take at most ``most`` probes: raised to the next power
+    of two above it (at most :data:`MAX_PROBES`), so that a few compiled versions serve every chunk."""
     if most > settings.n_probe:
         settings = replace(settings, n_probe=int(min(MAX_PROBES, 1 << int(np.ceil(np.log2(most))))))
-    return settings, (probes, cells)
+    return settings
 
 
 _compose_chunk = exported_jit(_compose, static_argnames=("settings", "ground"))
@@ -2073,20 +2096,13 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         If there are no rays, if ``origins`` or ``directions`` are not finite (n, 3) arrays, or if
         ``settings.backend`` is "numba" and numba is not installed.
     """
-    for name, value in (("origins", origins), ("directions", directions)):
-        value = np.asarray(value, dtype=float)
-        if value.ndim != 2 or value.shape[-1] != 3 or not np.all(np.isfinite(value)):
-            # the numba kernel reads its tables unchecked: a NaN ray must not get that far
-            raise SwimInputError(f"trace_rays: {name} must be a finite (n, 3) array [m for origins, unit vectors "
-                                 f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
-    if len(origins) == 0:
-        raise SwimInputError("trace_rays needs at least one ray, got none")
+    # the numba kernel reads its tables unchecked: a NaN ray must not get that far
+    check_rays("trace_rays", origins, directions)
     seg = ray_segments_parallel(origins, directions, geometry, top=float(consts["top"]))
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
     bounds = seg["bounds"]
-    settings = replace(settings, **{name: 0 for name, length in zip(
-        ("n_before", "n_grid", "n_after"), (bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1]))
-        if not np.any(length > 0)})
+    settings = without_empty_segments(settings, [np.any(length > 0) for length in (
+        bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1])])
     n = len(origins)
     chunk = batch = settings.resolved_chunk()
     steps = settings.n_before + settings.n_grid + settings.n_after + 1  # the end step (_march_rays)

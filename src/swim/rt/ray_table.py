@@ -37,8 +37,8 @@ import numpy as np
 from ..errors import SwimInputError
 from ..optics.rayleigh import rayleigh_phase_function
 from . import march
-from .march import (MAX_PROBES, GridGeometry, MarchSettings, _device_constants, _host_rows, padded_batch_size,
-                    probe_counts_and_cells, ray_segments_parallel)
+from .march import (GridGeometry, MarchSettings, _device_constants, _host_rows, check_rays, padded_batch_size,
+                    probe_counts_and_cells, ray_segments_parallel, with_probes_for, without_empty_segments)
 
 log = logging.getLogger(__name__)
 
@@ -131,12 +131,7 @@ def build_ray_table(origins, directions, geometry: GridGeometry, consts, setting
     """
     directions = np.asarray(directions, dtype=float)
     origins = np.broadcast_to(np.asarray(origins, dtype=float), directions.shape)
-    for name, value in (("origins", origins), ("directions", directions)):
-        if value.ndim != 2 or value.shape[-1] != 3 or not np.all(np.isfinite(value)):
-            raise SwimInputError(f"build_ray_table: {name} must be a finite (n, 3) array [m for origins, unit vectors "
-                                 f"for directions], got shape {value.shape} with non-finite values or the wrong shape")
-    if len(directions) == 0:
-        raise SwimInputError("build_ray_table needs at least one ray, got none")
+    check_rays("build_ray_table", origins, directions)
     seg = ray_segments_parallel(origins, directions, geometry, top=float(consts["top"]))
     bounds = seg["bounds"]
     lengths = ((bounds[:, 0] > 0).astype(np.uint8) | ((bounds[:, 1] - bounds[:, 0] > 0).astype(np.uint8) << 1)
@@ -271,16 +266,26 @@ def _gather_rows(table_arrays, extra_arrays, rows, sun, depolarization, aerosol_
     start, direction, bounds, ends_on_ground, valid, probes, cells = (
         take(a, e) for a, e in zip(table_arrays, extra_arrays))
     cos_theta = scattering_cosine(direction, sun)
-    rays = {"cos_theta": cos_theta, "cos_view_zenith": direction[:, 2],
-            "p_rayleigh": rayleigh_phase_function(cos_theta, depolarization),
-            "p_aerosol": aerosol_type.phase_function(cos_theta),
-            "p_stratospheric": stratospheric_type.phase_function(cos_theta)}
+    p_rayleigh, p_aerosol, p_stratospheric = phase_functions(cos_theta, depolarization, aerosol_type,
+                                                             stratospheric_type)
+    rays = {"cos_theta": cos_theta, "cos_view_zenith": direction[:, 2], "p_rayleigh": p_rayleigh,
+            "p_aerosol": p_aerosol, "p_stratospheric": p_stratospheric}
     return (start, direction, bounds, ends_on_ground, valid), rays, (probes, cells)
 
 
+def phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type):
+    """The rays' Rayleigh (n,), background aerosol and stratospheric aerosol (n, 3) phase functions [-] (mean 1 over
+    the sphere) at scattering-angle cosines ``cos_theta`` (n,) [-]: :func:`swim.optics.rayleigh.rayleigh_phase_function`
+    with the air's ``depolarization`` [-], and each :class:`swim.optics.aerosol_types.AerosolType`'s two-term DHG
+    (paper Eq. 28; Albers et al. 2020, doi:10.5194/amt-13-3235-2020). What :func:`swim.pipeline.render`'s rays take,
+    on the host (``swim.pipeline._phase_functions``) or in :func:`_gather_rows` on the device."""
+    return (rayleigh_phase_function(cos_theta, depolarization), aerosol_type.phase_function(cos_theta),
+            stratospheric_type.phase_function(cos_theta))
+
+
 def scattering_cosine(direction, sun):
-    """The cosine of the scattering angle between unit directions ``direction`` (n, 3) and ``sun`` (3,), float32,
-    accurate near the sun.
+    """The cosine [-] (n,) float32 of the scattering angle between unit directions ``direction`` (n, 3) and ``sun``
+    (3,), accurate near the sun.
 
     The phase functions of thin cloud peak within a degree of the sun (Eq. 13's ``g = 0.99^tau``: ``d ln p / d cos``
     ~ 3e4 there, ~0.2 % per unit in the last place of a float32 cosine near 1), so the cosine should be the float32
@@ -352,9 +357,7 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
     settings = replace(settings, ray_table=False)
     # segments of zero length for every ray of the batch need no steps (trace_rays)
     bits = int(np.bitwise_or.reduce(segments_host[rows]))
-    has = [bool(bits >> c & 1) for c in range(3)]
-    settings = replace(settings, **{name: 0 for name, there in zip(("n_before", "n_grid", "n_after"), has)
-                                    if not there})
+    settings = without_empty_segments(settings, [bits >> c & 1 for c in range(3)])
     n = len(rows)
     steps = settings.n_before + settings.n_grid + settings.n_after + 1
     chunk = settings.resolved_chunk()
@@ -382,11 +385,8 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
         if pad:
             part = np.concatenate([part, np.repeat(part[-1:], pad)])
-        chunk_settings = settings
-        if with_probes:
-            most = int(probes_host[rows[lo:hi]].max())
-            if most > settings.n_probe:  # as swim.rt.march._chunk_probes: the next power of two above the most
-                chunk_settings = replace(settings, n_probe=int(min(MAX_PROBES, 1 << int(np.ceil(np.log2(most))))))
+        # n_probe as swim.rt.march._chunk_probes raises it, from the probes kept on the host
+        chunk_settings = with_probes_for(settings, int(probes_host[rows[lo:hi]].max())) if with_probes else settings
         chunk_extra = extra_arrays if extra is not None and part.max() >= table.size else None
         args, rays, probes = _gather_rows(table_arrays, chunk_extra, jnp.asarray(part.astype(np.int32)), sun,
                                           depolarization, phase.aerosol_type, phase.stratospheric_type)
