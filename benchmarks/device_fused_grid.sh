@@ -8,7 +8,8 @@
 # processes (the second reads the exported program with its Triton call); STAGE=table (session 59, the next GPU
 # session's first run, ~300 s): the synthetic 1024^2 all-sky's captured chunk with "fused" against "fused-march", and
 # warm frames with the camera's rays kept on the device (MarchSettings.ray_table, swim.rt.ray_table) against without,
-# taking turns: every pixel, adaptive and a new sun every frame (docs/performance.md, section 73). Results go to
+# taking turns: every pixel, adaptive and a new sun every frame (docs/performance.md, section 73; run in session 60,
+# section 74: ~340 s on a fresh H100, of which ~140 s compilations, so the adaptive and new-sun rows need SYNTHETIC_S=420). Results go to
 # $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):

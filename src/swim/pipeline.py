@@ -495,7 +495,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                                             out=step1a_channel_views(packed, species))
         constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
         del transmittance
-        release_free_memory()  # Step 1a's freed levels, before the ray march
+        if not settings.on_accelerator():
+            # Step 1a's freed levels, before the ray march; not where the march runs on a GPU, whose host has the
+            # memory to spare: there the trim took 0.06 s of a new sun's 0.58 s frame on an H100 machine's 16
+            # cores (docs/performance.md, sections 66, 74)
+            release_free_memory()
         return constants
 
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
@@ -519,7 +523,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     # MarchSettings.ray_table (the JAX kernel): the camera's rays kept on the device, computed once per camera,
     # observer and grid; a batch sends its rows' indices, and the phase functions are computed there too
     table = table_rows = phase_inputs = None
-    if settings.ray_table and backend == "jax":
+    if backend == "jax" and settings.resolved_ray_table():
         from .rt.ray_table import PhaseInputs, camera_ray_table, single_ray_table, trace_table_rows
 
         table, table_rows = camera_ray_table(observer, dirs_scene, valid_pixels, geometry, consts, settings)

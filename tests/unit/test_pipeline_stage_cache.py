@@ -251,7 +251,8 @@ def test_a_new_sun_beside_another_render_packs_the_grid_anew():
 
 
 def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
-    """The C heap's trims (swim.memory) follow a big image's march on the host's cores, not one on a GPU."""
+    """The C heap's trims (swim.memory) follow a big image's march and a new sun's Step 1a on the host's cores, not
+    those on a GPU (docs/performance.md, sections 66, 74)."""
     from swim.rt.march import MarchSettings
 
     calls = []
@@ -262,8 +263,12 @@ def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
     swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0)
     assert len(calls) >= 2
     calls.clear()
+    swim.render(scene, camera_options=size, sun_zenith=41.0, sun_azimuth=150.0)  # a new sun: Step 1a's trim too
+    assert len(calls) == 3
+    calls.clear()
     monkeypatch.setattr(MarchSettings, "on_accelerator", lambda self: True)
     swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0)
+    swim.render(scene, camera_options=size, sun_zenith=42.0, sun_azimuth=150.0)  # a new sun
     assert calls == []
 
 

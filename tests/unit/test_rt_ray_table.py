@@ -124,8 +124,24 @@ def test_table_rows_are_checked():
         ray_table.trace_table_rows(table, [0], consts, phase, MarchSettings(backend="numba"))
     with pytest.raises(SwimInputError, match="directions must be a finite"):
         ray_table.build_ray_table(origins, dirs * np.nan, grid_geometry(volume), consts, settings)
-    with pytest.raises(SwimInputError, match="ray_table must be True or False"):
+    with pytest.raises(SwimInputError, match="ray_table must be True, False or None"):
         MarchSettings(ray_table="yes")
+
+
+def test_ray_table_default_is_on_only_for_the_jax_kernel_on_an_accelerator(monkeypatch):
+    """None (the default) resolves to the table where the JAX kernel runs on a GPU, not on a CPU; the numba kernel
+    never uses it, even when asked."""
+    import jax
+
+    assert MarchSettings().ray_table is None
+    assert MarchSettings(backend="numba", ray_table=True).resolved_ray_table() is False
+    assert MarchSettings(backend="jax", ray_table=True).resolved_ray_table() is True
+    assert MarchSettings(backend="jax", ray_table=False).resolved_ray_table() is False
+    on_gpu = jax.default_backend() != "cpu"
+    assert MarchSettings(backend="jax").resolved_ray_table() is on_gpu
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert MarchSettings(backend="jax").resolved_ray_table() is True
+    assert MarchSettings(backend="jax", ray_table=False).resolved_ray_table() is False
 
 
 @pytest.mark.parametrize("sampling", [None, AdaptiveSampling()], ids=["every pixel", "adaptive"])
@@ -184,7 +200,8 @@ def test_camera_table_is_rebuilt_for_another_observer():
 
 
 def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
-    """``swim render --ray-table`` sets MarchSettings.ray_table (off without it)."""
+    """``swim render --ray-table`` / ``--no-ray-table`` set MarchSettings.ray_table; without either it stays None
+    (the device decides: MarchSettings.resolved_ray_table)."""
     from typer.testing import CliRunner
 
     import swim.pipeline
@@ -198,10 +215,10 @@ def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(swim.pipeline, "render", spy)
-    for flag in (["--ray-table"], []):
-        out = tmp_path / f"sky{len(flag)}.png"
+    for k, flag in enumerate((["--ray-table"], ["--no-ray-table"], [])):
+        out = tmp_path / f"sky{k}.png"
         result = CliRunner().invoke(app, ["render", *flag, "--size", "9", "--sun-zenith", "40", "--sun-azimuth",
                                           "100", "--out", str(out)])
         assert result.exit_code == 0, result.output
         assert out.exists()
-    assert seen == [True, False]
+    assert seen == [True, False, None]

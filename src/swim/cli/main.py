@@ -144,11 +144,12 @@ def render(
                                 "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
     grid_kernel: str = typer.Option("auto", "--grid-kernel", help="The JAX kernel's march of the grid: auto (fused on "
                                     "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
-                                    "kernel), or fused-march (the clear air in it too; docs/performance.md, section "
-                                    "72)."),
-    ray_table: bool = typer.Option(False, "--ray-table", help="Keep the camera's rays on the device between the "
-                                   "frames of a series (the JAX kernel: MarchSettings.ray_table; not yet timed on a "
-                                   "GPU, docs/performance.md, section 73)."),
+                                    "kernel), or fused-march (the clear air in it too: ~15 % faster per frame, ~40 s "
+                                    "more compilation, for long series; docs/performance.md, sections 72, 74)."),
+    ray_table: Optional[bool] = typer.Option(None, "--ray-table/--no-ray-table", help="Keep the camera's rays on "
+                                             "the device between the frames of a series (the JAX kernel: "
+                                             "MarchSettings.ray_table; default: on a GPU, docs/performance.md, "
+                                             "section 74)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
