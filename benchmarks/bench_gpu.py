@@ -33,6 +33,8 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
 * with ``--ray-table``: warm renders with the camera's rays kept on the device (``MarchSettings.ray_table``,
   :mod:`swim.rt.ray_table`) and without, taking turns: every pixel, adaptive (with ``--sampling``) and a new sun
   every frame (with ``--sun-series N``), each one's median and the largest radiance difference between the two;
+* with ``--step1a-on-device``: frames with a new sun each, a new sun's Step 1a on the device's copy of the packed
+  volume (``MarchSettings.step1a_on_device``, :mod:`swim.rt.solar_device`) against the host's, taking turns;
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
   device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
@@ -162,11 +164,8 @@ def kernel_resources(kernel):
 def compare_ray_table(name, scene, kw, args):
     """Warm renders with and without ``MarchSettings.ray_table``, taking turns (``args.repeats`` each): every pixel,
     adaptive with ``args.sampling``, and a new sun every frame with ``args.sun_series``; each variant's median and
-    runs, and the largest relative radiance difference between the two images (section 73 of docs/performance.md)."""
-    import numpy as np
-
-    import swim
-
+    runs, and the largest relative radiance difference between the two images (sections 73-74 of
+    docs/performance.md)."""
     variants = [("every pixel", {})]
     if args.sampling:
         from swim.rt.image_sampling import AdaptiveSampling
@@ -174,6 +173,18 @@ def compare_ray_table(name, scene, kw, args):
         variants.append(("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)}))
     if args.sun_series:
         variants.append(("new sun", {"new_sun": True}))
+    return compare_setting(name, scene, kw, args, "ray_table", variants)
+
+
+def compare_setting(name, scene, kw, args, field, variants):
+    """Warm renders with the boolean ``MarchSettings`` field ``field`` off and on, taking turns (``args.repeats``
+    each, after a first round that compiles), for each of ``variants`` ((label, render keywords); ``new_sun``: a sun
+    of its own for every render); each variant's median and runs, and where the sun is the same the largest
+    relative radiance difference between the two images."""
+    import numpy as np
+
+    import swim
+
     rows = []
     for label, extra in variants:
         new_sun = extra.pop("new_sun", False)
@@ -183,13 +194,13 @@ def compare_ray_table(name, scene, kw, args):
                 # a sun of its own for each render (the other variant's would be reused)
                 step = 2 * k + kept
                 sun = {"sun_zenith": 30.0 + 0.5 * step, "sun_azimuth": 135.0 + step} if new_sun else {}
-                settings = replace(kw["settings"], ray_table=kept)
+                settings = replace(kw["settings"], **{field: kept})
                 t0 = time.perf_counter()
                 image = swim.render(scene, **{**kw, **extra, **sun, "settings": settings})
                 if k:
                     runs[kept].append(time.perf_counter() - t0)
                 images[kept] = image
-        row = {"scene": name, "ray_table": label, "without_s": statistics.median(runs[False]),
+        row = {"scene": name, field: label, "without_s": statistics.median(runs[False]),
                "with_s": statistics.median(runs[True]), "without_runs": runs[False], "with_runs": runs[True],
                "traced_pixels": [int(images[x].attrs["traced_pixels"]) for x in (False, True)]}
         apart = ""
@@ -200,7 +211,7 @@ def compare_ray_table(name, scene, kw, args):
             row.update(max_rel_diff=float(rel.max()), p99_rel_diff=float(np.percentile(rel, 99)))
             apart = f"; radiance apart by p99 {row['p99_rel_diff']:.1e}, max {row['max_rel_diff']:.1e}"
         rows.append(row)
-        print(f"{name} ray table, {label}: without {row['without_s']:.3f} s, with {row['with_s']:.3f} s "
+        print(f"{name} {field}, {label}: without {row['without_s']:.3f} s, with {row['with_s']:.3f} s "
               f"({row['without_s'] / row['with_s']:.2f}x){apart}", flush=True)
     return rows
 
@@ -263,6 +274,8 @@ def run_scene(name, args, probe, out_dir):
         rows.append(compare_kernels(name, probe, kernel))
     if args.ray_table and args.backend == "jax":
         rows.extend(compare_ray_table(name, scene, kw, args))
+    if args.step1a_on_device and args.backend == "jax":  # a new sun every frame: Step 1a on the device or the host
+        rows.extend(compare_setting(name, scene, kw, args, "step1a_on_device", [("new sun", {"new_sun": True})]))
     if args.barriers:
         rows.append(compare_barriers(name, scene, kw, probe, args.repeats))
     if args.profile and out_dir:
@@ -550,6 +563,9 @@ def main(argv=None):
     ap.add_argument("--profile", action="store_true", help="also profile a warm render (host) and a chunk (device)")
     ap.add_argument("--ray-table", action="store_true",
                     help="also time warm renders with MarchSettings.ray_table against without, taking turns")
+    ap.add_argument("--step1a-on-device", action="store_true",
+                    help="also time frames with a new sun each, MarchSettings.step1a_on_device on against off, taking "
+                         "turns (docs/performance.md, section 75)")
     ap.add_argument("--barriers", action="store_true",
                     help="also the kernel with its CPU optimisation barriers forced on (section 18 of docs/performance.md)")
     ap.add_argument("--compare", action="store_true", help="also render with numba on the host and compare")

@@ -29,7 +29,10 @@ trap 'tar -C "$RES" -czf "$OUT/results.tar.gz" . ; ls -la "$RES"' EXIT
 quiet() { grep -v "^WARNING\|^I0000\|absl"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
-if [ "${STAGE:-compare}" = table ]; then
+if [ "${STAGE:-compare}" = step1a ]; then  # session 60's MarchSettings.step1a_on_device (section 75), ~200 s
+    timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
+        --sun-series 3 --repeats 4 --out "$RES/step1a-synthetic.json" 2>&1 | quiet
+elif [ "${STAGE:-compare}" = table ]; then
     timeout "${SYNTHETIC_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --against fused-march \
         --ray-table --sampling --sun-series 3 --out "$RES/table-synthetic.json" 2>&1 | quiet
 elif [ "${STAGE:-compare}" = compare ]; then

@@ -39,6 +39,8 @@ from .rt.march import (
     aerosol_column_optical_depth,
     atmosphere_constants,
     grid_geometry,
+    keep_device_copies,
+    kept_device_copies,
     occupancy_grid,
     pack_volume,
     packed_species,
@@ -51,6 +53,7 @@ from .rt.march import (
     volume_constants,
 )
 from .rt.solar import solar_transmittance, step1a_levels
+from .rt.solar_device import solar_transmittance_on_device
 from .workers import parallel_map
 
 log = logging.getLogger(__name__)
@@ -488,12 +491,25 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
             share_packed_channels(volume, packed, species)
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
-        # Step 1a, only the fields that the kernel constants read, written straight into the packed volume's
-        # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy (docs/performance.md, 70.)
-        transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
-                                            backend=settings.backend, nonzero_levels=nonzero_levels,
-                                            out=step1a_channel_views(packed, species))
+        # MarchSettings.step1a_on_device: a new sun on the device's copy of this packed volume, which an earlier
+        # sun's render of the JAX kernel left there (swim.rt.solar_device): no sums, sweep input or volume sent
+        kept = (kept_device_copies({"volume": packed, "occupancy": occupancy})
+                if settings.step1a_on_device and backend == "jax" else None)
+        if kept is not None:
+            transmittance, device_packed = solar_transmittance_on_device(volume, sun_scene, kept["volume"], packed,
+                                                                         species, nonzero_levels)
+            del kept["volume"]  # (donated to the new copy on a GPU)
+        else:
+            # Step 1a, only the fields that the kernel constants read, written straight into the packed volume's
+            # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy (docs/performance.md, 70.)
+            transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
+                                                backend=settings.backend, nonzero_levels=nonzero_levels,
+                                                out=step1a_channel_views(packed, species))
         constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
+        if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.march.device_copies)
+            keep_device_copies({"volume": constants["volume"], "occupancy": constants["occupancy"]},
+                               {"volume": device_packed, "occupancy": kept["occupancy"]})
+            del device_packed
         del transmittance
         if not settings.on_accelerator():
             # Step 1a's freed levels, before the ray march; not where the march runs on a GPU, whose host has the

@@ -150,6 +150,10 @@ def render(
                                              "the device between the frames of a series (the JAX kernel: "
                                              "MarchSettings.ray_table; default: on a GPU, docs/performance.md, "
                                              "section 74)."),
+    step1a_on_device: bool = typer.Option(False, "--step1a-on-device", help="A series' new suns: Step 1a on the "
+                                          "device's copy of the packed volume (the JAX kernel: "
+                                          "MarchSettings.step1a_on_device; not yet timed on a GPU, "
+                                          "docs/performance.md, section 75)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -229,7 +233,7 @@ def render(
             except (ValueError, AssertionError):
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
         settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
-                                 **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
+                                 step1a_on_device=step1a_on_device, **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,

@@ -181,6 +181,12 @@ class MarchSettings:
         traced renders in 0.151 s with it against 0.324 s without, adaptive 0.161 against 0.227 s, a new sun every
         frame 0.659 against 0.834 s; docs/performance.md, section 74), off on a CPU, where the march dominates and
         the table only holds memory. The numba and CUDA backends ignore it.
+    step1a_on_device : bool
+        A new sun's Step 1a where the JAX kernel marches (:mod:`swim.rt.solar_device`): the previous sun's device copy
+        of the packed volume is refilled there, instead of sweeping from the host's sums and copying the whole packed
+        volume to the device again (~1.3 GB of transfers for the 400 x 400 x 60 scene). The same equations and sweep;
+        the channels agree to float32 round-off. Default False: not yet timed on a GPU (docs/performance.md, section
+        75). Used only by the JAX kernel, for a scene rendered before with another sun in the same process.
     """
 
     n_before: int = 12
@@ -197,6 +203,7 @@ class MarchSettings:
     backend: str = "auto"
     grid_kernel: str = "auto"
     ray_table: bool | None = None
+    step1a_on_device: bool = False
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "n_probe", "chunk"):
@@ -220,6 +227,8 @@ class MarchSettings:
             raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.grid_kernel not in GRID_KERNELS:
             raise SwimInputError(f"MarchSettings.grid_kernel must be one of {GRID_KERNELS}, got {self.grid_kernel!r}")
+        if not isinstance(self.step1a_on_device, (bool, np.bool_)):
+            raise SwimInputError(f"MarchSettings.step1a_on_device must be True or False, got {self.step1a_on_device!r}")
         if self.ray_table is not None and not isinstance(self.ray_table, (bool, np.bool_)):
             raise SwimInputError(f"MarchSettings.ray_table must be True, False or None, got {self.ray_table!r}")
 
@@ -2232,6 +2241,28 @@ def _device_constants(consts):
     """``consts`` with the arrays of :data:`HOST_CONSTANTS` as JAX device arrays, for the JAX kernel
     (:func:`device_copies`: on a GPU the volume's one transfer)."""
     return {**consts, **device_copies({key: consts[key] for key in HOST_CONSTANTS}, jnp.asarray, _DEVICE_COPIES)}
+
+
+def kept_device_copies(hosts, cache=None):
+    """The device copies that :func:`device_copies` keeps in ``cache`` (default: the JAX kernel's) for exactly the
+    host arrays ``hosts`` (name -> numpy array; the same arrays owning the memory, the same views), or None where it
+    keeps none of them."""
+    cache = _DEVICE_COPIES if cache is None else cache
+    entry = cache.get("entry")
+    if entry is None or entry[3] != [_buffer_identity(a) for a in hosts.values()] or any(
+            ref() is not _owner(a) for ref, a in zip(entry[0], hosts.values())):
+        return None
+    return dict(entry[1])
+
+
+def keep_device_copies(hosts, copies, cache=None):
+    """Keep the device arrays ``copies`` (name -> array) as :func:`device_copies`'s copies of the host arrays ``hosts``
+    (name -> numpy array, the same names and values) in ``cache`` (default: the JAX kernel's), replacing what it kept:
+    for copies made on the device (a new sun's Step 1a there, :mod:`swim.rt.solar_device`) rather than sent."""
+    cache = _DEVICE_COPIES if cache is None else cache
+    made = {id(hosts[key]): copies[key] for key in hosts}
+    cache.clear()
+    device_copies(hosts, lambda a: made[id(a)], cache)
 
 
 def device_copies(hosts, transfer, cache):

@@ -1,0 +1,233 @@
+"""Step 1a for a new sun on the device: the packed volume's Step 1a channels refilled where the JAX kernel marches.
+
+On a GPU, a new sun (a time series seen by a fixed camera) used to cost ~1.3 GB of transfers between the host and
+the device for the 400 x 400 x 60 scene's 160 levels: the sweep's input (the species' sums, made on the host's cores)
+to the device, the swept optical depths back, and then the whole packed volume (0.7 GB) to the device again, because
+its Step 1a channels had changed on the host (docs/performance.md, section 74: 0.29-0.36 s of Step 1a and 0.08-0.12 s
+of the volume's copy in a 0.58 s frame on an H100). The packed volume's grid channels (the extinctions) do not depend
+on the sun, and the previous sun's device copy holds them. :func:`refill_step1a_channels` makes the sweep's input
+from them on the device, sweeps it there (:func:`swim.rt.solar._sweep`, the same program as the host's JAX path),
+computes T, the terrain's shadow and the 3-D aerosol's optical depth there (as
+:func:`swim.rt.solar_cpu.step1a_channels` does on the host, in float32) and writes them into the device copy's
+channels. Only the new channels come back, for the host's packed volume (the numba kernel, the ground's fields and a
+later render read them): ~0.2 GB, once.
+
+The same equations and the same sweep as :func:`swim.rt.solar.solar_transmittance`; the species' sums may round
+differently in float32 (the order of a reduction), so the channels agree to float32 round-off
+(``tests/unit/test_rt_solar_device.py``).
+
+References
+----------
+Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8 (Step 1a); Joseph et al. (1976),
+doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T, :func:`swim.rt.solar.transmittance_delta_eddington`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..constants import BACKSCATTER_FRACTION
+from ..errors import SwimInputError
+from .solar import (DIRECT_LEVELS, MIN_SUN_ELEVATION_SINE, TERRAIN_OPACITY_PER_CELL, _sweep,
+                    transmittance_delta_eddington)
+
+
+def _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species, aerosol_3d,
+                    n_levels, n_sub):
+    """Step 1a's channels (levels, y, x, 2 or 3: [the 3-D aerosol's optical depth,] T, the terrain's shadow) of the
+    device's packed volume (level, y, x, channel), all levels: swept up to ``n_levels``, above it T = 1, shadow 1 and
+    the aerosol's optical depth 0 (what the sweep gives where every field is zero above)."""
+    nk, ny, nx, _ = packed.shape
+    above = jnp.asarray([0.0, 1.0, 1.0] if aerosol_3d else [1.0, 1.0], jnp.float32)
+    if n_levels == 0:  # nothing to sweep (no cloud, no terrain above the lowest level, no 3-D aerosol)
+        return jnp.broadcast_to(above, (nk, ny, nx, above.size))
+    grid = packed[:n_levels]
+    extinction = grid[..., :n_species]
+    # the species one after the other, as swim.rt.solar_cpu.species_sums adds them
+    total = jnp.zeros(grid.shape[:-1], jnp.float32)
+    weighted = jnp.zeros(grid.shape[:-1], jnp.float32)
+    for s in range(n_species):
+        total = total + extinction[..., s]
+        weighted = weighted + weights[s] * extinction[..., s]
+    shade = jnp.clip((terrain[None] - levels[:n_levels, None, None]) / dz, 0.0, 1.0) * (TERRAIN_OPACITY_PER_CELL / dz)
+    fields = [total, weighted, shade.astype(jnp.float32)] + ([grid[..., n_species]] if aerosol_3d else [])
+    taus = _sweep(jnp.stack(fields), di, dj, path_per_level, n_sub, DIRECT_LEVELS)  # (n_levels, C, ny, nx)
+    cloud_t = transmittance_delta_eddington(taus[:, 0], taus[:, 1], mu0).astype(jnp.float32)
+    shadow = jnp.exp(-taus[:, 2])
+    swept = jnp.stack(([taus[:, 3]] if aerosol_3d else []) + [cloud_t, shadow], axis=-1)
+    rest = jnp.broadcast_to(above, (nk - n_levels, ny, nx, above.size))
+    return jnp.concatenate([swept, rest], axis=0)
+
+
+def _refill(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species, aerosol_3d, n_levels,
+            n_sub):
+    values = _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species,
+                             aerosol_3d, n_levels, n_sub)
+    first = packed.shape[-1] - values.shape[-1]
+    return packed.at[..., first:].set(values), values[:n_levels]
+
+
+_STATIC = ("n_species", "aerosol_3d", "n_levels", "n_sub")
+#: The refill compiled; on a GPU the old copy's memory is reused for the new one (donated), so a new sun never holds
+#: two packed volumes on the device (on a CPU JAX cannot donate it, and copies).
+_refill_donating = jax.jit(_refill, static_argnames=_STATIC, donate_argnums=(0,))
+_refill_copying = jax.jit(_refill, static_argnames=_STATIC)
+
+
+def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species, aerosol_3d, nonzero_levels):
+    """A new sun's Step 1a channels written into the device's copy of a packed volume.
+
+    Parameters
+    ----------
+    device_packed : jax.Array
+        Shape (level, y, x, channel) float32: the device's copy of the packed volume
+        (:func:`swim.rt.march.pack_volume`) with an earlier sun's Step 1a channels; its grid channels (the extinctions
+        of ``n_species`` species, then with a 3-D aerosol its extinction) are read. On a GPU its memory is reused for
+        the result: do not use it afterwards.
+    volume : xarray.Dataset
+        The optical volume (:func:`swim.optics.volume.build_optical_volume`, its extinctions shared with the packed
+        volume: :func:`swim.rt.march.share_packed_channels`): its ``species`` coordinate (the packed species),
+        ``level`` [m], ``terrain_height`` (y, x) [m] and the attributes ``dz`` [m] and ``affine_matrix``.
+    sun_direction_scene : array_like
+        Shape (3,): unit vector towards the sun in the scene frame.
+    n_species : int
+        Species channels at the front of the packed volume.
+    aerosol_3d : bool
+        Whether the packed volume holds the 3-D aerosol (its extinction and ``aerosol_tau_sun`` channels).
+    nonzero_levels : tuple of numpy.ndarray
+        The volume's :func:`swim.rt.solar.step1a_levels`: the fields are swept up to the highest level that any of them
+        needs, as the host's JAX path sweeps them (:func:`swim.rt.solar.solar_transmittance`).
+
+    Returns
+    -------
+    device_packed : jax.Array
+        The packed volume with the new sun's Step 1a channels (:data:`swim.rt.march.KERNEL_STEP1A_VARIABLES`, without
+        the aerosol's where it is not packed).
+    swept : jax.Array
+        Shape (n_levels, y, x, 2 or 3): those channels on the swept levels (above them T and the shadow are 1 and the
+        aerosol's optical depth 0), for the host's copy.
+    n_levels : int
+        The swept levels.
+
+    Raises
+    ------
+    SwimInputError
+        If the sun's shift per level is not finite (as :func:`swim.rt.solar.solar_transmittance`), or the packed volume
+        does not have the channels of ``n_species`` and ``aerosol_3d`` or the volume's shape.
+
+    References
+    ----------
+    Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8.
+    """
+    sun = np.asarray(sun_direction_scene, dtype=float)
+    nk = volume["level"].size
+    shape = tuple(volume["terrain_height"].shape)
+    channels = n_species + (4 if aerosol_3d else 2)
+    if tuple(device_packed.shape) != (nk,) + shape + (channels,) or device_packed.dtype != jnp.float32:
+        raise SwimInputError(f"refill_step1a_channels: the device's packed volume {tuple(device_packed.shape)} "
+                             f"{device_packed.dtype} is not float32 of shape {(nk,) + shape + (channels,)}")
+    sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
+    dz = float(volume.attrs["dz"])
+    matrix = np.asarray(volume.attrs["affine_matrix"]).reshape(2, 2)
+    di, dj = np.linalg.solve(matrix, sun[:2] / sin_elev * dz)
+    if not (np.isfinite(di) and np.isfinite(dj)):
+        raise SwimInputError(f"refill_step1a_channels: the sun's shift per level ({di}, {dj}) grid cells is not "
+                             f"finite; check the sun direction {sun.tolist()} and the volume's affine_matrix")
+    n_sub = int(np.clip(np.ceil(max(abs(di), abs(dj), 1.0)), 1, 256))
+    levels = volume["level"].values
+    terrain = volume["terrain_height"].values
+    hydro_levels, aerosol_levels = (np.asarray(a, bool) for a in nonzero_levels)
+    tops = [hydro_levels, levels < terrain.max()] + ([aerosol_levels] if aerosol_3d else [])
+    # as solar_transmittance's JAX path: every field to the highest top (+ the clear level above it), at least 2
+    n_levels = max([max(min(int(np.flatnonzero(t).max()) + 2, nk), 2) for t in tops if t.any()], default=0)
+    weights = np.array([BACKSCATTER_FRACTION[str(name)] for name in volume["species"].values], np.float32)
+    if weights.size != n_species:
+        raise SwimInputError(f"refill_step1a_channels: the volume names {weights.size} species, the packed volume "
+                             f"holds {n_species}")
+    mu0 = max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
+    refill = _refill_copying if jax.default_backend() == "cpu" else _refill_donating
+    f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
+    new, swept = refill(device_packed, f32(weights), f32(terrain), f32(levels), f32(dz), f32(di), f32(dj),
+                        f32(dz / sin_elev), f32(mu0), n_species=int(n_species), aerosol_3d=bool(aerosol_3d),
+                        n_levels=int(n_levels), n_sub=n_sub)
+    return new, swept, n_levels
+
+
+#: What Step 1a's channels hold above the swept levels (T and the terrain's shadow 1, no aerosol optical depth).
+_ABOVE = {"aerosol_tau_sun": 0.0, "cloud_transmittance": 1.0, "terrain_shadow": 1.0}
+
+
+def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, packed, species, nonzero_levels):
+    """Step 1a of a new sun from the device's copy of the packed volume (:func:`refill_step1a_channels`), with the
+    host's packed volume refilled from the device's channels: what :func:`swim.rt.solar.solar_transmittance` with
+    ``out=step1a_channel_views(packed, species)`` gives (to float32 round-off), and the device's new copy.
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        The optical volume whose extinctions are views of ``packed``'s channels
+        (:func:`swim.rt.march.share_packed_channels`).
+    sun_direction_scene : array_like
+        Shape (3,): unit vector towards the sun in the scene frame.
+    device_packed : jax.Array
+        The device's copy of ``packed`` with an earlier sun's channels (:func:`swim.rt.march.kept_device_copies`);
+        on a GPU its memory is reused: do not use it afterwards.
+    packed : numpy.ndarray
+        Shape (level, y, x, channel) float32: the host's packed volume (:func:`swim.rt.march.shared_packed_volume`);
+        its Step 1a channels are overwritten, and its device copies dropped
+        (:func:`swim.rt.march.step1a_channel_views`).
+    species : tuple of int
+        The species packed (:func:`swim.rt.march.packed_species`).
+    nonzero_levels : tuple of numpy.ndarray
+        The volume's :func:`swim.rt.solar.step1a_levels`.
+
+    Returns
+    -------
+    transmittance : xarray.Dataset
+        :data:`swim.rt.march.KERNEL_STEP1A_VARIABLES`, (level, y, x) float32 each: views of ``packed``'s channels, as
+        :func:`swim.rt.march.volume_constants` takes them (the aerosol's, where it is not packed, a read-only
+        broadcast of 0).
+    device_packed : jax.Array
+        The device's packed volume with the new sun's channels: the same values as the host's.
+
+    Raises
+    ------
+    SwimInputError
+        As :func:`refill_step1a_channels`.
+    """
+    import xarray as xr
+
+    from ..workers import in_blocks
+    from .march import KERNEL_STEP1A_VARIABLES, packed_aerosol_3d, step1a_channel_views
+
+    n_species = len(species)
+    aerosol_3d = packed_aerosol_3d(packed.shape[-1], n_species)
+    views = step1a_channel_views(packed, species)  # the old device copies dropped; the host's channels writeable
+    new, swept, n_levels = refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species, aerosol_3d,
+                                                  nonzero_levels)
+    host = np.asarray(swept)  # (n_levels, y, x, channels): the device's values, once
+    names = KERNEL_STEP1A_VARIABLES if aerosol_3d else KERNEL_STEP1A_VARIABLES[1:]
+    first = packed.shape[-1] - len(names)
+    above = np.array([_ABOVE[name] for name in names], np.float32)
+
+    def write(k0, k1):  # a cell's channels one cache line's write
+        swept_to = min(k1, n_levels)
+        if swept_to > k0:
+            packed[k0:swept_to, ..., first:] = host[k0:swept_to]
+        if k1 > max(k0, n_levels):
+            packed[max(k0, n_levels):k1, ..., first:] = above
+
+    in_blocks(write, packed.shape[0])
+    attrs = {"aerosol_tau_sun": {"units": "1", "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
+             "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
+             "terrain_shadow": {"units": "1"}}
+    # a variable that is not packed (no 3-D aerosol) is a read-only broadcast of its value, as solar_transmittance
+    # gives it: the ground's fields read it too (swim.rt.march.surface_fields)
+    data = {name: (("level", "y", "x"), views[name] if name in views
+                   else np.broadcast_to(np.float32(_ABOVE[name]), packed.shape[:-1]), attrs[name])
+            for name in KERNEL_STEP1A_VARIABLES}
+    return xr.Dataset(data, coords={"level": volume["level"]}), new

@@ -1,0 +1,94 @@
+"""A new sun's Step 1a on the device's copy of the packed volume (swim.rt.solar_device, MarchSettings.step1a_on_device)
+against the host's Step 1a (swim.rt.solar.solar_transmittance, both sweeps), and in a render."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import swim
+from swim import pipeline
+from swim.errors import SwimInputError
+from swim.frames import enu_from_azimuth_zenith
+from swim.optics.volume import build_optical_volume
+from swim.rt import march, solar_device
+from swim.rt.march import (KERNEL_STEP1A_VARIABLES, MarchSettings, pack_volume, packed_species,
+                           share_packed_channels)
+from swim.rt.solar import solar_transmittance, step1a_levels
+
+from test_rt_solar import _full_and_empty_scenes
+
+
+def _shared_volume(scene):
+    volume = build_optical_volume(scene, dz=100.0)
+    species = packed_species(volume)
+    packed = pack_volume(volume, species)  # Step 1a's channels left undefined: every cell must be written
+    share_packed_channels(volume, packed, species)
+    return volume, packed, species
+
+
+@pytest.mark.parametrize("backend", ["jax", "numba"])
+@pytest.mark.parametrize("zenith, azimuth", [(20.0, 135.0), (78.0, 250.0)], ids=["high sun", "low sun"])
+@pytest.mark.parametrize("which", ["cloud, terrain and 3-D aerosol", "nothing to sweep"])
+def test_device_channels_are_the_hosts_step_1a(which, zenith, azimuth, backend):
+    """Every level of T, the terrain's shadow and the 3-D aerosol's optical depth towards the sun as the host's Step
+    1a makes them (JAX's sweep and numba's; float32 round-off: the species' sums and the terrain's field are made in
+    another order there), under a high sun and a low one (several sub-steps per level); the device's copy and the
+    host's channels the same values; the grid's channels untouched."""
+    scene = _full_and_empty_scenes()[0 if which.startswith("cloud") else 1]
+    sun = enu_from_azimuth_zenith(azimuth, zenith)
+    volume, packed, species = _shared_volume(scene)
+    expected = solar_transmittance(volume, sun, variables=KERNEL_STEP1A_VARIABLES, backend=backend)
+    grid_channels = packed[..., :len(species)].copy()
+    device = jnp.asarray(np.where(np.isfinite(packed), packed, 0.0))  # an "earlier sun's" copy: its channels junk
+    got, device_packed = solar_device.solar_transmittance_on_device(volume, sun, device, packed, species,
+                                                                    step1a_levels(volume))
+    for name in KERNEL_STEP1A_VARIABLES:
+        np.testing.assert_allclose(got[name].values, expected[name].values, rtol=2e-5, atol=2e-6, err_msg=name)
+    if which.startswith("cloud"):
+        assert got["cloud_transmittance"].values.min() < 0.5 and got["terrain_shadow"].values.min() < 0.05
+        assert got["aerosol_tau_sun"].values.max() > 0.1
+    np.testing.assert_array_equal(np.asarray(device_packed), packed)
+    np.testing.assert_array_equal(packed[..., :len(species)], grid_channels)
+
+
+def test_refill_checks_its_inputs():
+    scene = _full_and_empty_scenes()[0]
+    volume, packed, species = _shared_volume(scene)
+    levels = step1a_levels(volume)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    with pytest.raises(SwimInputError, match="is not float32 of shape"):
+        solar_device.refill_step1a_channels(jnp.asarray(packed[..., :-1]), volume, sun, len(species), True, levels)
+    with pytest.raises(SwimInputError, match="species"):
+        solar_device.refill_step1a_channels(jnp.asarray(packed[..., 1:]), volume, sun, len(species) - 1, True,
+                                            levels)
+    with pytest.raises(SwimInputError, match="step1a_on_device must be True or False"):
+        MarchSettings(step1a_on_device="yes")
+
+
+def test_a_new_sun_in_a_render_refills_the_device_copy(monkeypatch):
+    """With MarchSettings.step1a_on_device, a render's new sun takes the device's path where the JAX kernel left a
+    copy of the packed volume (not the first sun: no copy yet), gives the host path's image, and leaves the device's
+    copy as the JAX kernel's (no copy sent again) with the host's values."""
+    scene = swim.default_scene()
+    calls = []
+    real = solar_device.solar_transmittance_on_device
+    monkeypatch.setattr(pipeline, "solar_transmittance_on_device",
+                        lambda *args: calls.append(1) or real(*args))
+    images = {}
+    for on_device in (False, True):
+        pipeline._STAGE_CACHE.clear()
+        settings = MarchSettings(backend="jax", step1a_on_device=on_device)
+        kwargs = dict(camera_options={"size": 40}, settings=settings, sun_azimuth=200.0)
+        swim.render(scene, sun_zenith=30.0, **kwargs)
+        assert calls == []  # the first sun: no device copy to refill
+        images[on_device] = swim.render(scene, sun_zenith=55.0, **kwargs)["radiance"].values
+        assert len(calls) == (1 if on_device else 0)
+        packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
+        copies = march.kept_device_copies({"volume": packed,
+                                           "occupancy": pipeline._STAGE_CACHE._entries["occupancy"][1]})
+        assert copies is not None, "the kernel's device copy of this sun's volume"
+        np.testing.assert_array_equal(np.asarray(copies["volume"]), packed)
+        # the kernel's constants take that copy: nothing is sent again
+        assert march._device_constants(pipeline._STAGE_CACHE._entries["grid constants"][1])["volume"] is \
+            copies["volume"]
+    np.testing.assert_allclose(images[True], images[False], rtol=1e-4, atol=1e-6)
