@@ -179,8 +179,8 @@ def compare_ray_table(name, scene, kw, args):
 def compare_setting(name, scene, kw, args, field, variants):
     """Warm renders with the boolean ``MarchSettings`` field ``field`` off and on, taking turns (``args.repeats``
     each, after a first round that compiles), for each of ``variants`` ((label, render keywords); ``new_sun``: a sun
-    of its own for every render); each variant's median and runs, and where the sun is the same the largest
-    relative radiance difference between the two images."""
+    of its own for every render); each variant's median and runs, and the largest relative radiance difference
+    between the two images (with a new sun, the last "with" frame's sun rendered again without)."""
     import numpy as np
 
     import swim
@@ -188,7 +188,7 @@ def compare_setting(name, scene, kw, args, field, variants):
     rows = []
     for label, extra in variants:
         new_sun = extra.pop("new_sun", False)
-        runs, images = {False: [], True: []}, {}
+        runs, images, suns = {False: [], True: []}, {}, {}
         for k in range(1 + args.repeats):  # the first round compiles the table's programs: not counted
             for kept in (False, True):
                 # a sun of its own for each render (the other variant's would be reused)
@@ -199,17 +199,20 @@ def compare_setting(name, scene, kw, args, field, variants):
                 image = swim.render(scene, **{**kw, **extra, **sun, "settings": settings})
                 if k:
                     runs[kept].append(time.perf_counter() - t0)
-                images[kept] = image
+                images[kept], suns[kept] = image, sun
         row = {"scene": name, field: label, "without_s": statistics.median(runs[False]),
                "with_s": statistics.median(runs[True]), "without_runs": runs[False], "with_runs": runs[True],
                "traced_pixels": [int(images[x].attrs["traced_pixels"]) for x in (False, True)]}
-        apart = ""
-        if not new_sun:  # (with a new sun the two images are of different suns)
-            a, b = images[False]["radiance"].values, images[True]["radiance"].values
-            ok = np.isfinite(a) & np.isfinite(b)
-            rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(a[ok]), 1e-3)
-            row.update(max_rel_diff=float(rel.max()), p99_rel_diff=float(np.percentile(rel, 99)))
-            apart = f"; radiance apart by p99 {row['p99_rel_diff']:.1e}, max {row['max_rel_diff']:.1e}"
+        if new_sun:
+            # the last "with" frame's sun again without, after another sun (so that its constants are made anew)
+            off = replace(kw["settings"], **{field: False})
+            swim.render(scene, **{**kw, **extra, "sun_zenith": 20.0, "sun_azimuth": 100.0, "settings": off})
+            images[False] = swim.render(scene, **{**kw, **extra, **suns[True], "settings": off})
+        a, b = images[False]["radiance"].values, images[True]["radiance"].values
+        ok = np.isfinite(a) & np.isfinite(b)
+        rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(a[ok]), 1e-3)
+        row.update(max_rel_diff=float(rel.max()), p99_rel_diff=float(np.percentile(rel, 99)))
+        apart = f"; radiance apart by p99 {row['p99_rel_diff']:.1e}, max {row['max_rel_diff']:.1e}"
         rows.append(row)
         print(f"{name} {field}, {label}: without {row['without_s']:.3f} s, with {row['with_s']:.3f} s "
               f"({row['without_s'] / row['with_s']:.2f}x){apart}", flush=True)

@@ -30,6 +30,8 @@ quiet() { grep -v "^WARNING\|^I0000\|absl"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
 if [ "${STAGE:-compare}" = step1a ]; then  # session 60's MarchSettings.step1a_on_device (section 75), ~200 s
+    # its tests on the GPU first (the donating program runs only there), where the machine has pytest
+    timeout 120 python3 -m pytest -q -p no:cacheprovider tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
     timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
         --sun-series 3 --repeats 4 --out "$RES/step1a-synthetic.json" 2>&1 | quiet
 elif [ "${STAGE:-compare}" = table ]; then

@@ -9,13 +9,14 @@ import swim
 from swim import pipeline
 from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
+from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
 from swim.rt import march, solar_device
 from swim.rt.march import (KERNEL_STEP1A_VARIABLES, MarchSettings, pack_volume, packed_species,
                            share_packed_channels)
 from swim.rt.solar import solar_transmittance, step1a_levels
 
-from test_rt_solar import _full_and_empty_scenes
+from test_rt_solar import RADIUS, _full_and_empty_scenes
 
 
 def _shared_volume(scene):
@@ -26,15 +27,32 @@ def _shared_volume(scene):
     return volume, packed, species
 
 
+def _scenes(which):
+    """Cloud, terrain and a 3-D aerosol; a low cloud under a ridge that rises above it (the terrain the highest
+    field swept), no aerosol; nothing to sweep at all."""
+    if which == "ridge above a low cloud":
+        n, spacing = 21, 500.0
+        x = (np.arange(n) - n // 2) * spacing
+        z = np.arange(0.0, 3000.0, 100.0) + 50.0
+        zz, yy, xx = np.meshgrid(z, x, x, indexing="ij")
+        cloud = 4e-4 * (np.abs(zz - 600) < 200) * (np.abs(xx - 2000) < 1500) * (np.abs(yy) < 2000)
+        terrain = np.broadcast_to(2200.0 * np.exp(-((x + 1500) / 1200.0) ** 2)[None, :], (n, n)).copy()
+        return scene_from_arrays(x=x, y=x, z=z, reference_lat=45.0, reference_lon=7.0, terrain_height=terrain,
+                                 cloud_liquid_content=cloud, cloud_liquid_effective_radius=RADIUS)
+    return _full_and_empty_scenes()[0 if which.startswith("cloud") else 1]
+
+
 @pytest.mark.parametrize("backend", ["jax", "numba"])
-@pytest.mark.parametrize("zenith, azimuth", [(20.0, 135.0), (78.0, 250.0)], ids=["high sun", "low sun"])
-@pytest.mark.parametrize("which", ["cloud, terrain and 3-D aerosol", "nothing to sweep"])
+@pytest.mark.parametrize("zenith, azimuth", [(20.0, 135.0), (87.0, 250.0), (95.0, 60.0)],
+                         ids=["high sun", "low sun (4 sub-steps per level)", "sun below the horizon"])
+@pytest.mark.parametrize("which", ["cloud, terrain and 3-D aerosol", "ridge above a low cloud", "nothing to sweep"])
 def test_device_channels_are_the_hosts_step_1a(which, zenith, azimuth, backend):
     """Every level of T, the terrain's shadow and the 3-D aerosol's optical depth towards the sun as the host's Step
     1a makes them (JAX's sweep and numba's; float32 round-off: the species' sums and the terrain's field are made in
-    another order there), under a high sun and a low one (several sub-steps per level); the device's copy and the
-    host's channels the same values; the grid's channels untouched."""
-    scene = _full_and_empty_scenes()[0 if which.startswith("cloud") else 1]
+    another order there), under a high sun, a low one (several sub-steps per level) and one below the horizon (the
+    sweep's and T's clamped elevations); the device's copy and the host's channels the same values; the grid's
+    channels untouched."""
+    scene = _scenes(which)
     sun = enu_from_azimuth_zenith(azimuth, zenith)
     volume, packed, species = _shared_volume(scene)
     expected = solar_transmittance(volume, sun, variables=KERNEL_STEP1A_VARIABLES, backend=backend)
@@ -44,11 +62,44 @@ def test_device_channels_are_the_hosts_step_1a(which, zenith, azimuth, backend):
                                                                     step1a_levels(volume))
     for name in KERNEL_STEP1A_VARIABLES:
         np.testing.assert_allclose(got[name].values, expected[name].values, rtol=2e-5, atol=2e-6, err_msg=name)
-    if which.startswith("cloud"):
+    if which != "nothing to sweep":
         assert got["cloud_transmittance"].values.min() < 0.5 and got["terrain_shadow"].values.min() < 0.05
+    if which.startswith("cloud"):
         assert got["aerosol_tau_sun"].values.max() > 0.1
     np.testing.assert_array_equal(np.asarray(device_packed), packed)
     np.testing.assert_array_equal(packed[..., :len(species)], grid_channels)
+
+
+def test_the_donating_refill_gives_the_same_channels_and_frees_the_old_copy(monkeypatch):
+    """The GPU's program, which reuses the old copy's memory (donated), forced on this device: the same channels as
+    the host's Step 1a, and the old copy deleted."""
+    monkeypatch.setattr(solar_device, "_refill_copying", solar_device._refill_donating)
+    volume, packed, species = _shared_volume(_scenes("cloud, terrain and 3-D aerosol"))
+    sun = enu_from_azimuth_zenith(300.0, 60.0)
+    expected = solar_transmittance(volume, sun, variables=KERNEL_STEP1A_VARIABLES)
+    old = jnp.array(np.where(np.isfinite(packed), packed, 0.0))  # an array of JAX's own
+    got, new = solar_device.solar_transmittance_on_device(volume, sun, old, packed, species, step1a_levels(volume))
+    assert old.is_deleted()
+    for name in KERNEL_STEP1A_VARIABLES:
+        np.testing.assert_allclose(got[name].values, expected[name].values, rtol=2e-5, atol=2e-6, err_msg=name)
+    np.testing.assert_array_equal(np.asarray(new), packed)
+
+
+def test_the_kernel_is_compiled_once_whatever_the_switches_it_does_not_read():
+    """MarchSettings.ray_table (None or False) and step1a_on_device are not the march kernel's settings: a render with
+    other values of them runs the same compiled program (a recompilation takes tens of seconds on a GPU)."""
+    scene = swim.default_scene()
+    kwargs = dict(camera_options={"size": 24}, sun_zenith=35.0, sun_azimuth=140.0)
+
+    def programs():
+        return len(march._trace_chunk._calls) + march._trace_chunk.jitted._cache_size()
+
+    swim.render(scene, settings=MarchSettings(backend="jax"), **kwargs)
+    before = programs()
+    for settings in (MarchSettings(backend="jax", ray_table=False),
+                     MarchSettings(backend="jax", ray_table=False, step1a_on_device=True)):
+        swim.render(scene, settings=settings, **kwargs)
+    assert programs() == before
 
 
 def test_refill_checks_its_inputs():

@@ -260,6 +260,13 @@ class MarchSettings:
 
         return "fused" if pallas_triton_available() else "lockstep"
 
+    def kernel_settings(self) -> MarchSettings:
+        """These settings with those that the march's kernels do not read (:attr:`ray_table`,
+        :attr:`step1a_on_device`) at their defaults' resolved values, so that a compiled kernel (keyed by its settings,
+        also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a recompilation of the JAX kernel takes
+        tens of seconds on a GPU."""
+        return replace(self, ray_table=False, step1a_on_device=False)
+
     def resolved_ray_table(self) -> bool:
         """Whether the camera's rays are kept on the device (:attr:`ray_table`): None resolved to True where the
         JAX kernel runs on a GPU (or another accelerator), else False; always False for the numba and CUDA
@@ -2124,7 +2131,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     seg = ray_segments_parallel(origins, directions, geometry, top=float(consts["top"]))
     # Segments of zero length for every ray need no steps (e.g. observers inside the grid).
     bounds = seg["bounds"]
-    settings = without_empty_segments(settings, [np.any(length > 0) for length in (
+    settings = without_empty_segments(settings.kernel_settings(), [np.any(length > 0) for length in (
         bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1])])
     n = len(origins)
     chunk = batch = settings.resolved_chunk()

@@ -18,17 +18,17 @@ accurate near the sun as the host's float64 value rounded once), so the radiance
 round the cosine to neighbouring float32 values. Everything else is what :func:`swim.rt.march.trace_rays` computes for
 the same rays (``tests/unit/test_rt_ray_table.py``).
 
-Not yet timed on a GPU (no GPU was lent to the session that wrote it): ``MarchSettings.ray_table`` is off by default
-until a GPU session has measured it (``benchmarks/bench_gpu.py --ray-table``).
+On an H100 a warm 1024² all-sky with every pixel traced renders in 0.151 s with the table against 0.324 s without
+(docs/performance.md, section 74), so ``MarchSettings.ray_table`` is on by default where the JAX kernel runs on a GPU
+(:meth:`swim.rt.march.MarchSettings.resolved_ray_table`).
 """
 
 from __future__ import annotations
 
 import collections
-import functools
 import logging
 import weakref
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -38,7 +38,8 @@ from ..errors import SwimInputError
 from ..optics.rayleigh import rayleigh_phase_function
 from . import march
 from .march import (GridGeometry, MarchSettings, _device_constants, _host_rows, check_rays, padded_batch_size,
-                    probe_counts_and_cells, ray_segments_parallel, with_probes_for, without_empty_segments)
+                    ray_segments_parallel, with_probes_for, without_empty_segments)
+from .export_cache import exported_jit
 
 log = logging.getLogger(__name__)
 
@@ -149,20 +150,15 @@ def build_ray_table(origins, directions, geometry: GridGeometry, consts, setting
             # every camera
             hi = min(lo + TABLE_BLOCK, n)
             take = np.minimum(np.arange(lo, lo + padded_batch_size(hi - lo, TABLE_BLOCK)), hi - 1)
-            p, c = _table_probes(start[take], direction[take], bounds_d[take], device, settings.n_probe,
-                                 float(settings.probe_spacing))
+            # the chunks' program (exported: a new process does not trace it)
+            p, c = march._probe_counts_chunk(start[take], direction[take], bounds_d[take], device, settings.n_probe,
+                                             float(settings.probe_spacing))
             parts.append((p[:hi - lo], c[:hi - lo]))
         probes = jnp.concatenate([p for p, _ in parts])
         cells = jnp.concatenate([c for _, c in parts])
         probes_host = np.asarray(probes)
     return RayTable(start, direction, bounds_d, jnp.asarray(seg["ends_on_ground"]), jnp.asarray(seg["valid"]),
                     probes, cells, probes_host, lengths, key)
-
-
-@functools.partial(jax.jit, static_argnames=("n_probe", "probe_spacing"))
-def _table_probes(start, direction, bounds, consts, n_probe, probe_spacing):
-    return probe_counts_and_cells(start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0], consts, n_probe,
-                                  probe_spacing)
 
 
 #: The last table of :func:`camera_ray_table`: (weak references to the directions and the pixels, table, rows).
@@ -246,7 +242,7 @@ def _geometry_key(geometry: GridGeometry):
             float(geometry.affine_residual_cells))
 
 
-@functools.partial(jax.jit, static_argnames=("aerosol_type", "stratospheric_type"))
+@exported_jit(static_argnames=("aerosol_type", "stratospheric_type"))  # a new process reads the traced program
 def _gather_rows(table_arrays, extra_arrays, rows, sun, depolarization, aerosol_type, stratospheric_type):
     """A chunk's per-ray inputs of :func:`swim.rt.march._trace_chunk` from the table's rows ``rows`` (n,) (rows past
     the table's end: the rows of ``extra_arrays``, a second table's), with the phase functions of
@@ -354,7 +350,7 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         if probes_host is not None and extra.probes_host is not None:
             probes_host = np.concatenate([probes_host, extra.probes_host])
     # the same program as trace_rays's chunks: the table's switch is not the kernel's
-    settings = replace(settings, ray_table=False)
+    settings = settings.kernel_settings()
     # segments of zero length for every ray of the batch need no steps (trace_rays)
     bits = int(np.bitwise_or.reduce(segments_host[rows]))
     settings = without_empty_segments(settings, [bits >> c & 1 for c in range(3)])

@@ -73,7 +73,8 @@ def _refill(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n
 
 _STATIC = ("n_species", "aerosol_3d", "n_levels", "n_sub")
 #: The refill compiled; on a GPU the old copy's memory is reused for the new one (donated), so a new sun never holds
-#: two packed volumes on the device (on a CPU JAX cannot donate it, and copies).
+#: two packed volumes on the device. Not on a CPU, where the kernel's "device copy" may share the host volume's
+#: memory (JAX can take a NumPy array without copying it): the refill copies there.
 _refill_donating = jax.jit(_refill, static_argnames=_STATIC, donate_argnums=(0,))
 _refill_copying = jax.jit(_refill, static_argnames=_STATIC)
 
