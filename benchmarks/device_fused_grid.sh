@@ -9,7 +9,10 @@
 # session's first run, ~300 s): the synthetic 1024^2 all-sky's captured chunk with "fused" against "fused-march", and
 # warm frames with the camera's rays kept on the device (MarchSettings.ray_table, swim.rt.ray_table) against without,
 # taking turns: every pixel, adaptive and a new sun every frame (docs/performance.md, section 73; run in session 60,
-# section 74: ~340 s on a fresh H100, of which ~140 s compilations, so the adaptive and new-sun rows need SYNTHETIC_S=420). Results go to
+# section 74: ~340 s on a fresh H100, of which ~140 s compilations, so the adaptive and new-sun rows need SYNTHETIC_S=420);
+# STAGE=step1a (session 60, section 75): the tests of a new sun's Step 1a on the device, then frames with a new sun each
+# with and without it; STAGE=next (the next GPU session's one run, ~420 s on a fresh machine): step1a, then the README's render in two new
+# processes with the ray table on by default. Results go to
 # $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
@@ -29,11 +32,25 @@ trap 'tar -C "$RES" -czf "$OUT/results.tar.gz" . ; ls -la "$RES"' EXIT
 quiet() { grep -v "^WARNING\|^I0000\|absl"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
-if [ "${STAGE:-compare}" = step1a ]; then  # session 60's MarchSettings.step1a_on_device (section 75), ~200 s
-    # its tests on the GPU first (the donating program runs only there), where the machine has pytest
-    timeout 120 python3 -m pytest -q -p no:cacheprovider tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
+step1a() {  # session 60's MarchSettings.step1a_on_device (section 75), ~200 s: its tests on the GPU first (the
+    # donating program runs only there; where the machine has pytest), then frames with a new sun each, taking turns
+    timeout 150 python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
     timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
         --sun-series 3 --repeats 4 --out "$RES/step1a-synthetic.json" 2>&1 | quiet
+}
+readme() {  # the README's render at 1024^2 in two new processes (the second reads the first's caches)
+    for k in 1 2; do
+        t0=$(date +%s.%N)
+        timeout 150 python3 -m swim.cli.main render --size 1024 --out "$RES/readme-$k.png" 2>&1 | quiet
+        echo "README render at 1024^2, new process $k: $(python3 -c "import sys, time; print(f'{time.time() - float(sys.argv[1]):.2f}')" "$t0") s"
+    done
+}
+if [ "${STAGE:-compare}" = next ]; then  # the next GPU session's one run (~420 s on a fresh machine): step1a, then
+    # the README's render with the ray table on by default (section 74: a new process's frame not yet timed with it)
+    SYNTHETIC_S=${SYNTHETIC_S:-200} step1a
+    readme
+elif [ "${STAGE:-compare}" = step1a ]; then
+    step1a
 elif [ "${STAGE:-compare}" = table ]; then
     timeout "${SYNTHETIC_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --against fused-march \
         --ray-table --sampling --sun-series 3 --out "$RES/table-synthetic.json" 2>&1 | quiet
@@ -45,10 +62,6 @@ elif [ "${STAGE:-compare}" = compare ]; then
 else
     timeout "${SYNTHETIC_S:-240}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --profile \
         --sampling --fused-blocks ${BLOCKS:-256x4 128x2} --out "$RES/profile-synthetic.json" 2>&1 | quiet
-    for k in 1 2; do  # the README's render at 1024^2 in new processes: the second reads the first's caches
-        t0=$(date +%s.%N)
-        timeout 150 python3 -m swim.cli.main render --size 1024 --out "$RES/readme-$k.png" 2>&1 | quiet
-        echo "README render at 1024^2, new process $k: $(python3 -c "import sys, time; print(f'{time.time() - float(sys.argv[1]):.2f}')" "$t0") s"
-    done
+    readme
     ls "$SWIM_CACHE_DIR"/* | head -20
 fi
