@@ -556,21 +556,19 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         in tile order (:func:`_scene_directions`) and traced as it is (the order: None)."""
         order = None if tiled else tile_order(flat, cam.shape)
         pixels = flat if tiled else flat[order]
+        with_sun = not sun_out  # the sun's ray, last, with the first batch
         if table is not None:
-            # the sun's ray (not the camera's, so not in the table) with the first batch
-            extra = None if sun_out else single_ray_table(observer, sun_scene, geometry, consts, settings)
+            # (not the camera's ray, so not in its table: a one-row table of its own)
+            extra = single_ray_table(observer, sun_scene, geometry, consts, settings) if with_sun else None
             result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, progress_rays,
                                       extra=extra)
-            if extra is not None:
-                sun_out.update({key: value[-1] for key, value in result.items()})
-                result = {key: value[:-1] for key, value in result.items()}
-            return order, result
-        dirs = np.empty((len(pixels) + (not sun_out), 3))
-        np.take(dirs_scene, pixels, axis=0, out=dirs[:len(pixels)])
-        if not sun_out:
-            dirs[-1] = sun_scene
-        result = trace_directions(dirs, progress_rays)
-        if not sun_out:
+        else:
+            dirs = np.empty((len(pixels) + with_sun, 3))
+            np.take(dirs_scene, pixels, axis=0, out=dirs[:len(pixels)])
+            if with_sun:
+                dirs[-1] = sun_scene
+            result = trace_directions(dirs, progress_rays)
+        if with_sun:
             sun_out.update({key: value[-1] for key, value in result.items()})
             result = {key: value[:-1] for key, value in result.items()}
         return order, result

@@ -1861,6 +1861,12 @@ def shared_packed_volume(volume, species):
     return packed
 
 
+def step1a_channel_names(aerosol_3d) -> tuple:
+    """The packed volume's Step 1a channels by name, in their order (the last channels): :data:`KERNEL_STEP1A_VARIABLES`,
+    without ``aerosol_tau_sun`` where the volume has no 3-D aerosol (:func:`packed_aerosol_3d`)."""
+    return KERNEL_STEP1A_VARIABLES if aerosol_3d else KERNEL_STEP1A_VARIABLES[1:]
+
+
 def step1a_channel_views(packed, species):
     """The packed volume's Step 1a channels (:data:`KERNEL_STEP1A_VARIABLES`, the 3-D aerosol's only where it is
     packed) as writeable views (level, y, x) by variable name, for :func:`swim.rt.solar.solar_transmittance` to write
@@ -1884,7 +1890,7 @@ def step1a_channel_views(packed, species):
     channels: one compiled pass instead takes 0.04-0.08 s off a new sun's 0.63-0.68 s for the 400 x 400 x 60 scene
     (docs/performance.md, section 70)."""
     aerosol_3d = packed_aerosol_3d(packed.shape[-1], len(species))
-    names = KERNEL_STEP1A_VARIABLES if aerosol_3d else KERNEL_STEP1A_VARIABLES[1:]
+    names = step1a_channel_names(aerosol_3d)
     first = packed.shape[-1] - len(names)
     forget_device_copies_of(packed)
     packed.flags.writeable = True
@@ -1914,7 +1920,7 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     if packed.shape[-1] != len(species) + 2 + 2 * aerosol_3d:
         raise ValueError(f"packed volume of {packed.shape[-1]} channels does not hold the species {species}")
     n_grid = packed.shape[-1] - 2 - aerosol_3d  # channels of the grid itself
-    names = KERNEL_STEP1A_VARIABLES if aerosol_3d else KERNEL_STEP1A_VARIABLES[1:]
+    names = step1a_channel_names(aerosol_3d)
     values = [transmittance[name].values for name in names]
     if packed.shape[:-1] != values[0].shape:
         raise ValueError(f"packed volume of shape {packed.shape} does not match Step 1a's fields {values[0].shape}")
@@ -2254,22 +2260,15 @@ def kept_device_copies(hosts, cache=None):
     """The device copies that :func:`device_copies` keeps in ``cache`` (default: the JAX kernel's) for exactly the
     host arrays ``hosts`` (name -> numpy array; the same arrays owning the memory, the same views), or None where it
     keeps none of them."""
-    cache = _DEVICE_COPIES if cache is None else cache
-    entry = cache.get("entry")
-    if entry is None or entry[3] != [_buffer_identity(a) for a in hosts.values()] or any(
-            ref() is not _owner(a) for ref, a in zip(entry[0], hosts.values())):
-        return None
-    return dict(entry[1])
+    entry = (_DEVICE_COPIES if cache is None else cache).get("entry")
+    return dict(entry[1]) if _copies_of(entry, hosts) else None
 
 
 def keep_device_copies(hosts, copies, cache=None):
     """Keep the device arrays ``copies`` (name -> array) as :func:`device_copies`'s copies of the host arrays ``hosts``
     (name -> numpy array, the same names and values) in ``cache`` (default: the JAX kernel's), replacing what it kept:
     for copies made on the device (a new sun's Step 1a there, :mod:`swim.rt.solar_device`) rather than sent."""
-    cache = _DEVICE_COPIES if cache is None else cache
-    made = {id(hosts[key]): copies[key] for key in hosts}
-    cache.clear()
-    device_copies(hosts, lambda a: made[id(a)], cache)
+    _store_copies(_DEVICE_COPIES if cache is None else cache, hosts, copies)
 
 
 def device_copies(hosts, transfer, cache):
@@ -2279,19 +2278,32 @@ def device_copies(hosts, transfer, cache):
     copies go before new ones are made, and they are dropped with their host arrays, so a new sun or a cleared
     stage cache never keeps an old volume on the device. Serves the JAX kernel (:func:`_device_constants`) and the
     CUDA one (:func:`swim.rt.march_cuda.device_tables`)."""
+    entry = cache.get("entry")
+    if not _copies_of(entry, hosts):
+        cache.clear()  # the previous copies go before the new ones are made
+        entry = _store_copies(cache, hosts, {key: transfer(a) for key, a in hosts.items()})
+    return entry[1]
+
+
+def _copies_of(entry, hosts):
+    """Whether a cache's ``entry`` (:func:`device_copies`) holds the copies of exactly the host arrays ``hosts``: the
+    same arrays owning their memory, and the same views of them."""
+    return (entry is not None and entry[3] == [_buffer_identity(a) for a in hosts.values()]
+            and all(ref() is _owner(a) for ref, a in zip(entry[0], hosts.values())))
+
+
+def _store_copies(cache, hosts, copies):
+    """Keep ``copies`` (name -> device array) in ``cache`` as the copies of the host arrays ``hosts``, replacing what
+    it held; they are dropped with the first host array's owner. Returns the entry."""
     if not any(known is cache for known in _COPY_CACHES):
         _COPY_CACHES.append(cache)  # for forget_device_copies_of
     owners = [_owner(a) for a in hosts.values()]
-    identities = [_buffer_identity(a) for a in hosts.values()]
-    entry = cache.get("entry")
-    if entry is None or entry[3] != identities or any(ref() is not owner for ref, owner in zip(entry[0], owners)):
-        cache.clear()  # the previous copies go before the new ones are made
-        token = object()  # what the finalizer holds: not the copies, which must not outlive the entry
-        entry = ([weakref.ref(owner) for owner in owners], {key: transfer(a) for key, a in hosts.items()}, token,
-                 identities)
-        cache["entry"] = entry
-        weakref.finalize(owners[0], _forget_device_copies, cache, token)
-    return entry[1]
+    token = object()  # what the finalizer holds: not the copies, which must not outlive the entry
+    entry = ([weakref.ref(owner) for owner in owners], dict(copies), token,
+             [_buffer_identity(a) for a in hosts.values()])
+    cache["entry"] = entry
+    weakref.finalize(owners[0], _forget_device_copies, cache, token)
+    return entry
 
 
 def forget_device_copies_of(host):

@@ -238,6 +238,76 @@ def step1a_levels(volume: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
     return hydro_levels, aerosol_levels
 
 
+#: The attributes of :func:`solar_transmittance`'s variables.
+STEP1A_ATTRS = {"tau_sun": {"units": "1", "long_name": "optical depth towards the sun (Step 1a)"},
+                "b_tau_sun": {"units": "1"},
+                "terrain_shadow": {"units": "1"},
+                "aerosol_tau_sun": {"units": "1", "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
+                "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
+                "transmittance": {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}}
+#: :data:`OUT_VARIABLES` above the swept levels, where nothing casts a shadow: T and the terrain's shadow 1, the 3-D
+#: aerosol's optical depth towards the sun 0.
+ABOVE_SWEPT = {"aerosol_tau_sun": 0.0, "cloud_transmittance": 1.0, "terrain_shadow": 1.0}
+
+
+def sweep_geometry(volume: xr.Dataset, sun, caller: str):
+    """The sun's path through an optical volume's levels, as the sweep takes it.
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        Optical volume: its attributes ``dz`` [m] and ``affine_matrix`` (2 x 2, [m per grid index]).
+    sun : numpy.ndarray
+        Shape (3,): unit vector towards the sun in the scene frame.
+    caller : str
+        Named in the error.
+
+    Returns
+    -------
+    di, dj : float
+        The sun ray's horizontal shift [grid indices] per level climbed (the elevation's sine at least
+        :data:`MIN_SUN_ELEVATION_SINE`).
+    n_sub : int
+        Sub-steps per level: none longer than one grid cell horizontally (at most 256).
+    path_per_level : float
+        Path length [m] along the sun per level.
+    mu0 : float
+        The cosine of the solar zenith angle [-] that T takes, at least :data:`MIN_SUN_ELEVATION_SINE`.
+
+    Raises
+    ------
+    SwimInputError
+        If the shift is not finite (the sweeps index by it unchecked, the numba one without bounds tests).
+
+    References
+    ----------
+    Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4 (Step 1a's rays towards the sun).
+    """
+    sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
+    dz = float(volume.attrs["dz"])
+    matrix = np.asarray(volume.attrs["affine_matrix"]).reshape(2, 2)
+    # Horizontal displacement [m] while climbing one level along the sun, in index units.
+    di, dj = np.linalg.solve(matrix, sun[:2] / sin_elev * dz)
+    if not (np.isfinite(di) and np.isfinite(dj)):
+        raise SwimInputError(f"{caller}: the sun's shift per level ({di}, {dj}) grid cells is not finite; "
+                             f"check the sun direction {sun.tolist()} and the volume's affine_matrix")
+    n_sub = int(np.clip(np.ceil(max(abs(di), abs(dj), 1.0)), 1, 256))
+    return float(di), float(dj), n_sub, dz / sin_elev, max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
+
+
+def swept_levels(top) -> int:
+    """Levels [-] a field is swept on: up to its highest level ``top`` (level,) bool marks (which must mark one), and
+    the clear level above it, at least 2 and at most all; above them its optical depth towards the sun is 0."""
+    return max(min(int(np.flatnonzero(top).max()) + 2, top.size), 2)
+
+
+def backscatter_weights(volume: xr.Dataset) -> np.ndarray:
+    """The backscatter fraction b [-] (species,) float32 of each species of an optical volume's ``species``
+    coordinate (after :func:`swim.rt.march.share_packed_channels` it names only the packed species): the weights of
+    the swept ``b tau_s`` (Sect. 3.4 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020)."""
+    return np.array([BACKSCATTER_FRACTION[str(name)] for name in volume["species"].values], np.float32)
+
+
 def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None, backend="auto",
                         nonzero_levels=None, out=None) -> xr.Dataset:
     """Step 1a: optical depth towards the sun and cloud transmittance T at every grid point.
@@ -317,18 +387,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     if backend == "cuda":  # the march's GPU kernel: the sweep where JAX runs, or on the host's cores
         backend = "jax" if jax.default_backend() != "cpu" else "numba"
     sun = np.asarray(sun_direction_scene, dtype=float)
-    sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
+    di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "solar_transmittance")
     dz = float(volume.attrs["dz"])
-    matrix = np.asarray(volume.attrs["affine_matrix"]).reshape(2, 2)
-    # Horizontal displacement [m] while climbing one level along the sun, in index units.
-    horiz = sun[:2] / sin_elev * dz
-    di, dj = np.linalg.solve(matrix, horiz)
-    if not (np.isfinite(di) and np.isfinite(dj)):
-        # the sweeps index by these shifts unchecked (the numba one without bounds tests)
-        raise SwimInputError(f"solar_transmittance: the sun's shift per level ({di}, {dj}) grid cells is not finite; "
-                             f"check the sun direction {sun.tolist()} and the volume's affine_matrix")
-    n_sub = int(np.clip(np.ceil(max(abs(di), abs(dj), 1.0)), 1, 256))
-    path_per_level = dz / sin_elev  # path length [m] along the (unit) sun vector per level
 
     beta = volume["extinction"].values
     aerosol = volume["aerosol_extinction"].values
@@ -337,7 +397,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     nk = levels.size
     shape = beta.shape[2:]  # (ny, nx)
     # by the volume's own species coordinate: after share_packed_channels it names only the packed species
-    b = np.array([BACKSCATTER_FRACTION[str(name)] for name in volume["species"].values], np.float32)
+    b = backscatter_weights(volume)
     # The swept fields: 0 hydrometeor extinction, 1 its backscatter-weighted sum, 2 the terrain (zero at and
     # above the surface, so a sunlit slope does not shade itself; opaque a full level below it), 3 the 3-D
     # aerosol. The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D
@@ -358,7 +418,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     # Each field is swept up to its own top: the terrain's few levels apart from the clouds' many, so neither the
     # sweep's input nor its output holds zeros above the terrain up to the cloud top (memory). The JAX sweep
     # takes all fields in one call (one compiled shape).
-    levels_of = {c: max(min(int(np.flatnonzero(tops[c]).max()) + 2, nk), 2) for c in swept}
+    levels_of = {c: swept_levels(tops[c]) for c in swept}
     groups = {}
     for c in swept:
         groups.setdefault(levels_of[c] if backend == "numba" else max(levels_of.values()), []).append(c)
@@ -383,13 +443,13 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         if backend == "numba":
             from .solar_cpu import sweep
 
-            depths = sweep(padded, float(di), float(dj), float(path_per_level), n_sub,
+            depths = sweep(padded, di, dj, path_per_level, n_sub,
                            DIRECT_LEVELS)[:, :, :shape[0], :shape[1]]
             del padded, fields
         else:
             device = jnp.asarray(fields)
             del padded, fields  # the host copy goes before the sweep's output is made
-            depths = np.asarray(_sweep(device, float(di), float(dj), float(path_per_level), n_sub))
+            depths = np.asarray(_sweep(device, di, dj, path_per_level, n_sub))
             del device
         taus.update({c: depths[:, row] for row, c in enumerate(group)})
         del depths
@@ -411,25 +471,20 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
             a[k0:k1] = taus[c][k0:k1] if transform is None else transform(k0, k1)
         return a
 
-    mu0 = max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
-
     def cloud_t(k0, k1):
         return np.asarray(_transmittance_delta_eddington_jit(taus[0][k0:k1], taus[1][k0:k1], np.float32(mu0)))
 
     dims = ("level", "y", "x")
-    attrs = {"tau_sun": {"units": "1", "long_name": "optical depth towards the sun (Step 1a)"},
-             "b_tau_sun": {"units": "1"},
-             "terrain_shadow": {"units": "1"},
-             "aerosol_tau_sun": {"units": "1", "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
-             "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
-             "transmittance": {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}}
+    attrs = STEP1A_ATTRS
 
     def shadow(k0, k1):
         return np.exp(-taus[2][k0:k1])
 
     # field: (swept field, transform, value above the swept levels)
-    recipes = {"tau_sun": (0, None, 0.0), "b_tau_sun": (1, None, 0.0), "terrain_shadow": (2, shadow, 1.0),
-               "aerosol_tau_sun": (3, None, 0.0), "cloud_transmittance": (0, cloud_t, 1.0)}
+    recipes = {"tau_sun": (0, None, 0.0), "b_tau_sun": (1, None, 0.0),
+               "terrain_shadow": (2, shadow, ABOVE_SWEPT["terrain_shadow"]),
+               "aerosol_tau_sun": (3, None, ABOVE_SWEPT["aerosol_tau_sun"]),
+               "cloud_transmittance": (0, cloud_t, ABOVE_SWEPT["cloud_transmittance"])}
     data = {}
     if out:
         _write_step1a_channels(out, taus, mu0, shape)

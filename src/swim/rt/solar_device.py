@@ -29,11 +29,13 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+import xarray as xr
 
-from ..constants import BACKSCATTER_FRACTION
 from ..errors import SwimInputError
-from .solar import (DIRECT_LEVELS, MIN_SUN_ELEVATION_SINE, TERRAIN_OPACITY_PER_CELL, _sweep,
-                    transmittance_delta_eddington)
+from ..workers import in_blocks
+from .march import KERNEL_STEP1A_VARIABLES, packed_aerosol_3d, step1a_channel_names, step1a_channel_views
+from .solar import (ABOVE_SWEPT, DIRECT_LEVELS, STEP1A_ATTRS, TERRAIN_OPACITY_PER_CELL, _sweep, backscatter_weights,
+                    sweep_geometry, swept_levels, transmittance_delta_eddington)
 
 
 def _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species, aerosol_3d,
@@ -42,7 +44,8 @@ def _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level
     device's packed volume (level, y, x, channel), all levels: swept up to ``n_levels``, above it T = 1, shadow 1 and
     the aerosol's optical depth 0 (what the sweep gives where every field is zero above)."""
     nk, ny, nx, _ = packed.shape
-    above = jnp.asarray([0.0, 1.0, 1.0] if aerosol_3d else [1.0, 1.0], jnp.float32)
+    names = step1a_channel_names(aerosol_3d)
+    above = jnp.asarray([ABOVE_SWEPT[name] for name in names], jnp.float32)
     if n_levels == 0:  # nothing to sweep (no cloud, no terrain above the lowest level, no 3-D aerosol)
         return jnp.broadcast_to(above, (nk, ny, nx, above.size))
     grid = packed[:n_levels]
@@ -58,7 +61,10 @@ def _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level
     taus = _sweep(jnp.stack(fields), di, dj, path_per_level, n_sub, DIRECT_LEVELS)  # (n_levels, C, ny, nx)
     cloud_t = transmittance_delta_eddington(taus[:, 0], taus[:, 1], mu0).astype(jnp.float32)
     shadow = jnp.exp(-taus[:, 2])
-    swept = jnp.stack(([taus[:, 3]] if aerosol_3d else []) + [cloud_t, shadow], axis=-1)
+    by_name = {"cloud_transmittance": cloud_t, "terrain_shadow": shadow}
+    if aerosol_3d:
+        by_name["aerosol_tau_sun"] = taus[:, 3]
+    swept = jnp.stack([by_name[name] for name in names], axis=-1)
     rest = jnp.broadcast_to(above, (nk - n_levels, ny, nx, above.size))
     return jnp.concatenate([swept, rest], axis=0)
 
@@ -131,35 +137,24 @@ def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species
     if tuple(device_packed.shape) != (nk,) + shape + (channels,) or device_packed.dtype != jnp.float32:
         raise SwimInputError(f"refill_step1a_channels: the device's packed volume {tuple(device_packed.shape)} "
                              f"{device_packed.dtype} is not float32 of shape {(nk,) + shape + (channels,)}")
-    sin_elev = max(sun[2], MIN_SUN_ELEVATION_SINE)
+    di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "refill_step1a_channels")
     dz = float(volume.attrs["dz"])
-    matrix = np.asarray(volume.attrs["affine_matrix"]).reshape(2, 2)
-    di, dj = np.linalg.solve(matrix, sun[:2] / sin_elev * dz)
-    if not (np.isfinite(di) and np.isfinite(dj)):
-        raise SwimInputError(f"refill_step1a_channels: the sun's shift per level ({di}, {dj}) grid cells is not "
-                             f"finite; check the sun direction {sun.tolist()} and the volume's affine_matrix")
-    n_sub = int(np.clip(np.ceil(max(abs(di), abs(dj), 1.0)), 1, 256))
     levels = volume["level"].values
     terrain = volume["terrain_height"].values
     hydro_levels, aerosol_levels = (np.asarray(a, bool) for a in nonzero_levels)
     tops = [hydro_levels, levels < terrain.max()] + ([aerosol_levels] if aerosol_3d else [])
-    # as solar_transmittance's JAX path: every field to the highest top (+ the clear level above it), at least 2
-    n_levels = max([max(min(int(np.flatnonzero(t).max()) + 2, nk), 2) for t in tops if t.any()], default=0)
-    weights = np.array([BACKSCATTER_FRACTION[str(name)] for name in volume["species"].values], np.float32)
+    # as solar_transmittance's JAX path: every field to the highest field's top
+    n_levels = max([swept_levels(t) for t in tops if t.any()], default=0)
+    weights = backscatter_weights(volume)
     if weights.size != n_species:
         raise SwimInputError(f"refill_step1a_channels: the volume names {weights.size} species, the packed volume "
                              f"holds {n_species}")
-    mu0 = max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
     refill = _refill_copying if jax.default_backend() == "cpu" else _refill_donating
     f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
     new, swept = refill(device_packed, f32(weights), f32(terrain), f32(levels), f32(dz), f32(di), f32(dj),
-                        f32(dz / sin_elev), f32(mu0), n_species=int(n_species), aerosol_3d=bool(aerosol_3d),
+                        f32(path_per_level), f32(mu0), n_species=int(n_species), aerosol_3d=bool(aerosol_3d),
                         n_levels=int(n_levels), n_sub=n_sub)
     return new, swept, n_levels
-
-
-#: What Step 1a's channels hold above the swept levels (T and the terrain's shadow 1, no aerosol optical depth).
-_ABOVE = {"aerosol_tau_sun": 0.0, "cloud_transmittance": 1.0, "terrain_shadow": 1.0}
 
 
 def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, packed, species, nonzero_levels):
@@ -199,21 +194,24 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
     ------
     SwimInputError
         As :func:`refill_step1a_channels`.
+
+    References
+    ----------
+    Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8 (Step 1a; T as
+    :func:`swim.rt.solar.transmittance_delta_eddington`).
     """
     import xarray as xr
 
     from ..workers import in_blocks
-    from .march import KERNEL_STEP1A_VARIABLES, packed_aerosol_3d, step1a_channel_views
-
     n_species = len(species)
     aerosol_3d = packed_aerosol_3d(packed.shape[-1], n_species)
     views = step1a_channel_views(packed, species)  # the old device copies dropped; the host's channels writeable
     new, swept, n_levels = refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species, aerosol_3d,
                                                   nonzero_levels)
     host = np.asarray(swept)  # (n_levels, y, x, channels): the device's values, once
-    names = KERNEL_STEP1A_VARIABLES if aerosol_3d else KERNEL_STEP1A_VARIABLES[1:]
+    names = step1a_channel_names(aerosol_3d)
     first = packed.shape[-1] - len(names)
-    above = np.array([_ABOVE[name] for name in names], np.float32)
+    above = np.array([ABOVE_SWEPT[name] for name in names], np.float32)
 
     def write(k0, k1):  # a cell's channels one cache line's write
         swept_to = min(k1, n_levels)
@@ -223,12 +221,9 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
             packed[max(k0, n_levels):k1, ..., first:] = above
 
     in_blocks(write, packed.shape[0])
-    attrs = {"aerosol_tau_sun": {"units": "1", "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
-             "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
-             "terrain_shadow": {"units": "1"}}
     # a variable that is not packed (no 3-D aerosol) is a read-only broadcast of its value, as solar_transmittance
     # gives it: the ground's fields read it too (swim.rt.march.surface_fields)
     data = {name: (("level", "y", "x"), views[name] if name in views
-                   else np.broadcast_to(np.float32(_ABOVE[name]), packed.shape[:-1]), attrs[name])
+                   else np.broadcast_to(np.float32(ABOVE_SWEPT[name]), packed.shape[:-1]), STEP1A_ATTRS[name])
             for name in KERNEL_STEP1A_VARIABLES}
     return xr.Dataset(data, coords={"level": volume["level"]}), new
