@@ -35,6 +35,9 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   every frame (with ``--sun-series N``), each one's median and the largest radiance difference between the two;
 * with ``--step1a-on-device``: frames with a new sun each, a new sun's Step 1a on the device's copy of the packed
   volume (``MarchSettings.step1a_on_device``, :mod:`swim.rt.solar_device`) against the host's, taking turns;
+* with ``--device-sampling``: adaptive frames with the sampler's image on the device (``MarchSettings.device_sampling``,
+  :mod:`swim.rt.image_sampling_device`) against the host's sampler, taking turns, both with the camera's rays on the
+  device (the ray table);
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
   device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
@@ -279,6 +282,12 @@ def run_scene(name, args, probe, out_dir):
         rows.extend(compare_ray_table(name, scene, kw, args))
     if args.step1a_on_device and args.backend == "jax":  # a new sun every frame: Step 1a on the device or the host
         rows.extend(compare_setting(name, scene, kw, args, "step1a_on_device", [("new sun", {"new_sun": True})]))
+    if args.device_sampling and args.backend == "jax":  # adaptive frames: the sampler on the device or the host
+        from swim.rt.image_sampling import AdaptiveSampling
+
+        table_kw = {**kw, "settings": replace(kw["settings"], ray_table=True)}
+        rows.extend(compare_setting(name, scene, table_kw, args, "device_sampling",
+                                    [("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)})]))
     if args.barriers:
         rows.append(compare_barriers(name, scene, kw, probe, args.repeats))
     if args.profile and out_dir:
@@ -569,6 +578,9 @@ def main(argv=None):
     ap.add_argument("--step1a-on-device", action="store_true",
                     help="also time frames with a new sun each, MarchSettings.step1a_on_device on against off, taking "
                          "turns (docs/performance.md, section 75)")
+    ap.add_argument("--device-sampling", action="store_true",
+                    help="also time adaptive frames with the sampler on the device (MarchSettings.device_sampling) "
+                         "against the host's, taking turns, the ray table on")
     ap.add_argument("--barriers", action="store_true",
                     help="also the kernel with its CPU optimisation barriers forced on (section 18 of docs/performance.md)")
     ap.add_argument("--compare", action="store_true", help="also render with numba on the host and compare")

@@ -16,6 +16,12 @@ three wavelengths of |L' - L'_full| / max(L'_full, 1e-3), over all valid pixels,
 view zenith and the rim above it), the line-of-sight hydrometeor optical depth's (floor 0.1), and the cloud pixels it
 lost (optical depth > 0.3 in the full image, < a tenth of it interpolated). The march's own error, and the time, are
 ``bench_settings.py``'s (docs/performance.md, sections 44-46 and 56).
+
+``--device`` also replays each variant with :func:`swim.rt.image_sampling_device.sample_image_adaptive_device` (the
+image's arrays, tests and interpolation on the JAX device) and compares it with the host's sampler on the same image:
+the pixels that only one of them traced, each output's largest difference, and each sampler's time, taking turns
+(docs/performance.md, section 76). On a CPU that times the device sampler's JAX programs on the CPU; on a GPU machine
+it is what an adaptive frame's sampling costs there.
 """
 
 from __future__ import annotations
@@ -134,6 +140,64 @@ def replay(full, overrides, rim_deg):
                                                       & (values["tau_hydrometeor"] < 0.1 * tau)))}
 
 
+def compare_device(full, overrides, repeats=5):
+    """The host's sampler and :func:`swim.rt.image_sampling_device.sample_image_adaptive_device` replayed on the
+    fully traced image ``full`` with ``overrides``, taking turns: each one's best and median time [s] (after one
+    warm-up; the device's outputs waited for), the pixels each traced, the pixels traced by one only, and the largest
+    difference of each output between the two (dict)."""
+    import time
+
+    import jax
+
+    from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive
+    from swim.rt.image_sampling_device import sample_image_adaptive_device
+
+    arrays = {"radiance": full["radiance"], "radiance_clear": full["radiance_clear"],
+              "tau_hydrometeor": full["tau"], "surface": full["surface"], "steps": full["steps"]}
+    on_device = {key: jax.device_put(value) for key, value in arrays.items()}
+
+    def host_trace(flat):
+        return {key: value[flat] for key, value in arrays.items()}
+
+    def device_trace(flat):  # as the ray table's march returns them: on the device
+        index = jax.device_put(flat)
+        return {key: value[index] for key, value in on_device.items()}
+
+    sampling = AdaptiveSampling(**overrides)
+
+    def host():
+        return sample_image_adaptive(host_trace, full["valid"], sampling, max_threads=8, outside=np.nan)
+
+    def device():
+        values, traced = sample_image_adaptive_device(device_trace, full["valid"], sampling, outside=np.nan)
+        jax.block_until_ready((values, traced))
+        return values, traced
+
+    times = {"host": [], "device": []}
+    results = {}
+    for repeat in range(repeats + 1):
+        for name, run in (("host", host), ("device", device)):
+            t0 = time.perf_counter()
+            results[name] = run()
+            if repeat:
+                times[name].append(time.perf_counter() - t0)
+    (hv, ht), (dv, dt) = results["host"], results["device"]
+    ht, dt = np.asarray(ht).reshape(-1), np.asarray(dt).reshape(-1)
+    differences = {}
+    for key, value in hv.items():
+        a = np.asarray(value).reshape(value.shape[0], -1)
+        b = np.asarray(dv[key])
+        if a.dtype.kind == "f":
+            same_nan = bool(np.array_equal(np.isnan(a), np.isnan(b)))
+            differences[key] = float(np.nanmax(np.abs(a - b) / np.maximum(np.abs(a), 1e-3))) if same_nan else "NaNs differ"
+        else:
+            differences[key] = int(np.count_nonzero(a != b))
+    return {"sampling": asdict(sampling), "host_s": [min(times["host"]), float(np.median(times["host"]))],
+            "device_s": [min(times["device"]), float(np.median(times["device"]))], "backend": jax.default_backend(),
+            "traced_host": int(ht.sum()), "traced_device": int(dt.sum()), "traced_by_one": int(np.count_nonzero(ht != dt)),
+            "largest_difference": differences}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--case", action="append", default=None,
@@ -147,6 +211,10 @@ def main():
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "swim-bench-sampling",
                         help="folder of the fully traced images (.npz, ~30 MB each at 1024²)")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--device", action="store_true",
+                        help="also replay each variant with the sampler on the device (JAX) and compare it with the "
+                             "host's: traced pixels, outputs and time (compare_device)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed replays of each sampler with --device")
     args = parser.parse_args()
 
     variants = {text: parse_variant(text) for text in (args.variant if args.variant is not None else DEFAULT_VARIANTS)}
@@ -167,6 +235,12 @@ def main():
             print(f"| {case} | {text or 'defaults'} | {r['traced_pixels']} | {r['march_samples'] / 1e6:.2f} | "
                   f"{cell(e['all'])} | {cell(e['sky'])} | {cell(e['rim'])} | {cell(r['tau_error_pct'])} | "
                   f"{r['lost_cloud_pixels']} |", flush=True)
+            if args.device:
+                c = compare_device(full, overrides, args.repeats)
+                r["device"] = c
+                print(f"|  | device sampler ({c['backend']}) | {c['traced_device']} ({c['traced_by_one']} traced by "
+                      f"one sampler only) | host {c['host_s'][1]:.3f} s, device {c['device_s'][1]:.3f} s (medians) | "
+                      f"largest difference: {c['largest_difference']} |||||", flush=True)
 
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H%M%SZ")
     path = args.out or ROOT / "benchmarks" / "results" / f"sampling-{args.size}-{stamp}.json"

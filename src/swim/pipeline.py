@@ -614,8 +614,26 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                  sampling.edge_test_size)
         # NaN outside the camera's pixels from the start: the planes are then copies in channel order, not masked
         # (np.where over a transposed view took ~30 ms of a 1024^2 image while the cores idled)
-        out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress, max_threads=min(threads(), 8),
-                                            outside=np.nan)
+        if table is not None and settings.device_sampling:
+            # MarchSettings.device_sampling: the sampler's image on the device, beside the camera's ray table
+            from .rt.image_sampling_device import sample_image_adaptive_device
+
+            def trace_on_device(pixels):
+                # a bucketed batch (its last pixel repeated), the outputs left on the device; the sun's ray in a
+                # one-row batch of its own (with a full bucket's rows it would double the batch's padded size)
+                if not sun_out:
+                    sun_table = single_ray_table(observer, sun_scene, geometry, consts, settings)
+                    sun_out.update({key: value[-1] for key, value in trace_table_rows(
+                        sun_table, np.zeros(1, np.int64), consts, phase_inputs, settings).items()})
+                result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, on_device=True)
+                return {key: value for key, value in result.items() if key in (*IMAGE_OUTPUTS, "surface", "steps")}
+
+            out, traced = sample_image_adaptive_device(trace_on_device, valid, sampling, progress, outside=np.nan,
+                                                       chunk=settings.resolved_chunk())
+            out, traced = jax.device_get((out, traced))  # one copy of the finished image's arrays to the host
+        else:
+            out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress,
+                                                max_threads=min(threads(), 8), outside=np.nan)
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
 

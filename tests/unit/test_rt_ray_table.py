@@ -201,7 +201,8 @@ def test_camera_table_is_rebuilt_for_another_observer():
 
 def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
     """``swim render --ray-table`` / ``--no-ray-table`` set MarchSettings.ray_table; without either it stays None
-    (the device decides: MarchSettings.resolved_ray_table); ``--step1a-on-device`` sets step1a_on_device."""
+    (the device decides: MarchSettings.resolved_ray_table); ``--step1a-on-device`` sets step1a_on_device,
+    ``--device-sampling`` device_sampling."""
     from typer.testing import CliRunner
 
     import swim.pipeline
@@ -211,14 +212,16 @@ def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
     real = swim.pipeline.render
 
     def spy(*args, **kwargs):
-        seen.append((kwargs["settings"].ray_table, kwargs["settings"].step1a_on_device))
+        seen.append((kwargs["settings"].ray_table, kwargs["settings"].step1a_on_device,
+                     kwargs["settings"].device_sampling))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(swim.pipeline, "render", spy)
-    for k, flag in enumerate((["--ray-table"], ["--no-ray-table", "--step1a-on-device"], [])):
+    for k, flag in enumerate((["--ray-table"], ["--no-ray-table", "--step1a-on-device"], [],
+                              ["--ray-table", "--adaptive", "--device-sampling"])):
         out = tmp_path / f"sky{k}.png"
         result = CliRunner().invoke(app, ["render", *flag, "--size", "9", "--sun-zenith", "40", "--sun-azimuth",
                                           "100", "--out", str(out)])
         assert result.exit_code == 0, result.output
         assert out.exists()
-    assert seen == [(True, False), (False, True), (None, False)]
+    assert seen == [(True, False, False), (False, True, False), (None, False, False), (True, False, True)]

@@ -154,6 +154,10 @@ def render(
                                           "device's copy of the packed volume (the JAX kernel: "
                                           "MarchSettings.step1a_on_device; not yet timed on a GPU, "
                                           "docs/performance.md, section 75)."),
+    device_sampling: bool = typer.Option(False, "--device-sampling", help="With --adaptive and the camera's rays on "
+                                         "the device (--ray-table): the sampler's image, tests and interpolation on "
+                                         "the device (MarchSettings.device_sampling; not yet timed on a GPU, "
+                                         "docs/performance.md, section 76)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -233,7 +237,7 @@ def render(
             except (ValueError, AssertionError):
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
         settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
-                                 step1a_on_device=step1a_on_device,
+                                 step1a_on_device=step1a_on_device, device_sampling=device_sampling,
                                  **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,

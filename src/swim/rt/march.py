@@ -187,6 +187,13 @@ class MarchSettings:
         volume to the device again (~1.3 GB of transfers for the 400 x 400 x 60 scene). The same equations and sweep;
         the channels agree to float32 round-off. Default False: not yet timed on a GPU (docs/performance.md, section
         75). Used only by the JAX kernel, for a scene rendered before with another sun in the same process.
+    device_sampling : bool
+        Adaptive sampling with the image on the device (:mod:`swim.rt.image_sampling_device`), where the camera's
+        rays are kept there (:meth:`resolved_ray_table`): the march's outputs are scattered, the cells tested and the
+        smooth ones interpolated on the device, and only each batch's mask of wanted pixels and the finished image
+        come to the host. The same traced pixels and image as the host's sampler (to float32 rounding). Default
+        False: not yet timed on a GPU (docs/performance.md, section 76). Ignored without a ray table or without
+        adaptive sampling.
     """
 
     n_before: int = 12
@@ -204,6 +211,7 @@ class MarchSettings:
     grid_kernel: str = "auto"
     ray_table: bool | None = None
     step1a_on_device: bool = False
+    device_sampling: bool = False
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "n_probe", "chunk"):
@@ -227,8 +235,9 @@ class MarchSettings:
             raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.grid_kernel not in GRID_KERNELS:
             raise SwimInputError(f"MarchSettings.grid_kernel must be one of {GRID_KERNELS}, got {self.grid_kernel!r}")
-        if not isinstance(self.step1a_on_device, (bool, np.bool_)):
-            raise SwimInputError(f"MarchSettings.step1a_on_device must be True or False, got {self.step1a_on_device!r}")
+        for name in ("step1a_on_device", "device_sampling"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise SwimInputError(f"MarchSettings.{name} must be True or False, got {getattr(self, name)!r}")
         if self.ray_table is not None and not isinstance(self.ray_table, (bool, np.bool_)):
             raise SwimInputError(f"MarchSettings.ray_table must be True, False or None, got {self.ray_table!r}")
 
@@ -262,10 +271,10 @@ class MarchSettings:
 
     def kernel_settings(self) -> MarchSettings:
         """These settings with those that the march's kernels do not read (:attr:`ray_table`,
-        :attr:`step1a_on_device`) at their defaults' resolved values, so that a compiled kernel (keyed by its settings,
-        also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a recompilation of the JAX kernel takes
-        tens of seconds on a GPU."""
-        return replace(self, ray_table=False, step1a_on_device=False)
+        :attr:`step1a_on_device`, :attr:`device_sampling`) at their defaults' resolved values, so that a compiled
+        kernel (keyed by its settings, also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a
+        recompilation of the JAX kernel takes tens of seconds on a GPU."""
+        return replace(self, ray_table=False, step1a_on_device=False, device_sampling=False)
 
     def resolved_ray_table(self) -> bool:
         """Whether the camera's rays are kept on the device (:attr:`ray_table`): None resolved to True where the

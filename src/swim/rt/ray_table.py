@@ -302,7 +302,7 @@ def _arrays(table: RayTable):
 
 
 def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings: MarchSettings = MarchSettings(),
-                     progress=None, extra: RayTable | None = None):
+                     progress=None, extra: RayTable | None = None, on_device: bool = False):
     """March the rays of a :class:`RayTable`'s rows with the JAX kernel; the outputs of
     :func:`swim.rt.march.trace_rays` for those rays.
 
@@ -323,11 +323,17 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
     extra : RayTable, optional
         Rays that are not the camera's (the sun's, for its disk), marched after ``rows`` with the first chunk's:
         their outputs follow those of ``rows``.
+    on_device : bool
+        Return the chunks' outputs as they are on the device (JAX arrays), their padding rows included (each chunk
+        padded to :func:`swim.rt.march.padded_batch_size`), instead of the first m rows on the host: for
+        :func:`swim.rt.image_sampling_device.sample_image_adaptive_device`, whose batches are already of such sizes.
+        No copy to the host, and no slice whose shape would be compiled anew for every batch.
 
     Returns
     -------
-    dict of numpy.ndarray
-        As :func:`swim.rt.march.trace_rays`'s, each (m + extra rays, ...).
+    dict of numpy.ndarray or of jax.Array
+        As :func:`swim.rt.march.trace_rays`'s, each (m + extra rays, ...); with ``on_device``, (the padded rows, ...)
+        on the device.
 
     Raises
     ------
@@ -365,9 +371,13 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
     with_probes = bool(settings.probe_spacing and settings.n_grid and table.probes is not None)
     outputs = {}
     pending = collections.deque()
+    kept = []  # with on_device: each chunk's device outputs
 
     def collect():
         out, lo, hi = pending.popleft()
+        if on_device:
+            kept.append(out)
+            return
         for key, value in _host_rows(out, hi - lo).items():
             if key not in outputs:
                 outputs[key] = np.empty((n,) + value.shape[1:], value.dtype)
@@ -394,5 +404,10 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
             collect()
     while pending:
         collect()
+    if on_device:
+        outputs = {key: kept[0][key] if len(kept) == 1 else jnp.concatenate([out[key] for out in kept])
+                   for key in kept[0]}
+        outputs["steps"] = jnp.full(next(iter(outputs.values())).shape[0], steps, jnp.int32)
+        return outputs
     outputs["steps"] = np.full(n, steps, np.int32)
     return outputs

@@ -1,0 +1,201 @@
+"""The device sampler (swim.rt.image_sampling_device) against the host's (swim.rt.image_sampling): the same traced
+pixels and the same image, on analytic images of several shapes and settings and on a rendered scene."""
+
+import numpy as np
+import pytest
+
+from swim.errors import SwimInputError
+from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive
+from swim.rt.image_sampling_device import bucket_size, quadtree_levels, sample_image_adaptive_device
+
+
+def analytic_image(shape, seed=0):
+    """Outputs of every pixel of a (ny, nx) image: smooth gradients, sharp-edged "clouds" whose radiance and optical
+    depth jump, air in front of them, the ground below a skyline, integer step counts; pixels outside a disk invalid."""
+    ny, nx = shape
+    y, x = np.mgrid[0:ny, 0:nx].astype(float)
+    rng = np.random.default_rng(seed)
+    cloud = np.sin(x / 6.3 + rng.uniform(0, 6)) * np.cos(y / 8.1) > 0.45
+    radiance = np.stack([0.3 + 0.002 * x + 0.4 * cloud, 0.35 + 0.001 * y + 0.45 * cloud,
+                         0.5 + 0.3 * cloud + 0.1 * np.sin(x * y / 400.0)], -1).astype(np.float32)
+    tau = (25.0 * cloud * (1.0 + np.sin(x / 4.0))).astype(np.float32)
+    clear = (0.2 * radiance + (0.01 * cloud * (x > nx / 2))[..., None]).astype(np.float32)
+    surface = y > 0.8 * ny + 3 * np.sin(x / 5.0)
+    valid = (y - (ny - 1) / 2) ** 2 + (x - (nx - 1) / 2) ** 2 <= (0.52 * max(ny, nx)) ** 2
+    steps = (7 + x + 2 * y).astype(np.int32)
+    full = {"radiance": radiance.reshape(-1, 3), "tau_hydrometeor": tau.reshape(-1),
+            "radiance_clear": clear.reshape(-1, 3), "surface": surface.reshape(-1), "steps": steps.reshape(-1)}
+    return full, valid
+
+
+def lookup(full, calls=None):
+    def trace(flat):
+        if calls is not None:
+            calls.append(np.array(flat))
+        return {key: value[flat] for key, value in full.items()}
+
+    return trace
+
+
+def assert_same_sampling(full, valid, sampling, chunk=None):
+    host_values, host_traced = sample_image_adaptive(lookup(full), valid, sampling, outside=np.nan)
+    device_values, device_traced = sample_image_adaptive_device(lookup(full), valid, sampling, outside=np.nan,
+                                                                chunk=chunk)
+    np.testing.assert_array_equal(np.asarray(device_traced), host_traced)
+    assert set(device_values) == set(host_values)
+    for key, host in host_values.items():
+        host = host.reshape(host.shape[0], -1)
+        device = np.asarray(device_values[key])
+        assert device.shape == host.shape and device.dtype == host.dtype, key
+        if host.dtype.kind == "f":
+            np.testing.assert_array_equal(np.isnan(device), np.isnan(host))
+            # the interpolation's weights rounded in float32 where the host rounds them once from float64
+            np.testing.assert_allclose(device, host, rtol=2e-6, atol=1e-7, equal_nan=True, err_msg=key)
+        else:
+            np.testing.assert_array_equal(device, host, err_msg=key)
+    return host_traced
+
+
+# each image shape and sampling compiles the device sampler's programs anew (seconds on 2 cores): four pairs
+@pytest.mark.parametrize("shape, sampling", [
+    ((130, 101), AdaptiveSampling()),
+    ((41, 41), AdaptiveSampling(coarse_spacing=4, edge_test_size=0)),
+    ((64, 97), AdaptiveSampling(coarse_spacing=16, edge_test_size=8, clear_tolerance=0.0)),
+    ((64, 97), AdaptiveSampling(coarse_spacing=5, tolerance=0.05))],
+    ids=["130x101-defaults", "41x41-spacing4-centres", "64x97-spacing16-no-clear", "64x97-spacing5-loose"])
+def test_the_device_sampler_traces_the_host_samplers_pixels_and_gives_its_image(shape, sampling):
+    full, valid = analytic_image(shape)
+    traced = assert_same_sampling(full, valid, sampling)
+    # the test is not vacuous: the image has smooth cells that are interpolated and features that are refined
+    assert 0.1 * valid.sum() < traced.sum() < 0.9 * valid.sum()
+
+
+def test_a_rendered_scene_is_sampled_alike():
+    """Real input: every pixel of the built-in scene's all-sky image traced by swim.render, then both samplers."""
+    import swim
+    import swim.pipeline as pipeline
+    from swim.io.default_scene import default_scene
+
+    kept = {}
+
+    def keep(trace, valid, sampling, *args, **kwargs):
+        values, traced = sample_image_adaptive(trace, valid, sampling, *args, **kwargs)
+        kept.update(valid=valid.copy(), **{key: np.array(values[key]) for key in
+                                           ("radiance", "radiance_clear", "tau_hydrometeor", "surface", "steps")})
+        return values, traced
+
+    original = pipeline.sample_image_adaptive
+    pipeline.sample_image_adaptive = keep
+    try:
+        swim.render(default_scene(), sampling=AdaptiveSampling(coarse_spacing=10**6), camera_options={"size": 97})
+    finally:
+        pipeline.sample_image_adaptive = original
+    valid = kept.pop("valid")
+    assert np.isfinite(kept["radiance"][valid.reshape(-1)]).all()
+    traced = assert_same_sampling(kept, valid, AdaptiveSampling())
+    assert traced.sum() < valid.sum()
+
+
+def test_batches_are_padded_to_the_marchs_buckets_with_the_last_pixel():
+    full, valid = analytic_image((90, 90))
+    calls = []
+    sample_image_adaptive_device(lookup(full, calls), valid, AdaptiveSampling(), chunk=1024)
+    assert len(calls) >= 3
+    for pixels in calls:
+        real = np.flatnonzero(np.diff(pixels) > 0).size + 1  # increasing, then the last one repeated
+        assert np.all(np.diff(pixels[:real]) > 0) and np.all(pixels[real:] == pixels[real - 1])
+        assert pixels.size == bucket_size(real, 1024)
+        assert valid.reshape(-1)[pixels].all()
+
+
+@pytest.mark.parametrize("m, chunk, expected", [(1, 1024, 256), (300, 1024, 512), (1024, 1024, 1024),
+                                                (1025, 1024, 1024 + 256), (5000, 1024, 4 * 1024 + 1024)])
+def test_bucket_size_is_the_marchs_padding(m, chunk, expected):
+    assert bucket_size(m, chunk) == expected
+    assert bucket_size(m, chunk) >= m
+
+
+@pytest.mark.parametrize("shape, spacing", [((64, 64), 8), ((41, 97), 8), ((30, 33), 4), ((9, 9), 2)])
+def test_quadtree_levels_split_every_interval_at_its_middle_down_to_single_pixels(shape, spacing):
+    levels = quadtree_levels(*shape, spacing)
+    first = levels[0]
+    assert first.ys[0] == 0 and first.ys[-1] == shape[0] - 1 and np.all(np.diff(first.ys) <= spacing)
+    for before, level in zip(levels[:-1], levels[1:]):
+        for bounds_before, bounds, parents in ((before.ys, level.ys, level.parent_rows),
+                                               (before.xs, level.xs, level.parent_cols)):
+            assert set(bounds_before) <= set(bounds)
+            for a, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
+                p = parents[a]
+                assert bounds_before[p] <= lo < hi <= bounds_before[p + 1]
+            # an interval of two or more pixels splits at (lo + hi) // 2, one of a pixel stays
+            for lo, hi in zip(bounds_before[:-1], bounds_before[1:]):
+                inside = bounds[(bounds > lo) & (bounds < hi)]
+                assert list(inside) == ([(lo + hi) // 2] if hi - lo >= 2 else [])
+    assert np.diff(levels[-1].ys).max() == 1 and np.diff(levels[-1].xs).max() == 1
+
+
+def test_without_valid_pixels_nothing_is_traced_and_the_outputs_keep_the_outside_value():
+    full, _ = analytic_image((20, 20))
+    values, traced = sample_image_adaptive_device(lookup(full), np.zeros((20, 20), bool), outside=np.nan)
+    assert not np.asarray(traced).any()
+    assert np.isnan(np.asarray(values["radiance"])).all() and not np.asarray(values["surface"]).any()
+
+
+def test_a_spacing_beyond_the_image_traces_every_valid_pixel():
+    full, valid = analytic_image((12, 15))
+    values, traced = sample_image_adaptive_device(lookup(full), valid, AdaptiveSampling(coarse_spacing=64))
+    np.testing.assert_array_equal(np.asarray(traced), valid)
+    np.testing.assert_array_equal(np.asarray(values["radiance"])[valid.reshape(-1)],
+                                  full["radiance"][valid.reshape(-1)])
+
+
+def test_bad_input_is_named():
+    full, valid = analytic_image((20, 20))
+    with pytest.raises(SwimInputError, match="valid"):
+        sample_image_adaptive_device(lookup(full), valid.astype(int))
+    with pytest.raises(SwimInputError, match="tau_hydrometeor"):
+        sample_image_adaptive_device(lambda p: {"radiance": full["radiance"][p], "surface": full["surface"][p]}, valid)
+    with pytest.raises(SwimInputError, match="rows"):
+        sample_image_adaptive_device(lambda p: {key: value[p[:-1]] for key, value in full.items()}, valid)
+
+
+def test_a_render_with_device_sampling_gives_the_host_samplers_image():
+    """swim.render with the JAX kernel and the camera's rays on the device: MarchSettings.device_sampling traces the
+    same pixels and gives the same image as the host's sampler, and the sun's disk takes the same direct
+    transmittance."""
+    import swim
+    from swim.rt import ray_table
+    from swim.rt.march import MarchSettings
+
+    scene = swim.default_scene()
+    ray_table.forget_ray_tables()
+    try:
+        for sun_zenith in (70.0,):
+            images = [swim.render(scene, camera="allsky", camera_options={"size": 64}, sun_zenith=sun_zenith,
+                                  sun_azimuth=120.0, sampling=AdaptiveSampling(),
+                                  settings=MarchSettings(backend="jax", chunk=1024, ray_table=True,
+                                                         device_sampling=on_device))
+                      for on_device in (False, True)]
+            host, device = images
+            # (at 64 pixels across the scene's cumulus leave few cells smooth: the test is that some are)
+            assert device.attrs["traced_pixels"] == host.attrs["traced_pixels"] < int(
+                np.isfinite(host["view_zenith"].values).sum())
+            assert device.attrs["march_samples"] == host.attrs["march_samples"]
+            np.testing.assert_allclose(device.attrs["direct_transmittance"], host.attrs["direct_transmittance"],
+                                       rtol=1e-6)
+            for key in ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_hydrometeor"):
+                x, y = host[key].values, device[key].values
+                np.testing.assert_array_equal(np.isnan(x), np.isnan(y), err_msg=key)
+                np.testing.assert_allclose(y, x, rtol=2e-5, atol=1e-7, equal_nan=True, err_msg=key)
+            assert np.abs(device["rgb"].values.astype(int) - host["rgb"].values.astype(int)).max() <= 1
+    finally:
+        ray_table.forget_ray_tables()
+
+
+def test_device_sampling_is_not_a_kernel_setting():
+    """The switch is the sampler's, not the kernel's: a compiled kernel serves either value."""
+    from swim.rt.march import MarchSettings
+
+    assert MarchSettings(device_sampling=True).kernel_settings() == MarchSettings().kernel_settings()
+    with pytest.raises(SwimInputError, match="device_sampling"):
+        MarchSettings(device_sampling="yes")
