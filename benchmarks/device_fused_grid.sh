@@ -12,8 +12,8 @@
 # section 74: ~340 s on a fresh H100, of which ~140 s compilations, so the adaptive and new-sun rows need SYNTHETIC_S=420);
 # STAGE=step1a (session 60, section 75): the tests of a new sun's Step 1a on the device, then frames with a new sun each
 # with and without it; STAGE=sampler (session 61, section 76): the device sampler's tests, then adaptive frames with
-# the sampler on the device against the host's; STAGE=next (the next GPU session's one run, ~420 s on a fresh machine): step1a, then the README's render in two new
-# processes with the ray table on by default. Results go to
+# the sampler on the device against the host's; STAGE=readme: the README's render in two new processes; STAGE=next (the next GPU session's first run, ~300 s on a fresh machine): STAGE=sampler; then, on the warm machine,
+# STAGE=step1a (~200 s) and STAGE=readme (~100 s). Results go to
 # $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
@@ -46,17 +46,18 @@ readme() {  # the README's render at 1024^2 in two new processes (the second rea
         echo "README render at 1024^2, new process $k: $(python3 -c "import sys, time; print(f'{time.time() - float(sys.argv[1]):.2f}')" "$t0") s"
     done
 }
-sampler() {  # session 61's MarchSettings.device_sampling (section 76), ~150 s: its tests on the GPU, then adaptive
-    # frames with the sampler on the device against the host's, taking turns (the ray table on for both)
-    timeout 120 python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene" tests/unit/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
-    timeout "${SAMPLER_S:-200}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-sampling \
+sampler() {  # session 61's MarchSettings.device_sampling (section 76), ~300 s on a fresh machine: its tests on the GPU, then adaptive
+    # frames with the sampler on the device against the host's, taking turns (the ray table on for both; the images
+    # compared there, so the tests that render, which would compile the march here first, are left out)
+    timeout 120 python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene and not render_with" tests/unit/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
+    timeout "${SAMPLER_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-sampling \
         --repeats 5 --out "$RES/sampler-synthetic.json" 2>&1 | quiet
 }
-if [ "${STAGE:-compare}" = next ]; then  # the next GPU session's one run (~560 s on a fresh machine: use timeout_s
-    # 600, or STAGE=sampler and STAGE=step1a apart): the sampler on the device, step1a, then the README's render with
-    # the ray table on by default (section 74: a new process's frame not yet timed with it)
+if [ "${STAGE:-compare}" = next ]; then  # the next GPU session's first run (~300 s on a fresh machine): the sampler
+    # on the device; then, on the warm machine, STAGE=step1a (~200 s) and the README's render (STAGE=readme)
     sampler
-    SYNTHETIC_S=${SYNTHETIC_S:-200} step1a
+elif [ "${STAGE:-compare}" = readme ]; then  # the README's render with the ray table on by default (section 74: a
+    # new process's frame not yet timed with it)
     readme
 elif [ "${STAGE:-compare}" = sampler ]; then
     sampler

@@ -618,19 +618,29 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
             # MarchSettings.device_sampling: the sampler's image on the device, beside the camera's ray table
             from .rt.image_sampling_device import sample_image_adaptive_device
 
+            kept = (*IMAGE_OUTPUTS, "surface", "steps")
+            sun_rows = {}
+
             def trace_on_device(pixels):
                 # a bucketed batch (its last pixel repeated), the outputs left on the device; the sun's ray in a
-                # one-row batch of its own (with a full bucket's rows it would double the batch's padded size)
+                # one-row batch of its own (with a full bucket's rows it would double the batch's padded size; so
+                # march_samples counts no step that only the sun's ray needs, which the host's first batch counts
+                # for all its rays where the sun's ray has a segment that none of the camera's has)
                 if not sun_out:
                     sun_table = single_ray_table(observer, sun_scene, geometry, consts, settings)
-                    sun_out.update({key: value[-1] for key, value in trace_table_rows(
-                        sun_table, np.zeros(1, np.int64), consts, phase_inputs, settings).items()})
+                    sun_rows.update(trace_table_rows(sun_table, np.zeros(1, np.int64), consts, phase_inputs, settings))
+                    sun_out.update({key: value[-1] for key, value in sun_rows.items()})
+                if len(pixels) == 0:  # no valid pixel in the image: its outputs' keys and types, without rows
+                    return {key: value[:0] for key, value in sun_rows.items() if key in kept}
                 result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, on_device=True)
-                return {key: value for key, value in result.items() if key in (*IMAGE_OUTPUTS, "surface", "steps")}
+                return {key: value for key, value in result.items() if key in kept}
 
             out, traced = sample_image_adaptive_device(trace_on_device, valid, sampling, progress, outside=np.nan,
                                                        chunk=settings.resolved_chunk())
-            out, traced = jax.device_get((out, traced))  # one copy of the finished image's arrays to the host
+            # one copy of the finished image's arrays to the host (writable: a CPU device's may be read-only views)
+            out, traced = jax.device_get((out, traced))
+            out = {key: value if value.flags.writeable else value.copy() for key, value in out.items()}
+            traced = np.asarray(traced)
         else:
             out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress,
                                                 max_threads=min(threads(), 8), outside=np.nan)

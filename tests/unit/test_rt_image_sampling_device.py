@@ -9,6 +9,14 @@ from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive
 from swim.rt.image_sampling_device import bucket_size, quadtree_levels, sample_image_adaptive_device
 
 
+@pytest.fixture(autouse=True)
+def _no_exports(monkeypatch, request):
+    """The device sampler's programs jitted as usual in these tests: exporting each image shape's programs (what a
+    render does once, for later processes) would cost the suite ~1.5x their tracing; one test exports them."""
+    if "exports" not in request.node.name:
+        monkeypatch.setenv("SWIM_JAX_EXPORT", "0")
+
+
 def analytic_image(shape, seed=0):
     """Outputs of every pixel of a (ny, nx) image: smooth gradients, sharp-edged "clouds" whose radiance and optical
     depth jump, air in front of them, the ground below a skyline, integer step counts; pixels outside a disk invalid."""
@@ -141,6 +149,30 @@ def test_without_valid_pixels_nothing_is_traced_and_the_outputs_keep_the_outside
     assert np.isnan(np.asarray(values["radiance"])).all() and not np.asarray(values["surface"]).any()
 
 
+def test_valid_pixels_off_the_first_lattice_are_found_by_splitting():
+    """No valid pixel in the first batch: every cell splits, as in the host's sampler, until the valid ones are
+    traced."""
+    full, _ = analytic_image((20, 20))
+    valid = np.zeros((20, 20), bool)
+    valid[1:3, 1:3] = True
+    traced = assert_same_sampling(full, valid, AdaptiveSampling())
+    np.testing.assert_array_equal(traced, valid)
+
+
+def test_a_tested_pixel_at_its_tolerance_decides_as_on_the_host():
+    """The tests in float64, as the host's: a centre within a float32 rounding of the tolerance refines there and
+    here (in float32 the device called this cell smooth)."""
+    full, _ = analytic_image((20, 20))
+    valid = np.ones((20, 20), bool)
+    radiance = np.full((400, 3), np.float32(1.4620143), np.float32)
+    radiance[4 * 20 + 4] = np.float32(1.4746488)  # the centre of the cell (0..8, 0..8)
+    full = {**full, "radiance": radiance, "radiance_clear": np.zeros_like(radiance),
+            "tau_hydrometeor": np.zeros(400, np.float32), "surface": np.zeros(400, bool)}
+    sampling = AdaptiveSampling(edge_test_size=0)
+    traced = assert_same_sampling(full, valid, sampling)
+    assert traced[4, 4] and traced.sum() > 25
+
+
 def test_a_spacing_beyond_the_image_traces_every_valid_pixel():
     full, valid = analytic_image((12, 15))
     values, traced = sample_image_adaptive_device(lookup(full), valid, AdaptiveSampling(coarse_spacing=64))
@@ -188,6 +220,7 @@ def test_a_render_with_device_sampling_gives_the_host_samplers_image():
                 np.testing.assert_array_equal(np.isnan(x), np.isnan(y), err_msg=key)
                 np.testing.assert_allclose(y, x, rtol=2e-5, atol=1e-7, equal_nan=True, err_msg=key)
             assert np.abs(device["rgb"].values.astype(int) - host["rgb"].values.astype(int)).max() <= 1
+            assert all(device[key].values.flags.writeable for key in device.data_vars)
     finally:
         ray_table.forget_ray_tables()
 
@@ -199,3 +232,28 @@ def test_device_sampling_is_not_a_kernel_setting():
     assert MarchSettings(device_sampling=True).kernel_settings() == MarchSettings().kernel_settings()
     with pytest.raises(SwimInputError, match="device_sampling"):
         MarchSettings(device_sampling="yes")
+
+
+def test_a_new_process_reads_the_exported_programs_and_samples_alike(tmp_path, monkeypatch):
+    """The level programs kept on disk (swim.rt.export_cache): a new process (the programs forgotten) reads them
+    instead of tracing them, and samples as before. (Its name holds "exports": the fixture above leaves them on.)"""
+    pytest.importorskip("flatbuffers")
+    from swim.rt import image_sampling_device as device
+
+    monkeypatch.setenv("SWIM_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("SWIM_JAX_CACHE", raising=False)
+    monkeypatch.delenv("SWIM_JAX_EXPORT", raising=False)
+    programs = (device._first_wanted, device._test_level, device._wanted_after_split, device._fill, device._scatter,
+                device._mark_traced)
+    for program in programs:
+        program.forget_programs()
+    full, valid = analytic_image((37, 45), seed=3)
+    first_values, first_traced = sample_image_adaptive_device(lookup(full), valid)
+    assert all(program.exported >= 1 and program.loaded == 0 for program in programs)
+    for program in programs:
+        program.forget_programs()
+    values, traced = sample_image_adaptive_device(lookup(full), valid)
+    assert all(program.loaded >= 1 and program.exported == 0 for program in programs)
+    np.testing.assert_array_equal(np.asarray(traced), np.asarray(first_traced))
+    for key, value in first_values.items():
+        np.testing.assert_array_equal(np.asarray(values[key]), np.asarray(value), err_msg=key)

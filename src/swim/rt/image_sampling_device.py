@@ -6,19 +6,19 @@ On a GPU the host's sampler is most of an adaptive frame (docs/performance.md, s
 image's arrays, its cells are tested there and the next batch's pixels listed, and at the end the smooth cells are
 interpolated, while the device waits. Here the image's arrays stay on the device. The cells of a level are not a list
 but a dense grid: the first level's rows and columns are the lattice of every ``coarse_spacing``-th pixel, and each
-next level's are the last one's with every interval of two or more pixels split at its middle
-(``(y0 + y1) // 2``, as :func:`swim.rt.smooth_cpu.split_cells` splits a cell). A cell of a level exists where its
-parent split (or, on the first level, everywhere) and it has a pixel between its corners. So a level's test, its
-split, the pixels it wants traced and the final interpolation are a few gathers and comparisons over fixed shapes,
-compiled once per image size. Per batch only the wanted pixels' mask comes to the host (which lists them for the
-march: the ray table keeps the rays' segment flags and probe counts there, :func:`swim.rt.ray_table.trace_table_rows`)
-and the march's outputs are scattered on the device.
+next level's are the last one's with every interval of two or more pixels split at its middle (``(y0 + y1) // 2``,
+as :func:`swim.rt.smooth_cpu.split_cells` splits a cell). A cell of a level exists where its parent split (or, on the
+first level, everywhere) and it has a pixel between its corners. So a level's test, its split, the pixels it wants
+traced and the final interpolation are a few gathers and comparisons over fixed shapes, compiled once per image size
+(and kept on disk for new processes, :mod:`swim.rt.export_cache`). Per batch only the wanted pixels' mask comes to
+the host, which lists them for the march (the ray table keeps the rays' segment flags and probe counts there,
+:func:`swim.rt.ray_table.trace_table_rows`); the march's outputs are scattered on the device.
 
 The decisions are those of the host's sampler (Whitted 1980, doi:10.1145/358876.358882, with the tests of
-:class:`swim.rt.image_sampling.AdaptiveSampling`): the same cells, the same tested pixels, the same tolerances. The
-tests run in the outputs' precision (float32) where the host's run in float64, so a tested pixel within a float32
-rounding of its tolerance may decide otherwise (``tests/unit/test_rt_image_sampling_device.py`` bounds how often);
-the interpolation's weights are rounded as the host's are, to ~1 unit in the last place.
+:class:`swim.rt.image_sampling.AdaptiveSampling`): the same cells, the same tested pixels, the same tolerances, the
+tests in float64 as the host's (JAX's 64-bit types on for them alone; a device may fuse a product and a sum, which
+moves a prediction by ~1e-16 relative). The interpolation runs in the outputs' precision (float32), its weights
+rounded to ~1 unit in the last place of the host's.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SwimInputError
+from .export_cache import exported_jit
 from .image_sampling import AdaptiveSampling, _lattice
 
 
@@ -128,7 +129,7 @@ def _matches(values, pixel, corners, weights, tolerance, floor):
     return jnp.all(jnp.abs(actual - predicted) <= tolerance * scale + floor, axis=-1)
 
 
-@functools.partial(jax.jit, static_argnames=("nx", "edge_test_size", "level_index", "levels_key", "checks"))
+@exported_jit(static_argnames=("nx", "edge_test_size", "level_index", "levels_key", "checks"))
 def _test_level(exists, values, valid, traced, surface, *, nx, edge_test_size, level_index, levels_key, checks):
     """The smooth cells (n_rows, n_cols) of a level among those that ``exists``: :func:`swim.rt.image_sampling.
     _smooth_cells` on the dense grid. ``values`` holds the tested outputs in the order of ``checks`` ((tolerance,
@@ -140,10 +141,13 @@ def _test_level(exists, values, valid, traced, surface, *, nx, edge_test_size, l
         ok &= valid[p] & traced[p] & (surface[p] == surface[centre])
     for p in edges:
         ok &= ~edged | (valid[p] & traced[p] & (surface[p] == surface[centre]))
-    wy, wx = jnp.asarray(wy), jnp.asarray(wx)
+    # in float64, as the host's test (called with 64-bit types on: sample_image_adaptive_device): a tested pixel
+    # within a float32 rounding of its tolerance then decides as there
+    wy, wx = jnp.asarray(wy, jnp.float64), jnp.asarray(wx, jnp.float64)
     zero = jnp.zeros_like(wy)
     for array, (tolerance, floor) in zip(values, checks):
-        wy_t, wx_t, zero_t = wy.astype(array.dtype), wx.astype(array.dtype), zero.astype(array.dtype)
+        array = array.astype(jnp.float64)
+        wy_t, wx_t, zero_t = wy, wx, zero
         good = _matches(array, centre, corners,
                         ((1 - wx_t) * (1 - wy_t), wx_t * (1 - wy_t), (1 - wx_t) * wy_t, wx_t * wy_t), tolerance, floor)
         top, bottom, left, right = edges
@@ -173,7 +177,7 @@ def _children_exist(split, level: Level):
     return parents & ((y_len > 1) | (x_len > 1))
 
 
-@functools.partial(jax.jit, static_argnames=("nx", "edge_test_size", "level_index", "levels_key"))
+@exported_jit(static_argnames=("nx", "edge_test_size", "level_index", "levels_key"))
 def _wanted_after_split(split, *, nx, edge_test_size, level_index, levels_key):
     """The next level's existing cells and the pixels (N,) bool that they and the split cells need: the split cells'
     edge midpoints (the children's corners) and the children's tested pixels (:func:`swim.rt.smooth_cpu.split_cells`).
@@ -199,7 +203,7 @@ def _mark_tested(wanted, exists, level, nx, edge_test_size):
     return wanted
 
 
-@functools.partial(jax.jit, static_argnames=("nx", "edge_test_size", "levels_key"))
+@exported_jit(static_argnames=("nx", "edge_test_size", "levels_key"))
 def _first_wanted(*, nx, edge_test_size, levels_key):
     """The first level's existing cells and its batch's pixels: the lattice and the cells' tested pixels."""
     level = _levels_of(levels_key)[0]
@@ -219,12 +223,14 @@ def _candidates(bounds, n):
     return first, second
 
 
-@functools.partial(jax.jit, static_argnames=("nx", "levels_key"))
+@exported_jit(static_argnames=("nx", "levels_key"))
 def _fill(arrays, smooth_levels, traced, valid, *, nx, levels_key):
     """Every array (N, C) with the untraced valid pixels of the smooth cells interpolated from their corners, level
     by level coarse to fine (a pixel of a finer smooth cell takes its value): :func:`swim.rt.image_sampling._fill`.
     Float arrays are interpolated bilinearly with weights ``dy / h`` and ``dx / w`` rounded to their precision;
-    boolean arrays take the cell's first corner; integer arrays 0."""
+    boolean arrays take the cell's first corner; integer arrays 0. A pixel on the edge between two smooth cells of a
+    level takes the first one's value where the host's takes the last written: the same for the tested outputs (finite,
+    their corners alike), not for an untested output that is not finite or boolean at a corner off that edge."""
     levels = _levels_of(levels_key)
     ny = levels[0].ys[-1] + 1
     y = jnp.arange(ny, dtype=jnp.int32)[:, None]
@@ -266,18 +272,11 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, levels_key):
     return tuple(arrays)
 
 
-def _scatter_rows(image, pixels, rows):
-    """``image`` (N, C) with ``rows`` (m, C) written at ``pixels`` (m,); pixels >= N (padding) dropped."""
-    return image.at[pixels].set(rows.astype(image.dtype), mode="drop")
-
-
-_scatter_copying = jax.jit(_scatter_rows)
-# on an accelerator the image's old buffer is reused (donated); a CPU cannot take donations and would warn
-_scatter_donating = jax.jit(_scatter_rows, donate_argnums=(0,))
-
-
+@exported_jit
 def _scatter(image, pixels, rows):
-    return (_scatter_copying if jax.default_backend() == "cpu" else _scatter_donating)(image, pixels, rows)
+    """``image`` (N, C) with ``rows`` (m, C) written at ``pixels`` (m,). Not donating the image's buffer: a 1024^2
+    image's arrays are a few megabytes, and an exported program (read from disk by a new process) cannot donate."""
+    return image.at[pixels].set(rows.astype(image.dtype))
 
 
 def bucket_size(m: int, chunk: int) -> int:
@@ -291,18 +290,9 @@ def bucket_size(m: int, chunk: int) -> int:
     return full * int(chunk) + (padded_batch_size(rest, int(chunk)) if rest else 0)
 
 
-@functools.partial(jax.jit, donate_argnums=(0,))
-def _mark_traced_donating(traced, pixels):
-    return traced.at[pixels].set(True)
-
-
-@jax.jit
-def _mark_traced_copying(traced, pixels):
-    return traced.at[pixels].set(True)
-
-
+@exported_jit
 def _mark_traced(traced, pixels):
-    return (_mark_traced_copying if jax.default_backend() == "cpu" else _mark_traced_donating)(traced, pixels)
+    return traced.at[pixels].set(True)
 
 
 def _as_columns(value):
@@ -414,23 +404,27 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
     levels = _levels_of(key)
     exists, wanted = _first_wanted(nx=nx, edge_test_size=size, levels_key=key)
     run(wanted)
-    if not values:  # no valid pixel traced: no cell can be interpolated
-        return _finish(values, trace, n, outside), traced.reshape(ny, nx)
-    checks = [("radiance", sampling.tolerance, sampling.radiance_floor),
-              ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)]
-    if sampling.clear_tolerance > 0 and "radiance_clear" in values:
-        checks.append(("radiance_clear", sampling.clear_tolerance, sampling.radiance_floor))
     smooth_levels = []
     for index in range(len(levels)):
-        smooth = _test_level(exists, tuple(values[name] for name, _, _ in checks), valid_dev, traced,
-                             values["surface"][:, 0], nx=nx, edge_test_size=size, level_index=index, levels_key=key,
-                             checks=tuple((float(t), float(f)) for _, t, f in checks))
+        if values:
+            checks = [("radiance", sampling.tolerance, sampling.radiance_floor),
+                      ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)]
+            if sampling.clear_tolerance > 0 and "radiance_clear" in values:
+                checks.append(("radiance_clear", sampling.clear_tolerance, sampling.radiance_floor))
+            with jax.enable_x64(True):  # the test in float64, as the host's (_test_level)
+                smooth = _test_level(exists, tuple(values[name] for name, _, _ in checks), valid_dev, traced,
+                                     values["surface"][:, 0], nx=nx, edge_test_size=size, level_index=index,
+                                     levels_key=key, checks=tuple((float(t), float(f)) for _, t, f in checks))
+        else:  # nothing traced yet (no valid pixel so far): no cell is smooth, all split (as the host's sampler)
+            smooth = jnp.zeros_like(exists)
         smooth_levels.append(smooth)
         if index + 1 == len(levels):
             break
         exists, wanted = _wanted_after_split(exists & ~smooth, nx=nx, edge_test_size=size, level_index=index,
                                              levels_key=key)
         run(wanted)
+    if not values:  # no valid pixel at all
+        return _finish(values, trace, n, outside), traced.reshape(ny, nx)
     names = list(values)
     filled = _fill(tuple(values[name] for name in names), tuple(smooth_levels), traced, valid_dev, nx=nx,
                    levels_key=key)
