@@ -212,6 +212,14 @@ class _StageCache:
 _STAGE_CACHE = _StageCache()
 
 
+@functools.partial(jax.jit, static_argnames=("ny", "nx"))
+def _device_plane(values, ny, nx):
+    """An output of the device's sampler, (ny * nx, C), as the image's plane (C, ny, nx), on the device: its copy to
+    the host is then the plane itself (the host's transposes of a 1024^2 image's ~40 MB took the threads of
+    :func:`swim.workers.parallel_map`)."""
+    return values.reshape(ny, nx, -1).transpose(2, 0, 1)
+
+
 def _atmosphere_inputs(volume):
     """What the clear-atmosphere tables take from the optical volume (:func:`swim.rt.gas.build_gas_tables`): the
     scene-mean surface albedo (3,), which reflects light back into the sky in the multiple-scattering table; the
@@ -637,23 +645,26 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
             out, traced = sample_image_adaptive_device(trace_on_device, valid, sampling, progress, outside=np.nan,
                                                        chunk=settings.resolved_chunk())
-            # one copy of the finished image's arrays to the host (writable: a CPU device's may be read-only views)
-            out, traced = jax.device_get((out, traced))
-            out = {key: value if value.flags.writeable else value.copy() for key, value in out.items()}
+            # the image's planes (C, ny, nx) made on the device, then one copy of all the arrays to the host
+            # (writable: a CPU device's may be read-only views)
+            device_planes = {key: _device_plane(out.pop(key), ny, nx) for key in IMAGE_OUTPUTS}
+            device_planes, out, traced = jax.device_get((device_planes, out, traced))
+            planes.update({key: value if value.flags.writeable else value.copy()
+                           for key, value in device_planes.items()})
             traced = np.asarray(traced)
         else:
             out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress,
                                                 max_threads=min(threads(), 8), outside=np.nan)
+
+            def plane(a):  # (ny * nx, C) -> (C, ny, nx): NumPy's copy without the GIL, the arrays on several threads
+                if a.ndim == 1:
+                    return a.reshape(1, ny, nx)
+                return np.ascontiguousarray(a.reshape(ny, nx, -1).transpose(2, 0, 1))
+
+            planes.update(zip(IMAGE_OUTPUTS, parallel_map(plane, [out.pop(key) for key in IMAGE_OUTPUTS],
+                                                          min(threads(), 8))))
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
-
-        def plane(a):  # (ny * nx, C) -> (C, ny, nx): NumPy's copy without the GIL, the arrays on several threads
-            if a.ndim == 1:
-                return a.reshape(1, ny, nx)
-            return np.ascontiguousarray(a.reshape(ny, nx, -1).transpose(2, 0, 1))
-
-        planes.update(zip(IMAGE_OUTPUTS, parallel_map(plane, [out.pop(key) for key in IMAGE_OUTPUTS],
-                                                      min(threads(), 8))))
         march_samples = int(out["steps"].sum())
         del out
 
