@@ -134,7 +134,7 @@ def _test_level(exists, values, valid, traced, surface, *, nx, edge_test_size, l
     """The smooth cells (n_rows, n_cols) of a level among those that ``exists``: :func:`swim.rt.image_sampling.
     _smooth_cells` on the dense grid. ``values`` holds the tested outputs in the order of ``checks`` ((tolerance,
     floor) each)."""
-    level = _levels_of(levels_key)[level_index]
+    level = quadtree_levels(*levels_key)[level_index]
     corners, centre, edges, edged, _, wy, wx = _cell_geometry(level, nx, edge_test_size)
     ok = exists & valid[centre] & traced[centre]
     for p in corners:
@@ -145,36 +145,25 @@ def _test_level(exists, values, valid, traced, surface, *, nx, edge_test_size, l
     # within a float32 rounding of its tolerance then decides as there
     wy, wx = jnp.asarray(wy, jnp.float64), jnp.asarray(wx, jnp.float64)
     zero = jnp.zeros_like(wy)
+    top, bottom, left, right = edges
     for array, (tolerance, floor) in zip(values, checks):
         array = array.astype(jnp.float64)
-        wy_t, wx_t, zero_t = wy, wx, zero
-        good = _matches(array, centre, corners,
-                        ((1 - wx_t) * (1 - wy_t), wx_t * (1 - wy_t), (1 - wx_t) * wy_t, wx_t * wy_t), tolerance, floor)
-        top, bottom, left, right = edges
-        edge_good = (_matches(array, top, corners, (1 - wx_t, wx_t, zero_t, zero_t), tolerance, floor)
-                     & _matches(array, bottom, corners, (zero_t, zero_t, 1 - wx_t, wx_t), tolerance, floor)
-                     & _matches(array, left, corners, (1 - wy_t, zero_t, wy_t, zero_t), tolerance, floor)
-                     & _matches(array, right, corners, (zero_t, 1 - wy_t, zero_t, wy_t), tolerance, floor))
+        good = _matches(array, centre, corners, ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy),
+                        tolerance, floor)
+        edge_good = (_matches(array, top, corners, (1 - wx, wx, zero, zero), tolerance, floor)
+                     & _matches(array, bottom, corners, (zero, zero, 1 - wx, wx), tolerance, floor)
+                     & _matches(array, left, corners, (1 - wy, zero, wy, zero), tolerance, floor)
+                     & _matches(array, right, corners, (zero, 1 - wy, zero, wy), tolerance, floor))
         ok &= good & (~edged | edge_good)
     return ok
 
 
-def _levels_key(ny, nx, coarse_spacing):
-    """The arguments of :func:`quadtree_levels` as the compiled functions' static argument (hashable)."""
-    return int(ny), int(nx), int(coarse_spacing)
-
-
-def _levels_of(key):
-    return quadtree_levels(*key)
-
-
-def _children_exist(split, level: Level):
+def _children_exist(split, level: Level, nx, edge_test_size):
     """Which cells of ``level`` exist: those whose parent (a cell of the level before) split and that have a pixel
     between their corners."""
-    y_len = jnp.diff(jnp.asarray(level.ys, jnp.int32))[:, None]
-    x_len = jnp.diff(jnp.asarray(level.xs, jnp.int32))[None, :]
+    _, _, _, _, inner, _, _ = _cell_geometry(level, nx, edge_test_size)
     parents = split[jnp.asarray(level.parent_rows, jnp.int32)][:, jnp.asarray(level.parent_cols, jnp.int32)]
-    return parents & ((y_len > 1) | (x_len > 1))
+    return parents & inner
 
 
 @exported_jit(static_argnames=("nx", "edge_test_size", "level_index", "levels_key"))
@@ -182,13 +171,13 @@ def _wanted_after_split(split, *, nx, edge_test_size, level_index, levels_key):
     """The next level's existing cells and the pixels (N,) bool that they and the split cells need: the split cells'
     edge midpoints (the children's corners) and the children's tested pixels (:func:`swim.rt.smooth_cpu.split_cells`).
     """
-    levels = _levels_of(levels_key)
+    levels = quadtree_levels(*levels_key)
     n = (levels[0].ys[-1] + 1) * nx
     _, _, edges, _, _, _, _ = _cell_geometry(levels[level_index], nx, edge_test_size)
     wanted = jnp.zeros(n, bool)
     for p in edges:
         wanted = wanted.at[jnp.where(split, p, n)].set(True, mode="drop")
-    exists = _children_exist(split, levels[level_index + 1])
+    exists = _children_exist(split, levels[level_index + 1], nx, edge_test_size)
     return exists, _mark_tested(wanted, exists, levels[level_index + 1], nx, edge_test_size)
 
 
@@ -206,7 +195,7 @@ def _mark_tested(wanted, exists, level, nx, edge_test_size):
 @exported_jit(static_argnames=("nx", "edge_test_size", "levels_key"))
 def _first_wanted(*, nx, edge_test_size, levels_key):
     """The first level's existing cells and its batch's pixels: the lattice and the cells' tested pixels."""
-    level = _levels_of(levels_key)[0]
+    level = quadtree_levels(*levels_key)[0]
     n = (level.ys[-1] + 1) * nx
     lattice = (jnp.asarray(level.ys, jnp.int32)[:, None] * nx + jnp.asarray(level.xs, jnp.int32)[None, :]).ravel()
     wanted = jnp.zeros(n, bool).at[lattice].set(True)
@@ -231,7 +220,7 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, levels_key):
     boolean arrays take the cell's first corner; integer arrays 0. A pixel on the edge between two smooth cells of a
     level takes the first one's value where the host's takes the last written: the same for the tested outputs (finite,
     their corners alike), not for an untested output that is not finite or boolean at a corner off that edge."""
-    levels = _levels_of(levels_key)
+    levels = quadtree_levels(*levels_key)
     ny = levels[0].ys[-1] + 1
     y = jnp.arange(ny, dtype=jnp.int32)[:, None]
     x = jnp.arange(nx, dtype=jnp.int32)[None, :]
@@ -400,8 +389,8 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
     if sampling.coarse_spacing >= min(ny, nx):  # no lattice inside the image: every pixel (as the host's sampler)
         run(jnp.ones(n, bool))
         return _finish(values, trace, n, outside), traced.reshape(ny, nx)
-    key = _levels_key(ny, nx, int(sampling.coarse_spacing))
-    levels = _levels_of(key)
+    key = (ny, nx, int(sampling.coarse_spacing))  # quadtree_levels's arguments: the programs' static one
+    levels = quadtree_levels(*key)
     exists, wanted = _first_wanted(nx=nx, edge_test_size=size, levels_key=key)
     run(wanted)
     smooth_levels = []
