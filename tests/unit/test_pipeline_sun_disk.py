@@ -1,0 +1,94 @@
+"""The sun's disk of :func:`swim.pipeline.render`: its pixels found in a window around the sun must be exactly those
+that a search over the whole image finds (every camera kind, suns near the zenith, the horizon, a panorama's seam and
+edges, a perspective view's border), and the window must be small where the disk lies inside the field of view."""
+
+import numpy as np
+import pytest
+
+from swim.constants import SUN_ANGULAR_RADIUS_RAD
+from swim.frames import enu_from_azimuth_zenith
+from swim.geometry.cameras import make_camera
+from swim.pipeline import _disk_window, _sun_disk
+
+
+def whole_image_disk(camera, dirs_enu, valid, sun_enu, transmittance):
+    """The disk searched over every pixel (what _sun_disk did before its window): the reference."""
+    row, col = camera.pixel_of_direction(np.asarray(sun_enu)[None, :])
+    if not (np.isfinite(row[0]) and np.isfinite(col[0])):
+        return np.zeros(0, np.int64), np.zeros(3)
+    ny, nx = dirs_enu.shape[:2]
+    r = int(np.clip(np.rint(row[0]), 0, ny - 1))
+    c = int(np.clip(np.rint(col[0]), 0, nx - 1))
+    neighbour = dirs_enu[r, c + 1] if c + 1 < nx else dirs_enu[r, c - 1]
+    pitch = float(np.arccos(np.clip(np.dot(dirs_enu[r, c], neighbour), -1, 1))) if valid[r, c] else 0.0
+    if not np.isfinite(pitch) or pitch <= 0:
+        return np.zeros(0, np.int64), np.zeros(3)
+    radius = max(SUN_ANGULAR_RADIUS_RAD, 0.75 * pitch)
+    with np.errstate(invalid="ignore"):
+        pixels = np.flatnonzero(valid & (dirs_enu @ sun_enu >= np.cos(radius)))
+    if pixels.size == 0:
+        return np.zeros(0, np.int64), np.zeros(3)
+    return pixels, 4 * np.pi * np.asarray(transmittance, float) / (pixels.size * pitch**2)
+
+
+CAMERAS = {
+    "allsky-1024": ("allsky", {"size": 1024}),
+    "allsky-255": ("allsky", {"size": 255}),
+    "allsky-16": ("allsky", {"size": 16}),
+    "panorama": ("panorama", {"width": 1024, "height": 512}),
+    "panorama-sky": ("panorama", {"width": 720, "height": 90, "elevation_min_deg": 0.0, "elevation_max_deg": 45.0,
+                                  "azimuth_start_deg": 100.0}),
+    "panorama-part": ("panorama", {"width": 300, "height": 200, "azimuth_start_deg": 80.0, "azimuth_span_deg": 60.0,
+                                   "elevation_min_deg": -10.0, "elevation_max_deg": 50.0}),
+    "perspective": ("perspective", {"width": 640, "height": 480, "fov_deg": 60.0, "view_azimuth_deg": 120.0,
+                                    "view_zenith_deg": 50.0}),
+    # a narrow field: the disk ~50 pixels across, its edge sampled at more directions
+    "perspective-zoom": ("perspective", {"width": 400, "height": 300, "fov_deg": 4.0, "view_azimuth_deg": 120.0,
+                                         "view_zenith_deg": 50.0}),
+}
+#: Suns (azimuth, zenith) [deg]: inside, at the zenith and the horizon, on a panorama's seam and near its edges.
+SUNS = [(136.5, 21.2), (0.0, 0.0), (250.0, 89.9), (10.0, 90.0), (0.05, 60.0), (359.97, 30.0), (100.02, 45.05),
+        (80.1, 40.0), (139.9, 89.5), (120.0, 50.0), (149.0, 69.0), (91.0, 26.0), (300.0, 75.0)]
+
+
+@pytest.mark.parametrize("name", sorted(CAMERAS))
+def test_the_disk_in_its_window_is_the_disk_of_the_whole_image(name):
+    kind, options = CAMERAS[name]
+    camera = make_camera(kind, **options)
+    dirs_enu, valid = camera.cached_directions()
+    rng = np.random.default_rng(7)
+    suns = SUNS + [(float(a), float(z)) for a, z in zip(rng.uniform(0, 360, 40), rng.uniform(0, 95, 40))]
+    found = 0
+    for azimuth, zenith in suns:
+        sun = np.asarray(enu_from_azimuth_zenith(azimuth, zenith), float)
+        pixels, radiance = _sun_disk(camera, dirs_enu, valid, sun, np.array([0.5, 0.4, 0.3]))
+        expected, expected_radiance = whole_image_disk(camera, dirs_enu, valid, sun, np.array([0.5, 0.4, 0.3]))
+        np.testing.assert_array_equal(pixels, expected, err_msg=f"{name}, sun at {azimuth}, {zenith}")
+        np.testing.assert_array_equal(radiance, expected_radiance)
+        found += pixels.size > 0
+    assert found >= 1  # the suns do fall on these images
+
+
+@pytest.mark.parametrize("kind, options, sun", [
+    ("allsky", {"size": 1024}, (136.5, 21.2)),
+    ("allsky", {"size": 1024}, (200.0, 85.0)),
+    ("panorama", {"width": 2048, "height": 1024}, (40.0, 60.0)),
+    ("perspective", {"width": 640, "height": 480, "fov_deg": 60.0, "view_azimuth_deg": 120.0,
+                     "view_zenith_deg": 50.0}, (130.0, 45.0)),
+])
+def test_the_window_is_a_few_pixels_across_where_the_disk_is_in_view(kind, options, sun):
+    camera = make_camera(kind, **options)
+    ny, nx = camera.shape
+    sun_enu = np.asarray(enu_from_azimuth_zenith(*sun), float)
+    row, col = camera.pixel_of_direction(sun_enu[None, :])
+    (r0, r1), (c0, c1) = _disk_window(camera, sun_enu, 2 * SUN_ANGULAR_RADIUS_RAD, row[0], col[0], ny, nx)
+    assert r0 <= row[0] < r1 and c0 <= col[0] < c1
+    assert (r1 - r0) * (c1 - c0) <= 400  # not the whole image
+
+
+def test_a_disk_that_reaches_outside_the_field_takes_the_whole_image():
+    camera = make_camera("allsky", size=255)
+    ny, nx = camera.shape
+    sun_enu = np.asarray(enu_from_azimuth_zenith(30.0, 89.95), float)  # its edge below the horizon
+    row, col = camera.pixel_of_direction(sun_enu[None, :])
+    assert _disk_window(camera, sun_enu, SUN_ANGULAR_RADIUS_RAD, row[0], col[0], ny, nx) == ((0, ny), (0, nx))
