@@ -587,3 +587,53 @@ def test_the_compiled_scatter_writes_what_numpy_fancy_assignment_writes(dtype, c
     expected[pixels] = rows
     scatter_rows(image, pixels, rows)
     np.testing.assert_array_equal(image, expected)
+
+
+def tent_function(y, x, spacing=8, amplitude=0.004):
+    """1 + amplitude * T(y) * T(x), T a tent that is 0 on the lattice's rows (columns) and 1 half way between them:
+    bilinear on each quarter of each lattice cell, not on the whole cell. Its centres rise ``amplitude`` above the
+    corners' bilinear interpolation, within the default tolerance; its edges' midpoints do not rise at all."""
+    def tent(t):
+        return 1.0 - np.abs(np.mod(t, spacing) - spacing / 2) / (spacing / 2)
+
+    value = 1.0 + amplitude * tent(y) * tent(x)
+    radiance = np.stack([value, 0.8 * value, 0.6 * value], axis=1)
+    return radiance, 3.0 * value, np.zeros(y.shape, bool)
+
+
+@pytest.mark.parametrize("shape", [(33, 33), (41, 57)])
+def test_a_cell_that_tested_its_edges_is_interpolated_from_its_traced_centre_and_midpoints(shape):
+    """The five pixels that a smooth cell's test traced (centre, edge midpoints) enter its interpolation: each quarter
+    is bilinear from its four traced corners, which reproduces a field that is bilinear on each quarter exactly (the
+    cell's corners alone are off by ~3/4 of the centre's rise at its neighbours)."""
+    sampling = AdaptiveSampling(coarse_spacing=8, edge_test_size=8)
+    values, traced = sample_image_adaptive(make_trace(tent_function, shape), np.ones(shape, bool), sampling)
+    radiance, tau, _ = exact(tent_function, shape)
+    full_cells = (shape[0] - 1) // 8 * 8 + 1, (shape[1] - 1) // 8 * 8 + 1  # the whole 8 x 8 cells
+    got = values["radiance"].reshape(*shape, 3)[:full_cells[0], :full_cells[1]]
+    np.testing.assert_allclose(got, radiance.reshape(*shape, 3)[:full_cells[0], :full_cells[1]], rtol=1e-13)
+    np.testing.assert_allclose(values["tau_hydrometeor"].reshape(shape)[:full_cells[0], :full_cells[1]],
+                               tau.reshape(shape)[:full_cells[0], :full_cells[1]], rtol=1e-13)
+    # the cells were smooth: only the lattice and the tested pixels traced
+    assert set(np.flatnonzero(traced)) == expected_first_pixels(shape, 8, 8)
+    # and the corners alone would not do: next to a centre, their bilinear value is off by 0.75 * 0.004
+    y, x = np.array([3.0]), np.array([4.0])
+    assert abs(tent_function(y, x)[0][0, 0] - 1.0) > 2.9e-3
+
+
+def test_quarters_of_edged_cells_split_only_the_cells_that_test_their_edges():
+    from swim.rt.image_sampling import quarters_of_edged_cells
+
+    cells = np.array([[0, 8, 0, 8],      # tests its edges: four quarters
+                      [8, 12, 0, 4],     # smaller than 8: kept
+                      [0, 1, 8, 16],     # one pixel high, 8 wide: tests its edges; its quarters 1 x 4 (top ones empty)
+                      [16, 24, 8, 10]])  # 8 high, 2 wide: quarters 4 x 1
+    out = quarters_of_edged_cells(cells, 8)
+    assert {tuple(c) for c in out} == {
+        (8, 12, 0, 4),
+        (0, 4, 0, 4), (0, 4, 4, 8), (4, 8, 0, 4), (4, 8, 4, 8),
+        (0, 1, 8, 12), (0, 1, 12, 16),
+        (16, 20, 8, 9), (16, 20, 9, 10), (20, 24, 8, 9), (20, 24, 9, 10)}
+    assert out.dtype == np.int64 and out.flags.c_contiguous
+    np.testing.assert_array_equal(quarters_of_edged_cells(cells, 0), cells)  # no edge tests: unchanged
+    assert quarters_of_edged_cells(np.zeros((0, 4), np.int64), 8).shape == (0, 4)

@@ -257,3 +257,26 @@ def test_a_new_process_reads_the_exported_programs_and_samples_alike(tmp_path, m
     np.testing.assert_array_equal(np.asarray(traced), np.asarray(first_traced))
     for key, value in first_values.items():
         np.testing.assert_array_equal(np.asarray(values[key]), np.asarray(value), err_msg=key)
+
+
+def test_a_cell_that_tested_its_edges_is_interpolated_by_its_quarters_as_on_the_host():
+    """The smooth cells that tested their edges are interpolated from their traced centre and edge midpoints too
+    (each quarter from its four traced corners, :func:`swim.rt.image_sampling.quarters_of_edged_cells`): a field that
+    is bilinear on each quarter of each 8 x 8 cell, but not on the cell, comes out exact, on the device as on the
+    host."""
+    shape = (33, 41)
+    y, x = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+
+    def tent(t):
+        return 1.0 - np.abs(np.mod(t, 8) - 4) / 4
+
+    value = 1.0 + 0.004 * tent(y) * tent(x)  # the centres 0.4 % above their corners: within the tolerance
+    full = {"radiance": np.stack([value, 0.8 * value, 0.6 * value], -1).reshape(-1, 3).astype(np.float32),
+            "tau_hydrometeor": (3.0 * value).reshape(-1).astype(np.float32),
+            "surface": np.zeros(value.size, bool), "steps": np.ones(value.size, np.int32)}
+    valid = np.ones(shape, bool)
+    traced = assert_same_sampling(full, valid, AdaptiveSampling())
+    assert traced.sum() < 0.2 * traced.size  # the cells were smooth
+    device_values, _ = sample_image_adaptive_device(lookup(full), valid, AdaptiveSampling())
+    got = np.asarray(device_values["radiance"]).reshape(*shape, 3)[:, :33]  # the whole 8 x 8 cells
+    np.testing.assert_allclose(got, full["radiance"].reshape(*shape, 3)[:, :33], rtol=1e-6)

@@ -212,10 +212,13 @@ def _candidates(bounds, n):
     return first, second
 
 
-@exported_jit(static_argnames=("nx", "levels_key"))
-def _fill(arrays, smooth_levels, traced, valid, *, nx, levels_key):
+@exported_jit(static_argnames=("nx", "edge_test_size", "levels_key"))
+def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_key):
     """Every array (N, C) with the untraced valid pixels of the smooth cells interpolated from their corners, level
     by level coarse to fine (a pixel of a finer smooth cell takes its value): :func:`swim.rt.image_sampling._fill`.
+    A smooth cell that tested its edges is interpolated by its children on the next level, its quarters, whose
+    corners are its traced corners, edge midpoints and centre
+    (:func:`swim.rt.image_sampling.quarters_of_edged_cells`).
     Float arrays are interpolated bilinearly with weights ``dy / h`` and ``dx / w`` rounded to their precision;
     boolean arrays take the cell's first corner; integer arrays 0. A pixel on the edge between two smooth cells of a
     level takes the first one's value where the host's takes the last written: the same for the tested outputs (finite,
@@ -226,6 +229,11 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, levels_key):
     x = jnp.arange(nx, dtype=jnp.int32)[None, :]
     target = (valid & ~traced).reshape(ny, nx)
     arrays = list(arrays)
+    smooth_levels = list(smooth_levels)
+    for index in range(len(levels) - 1):  # the quarters of the smooth cells that tested their edges
+        _, _, _, edged, _, _, _ = _cell_geometry(levels[index], nx, edge_test_size)
+        quarters = _children_exist(smooth_levels[index] & edged, levels[index + 1], nx, edge_test_size)
+        smooth_levels[index + 1] = smooth_levels[index + 1] | quarters
     for level, smooth in zip(levels, smooth_levels):
         rows = [jnp.asarray(r, jnp.int32) for r in _candidates(level.ys, ny)]
         cols = [jnp.asarray(c, jnp.int32) for c in _candidates(level.xs, nx)]
@@ -416,5 +424,5 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
         return _finish(values, trace, n, outside), traced.reshape(ny, nx)
     names = list(values)
     filled = _fill(tuple(values[name] for name in names), tuple(smooth_levels), traced, valid_dev, nx=nx,
-                   levels_key=key)
+                   edge_test_size=size, levels_key=key)
     return dict(zip(names, filled)), traced.reshape(ny, nx)
