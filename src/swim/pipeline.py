@@ -198,9 +198,9 @@ class _StageCache:
         if entry is not None and entry[0] == key:
             log.info("reusing the %s of the previous render", kind)
             return entry[1]
-        for other in list(self._entries):
-            if other == kind or self._entries[other][0][1] != fingerprint:
-                del self._entries[other]
+        for other, (other_key, _) in list(self._entries.items()):
+            if other == kind or other_key[1] != fingerprint:
+                self._entries.pop(other, None)  # (another render's thread may have dropped it already)
         value = build()
         self._entries[kind] = (key, value)
         return value
@@ -368,6 +368,12 @@ def _disk_window(camera, sun_enu, radius, row, col, ny, nx):
 #: the shared packed volume in place only where its render is the only one (:func:`render`).
 _RENDERS_IN_PROGRESS = [0]
 _RENDERS_LOCK = threading.Lock()
+#: Renders in this process build their grid constants (the packed volume, Step 1a, the occupancy grid) one at a time:
+#: the build reads the cached optical volume and may point its extinctions at a new packed volume
+#: (:func:`swim.rt.march.share_packed_channels`), which deletes and re-adds its ``species`` coordinate. A render beside
+#: it (a dask worker's threads, each with its own sun) read the volume in between and found the coordinate gone
+#: ("'cloud_liquid' is not in list" in ``pack_volume``, or worse, names and extinctions of two layouts).
+_GRID_CONSTANTS_LOCK = threading.RLock()
 
 
 def _counted_render(fn):
@@ -586,9 +592,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
     # constants are looked up inside its build, after the old entry has gone: a new sun never holds two volumes.
-    consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas)), lambda: (
-        {**_STAGE_CACHE.get(("grid constants", fingerprint, sun_key), grid_constants),
-         **atmosphere_constants(gas, sun_scene)}, gas))
+    with _GRID_CONSTANTS_LOCK:
+        consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas)), lambda: (
+            {**_STAGE_CACHE.get(("grid constants", fingerprint, sun_key), grid_constants),
+             **atmosphere_constants(gas, sun_scene)}, gas))
 
     def ray_phase(dirs):
         cos_theta = dirs @ sun_scene

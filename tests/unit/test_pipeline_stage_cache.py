@@ -295,3 +295,65 @@ def test_a_new_sun_refills_the_packed_volume_of_a_clear_or_smoky_scene(variant):
     assert not np.array_equal(first, second)
     pipeline._STAGE_CACHE.clear()
     np.testing.assert_array_equal(second, _render(scene, sun_zenith=60.0)["radiance"].values)
+
+
+def test_renders_beside_each_other_build_their_grid_constants_one_at_a_time(monkeypatch):
+    """Two renders in one process (a dask worker's threads), each with its own sun: while one points the shared
+    optical volume's extinctions at its new packed volume (share_packed_channels deletes and re-adds the volume's
+    species coordinate), the other must not read the volume (pack_volume found the coordinate gone: "'cloud_liquid'
+    is not in list"). The sharing render waits inside share_packed_channels for the other to start packing; the
+    other must only start after it has left."""
+    import threading
+
+    pipeline._STAGE_CACHE.clear()
+    scene = swim.default_scene()
+    _render(scene, sun_zenith=40.0)  # the volume cached and shared
+    inside, a_inside, b_packing = [None], threading.Event(), threading.Event()
+    overlaps, errors, images = [], [], {}
+    share, pack = pipeline.share_packed_channels, pipeline.pack_volume
+
+    def sharing(volume, packed, species=None):
+        if threading.current_thread().name == "render-a":
+            inside[0] = "render-a"
+            a_inside.set()
+            b_packing.wait(1.0)  # without the lock the other render packs now
+        try:
+            return share(volume, packed, species)
+        finally:
+            inside[0] = None
+
+    def packing(volume, species=None):
+        if threading.current_thread().name == "render-b":
+            overlaps.append(inside[0])
+            b_packing.set()
+        return pack(volume, species)
+
+    monkeypatch.setattr(pipeline, "share_packed_channels", sharing)
+    monkeypatch.setattr(pipeline, "pack_volume", packing)
+
+    def run(name, zenith, wait=None):
+        try:
+            if wait is not None:
+                wait.wait(10.0)
+            images[name] = _render(scene, sun_zenith=zenith)["radiance"].values
+        except Exception as error:  # noqa: BLE001 (reported below)
+            errors.append(error)
+
+    threads = [threading.Thread(target=run, args=("a", 50.0), name="render-a"),
+               threading.Thread(target=run, args=("b", 60.0, a_inside), name="render-b")]
+    with pipeline._RENDERS_LOCK:
+        pipeline._RENDERS_IN_PROGRESS[0] += 1  # a third render: neither refills the volume in place, both pack anew
+    try:
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(60.0)
+    finally:
+        with pipeline._RENDERS_LOCK:
+            pipeline._RENDERS_IN_PROGRESS[0] -= 1
+    assert not errors, errors
+    assert a_inside.is_set() and overlaps == [None]  # the other render packed, and not while the volume changed
+    monkeypatch.undo()
+    pipeline._STAGE_CACHE.clear()
+    for name, zenith in (("a", 50.0), ("b", 60.0)):
+        np.testing.assert_array_equal(images[name], _render(scene, sun_zenith=zenith)["radiance"].values)

@@ -637,3 +637,88 @@ def test_quarters_of_edged_cells_split_only_the_cells_that_test_their_edges():
     assert out.dtype == np.int64 and out.flags.c_contiguous
     np.testing.assert_array_equal(quarters_of_edged_cells(cells, 0), cells)  # no edge tests: unchanged
     assert quarters_of_edged_cells(np.zeros((0, 4), np.int64), 8).shape == (0, 4)
+
+
+@pytest.mark.parametrize("shape", [(33, 33), (29, 45)])
+def test_a_cell_that_tested_its_centre_alone_is_interpolated_through_it(shape):
+    """A smooth cell without edge tests is interpolated from its corners plus a bump through its traced centre (1 at
+    the centre, 0 on the edges, bilinear on the quarters the centre makes): a field that rises at the cells' centres
+    and is linear along their edges comes out exact; the corners alone miss its rise."""
+    def tent_centres(y, x):
+        return tent_function(y, x, spacing=4, amplitude=0.004)
+
+    sampling = AdaptiveSampling(coarse_spacing=4, edge_test_size=0)
+    values, traced = sample_image_adaptive(make_trace(tent_centres, shape), np.ones(shape, bool), sampling)
+    radiance, tau, _ = exact(tent_centres, shape)
+    whole = (shape[0] - 1) // 4 * 4 + 1, (shape[1] - 1) // 4 * 4 + 1  # the whole 4 x 4 cells
+    np.testing.assert_allclose(values["radiance"].reshape(*shape, 3)[:whole[0], :whole[1]],
+                               radiance.reshape(*shape, 3)[:whole[0], :whole[1]], rtol=1e-13)
+    np.testing.assert_allclose(values["tau_hydrometeor"].reshape(shape)[:whole[0], :whole[1]],
+                               tau.reshape(shape)[:whole[0], :whole[1]], rtol=1e-13)
+    assert set(np.flatnonzero(traced)) == expected_first_pixels(shape, 4, 0)  # every cell smooth
+    assert abs(tent_centres(np.array([1.0]), np.array([2.0]))[0][0, 0] - 1.0) > 1.9e-3  # off the corners' plane
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_compiled_fill_adds_the_bump_through_a_traced_centre(dtype):
+    """swim.rt.fill_cpu.fill_cells in a cell whose centre is traced and strictly inside it: the corners' bilinear value
+    plus the centre's residual (its value less the corners' value there, both in the values' precision) times the
+    bump (ty * tx in float64, rounded once), bit for bit; not in a cell one pixel high, nor where the residual is not
+    finite, nor in a cell whose centre is not traced."""
+    from swim.rt.fill_cpu import fill_cells
+
+    ny, nx = 14, 20
+    rng = np.random.default_rng(11)
+    values = rng.uniform(0.1, 3.0, (ny * nx, 2)).astype(dtype)
+    cells = np.array([[0, 5, 0, 3],      # 5 x 3: its centre (2, 1)
+                      [0, 4, 4, 8],      # 4 x 4: its centre (2, 6)
+                      [6, 7, 0, 6],      # one pixel high: its centre (6, 3) on its edge, no bump
+                      [6, 10, 8, 12],    # its centre (8, 10) not traced: no bump
+                      [10, 13, 12, 19]])  # its centre (11, 15) NaN in the second channel
+    traced = np.zeros(ny * nx, bool)
+    for y0, y1, x0, x1 in cells:
+        traced[[y0 * nx + x0, y0 * nx + x1, y1 * nx + x0, y1 * nx + x1]] = True
+    for y, x in ((2, 1), (2, 6), (6, 3), (11, 15)):
+        traced[y * nx + x] = True
+    values[11 * nx + 15, 1] = np.nan
+    valid = np.ones(ny * nx, bool)
+    expected = values.copy()
+    for y0, y1, x0, x1 in cells:
+        h, w = y1 - y0, x1 - x0
+        yc, xc = y0 + h // 2, x0 + w // 2
+        corners = [y0 * nx + x0, y0 * nx + x1, y1 * nx + x0, y1 * nx + x1]
+
+        def bilinear(wy, wx):
+            weights = np.array([(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy]).astype(dtype)
+            acc = values[corners[0]] * weights[0]
+            for c, wc in zip(corners[1:], weights[1:]):
+                acc = acc + values[c] * wc
+            return acc
+
+        residual = values[yc * nx + xc] - bilinear((yc - y0) / h, (xc - x0) / w)
+        centred = h >= 2 and w >= 2 and traced[yc * nx + xc]
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                pix = y * nx + x
+                if traced[pix]:
+                    continue
+                acc = bilinear((y - y0) / h, (x - x0) / w)
+                if centred and y0 < y < y1 and x0 < x < x1:
+                    ty = (y - y0) / (yc - y0) if y <= yc else (y1 - y) / (y1 - yc)
+                    tx = (x - x0) / (xc - x0) if x <= xc else (x1 - x) / (x1 - xc)
+                    bump = dtype(ty * tx)
+                    acc = np.where(np.isfinite(residual), acc + residual * bump, acc)
+                expected[pix] = acc
+    before = values.copy()
+    fill_cells((values,), cells, traced, valid, nx, 0, ny)
+    assert values.tobytes() == expected.tobytes()
+    # the comparison covers a bump: inside the 4 x 4 cell the values left the corners' plane
+    assert abs(values[1 * nx + 5, 0] - bilinear_at(before, nx, (0, 4, 4, 8), 1, 5, dtype)) > 1e-6
+
+
+def bilinear_at(values, nx, cell, y, x, dtype):
+    """The bilinear interpolation of a cell's corners at pixel (y, x), first channel."""
+    y0, y1, x0, x1 = cell
+    wy, wx = (y - y0) / (y1 - y0), (x - x0) / (x1 - x0)
+    return (values[y0 * nx + x0, 0] * dtype((1 - wx) * (1 - wy)) + values[y0 * nx + x1, 0] * dtype(wx * (1 - wy))
+            + values[y1 * nx + x0, 0] * dtype((1 - wx) * wy) + values[y1 * nx + x1, 0] * dtype(wx * wy))

@@ -9,6 +9,11 @@ all the float outputs, the pixels' weights computed once, on bands of rows in pa
 
 Bit for bit NumPy's result: the weights are computed in float64 as ``dy / h`` and ``dx / w`` and rounded once to
 float32, and the four corners' products are summed in the same order, without fused multiply-adds.
+
+Since session 62 a cell whose centre is traced and strictly inside it (the centre test's pixel) is interpolated
+through that centre too: the corners' bilinear value plus the centre's residual times a bump that is 1 at the centre,
+0 on the cell's edges and bilinear on each quarter the centre makes (:func:`_centre_bump`). The edges stay the
+corners' lines, so neighbouring cells still agree along them (docs/performance.md, section 78).
 """
 
 from __future__ import annotations
@@ -22,7 +27,10 @@ from .march_cpu import _JIT_EXACT as _JIT
 @njit(**_JIT)
 def fill_cells(arrays, cells, traced, valid, nx, y_lo, y_hi):
     """Bilinear interpolation of the untraced, valid pixels of cells from their corners, in place, in the pixel rows
-    ``y_lo <= y < y_hi``: every array of ``arrays`` with the weights computed once per pixel.
+    ``y_lo <= y < y_hi``: every array of ``arrays`` with the weights computed once per pixel. Where a cell's centre
+    ``(y0 + h // 2, x0 + w // 2)`` is traced and strictly inside it (h, w >= 2), its inner pixels add the centre's
+    residual (its value less the corners' value there, in the values' precision) times :func:`_centre_bump`, rounded
+    once to that precision; not where the residual is not finite.
 
     Parameters
     ----------
@@ -44,6 +52,12 @@ def fill_cells(arrays, cells, traced, valid, nx, y_lo, y_hi):
         cells' order, so together they give what one pass over all rows gives.
     """
     weights = np.empty(4, arrays[0].dtype)  # assigned in float64, each rounded once to the values' precision
+    centre_weights = np.empty(4, arrays[0].dtype)
+    bump = np.empty(1, arrays[0].dtype)
+    channels = 0
+    for values in arrays:
+        channels = max(channels, values.shape[1])
+    residuals = np.empty((len(arrays), channels), arrays[0].dtype)  # a centred cell's, per array and channel
     for q in range(cells.shape[0]):
         y0, y1, x0, x1 = cells[q, 0], cells[q, 1], cells[q, 2], cells[q, 3]
         if y1 < y_lo or y0 >= y_hi:
@@ -51,6 +65,24 @@ def fill_cells(arrays, cells, traced, valid, nx, y_lo, y_hi):
         h, w = y1 - y0, x1 - x0
         c00 = y0 * nx + x0
         c01, c10, c11 = c00 + w, c00 + h * nx, c00 + h * nx + w
+        # a traced centre strictly inside the cell (the centre test's pixel): the bump through it (_centre_bump)
+        yc, xc = y0 + h // 2, x0 + w // 2
+        centred = h >= 2 and w >= 2 and traced[yc * nx + xc]
+        if centred:
+            wy, wx = (yc - y0) / h, (xc - x0) / w
+            centre_weights[0] = (1 - wx) * (1 - wy)
+            centre_weights[1] = wx * (1 - wy)
+            centre_weights[2] = (1 - wx) * wy
+            centre_weights[3] = wx * wy
+            k = 0
+            for values in arrays:  # the centre's value less the corners' value there
+                for c in range(values.shape[1]):
+                    at_centre = values[c00, c] * centre_weights[0]
+                    at_centre += values[c01, c] * centre_weights[1]
+                    at_centre += values[c10, c] * centre_weights[2]
+                    at_centre += values[c11, c] * centre_weights[3]
+                    residuals[k, c] = values[yc * nx + xc, c] - at_centre
+                k += 1
         for dy in range(max(y0, y_lo) - y0, min(y1, y_hi - 1) - y0 + 1):
             wy = dy / h
             for dx in range(w + 1):
@@ -63,13 +95,30 @@ def fill_cells(arrays, cells, traced, valid, nx, y_lo, y_hi):
                 weights[2] = (1 - wx) * wy
                 weights[3] = wx * wy
                 w00, w01, w10, w11 = weights[0], weights[1], weights[2], weights[3]
+                inside = centred and 0 < dy < h and 0 < dx < w
+                if inside:
+                    bump[0] = _centre_bump(dy, dx, h // 2, w // 2, h, w)
+                k = 0
                 for values in arrays:
                     for c in range(values.shape[1]):
                         acc = values[c00, c] * w00
                         acc += values[c01, c] * w01
                         acc += values[c10, c] * w10
                         acc += values[c11, c] * w11
+                        if inside and np.isfinite(residuals[k, c]):
+                            acc += residuals[k, c] * bump[0]
                         values[pix, c] = acc
+                    k += 1
+
+
+@njit(**_JIT)
+def _centre_bump(dy, dx, cy, cx, h, w):
+    """The bump [-] at the pixel (dy, dx) of a cell h x w pixels whose centre is (cy, cx), all relative to its first
+    corner: 1 at the centre, 0 on the cell's edges, bilinear on each of the four quarters that the centre makes
+    (float64)."""
+    ty = dy / cy if dy <= cy else (h - dy) / (h - cy)
+    tx = dx / cx if dx <= cx else (w - dx) / (w - cx)
+    return ty * tx
 
 
 @njit(**_JIT)

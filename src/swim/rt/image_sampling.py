@@ -13,9 +13,9 @@ display", Commun. ACM 23, 343-349, doi:10.1145/358876.358882, with an explicit e
    radiance, the hydrometeor optical depth and the radiance of the air in front of the clouds agree within
    ``tolerance``, ``tau_tolerance`` and ``clear_tolerance`` (relative, above absolute floors) and all these
    pixels see the same thing (all ground or all sky, all inside the camera's field), the cell's other pixels
-   are interpolated: bilinearly from its corners, or in a cell that tested its edges, quarter by quarter from
-   each quarter's four traced corners (the cell's corners, edge midpoints and centre), which the test has
-   traced anyway;
+   are interpolated through every pixel that the test traced: in a cell that tested its edges, quarter by quarter
+   from each quarter's four traced corners (the cell's corners, edge midpoints and centre), else bilinearly from
+   its corners plus a bump through its traced centre (:func:`swim.rt.fill_cpu.fill_cells`);
 3. the other cells trace the midpoints of their edges (where not yet traced) and split into four, down to
    single pixels.
 
@@ -372,7 +372,8 @@ def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
     """Bilinear interpolation of the untraced pixels of the smooth cells of every level (a list of (m, 4) arrays,
     coarse to fine: a pixel on the edge of cells of two levels takes the finer cell's value, as when each level
     was filled before the next was traced), from their corners (the quarters of the cells that tested their edges,
-    :func:`quarters_of_edged_cells`, from theirs).
+    :func:`quarters_of_edged_cells`, from theirs), and through a traced centre strictly inside a cell
+    (:func:`swim.rt.fill_cpu.fill_cells`'s bump).
 
     Float arrays go through the compiled :func:`swim.rt.fill_cpu.fill_cells`, all of one precision in one pass over
     the cells' pixels (the weights computed once per pixel and rounded once to the arrays' precision), on bands of

@@ -218,7 +218,8 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_ke
     by level coarse to fine (a pixel of a finer smooth cell takes its value): :func:`swim.rt.image_sampling._fill`.
     A smooth cell that tested its edges is interpolated by its children on the next level, its quarters, whose
     corners are its traced corners, edge midpoints and centre
-    (:func:`swim.rt.image_sampling.quarters_of_edged_cells`).
+    (:func:`swim.rt.image_sampling.quarters_of_edged_cells`); a cell whose centre is traced and strictly inside it
+    adds the bump through that centre (:func:`swim.rt.fill_cpu.fill_cells`).
     Float arrays are interpolated bilinearly with weights ``dy / h`` and ``dx / w`` rounded to their precision;
     boolean arrays take the cell's first corner; integer arrays 0. A pixel on the edge between two smooth cells of a
     level takes the first one's value where the host's takes the last written: the same for the tested outputs (finite,
@@ -255,12 +256,30 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_ke
         wy = ((y - y0) / (y1 - y0)).reshape(-1)  # float64 where x64 is on, as the host's; else float32
         wx = ((x - x0) / (x1 - x0)).reshape(-1)
         weights = ((1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy)
+        # the bump through a traced centre strictly inside the cell (swim.rt.fill_cpu.fill_cells)
+        height, width = y1 - y0, x1 - x0
+        yc, xc = y0 + height // 2, x0 + width // 2
+        centre = (yc * nx + xc).reshape(-1)
+        inside = ((height >= 2) & (width >= 2) & (y > y0) & (y < y1) & (x > x0) & (x < x1)).reshape(-1) & traced[centre]
+        ty = jnp.where(y <= yc, (y - y0) / jnp.maximum(yc - y0, 1), (y1 - y) / jnp.maximum(y1 - yc, 1))
+        tx = jnp.where(x <= xc, (x - x0) / jnp.maximum(xc - x0, 1), (x1 - x) / jnp.maximum(x1 - xc, 1))
+        bump = (ty * tx).reshape(-1)
+        wcy = ((yc - y0) / jnp.maximum(height, 1)).reshape(-1)
+        wcx = ((xc - x0) / jnp.maximum(width, 1)).reshape(-1)
+        centre_weights = ((1 - wcx) * (1 - wcy), wcx * (1 - wcy), (1 - wcx) * wcy, wcx * wcy)
         for i, array in enumerate(arrays):
             if jnp.issubdtype(array.dtype, jnp.floating):
                 w = [wt.astype(array.dtype)[:, None] for wt in weights]
                 value = array[corners[0]] * w[0]
                 for corner, wt in zip(corners[1:], w[1:]):
                     value = value + array[corner] * wt
+                wc = [wt.astype(array.dtype)[:, None] for wt in centre_weights]
+                at_centre = array[corners[0]] * wc[0]
+                for corner, wt in zip(corners[1:], wc[1:]):
+                    at_centre = at_centre + array[corner] * wt
+                residual = array[centre] - at_centre
+                value = jnp.where(inside[:, None] & jnp.isfinite(residual),
+                                  value + residual * bump.astype(array.dtype)[:, None], value)
             elif array.dtype == jnp.bool_:
                 value = array[corners[0]]
             else:
