@@ -269,14 +269,15 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_ke
         centre_weights = ((1 - wcx) * (1 - wcy), wcx * (1 - wcy), (1 - wcx) * wcy, wcx * wcy)
         for i, array in enumerate(arrays):
             if jnp.issubdtype(array.dtype, jnp.floating):
+                at_corners = [array[corner] for corner in corners]  # gathered once for both sums
                 w = [wt.astype(array.dtype)[:, None] for wt in weights]
-                value = array[corners[0]] * w[0]
-                for corner, wt in zip(corners[1:], w[1:]):
-                    value = value + array[corner] * wt
+                value = at_corners[0] * w[0]
+                for corner_value, wt in zip(at_corners[1:], w[1:]):
+                    value = value + corner_value * wt
                 wc = [wt.astype(array.dtype)[:, None] for wt in centre_weights]
-                at_centre = array[corners[0]] * wc[0]
-                for corner, wt in zip(corners[1:], wc[1:]):
-                    at_centre = at_centre + array[corner] * wt
+                at_centre = at_corners[0] * wc[0]
+                for corner_value, wt in zip(at_corners[1:], wc[1:]):
+                    at_centre = at_centre + corner_value * wt
                 residual = array[centre] - at_centre
                 value = jnp.where(inside[:, None] & jnp.isfinite(residual),
                                   value + residual * bump.astype(array.dtype)[:, None], value)
