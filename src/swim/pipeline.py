@@ -201,7 +201,20 @@ class _StageCache:
         for other, (other_key, _) in list(self._entries.items()):
             if other == kind or other_key[1] != fingerprint:
                 self._entries.pop(other, None)  # (another render's thread may have dropped it already)
-        value = build()
+        return self.put(key, build())
+
+    def peek(self, key):
+        """The value kept under ``key``, or None (nothing is built or dropped)."""
+        entry = self._entries.get(key[0])
+        return entry[1] if entry is not None and entry[0] == key else None
+
+    def put(self, key, value):
+        """Keep ``value`` under ``key`` (replacing its kind's entry; entries of other scenes are dropped) and return
+        it."""
+        kind, fingerprint = key[:2]
+        for other, (other_key, _) in list(self._entries.items()):
+            if other == kind or other_key[1] != fingerprint:
+                self._entries.pop(other, None)  # (another render's thread may have dropped it already)
         self._entries[kind] = (key, value)
         return value
 
@@ -558,14 +571,23 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         # this render is the only one in the process: beside others (a dask worker's threads) one of them may still
         # march through that volume with its own sun, and this one packs the grid anew
         packed = shared_packed_volume(volume, species) if _rendering_alone() else None
+        # the step classes (march.step_classes) of a new sun are written over the last sun's where the packed volume
+        # is refilled in place too (the same arrays then keep their device copies' places)
+        classes = None
         if packed is None:
             packed = pack_volume(volume, species)
             share_packed_channels(volume, packed, species)
+        else:
+            classes = _STAGE_CACHE.peek(("step classes", fingerprint))
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
+        if classes is None or classes.shape != occupancy.shape:
+            classes = np.zeros(occupancy.shape, np.int8)
+            if _rendering_alone():  # (beside other renders a new sun packs anew and keeps nothing for the next)
+                _STAGE_CACHE.put(("step classes", fingerprint), classes)
         # MarchSettings.step1a_on_device: a new sun on the device's copy of this packed volume, which an earlier
         # sun's render of the JAX kernel left there (swim.rt.solar_device): no sums, sweep input or volume sent
-        kept = (kept_device_copies({"volume": packed, "occupancy": occupancy})
+        kept = (kept_device_copies({"volume": packed, "occupancy": classes})
                 if settings.step1a_on_device and backend == "jax" else None)
         if kept is not None:
             transmittance, device_packed = solar_transmittance_on_device(volume, sun_scene, kept["volume"], packed,
@@ -577,10 +599,12 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
             transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
                                                 backend=settings.backend, nonzero_levels=nonzero_levels,
                                                 out=step1a_channel_views(packed, species))
-        constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
-        if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.march.device_copies)
+        constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species,
+                                     classes=classes)
+        if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.march.device_copies);
+            # the step classes of this sun are sent (25.6 MB for 400 x 400 x 160)
             keep_device_copies({"volume": constants["volume"], "occupancy": constants["occupancy"]},
-                               {"volume": device_packed, "occupancy": kept["occupancy"]})
+                               {"volume": device_packed, "occupancy": jax.device_put(constants["occupancy"])})
             del device_packed
         del transmittance
         if not settings.on_accelerator():

@@ -11,6 +11,8 @@ from swim.rt.gas import AerosolBackground, build_gas_tables
 from swim.rt.march import (
     EMPTY_CELLS_PER_STEP,
     EMPTY_STEP_WEIGHT,
+    SUNLIT_CELLS_PER_STEP,
+    SUNLIT_CLEAR,
     MarchSettings,
     adaptive_step_edges,
     grid_geometry,
@@ -19,6 +21,7 @@ from swim.rt.march import (
     occupancy_grid,
     probe_counts_and_cells,
     ray_segments,
+    step_classes,
 )
 from swim.rt.solar import solar_transmittance
 
@@ -202,8 +205,10 @@ def test_empty_steps_setting():
 def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
     """swim.rt.march_cpu._adaptive_edges (the per-ray kernel's, also the CUDA kernel's) against grid_step_edges:
     the same step counts and edges, with and without a limit on the empty steps, through clear and cloudy grids,
-    with probes per cell crossed (re-probed rays, their lengths in cells from probe_counts_and_cells) and for rays
-    straight down through whole levels (a whole number of cells, where rounding up must not tip either way)."""
+    with probes per cell crossed (re-probed rays, their lengths in cells from probe_counts_and_cells), for rays
+    straight down through whole levels (a whole number of cells, where rounding up must not tip either way), and with
+    and without a limit of their own on the steps in sunlit clear air (the step classes of kernel_constants: the
+    clear grid is all sunlit, the cloudy one sunlit above the slab and in its shadow below)."""
     from swim.rt import march_cpu
     from swim.rt.march import CELL_SLACK, MAX_PROBES
 
@@ -215,13 +220,14 @@ def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
         start, direction, s0, length = (np.asarray(a, float) for a in args)
         p, coef = march_cpu.pack_parameters(consts)
         occupancy = np.asarray(consts["occupancy"])
+        assert np.any(occupancy == SUNLIT_CLEAR) and (not cloud or np.any(occupancy == 0))
         for n_probe, spacing in ((64, 0.0), (8, 1.0)):
             count, cells = probe_counts_and_cells(*args, consts, n_probe, spacing)
             assert spacing == 0 or np.asarray(count).max() > n_probe, "some rays must be probed again"
-            for empty_steps in (0, 4, 16):
+            for empty_steps, sunlit_steps in ((0, 0), (0, 4), (4, 0), (16, 0), (4, 2), (16, 4)):
                 edges, steps = (np.asarray(a) for a in grid_step_edges(
                     *args, 64, consts, n_probe=int(np.asarray(count).max()), probes=count, cells=cells,
-                    empty_steps=empty_steps))
+                    empty_steps=empty_steps, sunlit_steps=sunlit_steps))
                 for r in range(len(dirs)):
                     if cloud and r == 3:
                         # straight down through the slab the probes fall on exact halves of levels, which the two
@@ -231,9 +237,105 @@ def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
                     probe_at = np.empty((6, march_cpu.PROBE_BLOCK))  # a block of probes' indices (_probe_indices)
                     n = adaptive_edges(*start[r], *direction[r], s0[r], length[r], 64, p, coef, occupancy,
                                        n_probe, EMPTY_STEP_WEIGHT, spacing, CELL_SLACK, empty_steps,
-                                       EMPTY_CELLS_PER_STEP, cdf, out, probe_at)
-                    assert n == steps[r], (cloud, n_probe, empty_steps, r)
+                                       EMPTY_CELLS_PER_STEP, sunlit_steps, SUNLIT_CELLS_PER_STEP, cdf, out, probe_at)
+                    assert n == steps[r], (cloud, n_probe, empty_steps, sunlit_steps, r)
                     np.testing.assert_allclose(out[: n + 1], edges[: n + 1, r], rtol=0,
                                                atol=1e-4 * max(length[r], 1.0))
                 if empty_steps == 4:
                     assert np.all(steps < 64), "rays through the grid must take fewer steps"
+
+
+def _classes(scene, sun):
+    volume = build_optical_volume(scene)
+    sun = np.asarray(sun, float) / np.linalg.norm(sun)
+    fields = solar_transmittance(volume, sun)
+    names = ["cloud_transmittance", "terrain_shadow"] + (["aerosol_tau_sun"] if scene_has_aerosol(volume) else [])
+    return volume, fields, step_classes(occupancy_grid(volume), {n: fields[n].values for n in names})
+
+
+def scene_has_aerosol(volume):
+    return bool(np.any(volume["aerosol_extinction"].values > 0))
+
+
+def test_step_classes_mark_the_sunlit_clear_air_only():
+    """step_classes: occupied cells 1 (the cloud slab, dilated); above the slab, where the sun comes from, sunlit clear
+    air (-1); below it, in its shadow, 0; a cell is sunlit only where every cell next to it is, so the level next to
+    the shadow's edge is 0 too; a terrain's shadow and a 3-D aerosol's sun-ward optical depth take cells out too."""
+    volume, fields, classes = _classes(_scene(), [0.0, 0.0, 1.0])
+    z = volume["level"].values
+    assert classes.dtype == np.int8 and not classes.flags.writeable
+    np.testing.assert_array_equal(classes > 0, occupancy_grid(volume) > 0)
+    assert np.all(classes[(z > 4600) & (z < 7500)] == SUNLIT_CLEAR), "clear air above the slab is sunlit"
+    assert np.all(classes[z < 2700] == 0), "clear air in the slab's shadow is not"
+    lit = (fields["cloud_transmittance"].values * fields["terrain_shadow"].values >= 0.999)
+    # every sunlit cell has sunlit nodes all around it
+    k, j, i = np.nonzero(classes == SUNLIT_CLEAR)
+    assert len(k) and lit[k, j, i].all()
+    for dk in (-1, 1):
+        kk = np.clip(k + dk, 0, lit.shape[0] - 1)
+        assert lit[kk, j, i].all()
+
+    # no cloud, a low sun behind a hill: the hill's shadow is not sunlit, the air far above it is
+    _, fields, classes = _classes(_scene(terrain_peak=1500.0, cloud=False), [1.0, 0.0, 0.15])
+    shadow = fields["terrain_shadow"].values < 0.5
+    assert shadow.any() and np.all(classes[shadow] >= 0)
+    assert np.mean(classes == SUNLIT_CLEAR) > 0.5
+
+    # a 3-D aerosol (over x > 0): its sun-ward optical depth takes its air out
+    volume, fields, classes = _classes(_scene(aerosol=True, cloud=False), [0.0, 0.0, 1.0])
+    hazy = fields["aerosol_tau_sun"].values > 2e-3
+    assert hazy.any() and np.all(classes[hazy] >= 0)
+    assert np.any(classes == SUNLIT_CLEAR)
+
+
+def test_step_classes_write_in_place_and_check_shapes():
+    volume = build_optical_volume(_scene())
+    occupancy = occupancy_grid(volume)
+    fields = solar_transmittance(volume, np.array([0.0, 0.0, 1.0]))
+    named = {n: fields[n].values for n in ("cloud_transmittance", "terrain_shadow")}
+    out = np.zeros(occupancy.shape, np.int8)
+    got = step_classes(occupancy, named, out=out)
+    assert got is out and np.any(out == SUNLIT_CLEAR)
+    np.testing.assert_array_equal(step_classes(occupancy, named), out)
+    with pytest.raises(ValueError, match="occupancy's shape"):
+        step_classes(occupancy, {**named, "terrain_shadow": named["terrain_shadow"][1:]})
+
+
+def test_sunlit_steps_thin_out_the_steps_in_sunlit_clear_air():
+    """grid_step_edges: a ray through a clear, sunlit grid takes max(sunlit_steps, cells / SUNLIT_CELLS_PER_STEP)
+    equal steps (fewer than the empty cells' limit gives it); through the cloud slab it keeps its steps in the cloud
+    and at least as many in the cloud's shadow below it (whose empty cells keep their own limit), and takes fewer above
+    it."""
+    dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]
+    consts, args = _rays(_scene(cloud=False), dirs)
+    cells = np.asarray(probe_counts_and_cells(*args, consts)[1])
+    for sunlit_steps in (2, 5):
+        edges, steps = (np.asarray(a) for a in grid_step_edges(*args, 64, consts, empty_steps=16,
+                                                               sunlit_steps=sunlit_steps))
+        np.testing.assert_array_equal(steps, np.ceil(np.maximum(sunlit_steps, cells / SUNLIT_CELLS_PER_STEP)))
+        for r, count in enumerate(steps):
+            ds = np.diff(edges[: count + 1, r])
+            np.testing.assert_allclose(ds, ds.mean(), rtol=1e-3)
+
+    consts, args = _rays(_scene(), dirs)
+    before, steps_before = (np.asarray(a) for a in grid_step_edges(*args, 64, consts, empty_steps=16))
+    after, steps_after = (np.asarray(a) for a in grid_step_edges(*args, 64, consts, empty_steps=16, sunlit_steps=2))
+    assert np.all(steps_after < steps_before)
+    for r in range(len(dirs)):
+        def heights(edges, count):
+            return 0.5 * (edges[1:count + 1, r] + edges[:count, r]) * dirs[r][2]
+        h0, h1 = heights(before, steps_before[r]), heights(after, steps_after[r])
+        ds0, ds1 = np.diff(before[: steps_before[r] + 1, r]), np.diff(after[: steps_after[r] + 1, r])
+        cloud0, cloud1 = (h0 > 3100) & (h0 < 3900), (h1 > 3100) & (h1 < 3900)
+        np.testing.assert_allclose(np.median(ds1[cloud1]), np.median(ds0[cloud0]), rtol=0.02)  # the cloud
+        assert np.sum(h1 < 2700) >= np.sum(h0 < 2700), r  # the shadow
+        assert np.sum(h1 > 4600) < np.sum(h0 > 4600), r  # the sunlit clear air
+
+
+def test_sunlit_steps_setting():
+    assert MarchSettings().sunlit_steps == 4
+    assert MarchSettings(sunlit_steps=0).sunlit_steps == 0
+    with pytest.raises(Exception, match="sunlit_steps"):
+        MarchSettings(sunlit_steps=-1)
+    with pytest.raises(Exception, match="sunlit_steps"):
+        MarchSettings(sunlit_steps=2.5)

@@ -135,8 +135,10 @@ def test_a_new_sun_in_a_render_refills_the_device_copy(monkeypatch):
         images[on_device] = swim.render(scene, sun_zenith=55.0, **kwargs)["radiance"].values
         assert len(calls) == (1 if on_device else 0)
         packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
-        copies = march.kept_device_copies({"volume": packed,
-                                           "occupancy": pipeline._STAGE_CACHE._entries["occupancy"][1]})
+        # the step classes of this sun (march.step_classes), written over the last sun's in place
+        classes = pipeline._STAGE_CACHE._entries["grid constants"][1]["occupancy"]
+        assert classes is pipeline._STAGE_CACHE._entries["step classes"][1]
+        copies = march.kept_device_copies({"volume": packed, "occupancy": classes})
         assert copies is not None, "the kernel's device copy of this sun's volume"
         np.testing.assert_array_equal(np.asarray(copies["volume"]), packed)
         # the kernel's constants take that copy: nothing is sent again

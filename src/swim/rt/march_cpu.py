@@ -500,13 +500,15 @@ def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_
 
 
 @_helper_jit()
-def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight, cdf, probe_at):
-    """Probe the occupancy at n_probe equal intervals of a grid segment: the unnormalised cumulative step density
-    in ``cdf[:n_probe + 1]``; returns the number of occupied probes. The probes' indices are computed in blocks of
-    ``probe_at.shape[1]`` (:func:`_probe_indices`), then looked up one by one."""
+def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, cdf, probe_at):
+    """Probe the step classes of :func:`swim.rt.march.step_classes` (or an occupancy grid: 1 occupied, 0 empty) at
+    n_probe equal intervals of a grid segment: each interval's class into ``cdf[1:n_probe + 1]`` (1.0 occupied, 0.0
+    empty, -1.0 sunlit clear air); returns the numbers of occupied and of sunlit probes. The probes' indices are
+    computed in blocks of ``probe_at.shape[1]`` (:func:`_probe_indices`), then looked up one by one."""
     nk, ny, nx = occupancy.shape
     cdf[0] = 0.0
     occupied = 0
+    sunlit = 0
     block = probe_at.shape[1]
     for first in range(0, n_probe, block):
         count = min(block, n_probe - first)
@@ -514,17 +516,22 @@ def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, 
                        probe_at)
         for b in range(count):
             m = first + b
-            if occupancy[int(probe_at[3, b]), int(probe_at[4, b]), int(probe_at[5, b])] > 0:
+            kind = occupancy[int(probe_at[3, b]), int(probe_at[4, b]), int(probe_at[5, b])]
+            if kind > 0:
                 occupied += 1
-                cdf[m + 1] = cdf[m] + 1.0
+                cdf[m + 1] = 1.0
+            elif kind < 0:
+                sunlit += 1
+                cdf[m + 1] = -1.0
             else:
-                cdf[m + 1] = cdf[m] + empty_weight
-    return occupied
+                cdf[m + 1] = 0.0
+    return occupied, sunlit
 
 
 @_helper_jit()
 def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight,
-                    probe_spacing, cell_slack, empty_steps, empty_cells_per_step, cdf, edges, probe_at):
+                    probe_spacing, cell_slack, empty_steps, empty_cells_per_step, sunlit_steps, sunlit_cells_per_step,
+                    cdf, edges, probe_at):
     """:func:`swim.rt.march.grid_step_edges` for one ray, written into ``edges`` (steps + 1,); returns its number
     of steps. With the probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
     probe_spacing`` cells (:func:`_segment_cells`) is probed once per ``probe_spacing`` cells instead (at most
@@ -534,25 +541,44 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     need = min(math.ceil(cells / probe_spacing - cell_slack), cdf.shape[0] - 1.0) if probe_spacing > 0 else 0.0
     if need > n_probe:
         n_probe = int(need)
-    occupied = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, empty_weight,
-                                cdf, probe_at)
+    occupied, sunlit = _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, cdf,
+                                        probe_at)
     # empty-space skipping: the empty intervals get at most max(empty_steps, empty cells / empty_cells_per_step)
-    # steps, the occupied ones keep their density (and the ray takes fewer steps in all)
-    empty = n_probe - occupied
-    if empty_steps > 0 and empty > 0:
-        total = occupied + empty_weight * empty
+    # steps, the sunlit clear ones at most max(sunlit_steps, sunlit cells / sunlit_cells_per_step), the occupied ones
+    # keep their density (and the ray takes fewer steps in all)
+    if sunlit_steps <= 0:  # no class of its own: sunlit clear air is empty air
+        sunlit = 0
+    empty = n_probe - occupied - sunlit
+    weight_empty = weight_sunlit = empty_weight
+    if empty_steps > 0 and empty + sunlit > 0:
+        total = occupied + empty_weight * (empty + sunlit)
         # less cell_slack: whole numbers of cells (rays along a grid axis) must not round the count up in float64
         # here and not in float32 in the JAX kernel
-        budget = max(float(empty_steps), cells * empty / (n_probe * empty_cells_per_step) - cell_slack)
-        if n_steps * empty_weight * empty / total > budget:
-            fewer = min(math.ceil(n_steps * occupied / total + budget), float(n_steps))
-            weight = (fewer * total / n_steps - occupied) / empty
-            below = cdf[0]  # the cumulative density again, with the empty intervals' new weight
-            for m in range(n_probe):
-                occupied_here = cdf[m + 1] - below > 0.5 * (1.0 + empty_weight)
-                below = cdf[m + 1]
-                cdf[m + 1] = cdf[m] + (1.0 if occupied_here else weight)
+        steps_empty = n_steps * empty_weight * empty / total
+        steps_sunlit = n_steps * empty_weight * sunlit / total
+        capped = False
+        if empty > 0:
+            budget = max(float(empty_steps), cells * empty / (n_probe * empty_cells_per_step) - cell_slack)
+            if steps_empty > budget:
+                steps_empty, capped = budget, True
+        if sunlit > 0:
+            budget = max(float(sunlit_steps), cells * sunlit / (n_probe * sunlit_cells_per_step) - cell_slack)
+            if steps_sunlit > budget:
+                steps_sunlit, capped = budget, True
+        if capped:
+            fewer = min(math.ceil(n_steps * occupied / total + steps_empty + steps_sunlit), float(n_steps))
+            # the weight left to the unoccupied intervals at the occupied ones' steps per unit weight, n_steps /
+            # total, shared in proportion to their capped steps
+            rest = fewer * total / n_steps - occupied
+            share = steps_empty / (steps_empty + steps_sunlit)
+            weight_empty = rest / max(empty, 1) * share
+            weight_sunlit = rest / max(sunlit, 1) * (1.0 - share)
             n_steps = int(fewer)
+    if sunlit_steps <= 0:
+        weight_sunlit = weight_empty
+    for m in range(n_probe):  # the cumulative step density
+        kind = cdf[m + 1]
+        cdf[m + 1] = cdf[m] + (1.0 if kind > 0.5 else (weight_sunlit if kind < -0.5 else weight_empty))
     _invert_cdf(s0, length, n_steps, n_probe, cdf, edges)
     return n_steps
 
@@ -762,7 +788,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
-                     empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
+                     empty_cells_per_step, sunlit_steps, sunlit_cells_per_step, n_clear_probe, clear_power,
+                     clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
                      l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf,
                      stack_lo, stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
@@ -876,6 +903,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             elif in_grid:
                 n_steps = _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe,
                                           empty_weight, probe_spacing, cell_slack, empty_steps, empty_cells_per_step,
+                                          sunlit_steps, sunlit_cells_per_step,
                                           cdf, edges, probe_at)
             elif n_steps > 0:
                 _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, spectra,
@@ -1296,7 +1324,8 @@ def work_arrays(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, n_u):
 def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric, class_lower, class_weight,
                ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas, spectra, sky_lanes, diffuse_classes,
                n_class, volume, terrain, occupancy, angstrom, aerosol_ssa, stratospheric_ssa, n_probe, empty_weight,
-               probe_spacing, n_probe_max, cell_slack, empty_steps, empty_cells_per_step, n_clear_probe, clear_power,
+               probe_spacing, n_probe_max, cell_slack, empty_steps, empty_cells_per_step, sunlit_steps,
+               sunlit_cells_per_step, n_clear_probe, clear_power,
                clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, stop_tau,
                tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out,
                samples_out):
@@ -1312,7 +1341,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from
     ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more,
     less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in its empty
-    intervals, :func:`swim.rt.march.grid_step_edges`; 0: no limit) and the clear air after it (``n_after`` steps
+    intervals, and at most max(``sunlit_steps``, sunlit cells / ``sunlit_cells_per_step``) in its sunlit clear ones,
+    where ``occupancy`` holds the step classes of :func:`swim.rt.march.step_classes`, :func:`swim.rt.march.grid_step_edges`;
+    0: no limit) and the clear air after it (``n_after`` steps
     placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit` and, for a ray that met the ground,
     the terminal steps of :func:`swim.rt.march._terminal_step` up to that crossing. While the ray's hydrometeor optical
     depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before
@@ -1345,6 +1376,7 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
                      stratospheric_ssa, n_probe, empty_weight, probe_spacing, n_probe_max, cell_slack, empty_steps,
-                     empty_cells_per_step, n_clear_probe, clear_power, clear_floor, tau_refine, max_depth,
+                     empty_cells_per_step, sunlit_steps, sunlit_cells_per_step, n_clear_probe, clear_power,
+                     clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
                      l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, *work)

@@ -35,3 +35,31 @@ def occupied_cells(extinction, threshold, levels, terrain_top, dz, k0, k1, out):
                     total += extinction[c, k, j, i]
                 top = terrain_top[j, i]
                 out[k, j, i] = total > threshold or (top > 1.0 and level <= top + dz)
+
+
+@njit(**_JIT_EXACT)
+def unlit_nodes(cloud_transmittance, terrain_shadow, aerosol_tau_sun, has_aerosol, threshold, k0, k1,
+                out):  # pragma: no cover - compiled
+    """Levels ``k0:k1`` of the nodes that the direct sun does not reach unattenuated, before the dilation of
+    :func:`swim.rt.march.step_classes`: ``out[k, j, i]`` (bool, (level, y, x)) is True where Step 1a's
+    ``cloud_transmittance`` times ``terrain_shadow`` times, where ``has_aerosol``, exp(-``aerosol_tau_sun``) (each
+    (level, y, x) float32, any strides) is below ``threshold`` (a NaN counts as below)."""
+    _, ny, nx = cloud_transmittance.shape
+    for k in range(k0, k1):
+        for j in range(ny):
+            for i in range(nx):
+                t = np.float64(cloud_transmittance[k, j, i]) * terrain_shadow[k, j, i]
+                if has_aerosol:
+                    t *= np.exp(-np.float64(aerosol_tau_sun[k, j, i]))
+                out[k, j, i] = not t >= threshold
+
+
+@njit(**_JIT_EXACT)
+def classify_cells(occupancy, unlit, code, k0, k1, out):  # pragma: no cover - compiled
+    """Levels ``k0:k1`` of the step classes of :func:`swim.rt.march.step_classes`: ``out`` (int8, (level, y, x)) is 1
+    where ``occupancy`` > 0, else 0 where ``unlit`` (dilated), else ``code`` (sunlit clear air)."""
+    _, ny, nx = occupancy.shape
+    for k in range(k0, k1):
+        for j in range(ny):
+            for i in range(nx):
+                out[k, j, i] = 1 if occupancy[k, j, i] > 0 else (0 if unlit[k, j, i] else code)

@@ -94,6 +94,7 @@ def _argument_types():
         "volume": ro(f4, 4), "terrain": ro(f4, 3), "occupancy": ro(i1, 3), "angstrom": ro(f4, 1),
         "aerosol_ssa": ro(f4, 1), "stratospheric_ssa": ro(f4, 1), "n_probe": i8, "empty_weight": f8,
         "probe_spacing": f8, "n_probe_max": i8, "cell_slack": f8, "empty_steps": i8, "empty_cells_per_step": f8,
+        "sunlit_steps": i8, "sunlit_cells_per_step": f8,
         "n_clear_probe": i8, "clear_power": f8, "clear_floor": f8, "tau_refine": f8, "max_depth": i8,
         "refine_budget": i8, "refine_visible": f8, "refine_slots": i8, "n_bisections": i8, "stop_tau": f8,
         # outputs
