@@ -582,9 +582,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
         if classes is None or classes.shape != occupancy.shape:
-            classes = np.zeros(occupancy.shape, np.int8)
-            if _rendering_alone():  # (beside other renders a new sun packs anew and keeps nothing for the next)
-                _STAGE_CACHE.put(("step classes", fingerprint), classes)
+            # kept also beside other renders: the next render alone reuses this render's packed volume, and with its
+            # classes it finds the device copies that this render made (only a render alone writes them in place)
+            classes = _STAGE_CACHE.put(("step classes", fingerprint), np.zeros(occupancy.shape, np.int8))
         # MarchSettings.step1a_on_device: a new sun on the device's copy of this packed volume, which an earlier
         # sun's render of the JAX kernel left there (swim.rt.solar_device): no sums, sweep input or volume sent
         kept = (kept_device_copies({"volume": packed, "occupancy": classes})

@@ -145,3 +145,22 @@ def test_a_new_sun_in_a_render_refills_the_device_copy(monkeypatch):
         assert march._device_constants(pipeline._STAGE_CACHE._entries["grid constants"][1])["volume"] is \
             copies["volume"]
     np.testing.assert_allclose(images[True], images[False], rtol=1e-4, atol=1e-6)
+
+
+def test_a_render_alone_after_one_beside_others_reuses_its_step_classes(monkeypatch):
+    """A render beside others packs its own volume and step classes (march.step_classes); the next render alone
+    refills that packed volume in place, and must refill those classes too (not an older render's), so that the
+    device copies the render beside others made still match them (kept_device_copies)."""
+    scene = swim.default_scene()
+    kwargs = dict(camera_options={"size": 24}, sun_azimuth=140.0)
+    pipeline._STAGE_CACHE.clear()
+    swim.render(scene, sun_zenith=30.0, **kwargs)
+    first = pipeline._STAGE_CACHE._entries["step classes"][1]
+    monkeypatch.setattr(pipeline, "_rendering_alone", lambda: False)
+    swim.render(scene, sun_zenith=40.0, **kwargs)
+    beside = pipeline._STAGE_CACHE._entries["grid constants"][1]
+    assert beside["occupancy"] is not first
+    monkeypatch.undo()
+    swim.render(scene, sun_zenith=50.0, **kwargs)
+    alone = pipeline._STAGE_CACHE._entries["grid constants"][1]
+    assert alone["volume"] is beside["volume"] and alone["occupancy"] is beside["occupancy"]

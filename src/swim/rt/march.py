@@ -1821,7 +1821,7 @@ def aerosol_column_optical_depth(volume):
 #: The variables of :func:`swim.rt.solar.solar_transmittance` that :func:`volume_constants` reads.
 KERNEL_STEP1A_VARIABLES = ("aerosol_tau_sun", "cloud_transmittance", "terrain_shadow")
 #: Constants of :func:`kernel_constants` kept as numpy arrays: the packed volume (the biggest array of a render)
-#: and the occupancy grid, which only the step loop reads. The numba kernel reads them in place; the JAX kernel
+#: and the step classes of the sun (:func:`step_classes`, under the name "occupancy"), which only the step loop reads. The numba kernel reads them in place; the JAX kernel
 #: gets one device copy (:func:`_device_constants`), so a CPU render does not hold the volume twice.
 HOST_CONSTANTS = ("volume", "occupancy")
 
@@ -2008,7 +2008,7 @@ def step1a_channel_views(packed, species):
 
 def volume_constants(volume, transmittance, occupancy=None, packed=None, species=None, classes=None):
     """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
-    channel) and the occupancy grid (level, y, x) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
+    channel) and the sun's step classes (level, y, x; :func:`step_classes`) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
     terrain, the ground's fields and the grid's index map as device arrays.
 
     ``transmittance`` needs the :data:`KERNEL_STEP1A_VARIABLES` of :func:`swim.rt.solar.solar_transmittance`;
