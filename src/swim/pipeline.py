@@ -198,9 +198,7 @@ class _StageCache:
         if entry is not None and entry[0] == key:
             log.info("reusing the %s of the previous render", kind)
             return entry[1]
-        for other, (other_key, _) in list(self._entries.items()):
-            if other == kind or other_key[1] != fingerprint:
-                self._entries.pop(other, None)  # (another render's thread may have dropped it already)
+        self._drop_for(key)  # before the build: the cache never holds two grids at once
         return self.put(key, build())
 
     def peek(self, key):
@@ -211,12 +209,16 @@ class _StageCache:
     def put(self, key, value):
         """Keep ``value`` under ``key`` (replacing its kind's entry; entries of other scenes are dropped) and return
         it."""
+        self._drop_for(key)
+        self._entries[key[0]] = (key, value)
+        return value
+
+    def _drop_for(self, key):
+        """Drop the entry of ``key``'s kind and every entry of another scene."""
         kind, fingerprint = key[:2]
         for other, (other_key, _) in list(self._entries.items()):
             if other == kind or other_key[1] != fingerprint:
                 self._entries.pop(other, None)  # (another render's thread may have dropped it already)
-        self._entries[kind] = (key, value)
-        return value
 
     def clear(self):
         self._entries.clear()
@@ -581,7 +583,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
             classes = _STAGE_CACHE.peek(("step classes", fingerprint))
         # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
         occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
-        if classes is None or classes.shape != occupancy.shape:
+        if classes is None:
             # kept also beside other renders: the next render alone reuses this render's packed volume, and with its
             # classes it finds the device copies that this render made (only a render alone writes them in place)
             classes = _STAGE_CACHE.put(("step classes", fingerprint), np.zeros(occupancy.shape, np.int8))

@@ -920,10 +920,9 @@ def grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCC
         steps_empty = n_steps * empty_weight * n_empty / total
         budget = jnp.maximum(jnp.float32(empty_steps),
                              cells * n_empty / (count.astype(jnp.float32) * EMPTY_CELLS_PER_STEP) - CELL_SLACK)
-        capped_empty = (n_empty > 0) & (steps_empty > budget)
-        steps_empty = jnp.where(capped_empty, budget, steps_empty)
+        capped = (n_empty > 0) & (steps_empty > budget)
+        steps_empty = jnp.where(capped, budget, steps_empty)
         steps_sunlit = n_steps * empty_weight * n_sunlit / total
-        capped = capped_empty
         if sunlit_steps:
             budget = jnp.maximum(jnp.float32(sunlit_steps),
                                  cells * n_sunlit / (count.astype(jnp.float32) * SUNLIT_CELLS_PER_STEP) - CELL_SLACK)
@@ -1821,8 +1820,9 @@ def aerosol_column_optical_depth(volume):
 #: The variables of :func:`swim.rt.solar.solar_transmittance` that :func:`volume_constants` reads.
 KERNEL_STEP1A_VARIABLES = ("aerosol_tau_sun", "cloud_transmittance", "terrain_shadow")
 #: Constants of :func:`kernel_constants` kept as numpy arrays: the packed volume (the biggest array of a render)
-#: and the step classes of the sun (:func:`step_classes`, under the name "occupancy"), which only the step loop reads. The numba kernel reads them in place; the JAX kernel
-#: gets one device copy (:func:`_device_constants`), so a CPU render does not hold the volume twice.
+#: and the step classes of the sun (:func:`step_classes`, under the name "occupancy"), which only the step loop reads.
+#: The numba kernel reads them in place; the JAX kernel gets one device copy (:func:`_device_constants`), so a CPU
+#: render does not hold the volume twice.
 HOST_CONSTANTS = ("volume", "occupancy")
 
 
@@ -2008,8 +2008,8 @@ def step1a_channel_views(packed, species):
 
 def volume_constants(volume, transmittance, occupancy=None, packed=None, species=None, classes=None):
     """The kernel constants of the grid and Step 1a (one sun), the big ones: the packed volume (level, y, x,
-    channel) and the sun's step classes (level, y, x; :func:`step_classes`) as read-only numpy arrays (:data:`HOST_CONSTANTS`), the
-    terrain, the ground's fields and the grid's index map as device arrays.
+    channel) and the sun's step classes (level, y, x; :func:`step_classes`) as read-only numpy arrays
+    (:data:`HOST_CONSTANTS`), the terrain, the ground's fields and the grid's index map as device arrays.
 
     ``transmittance`` needs the :data:`KERNEL_STEP1A_VARIABLES` of :func:`swim.rt.solar.solar_transmittance`;
     it is not referenced by the result, so a caller that keeps only this frees Step 1a's fields. ``occupancy``:
@@ -2047,7 +2047,7 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
     packed.flags.writeable = False
     if occupancy is None:
         occupancy = occupancy_grid(volume)
-    classes = step_classes(occupancy, {name: value for name, value in zip(names, values)}, out=classes)
+    classes = step_classes(occupancy, dict(zip(names, values)), out=classes)
     surface = surface_fields(volume, transmittance)
     f32 = lambda a: jnp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     return {

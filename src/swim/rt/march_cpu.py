@@ -1343,8 +1343,9 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in its empty
     intervals, ``empty_steps`` 0: no limit; and at most max(``sunlit_steps``, sunlit cells / ``sunlit_cells_per_step``)
     in its sunlit clear ones, where ``occupancy`` holds the step classes of :func:`swim.rt.march.step_classes`,
-    ``sunlit_steps`` 0: they count as empty; :func:`swim.rt.march.grid_step_edges`) and the clear air after it (``n_after`` steps
-    placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit` and, for a ray that met the ground,
+    ``sunlit_steps`` 0: they count as empty; :func:`swim.rt.march.grid_step_edges`) and the clear air after it
+    (``n_after`` steps placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit` and, for a ray that met
+    the ground,
     the terminal steps of :func:`swim.rt.march._terminal_step` up to that crossing. While the ray's hydrometeor optical
     depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before
     it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the

@@ -191,8 +191,9 @@ _SKY_LANE_COPIES = {}
 
 def device_tables(tables):
     """``tables`` (:func:`swim.rt.march._numba_tables`) with the arrays of :data:`swim.rt.march.HOST_CONSTANTS`
-    (the packed volume and the step classes, :func:`swim.rt.march.step_classes`) and the sky table's lanes (3 MB) on the GPU, copied once per host
-    array (:func:`swim.rt.march.device_copies`); the kernel's launches copy the small tables with the rays."""
+    (the packed volume and the step classes, :func:`swim.rt.march.step_classes`) and the sky table's lanes (3 MB) on
+    the GPU, copied once per host array (:func:`swim.rt.march.device_copies`); the kernel's launches copy the small
+    tables with the rays."""
     from numba import cuda
 
     from .march import HOST_CONSTANTS, device_copies
