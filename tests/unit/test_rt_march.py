@@ -546,6 +546,60 @@ def test_the_grid_loop_unrolled_gives_the_same_state(monkeypatch):
     assert march.grid_loop_unroll() == 1
 
 
+@pytest.mark.parametrize("thickness", [0.3, 0.4, 0.45])
+def test_a_step_after_a_thick_one_is_halved_before_it_is_sampled(monkeypatch, thickness):
+    """Predicted halving (``march._predicted_halving``): inside a uniform cloud whose grid steps are each ``thickness``
+    (> tau_refine 0.25, < twice it) thick, the first step is sampled, found too thick and halved (3 samples: the
+    discarded one and its two halves); every later step follows an accumulated interval whose extinction predicts it
+    too thick, so it is halved before any sample (2 samples), where without the prediction it takes 3. Where a ray
+    enters the cloud from clear air, nothing predicts: the clear interval before the face is rolled back and halved,
+    and the first cloud step halved after its sample, as before. At the far face the clear step is halved before its
+    sample, where the change of extinction would have halved it after. The same intervals are accumulated either
+    way, so the optical depth and the sum of the samples' distances times lengths agree."""
+    import jax
+    import jax.numpy as jnp
+
+    from swim.rt import march
+
+    n_steps, ds = 8, 10.0
+    beta = thickness / ds
+    edges = jnp.asarray(np.arange(n_steps + 1, dtype=np.float32)[:, None].repeat(3, 1) * ds)
+    # ray 0: cloud everywhere; ray 1: clear for 3 steps, then cloud; ray 2: cloud for 4 steps, then clear
+    lo = jnp.asarray([0.0, 3 * ds, 0.0], jnp.float32)
+    hi = jnp.asarray([1e9, 1e9, 4 * ds], jnp.float32)
+
+    samples = np.zeros(3, int)  # every sample, the discarded ones too (the state keeps only the accumulated ones)
+
+    def count(ds_):
+        samples[:] += np.asarray(ds_) > 0  # a finished ray's iterations sample nothing (ds 0)
+
+    def sample(st, s_lo, ds_):
+        jax.debug.callback(count, ds_, ordered=True)
+        s = s_lo + 0.5 * ds_
+        beta_h = jnp.where((s >= lo) & (s <= hi), beta, 0.0).astype(jnp.float32)
+        return {"tau_h": st["tau_h"] + beta_h * ds_, "alive": st["alive"], "moment": st["moment"] + s * ds_}, beta_h
+
+    state = {"tau_h": jnp.zeros(3, jnp.float32), "alive": jnp.ones(3, bool), "moment": jnp.zeros(3, jnp.float32)}
+
+    def run():
+        samples[:] = 0
+        out = march._march_grid_refined(state, sample, edges, n_steps, 0.25, unroll=1)
+        jax.effects_barrier()
+        return {key: np.asarray(value) for key, value in out.items()}, samples.copy()
+
+    predicted, with_prediction = run()
+    monkeypatch.setattr(march, "_predicted_halving", lambda adjacent, *args: jnp.zeros_like(adjacent))
+    tested, without = run()
+    # ray 1: 3 clear steps, the roll-back (1 discarded, 2 clear halves), the first cloud step (1 + 2), 4 cloud steps;
+    # ray 2: 4 cloud steps, the clear step after them halved (1 + 2 or 2), 3 clear steps
+    np.testing.assert_array_equal(without, [3 * n_steps, 3 + 3 + 3 + 3 * 4, 3 * 4 + 3 + 3])
+    np.testing.assert_array_equal(with_prediction, [3 + 2 * (n_steps - 1), 3 + 3 + 3 + 2 * 4, 3 + 2 * 3 + 2 + 3])
+    np.testing.assert_allclose(predicted["tau_h"], [thickness * n_steps, thickness * 5, thickness * 4], rtol=1e-6)
+    np.testing.assert_allclose(predicted["tau_h"], tested["tau_h"], rtol=1e-6)
+    # the same intervals in the cloud; the far face's clear step halved (its two halves' sum equals the step's)
+    np.testing.assert_allclose(predicted["moment"], tested["moment"], rtol=1e-6)
+
+
 @pytest.mark.parametrize("chunk", [64, 256])
 def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
     """The JAX kernel marches a chunk on a worker thread while the next is prepared (outputs collected one chunk

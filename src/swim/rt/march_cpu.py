@@ -583,6 +583,17 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     return n_steps
 
 
+@_helper_jit(inline="always")
+def _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth, max_depth, th, refine_visible, pending,
+                       refine_slots, tau_refine):
+    """Whether the interval [s_lo, s_lo + ds] [m] at refinement ``depth`` is halved before it is sampled (one level),
+    :func:`swim.rt.march._predicted_halving`: the accumulated interval just before it (ending at ``prev_hi``) had an
+    extinction ``prev_beta`` [1/m] that makes it thicker than ``tau_refine``, so its own sample would most likely
+    find it too thick and be discarded for its halves. The caller checks the ray's refinement budget."""
+    return (have_prev and prev_hi == s_lo and depth < max_depth and th < refine_visible
+            and pending + 2 <= refine_slots and prev_beta * ds > tau_refine)
+
+
 @_helper_jit()
 def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, spectra, n_probe, power, floor,
                  cdf, edges):
@@ -943,16 +954,43 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                             _prefetch_corners(volume, block_stop - m, probe_at)
                     s_lo, s_hi = edges[_ix(m)], edges[_ix(m + 1)]
                     b = _ix(m - block_first)
-                    h, mu_s, k, j, i = probe_at[0, b], probe_at[1, b], probe_at[2, b], probe_at[3, b], probe_at[4, b]
-                    fu = probe_at[5, b]
                     m += 1
                     depth = 0
                     ds = s_hi - s_lo
-                    s = s_lo + 0.5 * ds
+                    # a step that the interval before it predicts too thick is halved before it is sampled
+                    # (_predicted_halving); its midpoint's geometry is then not the block's
+                    if budget > 0 and alive and _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth,
+                                                                    max_depth, th, refine_visible, pending,
+                                                                    refine_slots, tau_refine):
+                        half = s_lo + 0.5 * ds
+                        stack_lo[pending], stack_hi[pending], stack_depth[pending] = half, s_hi, 1
+                        s_hi = half
+                        pending += 1
+                        budget -= 1
+                        depth = 1
+                        ds = s_hi - s_lo
+                        s = s_lo + 0.5 * ds
+                        h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
+                        fu = math.sqrt(_clip(h / top, 0.0, 1.0))
+                    else:
+                        s = s_lo + 0.5 * ds
+                        h, mu_s, k = probe_at[0, b], probe_at[1, b], probe_at[2, b]
+                        j, i = probe_at[3, b], probe_at[4, b]
+                        fu = probe_at[5, b]
                 else:  # a refined half
                     pending -= 1
                     s_lo, s_hi, depth = stack_lo[pending], stack_hi[pending], stack_depth[pending]
                     ds = s_hi - s_lo
+                    if budget > 0 and alive and _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth,
+                                                                    max_depth, th, refine_visible, pending,
+                                                                    refine_slots, tau_refine):
+                        half = s_lo + 0.5 * ds
+                        stack_lo[pending], stack_hi[pending], stack_depth[pending] = half, s_hi, depth + 1
+                        s_hi = half
+                        pending += 1
+                        budget -= 1
+                        depth += 1
+                        ds = s_hi - s_lo
                     s = s_lo + 0.5 * ds
                     if terminal and ds < 0:  # the step back takes back what the step before added: at its sample
                         s = hit_lo
@@ -1349,9 +1387,10 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     the terminal steps of :func:`swim.rt.march._terminal_step` up to that crossing. While the ray's hydrometeor optical
     depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before
     it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the
-    previous interval's length exceeds it sends the ray back to its state before that interval, which is halved;
-    recursively to ``max_depth`` levels, at most ``refine_budget`` times per ray, with at most ``refine_slots``
-    pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray that does not look down (``direction``'s
+    previous interval's length exceeds it sends the ray back to its state before that interval, which is halved,
+    and an interval whose length times the extinction of the accumulated interval before it exceeds it is halved
+    before its sample (:func:`_predicted_halving`); recursively to ``max_depth`` levels, at most ``refine_budget``
+    times per ray, with at most ``refine_slots`` pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray that does not look down (``direction``'s
     vertical component >= 0) stops where its hydrometeor optical depth passes ``stop_tau`` > 0, once it was past
     ``refine_visible`` before the step: its optical depth is then ``stop_tau`` and its species' keep their
     proportions (:attr:`swim.rt.march.MarchSettings.stop_tau`). A ray stops at the ground (the lockstep kernel

@@ -37,9 +37,8 @@ DEVICE_FUNCTIONS = ("_index_map", "_round_half_even", "_ix", "_clip", "_radius_a
                     "_bilinear", "_bilinear_index", "_lerp_index", "_bilinear_at", "_bilinear_clamped", "_terrain_gap",
                     "_gap_along", "_terrain_crossing", "_lower_corner", "_prefetch_corners", "_segment_cells",
                     "_probe_occupancy", "_adaptive_edges", "_clear_edges", "_descending_at", "_lowest_along",
-                    "_column_above", "_after_steps",
-                    "_invert_cdf", "_corner_lane", "_corner_lanes", "_profile_lanes", "_mean_transmittance",
-                    "_accumulate_lanes", "_march_ray_range")
+                    "_column_above", "_after_steps", "_invert_cdf", "_predicted_halving", "_corner_lane",
+                    "_corner_lanes", "_profile_lanes", "_mean_transmittance", "_accumulate_lanes", "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
 

@@ -177,7 +177,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     from jax.experimental import pallas as pl
 
     from .march import (REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR,
-                        bilinear_gathers, lerp_gathers, packed_aerosol_3d, trilinear_gathers)
+                        _predicted_halving, bilinear_gathers, lerp_gathers, packed_aerosol_3d, trilinear_gathers)
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
@@ -366,10 +366,22 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             hi = jnp.where(stacked, pick(stack_hi, top_slot), edges_ref[(next_step + 1) * n + ray])
             depth = jnp.where(stacked, pick(stack_depth, top_slot), 0)
             ds = jnp.where(done, 0.0, hi - lo)
-            new, beta_h = sample(st, lo, ds, True)
             base = pending - stacked.astype(jnp.int32)
-            live = ~done & (budget > 0) & st["alive"]
             adjacent = prev["valid"] & (prev["hi"] == lo)
+            # _march_grid_refined's predicted halving: the second half pending, the first half sampled
+            halve = (~done & (budget > 0) & st["alive"]
+                     & _predicted_halving(adjacent, prev["beta_h"], ds, depth, st["tau_h"], base, slots, tau_refine))
+            half = lo + 0.5 * ds
+            stack_lo = [jnp.where(halve & (base == slot), half, stack_lo[slot]) for slot in range(slots)]
+            stack_hi = [jnp.where(halve & (base == slot), hi, stack_hi[slot]) for slot in range(slots)]
+            stack_depth = [jnp.where(halve & (base == slot), depth + 1, stack_depth[slot]) for slot in range(slots)]
+            hi = jnp.where(halve, half, hi)
+            depth = depth + halve.astype(jnp.int32)
+            ds = jnp.where(halve, hi - lo, ds)
+            base = base + halve.astype(jnp.int32)
+            budget = budget - halve.astype(jnp.int32)
+            new, beta_h = sample(st, lo, ds, True)
+            live = ~done & (budget > 0) & st["alive"]
             change = jnp.where(adjacent, jnp.abs(beta_h - prev["beta_h"]), 0.0)
             rollback = (live & adjacent & (prev["depth"] < REFINE_DEPTH)
                         & (change * (prev["hi"] - prev["lo"]) > tau_refine) & (base + 3 <= slots)
