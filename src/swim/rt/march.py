@@ -1225,8 +1225,10 @@ def _predicted_halving(adjacent, prev_beta, ds, depth, tau_h, pending, slots, ta
     its midpoint's sample would most likely find it too thick and be discarded for its halves. Only where that
     refinement could happen (``depth`` < :data:`REFINE_DEPTH`, the ray's optical depth ``tau_h`` <
     :data:`REFINE_VISIBLE_TAU`, two of ``slots`` free above ``pending``); the caller checks the ray's budget. One level
-    per interval: a half still too thick is found so by its own sample. Elementwise: JAX arrays of one shape, or
-    scalars (:mod:`swim.rt.march_pallas`; :func:`swim.rt.march_cpu._predicted_halving` is the numba kernel's)."""
+    each time an interval is taken: the first half is sampled even if the prediction would halve it again (its own
+    sample finds it too thick then); the pending second half is predicted anew when it is taken, from the interval
+    accumulated just before it. Elementwise: JAX arrays of one shape, or scalars (:mod:`swim.rt.march_pallas`;
+    :func:`swim.rt.march_cpu._predicted_halving` is the numba kernel's)."""
     return (adjacent & (depth < REFINE_DEPTH) & (tau_h < REFINE_VISIBLE_TAU) & (pending + 2 <= slots)
             & (prev_beta * ds > tau_refine))
 
@@ -1255,7 +1257,8 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, u
     Rays in lockstep, each with its own pending intervals (:data:`REFINE_SLOTS`, a refinement only where they
     fit): every iteration each ray takes its next interval (the last pending one, or its next step; its first half,
     the second pending, where the halving is predicted), samples it and either accumulates it, pushes its halves, or
-    rolls back, until it has taken its n_steps (or its own ``steps`` (n,)) steps. :mod:`swim.rt.march_cpu` does the same per ray.
+    rolls back, until it has taken its n_steps (or its own ``steps`` (n,)) steps. :mod:`swim.rt.march_cpu` does the
+    same per ray.
 
     ``unroll``: iterations per test of the loop's condition (None: :func:`grid_loop_unroll`); an iteration leaves
     a finished ray unchanged, so any value gives the same state.

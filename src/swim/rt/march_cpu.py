@@ -1390,12 +1390,12 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     previous interval's length exceeds it sends the ray back to its state before that interval, which is halved,
     and an interval whose length times the extinction of the accumulated interval before it exceeds it is halved
     before its sample (:func:`_predicted_halving`); recursively to ``max_depth`` levels, at most ``refine_budget``
-    times per ray, with at most ``refine_slots`` pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray that does not look down (``direction``'s
-    vertical component >= 0) stops where its hydrometeor optical depth passes ``stop_tau`` > 0, once it was past
-    ``refine_visible`` before the step: its optical depth is then ``stop_tau`` and its species' keep their
-    proportions (:attr:`swim.rt.march.MarchSettings.stop_tau`). A ray stops at the ground (the lockstep kernel
-    goes on with zero-length steps that add nothing), and a segment of zero length takes one step (to see whether it
-    starts under the terrain) instead of all of them.
+    times per ray, with at most ``refine_slots`` pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray
+    that does not look down (``direction``'s vertical component >= 0) stops where its hydrometeor optical depth
+    passes ``stop_tau`` > 0, once it was past ``refine_visible`` before the step: its optical depth is then
+    ``stop_tau`` and its species' keep their proportions (:attr:`swim.rt.march.MarchSettings.stop_tau`). A ray stops
+    at the ground (the lockstep kernel goes on with zero-length steps that add nothing), and a segment of zero length
+    takes one step (to see whether it starts under the terrain) instead of all of them.
 
     Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3)
     [m], ``valid`` (n,) bool, the phase functions ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric``
