@@ -930,6 +930,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     taken = 1
             m = 0
             block_first = block_stop = 0  # the steps whose geometry is in probe_at (_step_geometry)
+            b = _ix(0)  # a placed step's column there (unsigned, as _ix gives it: an int would unify to float)
             pending = 0
             if terminal:  # pending intervals, the last one on top
                 if length > 0:
@@ -956,42 +957,31 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     b = _ix(m - block_first)
                     m += 1
                     depth = 0
-                    ds = s_hi - s_lo
-                    # a step that the interval before it predicts too thick is halved before it is sampled
-                    # (_predicted_halving); its midpoint's geometry is then not the block's
-                    if budget > 0 and alive and _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth,
-                                                                    max_depth, th, refine_visible, pending,
-                                                                    refine_slots, tau_refine):
-                        half = s_lo + 0.5 * ds
-                        stack_lo[pending], stack_hi[pending], stack_depth[pending] = half, s_hi, 1
-                        s_hi = half
-                        pending += 1
-                        budget -= 1
-                        depth = 1
-                        ds = s_hi - s_lo
-                        s = s_lo + 0.5 * ds
-                        h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
-                        fu = math.sqrt(_clip(h / top, 0.0, 1.0))
-                    else:
-                        s = s_lo + 0.5 * ds
-                        h, mu_s, k = probe_at[0, b], probe_at[1, b], probe_at[2, b]
-                        j, i = probe_at[3, b], probe_at[4, b]
-                        fu = probe_at[5, b]
+                    from_block = True  # its midpoint's geometry is in probe_at
                 else:  # a refined half
                     pending -= 1
                     s_lo, s_hi, depth = stack_lo[pending], stack_hi[pending], stack_depth[pending]
+                    from_block = False
+                ds = s_hi - s_lo
+                # an interval that the one before it predicts too thick is halved before it is sampled
+                # (_predicted_halving): its second half pending, its first half sampled here
+                if budget > 0 and alive and _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth,
+                                                                max_depth, th, refine_visible, pending, refine_slots,
+                                                                tau_refine):
+                    half = s_lo + 0.5 * ds
+                    stack_lo[pending], stack_hi[pending], stack_depth[pending] = half, s_hi, depth + 1
+                    s_hi = half
+                    pending += 1
+                    budget -= 1
+                    depth += 1
                     ds = s_hi - s_lo
-                    if budget > 0 and alive and _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth,
-                                                                    max_depth, th, refine_visible, pending,
-                                                                    refine_slots, tau_refine):
-                        half = s_lo + 0.5 * ds
-                        stack_lo[pending], stack_hi[pending], stack_depth[pending] = half, s_hi, depth + 1
-                        s_hi = half
-                        pending += 1
-                        budget -= 1
-                        depth += 1
-                        ds = s_hi - s_lo
-                    s = s_lo + 0.5 * ds
+                    from_block = False
+                s = s_lo + 0.5 * ds
+                if from_block:
+                    h, mu_s, k = probe_at[0, b], probe_at[1, b], probe_at[2, b]
+                    j, i = probe_at[3, b], probe_at[4, b]
+                    fu = probe_at[5, b]
+                else:
                     if terminal and ds < 0:  # the step back takes back what the step before added: at its sample
                         s = hit_lo
                     h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
