@@ -36,6 +36,9 @@ from scenes import SYNTHETIC_REFERENCE  # benchmarks/ is on the path (this scrip
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 DATA = ROOT.parent / "shared" / "data"
+#: A machine probe at most this many times the case's fastest one counts as the machine's fast state (machine_probe.py:
+#: its two states are ~1.45x apart on the AMD EPYC, docs/performance.md section 82).
+FAST_STATE = 1.2
 #: --quick divides every image size, and the procedural grids except CONUS, by this per axis.
 QUICK_FACTOR = 4
 #: The synthetic scene of the brief: 400 x 400 x 60 at 1 km, all five species and terrain.
@@ -311,24 +314,33 @@ def throughput(image, rays, seconds):
 
 
 def run_render(spec, probe):
+    import machine_probe  # benchmarks/ is on the path
+
     import swim
 
+    machine_probe.ready()  # compiled before the scene, so that its memory counts as the scene's
     t0 = time.perf_counter()
     scene = load_scene(spec)
     scene_s = time.perf_counter() - t0
     scene_rss = _self_rss_mb()  # what the scene (and building it) left: the renders' own memory is above it
     kw = render_kwargs(spec)
     image, cold, cold_compile, _ = timed(probe, swim.render, scene, **kw)
-    runs, warm_compile = [], 0.0
+    runs, warm_compile, speed = [], 0.0, []
     for _ in range(spec["repeats"]):
+        # the machine's state before each warm render and after the last (machine_probe.py; ~60 ms each)
+        speed.append(machine_probe.probe(passes=1)["ns_per_sample"])
         image, dt, c, _ = timed(probe, swim.render, scene, **kw)
         runs.append(dt)
         warm_compile += c
+    speed.append(machine_probe.probe(passes=1)["ns_per_sample"])
     warm = statistics.median(runs)
+    # the runs between two probes of the machine's fast state (within FAST_STATE of the case's fastest probe)
+    fast = [t for t, a, b in zip(runs, speed, speed[1:]) if max(a, b) <= FAST_STATE * min(speed)]
     ny, nx = image["rgb"].shape[:2]
     rays = ny * nx + 1  # every pixel (all-sky corners too) plus the ray towards the sun
     out = {"image": [nx, ny], "rays": rays, "grid": _grid(scene), "scene_s": scene_s, "cold_s": cold, "warm_s": warm, "warm_runs": runs,
-           "compile_est_s": cold - warm, "jax_compile_s": cold_compile, "jax_compile_warm_s": warm_compile,
+           "machine_probe_ns": speed, "warm_fast_state_s": statistics.median(fast) if fast else None,
+           "warm_fast_state_runs": len(fast), "compile_est_s": cold - warm, "jax_compile_s": cold_compile, "jax_compile_warm_s": warm_compile,
            "crop": crop_used(kw), **throughput(image, rays, warm),
            "scene_rss_mb": scene_rss, "render_peak_above_scene_mb": _self_peak_rss_mb() - scene_rss}
     if "traced_pixels" in image.attrs:
@@ -769,7 +781,20 @@ def _notes(r):
                                    f"render peak {r['render_peak_above_scene_mb']:,.0f} MB above the scene's "
                                    f"{r['scene_rss_mb']:,.0f}" if "render_peak_above_scene_mb" in r else "",
                                    "crop" if r.get("crop") else "",
-                                   adaptive]))
+                                   adaptive,
+                                   _probe_note(r)]))
+
+
+def _probe_note(r):
+    """The machine probes around a case's warm renders (machine_probe.py), with the warm runs between them."""
+    speed = r.get("machine_probe_ns")
+    if not speed:
+        return ""
+    runs = ", ".join(f"{t:.2f} s" for t in r["warm_runs"])
+    fast = (f"; median of the {r['warm_fast_state_runs']} runs between fast-state probes "
+            f"{r['warm_fast_state_s']:.3f} s" if r.get("warm_fast_state_s") else "")
+    return (f"machine probe {', '.join(f'{p:.0f}' for p in speed)} ns around the warm runs {runs} "
+            f"(machine_probe.py: lower is faster){fast}")
 
 
 def markdown(doc):
