@@ -36,9 +36,12 @@ from scenes import SYNTHETIC_REFERENCE  # benchmarks/ is on the path (this scrip
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 DATA = ROOT.parent / "shared" / "data"
-#: A machine probe at most this many times the case's fastest one counts as the machine's fast state (machine_probe.py:
-#: its two states are ~1.45x apart on the AMD EPYC, docs/performance.md section 82).
-FAST_STATE = 1.2
+#: A machine probe at most this many times the fastest one (of the suite's reference, taken before its first case, and
+#: of the case's own) counts as the machine's fast state (machine_probe.py: its two states are ~1.45x apart on the AMD
+#: EPYC, with probes between them too; docs/performance.md section 82).
+FAST_STATE = 1.1
+#: Seconds of one-pass probes before the first case whose fastest is the suite's reference (machine_probe.reference).
+PROBE_REFERENCE_S = 6.0
 #: --quick divides every image size, and the procedural grids except CONUS, by this per axis.
 QUICK_FACTOR = 4
 #: The synthetic scene of the brief: 400 x 400 x 60 at 1 km, all five species and terrain.
@@ -334,8 +337,10 @@ def run_render(spec, probe):
         warm_compile += c
     speed.append(machine_probe.probe(passes=1)["ns_per_sample"])
     warm = statistics.median(runs)
-    # the runs between two probes of the machine's fast state (within FAST_STATE of the case's fastest probe)
-    fast = [t for t, a, b in zip(runs, speed, speed[1:]) if max(a, b) <= FAST_STATE * min(speed)]
+    # the runs between two probes of the machine's fast state (within FAST_STATE of the fastest probe: the suite's
+    # reference or the case's own)
+    best = min(speed + [spec.get("probe_reference_ns") or math.inf])
+    fast = [t for t, a, b in zip(runs, speed, speed[1:]) if max(a, b) <= FAST_STATE * best]
     ny, nx = image["rgb"].shape[:2]
     rays = ny * nx + 1  # every pixel (all-sky corners too) plus the ray towards the sun
     out = {"image": [nx, ny], "rays": rays, "grid": _grid(scene), "scene_s": scene_s, "cold_s": cold, "warm_s": warm, "warm_runs": runs,
@@ -791,8 +796,9 @@ def _probe_note(r):
     if not speed:
         return ""
     runs = ", ".join(f"{t:.2f} s" for t in r["warm_runs"])
-    fast = (f"; median of the {r['warm_fast_state_runs']} runs between fast-state probes "
-            f"{r['warm_fast_state_s']:.3f} s" if r.get("warm_fast_state_s") else "")
+    n = r.get("warm_fast_state_runs", 0)
+    fast = (f"; {'the run' if n == 1 else f'median of the {n} runs'} between fast-state probes "
+            f"{r['warm_fast_state_s']:.3f} s" if r.get("warm_fast_state_s") else "; no run between fast-state probes")
     return (f"machine probe {', '.join(f'{p:.0f}' for p in speed)} ns around the warm runs {runs} "
             f"(machine_probe.py: lower is faster){fast}")
 
@@ -890,9 +896,14 @@ def main(argv=None):
     args.data, args.results = args.data.resolve(), args.results.resolve()
 
     t0, created = time.monotonic(), datetime.now(timezone.utc)
+    import machine_probe  # benchmarks/ is on the path
+
+    probe_reference = machine_probe.reference(PROBE_REFERENCE_S)
+    print(f"machine probe: fastest {probe_reference:.1f} ns per sample in {PROBE_REFERENCE_S:g} s", file=sys.stderr,
+          flush=True)
     results = []
     for name in names:
-        r = run_case(case_spec(name, args), timeout, args.mem_limit_gb)
+        r = run_case({**case_spec(name, args), "probe_reference_ns": probe_reference}, timeout, args.mem_limit_gb)
         results.append(r)
         state = f"warm {r['warm_s']:.3f} s" if r["status"] == "ok" and r.get("warm_s") else r["status"]
         print(f"[{time.monotonic() - t0:6.0f} s] {name}: {state} ({r['wall_s']:.0f} s)", file=sys.stderr, flush=True)
@@ -901,7 +912,7 @@ def main(argv=None):
         r.pop("machine", None)  # the same machine: stored once
     doc = {"suite": "benchmarks/bench_suite.py", "created": created.isoformat(timespec="seconds"), "quick": args.quick,
            "argv": sys.argv[1:], "repeats": args.repeats, "timeout_s": timeout, "mem_limit_gb": args.mem_limit_gb,
-           "disk_caches": args.disk_caches,
+           "disk_caches": args.disk_caches, "machine_probe_reference_ns": probe_reference,
            "machine": machine, "git": git_info(), "total_s": time.monotonic() - t0, "cases": results}
     args.results.mkdir(parents=True, exist_ok=True)
     text = json.dumps(doc, indent=1, default=float)

@@ -5,12 +5,12 @@ Usage::
     python benchmarks/machine_probe.py                  # one probe: ns per sample, best of 3 passes
     python benchmarks/machine_probe.py --watch 20       # 20 probes, one every few seconds (the machine's drift)
 
-This project's shared 2-core machines run the same code at two speeds, switching between them every few seconds to
-minutes: on the AMD EPYC of sessions 59-65 the march's replay took 0.62 s in one state and 0.85-0.95 s in the other
+This project's shared 2-core machines run the same code at (at least) two speeds, switching between them within a
+second to tens of seconds: on the AMD EPYC of sessions 59-65 the march's replay took 0.62 s in one state and 0.85-0.95 s in the other
 (docs/performance.md, section 82). A "fast hour" is an hour spent mostly in the first state. So a figure means little
 without the state it was taken in. The probe measures that state, independently of swim's code: the benchmark suite
-(``bench_suite.py``) takes one before every warm render of a render case and one after the last, and stores them
-beside the render times (``machine_probe_ns``).
+(``bench_suite.py``) takes a reference before its first case (:func:`reference`), then one probe before every warm
+render of a render case and one after the last, and stores them beside the render times (``machine_probe_ns``).
 
 The workload imitates the march's step loop without being it, so that a change to swim does not change the probe:
 rays of 96 steps through a (24, 48, 48, 8) float32 volume of 1.8 MB, each step a trilinear sample of 8 channels (eight
@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import math
 import os
 import sys
 import threading
@@ -37,7 +38,8 @@ from numba import njit
 
 #: The probe's volume: levels, rows, columns, channels (float32, 1.8 MB).
 SHAPE = (24, 48, 48, 8)
-#: Rays per core (a multiple of 64) and steps per ray of one pass (~30 ms in the fast state).
+#: Rays per core (a multiple of 64) and steps per ray of one pass (~20 ms in the AMD EPYC's fast state, ~30 ms in its
+#: slow one).
 RAYS = 6016
 STEPS = 96
 
@@ -135,6 +137,8 @@ def probe(cores=None, passes=3):
         ``ns_per_sample``: the best pass's wall time over one core's samples [ns]; ``passes_ms``: each pass's wall
         time [ms]; ``cores``.
     """
+    if passes < 1:
+        raise ValueError(f"machine_probe.probe: passes must be >= 1, got {passes!r}")
     cores = cores or default_cores()
     volume, origins, directions, outs = _inputs(cores)
 
@@ -154,12 +158,26 @@ def probe(cores=None, passes=3):
             "cores": cores}
 
 
+def reference(seconds=6.0, cores=None):
+    """The fastest of one-pass probes taken one after the other for ``seconds`` [s]: the machine's fast state, if
+    it visited it meanwhile (it switches within a second to tens of seconds, section 82). ``bench_suite.py`` takes
+    it once before its first case, so that a case that never sees the fast state is not judged against its own
+    fastest probe alone. Returns ns per sample [ns]."""
+    ready(cores)
+    best, end = math.inf, time.monotonic() + seconds
+    while time.monotonic() < end:
+        best = min(best, probe(cores, passes=1)["ns_per_sample"])
+    return best
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cores", type=int, default=None, help="threads at once (default: every core)")
     parser.add_argument("--watch", type=int, default=1, help="probes to take, one after the other")
     parser.add_argument("--every", type=float, default=5.0, help="seconds between probes with --watch")
     args = parser.parse_args(argv)
+    if args.cores is not None and args.cores < 1:
+        parser.error(f"--cores must be >= 1, got {args.cores}")
     for n in range(args.watch):
         if n:
             time.sleep(args.every)
