@@ -785,7 +785,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         return solar_relative_to_srgb8(radiance[:, r0:r0 + COLOUR_BLOCK_ROWS], white_level=white_level)
 
     rgb = np.concatenate(parallel_map(colour, starts, min(threads(), 8)), axis=0)
-    view_az, view_zen = (np.array(a) for a in cam.cached_view_angles())  # copies: the output is the caller's
+    # float32 copies (the output is the caller's; the cached angles are read-only): no second copy below
+    view_az, view_zen = (np.array(a, dtype=np.float32) for a in cam.cached_view_angles())
     sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
 
     dims3 = ("wavelength", "y", "x")
@@ -801,8 +802,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                         f"is {settings.stop_tau:g}, a lower bound") if settings.stop_tau
                        else "the whole line of sight"}),
         "rgb": (("y", "x", "channel"), rgb, {"long_name": "true-colour image, 8-bit sRGB"}),
-        "view_azimuth": (("y", "x"), view_az.astype(np.float32), {"units": "degree", "long_name": "view azimuth, clockwise from north"}),
-        "view_zenith": (("y", "x"), view_zen.astype(np.float32), {"units": "degree", "long_name": "view zenith angle"}),
+        "view_azimuth": (("y", "x"), view_az, {"units": "degree", "long_name": "view azimuth, clockwise from north"}),
+        "view_zenith": (("y", "x"), view_zen, {"units": "degree", "long_name": "view zenith angle"}),
     }
     attrs = {
         "title": f"SWIm {camera} image",

@@ -85,6 +85,21 @@ def test_cached_directions_and_view_angles_are_the_camera_s_own_and_read_only(ca
     assert again.cached_directions()[0] is cached_dirs and again.cached_view_angles()[1] is zenith
 
 
+@pytest.mark.parametrize("cam", [CAMERAS[4], CAMERAS[9], CAMERAS[12]], ids=lambda c: f"{c.kind}{c.shape}")
+@pytest.mark.parametrize("block", [1, 7, 64, 10**9])
+def test_view_angles_in_blocks_are_those_of_the_whole_image(cam, block):
+    from swim.frames import azimuth_zenith_from_enu
+    from swim.geometry.cameras import _view_angles
+
+    dirs, valid = cam.directions()
+    whole_az, whole_zen = azimuth_zenith_from_enu(np.where(valid[..., None], dirs, np.nan))
+    azimuth, zenith = _view_angles(cam, block=block)
+    assert azimuth.shape == zenith.shape == valid.shape and azimuth.dtype == zenith.dtype == np.float32
+    # bit for bit the whole image's angles, rounded to float32 (NaN where not valid)
+    np.testing.assert_array_equal(azimuth, whole_az.astype(np.float32))
+    np.testing.assert_array_equal(zenith, whole_zen.astype(np.float32))
+
+
 @pytest.mark.parametrize("cam", CAMERAS, ids=lambda c: f"{c.kind}{c.shape}")
 def test_attrs_are_plain(cam):
     attrs = cam.to_attrs()

@@ -119,10 +119,23 @@ def _pixel_centres(ny: int, nx: int) -> tuple[np.ndarray, np.ndarray]:
     return rows, cols
 
 
-def _view_angles(camera):
+#: Pixels per block of :func:`_view_angles` [-]: its float64 temporaries (~70 bytes a pixel) for a block at a time
+#: rather than the whole image, whose first render computes them after the march, with the image's planes alive
+#: (at 2048^2 the render's peak was there: docs/performance.md, section 83).
+VIEW_ANGLE_BLOCK = 1 << 16
+
+
+def _view_angles(camera, block=VIEW_ANGLE_BLOCK):
+    """View azimuth and zenith [deg] (float32, NaN where not valid) of every pixel, in blocks of ``block`` pixels."""
     dirs, valid = camera.cached_directions()
-    azimuth, zenith = frames.azimuth_zenith_from_enu(np.where(valid[..., None], dirs, np.nan))
-    return azimuth.astype(np.float32), zenith.astype(np.float32)
+    flat_dirs, flat_valid = dirs.reshape(-1, 3), valid.reshape(-1)
+    azimuth = np.empty(flat_valid.size, np.float32)
+    zenith = np.empty(flat_valid.size, np.float32)
+    for start in range(0, flat_valid.size, block):
+        part = slice(start, start + block)
+        azimuth[part], zenith[part] = frames.azimuth_zenith_from_enu(
+            np.where(flat_valid[part, None], flat_dirs[part], np.nan))
+    return azimuth.reshape(valid.shape), zenith.reshape(valid.shape)
 
 
 @functools.lru_cache(maxsize=2)
