@@ -69,6 +69,8 @@ TRIM_MIN_PIXELS = 1 << 16
 #: Images of at least this many traced pixels are scattered into their planes on several threads (:func:`render`):
 #: below it the pool's overhead (~0.02 ms a task) is not worth it.
 PLANES_THREADED_PIXELS = 1 << 16
+#: Rows per block of an adaptive render's planes, copied on several threads [-].
+PLANE_BLOCK_ROWS = 64
 #: Scenes of at least this many bytes are hashed on several threads (:func:`_fingerprint`): below it the pool's
 #: overhead (~0.1 ms) is not worth it.
 FINGERPRINT_THREADED_BYTES = 64 << 20
@@ -747,13 +749,24 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
             out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress,
                                                 max_threads=min(threads(), 8), outside=np.nan)
 
-            def plane(a):  # (ny * nx, C) -> (C, ny, nx): NumPy's copy without the GIL, the arrays on several threads
+            # (ny * nx, C) -> (C, ny, nx), one output at a time, its rows in blocks on several threads (NumPy's copy
+            # without the GIL), each output dropped once copied: with all of them copied at once, every output and
+            # its copy were alive together, the render's peak for big images (docs/performance.md, section 83)
+            for key in IMAGE_OUTPUTS:
+                a = out.pop(key)
                 if a.ndim == 1:
-                    return a.reshape(1, ny, nx)
-                return np.ascontiguousarray(a.reshape(ny, nx, -1).transpose(2, 0, 1))
+                    planes[key] = a.reshape(1, ny, nx)
+                    continue
+                source = a.reshape(ny, nx, -1).transpose(2, 0, 1)
+                planes[key] = target = np.empty(source.shape, a.dtype)
+                del a
 
-            planes.update(zip(IMAGE_OUTPUTS, parallel_map(plane, [out.pop(key) for key in IMAGE_OUTPUTS],
-                                                          min(threads(), 8))))
+                def copy_rows(r0, source=source, target=target):
+                    np.copyto(target[:, r0:r0 + PLANE_BLOCK_ROWS], source[:, r0:r0 + PLANE_BLOCK_ROWS])
+
+                parallel_map(copy_rows, range(0, ny, PLANE_BLOCK_ROWS),
+                             min(threads(), 8) if ny * nx >= PLANES_THREADED_PIXELS else 1)
+                del source, target
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
         march_samples = int(out["steps"].sum())
