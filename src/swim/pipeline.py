@@ -751,7 +751,12 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
             # (ny * nx, C) -> (C, ny, nx), one output at a time, its rows in blocks on several threads (NumPy's copy
             # without the GIL), each output dropped once copied: with all of them copied at once, every output and
-            # its copy were alive together, the render's peak for big images (docs/performance.md, section 83)
+            # its copy were alive together, the render's peak for big images (docs/performance.md, section 83). The
+            # arrays travel in the blocks' items, so that no function outlives the loop holding the last output
+            def copy_rows(block):
+                source, target, r0 = block
+                np.copyto(target[:, r0:r0 + PLANE_BLOCK_ROWS], source[:, r0:r0 + PLANE_BLOCK_ROWS])
+
             for key in IMAGE_OUTPUTS:
                 a = out.pop(key)
                 if a.ndim == 1:
@@ -760,11 +765,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                 source = a.reshape(ny, nx, -1).transpose(2, 0, 1)
                 planes[key] = target = np.empty(source.shape, a.dtype)
                 del a
-
-                def copy_rows(r0, source=source, target=target):
-                    np.copyto(target[:, r0:r0 + PLANE_BLOCK_ROWS], source[:, r0:r0 + PLANE_BLOCK_ROWS])
-
-                parallel_map(copy_rows, range(0, ny, PLANE_BLOCK_ROWS),
+                parallel_map(copy_rows, [(source, target, r0) for r0 in range(0, ny, PLANE_BLOCK_ROWS)],
                              min(threads(), 8) if ny * nx >= PLANES_THREADED_PIXELS else 1)
                 del source, target
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
