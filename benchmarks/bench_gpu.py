@@ -490,12 +490,17 @@ def compare_kernels(name, probe, kernel):
 
 
 def sweep_fused_blocks(name, probe, blocks):
-    """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS")."""
+    """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"; with an
+    "m" after it, the "fused-march" kernel: docs/performance.md, section 85)."""
     import jax
 
     from swim.rt import march_pallas
 
-    settings = replace(_captured_settings(probe), grid_kernel="fused")
+    import numpy as np
+
+    captured = _captured_settings(probe)
+    base_s, _, base = _chunk_outputs(probe, captured)
+    valid = np.asarray(probe.captured[0][4]).astype(bool)
     rows = []
     saved = march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS
     # the module's constants are read when the kernel is traced: no programs from the export cache, whose key is the code
@@ -503,19 +508,28 @@ def sweep_fused_blocks(name, probe, blocks):
     os.environ["SWIM_JAX_EXPORT"] = "0"
     try:
         for text in blocks:
-            rays, warps = (int(x) for x in text.split("x"))
+            # "RAYSxWARPS" marches the grid segment in the kernel ("fused"); "RAYSxWARPSm" the clear air too
+            # ("fused-march")
+            kernel = "fused-march" if text.endswith("m") else "fused"
+            settings = replace(captured, grid_kernel=kernel)
+            rays, warps = (int(x) for x in text.rstrip("m").split("x"))
             march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = rays, warps
             jax.clear_caches()
             probe.trace_chunk.forget_programs()
             try:
-                seconds, first, _ = _chunk_outputs(probe, settings)
+                seconds, first, out = _chunk_outputs(probe, settings)
             except Exception as exc:  # noqa: BLE001 - one configuration's failure must not lose the others
                 rows.append({"scene": name, "fused_block": text, "error": repr(exc)[:500]})
                 print(f"{name}: fused {text}: {exc!r}"[:400], flush=True)
                 continue
-            rows.append({"scene": name, "fused_block": text, "block_chunk_s": seconds, "first_call_s": first})
-            print(f"{name}: fused kernel, {rays} rays x {warps} warps per program: {seconds * 1e3:.2f} ms per chunk "
-                  f"(first call {first:.1f} s)", flush=True)
+            a, b = out["radiance"][valid].astype(float), base["radiance"][valid].astype(float)
+            rel = np.abs(a - b) / np.maximum(np.abs(b), 1e-3)
+            rows.append({"scene": name, "fused_block": text, "grid_kernel": kernel, "block_chunk_s": seconds,
+                         "first_call_s": first, "render_kernel_chunk_s": base_s,
+                         "radiance_max_rel_diff": float(np.nanmax(rel))})
+            print(f"{name}: {kernel} kernel, {rays} rays x {warps} warps per program: {seconds * 1e3:.2f} ms per chunk "
+                  f"(first call {first:.1f} s; the render's kernel {base_s * 1e3:.2f} ms), radiance within "
+                  f"{np.nanmax(rel):.1e}", flush=True)
     finally:
         march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = saved
         if export is None:
@@ -565,7 +579,8 @@ def main(argv=None):
     ap.add_argument("--against", nargs="*", choices=kernels[1:], default=[],
                     help="also march the captured chunk with these grid kernels: time and outputs against the render's")
     ap.add_argument("--fused-blocks", nargs="*", default=[],
-                    help="also time the fused grid kernel on the captured chunk with RAYSxWARPS per program")
+                    help="also time the fused grid kernel on the captured chunk with RAYSxWARPS per program (RAYSxWARPSm: "
+                         "the fused-march kernel), its radiance against the render's kernel")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
     ap.add_argument("--sampling", action="store_true",

@@ -13,8 +13,12 @@
 # STAGE=step1a (session 60, section 75): the tests of a new sun's Step 1a on the device, then frames with a new sun each
 # with and without it; STAGE=sampler (session 61, section 76): the device sampler's tests, then adaptive frames with
 # the sampler on the device against the host's; STAGE=readme: the README's render in two new processes; STAGE=next (the next GPU session's first run, ~300 s on a fresh machine): STAGE=sampler; then, on the warm machine,
-# STAGE=step1a (~200 s) and STAGE=readme (~100 s). Results go to
-# $OUT/results.tar.gz (the device tool returns at most 8 files).
+# STAGE=step1a (~200 s) and STAGE=readme (~100 s): run in session 66 (section 85), as STAGE=next, then STAGE=second
+# (STAGE=step1a with its tests cut short, then Nsight Compute's counters of the fused kernel) and STAGE=readme.
+# STAGE=blocks (session 66, the next GPU session's first run, ~300 s on a fresh machine): the captured chunk of the
+# synthetic 1024^2 all-sky with the fused kernels in other block shapes (benchmarks/pallas_registers.py: 512 rays x 16
+# warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 12 bytes of spills), each against the
+# render's kernel. Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
 #   for p in netCDF4 cftime pvlib pytz colour-science; do python3 -m pip download -q --no-deps --only-binary=:all: \
@@ -29,13 +33,14 @@ export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1 SWIM_CACHE_DIR=/tmp/swim
 OUT=${OUT:-/tmp/out}
 RES=/tmp/results
 mkdir -p "$OUT" "$RES"
-trap 'tar -C "$RES" -czf "$OUT/results.tar.gz" . ; ls -la "$RES"' EXIT
+save() { tar -C "$RES" -czf "$OUT/results.tar.gz" . ; }  # after each stage too: a run killed at its limit keeps what it made
+trap 'save; ls -la "$RES"' EXIT
 quiet() { grep -v "^WARNING\|^I0000\|absl"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
 step1a() {  # session 60's MarchSettings.step1a_on_device (section 75), ~200 s: its tests on the GPU first (the
     # donating program runs only there; where the machine has pytest), then frames with a new sun each, taking turns
-    timeout 150 python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
+    timeout "${TESTS_S:-150}" python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
     timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
         --sun-series 3 --repeats 4 --out "$RES/step1a-synthetic.json" 2>&1 | quiet
 }
@@ -49,11 +54,32 @@ readme() {  # the README's render at 1024^2 in two new processes (the second rea
 sampler() {  # session 61's MarchSettings.device_sampling (section 76), ~300 s on a fresh machine: its tests on the GPU, then adaptive
     # frames with the sampler on the device against the host's, taking turns (the ray table on for both; the images
     # compared there, so the tests that render, which would compile the march here first, are left out)
-    timeout 120 python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene and not render_with" tests/unit/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
+    timeout "${TESTS_S:-120}" python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene and not render_with" tests/unit/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
     timeout "${SAMPLER_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-sampling \
         --repeats 5 --out "$RES/sampler-synthetic.json" 2>&1 | quiet
 }
-if [ "${STAGE:-compare}" = next ]; then  # the next GPU session's first run (~300 s on a fresh machine): the sampler
+kernel_counters() {  # session 66: Nsight Compute's counters of the fused kernel ("swim_fused_march") in a warm
+    # machine's 1024^2 all-sky of the synthetic scene (its programs in the caches): registers, occupancy, where its
+    # warps stall, memory and issue throughput; the second launch (in session 66 the profiler lost the process on
+    # the second of three: one launch after the first went through)
+    mkdir -p "$RES/ncu-run"
+    timeout "${NCU_S:-150}" ncu --clock-control none -k regex:swim_fused --launch-skip 1 --launch-count 1 --section LaunchStats \
+        --section Occupancy --section SpeedOfLight --section WarpStateStats --section ComputeWorkloadAnalysis \
+        --section MemoryWorkloadAnalysis --section SchedulerStats python3 benchmarks/bench_gpu.py --scenes synthetic \
+        --data .devdata --repeats 1 --out "$RES/ncu-run/ncu-run.json" > "$RES/ncu-synthetic.txt" 2>&1
+    grep -v "^WARNING\|^I0000\|absl" "$RES/ncu-synthetic.txt" | grep -i "swim_fused\|Registers\|Occupancy\|Throughput\|Stall\|Duration\|Eligible\|Issued\|Block Size\|Grid Size\|Warp Cycles\|Hit Rate\|Local" | head -80
+}
+blocks() {  # session 66 (section 85): the fused kernels' block shapes, "m": the fused-march kernel
+    timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --repeats 3 \
+        --fused-blocks ${BLOCKS:-128x4 512x16 1024x32 128x4m 512x16m} --out "$RES/blocks-synthetic.json" 2>&1 | quiet
+}
+if [ "${STAGE:-compare}" = blocks ]; then
+    blocks
+elif [ "${STAGE:-compare}" = second ]; then  # session 66's second run on the warm machine (~330 s): STAGE=step1a, its
+    # tests cut short, then the fused kernel's counters
+    TESTS_S=${TESTS_S:-45} SYNTHETIC_S=${SYNTHETIC_S:-170} step1a; save
+    kernel_counters
+elif [ "${STAGE:-compare}" = next ]; then  # the next GPU session's first run (~300 s on a fresh machine): the sampler
     # on the device; then, on the warm machine, STAGE=step1a (~200 s) and the README's render (STAGE=readme)
     sampler
 elif [ "${STAGE:-compare}" = readme ]; then  # the README's render with the ray table on by default (section 74: a

@@ -592,7 +592,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         # MarchSettings.step1a_on_device: a new sun on the device's copy of this packed volume, which an earlier
         # sun's render of the JAX kernel left there (swim.rt.solar_device): no sums, sweep input or volume sent
         kept = (kept_device_copies({"volume": packed, "occupancy": classes})
-                if settings.step1a_on_device and backend == "jax" else None)
+                if settings.resolved_step1a_on_device() else None)
         if kept is not None:
             transmittance, device_packed = solar_transmittance_on_device(volume, sun_scene, kept["volume"], packed,
                                                                          species, nonzero_levels)
@@ -715,7 +715,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                  sampling.edge_test_size)
         # NaN outside the camera's pixels from the start: the planes are then copies in channel order, not masked
         # (np.where over a transposed view took ~30 ms of a 1024^2 image while the cores idled)
-        if table is not None and settings.device_sampling:
+        if table is not None and settings.resolved_device_sampling():
             # MarchSettings.device_sampling: the sampler's image on the device, beside the camera's ray table
             from .rt.image_sampling_device import sample_image_adaptive_device
 

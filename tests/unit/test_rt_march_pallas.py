@@ -19,17 +19,21 @@ from test_rt_march import _random_rays, _tiny_scene, _trace
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", ["plume, multiple scattering, 5 aerosol classes",
-                                  "no plume, single scattering, at most 4 empty steps"])
+                                  "no plume, single scattering, at most 4 empty steps",
+                                  "plume, deep refinement (tau_refine 0.02)"])
 def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
     """Rays from the ground, inside the grid and from 20 km (looking down) through cloud, the smoke plume (aerosol
     classes, the 3-D aerosol channels), terrain and the grid's edges: every output of the render's kernel within
     float32 rounding of the lockstep loops', with refinement, opaque stops and (second case) each ray's own step count;
     the grid segment alone in the Pallas kernel ("fused") and the clear air before and after it too ("fused-march",
     whose rays from 20 km take the steps before the grid and whose rays from the ground the steps after it; the second
-    case checks "fused-march" alone, whose grid segment is "fused"'s kernel code)."""
+    case checks "fused-march" alone, whose grid segment is "fused"'s kernel code; the third refines far more often,
+    so that the kernel's stack of pending intervals, kept compactly, fills deeper)."""
     plume = case.startswith("plume")
     kernels = ("fused", "fused-march") if plume else ("fused-march",)
     extra = {} if plume else {"multiple_scattering": False, "empty_steps": 4, "n_probe": 16}
+    if "deep" in case:  # many splits and roll-backs: the pending intervals' compact stack (section 85) filled deep
+        kernels, extra = ("fused",), {"tau_refine": 0.02}
     scene = _tiny_scene(plume)
     origins, dirs = _random_rays(256, seed=1)
     sun = enu_from_azimuth_zenith(135.0, 40.0)

@@ -144,6 +144,35 @@ def test_ray_table_default_is_on_only_for_the_jax_kernel_on_an_accelerator(monke
     assert MarchSettings(backend="jax", ray_table=False).resolved_ray_table() is False
 
 
+def test_step1a_and_sampler_on_the_device_by_default_only_on_an_accelerator(monkeypatch):
+    """step1a_on_device and device_sampling (None by default) resolve like the ray table: on where the JAX kernel
+    runs on a GPU (measured faster there, docs/performance.md, section 85), off on a CPU and for the numba kernel
+    even when asked; the sampler on the device also needs the ray table."""
+    import jax
+
+    settings = MarchSettings()
+    assert settings.step1a_on_device is None and settings.device_sampling is None
+    for name in ("step1a_on_device", "device_sampling"):
+        with pytest.raises(SwimInputError, match=f"{name} must be True, False or None"):
+            MarchSettings(**{name: "yes"})
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    assert MarchSettings(backend="jax").resolved_step1a_on_device() is False
+    assert MarchSettings(backend="jax").resolved_device_sampling() is False
+    assert MarchSettings(backend="jax", step1a_on_device=True).resolved_step1a_on_device() is True
+    # the sampler on the device only beside the ray table
+    assert MarchSettings(backend="jax", device_sampling=True).resolved_device_sampling() is False
+    assert MarchSettings(backend="jax", ray_table=True).resolved_device_sampling() is True
+    assert MarchSettings(backend="jax", ray_table=True, device_sampling=False).resolved_device_sampling() is False
+    assert MarchSettings(backend="numba", step1a_on_device=True).resolved_step1a_on_device() is False
+    assert MarchSettings(backend="numba", ray_table=True, device_sampling=True).resolved_device_sampling() is False
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert MarchSettings(backend="jax").resolved_step1a_on_device() is True
+    assert MarchSettings(backend="jax").resolved_device_sampling() is True
+    assert MarchSettings(backend="jax", step1a_on_device=False).resolved_step1a_on_device() is False
+    assert MarchSettings(backend="jax", ray_table=False).resolved_device_sampling() is False
+    assert MarchSettings(backend="jax", device_sampling=False).resolved_device_sampling() is False
+
+
 @pytest.mark.parametrize("sampling", [None, AdaptiveSampling()], ids=["every pixel", "adaptive"])
 def test_render_with_the_table_gives_the_same_image(sampling):
     """The default scene's all-sky with the camera's rays on the device: the same pixels traced, the same samples,
@@ -201,8 +230,8 @@ def test_camera_table_is_rebuilt_for_another_observer():
 
 def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
     """``swim render --ray-table`` / ``--no-ray-table`` set MarchSettings.ray_table; without either it stays None
-    (the device decides: MarchSettings.resolved_ray_table); ``--step1a-on-device`` sets step1a_on_device,
-    ``--device-sampling`` device_sampling."""
+    (the device decides: MarchSettings.resolved_ray_table); ``--step1a-on-device/--no-step1a-on-device`` and
+    ``--device-sampling/--no-device-sampling`` likewise, None without them."""
     from typer.testing import CliRunner
 
     import swim.pipeline
@@ -218,10 +247,12 @@ def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
 
     monkeypatch.setattr(swim.pipeline, "render", spy)
     for k, flag in enumerate((["--ray-table"], ["--no-ray-table", "--step1a-on-device"], [],
-                              ["--ray-table", "--adaptive", "--device-sampling"])):
+                              ["--ray-table", "--adaptive", "--device-sampling"],
+                              ["--no-step1a-on-device", "--adaptive", "--no-device-sampling"])):
         out = tmp_path / f"sky{k}.png"
         result = CliRunner().invoke(app, ["render", *flag, "--size", "9", "--sun-zenith", "40", "--sun-azimuth",
                                           "100", "--out", str(out)])
         assert result.exit_code == 0, result.output
         assert out.exists()
-    assert seen == [(True, False, False), (False, True, False), (None, False, False), (True, False, True)]
+    assert seen == [(True, None, None), (False, True, None), (None, None, None), (True, None, True),
+                    (None, False, False)]

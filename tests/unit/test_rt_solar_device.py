@@ -112,7 +112,7 @@ def test_refill_checks_its_inputs():
     with pytest.raises(SwimInputError, match="species"):
         solar_device.refill_step1a_channels(jnp.asarray(packed[..., 1:]), volume, sun, len(species) - 1, True,
                                             levels)
-    with pytest.raises(SwimInputError, match="step1a_on_device must be True or False"):
+    with pytest.raises(SwimInputError, match="step1a_on_device must be True, False or None"):
         MarchSettings(step1a_on_device="yes")
 
 

@@ -150,14 +150,15 @@ def render(
                                              "the device between the frames of a series (the JAX kernel: "
                                              "MarchSettings.ray_table; default: on a GPU, docs/performance.md, "
                                              "section 74)."),
-    step1a_on_device: bool = typer.Option(False, "--step1a-on-device", help="A series' new suns: Step 1a on the "
-                                          "device's copy of the packed volume (the JAX kernel: "
-                                          "MarchSettings.step1a_on_device; not yet timed on a GPU, "
-                                          "docs/performance.md, section 75)."),
-    device_sampling: bool = typer.Option(False, "--device-sampling", help="With --adaptive and the camera's rays on "
-                                         "the device (--ray-table): the sampler's image, tests and interpolation on "
-                                         "the device (MarchSettings.device_sampling; not yet timed on a GPU, "
-                                         "docs/performance.md, section 76)."),
+    step1a_on_device: Optional[bool] = typer.Option(None, "--step1a-on-device/--no-step1a-on-device", help="A "
+                                                    "series' new suns: Step 1a on the device's copy of the packed "
+                                                    "volume (the JAX kernel: MarchSettings.step1a_on_device; "
+                                                    "default: on a GPU, docs/performance.md, section 85)."),
+    device_sampling: Optional[bool] = typer.Option(None, "--device-sampling/--no-device-sampling", help="With "
+                                                   "--adaptive and the camera's rays on the device (--ray-table): the "
+                                                   "sampler's image, tests and interpolation on the device "
+                                                   "(MarchSettings.device_sampling; default: wherever the ray table "
+                                                   "is, docs/performance.md, section 85)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",

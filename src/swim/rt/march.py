@@ -190,19 +190,23 @@ class MarchSettings:
         traced renders in 0.151 s with it against 0.324 s without, adaptive 0.161 against 0.227 s, a new sun every
         frame 0.659 against 0.834 s; docs/performance.md, section 74), off on a CPU, where the march dominates and
         the table only holds memory. The numba and CUDA backends ignore it.
-    step1a_on_device : bool
+    step1a_on_device : bool or None
         A new sun's Step 1a where the JAX kernel marches (:mod:`swim.rt.solar_device`): the previous sun's device copy
         of the packed volume is refilled there, instead of sweeping from the host's sums and copying the whole packed
         volume to the device again (~1.3 GB of transfers for the 400 x 400 x 60 scene). The same equations and sweep;
-        the channels agree to float32 round-off. Default False: not yet timed on a GPU (docs/performance.md, section
-        75). Used only by the JAX kernel, for a scene rendered before with another sun in the same process.
-    device_sampling : bool
+        the channels agree to float32 round-off. None (the default): on where the JAX kernel runs on a GPU
+        (:meth:`resolved_step1a_on_device`; on an H200 a 1024^2 all-sky with a new sun every frame renders in 0.392 s
+        with it against 0.614 s without, docs/performance.md, section 85), off on a CPU, where numba's sweep on the
+        host is faster than JAX's. Used only by the JAX kernel, for a scene rendered before with another sun in the
+        same process.
+    device_sampling : bool or None
         Adaptive sampling with the image on the device (:mod:`swim.rt.image_sampling_device`), where the camera's
         rays are kept there (:meth:`resolved_ray_table`): the march's outputs are scattered, the cells tested and the
         smooth ones interpolated on the device, and only each batch's mask of wanted pixels and the finished image
-        come to the host. The same traced pixels and image as the host's sampler (to float32 rounding). Default
-        False: not yet timed on a GPU (docs/performance.md, section 76). Ignored without a ray table or without
-        adaptive sampling.
+        come to the host. The same traced pixels and image as the host's sampler (to float32 rounding). None (the
+        default): on wherever the ray table is (:meth:`resolved_device_sampling`; on an H200 an adaptive 1024^2
+        all-sky in 0.136 s with it against 0.152 s without, docs/performance.md, section 85). Ignored without a ray
+        table or without adaptive sampling.
     """
 
     n_before: int = 12
@@ -220,8 +224,8 @@ class MarchSettings:
     backend: str = "auto"
     grid_kernel: str = "auto"
     ray_table: bool | None = None
-    step1a_on_device: bool = False
-    device_sampling: bool = False
+    step1a_on_device: bool | None = None
+    device_sampling: bool | None = None
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "sunlit_steps", "n_probe", "chunk"):
@@ -245,11 +249,10 @@ class MarchSettings:
             raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.grid_kernel not in GRID_KERNELS:
             raise SwimInputError(f"MarchSettings.grid_kernel must be one of {GRID_KERNELS}, got {self.grid_kernel!r}")
-        for name in ("step1a_on_device", "device_sampling"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise SwimInputError(f"MarchSettings.{name} must be True or False, got {getattr(self, name)!r}")
-        if self.ray_table is not None and not isinstance(self.ray_table, (bool, np.bool_)):
-            raise SwimInputError(f"MarchSettings.ray_table must be True, False or None, got {self.ray_table!r}")
+        for name in ("ray_table", "step1a_on_device", "device_sampling"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, (bool, np.bool_)):
+                raise SwimInputError(f"MarchSettings.{name} must be True, False or None, got {value!r}")
 
     def resolved_backend(self) -> str:
         """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
@@ -295,6 +298,23 @@ class MarchSettings:
         if self.ray_table is not None:
             return bool(self.ray_table)
         return self.on_accelerator()
+
+    def resolved_step1a_on_device(self) -> bool:
+        """Whether a new sun's Step 1a runs on the device's copy of the packed volume (:attr:`step1a_on_device`): None
+        resolved to True where the JAX kernel runs on a GPU (or another accelerator), else False; always False for
+        the numba and CUDA kernels, which keep no such copy."""
+        if self.resolved_backend() != "jax":
+            return False
+        if self.step1a_on_device is not None:
+            return bool(self.step1a_on_device)
+        return self.on_accelerator()
+
+    def resolved_device_sampling(self) -> bool:
+        """Whether adaptive sampling keeps its image on the device (:attr:`device_sampling`): only with the camera's
+        rays there (:meth:`resolved_ray_table`), and then None resolved to True."""
+        if not self.resolved_ray_table():
+            return False
+        return True if self.device_sampling is None else bool(self.device_sampling)
 
     def resolved_empty_steps(self) -> int:
         """Most grid steps in a ray's empty space (:attr:`empty_steps`, None resolved to ``n_grid // 4``); 0: no

@@ -16,7 +16,8 @@ by gathers from device memory (their caches).
 :func:`march_grid_fused` marches the grid segment with refinement (``MarchSettings.grid_kernel="fused"``, the default on
 GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/performance.md, section 72);
 :func:`march_segments_fused` marches consecutive segments in one kernel, the clear air before and after the grid too
-(``"fused-march"``: the ~10 ms per chunk of XLA loops and copies left around the grid kernel; not yet timed on a GPU).
+(``"fused-march"``: the ~10 ms per chunk of XLA loops and copies left around the grid kernel; 0.85x "fused"'s chunk
+time on an H100, section 74).
 Each computes what :func:`swim.rt.march._march_segment` computes for its segments, the same equations in the same
 order (Eqs. 3, 8 and 12 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020; see that function), so its state agrees
 with the XLA kernel's to float32 rounding; ``tests/unit/test_rt_march_pallas.py`` holds it to that in Pallas's
@@ -38,7 +39,9 @@ from ..optics.volume import _cubic, _cubic_du, _cubic_dv
 
 log = logging.getLogger(__name__)
 
-#: Rays per Triton program (a block of the lockstep march) and the program's warps: one ray per thread.
+#: Rays per Triton program (a block of the lockstep march) and the program's warps: one ray per thread. At 128 x 4
+#: ptxas gives the kernel 255 registers (two programs per Hopper SM, 12.5 % occupancy); 512 x 16 caps it at 128 with
+#: 12 bytes of spills (25 %), to be timed on a GPU (``benchmarks/pallas_registers.py``, docs/performance.md, section 85).
 BLOCK_RAYS = 128
 NUM_WARPS = 4
 
@@ -356,15 +359,32 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
                 out = jnp.where(index == slot, stack[slot], out)
             return out
 
+        # The pending intervals, stored compactly (fewer registers: docs/performance.md, section 85). The stack of
+        # _march_grid_refined is a contiguous partition of the ray's path: each interval pushed above another ends
+        # where that one begins (a split's halves share their midpoint; a roll-back's three intervals are the
+        # previous interval's halves and the current one, adjacent to it by definition), so slot s > 0 ends at slot
+        # s - 1's start, and only the bottom slot's end is kept (``hi0``). The slots' depths (at most REFINE_DEPTH)
+        # are 3-bit fields of one int32.
+        depth_bits = 3
+
+        def depth_at(packed, slot):
+            return (packed >> (depth_bits * jnp.clip(slot, 0, slots - 1))) & ((1 << depth_bits) - 1)
+
+        def with_depth(packed, where, slot, value):
+            shift = depth_bits * jnp.clip(slot, 0, slots - 1)
+            cleared = packed & ~(((1 << depth_bits) - 1) << shift)
+            return jnp.where(where, cleared | (value << shift), packed)
+
         def refined_body(carry, edges_ref, last):
-            st, m, pending, stack_lo, stack_hi, stack_depth, budget, saved, prev = carry
+            st, m, pending, stack_lo, hi0, depths, budget, saved, prev = carry
             stacked = pending > 0
             top_slot = jnp.maximum(pending - 1, 0)
             next_step = jnp.maximum(jnp.minimum(m, last - 1), 0)
             done = ~stacked & (m >= last)
             lo = jnp.where(stacked, pick(stack_lo, top_slot), edges_ref[next_step * n + ray])
-            hi = jnp.where(stacked, pick(stack_hi, top_slot), edges_ref[(next_step + 1) * n + ray])
-            depth = jnp.where(stacked, pick(stack_depth, top_slot), 0)
+            top_hi = jnp.where(top_slot == 0, hi0, pick(stack_lo, top_slot - 1))
+            hi = jnp.where(stacked, top_hi, edges_ref[(next_step + 1) * n + ray])
+            depth = jnp.where(stacked, depth_at(depths, top_slot), 0)
             ds = jnp.where(done, 0.0, hi - lo)
             base = pending - stacked.astype(jnp.int32)
             adjacent = prev["valid"] & (prev["hi"] == lo)
@@ -373,8 +393,8 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
                      & _predicted_halving(adjacent, prev["beta_h"], ds, depth, st["tau_h"], base, slots, tau_refine))
             half = lo + 0.5 * ds
             stack_lo = [jnp.where(halve & (base == slot), half, stack_lo[slot]) for slot in range(slots)]
-            stack_hi = [jnp.where(halve & (base == slot), hi, stack_hi[slot]) for slot in range(slots)]
-            stack_depth = [jnp.where(halve & (base == slot), depth + 1, stack_depth[slot]) for slot in range(slots)]
+            hi0 = jnp.where(halve & (base == 0), hi, hi0)
+            depths = with_depth(depths, halve, base, depth + 1)
             hi = jnp.where(halve, half, hi)
             depth = depth + halve.astype(jnp.int32)
             ds = jnp.where(halve, hi - lo, ds)
@@ -394,25 +414,25 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             st = {key: jnp.where(keep, value, jnp.where(rollback, saved[key], st[key])) for key, value in new.items()}
             mid = lo + 0.5 * ds
             prev_mid = prev["lo"] + 0.5 * (prev["hi"] - prev["lo"])
-            new_lo, new_hi, new_depth = [], [], []
+            # a split: (mid, hi) at base, (lo, mid) above it; a roll-back: (lo, hi) at base, then the previous
+            # interval's halves (prev_mid, prev hi = lo) and (prev lo, prev_mid) above it
+            new_lo = []
             for slot in range(slots):
                 first, second = refine & (base == slot), refine & (base + 1 == slot)
                 again, p_second, p_first = (rollback & (base + d == slot) for d in range(3))
                 new_lo.append(jnp.where(first | p_second, jnp.where(first, mid, prev_mid),
                                         jnp.where(second | again, lo, jnp.where(p_first, prev["lo"], stack_lo[slot]))))
-                new_hi.append(jnp.where(first | again, hi,
-                                        jnp.where(second, mid, jnp.where(p_second, prev["hi"],
-                                                                         jnp.where(p_first, prev_mid, stack_hi[slot])))))
-                new_depth.append(jnp.where(first | second, depth + 1,
-                                           jnp.where(again, depth,
-                                                     jnp.where(p_second | p_first, prev["depth"] + 1, stack_depth[slot]))))
+            hi0 = jnp.where((refine | rollback) & (base == 0), hi, hi0)
+            depths = with_depth(depths, refine | rollback, base, jnp.where(refine, depth + 1, depth))
+            depths = with_depth(depths, refine | rollback, base + 1, jnp.where(refine, depth, prev["depth"]) + 1)
+            depths = with_depth(depths, rollback, base + 2, prev["depth"] + 1)
             prev = {"valid": save | (prev["valid"] & ~rollback), "lo": jnp.where(save, lo, prev["lo"]),
                     "hi": jnp.where(save, hi, prev["hi"]), "beta_h": jnp.where(save, beta_h, prev["beta_h"]),
                     "depth": jnp.where(save, depth, prev["depth"])}
             pending = base + 2 * refine.astype(jnp.int32) + 3 * rollback.astype(jnp.int32)
             m = m + (~stacked & ~done).astype(jnp.int32)
             budget = budget - refine.astype(jnp.int32) - rollback.astype(jnp.int32)
-            return st, m, pending, new_lo, new_hi, new_depth, budget, saved, prev
+            return st, m, pending, new_lo, hi0, depths, budget, saved, prev
 
         def refined(st, edges_ref, last):
             """:func:`swim.rt.march._march_grid_refined` of the block: until each ray has taken its steps."""
@@ -423,7 +443,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             zero_f = jnp.zeros((block_rays,), f32)
             zero_i = jnp.zeros((block_rays,), jnp.int32)
             prev = {"valid": zero_i != 0, "lo": zero_f, "hi": zero_f, "beta_h": zero_f, "depth": zero_i}
-            carry = (st, zero_i, zero_i, [zero_f] * slots, [zero_f] * slots, [zero_i] * slots,
+            carry = (st, zero_i, zero_i, [zero_f] * slots, zero_f, zero_i,
                      jnp.full((block_rays,), REFINE_BUDGET, jnp.int32), dict(st), prev)
             return jax.lax.while_loop(unfinished, lambda c: refined_body(c, edges_ref, last), carry)[0]
 
