@@ -45,6 +45,8 @@ from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("JAX_SKIP_CUDA_CONSTRAINTS_CHECK", "1")  # the plugin's CUDA libraries are not needed here
+# the march traced anew, not read from the export cache: the kernel's call is captured while it is traced
+os.environ["SWIM_JAX_EXPORT"] = "0"
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -58,12 +60,23 @@ class _Captured(Exception):
     pass
 
 
+_SCENE = []
+
+
+def _scene():
+    """The suite's synthetic 400 x 400 x 60 scene, built once."""
+    import scenes
+
+    if not _SCENE:
+        _SCENE.append(scenes.synthetic_scene())
+    return _SCENE[0]
+
+
 def capture_kernel_call(kernel, size=32):
     """(function, positional arguments, keyword arguments) of the Pallas kernel's call in a small JAX render of the
     synthetic scene with ``MarchSettings(grid_kernel=kernel)``: arrays as ``jax.ShapeDtypeStruct``."""
     import jax
 
-    import scenes
     import swim
     from swim.rt import march_pallas
     from swim.rt.march import MarchSettings
@@ -82,7 +95,7 @@ def capture_kernel_call(kernel, size=32):
     name = {"fused": "march_grid_fused", "fused-march": "march_segments_fused"}[kernel]
     setattr(march_pallas, name, grab)
     try:
-        swim.render(scenes.synthetic_scene(), camera_options={"size": size}, sun_zenith=35.0, sun_azimuth=140.0,
+        swim.render(_scene(), camera_options={"size": size}, sun_zenith=35.0, sun_azimuth=140.0,
                     settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=1024))
     except _Captured:
         pass

@@ -284,9 +284,9 @@ class MarchSettings:
 
     def kernel_settings(self) -> MarchSettings:
         """These settings with those that the march's kernels do not read (:attr:`ray_table`,
-        :attr:`step1a_on_device`, :attr:`device_sampling`) at their defaults' resolved values, so that a compiled
-        kernel (keyed by its settings, also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a
-        recompilation of the JAX kernel takes tens of seconds on a GPU."""
+        :attr:`step1a_on_device`, :attr:`device_sampling`) pinned to False, so that a compiled kernel (keyed by its
+        settings, also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a recompilation of the JAX
+        kernel takes tens of seconds on a GPU."""
         return replace(self, ray_table=False, step1a_on_device=False, device_sampling=False)
 
     def resolved_ray_table(self) -> bool:

@@ -366,6 +366,9 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
         # s - 1's start, and only the bottom slot's end is kept (``hi0``). The slots' depths (at most REFINE_DEPTH)
         # are 3-bit fields of one int32.
         depth_bits = 3
+        if REFINE_DEPTH >= 1 << depth_bits or depth_bits * slots > 31:
+            raise ValueError(f"march_segments_fused: REFINE_DEPTH {REFINE_DEPTH} and REFINE_SLOTS {slots} do not fit "
+                             f"{depth_bits}-bit fields of one int32")
 
         def depth_at(packed, slot):
             return (packed >> (depth_bits * jnp.clip(slot, 0, slots - 1))) & ((1 << depth_bits) - 1)
