@@ -293,21 +293,20 @@ class MarchSettings:
         """Whether the camera's rays are kept on the device (:attr:`ray_table`): None resolved to True where the
         JAX kernel runs on a GPU (or another accelerator), else False; always False for the numba and CUDA
         kernels, which do not use it."""
-        if self.resolved_backend() != "jax":
-            return False
-        if self.ray_table is not None:
-            return bool(self.ray_table)
-        return self.on_accelerator()
+        return self._jax_device_switch(self.ray_table)
 
     def resolved_step1a_on_device(self) -> bool:
         """Whether a new sun's Step 1a runs on the device's copy of the packed volume (:attr:`step1a_on_device`): None
         resolved to True where the JAX kernel runs on a GPU (or another accelerator), else False; always False for
         the numba and CUDA kernels, which keep no such copy."""
+        return self._jax_device_switch(self.step1a_on_device)
+
+    def _jax_device_switch(self, value) -> bool:
+        """A switch of the JAX kernel's device copies (``value``: True, False or None): False for the other kernels,
+        else ``value``, None resolved to whether the march runs on an accelerator."""
         if self.resolved_backend() != "jax":
             return False
-        if self.step1a_on_device is not None:
-            return bool(self.step1a_on_device)
-        return self.on_accelerator()
+        return self.on_accelerator() if value is None else bool(value)
 
     def resolved_device_sampling(self) -> bool:
         """Whether adaptive sampling keeps its image on the device (:attr:`device_sampling`): only with the camera's
