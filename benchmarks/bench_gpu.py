@@ -38,6 +38,11 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
 * with ``--device-sampling``: adaptive frames with the sampler's image on the device (``MarchSettings.device_sampling``,
   :mod:`swim.rt.image_sampling_device`) against the host's sampler, taking turns, both with the camera's rays on the
   device (the ray table);
+* with ``--device-image``: frames with the image's planes and colour made on the device (``MarchSettings.device_image``,
+  :mod:`swim.rt.image_device`, :mod:`swim.color.srgb_device`) against the host's, taking turns, every pixel and
+  adaptive (the sampler on the device), both with the ray table; with ``--out`` also the main thread's wall clock
+  in a warm frame of each with it on (``profile_<scene>_device_image_<sampling>_wall.txt``); and every-pixel frames
+  with the scene's digest taken by its arrays' identity (checked while the device marches) against hashed first;
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
   device's kernels of one chunk (JAX's profiler, time summed per kernel name), as text files beside the JSON;
@@ -216,6 +221,8 @@ def compare_setting(name, scene, kw, args, field, variants):
         rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(a[ok]), 1e-3)
         row.update(max_rel_diff=float(rel.max()), p99_rel_diff=float(np.percentile(rel, 99)),
                    values_over_1e_4=int(np.sum(rel > 1e-4)))
+        codes = np.abs(images[False]["rgb"].values.astype(int) - images[True]["rgb"].values.astype(int))
+        row.update(rgb_max_code_diff=int(codes.max()), rgb_pixels_apart=int(np.count_nonzero(codes.max(axis=-1))))
         # where the largest difference lies (section 85: 3.6e-3 of one pixel with Step 1a on the device, not located)
         full = np.where(ok, np.abs(a - b) / np.maximum(np.abs(a), 1e-3), 0.0)
         at = np.unravel_index(int(np.argmax(full)), full.shape)
@@ -227,11 +234,38 @@ def compare_setting(name, scene, kw, args, field, variants):
                 worst[key] = [float(images[x][key].isel(pixel).values) for x in (False, True)]
         row["largest_difference"] = worst
         apart = (f"; radiance apart by p99 {row['p99_rel_diff']:.1e}, max {row['max_rel_diff']:.1e} at {worst}, "
-                 f"{row['values_over_1e_4']} values over 1e-4")
+                 f"{row['values_over_1e_4']} values over 1e-4; rgb {row['rgb_pixels_apart']} pixels apart, by at "
+                 f"most {row['rgb_max_code_diff']}")
         rows.append(row)
         print(f"{name} {field}, {label}: without {row['without_s']:.3f} s, with {row['with_s']:.3f} s "
               f"({row['without_s'] / row['with_s']:.2f}x){apart}", flush=True)
     return rows
+
+
+def compare_digest_by_identity(name, scene, kw, args):
+    """Warm every-pixel frames with the scene's digest taken by its arrays' identity and checked while the device
+    marches (``swim.pipeline._fingerprint_by_identity``, on by default on GPUs) against hashing it before the march,
+    taking turns (``args.repeats`` each, after a first round)."""
+    import swim
+    import swim.pipeline as pipeline
+
+    default = pipeline._speculate_digest
+    runs = {False: [], True: []}
+    try:
+        for k in range(1 + args.repeats):
+            for on in (False, True):
+                pipeline._speculate_digest = default if on else (lambda settings: False)
+                t0 = time.perf_counter()
+                swim.render(scene, **kw)
+                if k:
+                    runs[on].append(time.perf_counter() - t0)
+    finally:
+        pipeline._speculate_digest = default
+    row = {"scene": name, "digest_by_identity": "every pixel", "without_s": statistics.median(runs[False]),
+           "with_s": statistics.median(runs[True]), "without_runs": runs[False], "with_runs": runs[True]}
+    print(f"{name} digest by identity, every pixel: without {row['without_s']:.3f} s, with {row['with_s']:.3f} s "
+          f"({row['without_s'] / row['with_s']:.2f}x)", flush=True)
+    return row
 
 
 def gpu_memory():
@@ -300,6 +334,18 @@ def run_scene(name, args, probe, out_dir):
         table_kw = {**kw, "settings": replace(kw["settings"], ray_table=True)}
         rows.extend(compare_setting(name, scene, table_kw, args, "device_sampling",
                                     [("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)})]))
+    if args.device_image and args.backend == "jax":  # the image's planes and colour on the device or the host
+        from swim.rt.image_sampling import AdaptiveSampling
+
+        table_kw = {**kw, "settings": replace(kw["settings"], ray_table=True)}
+        variants = [("every pixel", {}), ("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)})]
+        rows.extend(compare_setting(name, scene, table_kw, args, "device_image", [(a, dict(b)) for a, b in variants]))
+        rows.append(compare_digest_by_identity(name, scene, table_kw, args))
+        if out_dir:
+            on = {**table_kw, "settings": replace(table_kw["settings"], device_image=True)}
+            for label, extra in variants:
+                wall_profile_render(name, f"device_image_{label.replace(' ', '_')}_wall", scene, {**on, **extra},
+                                    Path(out_dir))
     if args.barriers:
         rows.append(compare_barriers(name, scene, kw, probe, args.repeats))
     if args.profile and out_dir:
@@ -610,6 +656,10 @@ def main(argv=None):
     ap.add_argument("--device-sampling", action="store_true",
                     help="also time adaptive frames with the sampler on the device (MarchSettings.device_sampling) "
                          "against the host's, taking turns, the ray table on")
+    ap.add_argument("--device-image", action="store_true",
+                    help="also time frames with the image's planes and colour made on the device "
+                         "(MarchSettings.device_image) against the host's, taking turns, every pixel and adaptive, "
+                         "the ray table on (docs/performance.md, section 86)")
     ap.add_argument("--barriers", action="store_true",
                     help="also the kernel with its CPU optimisation barriers forced on (section 18 of docs/performance.md)")
     ap.add_argument("--compare", action="store_true", help="also render with numba on the host and compare")

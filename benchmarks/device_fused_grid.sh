@@ -18,7 +18,10 @@
 # STAGE=blocks (session 66, the next GPU session's first run, ~300 s on a fresh machine): the captured chunk of the
 # synthetic 1024^2 all-sky with the fused kernels in other block shapes (benchmarks/pallas_registers.py: 512 rays x 16
 # warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 12 bytes of spills), each against the
-# render's kernel. Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
+# render's kernel. STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
+# the image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it
+# against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it.
+# Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
 #   for p in netCDF4 cftime pvlib pytz colour-science; do python3 -m pip download -q --no-deps --only-binary=:all: \
@@ -73,8 +76,16 @@ blocks() {  # session 66 (section 85): the fused kernels' block shapes, "m": the
     timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --repeats 3 \
         --fused-blocks ${BLOCKS:-128x4 512x16 1024x32 128x4m 512x16m} --out "$RES/blocks-synthetic.json" 2>&1 | quiet
 }
+image() {  # session 67's MarchSettings.device_image (section 86): its tests on the GPU (the colour stage's float64
+    # on the device), then warm frames with the image finished on the device against the host, taking turns
+    timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/test_color_device.py 2>&1 | tail -3 || true
+    timeout "${IMAGE_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
+        --repeats 5 --out "$RES/image-synthetic.json" 2>&1 | quiet
+}
 if [ "${STAGE:-compare}" = blocks ]; then
     blocks
+elif [ "${STAGE:-compare}" = image ]; then
+    image
 elif [ "${STAGE:-compare}" = second ]; then  # session 66's second run on the warm machine (~330 s): STAGE=step1a, its
     # tests cut short, then the fused kernel's counters
     TESTS_S=${TESTS_S:-45} SYNTHETIC_S=${SYNTHETIC_S:-170} step1a; save

@@ -234,7 +234,8 @@ def test_camera_table_is_rebuilt_for_another_observer():
 def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
     """``swim render --ray-table`` / ``--no-ray-table`` set MarchSettings.ray_table; without either it stays None
     (the device decides: MarchSettings.resolved_ray_table); ``--step1a-on-device/--no-step1a-on-device`` and
-    ``--device-sampling/--no-device-sampling`` likewise, None without them."""
+    ``--device-sampling/--no-device-sampling`` and ``--device-image/--no-device-image`` likewise, None without
+    them."""
     from typer.testing import CliRunner
 
     import swim.pipeline
@@ -245,17 +246,17 @@ def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
 
     def spy(*args, **kwargs):
         seen.append((kwargs["settings"].ray_table, kwargs["settings"].step1a_on_device,
-                     kwargs["settings"].device_sampling))
+                     kwargs["settings"].device_sampling, kwargs["settings"].device_image))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(swim.pipeline, "render", spy)
     for k, flag in enumerate((["--ray-table"], ["--no-ray-table", "--step1a-on-device"], [],
-                              ["--ray-table", "--adaptive", "--device-sampling"],
-                              ["--no-step1a-on-device", "--adaptive", "--no-device-sampling"])):
+                              ["--ray-table", "--adaptive", "--device-sampling", "--no-device-image"],
+                              ["--no-step1a-on-device", "--adaptive", "--no-device-sampling", "--device-image"])):
         out = tmp_path / f"sky{k}.png"
         result = CliRunner().invoke(app, ["render", *flag, "--size", "9", "--sun-zenith", "40", "--sun-azimuth",
                                           "100", "--out", str(out)])
         assert result.exit_code == 0, result.output
         assert out.exists()
-    assert seen == [(True, None, None), (False, True, None), (None, None, None), (True, None, True),
-                    (None, False, False)]
+    assert seen == [(True, None, None, None), (False, True, None, None), (None, None, None, None),
+                    (True, None, True, False), (None, False, False, True)]

@@ -159,6 +159,11 @@ def render(
                                                    "sampler's image, tests and interpolation on the device "
                                                    "(MarchSettings.device_sampling; default: wherever the ray table "
                                                    "is, docs/performance.md, section 85)."),
+    device_image: Optional[bool] = typer.Option(None, "--device-image/--no-device-image", help="With the camera's "
+                                                "rays on the device (--ray-table): the image's planes and its colour "
+                                                "made on the device, then copied to the host at once "
+                                                "(MarchSettings.device_image; default: on a GPU, "
+                                                "docs/performance.md, section 86)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -239,6 +244,7 @@ def render(
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
         settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
                                  step1a_on_device=step1a_on_device, device_sampling=device_sampling,
+                                 device_image=device_image,
                                  **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,

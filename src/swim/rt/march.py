@@ -207,6 +207,16 @@ class MarchSettings:
         default): on wherever the ray table is (:meth:`resolved_device_sampling`; on an H200 an adaptive 1024^2
         all-sky in 0.136 s with it against 0.152 s without, docs/performance.md, section 85). Ignored without a ray
         table or without adaptive sampling.
+    device_image : bool or None
+        The image finished on the device, where the camera's rays are kept there (:meth:`resolved_ray_table`): with
+        every pixel traced, the chunks' outputs stay on the device and are scattered into the image's planes there
+        (:mod:`swim.rt.image_device`), and the colour stage runs there too (:mod:`swim.color.srgb_device`, with every
+        pixel and, where :meth:`resolved_device_sampling`, adaptively), so that a frame's planes and RGB come to the
+        host in one copy. The same planes, and the same 8-bit codes but where the device rounds a fused
+        multiply-add once (a code apart at most, at a value within ~1e-16 of a code's step); the rare pixels whose
+        spectrum needs clipping, and the sun's disk, are coloured on the host. None (the default): on where the JAX
+        kernel runs on a GPU (:meth:`resolved_device_image`; docs/performance.md, section 86), off elsewhere, where
+        the host's cores are the device's and its compiled colour stage is faster than XLA's.
     """
 
     n_before: int = 12
@@ -226,6 +236,7 @@ class MarchSettings:
     ray_table: bool | None = None
     step1a_on_device: bool | None = None
     device_sampling: bool | None = None
+    device_image: bool | None = None
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "sunlit_steps", "n_probe", "chunk"):
@@ -249,7 +260,7 @@ class MarchSettings:
             raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.grid_kernel not in GRID_KERNELS:
             raise SwimInputError(f"MarchSettings.grid_kernel must be one of {GRID_KERNELS}, got {self.grid_kernel!r}")
-        for name in ("ray_table", "step1a_on_device", "device_sampling"):
+        for name in ("ray_table", "step1a_on_device", "device_sampling", "device_image"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, (bool, np.bool_)):
                 raise SwimInputError(f"MarchSettings.{name} must be True, False or None, got {value!r}")
@@ -284,10 +295,10 @@ class MarchSettings:
 
     def kernel_settings(self) -> MarchSettings:
         """These settings with those that the march's kernels do not read (:attr:`ray_table`,
-        :attr:`step1a_on_device`, :attr:`device_sampling`) pinned to False, so that a compiled kernel (keyed by its
-        settings, also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a recompilation of the JAX
-        kernel takes tens of seconds on a GPU."""
-        return replace(self, ray_table=False, step1a_on_device=False, device_sampling=False)
+        :attr:`step1a_on_device`, :attr:`device_sampling`, :attr:`device_image`) pinned to False, so that a compiled
+        kernel (keyed by its settings, also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a
+        recompilation of the JAX kernel takes tens of seconds on a GPU."""
+        return replace(self, ray_table=False, step1a_on_device=False, device_sampling=False, device_image=False)
 
     def resolved_ray_table(self) -> bool:
         """Whether the camera's rays are kept on the device (:attr:`ray_table`): None resolved to True where the
@@ -314,6 +325,13 @@ class MarchSettings:
         if not self.resolved_ray_table():
             return False
         return True if self.device_sampling is None else bool(self.device_sampling)
+
+    def resolved_device_image(self) -> bool:
+        """Whether the image is finished on the device (:attr:`device_image`): only with the camera's rays there
+        (:meth:`resolved_ray_table`), and then None resolved to whether the march runs on an accelerator."""
+        if not self.resolved_ray_table():
+            return False
+        return self.on_accelerator() if self.device_image is None else bool(self.device_image)
 
     def resolved_empty_steps(self) -> int:
         """Most grid steps in a ray's empty space (:attr:`empty_steps`, None resolved to ``n_grid // 4``); 0: no
