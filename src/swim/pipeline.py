@@ -812,15 +812,16 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         return ({key: value if value.flags.writeable else value.copy() for key, value in device_planes.items()},
                 codes, extra)
 
-    if sampling is None and device_image:
+    if sampling is None and device_image and valid_pixels.size:
         log.info("tracing %d rays (%s camera %s), the image made on the device", int(valid.sum()) + 1, camera,
                  cam.shape)
         from .rt.image_device import planes_on_device
 
         traced = valid.reshape(-1)
         sun_table = single_ray_table(observer, sun_scene, geometry, consts, settings)
-        # every valid pixel in tile order, then the sun's ray; their outputs and the planes stay on the device
-        result = trace_table_rows(table, table_rows[valid_pixels], consts, phase_inputs, settings, extra=sun_table,
+        # every valid pixel in tile order (the table's rows in order: it was built from valid_pixels), then the sun's
+        # ray; their outputs and the planes stay on the device
+        result = trace_table_rows(table, np.arange(table.size), consts, phase_inputs, settings, extra=sun_table,
                                   on_device=True)
         device_planes, sun_row, first_steps = planes_on_device(
             result, valid_pixels, (ny, nx), IMAGE_OUTPUTS, sun_keys=("tau_clear", "tau_hydrometeor", "surface", "steps"))
