@@ -77,10 +77,23 @@ blocks() {  # session 66 (section 85): the fused kernels' block shapes, "m": the
         --fused-blocks ${BLOCKS:-128x4 512x16 1024x32 128x4m 512x16m} --out "$RES/blocks-synthetic.json" 2>&1 | quiet
 }
 image() {  # session 67's MarchSettings.device_image (section 86): its tests on the GPU (the colour stage's float64
-    # on the device), then warm frames with the image finished on the device against the host, taking turns
+    # on the device), then warm frames with the image finished on the device against the host, taking turns, and
+    # where a new process's README render (its caches warm) spends its ~11 s (section 85)
     timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/test_color_device.py 2>&1 | tail -3 || true
     timeout "${IMAGE_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
         --repeats 5 --out "$RES/image-synthetic.json" 2>&1 | quiet
+    save
+    readme_profile
+}
+readme_profile() {  # the README's render at 1024^2 in a new process twice (the first fills the caches), the second
+    # under cProfile: the top functions by cumulative time to readme-profile.txt
+    timeout 150 python3 -m swim.cli.main render --size 1024 --out "$RES/readme-1.png" 2>&1 | quiet
+    t0=$(date +%s.%N)
+    timeout 150 python3 -m cProfile -o "$RES/readme-2.prof" -m swim.cli.main render --size 1024 --out "$RES/readme-2.png" 2>&1 | quiet
+    echo "README render at 1024^2 under cProfile, new process 2: $(python3 -c "import sys, time; print(f'{time.time() - float(sys.argv[1]):.2f}')" "$t0") s"
+    python3 -c "import pstats, sys; s = pstats.Stats(sys.argv[1]); s.sort_stats('cumulative').print_stats(45); s.sort_stats('tottime').print_stats(25)" \
+        "$RES/readme-2.prof" > "$RES/readme-profile.txt" 2>&1
+    head -70 "$RES/readme-profile.txt"
 }
 if [ "${STAGE:-compare}" = blocks ]; then
     blocks
