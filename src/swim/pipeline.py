@@ -9,7 +9,6 @@ import functools
 import logging
 import threading
 import weakref
-from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -185,9 +184,48 @@ class _LastDigest:
 
 
 _LAST_DIGEST = _LastDigest()
-#: One thread that checks a digest taken by identity while the device marches (:func:`_fingerprint_by_identity`);
-#: not one of swim's worker pools, whose threads the digest itself uses.
-_DIGEST_CHECKER = ThreadPoolExecutor(1, thread_name_prefix="swim-digest-check")
+
+
+class _StaleDigest(Exception):
+    """A digest taken by identity did not hold (the scene's values changed in place): :func:`render` renders again."""
+
+
+class _DigestGuess:
+    """A render's digest taken by the scene's identity (:func:`_fingerprint_by_identity`) and its check: the scene
+    hashed on a thread of its own while the render goes on (one thread per check: renders on several threads hash
+    at once, and a forked process starts none of its parent's)."""
+
+    def __init__(self):
+        self.guess = None
+        self._done = threading.Event()
+        self._actual = self._error = None
+
+    def start(self, guess, scene) -> bool:
+        """Check ``guess`` against ``scene``'s digest on a new thread; False where no thread can start (the
+        interpreter shutting down: the caller hashes the scene itself)."""
+        def check():
+            try:
+                self._actual = _fingerprint(scene)
+            except BaseException as err:  # noqa: BLE001 - raised again by held()
+                self._error = err
+            finally:
+                self._done.set()
+
+        try:
+            threading.Thread(target=check, name="swim-digest-check", daemon=True).start()
+        except RuntimeError:
+            return False
+        self.guess = guess
+        return True
+
+    def held(self) -> bool:
+        """Whether the guess was the scene's digest (True where none was taken); waits for the check."""
+        if self.guess is None:
+            return True
+        self._done.wait()
+        if self._error is not None:
+            raise self._error
+        return self._actual == self.guess
 
 
 def _speculate_digest(settings: MarchSettings) -> bool:
@@ -196,23 +234,26 @@ def _speculate_digest(settings: MarchSettings) -> bool:
     return settings.on_accelerator()
 
 
-def _fingerprint_by_identity(scene: xr.Dataset, speculate: bool):
-    """:func:`_fingerprint` of an in-memory scene, and a check of it (or None).
+def _fingerprint_by_identity(scene: xr.Dataset, guess: _DigestGuess | None) -> str:
+    """:func:`_fingerprint` of an in-memory scene, or, with ``guess``, perhaps the last rendered scene's.
 
-    With ``speculate``, where the scene has the last rendered scene's identity (:func:`_scene_identity`: the same
+    With ``guess``, where the scene has the last rendered scene's identity (:func:`_scene_identity`: the same
     arrays, attributes and small values) and the stage cache still holds that scene's optical volume, the last
-    digest is returned at once and the scene is hashed on another thread meanwhile: the returned future gives the
-    true digest, which the render compares before it returns (values changed in place: it renders again). A warm
-    GPU frame of the 400 x 400 x 60 scene saves the hash of its 0.47 GB, ~14 ms of an H100 frame's host time
-    (docs/performance.md, section 86). Otherwise the digest is computed here and remembered with the identity."""
+    digest is returned at once and ``guess`` checks it on another thread meanwhile (:meth:`_DigestGuess.held`,
+    which :func:`render` asks before it returns, and the volume's build before it builds anything under the guessed
+    digest). In an H100 frame of the 400 x 400 x 60 scene the hash of its 0.47 GB took ~14 ms of the host's
+    0.135 s (docs/performance.md, sections 74 and 86). Otherwise the digest is computed here, and with ``guess``
+    remembered with the identity."""
+    if guess is None:
+        return _fingerprint(scene)
     identity = _scene_identity(scene)
-    if speculate and identity is not None:
-        guess = _LAST_DIGEST.digest_of(identity)
-        if guess is not None and _STAGE_CACHE.peek(("volume", guess)) is not None:
-            return guess, _DIGEST_CHECKER.submit(_fingerprint, scene)
+    if identity is not None:
+        last = _LAST_DIGEST.digest_of(identity)
+        if last is not None and _STAGE_CACHE.peek(("volume", last)) is not None and guess.start(last, scene):
+            return last
     fingerprint = _fingerprint(scene)
     _LAST_DIGEST.remember(identity, fingerprint)
-    return fingerprint, None
+    return fingerprint
 
 
 def _is_lazy(scene: xr.Dataset) -> bool:
@@ -593,9 +634,35 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     The renders of a process share the last scene's stages: the optical volume, the packed grid and Step 1a. A
     render of the same scene and sun reuses them; a new sun (a time series' frame) redoes Step 1a only, into the
     same packed grid where no other render is running, else into a new one. Renders may run on several threads
-    at once (a dask worker's); docs/performance.md, section 66.
+    at once (a dask worker's); docs/performance.md, section 66. Where the march runs on a GPU, a scene whose arrays
+    were rendered before is recognised by them and hashed while the device marches; if their values were changed in
+    place since, the render finds it before it returns and renders the scene again (a warning says so, and
+    ``progress`` counts the rays twice; docs/performance.md, section 86).
     """
-    call = dict(locals())  # the arguments, for a render again (a digest taken by identity that did not hold)
+    call = dict(locals())
+    guess = _DigestGuess()
+    try:
+        image = _render(**call, guess=guess)
+        if guess.held():
+            return image
+        del image
+    except _StaleDigest:
+        pass
+    except Exception:
+        if guess.held():
+            raise
+    # the scene's values changed in place since its arrays were last rendered: the image (or the error) came from
+    # the stages of their old values. Forget both, and render again from the values as they are
+    log.warning("the scene's values changed in place since its last render: rendering it again")
+    _LAST_DIGEST.forget()
+    _STAGE_CACHE.clear()
+    return _render(**call, guess=None)
+
+
+def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
+            settings, white_level, progress, crop, sampling, guess: _DigestGuess | None) -> xr.Dataset:
+    """:func:`render`'s work. ``guess``: where the scene's digest may be taken by its arrays' identity
+    (:func:`_fingerprint_by_identity`; None: hashed first)."""
     if not isinstance(scene, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
     if crop:
@@ -619,6 +686,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     given = scene
 
     def validated_volume():
+        # never built from the scene's values under a digest guessed by identity that does not hold (the stage cache
+        # would hand it to a render of a scene with the old values)
+        if guess is not None and not guess.held():
+            raise _StaleDigest
         # a lazy (cropped) scene is read here, once: compute(), not load(), so the caller's dataset stays lazy
         valid = validate_scene(given.compute() if lazy else given)
         # From here on only the scene's attributes, coordinates and variable names are needed: dropping its
@@ -632,11 +703,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     # The digest of the scene as given: a warm render (same values) neither validates nor builds anything. A lazy
     # scene is identified by its dask graph (for files their names and modification times), not read again.
     lazy = _is_lazy(scene)
-    digest_check = None  # a digest taken by the arrays' identity, checked before the image is returned
     if lazy:
         fingerprint = _lazy_fingerprint(scene)
-    else:
-        fingerprint, digest_check = _fingerprint_by_identity(scene, _speculate_digest(settings))
+    else:  # on a GPU perhaps the last scene's, checked while the device marches (render asks before it returns)
+        fingerprint = _fingerprint_by_identity(scene, guess if guess is not None and _speculate_digest(settings)
+                                               else None)
     volume, scene, scene_vars = _STAGE_CACHE.get(("volume", fingerprint), validated_volume)
     lat0, lon0 = float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"])
     lat = lat0 if lat is None else float(lat)
@@ -821,8 +892,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         sun_table = single_ray_table(observer, sun_scene, geometry, consts, settings)
         # every valid pixel in tile order (the table's rows in order: it was built from valid_pixels), then the sun's
         # ray; their outputs and the planes stay on the device
-        result = trace_table_rows(table, np.arange(table.size), consts, phase_inputs, settings, extra=sun_table,
-                                  on_device=True)
+        result = trace_table_rows(table, np.arange(table.size), consts, phase_inputs, settings, progress,
+                                  extra=sun_table, on_device=True)
         device_planes, sun_row, first_steps = planes_on_device(
             result, valid_pixels, (ny, nx), IMAGE_OUTPUTS, sun_keys=("tau_clear", "tau_hydrometeor", "surface", "steps"))
         del result
@@ -830,8 +901,6 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         del device_planes
         sun_out.update(sun_row)
         march_samples = int(valid_pixels.size) * int(first_steps)  # the lockstep's steps, the same for every ray
-        if progress is not None:
-            progress(int(valid_pixels.size) + 1, int(valid_pixels.size) + 1)
     elif sampling is None:
         log.info("tracing %d rays (%s camera %s)", int(valid.sum()) + 1, camera, cam.shape)
         traced = valid.reshape(-1)
@@ -1015,13 +1084,6 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"
-    if digest_check is not None and digest_check.result() != fingerprint:
-        # the scene's values changed in place since its arrays were last rendered: this image is of the stages of
-        # their old values. Forget both, and render again from the values as they are
-        log.warning("the scene's values changed in place since its last render: rendering it again")
-        _LAST_DIGEST.forget()
-        _STAGE_CACHE.clear()
-        return render.__wrapped__(**call)
     del radiance, rgb
     if trim:
         release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays

@@ -110,47 +110,102 @@ def test_planes_on_device_scatters_the_pixels_rows():
                          sun_keys=("radiance",))
 
 
-def test_a_digest_taken_by_identity_is_checked(monkeypatch, caplog):
-    """Where the march runs on a GPU, a scene rendered before (the same arrays) takes its last digest at once and is
-    hashed meanwhile (swim.pipeline._fingerprint_by_identity): the image is the one of a render that hashed it first;
-    values changed in place are found by that check, and the scene is rendered again from its new values."""
-    import logging
+KW = dict(camera="allsky", camera_options={"size": 24}, sun_zenith=40.0, sun_azimuth=120.0)
 
+
+@pytest.fixture
+def speculating(monkeypatch):
+    """swim.pipeline with digests taken by identity (as on a GPU), empty caches, and a record of the guesses."""
     import swim.pipeline as pipeline
 
-    scene = swim.default_scene().copy(deep=True)
-    kw = dict(camera="allsky", camera_options={"size": 24}, sun_zenith=40.0, sun_azimuth=120.0)
     pipeline._STAGE_CACHE.clear()
     pipeline._LAST_DIGEST.forget()
     monkeypatch.setattr(pipeline, "_speculate_digest", lambda settings: True)
-    hashed = []
-    real = pipeline._fingerprint
-    monkeypatch.setattr(pipeline, "_fingerprint", lambda s: hashed.append(1) or real(s))
-    checks = []
-    real_by_identity = pipeline._fingerprint_by_identity
-
-    def spy(*args):
-        result = real_by_identity(*args)
-        checks.append(result[1] is not None)
-        return result
-
-    monkeypatch.setattr(pipeline, "_fingerprint_by_identity", spy)
-    first = swim.render(scene, **kw)
-    second = swim.render(scene, **kw)
-    assert checks == [False, True] and len(hashed) == 2  # the second hashed on the checker's thread
-    np.testing.assert_array_equal(second["radiance"].values, first["radiance"].values)
-    # a field changed in place: the same arrays, new values
-    cloud = scene["cloud_liquid_content"]
-    assert cloud.nbytes >= pipeline.IDENTITY_MIN_BYTES and float(cloud.values.max()) > 0
-    cloud.values[...] = 0.0  # no liquid cloud left
-    with caplog.at_level(logging.WARNING, logger="swim.pipeline"):
-        changed = swim.render(scene, **kw)
-    assert "changed in place" in caplog.text
+    guesses = []
+    real = pipeline._DigestGuess.start
+    monkeypatch.setattr(pipeline._DigestGuess, "start", lambda self, guess, scene: guesses.append(guess) or
+                        real(self, guess, scene))
+    yield pipeline, guesses
     pipeline._STAGE_CACHE.clear()
     pipeline._LAST_DIGEST.forget()
-    fresh = swim.render(scene, **kw)
+
+
+def test_a_digest_taken_by_identity_is_checked(speculating, caplog):
+    """Where the march runs on a GPU, a scene rendered before (the same arrays) takes its last digest at once and is
+    hashed meanwhile: the image is the one of a render that hashed it first; values changed in place are found by
+    that check, and the scene is rendered again from its new values."""
+    import logging
+
+    pipeline, guesses = speculating
+    scene = swim.default_scene().copy(deep=True)
+    first = swim.render(scene, **KW)
+    second = swim.render(scene, **KW)
+    assert len(guesses) == 1  # the second render's
+    np.testing.assert_array_equal(second["radiance"].values, first["radiance"].values)
+    cloud = scene["cloud_liquid_content"]
+    assert cloud.nbytes >= pipeline.IDENTITY_MIN_BYTES and float(cloud.values.max()) > 0
+    cloud.values[...] = 0.0  # no liquid cloud left: the same arrays, new values
+    with caplog.at_level(logging.WARNING, logger="swim.pipeline"):
+        changed = swim.render(scene, **KW)
+    assert len(guesses) == 2 and "changed in place" in caplog.text
+    pipeline._STAGE_CACHE.clear()
+    pipeline._LAST_DIGEST.forget()
+    fresh = swim.render(scene, **KW)
     np.testing.assert_array_equal(changed["radiance"].values, fresh["radiance"].values)
     assert not np.array_equal(changed["radiance"].values, first["radiance"].values, equal_nan=True)
+
+
+def test_an_error_from_stale_stages_renders_again(speculating, monkeypatch):
+    """An error raised by a render whose guessed digest did not hold (its stages were of the old values) is not the
+    caller's: the scene is rendered again from its values; where the guess held, the error is raised."""
+    pipeline, guesses = speculating
+    scene = swim.default_scene().copy(deep=True)
+    swim.render(scene, **KW)
+    real = pipeline._terrain_at
+    failures = []
+
+    def fail_once(*args):
+        if not failures:
+            failures.append(1)
+            raise SwimInputError("an error of the stages of the old values")
+        return real(*args)
+
+    monkeypatch.setattr(pipeline, "_terrain_at", fail_once)
+    with pytest.raises(SwimInputError, match="old values"):  # the guess held: the error is the scene's
+        swim.render(scene, **KW)
+    assert len(guesses) == 1
+    failures.clear()
+    scene["cloud_liquid_content"].values[...] = 0.0
+    image = swim.render(scene, **KW)  # the guess did not hold: rendered again, without the error
+    assert len(guesses) == 2 and len(failures) == 1
+    pipeline._STAGE_CACHE.clear()
+    np.testing.assert_array_equal(image["radiance"].values, swim.render(scene, **KW)["radiance"].values)
+
+
+def test_nothing_is_built_under_a_guessed_digest_that_does_not_hold(speculating, monkeypatch):
+    """The optical volume evicted between the guess and its use (by another scene's render or another thread's): the
+    scene's new values are not built under the old digest, where a render of the old values in the meantime (another
+    thread's, here one inside this render, after its volume) would take them."""
+    pipeline, guesses = speculating
+    scene = swim.default_scene().copy(deep=True)
+    original = scene.copy(deep=True)
+    before = swim.render(scene, **KW)
+    scene["cloud_liquid_content"].values[...] = 0.0
+    real_get = pipeline._STAGE_CACHE.get
+    meanwhile = []
+
+    def evicted(key, build):
+        if key[0] == "volume" and not meanwhile:  # the stages gone when the render asks for its volume
+            pipeline._STAGE_CACHE.clear()
+        if key[0] == "atmosphere inputs" and not meanwhile:  # after this render's volume: a render of the old values
+            meanwhile.append(None)
+            meanwhile[0] = swim.render(original, **KW)
+        return real_get(key, build)
+
+    monkeypatch.setattr(pipeline._STAGE_CACHE, "get", evicted)
+    swim.render(scene, **KW)
+    assert len(guesses) == 1 and meanwhile
+    np.testing.assert_array_equal(meanwhile[0]["radiance"].values, before["radiance"].values)
 
 
 def test_scene_identity_holds_for_the_same_arrays_only():
@@ -170,3 +225,20 @@ def test_scene_identity_holds_for_the_same_arrays_only():
     assert not same(identity, pipeline._scene_identity(scene.assign_coords(x=x)))
     lazy = scene.chunk()
     assert pipeline._scene_identity(lazy) is None or not same(identity, pipeline._scene_identity(lazy))
+
+
+def test_progress_of_an_image_made_on_the_device():
+    """With every pixel traced on the device, progress is reported as each chunk's march is done (as on the host's
+    path), the last call with every ray (the pixels' and the sun's)."""
+    scene = swim.default_scene()
+    calls = []
+    ray_table.forget_ray_tables()
+    try:
+        swim.render(scene, camera="allsky", camera_options={"size": 40}, sun_zenith=40.0, sun_azimuth=120.0,
+                    settings=MarchSettings(backend="jax", chunk=256, ray_table=True, device_image=True),
+                    progress=lambda done, total: calls.append((done, total)))
+    finally:
+        ray_table.forget_ray_tables()
+    totals = {total for _, total in calls}
+    done = [d for d, _ in calls]
+    assert len(calls) >= 4 and len(totals) == 1 and done == sorted(done) and done[-1] == totals.pop()

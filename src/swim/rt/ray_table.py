@@ -319,10 +319,11 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         As for :func:`swim.rt.march.trace_rays` (its ``backend`` must resolve to "jax"; its ``probe_spacing``,
         ``n_probe`` and ``n_grid`` those the tables were built with).
     progress : callable, optional
-        Called with (rays done, rays total) after each chunk.
+        Called with (rays done, rays total) after each chunk (with ``on_device``, as each chunk's march is done: the
+        host then waits for it, a chunk behind the device's queue).
     extra : RayTable, optional
-        Rays that are not the camera's (the sun's, for its disk), marched after ``rows`` with the first chunk's:
-        their outputs follow those of ``rows``.
+        Rays that are not the camera's (the sun's, for its disk), marched after ``rows`` (in the last chunk): their
+        outputs follow those of ``rows``.
     on_device : bool
         Return the chunks' outputs as they are on the device (JAX arrays), their padding rows included (each chunk
         padded to :func:`swim.rt.march.padded_batch_size`), instead of the first m rows on the host: for
@@ -377,6 +378,9 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         out, lo, hi = pending.popleft()
         if on_device:
             kept.append(out)
+            if progress is not None:  # the chunks behind it stay queued on the device
+                jax.block_until_ready(out)
+                progress(hi, n)
             return
         for key, value in _host_rows(out, hi - lo).items():
             if key not in outputs:
