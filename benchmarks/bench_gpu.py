@@ -41,7 +41,8 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
 * with ``--device-image``: frames with the image's planes and colour made on the device (``MarchSettings.device_image``,
   :mod:`swim.rt.image_device`, :mod:`swim.color.srgb_device`) against the host's, taking turns, every pixel and
   adaptive (the sampler on the device), both with the ray table; with ``--out`` also the main thread's wall clock
-  in a warm frame of each with it on (``profile_<scene>_device_image_<sampling>_wall.txt``); and every-pixel frames
+  in a warm frame of each with it on and of an every-pixel frame with a new sun
+  (``profile_<scene>_device_image_<sampling>_wall.txt``); and every-pixel frames
   with the scene's digest taken by its arrays' identity (checked while the device marches) against hashed first;
 * with ``--barriers``: the kernel with the optimisation barriers it uses on CPUs forced on (``_materialise``);
 * with ``--profile`` (and ``--out``): a host profile of a warm render and of one with a new sun (cProfile) and the
@@ -343,7 +344,8 @@ def run_scene(name, args, probe, out_dir):
         rows.append(compare_digest_by_identity(name, scene, table_kw, args))
         if out_dir:
             on = {**table_kw, "settings": replace(table_kw["settings"], device_image=True)}
-            for label, extra in variants:
+            # with a new sun too (Step 1a on the device, the step classes and the constants: a time series' frame)
+            for label, extra in variants + [("new sun", {"sun_zenith": 43.0, "sun_azimuth": 190.0})]:
                 wall_profile_render(name, f"device_image_{label.replace(' ', '_')}_wall", scene, {**on, **extra},
                                     Path(out_dir))
     if args.barriers:
