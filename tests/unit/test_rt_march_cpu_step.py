@@ -91,7 +91,7 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
 
     kernels = {"_march_ray_range", "prepare_rays", "compose_clouds", "ground_radiance", "_direct_rows", "_add_above",
                "species_sums", "step1a_channels", "column_weights", "scan_content", "gather_cells", "resample_cells",
-               "occupied_cells", "unlit_nodes", "classify_cells"}
+               "occupied_cells", "unlit_nodes", "classify_cells", "dilate_levels_across", "dilate_levels_along"}
     seen = set()
     for module in (march_cpu, compose_cpu, ground_cpu, solar_cpu, columns_cpu, occupancy_cpu):
         for name, value in vars(module).items():
