@@ -656,7 +656,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     log.warning("the scene's values changed in place since its last render: rendering it again")
     _LAST_DIGEST.forget()
     _STAGE_CACHE.clear()
-    return _render(**call, guess=None)
+    # a new guess: with the record forgotten none is taken, the scene is hashed first and remembered for the next
+    return _render(**call, guess=_DigestGuess())
 
 
 def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,

@@ -117,6 +117,8 @@ def dilate_cells(mask):
     from ..workers import in_blocks
 
     mask = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)  # bytes of 0 and 1
+    if mask.size == 0:  # an axis of no cells: nothing to dilate (the kernels index a row's first and last cells)
+        return np.zeros(mask.shape, bool)
     across = np.empty_like(mask)
     in_blocks(lambda k0, k1: dilate_levels_across(mask, k0, k1, across), mask.shape[0])
     out = np.empty_like(mask)
