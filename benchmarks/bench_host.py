@@ -17,6 +17,12 @@ milliseconds per chunk, and times warm renders of the suite's all-sky view with 
 without its march: the host's share that a GPU frame pays, on this machine's cores (a GPU machine's host has more and
 faster ones). ``--profile`` adds a wall-clock profile of one frame of each variant (:mod:`wall_profile`).
 
+Since session 67 a GPU frame also finishes its image on the device (``MarchSettings.device_image``: the planes and the
+colour stage there) and takes a known scene's digest by identity (docs/performance.md, section 86); on a CPU both are
+off by default, so the "with the table" variant measures the host's planes and colour stage. ``--device-image`` turns
+both on in that variant, as on a GPU: the device's part (the stand-in, the scatters, the colour stage) then runs on
+this machine's cores too and counts in the figure, which is then an upper bound of the host's share.
+
 The images are not physical: only the times mean something. Results go to ``benchmarks/results/host-<UTC date and
 time>.json`` (``--out`` to change).
 """
@@ -73,6 +79,9 @@ def main(argv=None):
                     help="rays per chunk (default: swim.rt.march.GPU_CHUNK, the GPU's: a CPU's 4096 would make the "
                          "per-chunk work of ~200 chunks weigh as it never does on a GPU)")
     ap.add_argument("--profile", action="store_true", help="a wall-clock profile of one frame of each variant")
+    ap.add_argument("--device-image", action="store_true",
+                    help="with the table, also the image finished on the device and the digest by identity, as on a "
+                         "GPU (see the docstring)")
     ap.add_argument("--data", type=Path, default=bench_suite.DATA)
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -93,6 +102,11 @@ def main(argv=None):
     base = replace(kw["settings"], backend="jax") if "settings" in kw else MarchSettings(backend="jax")
     base = replace(base, chunk=args.chunk or march.GPU_CHUNK)
     march._trace_chunk = stand_in_chunk()
+    if args.device_image:  # as on a GPU (section 86): the digest by identity in every variant, the image with the table
+        import swim.pipeline as pipeline
+
+        pipeline._speculate_digest = lambda settings: True
+        base = replace(base, device_image=True)  # (resolved off without the table)
     samplings = {"every pixel": None, "adaptive": AdaptiveSampling(**bench_suite.ADAPTIVE)}
     rows = []
     for label, sampling in samplings.items():
@@ -125,7 +139,7 @@ def main(argv=None):
     out = args.out or ROOT / "results" / f"host-{args.scene}-{stamp}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"scene": args.scene, "size": args.size, "repeats": args.repeats,
-                               "chunk": base.chunk,
+                               "chunk": base.chunk, "device_image": bool(args.device_image),
                                "machine": bench_suite.machine_info(),
                                "jax_backend": jax.default_backend(), "rows": rows}, indent=1))
     print(f"written: {out}")
