@@ -376,14 +376,6 @@ class _StageCache:
 _STAGE_CACHE = _StageCache()
 
 
-@functools.partial(jax.jit, static_argnames=("ny", "nx"))
-def _device_plane(values, ny, nx):
-    """An output of the device's sampler, (ny * nx, C), as the image's plane (C, ny, nx), on the device: its copy to
-    the host is then the plane itself (the host's transposes of a 1024^2 image's ~40 MB took the threads of
-    :func:`swim.workers.parallel_map`)."""
-    return values.reshape(ny, nx, -1).transpose(2, 0, 1)
-
-
 def _atmosphere_inputs(volume):
     """What the clear-atmosphere tables take from the optical volume (:func:`swim.rt.gas.build_gas_tables`): the
     scene-mean surface albedo (3,), which reflects light back into the sky in the multiple-scattering table; the
@@ -874,12 +866,15 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     device_image = table is not None and settings.resolved_device_image()
     device_rgb = None  # with it: the colour stage's codes (y, x, 3) and the pixels it left to the host (y, x)
 
-    def finish_on_device(device_planes, *extra):
-        """The planes (on the device) coloured there, then all of them (and ``extra``) copied to the host at once;
-        the planes as writable host arrays (a CPU device's may be read-only views), the codes and ``extra``."""
-        from .color.srgb_device import solar_relative_to_srgb8_device
+    def planes_to_host(device_planes, *extra, colour):
+        """The planes (on the device), with ``colour`` coloured there first, copied to the host at once with
+        ``extra``: the planes as writable host arrays (a CPU device's may be read-only views), the codes and flags of
+        the colour stage (None without ``colour``) and ``extra``."""
+        codes = None
+        if colour:
+            from .color.srgb_device import solar_relative_to_srgb8_device
 
-        codes = solar_relative_to_srgb8_device(device_planes["radiance"], white_level)
+            codes = solar_relative_to_srgb8_device(device_planes["radiance"], white_level)
         device_planes, codes, extra = jax.device_get((device_planes, codes, extra))
         return ({key: value if value.flags.writeable else value.copy() for key, value in device_planes.items()},
                 codes, extra)
@@ -898,7 +893,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         device_planes, sun_row, first_steps = planes_on_device(
             result, valid_pixels, (ny, nx), IMAGE_OUTPUTS, sun_keys=("tau_clear", "tau_hydrometeor", "surface", "steps"))
         del result
-        planes, device_rgb, (sun_row, first_steps) = finish_on_device(device_planes, sun_row, first_steps)
+        planes, device_rgb, (sun_row, first_steps) = planes_to_host(device_planes, sun_row, first_steps, colour=True)
         del device_planes
         sun_out.update(sun_row)
         march_samples = int(valid_pixels.size) * int(first_steps)  # the lockstep's steps, the same for every ray
@@ -934,6 +929,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         # (np.where over a transposed view took ~30 ms of a 1024^2 image while the cores idled)
         if table is not None and settings.resolved_device_sampling():
             # MarchSettings.device_sampling: the sampler's image on the device, beside the camera's ray table
+            from .rt.image_device import device_plane
             from .rt.image_sampling_device import sample_image_adaptive_device
 
             kept = (*IMAGE_OUTPUTS, "surface", "steps")
@@ -957,13 +953,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
                                                        chunk=settings.resolved_chunk())
             # the image's planes (C, ny, nx) made on the device, then one copy of all the arrays to the host
             # (writable: a CPU device's may be read-only views); with device_image coloured there first
-            device_planes = {key: _device_plane(out.pop(key), ny, nx) for key in IMAGE_OUTPUTS}
-            if device_image:
-                device_planes, device_rgb, (out, traced) = finish_on_device(device_planes, out, traced)
-            else:
-                device_planes, out, traced = jax.device_get((device_planes, out, traced))
-                device_planes = {key: value if value.flags.writeable else value.copy()
-                                 for key, value in device_planes.items()}
+            device_planes = {key: device_plane(out.pop(key), ny, nx) for key in IMAGE_OUTPUTS}
+            device_planes, device_rgb, (out, traced) = planes_to_host(device_planes, out, traced, colour=device_image)
             planes.update(device_planes)
             traced = np.asarray(traced)
         else:

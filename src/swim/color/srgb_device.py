@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..errors import SwimInputError
 from ..rt.export_cache import exported_jit
 from .display import CHROMATIC_ADAPTATION_TRANSFORM, GAMUT_MAPPINGS, _check_white_level, _luminance_row, display_matrix
 from .spectrum import _DEFAULT_WAVELENGTHS, _linear_matrix, _monomial_solve
@@ -119,8 +120,6 @@ def solar_relative_to_srgb8_device(radiance, white_level, *, gamut: str = "prese
     Albers et al. (2020), Sect. 3.8, doi:10.5194/amt-13-3235-2020; :mod:`swim.color.srgb_cpu` (the same arithmetic on
     the host).
     """
-    from ..errors import SwimInputError
-
     w = _check_white_level(white_level)
     if gamut not in GAMUT_MAPPINGS:
         raise SwimInputError(f"gamut must be one of {GAMUT_MAPPINGS}, got {gamut!r}")

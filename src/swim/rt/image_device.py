@@ -9,10 +9,21 @@ planes (and its colour, :mod:`swim.color.srgb_device`) come back in one copy (do
 
 from __future__ import annotations
 
+import functools
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .export_cache import exported_jit
+
+
+@functools.partial(jax.jit, static_argnames=("ny", "nx"))
+def device_plane(values, ny, nx):
+    """An image's output as rows of its pixels, (ny * nx, C) or (ny * nx,), as its plane (C, ny, nx), on the device:
+    its copy to the host is then the plane itself (the host's transposes of a 1024^2 image's ~40 MB took the threads
+    of :func:`swim.workers.parallel_map`). For the device's adaptive sampler's images and :func:`planes_on_device`."""
+    return values.reshape(ny, nx, -1).transpose(2, 0, 1)
 
 
 @exported_jit(static_argnames=("keys", "n_pixels", "ny", "nx", "sun_keys"))
@@ -24,8 +35,7 @@ def _planes(outputs, pixels, *, keys, n_pixels, ny, nx, sun_keys):
     for key in keys:
         value = outputs[key][:n_pixels]
         rows = value.reshape(n_pixels, -1)
-        image = jnp.full((n, rows.shape[1]), jnp.nan, rows.dtype).at[pixels].set(rows)
-        planes[key] = image.reshape(ny, nx, -1).transpose(2, 0, 1)
+        planes[key] = device_plane(jnp.full((n, rows.shape[1]), jnp.nan, rows.dtype).at[pixels].set(rows), ny, nx)
     sun = {key: outputs[key][n_pixels] for key in sun_keys}
     return planes, sun, outputs["steps"][0]
 

@@ -329,9 +329,7 @@ class MarchSettings:
     def resolved_device_image(self) -> bool:
         """Whether the image is finished on the device (:attr:`device_image`): only with the camera's rays there
         (:meth:`resolved_ray_table`), and then None resolved to whether the march runs on an accelerator."""
-        if not self.resolved_ray_table():
-            return False
-        return self.on_accelerator() if self.device_image is None else bool(self.device_image)
+        return self.resolved_ray_table() and self._jax_device_switch(self.device_image)
 
     def resolved_empty_steps(self) -> int:
         """Most grid steps in a ray's empty space (:attr:`empty_steps`, None resolved to ``n_grid // 4``); 0: no
