@@ -28,8 +28,8 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
 * with ``--grid-kernel``: the march of the grid segment (``MarchSettings.grid_kernel``: ``fused``, the Pallas kernel of
   :mod:`swim.rt.march_pallas`; ``fused-march``, the clear-air segments in it too; ``lockstep``, XLA's loops; ``auto`` by
   default); with ``--against lockstep fused-march`` the captured chunk is also marched by those (device time and outputs
-  against the render's kernel), and ``--fused-blocks 64x2 256x4`` times the render's fused kernel on it with other rays
-  per program and warps;
+  against the render's kernel), and ``--fused-blocks 64x2 256x4 128x4r128`` times the render's fused kernel on it with
+  other rays per program and warps, and capped at N registers per thread (``rN``, :mod:`swim.rt.ptx_registers`);
 * with ``--ray-table``: warm renders with the camera's rays kept on the device (``MarchSettings.ray_table``,
   :mod:`swim.rt.ray_table`) and without, taking turns: every pixel, adaptive (with ``--sampling``) and a new sun
   every frame (with ``--sun-series N``), each one's median and the largest radiance difference between the two;
@@ -59,6 +59,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import statistics
 import sys
 import time
@@ -550,11 +551,14 @@ def compare_kernels(name, probe, kernel):
 
 
 def sweep_fused_blocks(name, probe, blocks):
-    """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"; with an
-    "m" after it, the "fused-march" kernel: docs/performance.md, section 85)."""
+    """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"), capped
+    at N registers per thread ("RAYSxWARPSrN": PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`; docs/performance.md,
+    section 87), with a scalar gather per table channel ("s": ``march_pallas.VECTOR_GATHERS`` off, section 87), and
+    with an "m" last, the "fused-march" kernel (section 85)."""
     import jax
 
     from swim.rt import march_pallas
+    from swim.rt.ptx_registers import install_register_cap
 
     import numpy as np
 
@@ -562,7 +566,7 @@ def sweep_fused_blocks(name, probe, blocks):
     base_s, _, base = _chunk_outputs(probe, captured)
     valid = np.asarray(probe.captured[0][4]).astype(bool)
     rows = []
-    saved = march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS
+    saved = march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS, march_pallas.MAX_REGISTERS, march_pallas.VECTOR_GATHERS
     # the module's constants are read when the kernel is traced: no programs from the export cache, whose key is the code
     export = os.environ.get("SWIM_JAX_EXPORT")
     os.environ["SWIM_JAX_EXPORT"] = "0"
@@ -570,10 +574,16 @@ def sweep_fused_blocks(name, probe, blocks):
         for text in blocks:
             # "RAYSxWARPS" marches the grid segment in the kernel ("fused"); "RAYSxWARPSm" the clear air too
             # ("fused-march")
-            kernel = "fused-march" if text.endswith("m") else "fused"
+            spec = re.fullmatch(r"(\d+)x(\d+)(?:r(\d+))?(s?)(m?)", text)
+            if spec is None:
+                raise SystemExit(f"--fused-blocks: {text!r} is not RAYSxWARPS[rN][s][m]")
+            kernel = "fused-march" if spec.group(5) else "fused"
             settings = replace(captured, grid_kernel=kernel)
-            rays, warps = (int(x) for x in text.rstrip("m").split("x"))
-            march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = rays, warps
+            rays, warps = int(spec.group(1)), int(spec.group(2))
+            cap = int(spec.group(3)) if spec.group(3) else None
+            vector = not spec.group(4)
+            march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS, march_pallas.MAX_REGISTERS = rays, warps, cap
+            march_pallas.VECTOR_GATHERS = vector
             jax.clear_caches()
             probe.trace_chunk.forget_programs()
             try:
@@ -587,13 +597,18 @@ def sweep_fused_blocks(name, probe, blocks):
             rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(b[ok]), 1e-3)
             worst = float(rel.max()) if rel.size else float("nan")
             rows.append({"scene": name, "fused_block": text, "grid_kernel": kernel, "block_chunk_s": seconds,
+                         "max_registers": cap, "cap_applied": bool(cap) and install_register_cap(),
+                         "vector_gathers": vector,
                          "first_call_s": first, "render_kernel_chunk_s": base_s, "radiance_max_rel_diff": worst,
                          "nonfinite": int(np.sum(~ok))})
-            print(f"{name}: {kernel} kernel, {rays} rays x {warps} warps per program: {seconds * 1e3:.2f} ms per chunk "
+            capped = "" if cap is None else f", at most {cap} registers ({'' if rows[-1]['cap_applied'] else 'NOT '}applied)"
+            capped += "" if vector else ", scalar gathers"
+            print(f"{name}: {kernel} kernel, {rays} rays x {warps} warps per program{capped}: {seconds * 1e3:.2f} ms per chunk "
                   f"(first call {first:.1f} s; the render's kernel {base_s * 1e3:.2f} ms), radiance within "
                   f"{worst:.1e}, {int(np.sum(~ok))} values not finite", flush=True)
     finally:
-        march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = saved
+        (march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS, march_pallas.MAX_REGISTERS,
+         march_pallas.VECTOR_GATHERS) = saved
         if export is None:
             os.environ.pop("SWIM_JAX_EXPORT")
         else:
@@ -641,8 +656,9 @@ def main(argv=None):
     ap.add_argument("--against", nargs="*", choices=kernels[1:], default=[],
                     help="also march the captured chunk with these grid kernels: time and outputs against the render's")
     ap.add_argument("--fused-blocks", nargs="*", default=[],
-                    help="also time the fused grid kernel on the captured chunk with RAYSxWARPS per program (RAYSxWARPSm: "
-                         "the fused-march kernel), its radiance against the render's kernel")
+                    help="also time the fused grid kernel on the captured chunk with RAYSxWARPS per program "
+                         "(RAYSxWARPS[rN][s][m]: at most N registers per thread; s: a scalar gather per table channel; "
+                         "m: the fused-march kernel), its radiance against the render's kernel")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
     ap.add_argument("--sampling", action="store_true",

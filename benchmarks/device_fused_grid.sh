@@ -17,8 +17,9 @@
 # (STAGE=step1a with its tests cut short, then Nsight Compute's counters of the fused kernel) and STAGE=readme.
 # STAGE=blocks (session 66, the next GPU session's first run, ~300 s on a fresh machine): the captured chunk of the
 # synthetic 1024^2 all-sky with the fused kernels in other block shapes (benchmarks/pallas_registers.py: 512 rays x 16
-# warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 12 bytes of spills), each against the
-# render's kernel. STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
+# warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 12 bytes of spills) and, first, 128 x 4
+# capped at 128 and 168 registers (session 68, section 87: the same occupancy as 512 x 16 with 128-ray lockstep), and
+# the scalar gathers of session 66's kernel, each against the render's kernel. STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
 # the image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it
 # against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it.
 # Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
@@ -72,9 +73,12 @@ kernel_counters() {  # session 66: Nsight Compute's counters of the fused kernel
         --data .devdata --repeats 1 --out "$RES/ncu-run/ncu-run.json" > "$RES/ncu-synthetic.txt" 2>&1
     grep -v "^WARNING\|^I0000\|absl" "$RES/ncu-synthetic.txt" | grep -i "swim_fused\|Registers\|Occupancy\|Throughput\|Stall\|Duration\|Eligible\|Issued\|Block Size\|Grid Size\|Warp Cycles\|Hit Rate\|Local" | head -80
 }
-blocks() {  # session 66 (section 85): the fused kernels' block shapes, "m": the fused-march kernel
+blocks() {  # sessions 66 and 68 (sections 85 and 87), each against the render's kernel (since session 68 its tables
+    # read four channels a load): "s" a scalar gather per channel (session 66's kernel), "rN" at most N registers per
+    # thread (PTX's .maxnreg: 128 fits four 128-ray programs per SM against two), "m" the fused-march kernel
     timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --repeats 3 \
-        --fused-blocks ${BLOCKS:-128x4 512x16 1024x32 128x4m 512x16m} --out "$RES/blocks-synthetic.json" 2>&1 | quiet
+        --fused-blocks ${BLOCKS:-128x4s 128x4r128 128x4r168 128x4r128s 512x16 128x4m} \
+        --out "$RES/blocks-synthetic.json" 2>&1 | quiet
 }
 image() {  # session 67's MarchSettings.device_image (section 86): its tests on the GPU (the colour stage's float64
     # on the device), then warm frames with the image finished on the device against the host, taking turns, and

@@ -11,7 +11,9 @@ SASS instructions and the theoretical occupancy on a Hopper multiprocessor (65 5
 
 ptxas caps the registers at 65 536 / (threads per program), at most 255: 128 rays x 4 warps may take 255, 512 x 16
 only 128 (four programs of 4 warps' worth per multiprocessor, at the price of spills), 1024 x 32 only 64.
-Pallas offers no other cap (no ``maxnreg``).
+Pallas offers no other cap (no ``maxnreg``); swim's kernels take one through their name (``--blocks 128x4r128``:
+128 registers per thread, PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`); ``128x4s``: the tables read by a scalar
+gather per channel (``march_pallas.VECTOR_GATHERS`` off, the kernel before session 68).
 
 Needs, beside swim's own environment (nothing that the tests or a render need):
 
@@ -113,8 +115,9 @@ def capture_kernel_call(kernel, size=32):
     return real[kernel], args, {k: spec(v) for k, v in captured["kwargs"].items()}
 
 
-def triton_module(fn, args, kwargs, block_rays, num_warps):
-    """The Triton module (MLIR bytecode) of the kernel's CUDA lowering with this block shape."""
+def triton_module(fn, args, kwargs, block_rays, num_warps, max_registers=None):
+    """The Triton module (MLIR bytecode) of the kernel's CUDA lowering with this block shape (and register cap: the
+    kernel's name carries it, :mod:`swim.rt.ptx_registers`)."""
     import jax
     from jax._src.pallas.triton import pallas_call_registration as registration
 
@@ -132,7 +135,7 @@ def triton_module(fn, args, kwargs, block_rays, num_warps):
             slots.append(("static", a))
     array_kw = {k: v for k, v in kwargs.items() if hasattr(v, "shape")}
     static_kw = {k: v for k, v in kwargs.items() if not hasattr(v, "shape")}
-    static_kw.update(interpret=False, block_rays=block_rays, num_warps=num_warps)
+    static_kw.update(interpret=False, block_rays=block_rays, num_warps=num_warps, max_registers=max_registers)
 
     def call(arrays, array_kw):
         it, full = iter(arrays), []
@@ -204,7 +207,28 @@ def assemble(ptx, ptxas, cuobjdump):
             row["sass_instructions"] = len(lines)
             row["sass_local_loads"] = sum(" LDL" in line for line in lines)
             row["sass_local_stores"] = sum(" STL" in line for line in lines)
+            row.update(longest_loop(lines))
     return row
+
+
+def longest_loop(lines):
+    """The longest loop of a SASS listing (the march's grid loop): its instructions, its global loads (``LDG``, any
+    width; and the 16-byte ones) and its local loads and stores (spills), from the widest backward branch."""
+    code = []
+    for line in lines:
+        match = re.match(r"\s+/\*([0-9a-f]{4,})\*/\s+(.*?);", line)
+        if match:
+            code.append((int(match.group(1), 16), match.group(2)))
+    loops = [(int(target.group(1), 16), at) for at, text in code
+             if (target := re.search(r"BRA\b.*?0x([0-9a-f]+)", text)) and int(target.group(1), 16) < at]
+    if not loops:
+        return {}
+    first, last = max(loops, key=lambda loop: loop[1] - loop[0])
+    body = [text for at, text in code if first <= at <= last]
+    return {"loop_instructions": len(body), "loop_global_loads": sum(" LDG" in f" {t}" for t in body),
+            "loop_global_loads_128": sum("LDG.E.128" in t for t in body),
+            "loop_local_loads": sum(" LDL" in f" {t}" for t in body),
+            "loop_local_stores": sum(" STL" in f" {t}" for t in body)}
 
 
 def occupancy(registers, threads):
@@ -218,7 +242,9 @@ def occupancy(registers, threads):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kernels", nargs="+", default=["fused"], choices=("fused", "fused-march"))
-    ap.add_argument("--blocks", nargs="+", default=["128x4", "512x16"], help="RAYSxWARPS per Triton program")
+    ap.add_argument("--blocks", nargs="+", default=["128x4", "512x16"],
+                    help="RAYSxWARPS per Triton program, then rN: capped at N registers per thread, then s: a scalar "
+                         "gather per table channel (march_pallas.VECTOR_GATHERS off)")
     ap.add_argument("--ptxas", default=None, help="ptxas to assemble with (default: Triton's, else PATH's)")
     ap.add_argument("--out", default=None, help="JSON file")
     args = ap.parse_args(argv)
@@ -226,6 +252,11 @@ def main(argv=None):
     import jax
     import jaxlib
     from jax._src.lib import triton
+
+    from swim.rt import march_pallas
+    from swim.rt.ptx_registers import cap_registers_in_ptx
+
+    vector_default = march_pallas.VECTOR_GATHERS
 
     if not triton.has_compilation_handler("CUDA"):
         jax.devices()  # the plugin registers its Triton pipeline as it initialises
@@ -235,24 +266,35 @@ def main(argv=None):
     ptxas, cuobjdump = find_tools(args.ptxas)
     rows = []
     print("| kernel | rays x warps | registers | spill stores / loads [B] | SASS instructions | local ld / st "
-          "| programs per SM | occupancy |")
-    print("|---|---|---|---|---|---|---|---|")
+          "| grid loop: instructions, global loads (16-byte), local ld / st | programs per SM | occupancy |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for kernel in args.kernels:
         fn, call_args, call_kwargs = capture_kernel_call(kernel)
         for text in args.blocks:
-            rays, warps = (int(x) for x in text.split("x"))
+            spec = re.fullmatch(r"(\d+)x(\d+)(?:r(\d+))?(s?)", text)
+            if spec is None:
+                raise SystemExit(f"--blocks: {text!r} is not RAYSxWARPS[rN][s]")
+            rays, warps = int(spec.group(1)), int(spec.group(2))
+            cap = int(spec.group(3)) if spec.group(3) else None
             t0 = time.perf_counter()
-            module = triton_module(fn, call_args, call_kwargs, rays, warps)
+            march_pallas.VECTOR_GATHERS = not spec.group(4)  # read as the kernel is traced
+            try:
+                module = triton_module(fn, call_args, call_kwargs, rays, warps, cap)
+            finally:
+                march_pallas.VECTOR_GATHERS = vector_default
             compiled = triton.compile("CUDA", module, "9.0", num_warps=warps, num_ctas=1, num_stages=1)
-            row = {"kernel": kernel, "block": text, "ptx_chars": len(compiled.asm),
-                   **assemble(compiled.asm, ptxas, cuobjdump)}
+            ptx = cap_registers_in_ptx(compiled.asm)  # what the render's lowering does (swim.rt.ptx_registers)
+            row = {"kernel": kernel, "block": text, "ptx_chars": len(ptx), **assemble(ptx, ptxas, cuobjdump)}
             row["programs_per_sm"], row["occupancy"] = occupancy(row["registers"], warps * 32)
             row["seconds"] = time.perf_counter() - t0
             rows.append(row)
             print(f"| {kernel} | {text} | {row['registers']} | {row['spill_store_bytes']} / "
                   f"{row['spill_load_bytes']} | {row.get('sass_instructions', '-')} | "
                   f"{row.get('sass_local_loads', '-')} / {row.get('sass_local_stores', '-')} | "
-                  f"{row['programs_per_sm']} | {row['occupancy']:.1%} |", flush=True)
+                  f"{row.get('loop_instructions', '-')}, {row.get('loop_global_loads', '-')} "
+                  f"({row.get('loop_global_loads_128', '-')}), {row.get('loop_local_loads', '-')} / "
+                  f"{row.get('loop_local_stores', '-')} | {row['programs_per_sm']} | {row['occupancy']:.1%} |",
+                  flush=True)
     if args.out:
         Path(args.out).write_text(json.dumps({"jax": jax.__version__, "ptxas": ptxas, "rows": rows}, indent=1))
 

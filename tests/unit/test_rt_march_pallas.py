@@ -21,16 +21,19 @@ from test_rt_march import _random_rays, _tiny_scene, _trace
 @pytest.mark.parametrize("case", ["plume, multiple scattering, 5 aerosol classes",
                                   "no plume, single scattering, at most 4 empty steps",
                                   "plume, deep refinement (tau_refine 0.02)"])
-def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
+def test_fused_kernels_give_the_lockstep_march_s_pixels(case, monkeypatch):
     """Rays from the ground, inside the grid and from 20 km (looking down) through cloud, the smoke plume (aerosol
     classes, the 3-D aerosol channels), terrain and the grid's edges: every output of the render's kernel within
     float32 rounding of the lockstep loops', with refinement, opaque stops and (second case) each ray's own step count;
     the grid segment alone in the Pallas kernel ("fused") and the clear air before and after it too ("fused-march",
     whose rays from 20 km take the steps before the grid and whose rays from the ground the steps after it; the second
     case checks "fused-march" alone, whose grid segment is "fused"'s kernel code; the third refines far more often,
-    so that the kernel's stack of pending intervals, kept compactly, fills deeper)."""
+    so that the kernel's stack of pending intervals, kept compactly, fills deeper). The tables are read both ways:
+    their channels four at a time (``VECTOR_GATHERS``, the default) and one scalar gather each ("scalar"), in the
+    first case both with the volume's five species, the 3-D aerosol, the aerosol classes' diffuse tables and the
+    multiple-scattering profiles."""
     plume = case.startswith("plume")
-    kernels = ("fused", "fused-march") if plume else ("fused-march",)
+    kernels = ("fused", "fused-march", "fused scalar", "fused-march scalar") if plume else ("fused-march",)
     extra = {} if plume else {"multiple_scattering": False, "empty_steps": 4, "n_probe": 16}
     if "deep" in case:  # many splits and roll-backs: the pending intervals' compact stack (section 85) filled deep
         kernels, extra = ("fused",), {"tau_refine": 0.02}
@@ -38,9 +41,12 @@ def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
     origins, dirs = _random_rays(256, seed=1)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
-    out = {kernel: _trace(scene, origins, dirs, sun, aerosol=aerosol,
-                          settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=256, **extra))[0]
-           for kernel in ("lockstep",) + kernels}
+    out = {}
+    for kernel in ("lockstep",) + kernels:
+        monkeypatch.setattr(march_pallas, "VECTOR_GATHERS", not kernel.endswith("scalar"))
+        out[kernel] = _trace(scene, origins, dirs, sun, aerosol=aerosol,
+                             settings=MarchSettings(backend="jax", grid_kernel=kernel.split()[0], chunk=256,
+                                                    **extra))[0]
     lockstep = out["lockstep"]
     assert lockstep["surface"].sum() > 40 and (lockstep["tau_hydrometeor"] > 1.0).sum() > 10, \
         "rays must hit ground and cloud"
@@ -90,3 +96,18 @@ def test_cli_refuses_an_unknown_grid_kernel_before_any_work(tmp_path):
     result = CliRunner().invoke(app, ["render", "--grid-kernel", "triton", "--size", "9", "--out", str(out)])
     assert result.exit_code == 2 and "grid_kernel must be one of" in result.output
     assert not out.exists()
+
+
+@pytest.mark.parametrize("n_c", range(1, 13))
+def test_vector_loads_cover_each_channel_once_and_stay_aligned(n_c):
+    """The loads of a point's channels (march_pallas._load_groups): every channel in exactly one load, widths 4, 2
+    and 1, each load's first channel a multiple of its width (so that a 16- or 8-byte load is aligned where rows are
+    padded to 4 channels), and no wider load left unused where it would fit."""
+    groups = march_pallas._load_groups(n_c)
+    covered = [c for first, width in groups for c in range(first, first + width)]
+    assert covered == list(range(n_c))
+    assert all(width in (1, 2, 4) and first % width == 0 for first, width in groups)
+    assert sum(width == 4 for _, width in groups) == n_c // 4
+    assert sum(width < 4 for _, width in groups) == bin(n_c % 4).count("1")
+    _, n_cp = march_pallas._channels_padded(np.zeros((2, 3, n_c), np.float32))
+    assert n_cp % 4 == 0 and n_c <= n_cp < n_c + 4

@@ -11,7 +11,8 @@ This kernel keeps both virtues: the same lockstep iteration, written branch-free
 :func:`~swim.rt.march._march_grid_refined` is, but inside one Triton program per block of :data:`BLOCK_RAYS` rays,
 so that the state stays in registers for the whole segment and a warp's threads always run the same instructions.
 The tables (packed volume, terrain, gas and sky tables, the rays' step edges and diffuse-source profiles) are read
-by gathers from device memory (their caches).
+by gathers from device memory (their caches); where a point has several channels, the kernel gets them with their
+channels last and reads them up to four at a time (:data:`VECTOR_GATHERS`, :func:`_load_groups`).
 
 :func:`march_grid_fused` marches the grid segment with refinement (``MarchSettings.grid_kernel="fused"``, the default on
 GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/performance.md, section 72);
@@ -44,6 +45,11 @@ log = logging.getLogger(__name__)
 #: 12 bytes of spills (25 %), to be timed on a GPU (``benchmarks/pallas_registers.py``, docs/performance.md, section 85).
 BLOCK_RAYS = 128
 NUM_WARPS = 4
+#: Registers per thread that the kernel may take on NVIDIA GPUs (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`);
+#: None: ptxas's choice (255 at 128 x 4: two programs per Hopper SM). At 128 x 4, 168 registers fit three programs
+#: (18.8 %) and spill 8 bytes, 128 fit four (25 %) and spill 88 (docs/performance.md, section 87); to be timed on a
+#: GPU before it is set.
+MAX_REGISTERS = None
 
 #: The state of :func:`swim.rt.march._march_segment` that the kernel carries, one (n,) column each: the quantities at
 #: the three wavelengths (three columns each), the per-ray numbers, then (:func:`_state_columns`) the packed species'
@@ -68,6 +74,128 @@ def pallas_triton_available() -> bool:
         log.info("this JAX's Pallas has no triton.CompilerParams: the grid is marched by the lockstep XLA kernel")
         return False
     return True
+
+
+#: Values per vector load: a thread reads 4 adjacent float32 (16 bytes, one ``LDG.E.128`` on NVIDIA GPUs) where a
+#: table's channels are adjacent and padded to a multiple of 4 (:func:`_channels_padded`, :func:`_trilinear_vec4`).
+VECTOR = 4
+#: Whether the kernel reads its tables' channels up to :data:`VECTOR` at a time (the volume, gas, sky, diffuse and
+#: multiple-scattering tables, channels last and padded; :func:`_load_groups`): on sm_90a the grid loop's body takes
+#: 48 load instructions instead of 110 and 1 616 instructions instead of 1 892, with the same 255 registers
+#: (docs/performance.md, section 87). False: a scalar gather per channel and corner, the tables as
+#: :func:`swim.rt.march._march_segment` reads them (the kernel of sessions 58-67).
+VECTOR_GATHERS = True
+
+
+def _channels_padded(table):
+    """A channel-last table flattened with its last axis padded with zeros to a multiple of :data:`VECTOR`, and that
+    padded channel count."""
+    n_c = table.shape[-1]
+    n_cp = -(-n_c // VECTOR) * VECTOR
+    if n_cp != n_c:
+        table = jnp.pad(table, [(0, 0)] * (table.ndim - 1) + [(0, n_cp - n_c)])
+    return table.reshape(-1), n_cp
+
+
+def _load_groups(n_c):
+    """(first channel, width) of the loads that read a point's ``n_c`` adjacent channels: widths 4, then 2 and 1 for
+    the rest (16-, 8- and 4-byte loads, each aligned to its width where rows are padded to :data:`VECTOR`), so that no
+    padding is loaded into registers."""
+    groups, c = [], 0
+    for width in (VECTOR, 2, 1):
+        while n_c - c >= width:
+            groups.append((c, width))
+            c += width
+    return groups
+
+
+class _Gather:
+    """Reads ``flat[at + c]`` for channels c of each point (``at``: (B,) int32 offsets of the points' channel 0) as
+    :func:`_load_groups`'s loads: ``values(at, group)`` is (B, width) (width 1: (B,)), ``split`` its channels as (B,)
+    arrays (a select and a sum within each thread: the block's layout keeps a row in one thread, as its vector load
+    put it, so no shuffles)."""
+
+    def __init__(self, like, n_c):
+        self.groups = _load_groups(n_c)
+        self.lanes = {w: jax.lax.broadcasted_iota(jnp.int32, (like.shape[0], w), 1) for _, w in self.groups if w > 1}
+
+    def offsets(self, at, group):
+        c, width = group
+        return at + c if width == 1 else at[:, None] + c + self.lanes[width]
+
+    def weight(self, w, group):
+        return w if group[1] == 1 else w[:, None]
+
+    def split(self, values, group):
+        if group[1] == 1:
+            return [values]
+        lane = self.lanes[group[1]]
+        return [jnp.sum(jnp.where(lane == c, values, 0.0), axis=1) for c in range(group[1])]
+
+
+def _trilinear_vec4(flat, shape, n_c, k, j, i, outside):
+    """:func:`swim.rt.march.trilinear_gathers` from a (nk, ny, nx, n_cp) volume whose channels are padded to a multiple
+    of :data:`VECTOR` (:func:`_channels_padded`): each corner's channels read by :func:`_load_groups`'s loads (for 7
+    channels three a corner instead of seven), the same products and sums per channel in the same order. Returns the
+    ``n_c`` channels, each ``outside[c]`` beyond the volume."""
+    from .march import _cell_weights
+
+    ny, nx, n_cp = shape[1:]
+    inside, k0, j0, i0, fk, fj, fi = _cell_weights(shape, k, j, i)
+    base = ((k0 * ny + j0) * nx + i0) * n_cp
+    gather = _Gather(k, n_c)
+    row_step, plane_step = nx * n_cp, ny * nx * n_cp
+    channels = []
+    for group in gather.groups:
+        at = gather.offsets(base, group)
+        wi, wj, wk = (gather.weight(w, group) for w in (fi, fj, fk))
+
+        def row(b):
+            return flat[b] * (1 - wi) + flat[b + n_cp] * wi
+
+        def plane(b):
+            return row(b) * (1 - wj) + row(b + row_step) * wj
+
+        values = plane(at) * (1 - wk) + plane(at + plane_step) * wk
+        channels += gather.split(values, group)
+    return [jnp.where(inside, value, outside[c]) for c, value in enumerate(channels)]
+
+
+def _bilinear_vec4(flat, nu, nv, n_cp, n_c, fu, fv):
+    """:func:`swim.rt.march.bilinear_gathers` from a (nu, nv, n_cp) table whose channels are padded to a multiple of
+    :data:`VECTOR` (:func:`_channels_padded`), each corner's channels read by :func:`_load_groups`'s loads; the same
+    products and sums per channel in the same order. Returns the ``n_c`` channels."""
+    fu = jnp.clip(fu, 0.0, nu - 1.001)
+    fv = jnp.clip(fv, 0.0, nv - 1.001)
+    u0 = jnp.floor(fu).astype(jnp.int32)
+    v0 = jnp.floor(fv).astype(jnp.int32)
+    gather = _Gather(fu, n_c)
+    r = (u0 * nv + v0) * n_cp
+    row = nv * n_cp
+    out = []
+    for group in gather.groups:
+        t = gather.offsets(r, group)
+        a, b = gather.weight(fu - u0, group), gather.weight(fv - v0, group)
+        values = ((flat[t] * (1 - b) + flat[t + n_cp] * b) * (1 - a)
+                  + (flat[t + row] * (1 - b) + flat[t + row + n_cp] * b) * a)
+        out += gather.split(values, group)
+    return out
+
+
+def _lerp_vec4(flat, n, n_cp, n_c, f, row=0):
+    """:func:`swim.rt.march.lerp_gathers` from a (rows, n, n_cp) table whose channels are padded to a multiple of
+    :data:`VECTOR`: row ``row`` (may be per point) at fractional indices f, clamped, both ends' channels read by
+    :func:`_load_groups`'s loads. Returns the ``n_c`` channels."""
+    f = jnp.clip(f, 0.0, n - 1.001)
+    i0 = jnp.floor(f).astype(jnp.int32)
+    gather = _Gather(f, n_c)
+    at = (row + i0) * n_cp
+    out = []
+    for group in gather.groups:
+        t = gather.offsets(at, group)
+        w = gather.weight(f - i0, group)
+        out += gather.split(flat[t] * (1 - w) + flat[t + n_cp] * w, group)
+    return out
 
 
 def _state_columns(n_sp):
@@ -99,7 +227,8 @@ def _params(consts, has_bounds):
 
 
 def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_profile, aerosol_class, tau_refine,
-                     steps=None, stop_tau=0.0, interpret=False, block_rays=None, num_warps=None):
+                     steps=None, stop_tau=0.0, interpret=False, block_rays=None, num_warps=None,
+                     max_registers=None):
     """The grid segment of :func:`swim.rt.march._march_segment` with refinement (``in_grid``, ``tau_refine`` > 0), as
     one Pallas kernel (:func:`march_segments_fused` with that one segment).
 
@@ -133,6 +262,9 @@ def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_p
     block_rays, num_warps : int, optional
         Rays per Triton program (a power of two that divides n) and its warps (None: :data:`BLOCK_RAYS`,
         :data:`NUM_WARPS`).
+    max_registers : int, optional
+        Registers per thread that ptxas may give the kernel on NVIDIA GPUs, in [16, 255] (None:
+        :data:`MAX_REGISTERS`; :mod:`swim.rt.ptx_registers`).
 
     Returns
     -------
@@ -146,7 +278,7 @@ def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_p
     """
     segment = Segment(edges, n_steps, steps, in_grid=True, refined=True)
     return march_segments_fused(state, start, direction, (segment,), rays, consts, ms_profile, aerosol_class,
-                                tau_refine, stop_tau, interpret, block_rays, num_warps)
+                                tau_refine, stop_tau, interpret, block_rays, num_warps, max_registers)
 
 
 @dataclass(frozen=True)
@@ -164,7 +296,7 @@ class Segment:
 
 
 def march_segments_fused(state, start, direction, segments, rays, consts, ms_profile, aerosol_class, tau_refine=0.0,
-                         stop_tau=0.0, interpret=False, block_rays=None, num_warps=None):
+                         stop_tau=0.0, interpret=False, block_rays=None, num_warps=None, max_registers=None):
     """Consecutive segments of :func:`swim.rt.march._march_segment` (not its terminal step) in one Pallas kernel, the
     rays' state in registers from the first segment's first step to the last segment's last.
 
@@ -175,15 +307,23 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     Raises
     ------
     ValueError
-        If n is not a multiple of ``block_rays``.
+        If n is not a multiple of ``block_rays``, or ``max_registers`` is outside [16, 255].
     """
     from jax.experimental import pallas as pl
 
+    from .ptx_registers import capped_name, install_register_cap
+
     from .march import (REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR,
-                        _predicted_halving, bilinear_gathers, lerp_gathers, packed_aerosol_3d, trilinear_gathers)
+                        _predicted_halving, bilinear_gathers, lerp_gathers, packed_aerosol_3d,
+                        trilinear_gathers)
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
+    max_registers = MAX_REGISTERS if max_registers is None else max_registers
+    # the cap travels in the kernel's name (and so in the traced program's cache keys); the PTX gets it at lowering
+    name = capped_name("swim_fused_march", max_registers)
+    if max_registers is not None and not interpret:
+        install_register_cap()
     n = start.shape[0]
     if n % block_rays:
         raise ValueError(f"march_segments_fused: {n} rays are not a multiple of block_rays={block_rays}")
@@ -219,10 +359,22 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     state_columns += [state[key] for key in _SCALARS]
     state_columns += [state["tau_species"][:, c] for c in range(n_sp)]
     state_columns += [state[key].astype(jnp.int32) for key in _FLAGS]
-    tables = [params, consts["beta_gas"][:GAS_COLUMN_ROW].reshape(-1), consts["sky"].reshape(-1),
-              volume.reshape(-1), consts["terrain"].reshape(-1),
-              diffuse_table.reshape(-1) if n_class > 1 else jnp.zeros(1, f32),
-              ms_profile.reshape(-1) if multiple_scattering else jnp.zeros(1, f32)]
+    vector = VECTOR_GATHERS
+    gas_table = consts["beta_gas"][:GAS_COLUMN_ROW]
+    if vector:  # the tables with their channels last, padded to whole vector loads: a point's channels in adjacent
+        # 16-byte words (the copies: ~0.3 GB written for the 400 x 400 x 60 scene's volume, ~0.1 ms on an H200)
+        volume_flat, n_cp = _channels_padded(volume)
+        gas_flat, n_gas_p = _channels_padded(gas_table.T)
+        sky_flat, n_sky_p = _channels_padded(jnp.moveaxis(consts["sky"], 0, -1))
+        diffuse_flat, n_diffuse_p = (_channels_padded(jnp.moveaxis(diffuse_table, 0, -1)) if n_class > 1
+                                     else (jnp.zeros(1, f32), VECTOR))
+        ms_flat, n_ms_p = (_channels_padded(jnp.moveaxis(ms_profile, 0, -1)) if multiple_scattering
+                           else (jnp.zeros(1, f32), VECTOR))
+    else:  # channel-major, as the lockstep march reads them (the volume's cells keep their channels adjacent)
+        volume_flat, gas_flat, sky_flat = volume.reshape(-1), gas_table.reshape(-1), consts["sky"].reshape(-1)
+        diffuse_flat = diffuse_table.reshape(-1) if n_class > 1 else jnp.zeros(1, f32)
+        ms_flat = ms_profile.reshape(-1) if multiple_scattering else jnp.zeros(1, f32)
+    tables = [params, gas_flat, sky_flat, volume_flat, consts["terrain"].reshape(-1), diffuse_flat, ms_flat]
     tables += [seg.edges.astype(f32).reshape(-1) for seg in segments]
     n_rays_in, n_state, n_tables = len(ray_columns), len(state_columns), len(tables)
 
@@ -272,14 +424,17 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
                 i, j = (_cubic(u, v, c) for c in coef)
             k = (h - z_bottom) / dz
             # _gas_at: the three extinction profiles, then sky's sun transmittance and diffuse irradiance
-            profile = lerp_gathers(gas_ref, 3, n_gas, h / dh)
+            profile = (_lerp_vec4(gas_ref, n_gas, n_gas_p, 3, h / dh) if vector
+                       else lerp_gathers(gas_ref, 3, n_gas, h / dh))
             beta_r, beta_a, beta_s = ([profile[a] * spectra[a][b] for b in range(3)] for a in range(3))
             height_u = jnp.sqrt(jnp.clip(h / top, 0.0, 1.0))
             fm = (mu_s + 1.0) * 0.5 * (nmu_sky - 1)
-            sky = bilinear_gathers(sky_ref, (n_sky, nu_sky, nmu_sky), height_u * (nu_sky - 1), fm)
+            sky = (_bilinear_vec4(sky_ref, nu_sky, nmu_sky, n_sky_p, n_sky, height_u * (nu_sky - 1), fm) if vector
+                   else bilinear_gathers(sky_ref, (n_sky, nu_sky, nmu_sky), height_u * (nu_sky - 1), fm))
             t_sun, diffuse = sky[:3], sky[3:]
-            if in_grid:  # trilinear (the GPU form: a scalar gather per channel and corner)
-                vol = trilinear_gathers(vol_ref, (nk, ny, nx, n_c), k, j, i, outside)
+            if in_grid:  # trilinear: each corner's channels four at a time, or a scalar gather per channel and corner
+                vol = (_trilinear_vec4(vol_ref, (nk, ny, nx, n_cp), n_c, k, j, i, outside) if vector
+                       else trilinear_gathers(vol_ref, (nk, ny, nx, n_c), k, j, i, outside))
                 beta_sp = vol[:n_sp]
                 t_cloud, shadow = vol[-2], vol[-1]
             else:
@@ -301,15 +456,20 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             if in_grid and n_class > 1:  # diffuse_at: the ray's aerosol class, between two stacked tables
                 fu = jnp.clip(height_u * (nu_d - 1), 0.0, nu_d - 1.001)
                 fm_d = (mu_s + 1.0) * 0.5 * (nmu_d - 1)
-                lower = bilinear_gathers(diffuse_ref, (3, n_class * nu_d, nmu_d), c0 * nu_d + fu, fm_d)
-                upper = bilinear_gathers(diffuse_ref, (3, n_class * nu_d, nmu_d), (c0 + 1) * nu_d + fu, fm_d)
+                if vector:
+                    lower, upper = (_bilinear_vec4(diffuse_ref, n_class * nu_d, nmu_d, n_diffuse_p, 3,
+                                                   (c0 + d) * nu_d + fu, fm_d) for d in (0, 1))
+                else:
+                    lower, upper = (bilinear_gathers(diffuse_ref, (3, n_class * nu_d, nmu_d), (c0 + d) * nu_d + fu,
+                                                     fm_d) for d in (0, 1))
                 diffuse = [lower[b] * (1 - wc) + upper[b] * wc for b in range(3)]
             irradiance_h = ([irradiance[b] + SKYLIGHT_SCALAR_FACTOR * diffuse[b] * t_cloud for b in range(3)] if in_grid
                             else irradiance)
             beta_clear = [beta_r[b] + beta_a[b] + beta_a3[b] + beta_s[b] for b in range(3)]
             beta_h = functools.reduce(lambda a, b: a + b, beta_sp) if beta_sp else jnp.zeros_like(h)
             if multiple_scattering:  # _profile_at: the ray's own profile
-                j9 = lerp_gathers(ms_ref, 9, n_u, height_u * (n_u - 1), row=ray * n_u, stride=n * n_u)
+                j9 = (_lerp_vec4(ms_ref, n_u, n_ms_p, 9, height_u * (n_u - 1), row=ray * n_u) if vector
+                      else lerp_gathers(ms_ref, 9, n_u, height_u * (n_u - 1), row=ray * n_u, stride=n * n_u))
             t0 = st["tau_h"]
             t1 = t0 + beta_h * ds_eff
             weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
@@ -485,7 +645,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     outs = pl.pallas_call(
         kernel, out_shape=out_shape, grid=(n // block_rays,),
         in_specs=[block] * (n_rays_in + n_state) + whole, out_specs=[block] * len(columns),
-        compiler_params=compiler_params, interpret=interpret, name="swim_fused_march",
+        compiler_params=compiler_params, interpret=interpret, name=name,
     )(*ray_columns, *state_columns, *tables)
     out = dict(zip(columns, outs))
     result = dict(state)
