@@ -116,6 +116,19 @@ def test_batches_are_padded_to_the_marchs_buckets_with_the_last_pixel():
         assert valid.reshape(-1)[pixels].all()
 
 
+def test_progress_counts_each_batch_s_new_pixels_without_asking_the_device():
+    """After each batch: the pixels traced so far (each batch's are new), ending at the traced mask's count, as the
+    host counts them (the device's count would wait for the batch's march)."""
+    full, valid = analytic_image((90, 90))
+    calls, reports = [], []
+    _, traced = sample_image_adaptive_device(lookup(full, calls), valid, AdaptiveSampling(), chunk=1024,
+                                             progress=lambda done, total: reports.append((done, total)))
+    assert len(reports) == len(calls) >= 3
+    real = [np.unique(pixels).size for pixels in calls]  # each batch's distinct pixels (its padding repeats one)
+    assert [done for done, _ in reports] == list(np.cumsum(real))
+    assert reports[-1][0] == int(np.asarray(traced).sum()) and {t for _, t in reports} == {int(valid.sum())}
+
+
 @pytest.mark.parametrize("m, chunk, expected", [(1, 1024, 256), (300, 1024, 512), (1024, 1024, 1024),
                                                 (1025, 1024, 1024 + 256), (5000, 1024, 4 * 1024 + 1024)])
 def test_bucket_size_is_the_marchs_padding(m, chunk, expected):

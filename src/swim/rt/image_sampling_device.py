@@ -389,8 +389,10 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
     values: dict[str, jax.Array] = {}
     total = int(valid_flat.sum())
 
+    done = 0  # pixels traced so far: each batch's are new ones (not traced before), so the host counts them
+
     def run(wanted):
-        nonlocal traced
+        nonlocal traced, done
         new = np.flatnonzero(np.asarray(wanted & valid_dev & ~traced))
         if new.size == 0:
             return
@@ -411,8 +413,9 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
                 values[name] = jnp.full((n, rows.shape[1]), fill, rows.dtype)
             values[name] = _scatter(values[name], pixels, rows)
         traced = _mark_traced(traced, pixels)
-        if progress is not None and total:
-            progress(int(traced.sum()), total)
+        done += new.size
+        if progress is not None and total:  # counted here, not by the device: no wait for the batch's march
+            progress(done, total)
 
     if sampling.coarse_spacing >= min(ny, nx):  # no lattice inside the image: every pixel (as the host's sampler)
         run(jnp.ones(n, bool))
