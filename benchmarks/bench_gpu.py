@@ -552,13 +552,13 @@ def compare_kernels(name, probe, kernel):
 
 def sweep_fused_blocks(name, probe, blocks):
     """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"), capped
-    at N registers per thread ("RAYSxWARPSrN": PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`; docs/performance.md,
-    section 87), with a scalar gather per table channel ("s": ``march_pallas.VECTOR_GATHERS`` off, section 87), and
+    at N registers per thread ("RAYSxWARPSrN": ``MarchSettings.fused_max_registers``; docs/performance.md,
+    section 87), with a scalar gather per table channel ("s": ``MarchSettings.fused_vector_loads`` off, section 87), and
     with an "m" last, the "fused-march" kernel (section 85)."""
     import jax
 
     from swim.rt import march_pallas
-    from swim.rt.ptx_registers import install_register_cap
+    from swim.rt.ptx_registers import capped_entries
 
     import numpy as np
 
@@ -566,7 +566,7 @@ def sweep_fused_blocks(name, probe, blocks):
     base_s, _, base = _chunk_outputs(probe, captured)
     valid = np.asarray(probe.captured[0][4]).astype(bool)
     rows = []
-    saved = march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS, march_pallas.MAX_REGISTERS, march_pallas.VECTOR_GATHERS
+    saved = march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS
     # the module's constants are read when the kernel is traced: no programs from the export cache, whose key is the code
     export = os.environ.get("SWIM_JAX_EXPORT")
     os.environ["SWIM_JAX_EXPORT"] = "0"
@@ -578,12 +578,11 @@ def sweep_fused_blocks(name, probe, blocks):
             if spec is None:
                 raise SystemExit(f"--fused-blocks: {text!r} is not RAYSxWARPS[rN][s][m]")
             kernel = "fused-march" if spec.group(5) else "fused"
-            settings = replace(captured, grid_kernel=kernel)
             rays, warps = int(spec.group(1)), int(spec.group(2))
             cap = int(spec.group(3)) if spec.group(3) else None
             vector = not spec.group(4)
-            march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS, march_pallas.MAX_REGISTERS = rays, warps, cap
-            march_pallas.VECTOR_GATHERS = vector
+            settings = replace(captured, grid_kernel=kernel, fused_max_registers=cap, fused_vector_loads=vector)
+            march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = rays, warps
             jax.clear_caches()
             probe.trace_chunk.forget_programs()
             try:
@@ -597,7 +596,9 @@ def sweep_fused_blocks(name, probe, blocks):
             rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(b[ok]), 1e-3)
             worst = float(rel.max()) if rel.size else float("nan")
             rows.append({"scene": name, "fused_block": text, "grid_kernel": kernel, "block_chunk_s": seconds,
-                         "max_registers": cap, "cap_applied": bool(cap) and install_register_cap(),
+                         "max_registers": cap,
+                         # the capped entry seen in the PTX (not only the wrapper installed)
+                         "cap_applied": bool(cap) and capped_entries().get(f"swim_fused_march_r{cap}") == cap,
                          "vector_gathers": vector,
                          "first_call_s": first, "render_kernel_chunk_s": base_s, "radiance_max_rel_diff": worst,
                          "nonfinite": int(np.sum(~ok))})
@@ -607,8 +608,7 @@ def sweep_fused_blocks(name, probe, blocks):
                   f"(first call {first:.1f} s; the render's kernel {base_s * 1e3:.2f} ms), radiance within "
                   f"{worst:.1e}, {int(np.sum(~ok))} values not finite", flush=True)
     finally:
-        (march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS, march_pallas.MAX_REGISTERS,
-         march_pallas.VECTOR_GATHERS) = saved
+        march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = saved
         if export is None:
             os.environ.pop("SWIM_JAX_EXPORT")
         else:

@@ -17,7 +17,7 @@
 # (STAGE=step1a with its tests cut short, then Nsight Compute's counters of the fused kernel) and STAGE=readme.
 # STAGE=blocks (session 66, the next GPU session's first run, ~300 s on a fresh machine): the captured chunk of the
 # synthetic 1024^2 all-sky with the fused kernels in other block shapes (benchmarks/pallas_registers.py: 512 rays x 16
-# warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 12 bytes of spills) and, first, 128 x 4
+# warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 88 bytes of spills) and, first, 128 x 4
 # capped at 128 and 168 registers (session 68, section 87: the same occupancy as 512 x 16 with 128-ray lockstep), and
 # the scalar gathers of session 66's kernel, each against the render's kernel. STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
 # the image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it

@@ -13,7 +13,7 @@ ptxas caps the registers at 65 536 / (threads per program), at most 255: 128 ray
 only 128 (four programs of 4 warps' worth per multiprocessor, at the price of spills), 1024 x 32 only 64.
 Pallas offers no other cap (no ``maxnreg``); swim's kernels take one through their name (``--blocks 128x4r128``:
 128 registers per thread, PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`); ``128x4s``: the tables read by a scalar
-gather per channel (``march_pallas.VECTOR_GATHERS`` off, the kernel before session 68).
+gather per channel (``MarchSettings.fused_vector_loads`` off, the kernel before session 68).
 
 Needs, beside swim's own environment (nothing that the tests or a render need):
 
@@ -115,7 +115,7 @@ def capture_kernel_call(kernel, size=32):
     return real[kernel], args, {k: spec(v) for k, v in captured["kwargs"].items()}
 
 
-def triton_module(fn, args, kwargs, block_rays, num_warps, max_registers=None):
+def triton_module(fn, args, kwargs, block_rays, num_warps, max_registers=None, vector_loads=True):
     """The Triton module (MLIR bytecode) of the kernel's CUDA lowering with this block shape (and register cap: the
     kernel's name carries it, :mod:`swim.rt.ptx_registers`)."""
     import jax
@@ -135,7 +135,8 @@ def triton_module(fn, args, kwargs, block_rays, num_warps, max_registers=None):
             slots.append(("static", a))
     array_kw = {k: v for k, v in kwargs.items() if hasattr(v, "shape")}
     static_kw = {k: v for k, v in kwargs.items() if not hasattr(v, "shape")}
-    static_kw.update(interpret=False, block_rays=block_rays, num_warps=num_warps, max_registers=max_registers)
+    static_kw.update(interpret=False, block_rays=block_rays, num_warps=num_warps, max_registers=max_registers,
+                     vector_loads=vector_loads)
 
     def call(arrays, array_kw):
         it, full = iter(arrays), []
@@ -244,7 +245,7 @@ def main(argv=None):
     ap.add_argument("--kernels", nargs="+", default=["fused"], choices=("fused", "fused-march"))
     ap.add_argument("--blocks", nargs="+", default=["128x4", "512x16"],
                     help="RAYSxWARPS per Triton program, then rN: capped at N registers per thread, then s: a scalar "
-                         "gather per table channel (march_pallas.VECTOR_GATHERS off)")
+                         "gather per table channel (MarchSettings.fused_vector_loads off)")
     ap.add_argument("--ptxas", default=None, help="ptxas to assemble with (default: Triton's, else PATH's)")
     ap.add_argument("--out", default=None, help="JSON file")
     args = ap.parse_args(argv)
@@ -253,10 +254,7 @@ def main(argv=None):
     import jaxlib
     from jax._src.lib import triton
 
-    from swim.rt import march_pallas
     from swim.rt.ptx_registers import cap_registers_in_ptx
-
-    vector_default = march_pallas.VECTOR_GATHERS
 
     if not triton.has_compilation_handler("CUDA"):
         jax.devices()  # the plugin registers its Triton pipeline as it initialises
@@ -277,11 +275,7 @@ def main(argv=None):
             rays, warps = int(spec.group(1)), int(spec.group(2))
             cap = int(spec.group(3)) if spec.group(3) else None
             t0 = time.perf_counter()
-            march_pallas.VECTOR_GATHERS = not spec.group(4)  # read as the kernel is traced
-            try:
-                module = triton_module(fn, call_args, call_kwargs, rays, warps, cap)
-            finally:
-                march_pallas.VECTOR_GATHERS = vector_default
+            module = triton_module(fn, call_args, call_kwargs, rays, warps, cap, vector_loads=not spec.group(4))
             compiled = triton.compile("CUDA", module, "9.0", num_warps=warps, num_ctas=1, num_stages=1)
             ptx = cap_registers_in_ptx(compiled.asm)  # what the render's lowering does (swim.rt.ptx_registers)
             row = {"kernel": kernel, "block": text, "ptx_chars": len(ptx), **assemble(ptx, ptxas, cuobjdump)}

@@ -4,6 +4,8 @@ No GPU is needed: on a CPU the Pallas kernel runs in Pallas's interpreter, the s
 on a GPU (its lowering is checked on the H100/H200 machines, docs/performance.md, section 72).
 """
 
+from dataclasses import replace
+
 import jax
 import numpy as np
 import pytest
@@ -21,7 +23,7 @@ from test_rt_march import _random_rays, _tiny_scene, _trace
 @pytest.mark.parametrize("case", ["plume, multiple scattering, 5 aerosol classes",
                                   "no plume, single scattering, at most 4 empty steps",
                                   "plume, deep refinement (tau_refine 0.02)"])
-def test_fused_kernels_give_the_lockstep_march_s_pixels(case, monkeypatch):
+def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
     """Rays from the ground, inside the grid and from 20 km (looking down) through cloud, the smoke plume (aerosol
     classes, the 3-D aerosol channels), terrain and the grid's edges: every output of the render's kernel within
     float32 rounding of the lockstep loops', with refinement, opaque stops and (second case) each ray's own step count;
@@ -29,9 +31,10 @@ def test_fused_kernels_give_the_lockstep_march_s_pixels(case, monkeypatch):
     whose rays from 20 km take the steps before the grid and whose rays from the ground the steps after it; the second
     case checks "fused-march" alone, whose grid segment is "fused"'s kernel code; the third refines far more often,
     so that the kernel's stack of pending intervals, kept compactly, fills deeper). The tables are read both ways:
-    their channels four at a time (``VECTOR_GATHERS``, the default) and one scalar gather each ("scalar"), in the
-    first case both with the volume's five species, the 3-D aerosol, the aerosol classes' diffuse tables and the
-    multiple-scattering profiles."""
+    their channels up to four a load (``MarchSettings.fused_vector_loads``, the default) and one scalar gather each
+    ("scalar"), in the first case both with the volume's five species, the 3-D aerosol, the aerosol classes' diffuse
+    tables and the multiple-scattering profiles (the switch is a setting, so each way is traced: a module constant
+    read at tracing would let the first program serve both, as a review found)."""
     plume = case.startswith("plume")
     kernels = ("fused", "fused-march", "fused scalar", "fused-march scalar") if plume else ("fused-march",)
     extra = {} if plume else {"multiple_scattering": False, "empty_steps": 4, "n_probe": 16}
@@ -43,10 +46,9 @@ def test_fused_kernels_give_the_lockstep_march_s_pixels(case, monkeypatch):
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
     out = {}
     for kernel in ("lockstep",) + kernels:
-        monkeypatch.setattr(march_pallas, "VECTOR_GATHERS", not kernel.endswith("scalar"))
         out[kernel] = _trace(scene, origins, dirs, sun, aerosol=aerosol,
                              settings=MarchSettings(backend="jax", grid_kernel=kernel.split()[0], chunk=256,
-                                                    **extra))[0]
+                                                    fused_vector_loads=not kernel.endswith("scalar"), **extra))[0]
     lockstep = out["lockstep"]
     assert lockstep["surface"].sum() > 40 and (lockstep["tau_hydrometeor"] > 1.0).sum() > 10, \
         "rays must hit ground and cloud"
@@ -98,6 +100,27 @@ def test_cli_refuses_an_unknown_grid_kernel_before_any_work(tmp_path):
     assert not out.exists()
 
 
+def test_fused_kernel_settings_are_checked_and_keep_programs_apart(tmp_path):
+    """MarchSettings.fused_max_registers (None or 16-255) and fused_vector_loads (a bool) are named when wrong, also
+    from the CLI before any work; both are kernel settings, the compiled programs' keys."""
+    from typer.testing import CliRunner
+
+    from swim.cli.main import app
+
+    for bad in (8, 256, 12.5, True, "128"):
+        with pytest.raises(SwimInputError, match=r"fused_max_registers must be None or an integer in \[16, 255\]"):
+            MarchSettings(fused_max_registers=bad)
+    with pytest.raises(SwimInputError, match="fused_vector_loads must be True or False"):
+        MarchSettings(fused_vector_loads=None)
+    base = MarchSettings().kernel_settings()
+    assert MarchSettings(fused_max_registers=128).kernel_settings() != base
+    assert MarchSettings(fused_vector_loads=False).kernel_settings() != base
+    out = tmp_path / "sky.png"
+    result = CliRunner().invoke(app, ["render", "--fused-max-registers", "300", "--size", "9", "--out", str(out)])
+    assert result.exit_code == 2 and "fused_max_registers must be None or an integer" in result.output
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("n_c", range(1, 13))
 def test_vector_loads_cover_each_channel_once_and_stay_aligned(n_c):
     """The loads of a point's channels (march_pallas._load_groups): every channel in exactly one load, widths 4, 2
@@ -111,3 +134,31 @@ def test_vector_loads_cover_each_channel_once_and_stay_aligned(n_c):
     assert sum(width < 4 for _, width in groups) == bin(n_c % 4).count("1")
     _, n_cp = march_pallas._channels_padded(np.zeros((2, 3, n_c), np.float32))
     assert n_cp % 4 == 0 and n_c <= n_cp < n_c + 4
+
+
+def test_the_padded_volume_is_made_once_per_device_volume_and_dropped_with_it():
+    """with_vector_volume: for the fused kernel's vector loads the packed volume's channels padded to 4 (zeros) once
+    per device volume, the same copy for every chunk; a new volume (a new sun's Step 1a on the device) replaces it,
+    and it goes with its volume; nothing is added for other kernels, scalar gathers or 4k channels."""
+    import gc
+
+    import jax.numpy as jnp
+
+    fused = MarchSettings(backend="jax", grid_kernel="fused")
+    volume = jnp.asarray(np.arange(2 * 3 * 4 * 7, dtype=np.float32).reshape(2, 3, 4, 7))
+    first = march_pallas.with_vector_volume({"volume": volume}, fused)
+    padded = np.asarray(first["volume_vector"]).reshape(2, 3, 4, 8)
+    np.testing.assert_array_equal(padded[..., :7], np.asarray(volume))
+    assert not padded[..., 7].any()
+    again = march_pallas.with_vector_volume({"volume": volume}, replace(fused, grid_kernel="fused-march"))
+    assert again["volume_vector"] is first["volume_vector"]
+    for settings in (replace(fused, grid_kernel="lockstep"), replace(fused, fused_vector_loads=False)):
+        assert "volume_vector" not in march_pallas.with_vector_volume({"volume": volume}, settings)
+    four = jnp.zeros((2, 3, 4, 8), jnp.float32)
+    assert "volume_vector" not in march_pallas.with_vector_volume({"volume": four}, fused)
+    new = volume + 1.0
+    second = march_pallas.with_vector_volume({"volume": new}, fused)["volume_vector"]
+    assert second is not first["volume_vector"] and float(second[0]) == 1.0
+    del first, again, second, new
+    gc.collect()
+    assert march_pallas._VECTOR_VOLUME == {}

@@ -57,19 +57,22 @@ def test_cap_goes_among_the_entry_s_directives():
     assert cap_registers_in_ptx(capped) == capped  # a cap that is there is replaced, not doubled
 
 
-def test_uncapped_kernels_are_left_as_they_are():
+def test_uncapped_and_other_kernels_are_left_as_they_are():
     ptx = PTX.format(name="swim_fused_march")
     assert cap_registers_in_ptx(ptx) is ptx
-    other = PTX.format(name="matmul_r2d2")  # a suffix that is not the cap's
-    assert cap_registers_in_ptx(other) is other
+    for name in ("swim_matmul_r2d2", "matmul_r64", "attn_r2"):  # not the cap's suffix; not swim's kernels
+        other = PTX.format(name=name)
+        assert cap_registers_in_ptx(other) is other
+    with pytest.raises(ValueError, match="only swim's kernels"):
+        capped_name("matmul", 64)
 
 
 def test_an_existing_cap_is_replaced_and_each_entry_gets_its_own():
-    first = PTX.format(name="a_r96").replace(".reqntid 128", ".maxnreg 200\n.reqntid 128")
-    both = first + PTX.format(name="b_r168")
+    first = PTX.format(name="swim_a_r96").replace(".reqntid 128", ".maxnreg 200\n.reqntid 128")
+    both = first + PTX.format(name="swim_b_r168")
     capped = cap_registers_in_ptx(both)
-    assert _directives(capped, "a_r96").split() == [".maxnreg", "96", ".reqntid", "128"]
-    assert _directives(capped, "b_r168").split() == [".reqntid", "128", ".maxnreg", "168"]
+    assert _directives(capped, "swim_a_r96").split() == [".maxnreg", "96", ".reqntid", "128"]
+    assert _directives(capped, "swim_b_r168").split() == [".reqntid", "128", ".maxnreg", "168"]
     assert capped.count(".maxnreg") == 2
 
 
@@ -78,7 +81,7 @@ def test_caps_outside_ptxas_s_range_are_refused(bad):
     with pytest.raises(ValueError, match=r"max_registers must be in \[16, 255\]"):
         capped_name("swim_fused_march", bad)
     with pytest.raises(ValueError, match="outside"):
-        cap_registers_in_ptx(PTX.format(name=f"k_r{bad}"))
+        cap_registers_in_ptx(PTX.format(name=f"swim_k_r{bad}"))
 
 
 def test_capped_names():
@@ -87,11 +90,11 @@ def test_capped_names():
     with pytest.raises(ValueError, match="already ends"):
         capped_name("swim_fused_march_r128", 96)
     with pytest.raises(ValueError, match="no body"):
-        cap_registers_in_ptx(PTX.format(name="k_r64").split("{\n")[0])
+        cap_registers_in_ptx(PTX.format(name="swim_k_r64").split("{\n")[0])
 
 
 def test_the_wrapper_caps_only_ptx_and_keeps_the_result_s_other_fields():
-    result = types.SimpleNamespace(asm=PTX.format(name="k_r64"), smem_bytes=1024, hsaco_path=None)
+    result = types.SimpleNamespace(asm=PTX.format(name="swim_k_r64"), smem_bytes=1024, hsaco_path=None)
     calls = []
 
     def compile(*args, **kwargs):
@@ -103,7 +106,7 @@ def test_the_wrapper_caps_only_ptx_and_keeps_the_result_s_other_fields():
     assert calls == [(("CUDA", b"module", "9.0"), {"num_warps": 4, "num_ctas": 1, "num_stages": 1})]
     assert ".maxnreg 64" in out.asm and out.smem_bytes == 1024 and out.hsaco_path is None
     assert wrapped.has_compilation_handler is len  # the module's other names pass through
-    result.asm = PTX.format(name="k")
+    result.asm = PTX.format(name="swim_k")
     assert wrapped.compile() is result  # no cap asked: the very result
     result.asm = b"\x7fELF"  # not PTX text (ROCm's path, or bytes): untouched
     assert wrapped.compile() is result
@@ -145,7 +148,7 @@ def _lowered_for_cuda(args, kwargs, max_registers):
         for i, array in zip(at, arrays):
             values[i] = array
         a, k = jax.tree_util.tree_unflatten(tree, values)
-        return march_pallas.march_grid_fused(*a, **k, max_registers=max_registers)
+        return march_pallas.march_grid_fused(*a, **{**k, "max_registers": max_registers})
 
     return jax.jit(call).trace(specs).lower(lowering_platforms=("cuda",)).as_text()
 
@@ -162,11 +165,11 @@ def fresh_hook(monkeypatch):
 
 def test_the_cap_reaches_the_cuda_program_through_the_kernel_s_name(monkeypatch, fresh_hook):
     """The render's call with a cap lowers to a kernel named for it; under a lowering that compiles Triton in Python
-    (jaxlib > 0.10.2, here simulated: compilation and kernel call faked, the lowering's own code run), the PTX inside
-    the lowered program carries ``.maxnreg``."""
+    (jaxlib > 0.10.2, here simulated: compilation and kernel call faked, the lowering's own code run), the kernel
+    installs the wrapper itself and the PTX inside the lowered program carries ``.maxnreg``."""
     args, kwargs = _captured_grid_call()
+    assert kwargs["max_registers"] is None and kwargs["vector_loads"] is True  # the render's settings, passed on
     assert "swim_fused_march_r128" not in _lowered_for_cuda(args, kwargs, None)
-    monkeypatch.setattr(march_pallas, "MAX_REGISTERS", 128)  # the module's default, as bench_gpu.py's sweep sets it
 
     registration = fresh_hook
     monkeypatch.setattr(registration, "jaxlib_version", (0, 11, 0))
@@ -191,12 +194,13 @@ def test_the_cap_reaches_the_cuda_program_through_the_kernel_s_name(monkeypatch,
     monkeypatch.setattr(registration, "triton", types.SimpleNamespace(compile=compile))
     monkeypatch.setattr(registration, "triton_kernel_call_lib", types.SimpleNamespace(
         TritonKernel=Kernel, TritonKernelCall=KernelCall, create_array_parameter=lambda *a: None))
-    assert install_register_cap()
-    text = _lowered_for_cuda(args, kwargs, None)
+    text = _lowered_for_cuda(args, kwargs, 128)  # no install_register_cap() here: the kernel's call installs it
+    assert isinstance(registration.triton, ptx_registers._CappingTriton)
     assert compiled == ["swim_fused_march_r128"] and "triton_kernel_call_ffi" in text
     [(name, ptx)] = kernels  # what the kernel call (and so the lowered program) holds
     assert name == "swim_fused_march_r128"
     assert _directives(ptx, "swim_fused_march_r128").split() == [".reqntid", "128", ".maxnreg", "128"]
+    assert ptx_registers.capped_entries()["swim_fused_march_r128"] == 128
 
 
 def test_jaxlib_that_compiles_triton_in_xla_is_told_and_left_uncapped(fresh_hook, monkeypatch, caplog):

@@ -164,6 +164,14 @@ def render(
                                                 "made on the device, then copied to the host at once "
                                                 "(MarchSettings.device_image; default: on a GPU, "
                                                 "docs/performance.md, section 86)."),
+    fused_max_registers: Optional[int] = typer.Option(None, "--fused-max-registers", help="Registers per thread "
+                                                      "that the fused GPU kernel may take, 16-255 (PTX's .maxnreg; "
+                                                      "MarchSettings.fused_max_registers; default: ptxas's choice, "
+                                                      "docs/performance.md, section 87)."),
+    fused_vector_loads: bool = typer.Option(True, "--fused-vector-loads/--no-fused-vector-loads", help="The fused "
+                                            "GPU kernel reads its tables' channels up to four a load (default) or "
+                                            "one scalar gather each (MarchSettings.fused_vector_loads; "
+                                            "docs/performance.md, section 87)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -244,7 +252,8 @@ def render(
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
         settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
                                  step1a_on_device=step1a_on_device, device_sampling=device_sampling,
-                                 device_image=device_image,
+                                 device_image=device_image, fused_max_registers=fused_max_registers,
+                                 fused_vector_loads=fused_vector_loads,
                                  **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,

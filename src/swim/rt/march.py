@@ -207,6 +207,18 @@ class MarchSettings:
         default): on wherever the ray table is (:meth:`resolved_device_sampling`; on an H200 an adaptive 1024^2
         all-sky in 0.136 s with it against 0.152 s without, docs/performance.md, section 85). Ignored without a ray
         table or without adaptive sampling.
+    fused_max_registers : int or None
+        Registers per thread that the fused GPU kernel ("fused", "fused-march") may take on NVIDIA GPUs, in [16, 255]
+        (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`; it needs jaxlib > 0.10.2, else it is logged and ignored).
+        None (the default): ptxas's choice, 255 at 128 rays a program, which fits two programs per Hopper
+        multiprocessor (12.5 % occupancy); 168 fits three and 128 four, at the price of spills (docs/performance.md,
+        section 87: which is fastest is to be timed). The other kernels ignore it.
+    fused_vector_loads : bool
+        Whether the fused GPU kernel reads its tables (the volume, gas, sky, diffuse and multiple-scattering tables)
+        with their channels last, up to four channels a load (:func:`swim.rt.march_pallas._load_groups`): on sm_90a
+        its grid loop then issues 48 global loads an iteration instead of 110 and 1 617 instructions instead of
+        1 893 (docs/performance.md, section 87). False: a scalar gather per channel and corner (the kernel of
+        sessions 58-67). The same results to float32 rounding; the other kernels ignore it.
     device_image : bool or None
         The image finished on the device, where the camera's rays are kept there (:meth:`resolved_ray_table`): with
         every pixel traced, the chunks' outputs stay on the device and are scattered into the image's planes there
@@ -237,6 +249,8 @@ class MarchSettings:
     step1a_on_device: bool | None = None
     device_sampling: bool | None = None
     device_image: bool | None = None
+    fused_max_registers: int | None = None
+    fused_vector_loads: bool = True
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "sunlit_steps", "n_probe", "chunk"):
@@ -264,6 +278,14 @@ class MarchSettings:
             value = getattr(self, name)
             if value is not None and not isinstance(value, (bool, np.bool_)):
                 raise SwimInputError(f"MarchSettings.{name} must be True, False or None, got {value!r}")
+        registers = self.fused_max_registers
+        if registers is not None and (isinstance(registers, bool) or not isinstance(registers, (int, np.integer))
+                                      or not 16 <= registers <= 255):
+            raise SwimInputError(f"MarchSettings.fused_max_registers must be None or an integer in [16, 255] "
+                                 f"(registers per thread), got {registers!r}")
+        if not isinstance(self.fused_vector_loads, (bool, np.bool_)):
+            raise SwimInputError(f"MarchSettings.fused_vector_loads must be True or False, got "
+                                 f"{self.fused_vector_loads!r}")
 
     def resolved_backend(self) -> str:
         """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
@@ -1510,15 +1532,17 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     kernel = settings.resolved_grid_kernel()
     fused = kernel in ("fused", "fused-march") and fused_fits(n)
     interpret = jax.default_backend() == "cpu"
+    # the fused kernel's register cap and loads: settings, so that programs built with other ones are kept apart
+    fused_options = {"max_registers": settings.fused_max_registers, "vector_loads": settings.fused_vector_loads}
     if fused and kernel == "fused-march":
         state = march_segments_fused(state, start, direction, tuple(segments), rays, consts, ms, aerosol_class,
-                                     tau_refine, stop_tau, interpret=interpret)
+                                     tau_refine, stop_tau, interpret=interpret, **fused_options)
     else:
         for seg in segments:
             if fused and seg.refined:
                 state = march_grid_fused(state, start, direction, seg.edges, seg.n_steps, rays, consts, ms,
                                          aerosol_class, tau_refine, steps=seg.steps, stop_tau=stop_tau,
-                                         interpret=interpret)
+                                         interpret=interpret, **fused_options)
             else:
                 state = _march_segment(state, start, direction, seg.edges, seg.n_steps, seg.in_grid, *args,
                                        tau_refine=tau_refine if seg.refined else 0.0, steps=seg.steps,
@@ -2344,7 +2368,9 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         # the JAX set-up and composition never read the host arrays (a jitted call would copy them every time)
         consts = {key: value for key, value in consts.items() if key not in HOST_CONSTANTS}
     else:
-        consts = _device_constants(consts)
+        from .march_pallas import with_vector_volume
+
+        consts = with_vector_volume(_device_constants(consts), settings)
     outputs = {}  # written chunk by chunk into arrays for all rays (a list and a concatenate would hold two)
     # [first ray, end, phase arrays of those rays]: all rays for a dict, blocks of SEGMENT_BLOCK for a function
     # (one call per chunk would pay the phase functions' JAX dispatch ~200 times for a 1024^2 image)

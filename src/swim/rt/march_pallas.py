@@ -12,7 +12,7 @@ This kernel keeps both virtues: the same lockstep iteration, written branch-free
 so that the state stays in registers for the whole segment and a warp's threads always run the same instructions.
 The tables (packed volume, terrain, gas and sky tables, the rays' step edges and diffuse-source profiles) are read
 by gathers from device memory (their caches); where a point has several channels, the kernel gets them with their
-channels last and reads them up to four at a time (:data:`VECTOR_GATHERS`, :func:`_load_groups`).
+channels last and reads them up to four at a time (``vector_loads``, :func:`_load_groups`).
 
 :func:`march_grid_fused` marches the grid segment with refinement (``MarchSettings.grid_kernel="fused"``, the default on
 GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/performance.md, section 72);
@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import functools
 import logging
+import threading
+import weakref
 from dataclasses import dataclass
 
 import jax
@@ -42,14 +44,10 @@ log = logging.getLogger(__name__)
 
 #: Rays per Triton program (a block of the lockstep march) and the program's warps: one ray per thread. At 128 x 4
 #: ptxas gives the kernel 255 registers (two programs per Hopper SM, 12.5 % occupancy); 512 x 16 caps it at 128 with
-#: 12 bytes of spills (25 %), to be timed on a GPU (``benchmarks/pallas_registers.py``, docs/performance.md, section 85).
+#: 88 bytes of spills (12 with scalar gathers; 25 %), to be timed on a GPU (``benchmarks/pallas_registers.py``,
+#: docs/performance.md, sections 85 and 87).
 BLOCK_RAYS = 128
 NUM_WARPS = 4
-#: Registers per thread that the kernel may take on NVIDIA GPUs (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`);
-#: None: ptxas's choice (255 at 128 x 4: two programs per Hopper SM). At 128 x 4, 168 registers fit three programs
-#: (18.8 %) and spill 8 bytes, 128 fit four (25 %) and spill 88 (docs/performance.md, section 87); to be timed on a
-#: GPU before it is set.
-MAX_REGISTERS = None
 
 #: The state of :func:`swim.rt.march._march_segment` that the kernel carries, one (n,) column each: the quantities at
 #: the three wavelengths (three columns each), the per-ray numbers, then (:func:`_state_columns`) the packed species'
@@ -79,12 +77,6 @@ def pallas_triton_available() -> bool:
 #: Values per vector load: a thread reads 4 adjacent float32 (16 bytes, one ``LDG.E.128`` on NVIDIA GPUs) where a
 #: table's channels are adjacent and padded to a multiple of 4 (:func:`_channels_padded`, :func:`_trilinear_vec4`).
 VECTOR = 4
-#: Whether the kernel reads its tables' channels up to :data:`VECTOR` at a time (the volume, gas, sky, diffuse and
-#: multiple-scattering tables, channels last and padded; :func:`_load_groups`): on sm_90a the grid loop's body takes
-#: 48 load instructions instead of 110 and 1 616 instructions instead of 1 892, with the same 255 registers
-#: (docs/performance.md, section 87). False: a scalar gather per channel and corner, the tables as
-#: :func:`swim.rt.march._march_segment` reads them (the kernel of sessions 58-67).
-VECTOR_GATHERS = True
 
 
 def _channels_padded(table):
@@ -95,6 +87,41 @@ def _channels_padded(table):
     if n_cp != n_c:
         table = jnp.pad(table, [(0, 0)] * (table.ndim - 1) + [(0, n_cp - n_c)])
     return table.reshape(-1), n_cp
+
+
+#: The last padded volume (:func:`with_vector_volume`): {"source": weak reference to the device volume it was made
+#: from, "padded": its flattened, padded copy}; dropped with that volume.
+_VECTOR_VOLUME: dict = {}
+_VECTOR_VOLUME_LOCK = threading.Lock()
+
+
+def with_vector_volume(consts, settings):
+    """``consts`` (the JAX kernel's, on the device) with ``"volume_vector"``: the packed volume with its channels
+    padded to a multiple of :data:`VECTOR`, flattened (:func:`_channels_padded`), where ``settings`` march the grid
+    with the fused kernel's vector loads; ``consts`` itself otherwise.
+
+    The copy is made once per device volume and kept while that volume lives (a new sun's Step 1a on the device makes
+    a new volume, and so a new copy): without it each chunk's program padded the volume again (for the
+    400 x 400 x 60 scene's 160 x 400 x 400 x 7 packed volume, 0.82 GB written a chunk, ~0.3 ms on an H200;
+    docs/performance.md, section 87). Only the last volume's copy is kept."""
+    kernel = settings.resolved_grid_kernel()
+    volume = consts.get("volume")
+    if kernel not in ("fused", "fused-march") or not settings.fused_vector_loads or volume is None \
+            or not isinstance(volume, jax.Array) or volume.shape[-1] % VECTOR == 0:
+        return consts
+    with _VECTOR_VOLUME_LOCK:
+        source = _VECTOR_VOLUME.get("source")
+        if source is None or source() is not volume:
+            _VECTOR_VOLUME.clear()  # the last volume's copy goes before the new one is made
+            padded, _ = _channels_padded(volume)
+
+            def forget(ref):
+                with _VECTOR_VOLUME_LOCK:
+                    if _VECTOR_VOLUME.get("source") is ref:
+                        _VECTOR_VOLUME.clear()
+
+            _VECTOR_VOLUME.update(source=weakref.ref(volume, forget), padded=padded)
+        return {**consts, "volume_vector": _VECTOR_VOLUME["padded"]}
 
 
 def _load_groups(n_c):
@@ -228,7 +255,7 @@ def _params(consts, has_bounds):
 
 def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_profile, aerosol_class, tau_refine,
                      steps=None, stop_tau=0.0, interpret=False, block_rays=None, num_warps=None,
-                     max_registers=None):
+                     max_registers=None, vector_loads=True):
     """The grid segment of :func:`swim.rt.march._march_segment` with refinement (``in_grid``, ``tau_refine`` > 0), as
     one Pallas kernel (:func:`march_segments_fused` with that one segment).
 
@@ -263,8 +290,11 @@ def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_p
         Rays per Triton program (a power of two that divides n) and its warps (None: :data:`BLOCK_RAYS`,
         :data:`NUM_WARPS`).
     max_registers : int, optional
-        Registers per thread that ptxas may give the kernel on NVIDIA GPUs, in [16, 255] (None:
-        :data:`MAX_REGISTERS`; :mod:`swim.rt.ptx_registers`).
+        Registers per thread that ptxas may give the kernel on NVIDIA GPUs, in [16, 255] (None: ptxas's choice;
+        :attr:`swim.rt.march.MarchSettings.fused_max_registers`, :mod:`swim.rt.ptx_registers`).
+    vector_loads : bool
+        Read the tables' channels up to four a load, the tables channels last (:func:`_load_groups`), or by a scalar
+        gather each (:attr:`swim.rt.march.MarchSettings.fused_vector_loads`).
 
     Returns
     -------
@@ -278,7 +308,7 @@ def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_p
     """
     segment = Segment(edges, n_steps, steps, in_grid=True, refined=True)
     return march_segments_fused(state, start, direction, (segment,), rays, consts, ms_profile, aerosol_class,
-                                tau_refine, stop_tau, interpret, block_rays, num_warps, max_registers)
+                                tau_refine, stop_tau, interpret, block_rays, num_warps, max_registers, vector_loads)
 
 
 @dataclass(frozen=True)
@@ -296,7 +326,8 @@ class Segment:
 
 
 def march_segments_fused(state, start, direction, segments, rays, consts, ms_profile, aerosol_class, tau_refine=0.0,
-                         stop_tau=0.0, interpret=False, block_rays=None, num_warps=None, max_registers=None):
+                         stop_tau=0.0, interpret=False, block_rays=None, num_warps=None, max_registers=None,
+                         vector_loads=True):
     """Consecutive segments of :func:`swim.rt.march._march_segment` (not its terminal step) in one Pallas kernel, the
     rays' state in registers from the first segment's first step to the last segment's last.
 
@@ -319,8 +350,8 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
-    max_registers = MAX_REGISTERS if max_registers is None else max_registers
-    # the cap travels in the kernel's name (and so in the traced program's cache keys); the PTX gets it at lowering
+    # the cap travels to the PTX in the kernel's name (swim.rt.ptx_registers); the caches keep programs with other
+    # caps apart by the settings that ask for it (MarchSettings.fused_max_registers)
     name = capped_name("swim_fused_march", max_registers)
     if max_registers is not None and not interpret:
         install_register_cap()
@@ -329,6 +360,11 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
         raise ValueError(f"march_segments_fused: {n} rays are not a multiple of block_rays={block_rays}")
     volume = consts["volume"]
     nk, ny, nx, n_c = volume.shape
+    padded = -(-n_c // VECTOR) * VECTOR if vector_loads else n_c
+    if nk * ny * nx * padded >= 2**31:  # the kernel's offsets are int32: fail here rather than wrap
+        raise ValueError(f"march_segments_fused: a volume of {nk} x {ny} x {nx} cells x {padded} channels has more "
+                         f"than 2**31 - 1 values, beyond the fused kernel's int32 offsets (MarchSettings.grid_kernel="
+                         f"'lockstep' marches it)")
     n_sp = consts["species_matrix"].shape[0]
     aerosol_3d = packed_aerosol_3d(n_c, n_sp)
     has_bounds = "index_map_bounds" in consts["index_map"]
@@ -359,11 +395,14 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     state_columns += [state[key] for key in _SCALARS]
     state_columns += [state["tau_species"][:, c] for c in range(n_sp)]
     state_columns += [state[key].astype(jnp.int32) for key in _FLAGS]
-    vector = VECTOR_GATHERS
+    vector = bool(vector_loads)
     gas_table = consts["beta_gas"][:GAS_COLUMN_ROW]
     if vector:  # the tables with their channels last, padded to whole vector loads: a point's channels in adjacent
         # 16-byte words (the copies: ~0.3 GB written for the 400 x 400 x 60 scene's volume, ~0.1 ms on an H200)
-        volume_flat, n_cp = _channels_padded(volume)
+        if "volume_vector" in consts:  # padded once per volume (with_vector_volume)
+            volume_flat, n_cp = consts["volume_vector"], padded
+        else:
+            volume_flat, n_cp = _channels_padded(volume)
         gas_flat, n_gas_p = _channels_padded(gas_table.T)
         sky_flat, n_sky_p = _channels_padded(jnp.moveaxis(consts["sky"], 0, -1))
         diffuse_flat, n_diffuse_p = (_channels_padded(jnp.moveaxis(diffuse_table, 0, -1)) if n_class > 1

@@ -7,11 +7,13 @@ its compiler parameters), and the only other lever, bigger programs, costs locks
 the iterations useful at 128 rays a program, 82.2 % at 512). PTX has the cap as a directive of the kernel's entry,
 ``.maxnreg N``, which ptxas and the driver's JIT both obey.
 
-So the cap travels in the kernel's name: a Pallas kernel named ``..._rN`` (:func:`capped_name`) gets ``.maxnreg N``
-inserted into its PTX (:func:`cap_registers_in_ptx`) by a wrapper around the Triton compilation that Pallas's
-lowering calls (:func:`install_register_cap`). The name is part of the traced program, so JAX's caches and swim's
-exported programs (:mod:`swim.rt.export_cache`) keep capped and uncapped kernels apart, and the PTX that goes into
-the lowered program (and into an exported one) is the capped one.
+So the cap travels in the kernel's name: a Pallas kernel of swim's named ``swim_..._rN`` (:func:`capped_name`) gets
+``.maxnreg N`` inserted into its PTX (:func:`cap_registers_in_ptx`) by a wrapper around the Triton compilation that
+Pallas's lowering calls (:func:`install_register_cap`); other kernels' PTX is left alone. The PTX that goes into the
+lowered program (and into an exported one) is the capped one. The name is made while the kernel is traced, so it
+cannot tell JAX's caches apart: the setting that asks for the cap
+(:attr:`swim.rt.march.MarchSettings.fused_max_registers`) is one of the compiled programs' static arguments and keys
+(JAX's and :mod:`swim.rt.export_cache`'s). :func:`capped_entries` lists the entries capped so far in the process.
 
 This reaches into a private module of JAX (``jax._src.pallas.triton.pallas_call_registration``), so it is checked
 before use and never required: where the lowering differs (JAX releases whose jaxlib is 0.10.2 or older hand the
@@ -30,8 +32,10 @@ log = logging.getLogger(__name__)
 
 #: A kernel name's cap suffix: ``_r`` and the registers per thread.
 _SUFFIX = re.compile(r"_r(\d+)$")
-#: A PTX kernel entry whose name carries the suffix, up to its parameter list's opening parenthesis.
-_ENTRY = re.compile(r"\.entry\s+([A-Za-z_$][\w$]*?_r(\d+))\s*\(")
+#: The prefix of swim's kernel names: only their entries are capped.
+PREFIX = "swim_"
+#: A PTX kernel entry of swim's whose name carries the suffix, up to its parameter list's opening parenthesis.
+_ENTRY = re.compile(r"\.entry\s+(" + PREFIX + r"[\w$]*?_r(\d+))\s*\(")
 _MAXNREG = re.compile(r"\.maxnreg\s+\d+")
 
 #: ptxas's bounds for ``.maxnreg`` (a thread addresses at most 255 registers; fewer than 16 cannot hold a kernel).
@@ -39,6 +43,14 @@ MIN_REGISTERS, MAX_REGISTERS = 16, 255
 
 _LOCK = threading.Lock()
 _STATE = {"installed": None}
+_CAPPED: dict[str, int] = {}
+
+
+def capped_entries() -> dict[str, int]:
+    """The PTX entries that :func:`cap_registers_in_ptx` capped in this process: name -> registers per thread (a
+    benchmark's proof that a cap reached the PTX, not only that the wrapper was installed)."""
+    with _LOCK:
+        return dict(_CAPPED)
 
 
 def capped_name(name: str, max_registers: int | None) -> str:
@@ -47,10 +59,13 @@ def capped_name(name: str, max_registers: int | None) -> str:
     Raises
     ------
     ValueError
-        If ``max_registers`` is outside [16, 255] or ``name`` already ends in a cap suffix.
+        If ``max_registers`` is outside [16, 255], or ``name`` does not start with :data:`PREFIX` or already ends in
+        a cap suffix.
     """
     if max_registers is None:
         return name
+    if not name.startswith(PREFIX):
+        raise ValueError(f"kernel name {name!r}: only swim's kernels ({PREFIX}...) are capped")
     cap = int(max_registers)
     if not MIN_REGISTERS <= cap <= MAX_REGISTERS:
         raise ValueError(f"max_registers must be in [{MIN_REGISTERS}, {MAX_REGISTERS}] registers per thread, got "
@@ -61,8 +76,8 @@ def capped_name(name: str, max_registers: int | None) -> str:
 
 
 def cap_registers_in_ptx(ptx: str) -> str:
-    """``ptx`` with ``.maxnreg N`` among the directives of each kernel entry named ``..._rN`` (replacing a cap that
-    is there); ``ptx`` itself (the same object) where no entry carries the suffix.
+    """``ptx`` with ``.maxnreg N`` among the directives of each kernel entry named ``swim_..._rN`` (replacing a cap
+    that is there); ``ptx`` itself (the same object) where no entry of swim's carries the suffix.
 
     The directive goes between the entry's parameter list and its body, where PTX puts the performance-tuning
     directives (``.maxnreg``, ``.maxntid``, ``.reqntid``; PTX ISA, "Performance-Tuning Directives").
@@ -90,6 +105,8 @@ def cap_registers_in_ptx(ptx: str) -> str:
             directives = directives.rstrip("\n") + f"\n.maxnreg {cap}\n"
         pieces += [ptx[at:close + 1], directives]
         at = body
+        with _LOCK:
+            _CAPPED[entry.group(1)] = cap
     if not pieces:
         return ptx
     return "".join(pieces) + ptx[at:]
@@ -139,7 +156,8 @@ class _CappingTriton:
 
 
 def install_register_cap() -> bool:
-    """Make Pallas's Triton lowering cap kernels named ``..._rN`` (:func:`capped_name`) at N registers per thread.
+    """Make Pallas's Triton lowering cap kernels named ``swim_..._rN`` (:func:`capped_name`) at N registers per
+    thread.
 
     Idempotent and thread-safe. Returns whether the cap will apply: False (logged once) where this JAX's lowering is
     not the one it wraps, a Triton compilation in Python whose PTX goes into the lowered program.

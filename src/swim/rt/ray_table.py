@@ -39,6 +39,7 @@ from ..optics.rayleigh import rayleigh_phase_function
 from . import march
 from .march import (GridGeometry, MarchSettings, _device_constants, _host_rows, check_rays, padded_batch_size,
                     ray_segments_parallel, with_probes_for, without_empty_segments)
+from .march_pallas import with_vector_volume
 from .export_cache import exported_jit
 
 log = logging.getLogger(__name__)
@@ -364,7 +365,7 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
     n = len(rows)
     steps = settings.n_before + settings.n_grid + settings.n_after + 1
     chunk = settings.resolved_chunk()
-    device = _device_constants(consts)
+    device = with_vector_volume(_device_constants(consts), settings)
     table_arrays = _arrays(table)
     extra_arrays = None if extra is None else _arrays(extra)
     sun = jnp.asarray(np.asarray(phase.sun_scene, dtype=np.float32))
