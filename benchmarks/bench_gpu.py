@@ -558,7 +558,7 @@ def sweep_fused_blocks(name, probe, blocks):
     import jax
 
     from swim.rt import march_pallas
-    from swim.rt.ptx_registers import capped_entries
+    from swim.rt.ptx_registers import capped_entries, caps_applied
 
     import numpy as np
 
@@ -585,6 +585,7 @@ def sweep_fused_blocks(name, probe, blocks):
             march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = rays, warps
             jax.clear_caches()
             probe.trace_chunk.forget_programs()
+            caps_before = caps_applied()
             try:
                 seconds, first, out = _chunk_outputs(probe, settings)
             except Exception as exc:  # noqa: BLE001 - one configuration's failure must not lose the others
@@ -598,7 +599,8 @@ def sweep_fused_blocks(name, probe, blocks):
             rows.append({"scene": name, "fused_block": text, "grid_kernel": kernel, "block_chunk_s": seconds,
                          "max_registers": cap,
                          # the capped entry seen in the PTX (not only the wrapper installed)
-                         "cap_applied": bool(cap) and capped_entries().get(f"swim_fused_march_r{cap}") == cap,
+                         "cap_applied": bool(cap) and caps_applied() > caps_before
+                         and capped_entries().get(f"swim_fused_march_r{cap}") == cap,
                          "vector_gathers": vector,
                          "first_call_s": first, "render_kernel_chunk_s": base_s, "radiance_max_rel_diff": worst,
                          "nonfinite": int(np.sum(~ok))})

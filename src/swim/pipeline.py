@@ -769,6 +769,9 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         kept = (kept_device_copies({"volume": packed, "occupancy": classes})
                 if settings.resolved_step1a_on_device() else None)
         if kept is not None:
+            from .rt.march_pallas import forget_vector_volume
+
+            forget_vector_volume()  # the fused kernel's padded copy of the old volume goes before the refill
             transmittance, device_packed = solar_transmittance_on_device(volume, sun_scene, kept["volume"], packed,
                                                                          species, nonzero_levels)
             del kept["volume"]  # (donated to the new copy on a GPU)

@@ -162,3 +162,34 @@ def test_the_padded_volume_is_made_once_per_device_volume_and_dropped_with_it():
     del first, again, second, new
     gc.collect()
     assert march_pallas._VECTOR_VOLUME == {}
+
+
+def test_the_padded_volume_s_weak_reference_cannot_deadlock_and_can_be_dropped():
+    """The padded copy's callback runs in whichever thread frees its volume, also one that holds the cache's lock
+    (a review found a thread that freed the last volume inside with_vector_volume blocked on its own lock);
+    forget_vector_volume drops the copy (before a new sun's Step 1a refills the volume on the device)."""
+    import gc
+    import threading
+
+    import jax.numpy as jnp
+
+    fused = MarchSettings(backend="jax", grid_kernel="fused")
+    held = [jnp.ones((2, 3, 4, 5), jnp.float32)]
+    march_pallas.with_vector_volume({"volume": held[0]}, fused)
+    assert march_pallas._VECTOR_VOLUME
+    done = threading.Event()
+
+    def free_under_the_lock():
+        with march_pallas._VECTOR_VOLUME_LOCK:
+            held.clear()
+            gc.collect()
+        done.set()
+
+    worker = threading.Thread(target=free_under_the_lock, daemon=True)
+    worker.start()
+    worker.join(10)
+    assert done.is_set() and march_pallas._VECTOR_VOLUME == {}
+    volume = jnp.ones((2, 3, 4, 5), jnp.float32)
+    march_pallas.with_vector_volume({"volume": volume}, fused)
+    march_pallas.forget_vector_volume()
+    assert march_pallas._VECTOR_VOLUME == {}

@@ -112,8 +112,9 @@ def test_the_wrapper_caps_only_ptx_and_keeps_the_result_s_other_fields():
     assert wrapped.compile() is result
 
 
-def _captured_grid_call():
-    """The fused grid kernel's arguments in a JAX march of 128 rays through the tests' tiny scene (on the CPU)."""
+def _captured_grid_call(kernel="fused", **settings):
+    """The fused kernel's arguments (``march_grid_fused``'s, or ``march_segments_fused``'s for "fused-march") in a JAX
+    march of 128 rays through the tests' tiny scene (on the CPU), with these MarchSettings."""
     got = {}
 
     class Captured(Exception):
@@ -123,16 +124,17 @@ def _captured_grid_call():
         got.update(args=args, kwargs=kwargs)
         raise Captured
 
-    real = march_pallas.march_grid_fused
-    march_pallas.march_grid_fused = grab
+    name = "march_grid_fused" if kernel == "fused" else "march_segments_fused"
+    real = getattr(march_pallas, name)
+    setattr(march_pallas, name, grab)
     try:
         origins, dirs = _random_rays(128, seed=1)
         _trace(_tiny_scene(False), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
-               settings=MarchSettings(backend="jax", grid_kernel="fused", chunk=128))
+               settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=128, **settings))
     except Captured:
         pass
     finally:
-        march_pallas.march_grid_fused = real
+        setattr(march_pallas, name, real)
     assert got, "the march did not call the fused grid kernel"
     return got["args"], {**got["kwargs"], "interpret": False}
 
@@ -194,7 +196,9 @@ def test_the_cap_reaches_the_cuda_program_through_the_kernel_s_name(monkeypatch,
     monkeypatch.setattr(registration, "triton", types.SimpleNamespace(compile=compile))
     monkeypatch.setattr(registration, "triton_kernel_call_lib", types.SimpleNamespace(
         TritonKernel=Kernel, TritonKernelCall=KernelCall, create_array_parameter=lambda *a: None))
+    caps = ptx_registers.caps_applied()
     text = _lowered_for_cuda(args, kwargs, 128)  # no install_register_cap() here: the kernel's call installs it
+    assert ptx_registers.caps_applied() == caps + 1
     assert isinstance(registration.triton, ptx_registers._CappingTriton)
     assert compiled == ["swim_fused_march_r128"] and "triton_kernel_call_ffi" in text
     [(name, ptx)] = kernels  # what the kernel call (and so the lowered program) holds
@@ -223,6 +227,16 @@ def test_installing_twice_wraps_once(fresh_hook, monkeypatch):
     assert install_register_cap()
     assert isinstance(fresh_hook.triton, ptx_registers._CappingTriton)
     assert fresh_hook.triton._triton is original
+
+
+@pytest.mark.parametrize("kernel", ["fused", "fused-march"])
+def test_the_render_s_settings_reach_the_kernel(kernel):
+    """MarchSettings.fused_max_registers and fused_vector_loads arrive at either fused kernel's call (a review found
+    nothing that held the march to passing them on)."""
+    _, kwargs = _captured_grid_call(kernel)
+    assert kwargs["max_registers"] is None and kwargs["vector_loads"] is True
+    _, kwargs = _captured_grid_call(kernel, fused_max_registers=168, fused_vector_loads=False)
+    assert kwargs["max_registers"] == 168 and kwargs["vector_loads"] is False
 
 
 def test_a_cap_out_of_range_is_refused_before_the_kernel_is_built():

@@ -2371,6 +2371,8 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         from .march_pallas import with_vector_volume
 
         consts = with_vector_volume(_device_constants(consts), settings)
+    # the probes' program takes the constants as the ray table's build gives them (one compiled program for both)
+    probe_consts = {key: value for key, value in consts.items() if key != "volume_vector"}
     outputs = {}  # written chunk by chunk into arrays for all rays (a list and a concatenate would hold two)
     # [first ray, end, phase arrays of those rays]: all rays for a dict, blocks of SEGMENT_BLOCK for a function
     # (one call per chunk would pay the phase functions' JAX dispatch ~200 times for a 1024^2 image)
@@ -2409,7 +2411,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                 args = list(map(jnp.asarray, args))
                 rays = {key: jnp.asarray(value) for key, value in rays.items()}
                 job = functools.partial(_trace_chunk_jax, args, rays, consts,
-                                        *_chunk_probes(*args[:3], consts, settings), hi - lo)
+                                        *_chunk_probes(*args[:3], probe_consts, settings), hi - lo)
                 if jax_pool is None:
                     finished(job(), hi)
                     continue

@@ -92,26 +92,34 @@ def _channels_padded(table):
 #: The last padded volume (:func:`with_vector_volume`): {"source": weak reference to the device volume it was made
 #: from, "padded": its flattened, padded copy}; dropped with that volume.
 _VECTOR_VOLUME: dict = {}
-_VECTOR_VOLUME_LOCK = threading.Lock()
+# re-entrant: the weak reference's callback may run in a thread that holds the lock
+_VECTOR_VOLUME_LOCK = threading.RLock()
+
+#: Most values (cells x padded channels) that the fused kernel's int32 offsets address.
+MAX_VOLUME_VALUES = 2**31 - 1
 
 
 def with_vector_volume(consts, settings):
     """``consts`` (the JAX kernel's, on the device) with ``"volume_vector"``: the packed volume with its channels
     padded to a multiple of :data:`VECTOR`, flattened (:func:`_channels_padded`), where ``settings`` march the grid
-    with the fused kernel's vector loads; ``consts`` itself otherwise.
+    with the fused kernel's vector loads; ``consts`` itself otherwise (also for a volume beyond the kernel's int32
+    offsets, which :func:`march_segments_fused` refuses).
 
     The copy is made once per device volume and kept while that volume lives (a new sun's Step 1a on the device makes
-    a new volume, and so a new copy): without it each chunk's program padded the volume again (for the
-    400 x 400 x 60 scene's 160 x 400 x 400 x 7 packed volume, 0.82 GB written a chunk, ~0.3 ms on an H200;
-    docs/performance.md, section 87). Only the last volume's copy is kept."""
+    a new volume, and so a new copy; :func:`forget_vector_volume` drops it before): without it each chunk's program
+    padded the volume again (for the 400 x 400 x 60 scene's 160 x 400 x 400 x 7 packed volume, 0.82 GB written a
+    chunk, ~0.3 ms on an H200; docs/performance.md, section 87). Only the last volume's copy is kept."""
     kernel = settings.resolved_grid_kernel()
     volume = consts.get("volume")
     if kernel not in ("fused", "fused-march") or not settings.fused_vector_loads or volume is None \
-            or not isinstance(volume, jax.Array) or volume.shape[-1] % VECTOR == 0:
+            or not isinstance(volume, jax.Array) or volume.shape[-1] % VECTOR == 0 \
+            or volume.size // volume.shape[-1] * -(-volume.shape[-1] // VECTOR) * VECTOR > MAX_VOLUME_VALUES:
         return consts
+    last = None  # the last volume, held here until the lock is released: its end (and callback) comes after
     with _VECTOR_VOLUME_LOCK:
         source = _VECTOR_VOLUME.get("source")
-        if source is None or source() is not volume:
+        last = None if source is None else source()
+        if last is not volume:
             _VECTOR_VOLUME.clear()  # the last volume's copy goes before the new one is made
             padded, _ = _channels_padded(volume)
 
@@ -121,7 +129,17 @@ def with_vector_volume(consts, settings):
                         _VECTOR_VOLUME.clear()
 
             _VECTOR_VOLUME.update(source=weakref.ref(volume, forget), padded=padded)
-        return {**consts, "volume_vector": _VECTOR_VOLUME["padded"]}
+        padded = _VECTOR_VOLUME["padded"]
+    del last
+    return {**consts, "volume_vector": padded}
+
+
+def forget_vector_volume():
+    """Drop the padded copy of :func:`with_vector_volume`: before a new sun's Step 1a on the device refills the
+    volume it was made from (that volume lives on through the refill, and the old copy with it: 0.82 GB for the
+    400 x 400 x 60 scene)."""
+    with _VECTOR_VOLUME_LOCK:
+        _VECTOR_VOLUME.clear()
 
 
 def _load_groups(n_c):
@@ -361,10 +379,10 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     volume = consts["volume"]
     nk, ny, nx, n_c = volume.shape
     padded = -(-n_c // VECTOR) * VECTOR if vector_loads else n_c
-    if nk * ny * nx * padded >= 2**31:  # the kernel's offsets are int32: fail here rather than wrap
+    if nk * ny * nx * padded > MAX_VOLUME_VALUES:  # the kernel's offsets are int32: fail here rather than wrap
         raise ValueError(f"march_segments_fused: a volume of {nk} x {ny} x {nx} cells x {padded} channels has more "
-                         f"than 2**31 - 1 values, beyond the fused kernel's int32 offsets (MarchSettings.grid_kernel="
-                         f"'lockstep' marches it)")
+                         f"than 2**31 - 1 values, beyond the kernel's int32 offsets: render a smaller grid (the "
+                         f"scene cropped to the camera's view, or coarser)")
     n_sp = consts["species_matrix"].shape[0]
     aerosol_3d = packed_aerosol_3d(n_c, n_sp)
     has_bounds = "index_map_bounds" in consts["index_map"]
@@ -398,9 +416,12 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     vector = bool(vector_loads)
     gas_table = consts["beta_gas"][:GAS_COLUMN_ROW]
     if vector:  # the tables with their channels last, padded to whole vector loads: a point's channels in adjacent
-        # 16-byte words (the copies: ~0.3 GB written for the 400 x 400 x 60 scene's volume, ~0.1 ms on an H200)
+        # 16-byte words (the small tables here; the volume once per device volume, with_vector_volume)
         if "volume_vector" in consts:  # padded once per volume (with_vector_volume)
             volume_flat, n_cp = consts["volume_vector"], padded
+            if volume_flat.shape != (nk * ny * nx * n_cp,):
+                raise ValueError(f"march_segments_fused: volume_vector has shape {volume_flat.shape}, not the "
+                                 f"volume's {nk} x {ny} x {nx} cells x {n_cp} padded channels")
         else:
             volume_flat, n_cp = _channels_padded(volume)
         gas_flat, n_gas_p = _channels_padded(gas_table.T)

@@ -44,6 +44,7 @@ MIN_REGISTERS, MAX_REGISTERS = 16, 255
 _LOCK = threading.Lock()
 _STATE = {"installed": None}
 _CAPPED: dict[str, int] = {}
+_COUNT = {"caps": 0}
 
 
 def capped_entries() -> dict[str, int]:
@@ -51,6 +52,13 @@ def capped_entries() -> dict[str, int]:
     benchmark's proof that a cap reached the PTX, not only that the wrapper was installed)."""
     with _LOCK:
         return dict(_CAPPED)
+
+
+def caps_applied() -> int:
+    """How many entries :func:`cap_registers_in_ptx` has capped in this process, each compilation counted (a
+    benchmark's proof that its own compilation was capped: the count before and after it)."""
+    with _LOCK:
+        return _COUNT["caps"]
 
 
 def capped_name(name: str, max_registers: int | None) -> str:
@@ -107,6 +115,7 @@ def cap_registers_in_ptx(ptx: str) -> str:
         at = body
         with _LOCK:
             _CAPPED[entry.group(1)] = cap
+            _COUNT["caps"] += 1
     if not pieces:
         return ptx
     return "".join(pieces) + ptx[at:]
