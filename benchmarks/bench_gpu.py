@@ -297,7 +297,8 @@ def run_scene(name, args, probe, out_dir):
     first = None
     for chunk in args.chunks:
         # 0: the default (MarchSettings.resolved_chunk: GPU_CHUNK on a GPU)
-        kw["settings"] = replace(MarchSettings(backend=args.backend, grid_kernel=args.grid_kernel), chunk=chunk or None)
+        kw["settings"] = replace(MarchSettings(backend=args.backend, grid_kernel=args.grid_kernel,
+                                               fused_vector_loads=not args.scalar_loads), chunk=chunk or None)
         chunk = kw["settings"].resolved_chunk()
         t0 = time.perf_counter()
         image = swim.render(scene, **kw)  # cold for this chunk size: compiles its kernel shapes
@@ -661,6 +662,9 @@ def main(argv=None):
                     help="also time the fused grid kernel on the captured chunk with RAYSxWARPS per program "
                          "(RAYSxWARPS[rN][s][m]: at most N registers per thread; s: a scalar gather per table channel; "
                          "m: the fused-march kernel), its radiance against the render's kernel")
+    ap.add_argument("--scalar-loads", action="store_true",
+                    help="the render's fused kernel with a scalar gather per table channel "
+                         "(MarchSettings.fused_vector_loads=False: the kernel of sessions 58-67)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
     ap.add_argument("--sampling", action="store_true",

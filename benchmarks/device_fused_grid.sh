@@ -79,6 +79,11 @@ blocks() {  # sessions 66 and 68 (sections 85 and 87), each against the render's
     timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --repeats 3 \
         --fused-blocks ${BLOCKS:-128x4s 128x4r128 128x4r168 128x4r128s 512x16 128x4m} \
         --out "$RES/blocks-synthetic.json" 2>&1 | quiet
+    # should this JAX's Pallas not lower the vector loads (checked with JAX 0.10.2 only, section 87), the render's
+    # kernel with scalar gathers, and the caps with them
+    [ -s "$RES/blocks-synthetic.json" ] || timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic \
+        --data .devdata --repeats 3 --scalar-loads --fused-blocks 128x4r128s 128x4r168s 512x16s \
+        --out "$RES/blocks-synthetic-scalar.json" 2>&1 | quiet
 }
 image() {  # session 67's MarchSettings.device_image (section 86): its tests on the GPU (the colour stage's float64
     # on the device), then warm frames with the image finished on the device against the host, taking turns, and
