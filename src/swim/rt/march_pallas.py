@@ -155,10 +155,11 @@ def _load_groups(n_c):
 
 
 class _Gather:
-    """Reads ``flat[at + c]`` for channels c of each point (``at``: (B,) int32 offsets of the points' channel 0) as
-    :func:`_load_groups`'s loads: ``values(at, group)`` is (B, width) (width 1: (B,)), ``split`` its channels as (B,)
-    arrays (a select and a sum within each thread: the block's layout keeps a row in one thread, as its vector load
-    put it, so no shuffles)."""
+    """Reads ``flat[at + c]`` for channels c of each point (``at``: (B,) int32 offsets of the points' channel 0) by
+    :func:`_load_groups`'s loads: ``offsets(at, group)`` indexes a group's (B, width) block (width 1: (B,)),
+    ``weight(w, group)`` shapes a (B,) weight for it, and ``split(values, group)`` takes the block's channels out as
+    (B,) arrays (a select and a sum within each thread: the block's layout keeps a row in one thread, as its vector
+    load put it, so no shuffles)."""
 
     def __init__(self, like, n_c):
         self.groups = _load_groups(n_c)
