@@ -278,11 +278,13 @@ class MarchSettings:
             value = getattr(self, name)
             if value is not None and not isinstance(value, (bool, np.bool_)):
                 raise SwimInputError(f"MarchSettings.{name} must be True, False or None, got {value!r}")
+        from .ptx_registers import MAX_REGISTERS, MIN_REGISTERS  # ptxas's bounds, kept in one place
+
         registers = self.fused_max_registers
         if registers is not None and (isinstance(registers, bool) or not isinstance(registers, (int, np.integer))
-                                      or not 16 <= registers <= 255):
-            raise SwimInputError(f"MarchSettings.fused_max_registers must be None or an integer in [16, 255] "
-                                 f"(registers per thread), got {registers!r}")
+                                      or not MIN_REGISTERS <= registers <= MAX_REGISTERS):
+            raise SwimInputError(f"MarchSettings.fused_max_registers must be None or an integer in "
+                                 f"[{MIN_REGISTERS}, {MAX_REGISTERS}] (registers per thread), got {registers!r}")
         if not isinstance(self.fused_vector_loads, (bool, np.bool_)):
             raise SwimInputError(f"MarchSettings.fused_vector_loads must be True or False, got "
                                  f"{self.fused_vector_loads!r}")
@@ -2370,9 +2372,10 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     else:
         from .march_pallas import with_vector_volume
 
-        consts = with_vector_volume(_device_constants(consts), settings)
-    # the probes' program takes the constants as the ray table's build gives them (one compiled program for both)
-    probe_consts = {key: value for key, value in consts.items() if key != "volume_vector"}
+        # the probes' program takes the constants as the ray table's build gives them (one compiled program for
+        # both), the march those and the fused kernel's padded volume
+        probe_consts = _device_constants(consts)
+        consts = with_vector_volume(probe_consts, settings)
     outputs = {}  # written chunk by chunk into arrays for all rays (a list and a concatenate would hold two)
     # [first ray, end, phase arrays of those rays]: all rays for a dict, blocks of SEGMENT_BLOCK for a function
     # (one call per chunk would pay the phase functions' JAX dispatch ~200 times for a 1024^2 image)

@@ -79,11 +79,16 @@ def pallas_triton_available() -> bool:
 VECTOR = 4
 
 
+def _padded_channels(n_c):
+    """``n_c`` channels rounded up to a multiple of :data:`VECTOR` (a padded row's length)."""
+    return -(-n_c // VECTOR) * VECTOR
+
+
 def _channels_padded(table):
     """A channel-last table flattened with its last axis padded with zeros to a multiple of :data:`VECTOR`, and that
     padded channel count."""
     n_c = table.shape[-1]
-    n_cp = -(-n_c // VECTOR) * VECTOR
+    n_cp = _padded_channels(n_c)
     if n_cp != n_c:
         table = jnp.pad(table, [(0, 0)] * (table.ndim - 1) + [(0, n_cp - n_c)])
     return table.reshape(-1), n_cp
@@ -113,7 +118,7 @@ def with_vector_volume(consts, settings):
     volume = consts.get("volume")
     if kernel not in ("fused", "fused-march") or not settings.fused_vector_loads or volume is None \
             or not isinstance(volume, jax.Array) or volume.shape[-1] % VECTOR == 0 \
-            or volume.size // volume.shape[-1] * -(-volume.shape[-1] // VECTOR) * VECTOR > MAX_VOLUME_VALUES:
+            or volume.size // volume.shape[-1] * _padded_channels(volume.shape[-1]) > MAX_VOLUME_VALUES:
         return consts
     last = None  # the last volume, held here until the lock is released: its end (and callback) comes after
     with _VECTOR_VOLUME_LOCK:
@@ -379,7 +384,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
         raise ValueError(f"march_segments_fused: {n} rays are not a multiple of block_rays={block_rays}")
     volume = consts["volume"]
     nk, ny, nx, n_c = volume.shape
-    padded = -(-n_c // VECTOR) * VECTOR if vector_loads else n_c
+    padded = _padded_channels(n_c) if vector_loads else n_c
     if nk * ny * nx * padded > MAX_VOLUME_VALUES:  # the kernel's offsets are int32: fail here rather than wrap
         raise ValueError(f"march_segments_fused: a volume of {nk} x {ny} x {nx} cells x {padded} channels has more "
                          f"than 2**31 - 1 values, beyond the kernel's int32 offsets: render a smaller grid (the "
