@@ -29,7 +29,7 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   :mod:`swim.rt.march_pallas`; ``fused-march``, the clear-air segments in it too; ``lockstep``, XLA's loops; ``auto`` by
   default); with ``--against lockstep fused-march`` the captured chunk is also marched by those (device time and outputs
   against the render's kernel), and ``--fused-blocks 64x2 256x4 128x4r128`` times the render's fused kernel on it with
-  other rays per program and warps, and capped at N registers per thread (``rN``, :mod:`swim.rt.ptx_registers`);
+  other rays per program and warps, and capped at N registers per thread (``rN``, :mod:`swim.rt.ptx_edits`);
 * with ``--ray-table``: warm renders with the camera's rays kept on the device (``MarchSettings.ray_table``,
   :mod:`swim.rt.ray_table`) and without, taking turns: every pixel, adaptive (with ``--sampling``) and a new sun
   every frame (with ``--sun-series N``), each one's median and the largest radiance difference between the two;
@@ -554,12 +554,13 @@ def compare_kernels(name, probe, kernel):
 def sweep_fused_blocks(name, probe, blocks):
     """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"), capped
     at N registers per thread ("RAYSxWARPSrN": ``MarchSettings.fused_max_registers``; docs/performance.md,
-    section 87), with a scalar gather per table channel ("s": ``MarchSettings.fused_vector_loads`` off, section 87), and
-    with an "m" last, the "fused-march" kernel (section 85)."""
+    section 87), with a scalar gather per table channel ("s": ``MarchSettings.fused_vector_loads`` off, section 87),
+    with fused multiply-adds ("f": ``MarchSettings.fused_fma``, section 88), and with an "m" last, the "fused-march"
+    kernel (section 85)."""
     import jax
 
     from swim.rt import march_pallas
-    from swim.rt.ptx_registers import capped_entries, caps_applied
+    from swim.rt.ptx_edits import capped_entries, caps_applied, contracted_entries, contractions_applied, kernel_name
 
     import numpy as np
 
@@ -575,18 +576,20 @@ def sweep_fused_blocks(name, probe, blocks):
         for text in blocks:
             # "RAYSxWARPS" marches the grid segment in the kernel ("fused"); "RAYSxWARPSm" the clear air too
             # ("fused-march")
-            spec = re.fullmatch(r"(\d+)x(\d+)(?:r(\d+))?(s?)(m?)", text)
+            spec = re.fullmatch(r"(\d+)x(\d+)(?:r(\d+))?(s?)(f?)(m?)", text)
             if spec is None:
-                raise SystemExit(f"--fused-blocks: {text!r} is not RAYSxWARPS[rN][s][m]")
-            kernel = "fused-march" if spec.group(5) else "fused"
+                raise SystemExit(f"--fused-blocks: {text!r} is not RAYSxWARPS[rN][s][f][m]")
+            kernel = "fused-march" if spec.group(6) else "fused"
             rays, warps = int(spec.group(1)), int(spec.group(2))
             cap = int(spec.group(3)) if spec.group(3) else None
-            vector = not spec.group(4)
-            settings = replace(captured, grid_kernel=kernel, fused_max_registers=cap, fused_vector_loads=vector)
+            vector, fma = not spec.group(4), bool(spec.group(5))
+            settings = replace(captured, grid_kernel=kernel, fused_max_registers=cap, fused_vector_loads=vector,
+                               fused_fma=fma)
+            entry = kernel_name("swim_fused_march", cap, fma)
             march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = rays, warps
             jax.clear_caches()
             probe.trace_chunk.forget_programs()
-            caps_before = caps_applied()
+            caps_before, contractions_before = caps_applied(), contractions_applied()
             try:
                 seconds, first, out = _chunk_outputs(probe, settings)
             except Exception as exc:  # noqa: BLE001 - one configuration's failure must not lose the others
@@ -601,12 +604,18 @@ def sweep_fused_blocks(name, probe, blocks):
                          "max_registers": cap,
                          # the capped entry seen in the PTX (not only the wrapper installed)
                          "cap_applied": bool(cap) and caps_applied() > caps_before
-                         and capped_entries().get(f"swim_fused_march_r{cap}") == cap,
-                         "vector_gathers": vector,
+                         and capped_entries().get(entry) == cap,
+                         "vector_gathers": vector, "fma": fma,
+                         # the contracted entry seen in the PTX, and how many instructions were freed there
+                         "fma_applied": fma and contractions_applied() > contractions_before
+                         and contracted_entries().get(entry, 0) > 0,
+                         "fma_freed": contracted_entries().get(entry) if fma else None,
                          "first_call_s": first, "render_kernel_chunk_s": base_s, "radiance_max_rel_diff": worst,
                          "nonfinite": int(np.sum(~ok))})
             capped = "" if cap is None else f", at most {cap} registers ({'' if rows[-1]['cap_applied'] else 'NOT '}applied)"
             capped += "" if vector else ", scalar gathers"
+            if fma:
+                capped += f", fused multiply-adds ({'' if rows[-1]['fma_applied'] else 'NOT '}applied)"
             print(f"{name}: {kernel} kernel, {rays} rays x {warps} warps per program{capped}: {seconds * 1e3:.2f} ms per chunk "
                   f"(first call {first:.1f} s; the render's kernel {base_s * 1e3:.2f} ms), radiance within "
                   f"{worst:.1e}, {int(np.sum(~ok))} values not finite", flush=True)
@@ -660,8 +669,9 @@ def main(argv=None):
                     help="also march the captured chunk with these grid kernels: time and outputs against the render's")
     ap.add_argument("--fused-blocks", nargs="*", default=[],
                     help="also time the fused grid kernel on the captured chunk with RAYSxWARPS per program "
-                         "(RAYSxWARPS[rN][s][m]: at most N registers per thread; s: a scalar gather per table channel; "
-                         "m: the fused-march kernel), its radiance against the render's kernel")
+                         "(RAYSxWARPS[rN][s][f][m]: at most N registers per thread; s: a scalar gather per table "
+                         "channel; f: fused multiply-adds; m: the fused-march kernel), its radiance against the "
+                         "render's kernel")
     ap.add_argument("--scalar-loads", action="store_true",
                     help="the render's fused kernel with a scalar gather per table channel "
                          "(MarchSettings.fused_vector_loads=False: the kernel of sessions 58-67)")

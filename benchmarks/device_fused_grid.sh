@@ -19,7 +19,9 @@
 # synthetic 1024^2 all-sky with the fused kernels in other block shapes (benchmarks/pallas_registers.py: 512 rays x 16
 # warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 88 bytes of spills) and, first, 128 x 4
 # capped at 128 and 168 registers (session 68, section 87: the same occupancy as 512 x 16 with 128-ray lockstep), and
-# the scalar gathers of session 66's kernel, each against the render's kernel. STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
+# the scalar gathers of session 66's kernel, each against the render's kernel; since session 69 (section 88) first
+# the fused multiply-adds, alone and with the caps (512 x 16 left out: 128 x 4 at 128 registers has its occupancy
+# with less lockstep). STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
 # the image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it
 # against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it.
 # Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
@@ -73,16 +75,18 @@ kernel_counters() {  # session 66: Nsight Compute's counters of the fused kernel
         --data .devdata --repeats 1 --out "$RES/ncu-run/ncu-run.json" > "$RES/ncu-synthetic.txt" 2>&1
     grep -v "^WARNING\|^I0000\|absl" "$RES/ncu-synthetic.txt" | grep -i "swim_fused\|Registers\|Occupancy\|Throughput\|Stall\|Duration\|Eligible\|Issued\|Block Size\|Grid Size\|Warp Cycles\|Hit Rate\|Local" | head -80
 }
-blocks() {  # sessions 66 and 68 (sections 85 and 87), each against the render's kernel (since session 68 its tables
-    # read four channels a load): "s" a scalar gather per channel (session 66's kernel), "rN" at most N registers per
-    # thread (PTX's .maxnreg: 128 fits four 128-ray programs per SM against two), "m" the fused-march kernel
+blocks() {  # sessions 66, 68 and 69 (sections 85, 87 and 88), each against the render's kernel (since session 68
+    # its tables read four channels a load): "f" fused multiply-adds (MarchSettings.fused_fma), "rN" at most N
+    # registers per thread (PTX's .maxnreg: 168 fits three 128-ray programs per SM, 128 four, against two), "s" a
+    # scalar gather per channel (session 66's kernel); most telling first, each line printed as it is timed (the
+    # JSON is written at the end)
     timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --repeats 3 \
-        --fused-blocks ${BLOCKS:-128x4s 128x4r128 128x4r168 128x4r128s 512x16 128x4m} \
+        --fused-blocks ${BLOCKS:-128x4f 128x4r168 128x4r168f 128x4s 128x4r128 128x4r128f} \
         --out "$RES/blocks-synthetic.json" 2>&1 | quiet
     # should this JAX's Pallas not lower the vector loads (checked with JAX 0.10.2 only, section 87), the render's
     # kernel with scalar gathers, and the caps with them
     [ -s "$RES/blocks-synthetic.json" ] || timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic \
-        --data .devdata --repeats 3 --scalar-loads --fused-blocks 128x4r128s 128x4r168s 512x16s \
+        --data .devdata --repeats 3 --scalar-loads --fused-blocks 128x4sf 128x4r168s 128x4r168sf \
         --out "$RES/blocks-synthetic-scalar.json" 2>&1 | quiet
 }
 image() {  # session 67's MarchSettings.device_image (section 86): its tests on the GPU (the colour stage's float64

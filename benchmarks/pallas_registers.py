@@ -12,8 +12,10 @@ SASS instructions and the theoretical occupancy on a Hopper multiprocessor (65 5
 ptxas caps the registers at 65 536 / (threads per program), at most 255: 128 rays x 4 warps may take 255, 512 x 16
 only 128 (four programs of 4 warps' worth per multiprocessor, at the price of spills), 1024 x 32 only 64.
 Pallas offers no other cap (no ``maxnreg``); swim's kernels take one through their name (``--blocks 128x4r128``:
-128 registers per thread, PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`); ``128x4s``: the tables read by a scalar
-gather per channel (``MarchSettings.fused_vector_loads`` off, the kernel before session 68).
+128 registers per thread, PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`); ``128x4s``: the tables read by a scalar
+gather per channel (``MarchSettings.fused_vector_loads`` off, the kernel before session 68); ``128x4f``: the float32
+multiplies and adds free to be contracted into fused multiply-adds (``MarchSettings.fused_fma``, section 88). The
+grid loop's instructions are also counted by kind (``loop_ops``: FFMA, FMUL, FADD, FSEL, LDG, ...).
 
 Needs, beside swim's own environment (nothing that the tests or a render need):
 
@@ -34,6 +36,7 @@ On this project's 2-core machine each kernel and shape takes ~15-25 s (the lower
 from __future__ import annotations
 
 import argparse
+import collections
 import io
 import json
 import os
@@ -115,9 +118,9 @@ def capture_kernel_call(kernel, size=32):
     return real[kernel], args, {k: spec(v) for k, v in captured["kwargs"].items()}
 
 
-def triton_module(fn, args, kwargs, block_rays, num_warps, max_registers=None, vector_loads=True):
-    """The Triton module (MLIR bytecode) of the kernel's CUDA lowering with this block shape (and register cap: the
-    kernel's name carries it, :mod:`swim.rt.ptx_registers`)."""
+def triton_module(fn, args, kwargs, block_rays, num_warps, max_registers=None, vector_loads=True, fma=False):
+    """The Triton module (MLIR bytecode) of the kernel's CUDA lowering with this block shape (and register cap and
+    fused multiply-adds: the kernel's name carries them, :mod:`swim.rt.ptx_edits`)."""
     import jax
     from jax._src.pallas.triton import pallas_call_registration as registration
 
@@ -136,7 +139,7 @@ def triton_module(fn, args, kwargs, block_rays, num_warps, max_registers=None, v
     array_kw = {k: v for k, v in kwargs.items() if hasattr(v, "shape")}
     static_kw = {k: v for k, v in kwargs.items() if not hasattr(v, "shape")}
     static_kw.update(interpret=False, block_rays=block_rays, num_warps=num_warps, max_registers=max_registers,
-                     vector_loads=vector_loads)
+                     vector_loads=vector_loads, fma=fma)
 
     def call(arrays, array_kw):
         it, full = iter(arrays), []
@@ -226,7 +229,10 @@ def longest_loop(lines):
         return {}
     first, last = max(loops, key=lambda loop: loop[1] - loop[0])
     body = [text for at, text in code if first <= at <= last]
-    return {"loop_instructions": len(body), "loop_global_loads": sum(" LDG" in f" {t}" for t in body),
+    # by kind: the opcode without its predicate and modifiers (FFMA, FMUL, LDG, ...), most frequent first
+    kinds = collections.Counter(re.sub(r"^@!?U?P\w+\s+", "", text).split()[0].split(".")[0] for text in body)
+    return {"loop_instructions": len(body), "loop_ops": dict(kinds.most_common()),
+            "loop_global_loads": sum(" LDG" in f" {t}" for t in body),
             "loop_global_loads_128": sum("LDG.E.128" in t for t in body),
             "loop_local_loads": sum(" LDL" in f" {t}" for t in body),
             "loop_local_stores": sum(" STL" in f" {t}" for t in body)}
@@ -245,7 +251,8 @@ def main(argv=None):
     ap.add_argument("--kernels", nargs="+", default=["fused"], choices=("fused", "fused-march"))
     ap.add_argument("--blocks", nargs="+", default=["128x4", "512x16"],
                     help="RAYSxWARPS per Triton program, then rN: capped at N registers per thread, then s: a scalar "
-                         "gather per table channel (MarchSettings.fused_vector_loads off)")
+                         "gather per table channel (MarchSettings.fused_vector_loads off), then f: fused "
+                         "multiply-adds (MarchSettings.fused_fma)")
     ap.add_argument("--ptxas", default=None, help="ptxas to assemble with (default: Triton's, else PATH's)")
     ap.add_argument("--out", default=None, help="JSON file")
     args = ap.parse_args(argv)
@@ -254,7 +261,7 @@ def main(argv=None):
     import jaxlib
     from jax._src.lib import triton
 
-    from swim.rt.ptx_registers import cap_registers_in_ptx
+    from swim.rt.ptx_edits import edit_ptx
 
     if not triton.has_compilation_handler("CUDA"):
         jax.devices()  # the plugin registers its Triton pipeline as it initialises
@@ -269,15 +276,16 @@ def main(argv=None):
     for kernel in args.kernels:
         fn, call_args, call_kwargs = capture_kernel_call(kernel)
         for text in args.blocks:
-            spec = re.fullmatch(r"(\d+)x(\d+)(?:r(\d+))?(s?)", text)
+            spec = re.fullmatch(r"(\d+)x(\d+)(?:r(\d+))?(s?)(f?)", text)
             if spec is None:
-                raise SystemExit(f"--blocks: {text!r} is not RAYSxWARPS[rN][s]")
+                raise SystemExit(f"--blocks: {text!r} is not RAYSxWARPS[rN][s][f]")
             rays, warps = int(spec.group(1)), int(spec.group(2))
             cap = int(spec.group(3)) if spec.group(3) else None
             t0 = time.perf_counter()
-            module = triton_module(fn, call_args, call_kwargs, rays, warps, cap, vector_loads=not spec.group(4))
+            module = triton_module(fn, call_args, call_kwargs, rays, warps, cap, vector_loads=not spec.group(4),
+                                   fma=bool(spec.group(5)))
             compiled = triton.compile("CUDA", module, "9.0", num_warps=warps, num_ctas=1, num_stages=1)
-            ptx = cap_registers_in_ptx(compiled.asm)  # what the render's lowering does (swim.rt.ptx_registers)
+            ptx = edit_ptx(compiled.asm)  # what the render's lowering does (swim.rt.ptx_edits)
             row = {"kernel": kernel, "block": text, "ptx_chars": len(ptx), **assemble(ptx, ptxas, cuobjdump)}
             row["programs_per_sm"], row["occupancy"] = occupancy(row["registers"], warps * 32)
             row["seconds"] = time.perf_counter() - t0
@@ -288,6 +296,9 @@ def main(argv=None):
                   f"{row.get('loop_instructions', '-')}, {row.get('loop_global_loads', '-')} "
                   f"({row.get('loop_global_loads_128', '-')}), {row.get('loop_local_loads', '-')} / "
                   f"{row.get('loop_local_stores', '-')} | {row['programs_per_sm']} | {row['occupancy']:.1%} |",
+                  flush=True)
+            kinds = row.get("loop_ops", {})
+            print("    grid loop by kind: " + ", ".join(f"{op} {count}" for op, count in list(kinds.items())[:10]),
                   flush=True)
     if args.out:
         Path(args.out).write_text(json.dumps({"jax": jax.__version__, "ptxas": ptxas, "rows": rows}, indent=1))

@@ -101,8 +101,8 @@ def test_cli_refuses_an_unknown_grid_kernel_before_any_work(tmp_path):
 
 
 def test_fused_kernel_settings_are_checked_and_keep_programs_apart(tmp_path):
-    """MarchSettings.fused_max_registers (None or 16-255) and fused_vector_loads (a bool) are named when wrong, also
-    from the CLI before any work; both are kernel settings, the compiled programs' keys."""
+    """MarchSettings.fused_max_registers (None or 16-255), fused_vector_loads and fused_fma (bools) are named when
+    wrong, also from the CLI before any work; all are kernel settings, the compiled programs' keys."""
     from typer.testing import CliRunner
 
     from swim.cli.main import app
@@ -112,9 +112,13 @@ def test_fused_kernel_settings_are_checked_and_keep_programs_apart(tmp_path):
             MarchSettings(fused_max_registers=bad)
     with pytest.raises(SwimInputError, match="fused_vector_loads must be True or False"):
         MarchSettings(fused_vector_loads=None)
+    for bad in (None, 1, "yes"):
+        with pytest.raises(SwimInputError, match="fused_fma must be True or False"):
+            MarchSettings(fused_fma=bad)
     base = MarchSettings().kernel_settings()
     assert MarchSettings(fused_max_registers=128).kernel_settings() != base
     assert MarchSettings(fused_vector_loads=False).kernel_settings() != base
+    assert MarchSettings(fused_fma=True).kernel_settings() != base
     out = tmp_path / "sky.png"
     result = CliRunner().invoke(app, ["render", "--fused-max-registers", "300", "--size", "9", "--out", str(out)])
     assert result.exit_code == 2 and "fused_max_registers must be None or an integer" in result.output

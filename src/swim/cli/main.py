@@ -172,6 +172,9 @@ def render(
                                             "GPU kernel reads its tables' channels up to four a load (default) or "
                                             "one scalar gather each (MarchSettings.fused_vector_loads; "
                                             "docs/performance.md, section 87)."),
+    fused_fma: bool = typer.Option(False, "--fused-fma/--no-fused-fma", help="Let ptxas contract the fused GPU "
+                                   "kernel's float32 multiplies and adds into fused multiply-adds (NVIDIA GPUs, "
+                                   "jaxlib > 0.10.2; MarchSettings.fused_fma; docs/performance.md, section 88)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -253,7 +256,7 @@ def render(
         settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
                                  step1a_on_device=step1a_on_device, device_sampling=device_sampling,
                                  device_image=device_image, fused_max_registers=fused_max_registers,
-                                 fused_vector_loads=fused_vector_loads,
+                                 fused_vector_loads=fused_vector_loads, fused_fma=fused_fma,
                                  **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,

@@ -209,7 +209,7 @@ class MarchSettings:
         table or without adaptive sampling.
     fused_max_registers : int or None
         Registers per thread that the fused GPU kernel ("fused", "fused-march") may take on NVIDIA GPUs, in [16, 255]
-        (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_registers`; it needs jaxlib > 0.10.2, else it is logged and ignored).
+        (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`; it needs jaxlib > 0.10.2, else it is logged and ignored).
         None (the default): ptxas's choice, 255 at 128 rays a program, which fits two programs per Hopper
         multiprocessor (12.5 % occupancy); 168 fits three and 128 four, at the price of spills (docs/performance.md,
         section 87: which is fastest is to be timed). The other kernels ignore it.
@@ -219,6 +219,13 @@ class MarchSettings:
         its grid loop then issues 48 global loads an iteration instead of 110 and 1 617 instructions instead of
         1 893 (docs/performance.md, section 87). False: a scalar gather per channel and corner (the kernel of
         sessions 58-67). The same results to float32 rounding; the other kernels ignore it.
+    fused_fma : bool
+        Whether ptxas may contract the fused GPU kernel's float32 multiplies and adds into fused multiply-adds on
+        NVIDIA GPUs (:mod:`swim.rt.ptx_edits`: Triton writes them with an explicit rounding mode, which forbids it;
+        it needs jaxlib > 0.10.2, else it is logged and ignored). On sm_90a the grid loop then issues 1 440
+        instructions an iteration instead of 1 617 at the same registers (docs/performance.md, section 88). A
+        contracted pair rounds once instead of twice, so the results move by float32 rounding. False (the default)
+        until timed on a GPU; the other kernels, and the fused kernel in Pallas's interpreter, ignore it.
     device_image : bool or None
         The image finished on the device, where the camera's rays are kept there (:meth:`resolved_ray_table`): with
         every pixel traced, the chunks' outputs stay on the device and are scattered into the image's planes there
@@ -251,6 +258,7 @@ class MarchSettings:
     device_image: bool | None = None
     fused_max_registers: int | None = None
     fused_vector_loads: bool = True
+    fused_fma: bool = False
 
     def __post_init__(self):
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "sunlit_steps", "n_probe", "chunk"):
@@ -278,16 +286,16 @@ class MarchSettings:
             value = getattr(self, name)
             if value is not None and not isinstance(value, (bool, np.bool_)):
                 raise SwimInputError(f"MarchSettings.{name} must be True, False or None, got {value!r}")
-        from .ptx_registers import MAX_REGISTERS, MIN_REGISTERS  # ptxas's bounds, kept in one place
+        from .ptx_edits import MAX_REGISTERS, MIN_REGISTERS  # ptxas's bounds, kept in one place
 
         registers = self.fused_max_registers
         if registers is not None and (isinstance(registers, bool) or not isinstance(registers, (int, np.integer))
                                       or not MIN_REGISTERS <= registers <= MAX_REGISTERS):
             raise SwimInputError(f"MarchSettings.fused_max_registers must be None or an integer in "
                                  f"[{MIN_REGISTERS}, {MAX_REGISTERS}] (registers per thread), got {registers!r}")
-        if not isinstance(self.fused_vector_loads, (bool, np.bool_)):
-            raise SwimInputError(f"MarchSettings.fused_vector_loads must be True or False, got "
-                                 f"{self.fused_vector_loads!r}")
+        for name in ("fused_vector_loads", "fused_fma"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise SwimInputError(f"MarchSettings.{name} must be True or False, got {getattr(self, name)!r}")
 
     def resolved_backend(self) -> str:
         """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
@@ -1534,8 +1542,10 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     kernel = settings.resolved_grid_kernel()
     fused = kernel in ("fused", "fused-march") and fused_fits(n)
     interpret = jax.default_backend() == "cpu"
-    # the fused kernel's register cap and loads: settings, so that programs built with other ones are kept apart
-    fused_options = {"max_registers": settings.fused_max_registers, "vector_loads": settings.fused_vector_loads}
+    # the fused kernel's register cap, loads and fused multiply-adds: settings, so that programs built with other
+    # ones are kept apart
+    fused_options = {"max_registers": settings.fused_max_registers, "vector_loads": settings.fused_vector_loads,
+                     "fma": settings.fused_fma}
     if fused and kernel == "fused-march":
         state = march_segments_fused(state, start, direction, tuple(segments), rays, consts, ms, aerosol_class,
                                      tau_refine, stop_tau, interpret=interpret, **fused_options)

@@ -279,7 +279,7 @@ def _params(consts, has_bounds):
 
 def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_profile, aerosol_class, tau_refine,
                      steps=None, stop_tau=0.0, interpret=False, block_rays=None, num_warps=None,
-                     max_registers=None, vector_loads=True):
+                     max_registers=None, vector_loads=True, fma=False):
     """The grid segment of :func:`swim.rt.march._march_segment` with refinement (``in_grid``, ``tau_refine`` > 0), as
     one Pallas kernel (:func:`march_segments_fused` with that one segment).
 
@@ -315,10 +315,13 @@ def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_p
         :data:`NUM_WARPS`).
     max_registers : int, optional
         Registers per thread that ptxas may give the kernel on NVIDIA GPUs, in [16, 255] (None: ptxas's choice;
-        :attr:`swim.rt.march.MarchSettings.fused_max_registers`, :mod:`swim.rt.ptx_registers`).
+        :attr:`swim.rt.march.MarchSettings.fused_max_registers`, :mod:`swim.rt.ptx_edits`).
     vector_loads : bool
         Read the tables' channels up to four a load, the tables channels last (:func:`_load_groups`), or by a scalar
         gather each (:attr:`swim.rt.march.MarchSettings.fused_vector_loads`).
+    fma : bool
+        Let ptxas contract the kernel's float32 multiplies and adds into fused multiply-adds on NVIDIA GPUs
+        (:attr:`swim.rt.march.MarchSettings.fused_fma`, :mod:`swim.rt.ptx_edits`; no effect in the interpreter).
 
     Returns
     -------
@@ -332,7 +335,8 @@ def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_p
     """
     segment = Segment(edges, n_steps, steps, in_grid=True, refined=True)
     return march_segments_fused(state, start, direction, (segment,), rays, consts, ms_profile, aerosol_class,
-                                tau_refine, stop_tau, interpret, block_rays, num_warps, max_registers, vector_loads)
+                                tau_refine, stop_tau, interpret, block_rays, num_warps, max_registers, vector_loads,
+                                fma)
 
 
 @dataclass(frozen=True)
@@ -351,7 +355,7 @@ class Segment:
 
 def march_segments_fused(state, start, direction, segments, rays, consts, ms_profile, aerosol_class, tau_refine=0.0,
                          stop_tau=0.0, interpret=False, block_rays=None, num_warps=None, max_registers=None,
-                         vector_loads=True):
+                         vector_loads=True, fma=False):
     """Consecutive segments of :func:`swim.rt.march._march_segment` (not its terminal step) in one Pallas kernel, the
     rays' state in registers from the first segment's first step to the last segment's last.
 
@@ -366,7 +370,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     """
     from jax.experimental import pallas as pl
 
-    from .ptx_registers import capped_name, install_register_cap
+    from .ptx_edits import install_ptx_edits, kernel_name
 
     from .march import (REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR,
                         _predicted_halving, bilinear_gathers, lerp_gathers, packed_aerosol_3d,
@@ -374,11 +378,11 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
-    # the cap travels to the PTX in the kernel's name (swim.rt.ptx_registers); the caches keep programs with other
-    # caps apart by the settings that ask for it (MarchSettings.fused_max_registers)
-    name = capped_name("swim_fused_march", max_registers)
-    if max_registers is not None and not interpret:
-        install_register_cap()
+    # the cap and the fused multiply-adds travel to the PTX in the kernel's name (swim.rt.ptx_edits); the caches keep
+    # programs with other edits apart by the settings that ask for them (MarchSettings.fused_max_registers, fused_fma)
+    name = kernel_name("swim_fused_march", max_registers, bool(fma))
+    if name != "swim_fused_march" and not interpret:
+        install_ptx_edits()
     n = start.shape[0]
     if n % block_rays:
         raise ValueError(f"march_segments_fused: {n} rays are not a multiple of block_rays={block_rays}")
