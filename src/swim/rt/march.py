@@ -1324,8 +1324,8 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, u
     Rays in lockstep, each with its own pending intervals (:data:`REFINE_SLOTS`, a refinement only where they
     fit): every iteration each ray takes its next interval (the last pending one, or its next step; its first half,
     the second pending, where the halving is predicted), samples it and either accumulates it, pushes its halves, or
-    rolls back, until it has taken its n_steps (or its own ``steps`` (n,)) steps. :mod:`swim.rt.march_cpu` does the
-    same per ray.
+    rolls back, until it has taken its n_steps (or its own ``steps`` (n,)) steps or has stopped (``alive`` False: the
+    ground, or opaque cloud; its later samples would add nothing). :mod:`swim.rt.march_cpu` does the same per ray.
 
     ``unroll``: iterations per test of the loop's condition (None: :func:`grid_loop_unroll`); an iteration leaves
     a finished ray unchanged, so any value gives the same state.
@@ -1336,8 +1336,10 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, u
     last = jnp.full((n,), n_steps, jnp.int32) if steps is None else steps
 
     def finished(carry):
-        _, m, pending, *_ = carry
-        return (pending == 0) & (m >= last)
+        # a ray that has stopped (the ground, opaque cloud) is finished: its later samples would add nothing (their
+        # length counts as 0 in every sum), so its steps and pending intervals are left (docs/performance.md, 88.)
+        st, m, pending, *_ = carry
+        return ((pending == 0) & (m >= last)) | ~st["alive"]
 
     def rows(mask, value):
         return mask.reshape((n,) + (1,) * (value.ndim - 1))
@@ -1347,7 +1349,7 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, u
         stacked = pending > 0
         top = jnp.maximum(pending - 1, 0)[:, None]
         next_step = jnp.minimum(m, last - 1)[None, :]
-        done = ~stacked & (m >= last)
+        done = (~stacked & (m >= last)) | ~st["alive"]
         lo = jnp.where(stacked, jnp.take_along_axis(stack_lo, top, 1)[:, 0], jnp.take_along_axis(edges, next_step, 0)[0])
         hi = jnp.where(stacked, jnp.take_along_axis(stack_hi, top, 1)[:, 0], jnp.take_along_axis(edges, next_step + 1, 0)[0])
         depth = jnp.where(stacked, jnp.take_along_axis(stack_depth, top, 1)[:, 0], 0)

@@ -613,7 +613,9 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             stacked = pending > 0
             top_slot = jnp.maximum(pending - 1, 0)
             next_step = jnp.maximum(jnp.minimum(m, last - 1), 0)
-            done = ~stacked & (m >= last)
+            # a ray that has stopped (the ground, opaque cloud) samples nothing more: done, its pending intervals
+            # dropped (_march_grid_refined's, docs/performance.md, section 88)
+            done = (~stacked & (m >= last)) | ~st["alive"]
             lo = jnp.where(stacked, pick(stack_lo, top_slot), edges_ref[next_step * n + ray])
             top_hi = jnp.where(top_slot == 0, hi0, pick(stack_lo, top_slot - 1))
             hi = jnp.where(stacked, top_hi, edges_ref[(next_step + 1) * n + ray])
@@ -670,8 +672,8 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
         def refined(st, edges_ref, last):
             """:func:`swim.rt.march._march_grid_refined` of the block: until each ray has taken its steps."""
             def unfinished(carry):
-                _, m, pending, *_ = carry
-                return jnp.max(((pending != 0) | (m < last)).astype(jnp.int32)) > 0
+                st, m, pending, *_ = carry
+                return jnp.max((((pending != 0) | (m < last)) & st["alive"]).astype(jnp.int32)) > 0
 
             zero_f = jnp.zeros((block_rays,), f32)
             zero_i = jnp.zeros((block_rays,), jnp.int32)

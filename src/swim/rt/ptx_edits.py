@@ -15,8 +15,12 @@ modifiers may be optimized to use fused-multiply-add instructions"). The fused k
 FMUL and 308 FADD and only 56 FFMA on sm_90a. Without the modifiers (``.rn`` is the default rounding, so each
 instruction that stays alone rounds as before) ptxas contracts ~180 pairs: the loop falls from 1 617 to 1 440
 instructions at the same 255 registers (section 88). A contracted pair rounds once instead of twice, as nvcc's
-default ``--fmad=true`` does, so the results move by float32 rounding; the kernel makes no decision on the exact
-equality of values computed apart (its roll-back's adjacency test compares a stored bound with itself).
+default ``--fmad=true`` does, so the results move by float32 rounding (and a decision at a threshold, such as a
+terrain crossing or a refinement, may flip for a rare ray); the kernel makes no decision on the exact equality of
+values computed apart (its roll-back's adjacency test compares a stored bound with itself). The edit cannot tell
+LLVM's protective ``.rn`` from a deliberate one (``__fmul_rn`` in an inlined libdevice function, which nvcc would
+keep); the fused kernel's inlined ``expf``/``expm1f`` have no ``mul.rn`` that feeds an add (checked in session 69),
+and a new libdevice call in the kernel should be checked again.
 
 So both travel in the kernel's name: a Pallas kernel of swim's named ``swim_...[_fma][_rN]`` (:func:`kernel_name`)
 gets ``.maxnreg N`` inserted among its entry's directives and, with ``_fma``, its body's float32 multiplies, adds and
@@ -139,8 +143,8 @@ def edit_ptx(ptx: str) -> str:
     Raises
     ------
     ValueError
-        If an entry that asks for an edit has no body (no ``{`` after its parameter list, or none that closes), or
-        its cap is outside [16, 255].
+        If an entry that asks for an edit has no body (no ``{`` after its parameter list before a ``;`` or the next
+        entry, or none that closes), or its cap is outside [16, 255].
     """
     pieces, at = [], 0
     for entry in _ENTRY.finditer(ptx):
@@ -153,7 +157,8 @@ def edit_ptx(ptx: str) -> str:
         close = _closing(ptx, entry.end() - 1, "(", ")")
         body = ptx.find("{", close) if close >= 0 else -1
         end = _closing(ptx, body, "{", "}") if body >= 0 else -1
-        if end < 0:
+        # a declaration without a body ends in ";" before the next function: never edit that one's body instead
+        if end < 0 or ";" in ptx[close + 1:body] or ".entry" in ptx[close + 1:body]:
             raise ValueError(f"PTX entry {name} has no body")
         directives = ptx[close + 1:body]
         if cap is not None:
@@ -217,7 +222,11 @@ class _EditingTriton:
         asm = getattr(result, "asm", None)
         if not isinstance(asm, str):  # ROCm's result (a code object's path), or a release that returns bytes
             return result
-        edited = edit_ptx(asm)
+        try:
+            edited = edit_ptx(asm)
+        except ValueError as err:  # PTX of a shape the edits do not know: run the kernel as Triton wrote it
+            log.warning("PTX edits (register cap, fused multiply-adds) not applied to this kernel: %s", err)
+            return result
         return result if edited is asm else _EditedCompilation(result, edited)
 
 
