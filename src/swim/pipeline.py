@@ -949,7 +949,11 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
                     sun_out.update({key: value[-1] for key, value in sun_rows.items()})
                 if len(pixels) == 0:  # no valid pixel in the image: its outputs' keys and types, without rows
                     return {key: value[:0] for key, value in sun_rows.items() if key in kept}
-                result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, on_device=True)
+                # the batch's own pixels, then its last one repeated up to its bucket: the repeats marched as padding
+                # (rays that start stopped, sample_image_adaptive_device drops their rows)
+                own = int(np.argmax(pixels == pixels[-1])) + 1
+                result = trace_table_rows(table, table_rows[pixels], consts, phase_inputs, settings, on_device=True,
+                                          padding_from=own)
                 return {key: value for key, value in result.items() if key in kept}
 
             out, traced = sample_image_adaptive_device(trace_on_device, valid, sampling, progress, outside=np.nan,

@@ -45,6 +45,32 @@ def lookup(full, calls=None):
     return trace
 
 
+def test_a_batch_s_padding_rows_are_not_used():
+    """The repeats that fill a batch up to its bucket may come back as anything (the pipeline marches them as rays
+    that start stopped): the image and the traced pixels are those of a trace that returns the repeated pixel's
+    values."""
+    full, valid = analytic_image((64, 64), seed=3)
+    sampling = AdaptiveSampling()
+
+    def padding_garbage(flat):
+        own = int(np.argmax(flat == flat[-1])) + 1  # the batch's own pixels; then its last one repeated
+        out = {key: value[flat].copy() for key, value in full.items()}
+        if own < flat.size:
+            out["radiance"][own:] = 1e30
+            out["tau_hydrometeor"][own:] = np.nan
+            out["surface"][own:] = ~out["surface"][own:]
+        return out
+
+    expected, expected_traced = sample_image_adaptive_device(lookup(full), valid, sampling, outside=np.nan, chunk=1024)
+    calls = []
+    values, traced = sample_image_adaptive_device(lambda p: calls.append(p) or padding_garbage(p), valid, sampling,
+                                                  outside=np.nan, chunk=1024)
+    assert any(int(np.argmax(p == p[-1])) + 1 < p.size for p in calls), "some batch must be padded"
+    np.testing.assert_array_equal(np.asarray(traced), np.asarray(expected_traced))
+    for key, value in expected.items():
+        np.testing.assert_array_equal(np.asarray(values[key]), np.asarray(value), err_msg=key)
+
+
 def assert_same_sampling(full, valid, sampling, chunk=None):
     host_values, host_traced = sample_image_adaptive(lookup(full), valid, sampling, outside=np.nan)
     device_values, device_traced = sample_image_adaptive_device(lookup(full), valid, sampling, outside=np.nan,

@@ -54,6 +54,45 @@ def test_table_rows_give_trace_rays_outputs():
     np.testing.assert_allclose(out["distance"], reference["distance"], rtol=1e-6, atol=1e-3)
 
 
+@pytest.mark.parametrize("kernel", ["lockstep", "fused"])
+def test_padding_rows_are_marched_as_rays_outside_the_camera(kernel):
+    """A batch filled up to its bucket (its last row repeated, ``padding_from``) and a chunk's own padding: the
+    padding marched as rays that start stopped (zero radiance, no ground), the batch's own rows as without it, bit for
+    bit, with the lockstep loops and with the fused kernel (in Pallas's interpreter), on the device."""
+    scene = _tiny_scene(True)
+    origins, dirs = _random_rays(200, seed=7)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    aerosol = AerosolBackground()
+    settings = MarchSettings(backend="jax", chunk=256, grid_kernel=kernel)
+    _, (volume, _, gas, _) = _trace(scene, origins[:1], dirs[:1], sun, aerosol=aerosol, settings=settings)
+    from swim.rt.march import kernel_constants
+    from swim.rt.solar import solar_transmittance
+
+    consts = kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
+    table = ray_table.build_ray_table(origins, dirs, grid_geometry(volume), consts, settings)
+    phase = ray_table.PhaseInputs(tuple(sun), gas.depolarization, aerosol.type, aerosol.stratospheric)
+    from swim.rt.march import padded_batch_size
+
+    own = np.arange(0, 200, 2)  # 100 rows: the chunk pads them itself (to 256)
+    alone = ray_table.trace_table_rows(table, own, consts, phase, settings, on_device=True)
+    filled = np.concatenate([own, np.repeat(own[-1:], 156)])  # a caller's bucket of 256: no padding of the chunk's
+    padded = ray_table.trace_table_rows(table, filled, consts, phase, settings, on_device=True, padding_from=100)
+    as_duplicates = ray_table.trace_table_rows(table, filled, consts, phase, settings, on_device=True)
+    assert np.asarray(alone["radiance"]).shape[0] == padded_batch_size(100, 256) == 256
+    assert np.asarray(padded["radiance"]).shape[0] == 256
+    assert np.asarray(alone["tau_hydrometeor"])[:100].max() > 1.0 and np.asarray(alone["surface"])[:100].any()
+    for key in ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear", "tau_hydrometeor",
+                "surface", "distance"):
+        a, b = np.asarray(alone[key]), np.asarray(padded[key])
+        np.testing.assert_array_equal(b[:100], a[:100], err_msg=key)
+        np.testing.assert_array_equal(np.asarray(as_duplicates[key])[:100], a[:100], err_msg=key)
+    for out, first in ((alone, 100), (padded, 100)):
+        assert not np.asarray(out["radiance"])[first:].any() and not np.asarray(out["surface"])[first:].any()
+    # without padding_from the caller's repeats are its own rays: the last row's values
+    np.testing.assert_array_equal(np.asarray(as_duplicates["radiance"])[100:],
+                                  np.repeat(np.asarray(alone["radiance"])[99:100], 156, axis=0))
+
+
 def test_scattering_cosine_is_accurate_near_the_sun():
     """Within 3 degrees of the sun the float32 cosine is within 0.6 units in the last place of the exact one (the
     host's float64 value rounded: 0.5), where a float32 dot product is off by up to 2; elsewhere within 3e-7."""
@@ -122,6 +161,11 @@ def test_table_rows_are_checked():
         ray_table.trace_table_rows(table, np.array([], int), consts, phase, settings)
     with pytest.raises(SwimInputError, match="JAX kernel"):
         ray_table.trace_table_rows(table, [0], consts, phase, MarchSettings(backend="numba"))
+    for bad in (0, 3):
+        with pytest.raises(SwimInputError, match=r"padding_from must be in \[1, 2\]"):
+            ray_table.trace_table_rows(table, [0, 1], consts, phase, settings, padding_from=bad)
+    with pytest.raises(SwimInputError, match="not given with extra, got 1 with extra"):
+        ray_table.trace_table_rows(table, [0, 1], consts, phase, settings, padding_from=1, extra=table)
     with pytest.raises(SwimInputError, match="directions must be a finite"):
         ray_table.build_ray_table(origins, dirs * np.nan, grid_geometry(volume), consts, settings)
     with pytest.raises(SwimInputError, match="ray_table must be True, False or None"):

@@ -291,9 +291,10 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_ke
 
 @exported_jit
 def _scatter(image, pixels, rows):
-    """``image`` (N, C) with ``rows`` (m, C) written at ``pixels`` (m,). Not donating the image's buffer: a 1024^2
-    image's arrays are a few megabytes, and an exported program (read from disk by a new process) cannot donate."""
-    return image.at[pixels].set(rows.astype(image.dtype))
+    """``image`` (N, C) with ``rows`` (m, C) written at ``pixels`` (m,), those at N or beyond (a batch's padding)
+    dropped. Not donating the image's buffer: a 1024^2 image's arrays are a few megabytes, and an exported program
+    (read from disk by a new process) cannot donate."""
+    return image.at[pixels].set(rows.astype(image.dtype), mode="drop")
 
 
 def bucket_size(m: int, chunk: int) -> int:
@@ -309,7 +310,7 @@ def bucket_size(m: int, chunk: int) -> int:
 
 @exported_jit
 def _mark_traced(traced, pixels):
-    return traced.at[pixels].set(True)
+    return traced.at[pixels].set(True, mode="drop")
 
 
 def _as_columns(value):
@@ -340,7 +341,7 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
     trace : callable
         ``trace(pixels)`` with flat pixel indices (m,) int64 (a NumPy array: a batch's pixels in increasing order,
         then its last pixel repeated up to :func:`bucket_size`) into the (ny, nx) image returns a dict of arrays
-        (m, ...), JAX device arrays or NumPy ones: at least ``radiance`` (m, C) [-],
+        (m, ...), JAX device arrays or NumPy ones (the repeats' rows are not used: they may be padding's): at least ``radiance`` (m, C) [-],
         ``tau_hydrometeor`` (m,) [-] and ``surface`` (m,) bool; ``radiance_clear`` (m, C) [-], where given, enters
         the test of ``sampling.clear_tolerance``. Float arrays are interpolated, boolean ones copied from a smooth
         cell's first corner, integer ones 0 where interpolated.
@@ -396,13 +397,14 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
         new = np.flatnonzero(np.asarray(wanted & valid_dev & ~traced))
         if new.size == 0:
             return
-        # the last pixel repeated up to the batch's bucket: its duplicates trace and write the same values
+        # the last pixel repeated up to the batch's bucket; the repeats' rows are dropped (index n), so that trace may
+        # march them as padding (the pipeline's rays that start stopped) and return anything there
         padded = np.concatenate([new, np.repeat(new[-1:], bucket_size(new.size, chunk) - new.size)])
         result = trace(padded)
         missing = {"radiance", "tau_hydrometeor", "surface"} - set(result)
         if missing:
             raise SwimInputError(f"sample_image_adaptive_device: trace returned no {sorted(missing)}")
-        pixels = jnp.asarray(padded.astype(np.int32))
+        pixels = jnp.asarray(np.concatenate([new, np.full(padded.size - new.size, n)]).astype(np.int32))
         for name, value in result.items():
             rows = _as_columns(value)
             if rows.shape[0] != padded.size:

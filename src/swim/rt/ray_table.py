@@ -244,10 +244,11 @@ def _geometry_key(geometry: GridGeometry):
 
 
 @exported_jit(static_argnames=("aerosol_type", "stratospheric_type"))  # a new process reads the traced program
-def _gather_rows(table_arrays, extra_arrays, rows, sun, depolarization, aerosol_type, stratospheric_type):
+def _gather_rows(table_arrays, extra_arrays, rows, n_real, sun, depolarization, aerosol_type, stratospheric_type):
     """A chunk's per-ray inputs of :func:`swim.rt.march._trace_chunk` from the table's rows ``rows`` (n,) (rows past
     the table's end: the rows of ``extra_arrays``, a second table's), with the phase functions of
-    :func:`swim.pipeline._phase_functions` at their scattering angles (the sun ``sun`` (3,))."""
+    :func:`swim.pipeline._phase_functions` at their scattering angles (the sun ``sun`` (3,)). The rays from position
+    ``n_real`` (an int32 scalar: a traced value, so one program serves every count) on are padding: not valid."""
     size = table_arrays[0].shape[0]
 
     def take(a, e):
@@ -262,6 +263,9 @@ def _gather_rows(table_arrays, extra_arrays, rows, sun, depolarization, aerosol_
     extra_arrays = (None,) * len(table_arrays) if extra_arrays is None else extra_arrays
     start, direction, bounds, ends_on_ground, valid, probes, cells = (
         take(a, e) for a, e in zip(table_arrays, extra_arrays))
+    # padding marched as a ray outside the camera: it starts stopped, so the fused kernel's programs of padding end
+    # at once (a copy of the last row's ray cost as much as that ray)
+    valid = valid & (jnp.arange(rows.shape[0], dtype=jnp.int32) < n_real)
     cos_theta = scattering_cosine(direction, sun)
     p_rayleigh, p_aerosol, p_stratospheric = phase_functions(cos_theta, depolarization, aerosol_type,
                                                              stratospheric_type)
@@ -303,7 +307,8 @@ def _arrays(table: RayTable):
 
 
 def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings: MarchSettings = MarchSettings(),
-                     progress=None, extra: RayTable | None = None, on_device: bool = False):
+                     progress=None, extra: RayTable | None = None, on_device: bool = False,
+                     padding_from: int | None = None):
     """March the rays of a :class:`RayTable`'s rows with the JAX kernel; the outputs of
     :func:`swim.rt.march.trace_rays` for those rays.
 
@@ -330,6 +335,12 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         padded to :func:`swim.rt.march.padded_batch_size`), instead of the first m rows on the host: for
         :func:`swim.rt.image_sampling_device.sample_image_adaptive_device`, whose batches are already of such sizes.
         No copy to the host, and no slice whose shape would be compiled anew for every batch.
+    padding_from : int, optional
+        Rows from this position of ``rows`` on are the caller's padding (a batch filled up to a compiled size, as
+        :func:`swim.rt.image_sampling_device.sample_image_adaptive_device` fills its batches): they are marched as
+        rays outside the camera (not valid), as the chunks' own padding always is, so that the fused GPU kernel's
+        programs of padding end at once; their outputs are those of such a ray (zero radiance), not their rows'. Not
+        with ``extra``. None: every row is the caller's own.
 
     Returns
     -------
@@ -340,7 +351,8 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
     Raises
     ------
     SwimInputError
-        If there are no rows, a row is outside the table, or ``settings`` does not resolve to the JAX kernel.
+        If there are no rows, a row is outside the table, ``settings`` does not resolve to the JAX kernel, or
+        ``padding_from`` is given with ``extra`` or outside [1, len(rows)].
     """
     rows = np.asarray(rows)
     if rows.ndim != 1 or rows.size == 0 or not np.issubdtype(rows.dtype, np.integer):
@@ -348,12 +360,17 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
                              f"of {rows.dtype}")
     if rows.min() < 0 or rows.max() >= table.size:
         raise SwimInputError(f"trace_table_rows: rows must be in [0, {table.size}), got {rows.min()}..{rows.max()}")
+    real = rows.size if padding_from is None else int(padding_from)
+    if padding_from is not None and (extra is not None or not 1 <= real <= rows.size):
+        raise SwimInputError(f"trace_table_rows: padding_from must be in [1, {rows.size}] and not given with extra, "
+                             f"got {padding_from!r}{' with extra' if extra is not None else ''}")
     if settings.resolved_backend() != "jax":
         raise SwimInputError(f"trace_table_rows marches with the JAX kernel; MarchSettings.backend="
                              f"{settings.backend!r} resolves to {settings.resolved_backend()!r}")
     segments_host, probes_host = table.segments_host, table.probes_host
     if extra is not None:  # the extra rays as rows past the table's end
         rows = np.concatenate([rows, table.size + np.arange(extra.size)])
+        real = rows.size
         segments_host = np.concatenate([segments_host, extra.segments_host])
         if probes_host is not None and extra.probes_host is not None:
             probes_host = np.concatenate([probes_host, extra.probes_host])
@@ -399,7 +416,8 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         # n_probe as swim.rt.march._chunk_probes raises it, from the probes kept on the host
         chunk_settings = with_probes_for(settings, int(probes_host[rows[lo:hi]].max())) if with_probes else settings
         chunk_extra = extra_arrays if extra is not None and part.max() >= table.size else None
-        args, rays, probes = _gather_rows(table_arrays, chunk_extra, jnp.asarray(part.astype(np.int32)), sun,
+        n_real = np.int32(min(max(real - lo, 0), hi - lo))  # the chunk's own rays: the rest padding (not valid)
+        args, rays, probes = _gather_rows(table_arrays, chunk_extra, jnp.asarray(part.astype(np.int32)), n_real, sun,
                                           depolarization, phase.aerosol_type, phase.stratospheric_type)
         # queued on the device behind the chunk before: no copy to the host in between
         # (looked up in its module each time: benchmarks/bench_gpu.py wraps it)
