@@ -600,24 +600,23 @@ def test_a_step_after_a_thick_one_is_halved_before_it_is_sampled(monkeypatch, th
     np.testing.assert_allclose(predicted["moment"], tested["moment"], rtol=1e-6)
 
 
-def test_numba_and_jax_refine_alike_sample_by_sample(monkeypatch):
-    """The numba kernel and the lockstep JAX kernel take the same samples per ray in the grid: the same halvings,
-    predicted halvings and roll-backs (equal results do not show that: where a prediction is right, the accumulated
-    intervals are the same as without it). Rays look up from the ground and from inside the cloud, with no clear air
-    before or after the grid and no stop in opaque cloud, so numba's count (``steps``) is the grid's alone; JAX's
-    samples are counted through a callback around the grid march's sample function (its uncached program)."""
+def _grid_samples_of_both_kernels(monkeypatch, scene, largest_zenith, **settings):
+    """240 rays up from the ground and from inside the cloud (view zenith up to ``largest_zenith``) through ``scene``,
+    without clear air before or after the grid: the lockstep JAX kernel's grid samples per ray (of nonzero length,
+    counted through a callback around the grid march's sample function, its uncached program), and the outputs of
+    both kernels (numba's ``steps`` is then its grid's count, with a terminal step at the ground)."""
     import jax
 
     from swim.rt import march
 
     rng = np.random.default_rng(11)
     n = 240
-    azimuth, zenith = rng.uniform(0.0, 360.0, n), rng.uniform(0.0, 70.0, n)
+    azimuth, zenith = rng.uniform(0.0, 360.0, n), rng.uniform(0.0, largest_zenith, n)
     dirs = np.array([enu_from_azimuth_zenith(a, z) for a, z in zip(azimuth, zenith)])
     origins = np.where((np.arange(n) % 2 == 0)[:, None], [[0.0, 0.0, EARTH_RADIUS_M + 20.0]],
                        [[200.0, -300.0, EARTH_RADIUS_M + 1800.0]])
     sun = enu_from_azimuth_zenith(135.0, 40.0)
-    settings = dict(n_before=0, n_after=0, stop_tau=0.0, chunk=256)
+    settings = dict(n_before=0, n_after=0, chunk=256, **settings)
     counts = np.zeros(256, int)
 
     def count(ds):
@@ -633,14 +632,40 @@ def test_numba_and_jax_refine_alike_sample_by_sample(monkeypatch):
 
     monkeypatch.setattr(march, "_march_grid_refined", counting)
     monkeypatch.setattr(march, "_trace_chunk", jax.jit(march._trace_chunk.function, static_argnames=("settings",)))
-    jax_out = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="jax", **settings))[0]
+    jax_out = _trace(scene, origins, dirs, sun, settings=MarchSettings(backend="jax", **settings))[0]
     jax.effects_barrier()
-    numba_out = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="numba", **settings))[0]
-    jax_steps, numba_steps = counts[:n], np.asarray(numba_out["steps"])
+    numba_out = _trace(scene, origins, dirs, sun, settings=MarchSettings(backend="numba", **settings))[0]
+    return counts[:n].copy(), jax_out, numba_out
+
+
+def test_numba_and_jax_refine_alike_sample_by_sample(monkeypatch):
+    """The numba kernel and the lockstep JAX kernel take the same samples per ray in the grid: the same halvings,
+    predicted halvings and roll-backs (equal results do not show that: where a prediction is right, the accumulated
+    intervals are the same as without it). No stop in opaque cloud here."""
+    jax_steps, jax_out, numba_out = _grid_samples_of_both_kernels(monkeypatch, _tiny_scene(), 70.0, stop_tau=0.0)
+    numba_steps = np.asarray(numba_out["steps"])
     assert numba_steps.min() > 0 and numba_steps.max() > 128  # the rays refined in the cloud
     same = jax_steps == numba_steps
     assert same.mean() >= 0.95, (same.mean(), np.flatnonzero(~same)[:10])
     assert abs(int(jax_steps.sum()) - int(numba_steps.sum())) <= 0.005 * numba_steps.sum()
+    np.testing.assert_allclose(jax_out["tau_hydrometeor"], numba_out["tau_hydrometeor"], rtol=2e-3, atol=1e-3)
+
+
+def test_a_stopped_ray_samples_no_more_in_jax_than_in_numba(monkeypatch):
+    """A ray that stops (in opaque cloud, or at the ground) leaves the JAX kernel's grid loop, as it leaves numba's:
+    the rays stopped in opaque cloud take the same grid samples in both kernels, and those at the ground as many
+    but numba's terminal steps (up to 3). Before session 69 (docs/performance.md, 88.) JAX's rays went on to their
+    last grid step (50-105 samples more here), their later samples adding nothing."""
+    jax_steps, jax_out, numba_out = _grid_samples_of_both_kernels(monkeypatch, _tiny_scene(True), 150.0,
+                                                                  stop_tau=40.0)
+    numba_steps = np.asarray(numba_out["steps"])
+    surface = np.asarray(numba_out["surface"])
+    stopped = (np.asarray(numba_out["tau_hydrometeor"]) >= 40.0 - 1e-3) & ~surface
+    assert stopped.sum() >= 20 and surface.sum() >= 10, (stopped.sum(), surface.sum())
+    np.testing.assert_array_equal(np.asarray(jax_out["surface"]), surface)
+    np.testing.assert_array_equal(jax_steps[stopped], numba_steps[stopped])
+    extra = numba_steps[surface] - jax_steps[surface]
+    assert extra.min() >= 0 and extra.max() <= 3, np.unique(extra)
     np.testing.assert_allclose(jax_out["tau_hydrometeor"], numba_out["tau_hydrometeor"], rtol=2e-3, atol=1e-3)
 
 
