@@ -61,6 +61,46 @@ def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
         np.testing.assert_allclose(fused["distance"], lockstep["distance"], rtol=1e-6, atol=1e-3, err_msg=kernel)
 
 
+def test_a_block_whose_rays_have_stopped_takes_no_steps(monkeypatch):
+    """"fused-march": a block of rays that have all stopped (or are padding: not valid) leaves every loop of the
+    kernel at once, its state as it came (``gap`` and ``s_last`` are not moved by samples that add nothing), while the
+    other block of the batch is marched as when alone (the same bits); with its rays alive the first block's loops
+    do run (docs/performance.md, section 88)."""
+    got = {}
+
+    class Captured(Exception):
+        pass
+
+    def grab(*args, **kwargs):
+        got.update(args=args, kwargs=kwargs)
+        raise Captured
+
+    from swim.rt import march
+
+    def eager_chunk(*args, **kwargs):  # the chunk without jit: the kernel's arguments arrive as values, not tracers
+        with jax.disable_jit():
+            return chunk.function(*args, **kwargs)
+
+    chunk = march._trace_chunk
+    monkeypatch.setattr(march_pallas, "march_segments_fused", grab)
+    monkeypatch.setattr(march, "_trace_chunk", eager_chunk)
+    origins, dirs = _random_rays(128, seed=1)
+    with pytest.raises(Captured):
+        _trace(_tiny_scene(True), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
+               settings=MarchSettings(backend="jax", grid_kernel="fused-march", chunk=128))
+    monkeypatch.undo()
+    state, *rest = got["args"]
+    kwargs = {**got["kwargs"], "interpret": True, "block_rays": 64, "num_warps": 2}  # two blocks of 64 rays
+    marched = march_pallas.march_segments_fused(state, *rest, **kwargs)
+    stopped = dict(state, alive=state["alive"].at[:64].set(False))
+    idle = march_pallas.march_segments_fused(stopped, *rest, **kwargs)
+    assert bool(np.asarray(state["alive"])[:64].all())
+    for key in ("gap", "s_last", "tau_h", "tau_clear", "l_clear", "i_nogas", "tau_species", "hit"):
+        np.testing.assert_array_equal(np.asarray(idle[key])[:64], np.asarray(stopped[key])[:64], err_msg=key)
+        np.testing.assert_array_equal(np.asarray(idle[key])[64:], np.asarray(marched[key])[64:], err_msg=key)
+    assert not np.array_equal(np.asarray(marched["s_last"])[:64], np.asarray(state["s_last"])[:64])
+
+
 def test_grid_kernel_setting_is_checked_and_resolved(monkeypatch):
     with pytest.raises(SwimInputError, match="grid_kernel must be one of"):
         MarchSettings(grid_kernel="triton")

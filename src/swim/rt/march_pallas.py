@@ -684,15 +684,22 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
 
         def plain(st, edges_ref, last, n_steps, in_grid):
             """:func:`swim.rt.march._march_segment`'s loop of ``n_steps`` midpoint steps; a ray's steps beyond its
-            own count ``last`` leave it as it is."""
-            def body(m, st):
+            own count ``last`` leave it as it is. The block's loop ends when no ray that has not stopped has steps
+            left: a stopped ray's samples add nothing (docs/performance.md, section 88), so a block of padding or of
+            rays stopped in the grid takes none of the steps after it."""
+            def body(carry):
+                m, st = carry
                 s_lo = edges_ref[m * n + ray]
                 ds = edges_ref[(m + 1) * n + ray] - s_lo
                 new = sample(st, s_lo, ds, in_grid)[0]
                 taken = m < last
-                return {key: jnp.where(taken, value, st[key]) for key, value in new.items()}
+                return m + 1, {key: jnp.where(taken, value, st[key]) for key, value in new.items()}
 
-            return jax.lax.fori_loop(0, n_steps, body, st)
+            def more(carry):
+                m, st = carry
+                return (m < n_steps) & (jnp.max(((m < last) & st["alive"]).astype(jnp.int32)) > 0)
+
+            return jax.lax.while_loop(more, body, (jnp.int32(0), st))[1]
 
         values = [r[...] for r in state_refs]
         st = dict(zip(columns, values))
