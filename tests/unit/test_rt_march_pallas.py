@@ -61,11 +61,13 @@ def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
         np.testing.assert_allclose(fused["distance"], lockstep["distance"], rtol=1e-6, atol=1e-3, err_msg=kernel)
 
 
-def test_a_block_whose_rays_have_stopped_takes_no_steps(monkeypatch):
-    """"fused-march": a block of rays that have all stopped (or are padding: not valid) leaves every loop of the
-    kernel at once, its state as it came (``gap`` and ``s_last`` are not moved by samples that add nothing), while the
-    other block of the batch is marched as when alone (the same bits); with its rays alive the first block's loops
-    do run (docs/performance.md, section 88)."""
+def captured_kernel_call(kernel="fused", values=False, plume=False, **settings):
+    """The fused kernel's arguments (``march_grid_fused``'s, or ``march_segments_fused``'s for "fused-march") in a JAX
+    march of 128 rays through the tests' tiny scene (on the CPU; ``plume``: with the smoke plume and terrain), with
+    these MarchSettings, as (args, kwargs): traced values, or with ``values`` the arrays themselves (the chunk then
+    runs without jit up to the kernel's call)."""
+    from swim.rt import march
+
     got = {}
 
     class Captured(Exception):
@@ -75,22 +77,36 @@ def test_a_block_whose_rays_have_stopped_takes_no_steps(monkeypatch):
         got.update(args=args, kwargs=kwargs)
         raise Captured
 
-    from swim.rt import march
-
-    def eager_chunk(*args, **kwargs):  # the chunk without jit: the kernel's arguments arrive as values, not tracers
+    def eager_chunk(*args, **kwargs):
         with jax.disable_jit():
             return chunk.function(*args, **kwargs)
 
-    chunk = march._trace_chunk
-    monkeypatch.setattr(march_pallas, "march_segments_fused", grab)
-    monkeypatch.setattr(march, "_trace_chunk", eager_chunk)
-    origins, dirs = _random_rays(128, seed=1)
-    with pytest.raises(Captured):
-        _trace(_tiny_scene(True), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
-               settings=MarchSettings(backend="jax", grid_kernel="fused-march", chunk=128))
-    monkeypatch.undo()
-    state, *rest = got["args"]
-    kwargs = {**got["kwargs"], "interpret": True, "block_rays": 64, "num_warps": 2}  # two blocks of 64 rays
+    name = "march_grid_fused" if kernel == "fused" else "march_segments_fused"
+    real, chunk = getattr(march_pallas, name), march._trace_chunk
+    setattr(march_pallas, name, grab)
+    if values:
+        march._trace_chunk = eager_chunk
+    try:
+        origins, dirs = _random_rays(128, seed=1)
+        _trace(_tiny_scene(plume), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
+               settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=128, **settings))
+    except Captured:
+        pass
+    finally:
+        setattr(march_pallas, name, real)
+        march._trace_chunk = chunk
+    assert got, "the march did not call the fused grid kernel"
+    return got["args"], got["kwargs"]
+
+
+def test_a_block_whose_rays_have_stopped_takes_no_steps():
+    """"fused-march": a block of rays that have all stopped (or are padding: not valid) leaves every loop of the
+    kernel at once, its state as it came (``gap`` and ``s_last`` are not moved by samples that add nothing), while the
+    other block of the batch is marched as when alone (the same bits); with its rays alive the first block's loops
+    do run (docs/performance.md, section 88)."""
+    args, kwargs = captured_kernel_call("fused-march", values=True, plume=True)
+    state, *rest = args
+    kwargs = {**kwargs, "interpret": True, "block_rays": 64, "num_warps": 2}  # two blocks of 64 rays
     marched = march_pallas.march_segments_fused(state, *rest, **kwargs)
     stopped = dict(state, alive=state["alive"].at[:64].set(False))
     idle = march_pallas.march_segments_fused(stopped, *rest, **kwargs)

@@ -9,12 +9,10 @@ import types
 import jax
 import pytest
 
-from swim.frames import enu_from_azimuth_zenith
 from swim.rt import march_pallas, ptx_edits
-from swim.rt.march import MarchSettings
 from swim.rt.ptx_edits import edit_ptx, install_ptx_edits, kernel_name
 
-from test_rt_march import _random_rays, _tiny_scene, _trace
+from test_rt_march_pallas import captured_kernel_call
 
 # The shape of Triton's PTX for the fused kernel (sm_90a): header, a global, the entry, its parameters, its tuning
 # directive, its body (braces inside it, as Triton's vector loads' operands and a nested scope write them; float32
@@ -196,30 +194,10 @@ def test_the_wrapper_caps_only_ptx_and_keeps_the_result_s_other_fields():
 
 
 def _captured_grid_call(kernel="fused", **settings):
-    """The fused kernel's arguments (``march_grid_fused``'s, or ``march_segments_fused``'s for "fused-march") in a JAX
-    march of 128 rays through the tests' tiny scene (on the CPU), with these MarchSettings."""
-    got = {}
-
-    class Captured(Exception):
-        pass
-
-    def grab(*args, **kwargs):
-        got.update(args=args, kwargs=kwargs)
-        raise Captured
-
-    name = "march_grid_fused" if kernel == "fused" else "march_segments_fused"
-    real = getattr(march_pallas, name)
-    setattr(march_pallas, name, grab)
-    try:
-        origins, dirs = _random_rays(128, seed=1)
-        _trace(_tiny_scene(False), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
-               settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=128, **settings))
-    except Captured:
-        pass
-    finally:
-        setattr(march_pallas, name, real)
-    assert got, "the march did not call the fused grid kernel"
-    return got["args"], {**got["kwargs"], "interpret": False}
+    """The fused kernel's traced arguments in a JAX march of 128 rays through the tests' tiny scene
+    (:func:`test_rt_march_pallas.captured_kernel_call`), to be lowered for a GPU (not interpreted)."""
+    args, kwargs = captured_kernel_call(kernel, **settings)
+    return args, {**kwargs, "interpret": False}
 
 
 def _lowered_for_cuda(args, kwargs, max_registers, fma=False):
