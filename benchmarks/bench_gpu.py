@@ -605,27 +605,22 @@ def sweep_fused_blocks(name, probe, blocks):
             spread = {"radiance_median_rel_diff": float(np.median(rel)) if rel.size else float("nan"),
                       "radiance_p99_rel_diff": float(np.percentile(rel, 99)) if rel.size else float("nan"),
                       "radiance_values_off_by_1e-4": int(np.sum(rel > 1e-4))}
+            # the edits seen in this row's PTX (not only the wrapper installed): the capped entry, and the contracted
+            # one with the instructions freed there
+            cap_applied = bool(cap) and caps_applied() > caps_before and capped_entries().get(entry) == cap
+            fma_applied = (fma and contractions_applied() > contractions_before
+                           and contracted_entries().get(entry, 0) > 0)
             rows.append({"scene": name, "fused_block": text, "grid_kernel": kernel, "block_chunk_s": seconds,
-                         "max_registers": cap,
-                         # the capped entry seen in the PTX (not only the wrapper installed)
-                         "cap_applied": bool(cap) and caps_applied() > caps_before
-                         and capped_entries().get(entry) == cap,
-                         "vector_gathers": vector, "fma": fma,
-                         # the contracted entry seen in the PTX, and how many instructions were freed there
-                         "fma_applied": fma and contractions_applied() > contractions_before
-                         and contracted_entries().get(entry, 0) > 0,
-                         "fma_freed": None,
+                         "max_registers": cap, "cap_applied": cap_applied, "vector_gathers": vector, "fma": fma,
+                         "fma_applied": fma_applied, "fma_freed": contracted_entries()[entry] if fma_applied else None,
                          "first_call_s": first, "render_kernel_chunk_s": base_s, "radiance_max_rel_diff": worst,
                          **spread, "nonfinite": int(np.sum(~ok))})
-            capped = "" if cap is None else f", at most {cap} registers ({'' if rows[-1]['cap_applied'] else 'NOT '}applied)"
+            capped = "" if cap is None else f", at most {cap} registers ({'' if cap_applied else 'NOT '}applied)"
             capped += "" if vector else ", scalar gathers"
-            if rows[-1]["fma_applied"]:  # this row's compilation, not an earlier row's
-                rows[-1]["fma_freed"] = contracted_entries()[entry]
-            if fma:
-                capped += f", fused multiply-adds ({'' if rows[-1]['fma_applied'] else 'NOT '}applied)"
-            print(f"{name}: {kernel} kernel, {rays} rays x {warps} warps per program{capped}: {seconds * 1e3:.2f} ms per chunk "
-                  f"(first call {first:.1f} s; the render's kernel {base_s * 1e3:.2f} ms), radiance within "
-                  f"{worst:.1e} (median {spread['radiance_median_rel_diff']:.1e}, p99 "
+            capped += f", fused multiply-adds ({'' if fma_applied else 'NOT '}applied)" if fma else ""
+            print(f"{name}: {kernel} kernel, {rays} rays x {warps} warps per program{capped}: "
+                  f"{seconds * 1e3:.2f} ms per chunk (first call {first:.1f} s; the render's kernel "
+                  f"{base_s * 1e3:.2f} ms), radiance within {worst:.1e} (median {spread['radiance_median_rel_diff']:.1e}, p99 "
                   f"{spread['radiance_p99_rel_diff']:.1e}, {spread['radiance_values_off_by_1e-4']} values off by "
                   f"> 1e-4), {int(np.sum(~ok))} values not finite", flush=True)
     finally:

@@ -341,10 +341,10 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
     trace : callable
         ``trace(pixels)`` with flat pixel indices (m,) int64 (a NumPy array: a batch's pixels in increasing order,
         then its last pixel repeated up to :func:`bucket_size`) into the (ny, nx) image returns a dict of arrays
-        (m, ...), JAX device arrays or NumPy ones (the repeats' rows are not used: they may be padding's): at least ``radiance`` (m, C) [-],
-        ``tau_hydrometeor`` (m,) [-] and ``surface`` (m,) bool; ``radiance_clear`` (m, C) [-], where given, enters
-        the test of ``sampling.clear_tolerance``. Float arrays are interpolated, boolean ones copied from a smooth
-        cell's first corner, integer ones 0 where interpolated.
+        (m, ...), JAX device arrays or NumPy ones (the repeats' rows are not used: they may be padding's): at least
+        ``radiance`` (m, C) [-], ``tau_hydrometeor`` (m,) [-] and ``surface`` (m,) bool; ``radiance_clear`` (m, C)
+        [-], where given, enters the test of ``sampling.clear_tolerance``. Float arrays are interpolated, boolean ones
+        copied from a smooth cell's first corner, integer ones 0 where interpolated.
     valid : numpy.ndarray
         Shape (ny, nx) bool: the camera's pixels that have a ray; the others are never traced and keep ``outside``
         (float outputs) or 0.
@@ -399,12 +399,13 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
             return
         # the last pixel repeated up to the batch's bucket; the repeats' rows are dropped (index n), so that trace may
         # march them as padding (the pipeline's rays that start stopped) and return anything there
-        padded = np.concatenate([new, np.repeat(new[-1:], bucket_size(new.size, chunk) - new.size)])
+        pad = bucket_size(new.size, chunk) - new.size
+        padded = np.concatenate([new, np.repeat(new[-1:], pad)])
         result = trace(padded)
         missing = {"radiance", "tau_hydrometeor", "surface"} - set(result)
         if missing:
             raise SwimInputError(f"sample_image_adaptive_device: trace returned no {sorted(missing)}")
-        pixels = jnp.asarray(np.concatenate([new, np.full(padded.size - new.size, n)]).astype(np.int32))
+        pixels = jnp.asarray(np.concatenate([new, np.full(pad, n)]).astype(np.int32))
         for name, value in result.items():
             rows = _as_columns(value)
             if rows.shape[0] != padded.size:

@@ -373,8 +373,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
     from .ptx_edits import install_ptx_edits, kernel_name
 
     from .march import (REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR,
-                        _predicted_halving, bilinear_gathers, lerp_gathers, packed_aerosol_3d,
-                        trilinear_gathers)
+                        _predicted_halving, bilinear_gathers, lerp_gathers, packed_aerosol_3d, trilinear_gathers)
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
