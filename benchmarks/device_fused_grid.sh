@@ -23,7 +23,8 @@
 # the fused multiply-adds, alone and with the caps (512 x 16 left out: 128 x 4 at 128 registers has its occupancy
 # with less lockstep). STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
 # the image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it
-# against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it.
+# against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it; since session 70
+# (section 89) first benchmarks/frame_parts.py: each of a warm frame's programs waited for, every pixel and adaptive.
 # Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
@@ -93,7 +94,11 @@ image() {  # session 67's MarchSettings.device_image (section 86): its tests on 
     # on the device), then warm frames with the image finished on the device against the host, taking turns, and
     # where a new process's README render (its caches warm) spends its ~11 s (section 85)
     timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/test_color_device.py 2>&1 | tail -3 || true
-    timeout "${IMAGE_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
+    # session 70 (section 89): each program of a warm frame waited for, every pixel and adaptive, and what the rest is
+    timeout "${PARTS_S:-150}" python3 benchmarks/frame_parts.py --data .devdata --repeats 3 --profile \
+        --out "$RES/frame-parts-synthetic.json" 2>&1 | quiet
+    save
+    timeout "${IMAGE_S:-200}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
         --repeats 5 --out "$RES/image-synthetic.json" 2>&1 | quiet
     save
     readme_profile

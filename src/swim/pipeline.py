@@ -891,7 +891,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         sun_table = single_ray_table(observer, sun_scene, geometry, consts, settings)
         # every valid pixel in tile order (the table's rows in order: it was built from valid_pixels), then the sun's
         # ray; their outputs and the planes stay on the device
-        result = trace_table_rows(table, np.arange(table.size), consts, phase_inputs, settings, progress,
+        result = trace_table_rows(table, range(table.size), consts, phase_inputs, settings, progress,
                                   extra=sun_table, on_device=True)
         device_planes, sun_row, first_steps = planes_on_device(
             result, valid_pixels, (ny, nx), IMAGE_OUTPUTS, sun_keys=("tau_clear", "tau_hydrometeor", "surface", "steps"))

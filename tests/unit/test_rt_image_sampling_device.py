@@ -282,8 +282,7 @@ def test_a_new_process_reads_the_exported_programs_and_samples_alike(tmp_path, m
     monkeypatch.setenv("SWIM_CACHE_DIR", str(tmp_path))
     monkeypatch.delenv("SWIM_JAX_CACHE", raising=False)
     monkeypatch.delenv("SWIM_JAX_EXPORT", raising=False)
-    programs = (device._first_wanted, device._test_level, device._wanted_after_split, device._fill, device._scatter,
-                device._mark_traced)
+    programs = (device._first_wanted, device._test_level, device._wanted_after_split, device._fill, device._scatter)
     for program in programs:
         program.forget_programs()
     full, valid = analytic_image((37, 45), seed=3)

@@ -54,6 +54,52 @@ def test_table_rows_give_trace_rays_outputs():
     np.testing.assert_allclose(out["distance"], reference["distance"], rtol=1e-6, atol=1e-3)
 
 
+def test_a_range_of_rows_is_marched_as_the_same_rows_listed(monkeypatch):
+    """A frame's whole table passed as a range (read as slices of the host's arrays, no gathers) with the sun's ray
+    after it: the same outputs, bit for bit, as the rows listed, where the extra ray shares the last chunk and where it
+    has a chunk of its own; the range's bounds are checked."""
+    scene = _tiny_scene(True)
+    origins, dirs = _random_rays(300, seed=7)
+    sun = enu_from_azimuth_zenith(135.0, 40.0)
+    aerosol = AerosolBackground()
+    settings = MarchSettings(backend="jax", chunk=256, n_probe=8, probe_spacing=0.5)  # probe counts that vary
+    _, (volume, _, gas, _) = _trace(scene, origins[:1], dirs[:1], sun, aerosol=aerosol, settings=settings)
+    from swim.rt.march import kernel_constants
+    from swim.rt.solar import solar_transmittance
+
+    consts = kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
+    geometry = grid_geometry(volume)
+    table = ray_table.build_ray_table(origins, dirs, geometry, consts, settings)
+    extra = ray_table.build_ray_table(origins[:1], -dirs[:1], geometry, consts, settings)
+    probes = table.probes_host
+    assert probes.max() > settings.n_probe, "some chunk must take more probes than n_probe"
+    phase = ray_table.PhaseInputs(tuple(sun), gas.depolarization, aerosol.type, aerosol.stratospheric)
+    chunks = []  # each chunk's kernel settings (its n_probe: the largest probe count of its rays)
+    march_chunk = ray_table.march._trace_chunk
+    monkeypatch.setattr(ray_table.march, "_trace_chunk", lambda *args, **kwargs: chunks.append(args[7]) or
+                        march_chunk(*args, **kwargs))
+    for rows in (range(5, 295), range(44, 300)):  # the extra ray in the second chunk with others, then alone
+        seen = []
+        listed = ray_table.trace_table_rows(table, np.arange(rows.start, rows.stop), consts, phase, settings,
+                                            extra=extra)
+        listed_chunks, chunks[:] = chunks[:], []
+        ranged = ray_table.trace_table_rows(table, rows, consts, phase, settings, extra=extra,
+                                            progress=lambda done, n: seen.append((done, n)))
+        assert seen == [(256, len(rows) + 1), (len(rows) + 1, len(rows) + 1)]
+        assert chunks == listed_chunks and len(chunks) == 2, "the same chunks with the same settings"
+        # raised to the power of two above the chunk's largest count (swim.rt.march.with_probes_for)
+        assert chunks[0].n_probe == 1 << int(np.ceil(np.log2(probes[rows.start:rows.start + 256].max())))
+        chunks[:] = []
+        assert set(ranged) == set(listed)
+        for key, value in listed.items():
+            np.testing.assert_array_equal(ranged[key], value, err_msg=key)
+        assert ranged["radiance"].shape[0] == len(rows) + 1 and np.all(ranged["radiance"] > 0)
+    with pytest.raises(SwimInputError, match=r"non-empty range in \[0, 300\)"):
+        ray_table.trace_table_rows(table, range(1, 301), consts, phase, settings)
+    with pytest.raises(SwimInputError, match="non-empty range"):
+        ray_table.trace_table_rows(table, range(3, 3), consts, phase, settings)
+
+
 @pytest.mark.parametrize("kernel", ["lockstep", "fused"])
 def test_padding_rows_are_marched_as_rays_outside_the_camera(kernel):
     """A batch filled up to its bucket (its last row repeated, ``padding_from``) and a chunk's own padding: the

@@ -305,11 +305,13 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_ke
 
 
 @exported_jit
-def _scatter(image, pixels, rows):
-    """``image`` (N, C) with ``rows`` (m, C) written at ``pixels`` (m,), those at N or beyond (a batch's padding)
-    dropped. Not donating the image's buffer: a 1024^2 image's arrays are a few megabytes, and an exported program
-    (read from disk by a new process) cannot donate."""
-    return image.at[pixels].set(rows.astype(image.dtype), mode="drop")
+def _scatter(images, traced, pixels, rows):
+    """Each of ``images`` (N, C) with its ``rows`` (m, C) written at ``pixels`` (m,), and ``traced`` (N,) bool set
+    there, those at N or beyond (a batch's padding) dropped: one program per batch, not one per output. Not donating
+    the images' buffers: a 1024^2 image's arrays are a few megabytes, and an exported program (read from disk by a new
+    process) cannot donate."""
+    images = tuple(image.at[pixels].set(row.astype(image.dtype), mode="drop") for image, row in zip(images, rows))
+    return images, traced.at[pixels].set(True, mode="drop")
 
 
 def bucket_size(m: int, chunk: int) -> int:
@@ -321,11 +323,6 @@ def bucket_size(m: int, chunk: int) -> int:
 
     full, rest = divmod(int(m), int(chunk))
     return full * int(chunk) + (padded_batch_size(rest, int(chunk)) if rest else 0)
-
-
-@exported_jit
-def _mark_traced(traced, pixels):
-    return traced.at[pixels].set(True, mode="drop")
 
 
 def _as_columns(value):
@@ -421,16 +418,18 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
         if missing:
             raise SwimInputError(f"sample_image_adaptive_device: trace returned no {sorted(missing)}")
         pixels = jnp.asarray(np.concatenate([new, np.full(pad, n)]).astype(np.int32))
-        for name, value in result.items():
-            rows = _as_columns(value)
+        names, batch = list(result), []
+        for name in names:
+            rows = _as_columns(result[name])
             if rows.shape[0] != padded.size:
                 raise SwimInputError(f"sample_image_adaptive_device: trace returned {rows.shape[0]} rows of "
                                      f"{name!r} for {padded.size} pixels")
             if name not in values:
                 fill = outside if jnp.issubdtype(rows.dtype, jnp.floating) else 0
                 values[name] = jnp.full((n, rows.shape[1]), fill, rows.dtype)
-            values[name] = _scatter(values[name], pixels, rows)
-        traced = _mark_traced(traced, pixels)
+            batch.append(rows)
+        images, traced = _scatter(tuple(values[name] for name in names), traced, pixels, tuple(batch))
+        values.update(zip(names, images))
         done += new.size
         if progress is not None and total:  # counted here, not by the device: no wait for the batch's march
             progress(done, total)

@@ -315,8 +315,9 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
     Parameters
     ----------
     table : RayTable
-    rows : array_like
-        Shape (m,) int: rows of the table, in the order of the outputs.
+    rows : array_like or range
+        Shape (m,) int: rows of the table, in the order of the outputs. A ``range`` of step 1 (a frame's whole table)
+        is read as slices of the table's host arrays, without gathering them.
     consts : dict
         Kernel constants (:func:`swim.rt.march.kernel_constants`) of the render.
     phase : PhaseInputs
@@ -354,32 +355,58 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         If there are no rows, a row is outside the table, ``settings`` does not resolve to the JAX kernel, or
         ``padding_from`` is given with ``extra`` or outside [1, len(rows)].
     """
-    rows = np.asarray(rows)
-    if rows.ndim != 1 or rows.size == 0 or not np.issubdtype(rows.dtype, np.integer):
-        raise SwimInputError(f"trace_table_rows: rows must be a non-empty (m,) integer array, got shape {rows.shape} "
-                             f"of {rows.dtype}")
-    if rows.min() < 0 or rows.max() >= table.size:
-        raise SwimInputError(f"trace_table_rows: rows must be in [0, {table.size}), got {rows.min()}..{rows.max()}")
-    real = rows.size if padding_from is None else int(padding_from)
-    if padding_from is not None and (extra is not None or not 1 <= real <= rows.size):
-        raise SwimInputError(f"trace_table_rows: padding_from must be in [1, {rows.size}] and not given with extra, "
+    if isinstance(rows, range) and rows.step == 1:  # consecutive rows: slices of the host's arrays, no gathers
+        first = rows.start
+        if len(rows) == 0 or first < 0 or rows.stop > table.size:
+            raise SwimInputError(f"trace_table_rows: rows must be a non-empty range in [0, {table.size}), got {rows}")
+
+        def own_rows(lo, hi):
+            return slice(first + lo, first + hi)
+    else:
+        rows = np.asarray(rows)
+        if rows.ndim != 1 or rows.size == 0 or not np.issubdtype(rows.dtype, np.integer):
+            raise SwimInputError(f"trace_table_rows: rows must be a non-empty (m,) integer array, got shape "
+                                 f"{rows.shape} of {rows.dtype}")
+        if rows.min() < 0 or rows.max() >= table.size:
+            raise SwimInputError(f"trace_table_rows: rows must be in [0, {table.size}), got "
+                                 f"{rows.min()}..{rows.max()}")
+
+        def own_rows(lo, hi):
+            return rows[lo:hi]
+    m = len(rows)
+    real = m if padding_from is None else int(padding_from)
+    if padding_from is not None and (extra is not None or not 1 <= real <= m):
+        raise SwimInputError(f"trace_table_rows: padding_from must be in [1, {m}] and not given with extra, "
                              f"got {padding_from!r}{' with extra' if extra is not None else ''}")
     if settings.resolved_backend() != "jax":
         raise SwimInputError(f"trace_table_rows marches with the JAX kernel; MarchSettings.backend="
                              f"{settings.backend!r} resolves to {settings.resolved_backend()!r}")
-    segments_host, probes_host = table.segments_host, table.probes_host
-    if extra is not None:  # the extra rays as rows past the table's end
-        rows = np.concatenate([rows, table.size + np.arange(extra.size)])
-        real = rows.size
-        segments_host = np.concatenate([segments_host, extra.segments_host])
-        if probes_host is not None and extra.probes_host is not None:
-            probes_host = np.concatenate([probes_host, extra.probes_host])
+    # the extra rays follow the table's as rows past its end; the host's arrays are read in place, not joined (a
+    # 1024^2 frame's ~5 MB copied and gathered again every frame)
+    n = m + (0 if extra is None else extra.size)
+    if extra is not None:
+        real = n
+
+    def chunk_rows(lo, hi):
+        """The rows of positions lo..hi: the table's, then the extra rays' (table.size on)."""
+        own = own_rows(lo, min(hi, m))
+        own = np.arange(own.start, own.stop) if isinstance(own, slice) else own
+        return own if hi <= m else np.concatenate([own, table.size + np.arange(max(lo, m) - m, hi - m)])
+
+    def chunk_probes(lo, hi):
+        """The largest probe count of positions lo..hi (the extra rays' where they have probes)."""
+        largest = int(table.probes_host[own_rows(lo, min(hi, m))].max()) if lo < m else 0
+        if hi > m and extra.probes_host is not None:
+            largest = max(largest, int(extra.probes_host[max(lo, m) - m:hi - m].max()))
+        return largest
+
     # the same program as trace_rays's chunks: the table's switch is not the kernel's
     settings = settings.kernel_settings()
     # segments of zero length for every ray of the batch need no steps (trace_rays)
-    bits = int(np.bitwise_or.reduce(segments_host[rows]))
+    bits = int(np.bitwise_or.reduce(table.segments_host[own_rows(0, m)]))
+    if extra is not None:
+        bits |= int(np.bitwise_or.reduce(extra.segments_host))
     settings = without_empty_segments(settings, [bits >> c & 1 for c in range(3)])
-    n = len(rows)
     steps = settings.n_before + settings.n_grid + settings.n_after + 1
     chunk = settings.resolved_chunk()
     device = with_vector_volume(_device_constants(consts), settings)
@@ -409,13 +436,13 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
 
     for lo in range(0, n, chunk):
         hi = min(lo + chunk, n)
-        part = rows[lo:hi]
+        part = chunk_rows(lo, hi)
         pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
         if pad:
             part = np.concatenate([part, np.repeat(part[-1:], pad)])
         # n_probe as swim.rt.march._chunk_probes raises it, from the probes kept on the host
-        chunk_settings = with_probes_for(settings, int(probes_host[rows[lo:hi]].max())) if with_probes else settings
-        chunk_extra = extra_arrays if extra is not None and part.max() >= table.size else None
+        chunk_settings = with_probes_for(settings, chunk_probes(lo, hi)) if with_probes else settings
+        chunk_extra = extra_arrays if hi > m else None
         n_real = np.int32(min(max(real - lo, 0), hi - lo))  # the chunk's own rays: the rest padding (not valid)
         args, rays, probes = _gather_rows(table_arrays, chunk_extra, jnp.asarray(part.astype(np.int32)), n_real, sun,
                                           depolarization, phase.aerosol_type, phase.stratospheric_type)
