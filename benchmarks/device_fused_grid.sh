@@ -23,8 +23,10 @@
 # the fused multiply-adds, alone and with the caps (512 x 16 left out: 128 x 4 at 128 registers has its occupancy
 # with less lockstep). STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
 # the image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it
-# against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it; since session 70
-# (section 89) first benchmarks/frame_parts.py: each of a warm frame's programs waited for, every pixel and adaptive.
+# against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it. STAGE=parts
+# (session 70, section 89; ~240 s): benchmarks/frame_parts.py, each of a warm frame's programs waited for, every pixel
+# and adaptive. STAGE=first (session 70: the next GPU session's first run, ~560 s on a fresh machine): STAGE=blocks,
+# then STAGE=parts; then STAGE=image on the warm machine.
 # Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
@@ -94,14 +96,16 @@ image() {  # session 67's MarchSettings.device_image (section 86): its tests on 
     # on the device), then warm frames with the image finished on the device against the host, taking turns, and
     # where a new process's README render (its caches warm) spends its ~11 s (section 85)
     timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/test_color_device.py 2>&1 | tail -3 || true
-    # session 70 (section 89): each program of a warm frame waited for, every pixel and adaptive, and what the rest is
-    timeout "${PARTS_S:-150}" python3 benchmarks/frame_parts.py --data .devdata --repeats 3 --profile \
-        --out "$RES/frame-parts-synthetic.json" 2>&1 | quiet
-    save
-    timeout "${IMAGE_S:-200}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
+    timeout "${IMAGE_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
         --repeats 5 --out "$RES/image-synthetic.json" 2>&1 | quiet
     save
     readme_profile
+}
+parts() {  # session 70 (section 89): each program of a warm 1024^2 frame waited for, every pixel and adaptive (the
+    # march, the table's rows, the sampler's tests, splits, scatters and fill, the planes, the colour stage), the rest
+    # the host's; the first render compiles (~85 s on a fresh H200)
+    timeout "${PARTS_S:-240}" python3 benchmarks/frame_parts.py --data .devdata --repeats 3 --profile \
+        --out "$RES/frame-parts-synthetic.json" 2>&1 | quiet
 }
 readme_profile() {  # the README's render at 1024^2 in a new process twice (the first fills the caches), the second
     # under cProfile: the top functions by cumulative time to readme-profile.txt
@@ -115,6 +119,11 @@ readme_profile() {  # the README's render at 1024^2 in a new process twice (the 
 }
 if [ "${STAGE:-compare}" = blocks ]; then
     blocks
+elif [ "${STAGE:-compare}" = parts ]; then
+    parts
+elif [ "${STAGE:-compare}" = first ]; then  # session 70: the next GPU session's first run (~560 s on a fresh machine)
+    BLOCKS_S=${BLOCKS_S:-300} blocks; save
+    parts
 elif [ "${STAGE:-compare}" = image ]; then
     image
 elif [ "${STAGE:-compare}" = second ]; then  # session 66's second run on the warm machine (~330 s): STAGE=step1a, its
