@@ -130,6 +130,26 @@ def test_a_rendered_scene_is_sampled_alike():
     assert traced.sum() < valid.sum()
 
 
+@pytest.mark.parametrize("shape, sampling", [
+    ((33, 33), AdaptiveSampling(coarse_spacing=16, edge_test_size=8)),
+    ((40, 53), AdaptiveSampling(coarse_spacing=16, edge_test_size=8, tolerance=0.05)),
+    ((37, 29), AdaptiveSampling(coarse_spacing=8, edge_test_size=2))], ids=["33x33-16-8", "40x53-16-8", "37x29-8-2"])
+def test_a_smooth_cell_s_quarters_are_not_quartered_again(shape, sampling):
+    """A smooth image whose first level's cells are smooth and test their edges, with quarters big enough to test
+    theirs too: the quarters are interpolated from the cell's traced corners, edge midpoints and centre, not quartered
+    again at points that no level traced (a review found NaN, the outside value, in every untraced pixel)."""
+    ny, nx = shape
+    y, x = np.mgrid[0:ny, 0:nx].astype(float)
+    v = (1 + 0.001 * x + 0.002 * y + 0.0005 * np.sin(x * y / 50.0)).astype(np.float32)
+    full = {"radiance": np.stack([v, 0.9 * v, 0.8 * v], -1).reshape(-1, 3), "tau_hydrometeor": v.reshape(-1),
+            "surface": np.ones(v.size, bool), "steps": np.ones(v.size, np.int32)}
+    valid = np.ones(shape, bool)
+    traced = assert_same_sampling(full, valid, sampling)
+    assert traced.sum() < 0.5 * valid.sum(), "the image must be mostly interpolated"
+    values, _ = sample_image_adaptive_device(lookup(full), valid, sampling, outside=np.nan)
+    assert np.isfinite(np.asarray(values["radiance"])).all() and np.asarray(values["surface"]).all()
+
+
 def test_batches_are_padded_to_the_marchs_buckets_with_the_last_pixel():
     full, valid = analytic_image((90, 90))
     calls = []

@@ -232,10 +232,13 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_ke
     x = jnp.arange(nx, dtype=jnp.int32)[None, :]
     target = (valid & ~traced).reshape(ny, nx)
     arrays = list(arrays)
+    tested = smooth_levels  # the cells each level's test found smooth
     smooth_levels = list(smooth_levels)
-    for index in range(len(levels) - 1):  # the quarters of the smooth cells that tested their edges
+    for index in range(len(levels) - 1):  # the quarters of the tested smooth cells that tested their edges
+        # from the tested cells only, as the host quarters them (once): a quarter's own quarters would have corners
+        # at its edge midpoints and centre, which no level traced
         _, _, _, edged, _, _, _ = _cell_geometry(levels[index], nx, edge_test_size)
-        quarters = _children_exist(smooth_levels[index] & edged, levels[index + 1], nx, edge_test_size)
+        quarters = _children_exist(tested[index] & edged, levels[index + 1], nx, edge_test_size)
         smooth_levels[index + 1] = smooth_levels[index + 1] | quarters
     # The cell that interpolates each pixel: a finer level's smooth cell overrides a coarser one's (the host writes
     # level by level, coarse to fine). The interpolation reads only traced pixels (a smooth cell's corners, and its
