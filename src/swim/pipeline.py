@@ -938,15 +938,19 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             kept = (*IMAGE_OUTPUTS, "surface", "steps")
             sun_rows = {}
 
+            def march_sun():
+                # the sun's ray in a one-row batch of its own (with a full bucket's rows it would double the batch's
+                # padded size; so march_samples counts no step that only the sun's ray needs, which the host's first
+                # batch counts for all its rays where the sun's ray has a segment that none of the camera's has),
+                # its outputs left on the device: queued without a wait, its row copied with the image's planes
+                sun_table = single_ray_table(observer, sun_scene, geometry, consts, settings)
+                sun_rows.update(trace_table_rows(sun_table, np.zeros(1, np.int64), consts, phase_inputs, settings,
+                                                 on_device=True))
+
             def trace_on_device(pixels):
-                # a bucketed batch (its last pixel repeated), the outputs left on the device; the sun's ray in a
-                # one-row batch of its own (with a full bucket's rows it would double the batch's padded size; so
-                # march_samples counts no step that only the sun's ray needs, which the host's first batch counts
-                # for all its rays where the sun's ray has a segment that none of the camera's has)
-                if not sun_out:
-                    sun_table = single_ray_table(observer, sun_scene, geometry, consts, settings)
-                    sun_rows.update(trace_table_rows(sun_table, np.zeros(1, np.int64), consts, phase_inputs, settings))
-                    sun_out.update({key: value[-1] for key, value in sun_rows.items()})
+                # a bucketed batch (its last pixel repeated), the outputs left on the device
+                if not sun_rows:
+                    march_sun()
                 if len(pixels) == 0:  # no valid pixel in the image: its outputs' keys and types, without rows
                     return {key: value[:0] for key, value in sun_rows.items() if key in kept}
                 # the batch's own pixels, then its last one repeated up to its bucket: the repeats marched as padding
@@ -958,10 +962,15 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
 
             out, traced = sample_image_adaptive_device(trace_on_device, valid, sampling, progress, outside=np.nan,
                                                        chunk=settings.resolved_chunk())
+            if not sun_rows:  # (the sampler asks for a batch, if an empty one, whatever the image)
+                march_sun()
             # the image's planes (C, ny, nx) made on the device, then one copy of all the arrays to the host
-            # (writable: a CPU device's may be read-only views); with device_image coloured there first
+            # (writable: a CPU device's may be read-only views) with the sun's row; with device_image coloured there
+            # first
             device_planes = {key: device_plane(out.pop(key), ny, nx) for key in IMAGE_OUTPUTS}
-            device_planes, device_rgb, (out, traced) = planes_to_host(device_planes, out, traced, colour=device_image)
+            device_planes, device_rgb, (out, traced, sun_padded) = planes_to_host(device_planes, out, traced, sun_rows,
+                                                                                  colour=device_image)
+            sun_out.update({key: value[0] for key, value in sun_padded.items()})  # the rest is the chunk's padding
             planes.update(device_planes)
             traced = np.asarray(traced)
         else:
