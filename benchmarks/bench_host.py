@@ -70,6 +70,16 @@ def stand_in_chunk():
     return trace_chunk
 
 
+def allsky_case(scene_name, size, data):
+    """The suite's all-sky view of ``scene_name`` ("synthetic", "katrina", "rico") at ``size``² pixels: the scene and
+    the render's keyword arguments (:mod:`bench_suite`)."""
+    spec = json.loads(json.dumps(bench_suite.CASES[f"{scene_name}_allsky"]))
+    spec.update(data=str(data), image=[size, size])
+    if scene_name == "synthetic":
+        spec["scene_kwargs"] = dict(bench_suite.SYNTHETIC_GRID)
+    return bench_suite.load_scene(spec), bench_suite.render_kwargs(spec)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="synthetic", choices=("synthetic", "katrina", "rico"))
@@ -93,12 +103,7 @@ def main(argv=None):
     from swim.rt.image_sampling import AdaptiveSampling
     from swim.rt.march import MarchSettings
 
-    spec = json.loads(json.dumps(bench_suite.CASES[f"{args.scene}_allsky"]))
-    spec.update(data=str(args.data), image=[args.size, args.size])
-    if args.scene == "synthetic":
-        spec["scene_kwargs"] = dict(bench_suite.SYNTHETIC_GRID)
-    scene = bench_suite.load_scene(spec)
-    kw = bench_suite.render_kwargs(spec)
+    scene, kw = allsky_case(args.scene, args.size, args.data)
     base = replace(kw["settings"], backend="jax") if "settings" in kw else MarchSettings(backend="jax")
     base = replace(base, chunk=args.chunk or march.GPU_CHUNK)
     march._trace_chunk = stand_in_chunk()

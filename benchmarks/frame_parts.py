@@ -113,18 +113,13 @@ def main(argv=None):
     from swim.rt.image_sampling import AdaptiveSampling
     from swim.rt.march import MarchSettings
 
-    spec = json.loads(json.dumps(bench_suite.CASES[f"{args.scene}_allsky"]))
-    spec.update(data=str(args.data), image=[args.size, args.size])
-    if args.scene == "synthetic":
-        spec["scene_kwargs"] = dict(bench_suite.SYNTHETIC_GRID)
-    scene = bench_suite.load_scene(spec)
-    kw = bench_suite.render_kwargs(spec)
+    import bench_host
+
+    scene, kw = bench_host.allsky_case(args.scene, args.size, args.data)
     base = kw.get("settings", MarchSettings())
     settings = replace(base, backend="jax", chunk=base.chunk or march.GPU_CHUNK, ray_table=True, device_sampling=True,
                        device_image=True)
     if args.stand_in:
-        import bench_host
-
         march._trace_chunk = bench_host.stand_in_chunk()
         # a known scene's digest taken by identity and checked beside the march, as on a GPU (section 86); on a CPU
         # the render hashes the scene first, which would count in the rest
