@@ -948,7 +948,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
                                                  on_device=True))
 
             def trace_on_device(pixels):
-                # a bucketed batch (its last pixel repeated), the outputs left on the device
+                # a bucketed batch (its last pixel repeated), the outputs left on the device; the sampler asks for
+                # one batch at least (an empty one where nothing is traced), so the sun's ray is always marched here
                 if not sun_rows:
                     march_sun()
                 if len(pixels) == 0:  # no valid pixel in the image: its outputs' keys and types, without rows
@@ -962,8 +963,6 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
 
             out, traced = sample_image_adaptive_device(trace_on_device, valid, sampling, progress, outside=np.nan,
                                                        chunk=settings.resolved_chunk())
-            if not sun_rows:  # (the sampler asks for a batch, if an empty one, whatever the image)
-                march_sun()
             # the image's planes (C, ny, nx) made on the device, then one copy of all the arrays to the host
             # (writable: a CPU device's may be read-only views) with the sun's row; with device_image coloured there
             # first
