@@ -1,4 +1,5 @@
-"""Shared fixtures: the real-data folder ../shared/data resolved from this file."""
+"""Shared fixtures: the real-data folder ../shared/data resolved from this file; JAX's compiled programs dropped
+when a worker nears its limit of memory mappings."""
 
 from pathlib import Path
 
@@ -13,3 +14,14 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data folder not found: {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.fixture(autouse=True)
+def _drop_compiled_programs_near_the_mapping_limit():
+    """A pytest worker compiles thousands of JAX programs, ~3 memory mappings each, and JAX keeps them all: at
+    vm.max_map_count XLA cannot map the next one and the worker later dies of a segmentation fault
+    (swim.memory, docs/performance.md section 90). Checked after each test, at most once a second."""
+    yield
+    from swim.memory import release_compiled_programs
+
+    release_compiled_programs(min_interval_s=1.0)

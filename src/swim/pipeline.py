@@ -29,7 +29,7 @@ from .geometry.reach import crop_scene_to_view, with_reference_point
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
 from .io.scene import validate_scene
-from .memory import release_free_memory
+from .memory import release_compiled_programs, release_free_memory
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
 from .rt.image_sampling import AdaptiveSampling, sample_image_adaptive, tile_order
@@ -63,6 +63,9 @@ log = logging.getLogger(__name__)
 SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
 #: Image rows per call of the colour stage in :func:`render` (bounds its float64 temporaries).
 COLOUR_BLOCK_ROWS = 128
+#: Shortest time between two of :func:`render`'s counts of the process's memory mappings [s]
+#: (:func:`swim.memory.release_compiled_programs`; a count costs ~10-20 ms near the limit).
+COMPILED_PROGRAMS_CHECK_S = 30.0
 #: Images of fewer pixels skip the C heap's trims after the march and at the end of :func:`render`: they free a few
 #: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of a 41 x 41 render; swim.memory). So do
 #: renders whose march runs on a GPU.
@@ -1094,6 +1097,9 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     del radiance, rgb
     if trim:
         release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
+    # A long-lived process that renders many grids keeps every program JAX compiled; near the process's limit of
+    # memory mappings XLA's next executable would fail to map and leave the process to crash (swim.memory).
+    release_compiled_programs(min_interval_s=COMPILED_PROGRAMS_CHECK_S)
     return xr.Dataset(data, coords=_image_coordinates(), attrs=attrs)
 
 

@@ -1,8 +1,11 @@
-"""swim.memory: giving the C heap's freed pages back between a render's stages."""
+"""swim.memory: giving the C heap's freed pages back between a render's stages, and JAX's compiled programs before the
+process runs out of memory mappings."""
 
 import platform
+import sys
 
 import numpy as np
+import pytest
 
 import swim.memory as memory
 
@@ -39,3 +42,42 @@ def test_a_render_trims_the_heap_only_for_images_of_many_pixels(monkeypatch):
     monkeypatch.setattr(pipeline, "TRIM_MIN_PIXELS", 16 * 16)
     image = swim.render(scene, **kwargs)
     assert len(calls) == 2 and image["rgb"].shape == (16, 16, 3)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/maps and vm.max_map_count are Linux's")
+def test_compiled_programs_are_dropped_above_the_share_of_the_mapping_limit():
+    """Each XLA:CPU executable that JAX keeps holds memory mappings of its own; above the given share of
+    vm.max_map_count they are dropped (and their mappings with them), below it nothing happens."""
+    import jax
+    import jax.numpy as jnp
+
+    limit = memory.memory_mapping_limit()
+    assert limit is not None and limit > 1000
+    with open("/proc/self/maps", "rb") as f:
+        assert memory.memory_mapping_count() == pytest.approx(f.read().count(b"\n"), abs=5)
+    programs = [jax.jit(lambda x, i=i: jnp.sin(x * (i + 1.5)) + i) for i in range(120)]  # alive until the end
+    for program in programs:
+        program(jnp.ones(5)).block_until_ready()
+    held = memory.memory_mapping_count()
+    assert memory.release_compiled_programs(fraction=(held + 100) / limit) is False  # below the share: kept
+    assert memory.memory_mapping_count() >= held - 5
+    assert memory.release_compiled_programs(fraction=(held - 100) / limit) is True
+    assert memory.memory_mapping_count() < held - 120  # ~3 mappings per executable went
+    assert float(programs[7](jnp.zeros(5))[0]) == 7.0  # a dropped program is compiled again when called
+
+
+def test_release_compiled_programs_checks_its_arguments_and_its_interval(monkeypatch):
+    import jax
+
+    with pytest.raises(ValueError, match="fraction"):
+        memory.release_compiled_programs(fraction=0.0)
+    with pytest.raises(ValueError, match="min_interval_s"):
+        memory.release_compiled_programs(min_interval_s=-1.0)
+    counted = []
+    monkeypatch.setattr(memory, "memory_mapping_count", lambda: counted.append(1) or 10**9)
+    monkeypatch.setattr(memory, "memory_mapping_limit", lambda: 100)
+    monkeypatch.setattr(jax, "clear_caches", lambda: counted.append("cleared"))
+    monkeypatch.setattr(memory, "_last_check", [float("-inf")])
+    assert memory.release_compiled_programs(min_interval_s=3600.0) is True
+    assert memory.release_compiled_programs(min_interval_s=3600.0) is False  # within the interval: not counted
+    assert counted.count("cleared") == 1 and counted.count(1) == 2  # the count before and after the one drop
