@@ -11,10 +11,10 @@ scene when :func:`swim.pipeline.render` called this between its stages (docs/per
 The process's count of memory mappings is watched as well (:func:`release_compiled_programs`). Every XLA:CPU
 executable that JAX keeps in its in-memory caches holds ~3 mappings for its machine code, and a process that compiles
 thousands of programs (a pytest worker; a service rendering many different grids) reaches Linux's limit
-(``vm.max_map_count``, 65 530 by default). LLVM's linker inside XLA then fails to map the next executable's code and,
-on that path, leaves the unwinder's record of the freed code's exception-handling frames behind: the next C++
-exception anywhere in the process crashes it with a segmentation fault in ``libgcc_s`` (docs/performance.md,
-section 90).
+(``vm.max_map_count``, 65 530 by default). LLVM's linker inside XLA then fails to finish the next executable's code
+(setting its pages' protections needs new mappings) and, on that error path, frees the code but leaves the unwinder's
+record of its exception-handling frames behind: the next C++ exception anywhere in the process crashes it with a
+segmentation fault in ``libgcc_s`` (docs/performance.md, section 90).
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ def release_free_memory() -> bool:
 def memory_mapping_count() -> int | None:
     """Number of memory mappings of this process (the lines of ``/proc/self/maps``), or None without ``/proc``.
 
-    Reading it costs ~1 ms per 3 000 mappings (the kernel writes one line for each)."""
+    Reading it costs ~1 ms per 1 000 mappings (15 ms for 15 400; the kernel writes one line for each)."""
     try:
         with open("/proc/self/maps", "rb") as f:
             return f.read().count(b"\n")
@@ -76,7 +76,9 @@ def memory_mapping_count() -> int | None:
 
 @functools.lru_cache(maxsize=1)
 def memory_mapping_limit() -> int | None:
-    """Most memory mappings a process may hold (Linux's ``vm.max_map_count``), or None where it is not known."""
+    """Most memory mappings a process may hold (Linux's ``vm.max_map_count``), or None where it is not known.
+
+    Read once per process: a later change of the setting is not seen."""
     try:
         with open("/proc/sys/vm/max_map_count") as f:
             return int(f.read().strip())
@@ -85,7 +87,11 @@ def memory_mapping_limit() -> int | None:
 
 
 _last_check = [float("-inf")]
+#: Mappings left after the last drop that did not bring the count under the share (the rest are not JAX's), else 0.
+_floor = [0]
 _check_lock = threading.Lock()
+#: Growth over :data:`_floor` [share of the limit] that a count needs before the programs are dropped again.
+REDROP_MARGIN = 0.1
 
 
 def release_compiled_programs(fraction: float = MAPPING_FRACTION, min_interval_s: float = 0.0) -> bool:
@@ -93,7 +99,10 @@ def release_compiled_programs(fraction: float = MAPPING_FRACTION, min_interval_s
     mappings it may hold (see the module docstring).
 
     The programs are compiled again, or loaded from JAX's persistent cache, when next called. Does nothing where
-    JAX is not imported or the count or the limit is not known (not Linux).
+    JAX is not imported or the count or the limit is not known (not Linux). Where a drop leaves the process above
+    the share (the mappings are not JAX's: numba's code, threads, mapped files), a warning is logged and the next
+    drop waits until the count has grown by :data:`REDROP_MARGIN` of the limit, rather than recompiling every
+    program at every check.
 
     Parameters
     ----------
@@ -101,7 +110,7 @@ def release_compiled_programs(fraction: float = MAPPING_FRACTION, min_interval_s
         Share of ``vm.max_map_count`` (:func:`memory_mapping_limit`) above which the caches are dropped, in (0, 1].
     min_interval_s : float
         Shortest time between two checks [s]: a call sooner after the last check returns False without counting
-        (the count costs ~10-20 ms near the limit).
+        (the count costs tens of ms near the limit).
 
     Returns
     -------
@@ -126,10 +135,21 @@ def release_compiled_programs(fraction: float = MAPPING_FRACTION, min_interval_s
             return False
         _last_check[0] = now
     limit, count = memory_mapping_limit(), memory_mapping_count()
-    if limit is None or count is None or count <= fraction * limit:
+    if limit is None or count is None:
+        return False
+    threshold = fraction * limit
+    if _floor[0]:  # the last drop did not get under the share: wait for growth
+        threshold = max(threshold, _floor[0] + REDROP_MARGIN * limit)
+    if count <= threshold:
         return False
     jax.clear_caches()
     gc.collect()  # the executables go with their last references
-    log.info("%d memory mappings of at most %d: JAX's compiled programs dropped (%s left)", count, limit,
-             memory_mapping_count())
+    left = memory_mapping_count()
+    if left is not None and left > fraction * limit:
+        _floor[0] = left
+        log.warning("%d memory mappings of at most %d; %d left after JAX's compiled programs were dropped: the rest "
+                    "are not JAX's", count, limit, left)
+    else:
+        _floor[0] = 0
+        log.info("%d memory mappings of at most %d: JAX's compiled programs dropped (%s left)", count, limit, left)
     return True

@@ -64,7 +64,7 @@ SPACE_VIEW_HEIGHT_M = ATMOSPHERE_TOP_M
 #: Image rows per call of the colour stage in :func:`render` (bounds its float64 temporaries).
 COLOUR_BLOCK_ROWS = 128
 #: Shortest time between two of :func:`render`'s counts of the process's memory mappings [s]
-#: (:func:`swim.memory.release_compiled_programs`; a count costs ~10-20 ms near the limit).
+#: (:func:`swim.memory.release_compiled_programs`; a count costs tens of ms near the limit).
 COMPILED_PROGRAMS_CHECK_S = 30.0
 #: Images of fewer pixels skip the C heap's trims after the march and at the end of :func:`render`: they free a few
 #: MB, and each ``malloc_trim`` walks the whole heap (1-3 ms, a tenth of a 41 x 41 render; swim.memory). So do
