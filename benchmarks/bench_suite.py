@@ -93,6 +93,10 @@ CASES = {
                               "crop": True, "sampling": ADAPTIVE},
     "series": {"kind": "series", "scene": "katrina", "camera": "allsky", "image": (512, 512), "view": KATRINA_ALLSKY,
                "frames": 24, "step_min": 10.0, "start": "2005-08-28T16:00", "wind_m_s": 10.0},
+    # the same series as a forecaster's loop would render it: adaptive sampling (swim.rt.image_sampling)
+    "series_adaptive": {"kind": "series", "scene": "katrina", "camera": "allsky", "image": (512, 512),
+                        "view": KATRINA_ALLSKY, "frames": 24, "step_min": 10.0, "start": "2005-08-28T16:00",
+                        "wind_m_s": 10.0, "sampling": ADAPTIVE},
     # a camera moving over a big grid (a drive or a fly-through): one 3 km cell east per frame, the time fixed
     "flythrough": {"kind": "flythrough", "scene": "conus", "camera": "allsky", "image": (512, 512), "view": GROUND,
                    "crop": True, "frames": 12, "step_m": 3000.0},
@@ -419,6 +423,11 @@ def run_series(spec, probe):
            **throughput(image, rays, warm)}
     if builds:
         out["scene_build_s"] = builds
+    if "sampling" in kw:  # adaptive: the last frame against every pixel traced (not timed)
+        every = {key: value for key, value in kw.items() if key != "sampling"}
+        full = swim.render(scene, **({"time": times[-1]} if spec["scene"] != "synthetic" else {}), **every)
+        out.update(sampling=spec["sampling"], traced_pixels=int(image.attrs["traced_pixels"]),
+                   full_traced_pixels=int(full.attrs["traced_pixels"]), adaptive_error=adaptive_errors(image, full))
     if spec.get("workers"):
         # frame cost only: one scene (the last) at every frame time, scattered once to all workers
         out["distributed"] = _distributed_frames(scene, kw, [str(t) for t in times], spec["workers"])
@@ -757,6 +766,10 @@ def _notes(r):
     if r["kind"] == "series":
         s = (f"{r['frames']} frames: first {r['cold_s']:.1f} s, median {r['warm_s']:.2f} s/frame, "
              f"total {r['total_s']:.0f} s")
+        if "adaptive_error" in r:
+            e = r["adaptive_error"]
+            s += (f"; adaptive, last frame: {r['traced_pixels']:,} of {r['full_traced_pixels']:,} pixels traced, "
+                  f"error against every pixel median {100 * e['median']:.2f} %, p99 {100 * e['p99']:.2f} %")
         if "distributed" in r:
             d = r["distributed"]
             s += f"; dask {d['workers']} workers: {d['s_per_frame']:.2f} s/frame"
