@@ -52,6 +52,8 @@ step1a() {  # session 60's MarchSettings.step1a_on_device (section 75), ~200 s: 
     timeout "${TESTS_S:-150}" python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
     timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
         --sun-series 3 --repeats 4 --out "$RES/step1a-synthetic.json" 2>&1 | quiet
+    # session 72 (section 91): the two paths' fields and the step classes that they flip, on the GPU's JAX (~60 s)
+    timeout "${PATHS_S:-120}" python3 benchmarks/step1a_paths.py --sun 31.5 138 2>&1 | grep -v Warning | tee "$RES/step1a-paths.txt" | tail -5
 }
 readme() {  # the README's render at 1024^2 in two new processes (the second reads the first's caches)
     for k in 1 2; do
