@@ -9,6 +9,7 @@ import functools
 import logging
 import threading
 import weakref
+from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD,
 from .digest import update_with_array
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
-from .geometry.cameras import fov_to_fit, look_at_angles, make_camera
+from .geometry.cameras import check_camera_options, fov_to_fit, look_at_angles, make_camera
 from .geometry.reach import crop_scene_to_view, with_reference_point
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
@@ -661,6 +662,14 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     (:func:`_fingerprint_by_identity`; None: hashed first)."""
     if not isinstance(scene, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
+    # the camera's kind and options checked before the scene is read (a whole CONUS grid: ~40 s and ~11 GB); a
+    # perspective camera's view is filled in from the grid later (_default_perspective_view)
+    if camera_options is not None and not isinstance(camera_options, Mapping):
+        raise SwimInputError(f"camera_options must be a mapping of option names to values, got "
+                             f"{type(camera_options).__name__}")
+    check_camera_options(camera, dict(camera_options or {}),
+                         filled_later=("view_azimuth_deg", "view_zenith_deg", "fov_deg")
+                         if "view_azimuth_deg" not in (camera_options or {}) else ())
     if crop:
         # Before anything is loaded in full; the scene frame stays that of the whole grid.
         scene = with_reference_point(scene)

@@ -129,6 +129,29 @@ def test_observer_under_terrain_or_out_of_reach_is_rejected():
         swim.render(scene, lat=10.0, lon=20.0, camera_options=SMALL)
 
 
+@pytest.mark.parametrize("camera, options, match", [
+    ("perspective", {"size": 256, "fov_deg": 9.0}, "unknown option"),
+    ("allsky", {"size": -3}, "size"),
+    ("orthographic", {}, "camera kind"),
+    ("allsky", [("size", 9)], "camera_options must be a mapping"),
+], ids=["unknown option", "bad value", "unknown kind", "not a mapping"])
+def test_bad_camera_options_are_rejected_before_the_scene_is_read(monkeypatch, camera, options, match):
+    """A camera's bad kind or options are found before the scene is cropped, read or validated (a whole CONUS grid
+    took ~40 s and 11 GB before the camera's error); the scene's reading is made to fail, so a late check fails the
+    test with another error."""
+    from swim import pipeline
+
+    def read(*args, **kwargs):
+        raise AssertionError("the scene was read before the camera's options were checked")
+
+    monkeypatch.setattr(pipeline, "crop_scene_to_view", read)
+    monkeypatch.setattr(pipeline, "validate_scene", read)
+    with pytest.raises(SwimInputError, match=match):
+        swim.render(swim.default_scene(), camera=camera, camera_options=options, crop=True)
+    with pytest.raises(SwimInputError, match=match):
+        swim.render(swim.default_scene(), camera=camera, camera_options=options, crop=False)
+
+
 def test_night_renders_dark_instead_of_failing():
     image = swim.render(swim.default_scene(), sun_zenith=120.0, sun_azimuth=0.0, camera_options={"size": 63})
     assert np.nanmax(image["radiance"].values) < 1e-3

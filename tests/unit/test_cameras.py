@@ -14,6 +14,7 @@ from swim.geometry.cameras import (
     AllSkyCamera,
     PanoramaCamera,
     PerspectiveCamera,
+    check_camera_options,
     fov_to_fit,
     look_at_angles,
     make_camera,
@@ -331,6 +332,38 @@ def test_make_camera():
         make_camera("perspective", width=8, height=6)
     with pytest.raises(SwimInputError, match="sizee"):
         make_camera("allsky", sizee=3)
+
+
+LATER = ("view_azimuth_deg", "view_zenith_deg", "fov_deg")
+
+
+@pytest.mark.parametrize("kind, options, match", [
+    ("orthographic", {}, "kind"),
+    ("allsky", {"sizee": 3}, "sizee"),
+    ("perspective", {"size": 256, "fov_deg": 9.0}, "size"),  # a perspective camera has width and height
+    ("perspective", {"width": 64}, "height"),  # required and not filled in later
+    ("perspective", {"width": 64, "height": 0}, "height"),  # a value out of range
+    ("panorama", {"width": 10, "height": 5, "view_azimuth_deg": 3.0}, "view_azimuth_deg"),  # not a panorama's
+], ids=["kind", "unknown", "size for perspective", "missing height", "bad height", "not the kind's option"])
+def test_check_camera_options_raises_what_make_camera_would(kind, options, match):
+    """Bad kinds, names and values are found without the options filled in later (a perspective camera's view,
+    which swim.render takes from the grid); the same options given to make_camera fail alike."""
+    with pytest.raises(SwimInputError, match=match):
+        check_camera_options(kind, options, filled_later=LATER)
+    view = {"view_azimuth_deg": 10.0, "view_zenith_deg": 80.0, "fov_deg": 40.0} if kind == "perspective" else {}
+    with pytest.raises(SwimInputError, match=match):
+        make_camera(kind, **{**view, **options})
+
+
+def test_check_camera_options_accepts_options_whose_view_comes_later():
+    """A perspective camera with only its size passes where its view is filled in later, and fails where it is not;
+    the stand-ins are not offered to cameras that do not have those options."""
+    check_camera_options("perspective", {"width": 64, "height": 48}, filled_later=LATER)
+    check_camera_options("perspective", {"width": 64, "height": 48, "view_zenith_deg": 180.0}, filled_later=LATER)
+    check_camera_options("fisheye", {"size": 65}, filled_later=LATER)
+    check_camera_options("panorama", {"width": 10, "height": 5}, filled_later=LATER)
+    with pytest.raises(SwimInputError, match="view_azimuth_deg"):
+        check_camera_options("perspective", {"width": 64, "height": 48})
 
 
 @pytest.mark.parametrize(

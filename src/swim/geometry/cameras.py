@@ -52,6 +52,7 @@ __all__ = [
     "PerspectiveCamera",
     "CAMERA_KINDS",
     "make_camera",
+    "check_camera_options",
     "look_at_angles",
     "fov_to_fit",
 ]
@@ -788,6 +789,18 @@ def make_camera(kind: str, **options: Any) -> Camera:
     SwimInputError
         For an unknown ``kind``, an unknown option, a missing required option or an invalid value.
     """
+    cls, key = _camera_class(kind, options)
+    required = [
+        f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING and f.name not in options
+    ]
+    if required:
+        raise SwimInputError(f"camera kind {key!r} needs option(s) {required}")
+    return cls(**options)
+
+
+def _camera_class(kind, options):
+    """The camera class of ``kind`` (an alias allowed) and its canonical name; SwimInputError for an unknown kind or
+    an option that the class does not have."""
     if not isinstance(kind, str):
         raise SwimInputError(f"camera kind must be one of {sorted(CAMERA_KINDS)}, got {kind!r}")
     key = kind.strip().lower()
@@ -799,12 +812,39 @@ def make_camera(kind: str, **options: Any) -> Camera:
     unknown = sorted(set(options) - set(names))
     if unknown:
         raise SwimInputError(f"unknown option(s) {unknown} for camera kind {key!r}; valid options: {names}")
-    required = [
-        f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING and f.name not in options
-    ]
-    if required:
-        raise SwimInputError(f"camera kind {key!r} needs option(s) {required}")
-    return cls(**options)
+    return cls, key
+
+
+#: Stand-ins for the options that :func:`check_camera_options` is told come later (valid for any camera): a
+#: horizontal view to the north with a 60 deg field of view.
+_STAND_IN_OPTIONS = {"view_azimuth_deg": 0.0, "view_zenith_deg": 90.0, "fov_deg": 60.0}
+
+
+def check_camera_options(kind: str, options: dict, filled_later=()) -> None:
+    """Check a camera's kind and options before any work that the camera does not need (a scene's loading), as
+    :func:`make_camera` will check them.
+
+    Parameters
+    ----------
+    kind : str
+        As :func:`make_camera`.
+    options : dict
+        The options given.
+    filled_later : iterable of str
+        Options that the caller fills in later where they are not given (``view_azimuth_deg``, ``view_zenith_deg``,
+        ``fov_deg``: :func:`swim.render`'s default view of a perspective camera); not required here.
+
+    Raises
+    ------
+    SwimInputError
+        For an unknown ``kind``, an unknown option, a missing required option that is not in ``filled_later``, or
+        an invalid value of a given option.
+    """
+    cls, key = _camera_class(kind, options)
+    names = {f.name for f in fields(cls)}
+    stand_ins = {name: _STAND_IN_OPTIONS[name] for name in filled_later
+                 if name not in options and name in names and name in _STAND_IN_OPTIONS}
+    make_camera(key, **options, **stand_ins)
 
 
 def look_at_angles(observer_lat, observer_lon, observer_height, target_lat, target_lon, target_height):
