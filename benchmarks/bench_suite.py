@@ -31,7 +31,7 @@ import traceback
 from datetime import datetime, timezone
 from pathlib import Path
 
-from scenes import SYNTHETIC_REFERENCE  # benchmarks/ is on the path (this script's folder, or its importers')
+from scenes import CONUS_REFERENCE, SYNTHETIC_REFERENCE  # benchmarks/ is on the path (this script's folder, or its importers')
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -63,6 +63,12 @@ ORBIT_FOV_DEG = 30.0
 _LAT0, _LON0, _ = SYNTHETIC_REFERENCE
 ORBIT_OBLIQUE = {"lat": _LAT0 - 8.0, "lon": _LON0, "height": 700e3, "look_at": [_LAT0, _LON0, 0.0]}
 ORBIT_OBLIQUE_FOV_DEG = 12.0
+# the whole CONUS grid from geostationary orbit (GOES-East's longitude), looking at the grid's centre with a 9 deg
+# field of view (~5 800 km across at the grid): every column is in view, so nothing is cropped; one column of each
+# block as wide as a pixel's footprint (render's coarsen="auto": 3 x 3 at 512^2; docs/performance.md, section 92)
+GEO = {"lat": 0.0, "lon": -75.2, "height": 35786e3, "look_at": [CONUS_REFERENCE[0], CONUS_REFERENCE[1], 0.0],
+       "sun_zenith": 30.0, "sun_azimuth": 180.0}
+GEO_FOV_DEG = 9.0
 # swim.rt.image_sampling.AdaptiveSampling() defaults (since session 44; before: tolerance 0.01, coarse spacing 4, no
 # edge tests, docs/performance.md, section 56)
 ADAPTIVE = {"tolerance": 0.0085, "coarse_spacing": 8, "edge_test_size": 8}
@@ -81,6 +87,8 @@ CASES = {
     "synthetic_orbit_oblique": {"kind": "render", "scene": "synthetic", "camera": "perspective", "image": (1024, 1024),
                                 "view": ORBIT_OBLIQUE, "fov_deg": ORBIT_OBLIQUE_FOV_DEG},
     "conus_allsky": {"kind": "render", "scene": "conus", "camera": "allsky", "image": (1024, 1024), "view": GROUND, "crop": True},
+    "conus_geo": {"kind": "render", "scene": "conus", "camera": "perspective", "image": (512, 512), "view": GEO,
+                  "fov_deg": GEO_FOV_DEG, "coarsen": "auto"},
     "conus_panorama": {"kind": "render", "scene": "conus", "camera": "panorama", "image": (2048, 1024), "view": GROUND,
                        "crop": True},
     # adaptive image sampling (swim.rt.image_sampling): timed like the others, then compared with one render of
@@ -273,6 +281,8 @@ def render_kwargs(spec, image=None):
         from swim.rt.march import MarchSettings
 
         kw["settings"] = MarchSettings(backend=spec["backend"])
+    if spec.get("coarsen") is not None:
+        kw["coarsen"] = spec["coarsen"]
     if spec.get("sampling"):
         from swim.rt.image_sampling import AdaptiveSampling
 

@@ -26,6 +26,7 @@ from .digest import update_with_array
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
 from .geometry.cameras import check_camera_options, fov_to_fit, look_at_angles, make_camera
+from .geometry.level_of_detail import coarsen_scene, resolve_coarsening
 from .geometry.reach import crop_scene_to_view, with_reference_point
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
@@ -560,7 +561,8 @@ def _rendering_alone() -> bool:
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
            aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
-           white_level=None, progress=None, crop: bool = True, sampling: AdaptiveSampling | None = None) -> xr.Dataset:
+           white_level=None, progress=None, crop: bool = True, sampling: AdaptiveSampling | None = None,
+           coarsen=None) -> xr.Dataset:
     """Render what a camera at a vantage point sees in a scene.
 
     Parameters
@@ -605,6 +607,13 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         rest (:func:`swim.rt.image_sampling.sample_image_adaptive`; docs/rendering.md, "Adaptive
         sampling"): 2-5x fewer rays on typical scenes, within the sampling's tolerance where it interpolates.
         Default: every valid pixel is traced.
+    coarsen : None, "auto" or int
+        Keep one column (the middle one) of each block of N x N of the grid's columns, before anything is read in
+        full, for a distant view whose pixels each cover several columns
+        (:func:`swim.geometry.level_of_detail.coarsen_scene`, method ``"sample"``; docs/rendering.md, "Distant views
+        of big grids"): the volume, Step 1a and the march then hold N^2 times fewer columns. ``"auto"``: the largest
+        N whose blocks are no wider than the smallest pixel footprint on the grid (perspective cameras only; 1 for
+        the others). Default None: the grid as it is.
 
     Returns
     -------
@@ -622,7 +631,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     Raises
     ------
     SwimInputError
-        Bad scene, observer below the terrain or out of reach, bad camera options or time; a march kernel
+        Bad scene, observer below the terrain or out of reach, bad camera options, time or ``coarsen``; a march kernel
         (``settings.backend``) that cannot run here (numba missing, or no GPU for "cuda").
 
     Notes
@@ -657,7 +666,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
 
 def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
-            settings, white_level, progress, crop, sampling, guess: _DigestGuess | None) -> xr.Dataset:
+            settings, white_level, progress, crop, sampling, coarsen, guess: _DigestGuess | None) -> xr.Dataset:
     """:func:`render`'s work. ``guess``: where the scene's digest may be taken by its arrays' identity
     (:func:`_fingerprint_by_identity`; None: hashed first)."""
     if not isinstance(scene, xr.Dataset):
@@ -667,9 +676,12 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     if camera_options is not None and not isinstance(camera_options, Mapping):
         raise SwimInputError(f"camera_options must be a mapping of option names to values, got "
                              f"{type(camera_options).__name__}")
-    check_camera_options(camera, dict(camera_options or {}),
-                         filled_later=("view_azimuth_deg", "view_zenith_deg", "fov_deg")
-                         if "view_azimuth_deg" not in (camera_options or {}) else ())
+    filled_later = ()
+    if "view_azimuth_deg" not in (camera_options or {}):  # _default_perspective_view: the view, and from space its
+        # field of view where no look_at is given (the ground's height, at most 9 km, not yet known)
+        space = isinstance(height, (int, float)) and height + 9000.0 > SPACE_VIEW_HEIGHT_M
+        filled_later = ("view_azimuth_deg", "view_zenith_deg") + (("fov_deg",) if space and look_at is None else ())
+    check_camera_options(camera, dict(camera_options or {}), filled_later=filled_later)
     if crop:
         # Before anything is loaded in full; the scene frame stays that of the whole grid.
         scene = with_reference_point(scene)
@@ -679,6 +691,12 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             sun_for_crop = None  # unknown here: a margin on every side; a real error is raised below
         scene = crop_scene_to_view(scene, camera, camera_options=camera_options, lat=lat, lon=lon, height=height,
                                    sun_direction=sun_for_crop)
+    coarsened_by = 1
+    if coarsen is not None:
+        # one column per block of the crop's window (or the whole grid), lazily; the frame stays the grid's
+        scene = with_reference_point(scene)
+        coarsened_by = resolve_coarsening(coarsen, scene, camera, camera_options, lat, lon, height, look_at)
+        scene = coarsen_scene(scene, coarsened_by)
     if lat is not None and not (-90 <= float(lat) <= 90):
         raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
     if height is None or not np.isfinite(height) or height < 0:
@@ -1095,6 +1113,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         "march_samples": march_samples + int(sun_out["steps"]),
         "traced_pixels": int(np.count_nonzero(traced)),
         "march_backend": settings.resolved_backend(),
+        "scene_coarsened_by": coarsened_by,
         "sampling": "every pixel" if sampling is None else (
             f"adaptive (tolerance {sampling.tolerance:g}, coarse spacing {sampling.coarse_spacing}, "
             f"radiance floor {sampling.radiance_floor:g}, tau tolerance {sampling.tau_tolerance:g}, "

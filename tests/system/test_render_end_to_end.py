@@ -236,6 +236,21 @@ def test_cli_renders_adaptively(tmp_path):
     assert result.exit_code == 2 and "tolerance" in result.output and not bad.exists()
 
 
+def test_cli_coarsens_a_distant_view(tmp_path):
+    """--coarsen N renders the scene with one column per N x N block (the output says so); a bad value is refused
+    before any file is written."""
+    out = tmp_path / "coarse.png"
+    view = ["render", "--camera", "perspective", "--width", "24", "--image-height", "24", "--fov", "4",
+            "--height", "700000", "--sun-zenith", "40", "--sun-azimuth", "150"]
+    result = CliRunner().invoke(app, view + ["--coarsen", "2", "--out", str(out), "--netcdf", str(tmp_path / "c.nc")])
+    assert result.exit_code == 0, result.output
+    with xr.open_dataset(tmp_path / "c.nc") as ds:
+        assert int(ds.attrs["scene_coarsened_by"]) == 2
+    bad = tmp_path / "bad.png"
+    result = CliRunner().invoke(app, view + ["--coarsen", "fine", "--out", str(bad)])
+    assert result.exit_code == 2 and "--coarsen" in result.output and not bad.exists()
+
+
 @pytest.mark.parametrize("scene_name", ["default", "katrina"])
 def test_numba_and_jax_kernels_render_the_same_image(scene_name, request):
     """The CPU kernel (swim.rt.march_cpu) against the JAX kernel on whole images: terrain, cumulus and

@@ -91,6 +91,10 @@ def render(
     view_azimuth: Optional[float] = typer.Option(None, help="Perspective view azimuth [deg from north]."),
     view_zenith: Optional[float] = typer.Option(None, help="Perspective view zenith angle [deg]."),
     look_at: Optional[str] = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'."),
+    coarsen: Optional[str] = typer.Option(None, help="Keep one column of each block of N x N of the grid's columns, "
+                                          "for a distant view of a big grid: an integer N, or 'auto' (the largest "
+                                          "blocks no wider than a pixel's footprint on the grid; perspective cameras "
+                                          "only). docs/rendering.md, 'Distant views of big grids'."),
     sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
     sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
     aerosol: str = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
@@ -246,6 +250,15 @@ def render(
             background = AerosolBackground(type_name=aerosol, **strat)
         sampling = AdaptiveSampling(**_given(tolerance=tolerance, tau_tolerance=tau_tolerance,
                                              clear_tolerance=clear_tolerance)) if adaptive else None
+        level_of_detail = None
+        if coarsen is not None:
+            level_of_detail = coarsen.strip().lower()
+            if level_of_detail != "auto":
+                try:
+                    level_of_detail = int(level_of_detail)
+                    assert level_of_detail >= 1
+                except (ValueError, AssertionError):
+                    raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
         target = None
         if look_at is not None:
             try:
@@ -261,7 +274,7 @@ def render(
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                      settings=settings, white_level=white_level, sampling=sampling)
+                      settings=settings, white_level=white_level, sampling=sampling, coarsen=level_of_detail)
         if end is not None or workers or scheduler:
             if sun_zenith is not None or sun_azimuth is not None:
                 raise SwimInputError("--sun-zenith/--sun-azimuth fix the sun: every frame of a series from --time to "

@@ -1,4 +1,4 @@
-"""swim.geometry: cameras (pixel <-> view direction) and the sun position.
+"""swim.geometry: cameras (pixel <-> view direction), the sun position, and the level of detail of distant views.
 
 Conventions: :mod:`swim.frames` and ``docs/frames.md``.
 """
@@ -11,9 +11,12 @@ from .cameras import (
     PerspectiveCamera,
     fov_to_fit,
     look_at_angles,
+    check_camera_options,
     make_camera,
 )
 from .fisheye import FISHEYE_PROJECTIONS, FisheyeCameraModel, OrientationFit, detect_sun, fit_orientation_from_sun
+from .level_of_detail import METHODS as COARSEN_METHODS
+from .level_of_detail import coarsen_scene, coarsening_factor
 from .sun import SunPosition, parse_time_utc, sun_from_angles, sun_position
 
 __all__ = [
@@ -30,6 +33,10 @@ __all__ = [
     "fov_to_fit",
     "look_at_angles",
     "make_camera",
+    "check_camera_options",
+    "COARSEN_METHODS",
+    "coarsen_scene",
+    "coarsening_factor",
     "SunPosition",
     "parse_time_utc",
     "sun_from_angles",
