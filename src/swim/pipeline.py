@@ -26,7 +26,7 @@ from .digest import update_with_array
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
 from .geometry.cameras import check_camera_options, fov_to_fit, look_at_angles, make_camera
-from .geometry.level_of_detail import coarsen_scene, resolve_coarsening
+from .geometry.level_of_detail import check_coarsening, coarsen_scene, resolve_coarsening
 from .geometry.reach import crop_scene_to_view, with_reference_point
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
@@ -676,31 +676,37 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     if camera_options is not None and not isinstance(camera_options, Mapping):
         raise SwimInputError(f"camera_options must be a mapping of option names to values, got "
                              f"{type(camera_options).__name__}")
+    try:
+        height_m = float(height)
+    except (TypeError, ValueError):
+        height_m = None
     filled_later = ()
     if "view_azimuth_deg" not in (camera_options or {}):  # _default_perspective_view: the view, and from space its
         # field of view where no look_at is given (the ground's height, at most 9 km, not yet known)
-        space = isinstance(height, (int, float)) and height + 9000.0 > SPACE_VIEW_HEIGHT_M
+        space = height_m is not None and height_m + 9000.0 > SPACE_VIEW_HEIGHT_M
         filled_later = ("view_azimuth_deg", "view_zenith_deg") + (("fov_deg",) if space and look_at is None else ())
     check_camera_options(camera, dict(camera_options or {}), filled_later=filled_later)
-    if crop:
+    if lat is not None and not (-90 <= float(lat) <= 90):
+        raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
+    if height_m is None or not np.isfinite(height_m) or height_m < 0:
+        raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
+    check_coarsening(coarsen)
+    if crop or coarsen is not None:
         # Before anything is loaded in full; the scene frame stays that of the whole grid.
         scene = with_reference_point(scene)
+    if coarsen is not None:
+        # one column per block of the whole grid's columns, lazily, before the crop: the columns kept are then the
+        # same whatever window the crop takes (a camera or a sun that moves keeps them)
+        scene = coarsen_scene(scene, resolve_coarsening(coarsen, scene, camera, camera_options, lat, lon, height_m,
+                                                        look_at))
+    coarsened_by = int(scene.attrs.get("coarsened_by", 1))
+    if crop:
         try:
             sun_for_crop = resolve_sun(time, scene, sun_zenith, sun_azimuth).direction_enu
         except (SwimInputError, TypeError, ValueError, KeyError):
             sun_for_crop = None  # unknown here: a margin on every side; a real error is raised below
         scene = crop_scene_to_view(scene, camera, camera_options=camera_options, lat=lat, lon=lon, height=height,
                                    sun_direction=sun_for_crop)
-    coarsened_by = 1
-    if coarsen is not None:
-        # one column per block of the crop's window (or the whole grid), lazily; the frame stays the grid's
-        scene = with_reference_point(scene)
-        coarsened_by = resolve_coarsening(coarsen, scene, camera, camera_options, lat, lon, height, look_at)
-        scene = coarsen_scene(scene, coarsened_by)
-    if lat is not None and not (-90 <= float(lat) <= 90):
-        raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
-    if height is None or not np.isfinite(height) or height < 0:
-        raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
     # a kernel that cannot run (no numba, no GPU for "cuda") fails before any work
     backend = settings.resolved_backend()
     from .rt import precompile

@@ -95,8 +95,8 @@ def _two_stream_transmittance(scene):
 
 @pytest.mark.parametrize("factor", [2, 4])
 def test_effective_thickness_keeps_each_block_s_mean_two_stream_transmittance(factor):
-    """The default method scales each block's mean contents so that the two-stream transmittance of its column is the
-    mean of its columns' (Cahalan et al. 1994; Szczap et al. 2000); plain means give a lower one (transmittance is
+    """"effective_thickness" scales each block's mean contents so that the two-stream transmittance of its column is
+    the mean of its columns' (Cahalan et al. 1994; Szczap et al. 2000); plain means give a lower one (transmittance is
     convex in optical depth), and a horizontally uniform block is left as the means."""
     scene = _scene(terrain_m=0.0)
     fine_t = _blocks(_two_stream_transmittance(scene), factor).mean(-1)
@@ -133,11 +133,21 @@ def test_sampling_keeps_each_block_s_middle_column(factor):
 
 @pytest.mark.parametrize("method", ["sample", "effective_thickness", "mean"])
 def test_a_lazy_scene_stays_lazy_and_gives_the_eager_scene_s_values(method):
+    """Nothing of a lazy scene is computed while it is coarsened (dask's scheduler made to fail), and its values are
+    then the eager scene's."""
+    import dask
+
     scene = _scene()
     lazy = scene.copy()
     for name in ("cloud_liquid_content", "cloud_liquid_effective_radius", "height", "aerosol_extinction"):
         lazy[name] = lazy[name].copy(data=da.from_array(scene[name].values, chunks=(NZ, 8, 8)))
-    coarse_lazy, coarse = coarsen_scene(lazy, 4, method), coarsen_scene(scene, 4, method)
+
+    def no_compute(*args, **kwargs):
+        raise AssertionError("a lazy field was computed")
+
+    with dask.config.set(scheduler=no_compute):
+        coarse_lazy = coarsen_scene(lazy, 4, method)
+    coarse = coarsen_scene(scene, 4, method)
     for name in ("cloud_liquid_content", "cloud_liquid_effective_radius", "height", "aerosol_extinction"):
         assert isinstance(coarse_lazy[name].data, da.Array), name
         np.testing.assert_allclose(coarse_lazy[name].values, coarse[name].values, rtol=1e-12, err_msg=name)
@@ -169,13 +179,19 @@ def test_factors_that_are_not_blocks_are_rejected():
     assert resolve_coarsening(3, scene, "allsky", {}, None, None, 2.0) == 3
 
 
-@pytest.mark.parametrize("height_m, fov_deg, width", [(700e3, 30.0, 64), (35786e3, 9.0, 256), (35786e3, 9.0, 2048)])
-def test_the_factor_is_the_pixel_footprint_straight_below_over_the_spacing(height_m, fov_deg, width):
+@pytest.mark.parametrize("height_m, fov_deg, width, spacing, expected", [
+    (700e3, 30.0, 64, 1000.0, 5),  # 5.86 km pixels over 1 km columns
+    (35786e3, 9.0, 256, 3000.0, 7),  # 22.0 km over 3 km
+    (35786e3, 9.0, 2048, 3000.0, 1),  # 2.75 km over 3 km: no block
+    (35786e3, 9.0, 64, 3000.0, 11),  # 88 km over 3 km: at most half the grid's 22 rows
+])
+def test_the_factor_is_the_pixel_footprint_straight_below_over_the_spacing(height_m, fov_deg, width, spacing,
+                                                                           expected):
     """A camera straight above the grid's reference column: its nearest column is height_m away, so the blocks are
     floor(height_m x 2 tan(fov / 2) / width / spacing) columns wide (at least 1, at most half the grid)."""
-    scene = _scene(spacing=3000.0)
+    scene = _scene(spacing=spacing)
     footprint = height_m * 2.0 * math.tan(math.radians(fov_deg) / 2.0) / width
-    expected = max(1, min(int(footprint // 3000.0), NY // 2, NX // 2))
+    assert expected == max(1, min(int(footprint // spacing), NY // 2, NX // 2))  # the cases' arithmetic
     got = coarsening_factor(scene, "perspective", {"width": width, "height": width, "fov_deg": fov_deg},
                             38.0, -97.0, height_m)
     assert got == expected
@@ -194,14 +210,68 @@ def test_the_factor_of_a_space_view_without_a_field_of_view_uses_the_fitted_one(
 
 
 def test_render_coarsens_the_scene_it_is_given():
-    """render(coarsen=N) is the render of coarsen_scene(scene, N); "auto" renders with the factor it chose."""
+    """render(coarsen=N) is the render of coarsen_scene(scene, N), and says so; "auto" renders with the factor that
+    coarsening_factor chooses (here 4: 2 km pixels over 0.5 km columns); a camera height given as a NumPy scalar is a
+    height."""
     scene = swim.default_scene()
     view = dict(height=700e3, camera="perspective", camera_options={"width": 24, "height": 24, "fov_deg": 4.0},
                 sun_zenith=40.0, sun_azimuth=150.0)
     coarse = swim.render(scene, coarsen=2, **view)
     by_hand = swim.render(coarsen_scene(scene, 2), **view)
     np.testing.assert_array_equal(coarse["radiance"].values, by_hand["radiance"].values)
+    assert coarse.attrs["scene_coarsened_by"] == 2 and by_hand.attrs["scene_coarsened_by"] == 2
     full = swim.render(scene, **view)
     assert not np.array_equal(full["radiance"].values, coarse["radiance"].values)
+    assert full.attrs["scene_coarsened_by"] == 1
+    lat0, lon0 = scene.attrs["reference_lat"], scene.attrs["reference_lon"]
+    factor = coarsening_factor(scene, "perspective", view["camera_options"], lat0, lon0, 700e3)
+    assert factor == 4
+    auto = swim.render(scene, coarsen="auto", **{**view, "height": np.float32(700e3)})
+    assert auto.attrs["scene_coarsened_by"] == factor
+    np.testing.assert_array_equal(auto["radiance"].values, swim.render(scene, coarsen=factor, **view)["radiance"].values)
     with pytest.raises(SwimInputError, match="coarsen must be"):
         swim.render(scene, coarsen="fine", **view)
+
+
+def test_the_whole_grid_is_coarsened_before_the_crop(monkeypatch):
+    """render coarsens the whole grid, then crops: the crop gets the whole grid's blocks (their middle columns), so the
+    columns kept do not depend on the window that the crop takes for a camera or a sun (blocks of 3, which the crop's
+    power-of-two windows would not line up with)."""
+    from swim import pipeline
+
+    scene = _scene(spacing=20000.0)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def crop(scene, *args, **kwargs):
+        seen.append(scene)
+        raise Stop
+
+    monkeypatch.setattr(pipeline, "crop_scene_to_view", crop)
+    view = dict(lat=38.0, lon=-97.0, height=2.0, camera="perspective",
+                camera_options={"width": 12, "height": 8, "fov_deg": 20.0, "view_azimuth_deg": 60.0,
+                                "view_zenith_deg": 80.0})
+    for sun in (dict(sun_zenith=40.0, sun_azimuth=150.0), dict(sun_zenith=70.0, sun_azimuth=250.0)):
+        with pytest.raises(Stop):
+            swim.render(scene, coarsen=3, crop=True, **view, **sun)
+    cols, rows = np.arange(NX // 3) * 3 + 1, np.arange(NY // 3) * 3 + 1
+    for got in seen:
+        np.testing.assert_array_equal(got["x"].values, scene["x"].values[cols])
+        np.testing.assert_array_equal(got["y"].values, scene["y"].values[rows])
+
+
+def test_auto_over_the_grid_and_with_a_time_dimension():
+    """A camera over the grid is as far from it as its height, even between the sampled columns; a scene whose lat
+    and lon carry a length-1 time dimension (as a lazily opened file may) gets its factor too."""
+    scene = _scene(spacing=3000.0)
+    wide = {"width": 16, "height": 16, "fov_deg": 170.0}
+    assert coarsening_factor(scene, "perspective", wide, 38.0, -97.0, 2.0) == 1
+    timed = scene.copy()
+    for name in ("lat", "lon"):
+        timed[name] = scene[name].expand_dims(time=[np.datetime64("2024-07-01T18:00", "ns")])
+    timed = timed.drop_vars("time") if "time" in timed.coords and timed["time"].ndim == 0 else timed
+    options = {"width": 64, "height": 64, "fov_deg": 30.0}
+    assert coarsening_factor(timed, "perspective", options, 38.0, -97.0, 700e3) == \
+        coarsening_factor(scene, "perspective", options, 38.0, -97.0, 700e3) == 1

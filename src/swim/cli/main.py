@@ -220,6 +220,15 @@ def render(
             place = {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
         if lazy and scene is None:
             raise SwimInputError("--lazy needs a scene file (a canonical scene netCDF file)")
+        level_of_detail = None  # checked before the scene is opened
+        if coarsen is not None:
+            level_of_detail = coarsen.strip().lower()
+            if level_of_detail != "auto":
+                try:
+                    level_of_detail = int(level_of_detail)
+                    assert level_of_detail >= 1
+                except (ValueError, AssertionError):
+                    raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
         ds = default_scene() if scene is None else open_scene(scene, lazy=lazy, time=time, **place)
         if albedo_image is not None:
             from ..surface.albedo import scene_with_albedo_from_image
@@ -250,15 +259,6 @@ def render(
             background = AerosolBackground(type_name=aerosol, **strat)
         sampling = AdaptiveSampling(**_given(tolerance=tolerance, tau_tolerance=tau_tolerance,
                                              clear_tolerance=clear_tolerance)) if adaptive else None
-        level_of_detail = None
-        if coarsen is not None:
-            level_of_detail = coarsen.strip().lower()
-            if level_of_detail != "auto":
-                try:
-                    level_of_detail = int(level_of_detail)
-                    assert level_of_detail >= 1
-                except (ValueError, AssertionError):
-                    raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
         target = None
         if look_at is not None:
             try:

@@ -58,7 +58,7 @@ from ..frames import geodetic_to_scene
 
 log = logging.getLogger(__name__)
 
-__all__ = ["coarsen_scene", "coarsening_factor", "resolve_coarsening", "METHODS"]
+__all__ = ["coarsen_scene", "coarsening_factor", "check_coarsening", "resolve_coarsening", "METHODS"]
 
 #: The ways :func:`coarsen_scene` makes a block's column (see the module's docstring).
 METHODS = ("sample", "effective_thickness", "mean")
@@ -92,7 +92,8 @@ def coarsen_scene(scene: xr.Dataset, factor: int, method: str = "sample") -> xr.
     -------
     xarray.Dataset
         The coarse scene, with the scene's attributes (its reference point kept, so that the scene frame does not
-        move), ``coarsened_by`` = ``factor`` and ``coarsened_with`` = ``method``. With the means, variables that are
+        move), ``coarsened_by`` = ``factor`` (times the scene's own ``coarsened_by``, where it was coarsened before)
+        and ``coarsened_with`` = ``method``. With the means, variables that are
         not in the canonical format are dropped.
 
     Raises
@@ -122,7 +123,10 @@ def coarsen_scene(scene: xr.Dataset, factor: int, method: str = "sample") -> xr.
                              f"columns per axis, got {scene.sizes['y']} x {scene.sizes['x']}")
     if method == "sample":  # each block's middle column, as it is (the same blocks as the means': trimmed)
         rows, cols = (slice(factor // 2, scene.sizes[d] // factor * factor, factor) for d in ("y", "x"))
-        return scene.isel(y=rows, x=cols).assign_attrs(coarsened_by=factor, coarsened_with=method)
+        return scene.isel(y=rows, x=cols).assign_attrs(coarsened_by=factor * int(scene.attrs.get("coarsened_by", 1)),
+                                                       coarsened_with=method)
+    if "time" in scene.dims and scene.sizes["time"] == 1:  # one time along a dimension (validation accepts it)
+        scene = scene.squeeze("time")
     out = {}
     for name in _MEANS:
         if name in scene:
@@ -149,7 +153,8 @@ def coarsen_scene(scene: xr.Dataset, factor: int, method: str = "sample") -> xr.
                                                       np.sin(lat)))
         out["lat"] = np.rad2deg(np.arctan2(ez, np.hypot(ex, ey))).assign_attrs(scene["lat"].attrs)
         out["lon"] = np.rad2deg(np.arctan2(ey, ex)).assign_attrs(scene["lon"].attrs)
-    coarse = xr.Dataset(out, attrs={**scene.attrs, "coarsened_by": factor, "coarsened_with": method})
+    coarse = xr.Dataset(out, attrs={**scene.attrs, "coarsened_by": factor * int(scene.attrs.get("coarsened_by", 1)),
+                                    "coarsened_with": method})
     for name in ("x", "y"):  # the mean of the block's coordinates (trimmed as the fields)
         if name in scene.coords:
             coarse = coarse.assign_coords({name: _block_mean(scene[name], factor).assign_attrs(scene[name].attrs)})
@@ -201,20 +206,35 @@ def _effective_thickness_factor(scene: xr.Dataset, betas: dict, factor: int) -> 
 
 
 def _grid_spacing_and_points(scene: xr.Dataset):
-    """The grid's smallest column spacing [m] (of a sample of neighbouring columns) and a sample of its columns'
-    sea-level points (lat, lon) [deg], from ``lat`` and ``lon`` (2-D: read, not the 3-D fields)."""
+    """The grid's smallest column spacing [m] (of a sample of neighbouring columns), a sample of its columns'
+    sea-level points (lat, lon) [deg] (~:data:`_SAMPLE` columns per axis), and the sample's largest spacing [m], from
+    ``lat`` and ``lon`` (2-D: read, not the 3-D fields; a length-1 ``time`` dimension dropped, as the crop does).
+
+    Raises
+    ------
+    SwimInputError
+        If ``lat`` or ``lon`` is missing, not (y, x), or not finite.
+    """
+    from .reach import _finite, _horizontal_values
+
+    if "lat" not in scene or "lon" not in scene:
+        raise SwimInputError("coarsen: the scene needs 'lat' and 'lon' (y, x) [deg] to choose a factor")
     ny, nx = scene.sizes["y"], scene.sizes["x"]
     sy, sx = max(1, ny // _SAMPLE), max(1, nx // _SAMPLE)
-    lat = np.asarray(scene["lat"].transpose("y", "x")[::sy, ::sx].values, float)
-    lon = np.asarray(scene["lon"].transpose("y", "x")[::sy, ::sx].values, float)
+    rows, cols = slice(None, None, sy), slice(None, None, sx)
+    lat, lon = (_finite(name, _horizontal_values(scene, name, rows, cols)) for name in ("lat", "lon"))
     points = geodetic_to_scene(lat, lon, 0.0, float(lat.flat[0]), float(lon.flat[0]))
     # the sample's neighbours are sy and sx columns apart
-    steps = []
+    steps, sample_steps = [], [0.0]
     if points.shape[0] > 1:
-        steps.append(np.median(np.linalg.norm(np.diff(points, axis=0), axis=-1)) / sy)
+        step = float(np.median(np.linalg.norm(np.diff(points, axis=0), axis=-1)))
+        steps.append(step / sy)
+        sample_steps.append(step)
     if points.shape[1] > 1:
-        steps.append(np.median(np.linalg.norm(np.diff(points, axis=1), axis=-1)) / sx)
-    return (min(steps) if steps else math.inf), lat, lon
+        step = float(np.median(np.linalg.norm(np.diff(points, axis=1), axis=-1)))
+        steps.append(step / sx)
+        sample_steps.append(step)
+    return (min(steps) if steps else math.inf), lat, lon, max(sample_steps)
 
 
 def coarsening_factor(scene: xr.Dataset, camera: str, camera_options: dict, lat: float, lon: float,
@@ -222,8 +242,9 @@ def coarsening_factor(scene: xr.Dataset, camera: str, camera_options: dict, lat:
     """The largest block of columns (per axis) no wider than the smallest footprint of a pixel on the grid.
 
     The footprint is the angle of a pixel at the image's centre (``2 tan(fov / 2) / width`` for a perspective
-    camera) times the distance from the camera to the grid's nearest column at sea level (a sample of every
-    ~256th column per axis). Only perspective cameras are coarsened: an all-sky or panoramic camera sees the
+    camera; the image's edges are narrower by cos^2(fov / 2), negligible from orbit) times the distance from the
+    camera to the grid's nearest column at sea level: of a sample of ~256 columns per axis, or the camera's height
+    where it is over the grid. Only perspective cameras are coarsened: an all-sky or panoramic camera sees the
     columns around it from close by.
 
     Parameters
@@ -254,12 +275,13 @@ def coarsening_factor(scene: xr.Dataset, camera: str, camera_options: dict, lat:
 
     if str(camera).strip().lower() != "perspective" or "width" not in camera_options:
         return 1
-    spacing, glat, glon = _grid_spacing_and_points(scene)
+    spacing, glat, glon, sample_step = _grid_spacing_and_points(scene)
     if not (np.isfinite(spacing) and spacing > 0):
         return 1
     lat0, lon0 = float(glat.flat[0]), float(glon.flat[0])
     camera_at = geodetic_to_scene(float(lat), float(lon), float(height), lat0, lon0)
     columns = geodetic_to_scene(glat, glon, 0.0, lat0, lon0)
+    below = geodetic_to_scene(float(lat), float(lon), 0.0, lat0, lon0)
     if "fov_deg" in camera_options:
         fov = float(camera_options["fov_deg"])
     elif look_at is None and float(height) > ATMOSPHERE_TOP_M and {"reference_lat", "reference_lon"} <= set(
@@ -273,9 +295,21 @@ def coarsening_factor(scene: xr.Dataset, camera: str, camera_options: dict, lat:
         return 1
     pixel = 2.0 * math.tan(math.radians(fov) / 2.0) / float(camera_options["width"])
     nearest = float(np.min(np.linalg.norm(columns - camera_at, axis=-1)))
+    if float(np.min(np.linalg.norm(columns - below, axis=-1))) <= sample_step:
+        # over the grid (or at its edge): a column may lie straight below, between the sampled ones
+        nearest = min(nearest, max(float(height), 0.0))
     factor = int(nearest * pixel // spacing)
     # at least two blocks per axis
     return max(1, min(factor, scene.sizes["y"] // 2, scene.sizes["x"] // 2))
+
+
+def check_coarsening(coarsen) -> None:
+    """Raise SwimInputError unless ``coarsen`` is None, ``"auto"`` or an integer >= 1 (:func:`swim.render`'s
+    argument), before any work."""
+    if coarsen is None or (isinstance(coarsen, str) and coarsen.strip().lower() == "auto"):
+        return
+    if isinstance(coarsen, bool) or not isinstance(coarsen, (int, np.integer)) or coarsen < 1:
+        raise SwimInputError(f"coarsen must be None, 'auto' or an integer >= 1, got {coarsen!r}")
 
 
 def resolve_coarsening(coarsen, scene, camera, camera_options, lat, lon, height, look_at=None) -> int:
@@ -287,16 +321,13 @@ def resolve_coarsening(coarsen, scene, camera, camera_options, lat, lon, height,
     SwimInputError
         For any other value.
     """
+    check_coarsening(coarsen)
     if coarsen is None:
         return 1
     if isinstance(coarsen, str):
-        if coarsen.strip().lower() != "auto":
-            raise SwimInputError(f"coarsen must be None, 'auto' or an integer >= 1, got {coarsen!r}")
         lat0, lon0 = scene.attrs.get("reference_lat"), scene.attrs.get("reference_lon")
         factor = coarsening_factor(scene, camera, dict(camera_options or {}), lat0 if lat is None else lat,
                                    lon0 if lon is None else lon, height, look_at)
         log.info("coarsen: %d x %d columns per block for this view", factor, factor)
         return factor
-    if isinstance(coarsen, bool) or not isinstance(coarsen, (int, np.integer)) or coarsen < 1:
-        raise SwimInputError(f"coarsen must be None, 'auto' or an integer >= 1, got {coarsen!r}")
     return int(coarsen)
