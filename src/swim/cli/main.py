@@ -206,6 +206,7 @@ def render(
 
     precompile.start_early(backend)  # on a cold numba cache: the march compiles in a helper while the rest loads
     from .. import default_scene, open_scene
+    from ..geometry.level_of_detail import check_coarsening
     from ..pipeline import render as render_image, write_netcdf, write_png
     from ..rt.gas import AerosolBackground
     from ..rt.image_sampling import AdaptiveSampling
@@ -220,15 +221,13 @@ def render(
             place = {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
         if lazy and scene is None:
             raise SwimInputError("--lazy needs a scene file (a canonical scene netCDF file)")
-        level_of_detail = None  # checked before the scene is opened
-        if coarsen is not None:
-            level_of_detail = coarsen.strip().lower()
-            if level_of_detail != "auto":
-                try:
-                    level_of_detail = int(level_of_detail)
-                    assert level_of_detail >= 1
-                except (ValueError, AssertionError):
-                    raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
+        level_of_detail = None if coarsen is None else coarsen.strip().lower()  # checked before the scene is opened
+        if level_of_detail not in (None, "auto"):
+            try:
+                level_of_detail = int(level_of_detail)
+            except ValueError:
+                raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
+        check_coarsening(level_of_detail)
         ds = default_scene() if scene is None else open_scene(scene, lazy=lazy, time=time, **place)
         if albedo_image is not None:
             from ..surface.albedo import scene_with_albedo_from_image

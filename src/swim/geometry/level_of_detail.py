@@ -69,6 +69,11 @@ _MEANS = ("height", "terrain_height", "aerosol_extinction", "surface_albedo", "s
 _SAMPLE = 256
 
 
+def _is_factor(value) -> bool:
+    """Whether ``value`` is an integer >= 1 (a bool is not)."""
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= 1
+
+
 def _block_mean(da: xr.DataArray, factor: int) -> xr.DataArray:
     dims = {d: factor for d in ("y", "x") if d in da.dims}
     return da.coarsen(dims, boundary="trim").mean() if dims else da
@@ -109,7 +114,7 @@ def coarsen_scene(scene: xr.Dataset, factor: int, method: str = "sample") -> xr.
     doi:10.1175/1520-0469(1994)051<2434:TAOFC>2.0.CO;2, and Szczap et al. (2000), doi:10.1029/2000JD900046 (the
     effective thickness).
     """
-    if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
+    if not _is_factor(factor):
         raise SwimInputError(f"coarsen: the factor must be an integer >= 1 (columns per block), got {factor!r}")
     if method not in METHODS:
         raise SwimInputError(f"coarsen: method must be one of {METHODS}, got {method!r}")
@@ -168,13 +173,10 @@ def _extinction(scene: xr.Dataset, species: str, content: xr.DataArray) -> xr.Da
     """Eq. 7's extinction [m-1] of the cells, ``1.5 content / (radius rho)``, with the radius that the optical volume
     would use (the scene's where positive, else the default: :func:`swim.optics.hydrometeors.effective_radius`);
     lazy where ``content`` is."""
-    from ..optics.hydrometeors import effective_radius
+    from ..optics.hydrometeors import effective_radius, extinction_coefficient_stephens1978
 
-    rho = HYDROMETEOR_DENSITY[species]
-
-    def beta(c, r=None):
-        radius = effective_radius(species, c, r)
-        return np.where(c > 0, 1.5 * c / (np.where(c > 0, radius, 1.0) * rho), 0.0)
+    def beta(c, r=None):  # the radius is positive everywhere (the default where none is given), so 0 where c is 0
+        return extinction_coefficient_stephens1978(c, effective_radius(species, c, r), HYDROMETEOR_DENSITY[species])
 
     given = scene.get(f"{species}_effective_radius")
     args = (content,) if given is None else (content, given)
@@ -308,7 +310,7 @@ def check_coarsening(coarsen) -> None:
     argument), before any work."""
     if coarsen is None or (isinstance(coarsen, str) and coarsen.strip().lower() == "auto"):
         return
-    if isinstance(coarsen, bool) or not isinstance(coarsen, (int, np.integer)) or coarsen < 1:
+    if not _is_factor(coarsen):
         raise SwimInputError(f"coarsen must be None, 'auto' or an integer >= 1, got {coarsen!r}")
 
 
