@@ -22,6 +22,7 @@ import xxhash
 from . import __version__
 from .color import DEFAULT_WHITE_LEVEL, SPACE_WHITE_LEVEL, solar_relative_to_srgb8
 from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD, WAVELENGTHS_NM
+from .optics.cloud_phase import AUREOLE_HALF_ANGLE_RAD
 from .digest import update_with_array
 from .errors import SwimInputError
 from .frames import azimuth_zenith_from_enu, enu_to_scene_rotation, geodetic_to_scene
@@ -55,6 +56,7 @@ from .rt.march import (
     trace_rays,
     volume_constants,
 )
+from .rt.clouds import cloud_constants, cloud_ray_inputs, direct_weights, scene_cloud_optics
 from .rt.solar import solar_transmittance, step1a_levels
 from .rt.solar_device import solar_transmittance_on_device
 from .workers import parallel_map
@@ -442,9 +444,10 @@ def resolve_sun(time, scene, sun_zenith=None, sun_azimuth=None) -> SunPosition:
     return sun_position(time, lat0, lon0)
 
 
-def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
+def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance, radius=SUN_ANGULAR_RADIUS_RAD):
     """The sun's disk: the flat indices (k,) of its pixels and their solar-relative radiance (3,), which spreads
     4 pi T_direct over the disk's pixels; no pixels where the sun is outside the image or its disk covers none.
+    With another ``radius`` [rad] (at least 0.75 pixel), a circumsolar disc of that radius.
 
     Only its pixels are returned (rather than an image of zeros that a render added to its radiance: two passes
     over 24 MB of float64 for a 1024^2 image, docs/performance.md, section 58)."""
@@ -459,7 +462,7 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance):
     pitch = float(np.arccos(np.clip(np.dot(dirs_enu[r, c], neighbour), -1, 1))) if valid[r, c] else 0.0
     if not np.isfinite(pitch) or pitch <= 0:
         return none
-    radius = max(SUN_ANGULAR_RADIUS_RAD, 0.75 * pitch)
+    radius = max(radius, 0.75 * pitch)
     # the pixels within the disk's angular radius, looked for in the window that holds them (the whole image only
     # where the disk reaches outside the camera's field): a 1024^2 image's every direction took ~5 ms a frame
     (r0, r1), (c0, c1) = _disk_window(camera, np.asarray(sun_enu, dtype=float), radius, row[0], col[0], ny, nx)
@@ -771,6 +774,16 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
                                                               lambda: _atmosphere_inputs(volume))
     gas = build_gas_tables(aerosol, surface_albedo=mean_albedo, scene_aerosol_profile=aerosol_profile,
                            aerosol_class_aod=classes)
+    clouds = settings.cloud_scattering
+    cloud_optics = cloud_key = None
+    if clouds.three_d:
+        if backend != "numba":
+            raise SwimInputError(f"cloud_scattering='discrete_ordinates' runs in the numba kernel (backend 'numba' or "
+                                 f"'auto' on a CPU); the {backend!r} backend does not have it yet")
+        cloud_optics = _STAGE_CACHE.get(("cloud optics", fingerprint, clouds),
+                                        lambda: scene_cloud_optics(volume, clouds))
+        cloud_key = clouds
+
     def grid_constants():
         # The grid is packed first and the volume's extinctions become views of the packed channels, so the
         # grid is held once before Step 1a's fields are made (docs/performance.md, memory); species that are zero
@@ -814,9 +827,12 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         else:
             # Step 1a, only the fields that the kernel constants read, written straight into the packed volume's
             # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy (docs/performance.md, 70.)
+            # (the 3-D cloud scattering: the direct beam's delta-M scaled transmittance in place of T)
             transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
                                                 backend=settings.backend, nonzero_levels=nonzero_levels,
-                                                out=step1a_channel_views(packed, species))
+                                                out=step1a_channel_views(packed, species),
+                                                direct_weights=(None if cloud_optics is None
+                                                                else direct_weights(volume, cloud_optics)))
         constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species,
                                      classes=classes)
         if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.march.device_copies);
@@ -835,16 +851,27 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
     # constants are looked up inside its build, after the old entry has gone: a new sun never holds two volumes.
     with _GRID_CONSTANTS_LOCK:
-        consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas)), lambda: (
-            {**_STAGE_CACHE.get(("grid constants", fingerprint, sun_key), grid_constants),
-             **atmosphere_constants(gas, sun_scene)}, gas))
+        def with_clouds(grid):  # the 3-D cloud scattering's diffuse solution (swim.rt.clouds), once per sun and sky
+            if cloud_optics is None:
+                return {}
+            return cloud_constants(volume, grid, tuple(_STAGE_CACHE.peek(("packed species", fingerprint))), gas,
+                                   sun_scene, clouds, cloud_optics)
+
+        def build_constants():
+            grid = _STAGE_CACHE.get(("grid constants", fingerprint, sun_key, cloud_key), grid_constants)
+            return {**grid, **atmosphere_constants(gas, sun_scene), **with_clouds(grid)}, gas
+
+        consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas), cloud_key), build_constants)
 
     def ray_phase(dirs):
         cos_theta = dirs @ sun_scene
         p_rayleigh, p_aerosol, p_stratospheric = _phase_functions(cos_theta, gas.depolarization, aerosol.type,
                                                                    aerosol.stratospheric)
-        return {"cos_theta": cos_theta, "cos_view_zenith": dirs[:, 2], "p_rayleigh": p_rayleigh,
-                "p_aerosol": p_aerosol, "p_stratospheric": p_stratospheric}
+        out = {"cos_theta": cos_theta, "cos_view_zenith": dirs[:, 2], "p_rayleigh": p_rayleigh,
+               "p_aerosol": p_aerosol, "p_stratospheric": p_stratospheric}
+        if cloud_optics is not None:
+            out.update(cloud_ray_inputs(dirs, sun_scene, consts["cloud_species"], consts))
+        return out
 
     def trace_directions(dirs, progress_rays):
         # the phase functions block by block (trace_rays), not held for every pixel of a big image at once
@@ -1048,6 +1075,18 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
 
     disk_pixels, disk_radiance = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
     radiance = planes.pop("radiance")  # (3, ny, nx) float32
+    t_aureole = np.zeros(3)
+    recoloured = disk_pixels
+    if cloud_optics is not None and not sun_out["surface"]:
+        # the forward peak's narrow part, delivered about the sun (swim.optics.cloud_phase.split_phase_function)
+        t_aureole = np.maximum(np.exp(-(sun_out["tau_clear"] + sun_out["tau_narrow"])) - t_direct, 0.0)
+        aureole_pixels, aureole_radiance = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_aureole,
+                                                     radius=AUREOLE_HALF_ANGLE_RAD)
+        if aureole_pixels.size:
+            for plane in (radiance, planes["radiance_cloud"]):
+                flat = plane.reshape(3, -1)
+                flat[:, aureole_pixels] = flat[:, aureole_pixels] + aureole_radiance[:, None]
+            recoloured = np.union1d(disk_pixels, aureole_pixels)
     if disk_pixels.size:  # the disk added in float64, rounded once to the output's float32
         flat = radiance.reshape(3, -1)
         flat[:, disk_pixels] = flat[:, disk_pixels] + disk_radiance[:, None]
@@ -1059,7 +1098,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         # radiance added above): the host's colour stage for those few
         codes, need = device_rgb
         rgb = codes if codes.flags.writeable else codes.copy()
-        redo = np.union1d(np.flatnonzero(need), disk_pixels)
+        redo = np.union1d(np.flatnonzero(need), recoloured)
         if redo.size:
             rgb.reshape(-1, 3)[redo] = solar_relative_to_srgb8(radiance.reshape(3, -1)[:, redo],
                                                                white_level=white_level)
@@ -1106,6 +1145,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         "sun_source": sun.source,
         "earth_sun_distance_au": float(sun.earth_sun_distance_au),
         "direct_transmittance": np.asarray(t_direct, dtype=float),
+        "circumsolar_transmittance": np.asarray(t_aureole, dtype=float),
+        "cloud_scattering": settings.cloud_scattering.method,
         "observer_lat": lat,
         "observer_lon": lon,
         "observer_height_above_ground_m": float(height),

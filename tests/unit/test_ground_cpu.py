@@ -188,6 +188,6 @@ def test_the_numba_ground_term_of_rays_is_the_jax_one(surface, plume):
         class_weight, tables["p"], tables["coef"], tables["sky"], tables["diffuse_classes"], n_class,
         tables["surface"], tables["surface_outside"], tables["angstrom"], tables["backscatter"], surface == "lambertian",
         compose_cpu.COEFFICIENTS, g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"],
-        g["fade_cells"], got)
+        g["fade_cells"], False, got)
     assert np.all(got[~surface_mask] == 0) and np.all(got[surface_mask] > 0)
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-14)

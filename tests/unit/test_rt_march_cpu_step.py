@@ -146,7 +146,7 @@ def test_work_arrays_have_their_sizes_and_share_no_cache_line(sizes):
     assert names == ["edges", "cdf", "stack_lo", "stack_hi", "stack_depth", "saved", "tsp", "ms_lanes", "vol", "vol32",
                      "probe_at"]
     shapes = [(max(n_before, n_grid, n_after) + 1,), (max(n_probe, n_probe_max, n_clear) + 1,), (slots,), (slots,),
-              (slots,), (19 + n_species,), (max(n_species, 1),), (n_u, 3 * march_cpu.LANES), (n_channels,),
+              (slots,), (22 + n_species,), (max(n_species, 1),), (n_u, 3 * march_cpu.LANES), (n_channels,),
               (n_channels,), (6, march_cpu.PROBE_BLOCK)]
     assert [a.shape for a in work] == shapes
     types = precompile._argument_types()["_march_ray_range"]

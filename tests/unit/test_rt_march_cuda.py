@@ -51,10 +51,10 @@ def test_kernel_takes_the_cpu_kernels_arguments():
 
 def test_work_sizes_are_the_cpu_kernels():
     sizes = march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 5, 9, 41)
-    assert sizes == (129, 257, 32, 24, 5, 9, 41)
+    assert sizes == (129, 257, 32, 27, 5, 9, 41)
     assert march_cuda.work_sizes(300, 128, 24, 8, 8, 16, 4, 3, 7, 2)[:2] == (301, 17)
     # a cloudless scene packs no species: the species work array keeps one element (CUDA has no empty local arrays)
-    assert march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 0, 2, 2)[3:] == (19, 1, 2, 2)
+    assert march_cuda.work_sizes(12, 128, 24, 64, 256, 16, 32, 0, 2, 2)[3:] == (22, 1, 2, 2)
 
 
 def test_numba_cuda_that_cannot_compile_with_this_numpy_says_so(monkeypatch):

@@ -68,6 +68,25 @@ def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the st
                         handlers=[RichHandler(console=console, show_path=False)])
 
 
+def _cloud_scattering(method, phase):
+    """The :class:`swim.rt.clouds.CloudScattering` of ``--cloud-scattering`` and ``--cloud-phase``."""
+    from ..rt.clouds import CloudScattering
+
+    if phase is None or phase.strip() == "physical":
+        return CloudScattering(method=method)
+    spec = {}
+    for part in phase.split(","):
+        name, sep, value = part.partition("=")
+        try:
+            spec[name.strip()] = ("hg", float(value))
+        except ValueError:
+            raise SwimInputError(f"--cloud-phase must be 'physical' or 'name=g,...' (name liquid, ice or a species, "
+                                 f"g a Henyey-Greenstein asymmetry parameter), got {phase!r}") from None
+        if not sep:
+            raise SwimInputError(f"--cloud-phase must be 'physical' or 'name=g,...', got {phase!r}")
+    return CloudScattering(method=method, phase_function=spec)
+
+
 def _given(**options):
     """The options that were given on the command line (not None): the settings classes keep their own defaults
     for the others."""
@@ -187,6 +206,15 @@ def render(
                                              "--albedo-image [-]."),
     surface: str = typer.Option("brdf", help="Ground reflectance: brdf (land hot spot, snow, sun glint on water) "
                                 "or lambertian (docs/surfaces.md)."),
+    cloud_scattering: str = typer.Option("albers2020", "--cloud-scattering",
+                                         help="How clouds scatter light: albers2020 (the paper's Eqs. 12-26) or "
+                                         "discrete_ordinates (a 3-D solution of the diffuse light for the scene and "
+                                         "sun, with Mie and ice phase functions and cloud-ground interreflection; "
+                                         "CPU backend; docs/rendering.md, '3-D cloud scattering')."),
+    cloud_phase: Optional[str] = typer.Option(None, "--cloud-phase",
+                                              help="Phase functions of --cloud-scattering discrete_ordinates: "
+                                              "physical (default: Mie droplets, roughened-aggregate ice) or "
+                                              "Henyey-Greenstein per phase, e.g. 'liquid=0.85,ice=0.75'."),
     scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
     scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
     out: Optional[Path] = typer.Option(None, help="PNG output path (default swim.png); with --end a pattern such as "
@@ -265,7 +293,8 @@ def render(
                 assert len(target) == 3
             except (ValueError, AssertionError):
                 raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
-        settings = MarchSettings(surface=surface, backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
+        settings = MarchSettings(surface=surface, cloud_scattering=_cloud_scattering(cloud_scattering, cloud_phase),
+                                 backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
                                  step1a_on_device=step1a_on_device, device_sampling=device_sampling,
                                  device_image=device_image, fused_max_registers=fused_max_registers,
                                  fused_vector_loads=fused_vector_loads, fused_fma=fused_fma,

@@ -392,6 +392,9 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     rows = max(1, min(ny, _BLOCK_BYTES // (8 * nz * nx * workers)))
     flat = extinction.reshape(len(SPECIES), nk, ny * nx)
     blocks = [(j0, min(j0 + rows, ny)) for j0 in range(0, ny, rows)]
+    # the extinction-weighted mean effective radius of each species [m] (its phase function's, in the 3-D cloud
+    # scattering: swim.optics.cloud_phase), from sums per block of rows
+    radius_sums = {species: [] for species in SPECIES}
     for n, species in enumerate(SPECIES):
         name = f"{species}_content"
         if name not in scene:
@@ -424,6 +427,7 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
                 gather_cells(radius_all[:, j0:j1], where, given)
             radius = effective_radius(species, values, given)
             beta = extinction_coefficient_stephens1978(values, radius, HYDROMETEOR_DENSITY[species]).astype(np.float32)
+            radius_sums[species].append((float(np.dot(beta, radius)), float(beta.sum(dtype=np.float64))))
             interpolation.cells(where, beta, nz, j0 * nx, j1 * nx, out=flat[n, :, j0 * nx:j1 * nx])  # in place
 
         parallel_map(eq7_block, blocks, workers)  # an error in a block (bad values) is raised here
@@ -480,5 +484,8 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
             "index_map_coefficients": coefficients.ravel(),
             "index_map_bounds": index_bounds,
             "index_map_max_residual_cells": index_residual,
+            "mean_effective_radius_m": np.array([
+                sum(a for a, _ in radius_sums[sp]) / max(sum(b for _, b in radius_sums[sp]), 1e-30)
+                if radius_sums[sp] else np.nan for sp in SPECIES]),
         },
     )

@@ -49,7 +49,7 @@ def ground_tables():
     -------
     dict
         ``coefficients`` (20,), ``rpv_q`` (257,), ``snow_table`` (11, 257), ``snow_albedo`` (3,),
-        ``subsurface`` (3,), ``fade_cells`` (11,); float64, read-only.
+        ``subsurface`` (3,), ``fade_cells`` (14,); float64, read-only.
     """
     with _TABLES_LOCK:
         return _ground_tables()
@@ -66,7 +66,9 @@ def _ground_tables():
     out = {"coefficients": k, "rpv_q": np.array(brdf._rpv_table(brdf.RPV_K, brdf.RPV_THETA_HG, brdf.RPV_HOT_SPOT)),
            "snow_table": np.array(brdf._snow_table()), "snow_albedo": np.array(brdf.SNOW_ALBEDO, dtype=np.float64),
            "subsurface": np.array(water.WATER_SUBSURFACE_REFLECTANCE, dtype=np.float64),
-           "fade_cells": surface_fade_cells().astype(np.float64)}
+           # the 11 fields of surface_fields, then the diffuse solution's 3 ratios of the ground's skylight
+           # (cloud_scattering="discrete_ordinates"), which fade as the lighting does
+           "fade_cells": np.concatenate([surface_fade_cells(), surface_fade_cells()[-3:]]).astype(np.float64)}
     for a in out.values():
         a.flags.writeable = False  # one compiled type for every call (read-only arrays)
     return out
@@ -261,7 +263,7 @@ def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, sno
 def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, tau_clear, tau_packed, species,
                     class_lower, class_weight, p, coef, sky, diffuse_classes, n_class, fields, fields_outside,
                     angstrom, backscatter, lambertian, compose_coefficients, k, rpv_q, snow_table, snow_albedo,
-                    subsurface, fade_cells, out):
+                    subsurface, fade_cells, cloud_mode, out):
     """The ground's part of the pixel radiance of n rays, as :func:`swim.rt.march._ground_radiance` (Eq. 35).
 
     Parameters
@@ -294,6 +296,11 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
         :data:`swim.rt.compose_cpu.COEFFICIENTS` (the delta-Eddington transmittance's constant).
     k, rpv_q, snow_table, snow_albedo, subsurface, fade_cells : numpy.ndarray
         :func:`ground_tables`.
+    cloud_mode : bool
+        ``cloud_scattering="discrete_ordinates"``: ``fields`` has 14 channels, channel 8 is the direct beam's scaled
+        transmittance e^{-tau*_s} and 11-13 the ratio of the ground's diffuse irradiance to the clear sky's (the
+        3-D diffuse solution, :mod:`swim.rt.diffuse_field`), which light the ground in place of T; ``backscatter``
+        holds each species' 1 - f (delta-M), and the ground is seen through e^{-tau*} of the scaled optical depth.
     out : numpy.ndarray
         Shape (n, 3), written: L' of the ground seen by the observer [-].
     """
@@ -349,7 +356,7 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
         for c in range(3):
             albedo[c] = value[c]
             direct[c] *= math.exp(-value[10] * angstrom[c]) * (t_cloud * shadow)
-            diffuse[c] *= t_cloud
+            diffuse[c] *= value[11 + c] if cloud_mode else t_cloud
         pz = q2 + radius
         norm = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
         up[0], up[1], up[2] = q0 / norm, q1 / norm, pz / norm
@@ -363,7 +370,10 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
         b_tau = 0.0
         for m in range(species.shape[0]):
             b_tau += tau_packed[r, m] * backscatter[species[m]]
-        t_hydro = ((1.0 - w_above) * math.exp(-tau_h[r]) + w_above * _transmittance_delta_eddington(
-            tau_h[r], b_tau, max(mu_down, k[_G_FROM_ABOVE]), compose_coefficients))
+        if cloud_mode:  # through the delta-M scaled optical depth: the forward peak stays in the view
+            t_hydro = math.exp(-b_tau)
+        else:
+            t_hydro = ((1.0 - w_above) * math.exp(-tau_h[r]) + w_above * _transmittance_delta_eddington(
+                tau_h[r], b_tau, max(mu_down, k[_G_FROM_ABOVE]), compose_coefficients))
         for c in range(3):
             out[r, c] = radiance[c] * math.exp(-tau_clear[r, c]) * t_hydro

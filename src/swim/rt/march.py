@@ -219,6 +219,10 @@ class MarchSettings:
         its grid loop then issues 48 global loads an iteration instead of 110 and 1 617 instructions instead of
         1 893 (docs/performance.md, section 87). False: a scalar gather per channel and corner (the kernel of
         sessions 58-67). The same results to float32 rounding; the other kernels ignore it.
+    cloud_scattering : str or CloudScattering
+        How clouds scatter light (:mod:`swim.rt.clouds`): "albers2020" (the paper's Eqs. 12-26, the default) or
+        "discrete_ordinates" (the 3-D diffuse solution, numba backend only), or a
+        :class:`swim.rt.clouds.CloudScattering` with its phase functions and accuracy settings; kept as the latter.
     fused_fma : bool
         Whether ptxas may contract the fused GPU kernel's float32 multiplies and adds into fused multiply-adds on
         NVIDIA GPUs (:mod:`swim.rt.ptx_edits`: Triton writes them with an explicit rounding mode, which forbids it;
@@ -259,8 +263,12 @@ class MarchSettings:
     fused_max_registers: int | None = None
     fused_vector_loads: bool = True
     fused_fma: bool = False
+    cloud_scattering: object = "albers2020"
 
     def __post_init__(self):
+        from .clouds import as_cloud_scattering
+
+        object.__setattr__(self, "cloud_scattering", as_cloud_scattering(self.cloud_scattering))
         for name in ("n_before", "n_grid", "n_after", "empty_steps", "sunlit_steps", "n_probe", "chunk"):
             value, least = getattr(self, name), 1 if name in ("chunk", "n_probe") else 0
             if name in ("chunk", "empty_steps") and value is None:
@@ -2605,6 +2613,18 @@ def _numba_tables(consts, prepare=True):
               "backscatter": arr(consts["backscatter"])}
     # each packed species' index into SPECIES, for the numba composition
     tables["species_index"] = np.argmax(tables["species_matrix"], axis=1).astype(np.int64)
+    # the 3-D cloud scattering's tables (swim.rt.clouds.cloud_constants), or placeholders the kernel does not read
+    tables["cloud_mode"] = "ms_field" in consts
+    if tables["cloud_mode"]:
+        tables.update({key: consts[key] for key in ("hydro_scale", "hydro_chi", "hydro_narrow", "hydro_aureole",
+                                                    "degree", "ms_field", "ms_above", "above_heights",
+                                                    "backscatter_scaled")},
+                      ms_coarsen=float(consts["ms_coarsen"]))
+    else:
+        tables.update(hydro_scale=arr(np.zeros(1)), hydro_chi=arr(np.zeros((1, 3, 1))), hydro_narrow=arr(np.zeros(1)),
+                      degree=arr(np.zeros(1, np.int64)), ms_field=arr(np.zeros((1, 1, 1, 4), np.float32)),
+                      ms_above=arr(np.ones((2, 1, 1, 3), np.float32)), above_heights=arr(np.array([0.0, 1.0])),
+                      ms_coarsen=1.0)
     if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
         source = consts["ms_source"]
         tables.update(ms_source=arr(np.asarray(source).reshape(source.shape[:4] + (-1,))), n_u=int(source.shape[4]),
@@ -2686,9 +2706,14 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
+    if tables["cloud_mode"]:
+        p_hydro, y_view = rays["p_hydro"][:n].astype(float), rays["y_view"][:n].astype(float)
+    else:
+        p_hydro, y_view = np.zeros((1, 1, 6)), np.zeros((1, 1))
+    state["l_cloud"] = np.zeros((padded, 3))
     samples = np.empty(n, np.int64)
     ray_class = (np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float))  # the march's and the ground's
-    t, out = tables, [state[key][:n] for key in state] + [samples]
+    t, out = tables, [state[key][:n] for key in state if key != "l_cloud"] + [samples]
     march(
         *(a[:n] for a in exact), np.array(valid[:n]), phase["p_rayleigh"], phase["p_aerosol"], phase["p_stratospheric"],
         *ray_class, ms_profile, settings.multiple_scattering,
@@ -2698,7 +2723,9 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         MAX_PROBES, CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, settings.sunlit_steps,
         SUNLIT_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
-        TERRAIN_BISECTIONS, float(settings.stop_tau), *out)
+        TERRAIN_BISECTIONS, float(settings.stop_tau), *out, bool(t["cloud_mode"]), p_hydro, y_view, t["hydro_scale"],
+        t["hydro_chi"], t["hydro_narrow"], t["degree"], t["ms_field"], t["ms_coarsen"], t["ms_above"],
+        t["above_heights"], state["l_cloud"][:n])
     if kernel == "numba":  # composed in numba too: the clouds (section 35) and the ground (section 37)
         return {**_compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, ray_class, n),
                 "steps": samples.astype(np.int32)}
@@ -2737,14 +2764,27 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
         from . import ground_cpu
 
         g = ground_cpu.ground_tables()
+        cloud_mode = bool(tables["cloud_mode"])
         ground_cpu.ground_radiance(
             exact[0][:n], exact[1][:n], st["s_hit"], surface, rays["cos_view_zenith"][:n], st["tau_h"],
             st["tau_clear"], st["tau_species"], tables["species_index"], *ray_class, tables["p"], tables["coef"],
             tables["sky"],
             tables["diffuse_classes"], tables["n_class"], tables["surface"], tables["surface_outside"],
-            tables["angstrom"], tables["backscatter"], settings.surface == "lambertian", compose_cpu.COEFFICIENTS,
+            tables["angstrom"], tables["backscatter_scaled"] if cloud_mode else tables["backscatter"],
+            settings.surface == "lambertian", compose_cpu.COEFFICIENTS,
             g["coefficients"], g["rpv_q"], g["snow_table"], g["snow_albedo"], g["subsurface"], g["fade_cells"],
-            l_surface)
+            cloud_mode, l_surface)
+    if tables["cloud_mode"]:  # the hydrometeors' radiance was integrated along the ray (swim.rt.clouds)
+        l_cloud = st["l_cloud"].astype(np.float32)
+        radiance = (st["l_clear"] + st["l_cloud"] + l_surface).astype(np.float32)
+        radiance[~np.asarray(valid[:n], bool)] = 0.0
+        # the optical depth that dims the beam but for the forward peak's narrow part (the circumsolar aureole)
+        tau_narrow = st["tau_species"] @ np.asarray(tables["hydro_aureole"], float)
+        return {"radiance": radiance, "radiance_clear": st["l_clear"].astype(np.float32), "radiance_cloud": l_cloud,
+                "radiance_surface": l_surface, "tau_hydrometeor": st["tau_h"].astype(np.float32),
+                "tau_clear": st["tau_clear"].astype(np.float32), "surface": surface,
+                "distance": np.where(surface, st["s_hit"], np.nan).astype(np.float32),
+                "tau_narrow": tau_narrow.astype(np.float32)}
     radiance, l_cloud = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
     compose_cpu.compose_clouds(st["tau_h"], st["tau_species"], tables["species_index"], st["i_nogas"], st["i_gas"],
                                st["i_cloud_t"], st["l_clear"], l_surface, np.array(valid[:n]), rays["cos_theta"][:n],

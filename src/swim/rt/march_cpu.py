@@ -793,6 +793,122 @@ def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, sou
             (in0, in1, in2, in3), (ig0, ig1, ig2, ig3))
 
 
+@_helper_jit()
+def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree,
+                   ms_field, ms_coarsen, beta_h, t_cloud, e0, e1, e2):
+    """The hydrometeors' sources at a step of ``cloud_scattering="discrete_ordinates"``, per wavelength [m-1]:
+
+    * single scattering of the direct beam with the species' phase functions split in two
+      (:func:`swim.optics.cloud_phase.split_phase_function`), ``p_hydro[row]`` (n_sp, 6): the first three
+      columns scatter the beam with its delta-M scaled transmittance ``t_cloud`` (in ``e0..e2``, Nakajima and Tanaka
+      1988's TMS), the last three the beam dimmed by all but the narrow forward peak, t_cloud^x with
+      x = sum_s beta_s (f_s - f_a,s) / sum_s beta_s (1 - f_s) (``hydro_narrow``: f - f_a; exact for one species);
+    * the diffuse solution's source: sum_l (sum_s beta_s (chi_s,l - f_s)) sum_m Y_lm(-d) L'_lm(x), the moments
+      ``ms_field`` (nk, ny_c, nx_c, 3 + 3 nm) interpolated trilinearly at the step's level ``k`` and columns
+      ((j, i) + 1/2) / ``ms_coarsen`` - 1/2, ``hydro_chi`` (n_sp, 3, L + 1) = chi_l - f, ``y_view[row]`` the
+      harmonics of the ray's propagation direction, ``degree`` (nm,) l of each moment;
+
+    and the ratio of the diffuse radiance to the clear sky's (channels 0-2), which scales the air's diffuse source,
+    and the hydrometeors' scaled extinction sum_s (1 - f_s) beta_s (``hydro_scale``: 1 - f)."""
+    nyc, nxc = ms_field.shape[1], ms_field.shape[2]
+    nm = y_view.shape[1]
+    inv = 1.0 / ms_coarsen
+    fk = _clip(k, 0.0, nk - 1.0)
+    fj = _clip((j + 0.5) * inv - 0.5, 0.0, nyc - 1.0)
+    fi = _clip((i + 0.5) * inv - 0.5, 0.0, nxc - 1.0)
+    k0 = min(int(fk), nk - 2) if nk > 1 else 0
+    j0 = min(int(fj), nyc - 2) if nyc > 1 else 0
+    i0 = min(int(fi), nxc - 2) if nxc > 1 else 0
+    k1, j1, i1 = min(k0 + 1, nk - 1), min(j0 + 1, nyc - 1), min(i0 + 1, nxc - 1)
+    ak, aj, ai = fk - k0, fj - j0, fi - i0
+    d0 = _field_at(ms_field, 0, k0, k1, j0, j1, i0, i1, ak, aj, ai)
+    d1 = _field_at(ms_field, 1, k0, k1, j0, j1, i0, i1, ak, aj, ai)
+    d2 = _field_at(ms_field, 2, k0, k1, j0, j1, i0, i1, ak, aj, ai)
+    if beta_h <= 0.0:
+        return d0, d1, d2, 0.0, 0.0, 0.0, 0.0
+    beta_eff = 0.0
+    gap = 0.0
+    ss0 = ss1 = ss2 = 0.0
+    su0 = su1 = su2 = 0.0
+    for s in range(n_species):
+        b = vol[s]
+        beta_eff += hydro_scale[s] * b
+        gap += hydro_narrow[s] * b
+        ss0 += b * p_hydro[row, s, 0]
+        ss1 += b * p_hydro[row, s, 1]
+        ss2 += b * p_hydro[row, s, 2]
+        su0 += b * p_hydro[row, s, 3]
+        su1 += b * p_hydro[row, s, 4]
+        su2 += b * p_hydro[row, s, 5]
+    # the beam without the broad part of the forward peak: t_cloud^(gap / beta_eff) times t_cloud's e0..e2
+    extra = math.exp(math.log(t_cloud) * (gap / beta_eff)) if t_cloud > 0.0 and beta_eff > 0.0 else 0.0
+    ss0 += su0 * extra
+    ss1 += su1 * extra
+    ss2 += su2 * extra
+    ms0 = ms1 = ms2 = 0.0
+    for m in range(nm):
+        l = degree[m]
+        y = y_view[row, m]
+        c0 = c1 = c2 = 0.0
+        for s in range(n_species):
+            c0 += vol[s] * hydro_chi[s, 0, l]
+            c1 += vol[s] * hydro_chi[s, 1, l]
+            c2 += vol[s] * hydro_chi[s, 2, l]
+        ms0 += y * c0 * _field_at(ms_field, 3 + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
+        ms1 += y * c1 * _field_at(ms_field, 3 + nm + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
+        ms2 += y * c2 * _field_at(ms_field, 3 + 2 * nm + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
+    return d0, d1, d2, ss0 * e0 + ms0, ss1 * e1 + ms1, ss2 * e2 + ms2, beta_eff
+
+
+@_helper_jit(inline="always")
+def _field_at(field, c, k0, k1, j0, j1, i0, i1, ak, aj, ai):
+    """Channel ``c`` of ``field`` (nk, ny, nx, C) interpolated trilinearly between the corners (k0|k1, j0|j1,
+    i0|i1) with the upper corners' weights ``ak``, ``aj``, ``ai``."""
+    lo = ((1 - aj) * ((1 - ai) * field[k0, j0, i0, c] + ai * field[k0, j0, i1, c])
+          + aj * ((1 - ai) * field[k0, j1, i0, c] + ai * field[k0, j1, i1, c]))
+    hi = ((1 - aj) * ((1 - ai) * field[k1, j0, i0, c] + ai * field[k1, j0, i1, c])
+          + aj * ((1 - ai) * field[k1, j1, i0, c] + ai * field[k1, j1, i1, c]))
+    return (1 - ak) * lo + ak * hi
+
+
+@_helper_jit()
+def _ratio_above(h, j, i, above, heights, coarsen):
+    """The diffuse radiance's ratio to the clear sky's (3 wavelengths) at height ``h`` [m] over the grid's column
+    (``j``, ``i``): ``above`` (n, ny_c, nx_c, 3) at ``heights`` (n,) [m], the grid's top level first, linear in
+    height, bilinear across the coarsened columns (:class:`swim.rt.diffuse_field.DiffuseField`); 1 above the
+    highest."""
+    n, nyc, nxc = above.shape[0], above.shape[1], above.shape[2]
+    if h >= heights[n - 1]:
+        return 1.0, 1.0, 1.0
+    a = 0
+    while a < n - 2 and h > heights[a + 1]:
+        a += 1
+    w = _clip((h - heights[a]) / (heights[a + 1] - heights[a]), 0.0, 1.0)
+    inv = 1.0 / coarsen
+    fj = _clip((j + 0.5) * inv - 0.5, 0.0, nyc - 1.0)
+    fi = _clip((i + 0.5) * inv - 0.5, 0.0, nxc - 1.0)
+    j0 = min(int(fj), nyc - 2) if nyc > 1 else 0
+    i0 = min(int(fi), nxc - 2) if nxc > 1 else 0
+    j1, i1 = min(j0 + 1, nyc - 1), min(i0 + 1, nxc - 1)
+    return (_field_at(above, 0, a, a + 1, j0, j1, i0, i1, w, fj - j0, fi - i0),
+            _field_at(above, 1, a, a + 1, j0, j1, i0, i1, w, fj - j0, fi - i0),
+            _field_at(above, 2, a, a + 1, j0, j1, i0, i1, w, fj - j0, fi - i0))
+
+
+@_helper_jit(inline="always")
+def _accumulate_cloud(l_cloud, t_obs, source, beta_clear, beta_h, ds_eff):
+    """The hydrometeors' radiance lanes after a step: ``source`` (3 lanes) times the step's mean transmittance
+    (its extinction: the clear air's ``beta_clear`` lanes and the scaled hydrometeors' ``beta_h``) and the
+    transmittance ``t_obs`` to the observer at its start."""
+    l0, l1, l2, l3 = l_cloud
+    s0, s1, s2 = source
+    b0, b1, b2 = beta_clear
+    (m0, m1, m2, _), _ = _mean_transmittance(((b0 + beta_h) * ds_eff, (b1 + beta_h) * ds_eff,
+                                              (b2 + beta_h) * ds_eff, 0.0))
+    return (l0 + t_obs[0] * s0 * (ds_eff * m0), l1 + t_obs[1] * s1 * (ds_eff * m1),
+            l2 + t_obs[2] * s2 * (ds_eff * m2), l3)
+
+
 @_vectorising
 @njit(**_JIT_KERNEL, nogil=True)
 def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
@@ -802,7 +918,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      empty_cells_per_step, sunlit_steps, sunlit_cells_per_step, n_clear_probe, clear_power,
                      clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
-                     l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, edges, cdf,
+                     l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, cloud_mode,
+                     p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree, ms_field, ms_coarsen, ms_above,
+                     above_heights, l_cloud, edges, cdf,
                      stack_lo, stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
     once (:func:`work_arrays`): one code for the CPU's loop over all rays (one call) and a GPU thread's ray
@@ -850,6 +968,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         # per lane (the wavelengths 0, 1, 2 and the padding): tau_clear, e^-(tau_clear + tau_h) to the observer
         # (carried as a product), l_clear, i_nogas and i_gas
         tc = lc = i_ng = i_g = (0.0, 0.0, 0.0, 0.0)
+        lcl = (0.0, 0.0, 0.0, 0.0)  # the hydrometeors' radiance (cloud_mode: single and diffuse scattering)
         to = (1.0, 1.0, 1.0, 1.0)
         if use_ms:  # the ray's multiple-scattering profiles (9, n_u) as rows of lanes: ms_lanes[u, 4 * k + c]
             for u in range(n_u):
@@ -1054,6 +1173,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     tau_a3_sun = 0.0
                     t_cloud = 1.0
                     shadow = 1.0
+                above_grid = cloud_mode and not in_grid and k > nk - 1 and 0.0 <= j <= ny - 1 and 0.0 <= i <= nx - 1
                 beta_h = 0.0
                 if in_grid:
                     for c in range(n_species):
@@ -1072,9 +1192,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         i_ng = (saved[11], saved[12], saved[13], saved[13])
                         i_g = (saved[14], saved[15], saved[16], saved[16])
                         th, ict, gap_prev, s_last = saved[7], saved[6], saved[17], saved[18]
+                        lcl = (saved[19], saved[20], saved[21], saved[21])
                         e_th = math.exp(-th)
                         for c in range(n_species):
-                            tsp[c] = saved[19 + c]
+                            tsp[c] = saved[22 + c]
                         mid = prev_lo + 0.5 * (prev_hi - prev_lo)
                         stack_lo[pending], stack_hi[pending], stack_depth[pending] = s_lo, s_hi, depth
                         stack_lo[pending + 1], stack_hi[pending + 1] = mid, prev_hi
@@ -1100,8 +1221,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     saved[11], saved[12], saved[13] = i_ng[0], i_ng[1], i_ng[2]
                     saved[14], saved[15], saved[16] = i_g[0], i_g[1], i_g[2]
                     saved[6], saved[7], saved[17], saved[18] = ict, th, gap_prev, s_last
+                    saved[19], saved[20], saved[21] = lcl[0], lcl[1], lcl[2]
                     for c in range(n_species):
-                        saved[19 + c] = tsp[c]
+                        saved[22 + c] = tsp[c]
                     have_prev = True
                     prev_lo, prev_hi, prev_beta, prev_depth = s_lo, s_hi, beta_h, depth
                 t0 = th
@@ -1111,11 +1233,11 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 weight = 0.0
                 e_t1 = e_th
                 gas_ratio = 0.0
-                if t1 > t0 and t0 < 2.0:
+                if t1 > t0 and t0 < 2.0 and not cloud_mode:
                     e_t1 = math.exp(-min(t1, 2.0))
                     weight = max(e_th - e_t1, 0.0)
                     gas_ratio = 1.0 / e_th
-                elif t1 < t0 and t1 < 2.0:  # a step back (the terminal step): a negative weight
+                elif t1 < t0 and t1 < 2.0 and not cloud_mode:  # a step back (the terminal step): a negative weight
                     e_t1 = math.exp(-t1)
                     weight = e_th - e_t1
                 u0 = 0
@@ -1145,14 +1267,26 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 src1 = (br1 * phase_r + sa1 * phase_a[1] + ss1 * phase_s[1]) * e1
                 src2 = (br2 * phase_r + sa2 * phase_a[2] + ss2 * phase_s[2]) * e2
                 src3 = (br3 * phase_r + sa3 * phase_a[3] + ss3 * phase_s[3]) * e3
+                # cloud_mode: the hydrometeors' single scattering of the direct beam (full phase function, the
+                # beam's scaled transmittance in t_cloud) and the diffuse solution's source, and the diffuse
+                # solution's ratio for the air's diffuse source (in place of T)
+                dr0 = dr1 = dr2 = t_cloud
+                cs0 = cs1 = cs2 = 0.0
+                beta_eff = beta_h
+                if above_grid:  # the clear air over the grid: the light its clouds send up
+                    dr0, dr1, dr2 = _ratio_above(h, j, i, ms_above, above_heights, ms_coarsen)
+                if cloud_mode and in_grid:
+                    dr0, dr1, dr2, cs0, cs1, cs2, beta_eff = _cloud_sources(
+                        row, k, j, i, nk, vol, n_species, p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree,
+                        ms_field, ms_coarsen, beta_h, t_cloud, e0, e1, e2)
                 if use_ms:
                     jr0, jr1, jr2, jr3 = _profile_lanes(ms_lanes, ua, ub, 0, wu)
                     ja0, ja1, ja2, ja3 = _profile_lanes(ms_lanes, ua, ub, LANES, wu)
                     js0, js1, js2, js3 = _profile_lanes(ms_lanes, ua, ub, 2 * LANES, wu)
-                    src0 += (br0 * jr0 + sa0 * ja0 + ss0 * js0) * t_cloud
-                    src1 += (br1 * jr1 + sa1 * ja1 + ss1 * js1) * t_cloud
-                    src2 += (br2 * jr2 + sa2 * ja2 + ss2 * js2) * t_cloud
-                    src3 += (br3 * jr3 + sa3 * ja3 + ss3 * js3) * t_cloud
+                    src0 += (br0 * jr0 + sa0 * ja0 + ss0 * js0) * dr0
+                    src1 += (br1 * jr1 + sa1 * ja1 + ss1 * js1) * dr1
+                    src2 += (br2 * jr2 + sa2 * ja2 + ss2 * js2) * dr2
+                    src3 += (br3 * jr3 + sa3 * ja3 + ss3 * js3) * dr2
                 irr = (e0, e1, e2, e3)
                 if weight != 0.0 and in_grid:  # the skylight only where Eq. 12's weight needs it (< 0: a step back)
                     if classes:
@@ -1167,9 +1301,12 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         df0, df1, df2, df3 = _corner_lanes(sky_lanes, su0u, sv0u, su1u, sv1u, LANES, sa, sb)
                     irr = (e0 + 2.0 * df0 * t_cloud, e1 + 2.0 * df1 * t_cloud, e2 + 2.0 * df2 * t_cloud,
                            e3 + 2.0 * df3 * t_cloud)
+                if cloud_mode:
+                    lcl = _accumulate_cloud(lcl, to, (cs0, cs1, cs2), (br0 + ba0 + bs0, br1 + ba1 + bs1,
+                                                                       br2 + ba2 + bs2), beta_eff, ds_eff)
                 tc, to, lc, i_ng, i_g = _accumulate_lanes(tc, to, lc, i_ng, i_g,
                                                           (br0 + ba0 + bs0, br1 + ba1 + bs1, br2 + ba2 + bs2,
-                                                           br3 + ba3 + bs3), (src0, src1, src2, src3), irr, beta_h,
+                                                           br3 + ba3 + bs3), (src0, src1, src2, src3), irr, beta_eff,
                                                           ds_eff, weight, gas_ratio)
                 ict += sun * weight
                 th = t1
@@ -1205,6 +1342,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             tau_species[r, c] = tsp[c]
         tau_h[r] = th
         i_cloud_t[r] = ict
+        if cloud_mode:
+            l_cloud[r, 0], l_cloud[r, 1], l_cloud[r, 2] = lcl[0], lcl[1], lcl[2]
         alive_out[r] = alive
         hit_out[r] = hit
         s_hit_out[r] = s_hit
@@ -1314,7 +1453,7 @@ def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, r
     ``n_species``: the packed species (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species
     array keeps one element (a local array of size 0 is not a CUDA array)."""
     return (max(n_before, n_grid, n_after + 1) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
-            19 + n_species, max(n_species, 1), n_channels, n_u)
+            22 + n_species, max(n_species, 1), n_channels, n_u)
 
 
 #: Bytes of a CPU cache line (:func:`work_arrays`).
@@ -1326,7 +1465,7 @@ def work_arrays(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, n_u):
     uses in turn: step edges, the probes' cumulative density, the pending halves of refined steps (lower and upper
     ends, depth), the state before the last accumulated grid interval (restored when the next one shows that a cloud
     face lay inside it: tau_clear 0-2, t_obs 3-5, i_cloud_t 6, tau_h 7, l_clear 8-10, i_nogas 11-13, i_gas 14-16,
-    gap 17, s_last 18, the species' optical depths 19-), the species' optical depths along the ray, the ray's
+    gap 17, s_last 18, l_cloud 19-21, the species' optical depths 22-), the species' optical depths along the ray, the ray's
     multiple-scattering profiles as rows of lanes (zeros: their padding lanes stay 0), a volume sample in float64 and
     float32, and the geometry of a block of occupancy probes or steps (:func:`_probe_indices`,
     :func:`_step_geometry`).
@@ -1356,7 +1495,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                sunlit_cells_per_step, n_clear_probe, clear_power,
                clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, stop_tau,
                tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out,
-               samples_out):
+               samples_out, cloud_mode, p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree, ms_field,
+               ms_coarsen, ms_above, above_heights, l_cloud):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     The compiled loop over the rays, :func:`_march_ray_range`, runs without the GIL, so that
@@ -1409,4 +1549,6 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                      empty_cells_per_step, sunlit_steps, sunlit_cells_per_step, n_clear_probe, clear_power,
                      clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
-                     l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, *work)
+                     l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, cloud_mode,
+                     p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree, ms_field, ms_coarsen, ms_above,
+                     above_heights, l_cloud, *work)

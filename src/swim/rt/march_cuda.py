@@ -38,7 +38,8 @@ DEVICE_FUNCTIONS = ("_index_map", "_round_half_even", "_ix", "_clip", "_radius_a
                     "_gap_along", "_terrain_crossing", "_lower_corner", "_prefetch_corners", "_segment_cells",
                     "_probe_occupancy", "_adaptive_edges", "_clear_edges", "_descending_at", "_lowest_along",
                     "_column_above", "_after_steps", "_invert_cdf", "_predicted_halving", "_corner_lane",
-                    "_corner_lanes", "_profile_lanes", "_mean_transmittance", "_accumulate_lanes", "_march_ray_range")
+                    "_corner_lanes", "_profile_lanes", "_mean_transmittance", "_accumulate_lanes", "_field_at",
+                    "_cloud_sources", "_ratio_above", "_accumulate_cloud", "_march_ray_range")
 #: CUDA threads per block: ray marches diverge (a ray stops at the ground, refines cloud faces), so small blocks.
 THREADS_PER_BLOCK = 128
 
@@ -224,7 +225,7 @@ def march_rays(*args):
         return
     kernel = cuda_march_kernel(*kernel_work_sizes(values))
     outputs = ("tau_clear", "tau_h", "tau_species", "l_clear", "i_nogas", "i_gas", "i_cloud_t", "alive_out", "hit_out",
-               "s_hit_out", "samples_out")
+               "s_hit_out", "samples_out", "l_cloud")
     device = {}
     for name in names:
         value = values[name]

@@ -100,7 +100,11 @@ def _argument_types():
         # outputs
         "tau_clear": a(f8, 2), "tau_h": a(f8, 1), "tau_species": a(f8, 2), "l_clear": a(f8, 2), "i_nogas": a(f8, 2),
         "i_gas": a(f8, 2), "i_cloud_t": a(f8, 1), "alive_out": a(b1, 1), "hit_out": a(b1, 1), "s_hit_out": a(f8, 1),
-        "samples_out": a(i8, 1)}
+        "samples_out": a(i8, 1),
+        # the 3-D cloud scattering's inputs (swim.rt.clouds; placeholders without it) and its output
+        "cloud_mode": b1, "p_hydro": a(f8, 3), "y_view": a(f8, 2), "hydro_scale": ro(f8, 1), "hydro_chi": ro(f8, 3),
+        "hydro_narrow": ro(f8, 1), "degree": ro(i8, 1), "ms_field": ro(f4, 4), "ms_coarsen": f8,
+        "ms_above": ro(f4, 4), "above_heights": ro(f8, 1), "l_cloud": a(f8, 2)}
     prepare = {
         **rays, "bounds": a(f8, 2), "p": a(f8, 1), "coef": a(f8, 1), "aerosol_column": ro(f4, 3),
         "class_aod": ro(f4, 1), "ms_source": ro(f4, 5), "use_ms": b1, "class_lower": a(i4, 1),
@@ -117,7 +121,7 @@ def _argument_types():
         "n_class": i8, "fields": ro(f4, 3), "fields_outside": ro(f4, 1), "angstrom": ro(f4, 1),
         "backscatter": ro(f4, 1), "lambertian": b1, "compose_coefficients": a(f8, 1), "k": ro(f8, 1),
         "rpv_q": ro(f8, 1), "snow_table": ro(f8, 2), "snow_albedo": ro(f8, 1), "subsurface": ro(f8, 1),
-        "fade_cells": ro(f8, 1), "out": a(f4, 2)}
+        "fade_cells": ro(f8, 1), "cloud_mode": b1, "out": a(f4, 2)}
     colour = {"radiance": a(f8, 2), "to_xyz": ro(f8, 2), "monomial": ro(f8, 2), "to_rgb": a(f8, 2),
               "luminance": ro(f8, 1), "preserve_hue": b1, "steps": ro(f8, 1), "start": ro(i8, 1),
               "out": a(types.uint8, 2), "need": a(b1, 1)}

@@ -309,7 +309,7 @@ def backscatter_weights(volume: xr.Dataset) -> np.ndarray:
 
 
 def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None, backend="auto",
-                        nonzero_levels=None, out=None) -> xr.Dataset:
+                        nonzero_levels=None, out=None, direct_weights=None) -> xr.Dataset:
     """Step 1a: optical depth towards the sun and cloud transmittance T at every grid point.
 
     Parameters
@@ -335,6 +335,11 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         result's variables are these arrays. They are written in one compiled pass
         (:func:`swim.rt.solar_cpu.step1a_channels`), T in float32 as :func:`transmittance_delta_eddington` computes
         it (the same values within float32 round-off). Default: new arrays.
+    direct_weights : array_like, optional
+        (species,) weights [-] of the species of the volume's ``species`` coordinate: with them ``b_tau_sun`` is the
+        weighted sum of the optical depths (for ``cloud_scattering="discrete_ordinates"`` the delta-M scaled one,
+        weights 1 - f) and ``cloud_transmittance`` is the direct beam's e^{-b_tau_sun} instead of T. Default: the
+        backscatter fractions and T.
 
     Returns
     -------
@@ -398,6 +403,12 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     shape = beta.shape[2:]  # (ny, nx)
     # by the volume's own species coordinate: after share_packed_channels it names only the packed species
     b = backscatter_weights(volume)
+    direct_beam = direct_weights is not None
+    if direct_beam:
+        b = np.asarray(direct_weights, np.float32).reshape(-1)
+        if b.shape != (volume["extinction"].shape[0],) or not np.all(np.isfinite(b)) or np.any(b < 0):
+            raise SwimInputError(f"solar_transmittance: direct_weights must be {volume['extinction'].shape[0]} "
+                                 f"finite weights >= 0 (one per species), got {direct_weights!r}")
     # The swept fields: 0 hydrometeor extinction, 1 its backscatter-weighted sum, 2 the terrain (zero at and
     # above the surface, so a sunlit slope does not shade itself; opaque a full level below it), 3 the 3-D
     # aerosol. The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D
@@ -472,6 +483,8 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         return a
 
     def cloud_t(k0, k1):
+        if direct_beam:
+            return np.exp(-taus[1][k0:k1])
         return np.asarray(_transmittance_delta_eddington_jit(taus[0][k0:k1], taus[1][k0:k1], np.float32(mu0)))
 
     dims = ("level", "y", "x")
@@ -487,7 +500,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
                "cloud_transmittance": (0, cloud_t, ABOVE_SWEPT["cloud_transmittance"])}
     data = {}
     if out:
-        _write_step1a_channels(out, taus, mu0, shape)
+        _write_step1a_channels(out, taus, mu0, shape, direct_beam)
         data = {name: (dims, out[name], attrs[name]) for name in out}
     for name in names:  # one field at a time, so only the requested ones are ever held
         if name in data:
@@ -502,7 +515,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     return xr.Dataset({name: data[name] for name in names}, coords={"level": volume["level"]})
 
 
-def _write_step1a_channels(out, taus, mu0, shape):
+def _write_step1a_channels(out, taus, mu0, shape, direct_beam=False):
     """:data:`OUT_VARIABLES` of :func:`solar_transmittance` into the arrays ``out`` from the swept optical depths
     ``taus`` (by swept field), level blocks on every core (:func:`swim.rt.solar_cpu.step1a_channels`)."""
     from ..workers import in_blocks
@@ -519,6 +532,6 @@ def _write_step1a_channels(out, taus, mu0, shape):
     def write(k0, k1):
         step1a_channels(k0, k1, np.float32(mu0), swept[0][0], swept[0][1], swept[1][1], swept[2][0], swept[2][1],
                         swept[3][0], swept[3][1], targets[0][1], targets[1][1], targets[2][1], targets[0][0],
-                        targets[1][0], targets[2][0])
+                        targets[1][0], targets[2][0], direct_beam)
 
     in_blocks(write, nk)

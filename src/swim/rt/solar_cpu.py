@@ -145,7 +145,8 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
 
 @njit(**_JIT_EXACT)
 def step1a_channels(k0, k1, mu0, n_hydro, tau, b_tau, n_terrain, terrain_tau, n_aerosol, aerosol_tau, cloud_t,
-                    shadow, aerosol, write_cloud, write_shadow, write_aerosol):  # pragma: no cover - compiled
+                    shadow, aerosol, write_cloud, write_shadow, write_aerosol,
+                    direct_beam):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of the render's three Step 1a fields from the swept optical depths, written in one pass:
     ``cloud_t`` = T (:func:`swim.rt.solar.transmittance_delta_eddington`, in float32 as the JAX function), ``shadow``
     = e^-(the terrain's optical depth) and ``aerosol`` = the 3-D aerosol's optical depth towards the sun, each
@@ -155,7 +156,8 @@ def step1a_channels(k0, k1, mu0, n_hydro, tau, b_tau, n_terrain, terrain_tau, n_
     hold their first ``n_hydro``, ``n_terrain`` and ``n_aerosol`` levels; above them T and the shadow are 1 and the
     aerosol's optical depth 0 (0 levels: a field that nothing makes). An output whose ``write_*`` flag is False is
     not written. In NumPy, each field was made whole and then copied into the packed volume's channel: three
-    strided passes over it (docs/performance.md, section 70)."""
+    strided passes over it (docs/performance.md, section 70). With ``direct_beam``, ``cloud_t`` is the direct beam's
+    e^-b_tau instead (``b_tau`` then the delta-M scaled optical depth, :func:`swim.rt.solar.solar_transmittance`)."""
     ny, nx = cloud_t.shape[1], cloud_t.shape[2]
     c73 = np.float32(ONE_MINUS_G_PER_BACKSCATTER)
     k_mu = np.float32(0.5) + np.float32(0.75) * mu0
@@ -166,7 +168,10 @@ def step1a_channels(k0, k1, mu0, n_hydro, tau, b_tau, n_terrain, terrain_tau, n_
     for k in range(k0, k1):
         for j in range(ny):
             if write_cloud:
-                if k < n_hydro:
+                if k < n_hydro and direct_beam:
+                    for i in range(nx):
+                        cloud_t[k, j, i] = np.exp(-b_tau[k, j, i])
+                elif k < n_hydro:
                     for i in range(nx):
                         x = c73 * b_tau[k, j, i]  # (1 - g) tau_s
                         one_minus_g = min(max(x / max(tau[k, j, i], tiny), np.float32(0.0)), one)

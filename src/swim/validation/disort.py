@@ -561,8 +561,10 @@ def cloud_layer_layers(cloud_tau, cloud_base_m=1000.0, cloud_top_m=1500.0, cloud
         Layers of the clear atmosphere between 0 and 100 km (the cloud's edges are added).
     n_moments : int
         Highest Legendre moment.
-    g : float
-        Henyey-Greenstein asymmetry parameter of the cloud (chi_l = g^l).
+    g : float or array_like
+        Henyey-Greenstein asymmetry parameter of the cloud (chi_l = g^l), or the cloud's Legendre moments chi_l,
+        (n,) or (n, 3) at 615/546/450 nm (e.g. of a Mie phase function, :func:`swim.optics.cloud_phase.
+        legendre_moments`), taken up to ``n_moments`` (zeros beyond the given ones).
     cloud_ssa : float
         Single-scattering albedo of the cloud (1: swim's liquid is non-absorbing in the visible).
 
@@ -600,9 +602,9 @@ def cloud_layer_layers(cloud_tau, cloud_base_m=1000.0, cloud_top_m=1500.0, cloud
     sca_cloud = dtau_c * cloud_ssa
     dtau = layers["dtau"] + dtau_c
     sca = sca_clear + sca_cloud
-    chi_c = float(g) ** np.arange(n_moments + 1)
+    chi_c = cloud_moments(g, n_moments)
     frac_c = np.where(sca > 0, sca_cloud / np.where(sca > 0, sca, 1.0), 0.0)
-    moments = (1.0 - frac_c)[:, None, :] * layers["moments"] + frac_c[:, None, :] * chi_c[None, :, None]
+    moments = (1.0 - frac_c)[:, None, :] * layers["moments"] + frac_c[:, None, :] * chi_c[None, :, :]
     layers.update({
         "dtau": dtau,
         "ssa": np.clip(np.where(dtau > 0, sca / np.where(dtau > 0, dtau, 1.0), 1.0), 0.0, 1.0 - 1e-9),
@@ -610,6 +612,29 @@ def cloud_layer_layers(cloud_tau, cloud_base_m=1000.0, cloud_top_m=1500.0, cloud
         "tau_cloud": dtau_c.sum(axis=0),
     })
     return layers
+
+
+def cloud_moments(g, n_moments):
+    """The cloud's Legendre moments chi_0..chi_n (n_moments + 1, 3): of Henyey-Greenstein for a scalar ``g``
+    (g^l), else the given moments (n,) or (n, 3), cut or padded with zeros to n_moments + 1.
+
+    Raises
+    ------
+    SwimInputError
+        If the moments are not finite, chi_0 is not 1, or a scalar g is not in (-1, 1).
+    """
+    if np.ndim(g) == 0:
+        if not -1.0 < float(g) < 1.0:
+            raise SwimInputError(f"the cloud's asymmetry parameter g must be in (-1, 1), got {g!r}")
+        return np.repeat((float(g) ** np.arange(n_moments + 1))[:, None], 3, axis=1)
+    chi = np.asarray(g, dtype=float)
+    chi = np.repeat(chi[:, None], 3, axis=1) if chi.ndim == 1 else chi
+    if chi.ndim != 2 or chi.shape[1] != 3 or not np.all(np.isfinite(chi)) or not np.allclose(chi[0], 1.0, atol=1e-3):
+        raise SwimInputError("the cloud's Legendre moments must be finite, (n,) or (n, 3), with chi_0 = 1")
+    out = np.zeros((n_moments + 1, 3))
+    m = min(chi.shape[0], n_moments + 1)
+    out[:m] = chi[:m]
+    return out
 
 
 def _views(view_zenith_deg, relative_azimuth_deg, observer):

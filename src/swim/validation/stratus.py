@@ -52,8 +52,9 @@ _SPACE_DISTANCE_M = 400_000.0
 
 
 def stratus_scene(tau, cloud_base_m=1000.0, cloud_top_m=1500.0, effective_radius_m=10e-6, surface_albedo=0.06,
-                  half_width_m=300_000.0, n_columns=7, dz_m=50.0):
-    """A uniform liquid stratus deck whose column optical depth in swim's optical volume is ``tau``.
+                  half_width_m=300_000.0, n_columns=7, dz_m=50.0, species="cloud_liquid"):
+    """A uniform cloud deck (liquid stratus by default) whose column optical depth in swim's optical volume is
+    ``tau``.
 
     Parameters
     ----------
@@ -70,7 +71,9 @@ def stratus_scene(tau, cloud_base_m=1000.0, cloud_top_m=1500.0, effective_radius
     n_columns : int
         Columns per horizontal axis.
     dz_m : float
-        Model level spacing [m], levels at dz/2, 3 dz/2, ... up to 2 km.
+        Model level spacing [m], levels at dz/2, 3 dz/2, ... up to 500 m above the cloud's top (at least 2 km).
+    species : str
+        The deck's hydrometeor (one of :data:`swim.constants.SPECIES`), e.g. "cloud_ice" for a cirrus deck.
 
     Returns
     -------
@@ -79,28 +82,31 @@ def stratus_scene(tau, cloud_base_m=1000.0, cloud_top_m=1500.0, effective_radius
     """
     from ..io.scene import scene_from_arrays
 
+    from ..constants import SPECIES
+
     if not tau > 0:
         raise SwimInputError(f"tau must be > 0; got {tau}")
+    if species not in SPECIES:
+        raise SwimInputError(f"species must be one of {SPECIES}; got {species!r}")
     x = np.linspace(-half_width_m, half_width_m, int(n_columns))
-    z = np.arange(0.5 * dz_m, 2000.0, dz_m)
+    z = np.arange(0.5 * dz_m, max(2000.0, cloud_top_m + 500.0), dz_m)
     shape = (z.size, x.size, x.size)
     inside = ((z >= cloud_base_m) & (z <= cloud_top_m))[:, None, None] * np.ones(shape)
 
     def make(lwc):
-        return scene_from_arrays(x=x, y=x, z=z, reference_lat=_LAT0, reference_lon=_LON0,
-                                 cloud_liquid_content=lwc * inside, cloud_liquid_effective_radius=effective_radius_m,
-                                 surface_albedo=surface_albedo, land_mask=0.0,
-                                 title=f"uniform stratus, tau {tau:g} (DISORT validation)")
+        fields = {f"{species}_content": lwc * inside, f"{species}_effective_radius": effective_radius_m}
+        return scene_from_arrays(x=x, y=x, z=z, reference_lat=_LAT0, reference_lon=_LON0, surface_albedo=surface_albedo,
+                                 land_mask=0.0, title=f"uniform {species} deck, tau {tau:g} (DISORT validation)",
+                                 **fields)
 
     unit = make(1e-4)
-    _, beta = stratus_column_profile(unit)
-    heights, _ = stratus_column_profile(unit)
+    heights, beta = stratus_column_profile(unit, species)
     tau_unit = float(np.sum(0.5 * (beta[1:] + beta[:-1]) * np.diff(heights)))
     return make(1e-4 * float(tau) / tau_unit)
 
 
-def stratus_column_profile(scene):
-    """Cloud-liquid extinction profile of the centre column of swim's optical volume.
+def stratus_column_profile(scene, species="cloud_liquid"):
+    """A species' extinction profile (cloud liquid by default) of the centre column of swim's optical volume.
 
     Returns
     -------
@@ -111,7 +117,7 @@ def stratus_column_profile(scene):
 
     volume = build_optical_volume(scene)
     _, ny, nx = volume["aerosol_extinction"].shape
-    beta = volume["extinction"].values[0, :, ny // 2, nx // 2].astype(float)
+    beta = volume["extinction"].sel(species=species).values[:, ny // 2, nx // 2].astype(float)
     return volume["level"].values.astype(float), beta
 
 
@@ -168,7 +174,8 @@ def render_space_views(scene, sun_zenith_deg, sun_azimuth_deg, views=DEFAULT_SPA
 def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, settings=None,
                     aerosol: AerosolBackground | None = None, surface_albedo=0.06, g=CLOUD_HG_ASYMMETRY,
                     n_streams=64, n_layers=30, sun_exclusion_deg=5.0, space_views=DEFAULT_SPACE_VIEWS,
-                    zenith_step_deg=10.0, azimuth_step_deg=15.0, max_zenith_deg=85.0, return_images=False):
+                    zenith_step_deg=10.0, azimuth_step_deg=15.0, max_zenith_deg=85.0, return_images=False,
+                    deck=None):
     """Render a uniform stratus deck with swim and compare with DISORT from the ground and from space.
 
     Parameters
@@ -185,8 +192,9 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
         Background aerosol for both codes (default: swim's default background).
     surface_albedo : float
         Sea albedo [-].
-    g : float
-        HG asymmetry parameter of DISORT's cloud [-].
+    g : float or array_like
+        HG asymmetry parameter of DISORT's cloud [-], or its Legendre moments
+        (:func:`swim.validation.disort.cloud_moments`).
     n_streams, n_layers : int
         DISORT streams (64 recommended; 32 agrees to ~1e-5 for this HG cloud, see docs/rendering.md) and
         clear-atmosphere layers.
@@ -198,6 +206,9 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
         Sky-dome directions (:func:`swim.validation.disort.sky_dome_directions`).
     return_images : bool
         Also return the all-sky Dataset under ``"image"``.
+    deck : dict, optional
+        Keyword arguments of :func:`stratus_scene` for the deck (e.g. ``species="cloud_ice"``, ``cloud_base_m``,
+        ``cloud_top_m``, ``effective_radius_m``, ``dz_m``); default its liquid stratus.
 
     Returns
     -------
@@ -216,8 +227,9 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
 
     settings = reference_settings(settings)
     aerosol = AerosolBackground() if aerosol is None else aerosol
-    scene = stratus_scene(tau, surface_albedo=surface_albedo)
-    profile = stratus_column_profile(scene)
+    deck = dict(deck or {})
+    scene = stratus_scene(tau, surface_albedo=surface_albedo, **deck)
+    profile = stratus_column_profile(scene, deck.get("species", "cloud_liquid"))
     ds = render(scene, camera="allsky", camera_options={"size": int(camera_size)}, sun_zenith=float(sun_zenith_deg),
                 sun_azimuth=float(sun_azimuth_deg), aerosol=aerosol, settings=settings, height=0.0)
     cam = AllSkyCamera(size=int(camera_size))
@@ -272,7 +284,8 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
     out["dhi_err"] = out["dhi_swim"] / out["dhi_disort"] - 1.0
     out["zenith_err"] = out["zenith_swim"] / out["zenith_disort"] - 1.0
     if len(space_views):
-        out["toa_swim"] = render_space_views(scene, sz, sa, space_views, settings)
+        middle = 0.5 * (deck.get("cloud_base_m", 1000.0) + deck.get("cloud_top_m", 1500.0))
+        out["toa_swim"] = render_space_views(scene, sz, sa, space_views, settings, target_height_m=middle)
         out["toa_err"] = out["toa_swim"] / ref_space - 1.0
     if return_images:
         out["image"] = ds

@@ -1,0 +1,428 @@
+"""The 3-D diffuse solution of a render: the scene's medium on the solver's grid, solved once per scene, sun and
+atmosphere, and its moments on the optical volume's levels for the march (``cloud_scattering="discrete_ordinates"``).
+
+:func:`diffuse_field` builds the delta-M scaled medium (:class:`swim.rt.diffuse_solver.DiffuseMedium`) from
+
+* the hydrometeors' extinction of the optical volume (Eq. 7), scaled by (1 - f) of their phase functions
+  (:mod:`swim.optics.cloud_phase`), block means over ``coarsen`` x ``coarsen`` columns;
+* the clear air (Rayleigh, background, stratospheric and 3-D aerosol) of the gas tables (Step 2);
+* the direct beam: the gas tables' transmittance to the sun (spherical atmosphere) times its scaled transmittance
+  through the grid's clouds and 3-D aerosol, swept through the solver's cells along the sun so that each cell takes
+  from the beam what its faces let in (:func:`swim.rt.ordinates_cpu.beam_sweep`);
+* the ground's albedo (Lambertian) and terrain (cells below it are solid);
+
+on a vertical grid of the volume's levels, each interval split until no cell is optically thicker than
+``max_cell_tau``, and clear layers above the grid up to the top of the atmosphere. The grid's surroundings are
+the clear atmosphere (the scene's convention: no cloud beyond the grid): light enters through its sides with the
+radiance of a one-column clear solve of the same atmosphere (:func:`clear_column`).
+
+The march reads (:class:`DiffuseField`) the moments of the diffuse radiance (solar-relative, L' = 4 pi I) on the
+volume's levels, and two ratios that carry the clouds' effect into the clear sky's validated terms: the diffuse
+radiance's isotropic moment against the clear column's (the air's multiple-scattering source, Step 2) and the
+ground's diffuse irradiance against the clear column's (the ground's skylight).
+
+References
+----------
+docs/decisions/0001-cloud-diffuse-solution.md (why discrete ordinates, the grid, the boundary conditions).
+Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Eqs. 3-8 (Steps 1a and 2, which this replaces for clouds).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..constants import SPECIES
+from ..errors import SwimInputError
+from .diffuse_solver import DiffuseMedium, solve_diffuse
+from .ordinates import make_quadrature
+
+log = logging.getLogger(__name__)
+
+__all__ = ["DiffuseSettings", "DiffuseField", "diffuse_field", "clear_column", "solver_levels"]
+
+
+@dataclass(frozen=True)
+class DiffuseSettings:
+    """Accuracy settings of the 3-D diffuse solution.
+
+    Attributes
+    ----------
+    n_polar : int
+        Gauss cosines per hemisphere (2: a 4-stream solution in a plane-parallel medium).
+    n_azimuth : int
+        Azimuths of the directions (a multiple of 4).
+    max_degree : int
+        Degree L of the scaled phase functions and of the stored moments ((L + 1)^2 per wavelength).
+    max_cell_tau : float
+        Largest scaled optical thickness of a cell in the vertical [-].
+    max_levels_per_interval : int
+        Most cells an interval between two of the volume's levels is split into.
+    max_cells : int
+        Columns are averaged in blocks (coarsened) until the grid has at most this many cells.
+    top_layers : int
+        Clear layers between the grid's top and the top of the atmosphere.
+    tolerance : float
+        Relative residual of the solve.
+    max_sweeps : int
+        Most transport sweeps.
+    """
+
+    n_polar: int = 2
+    n_azimuth: int = 8
+    max_degree: int = 2
+    max_cell_tau: float = 0.25
+    max_levels_per_interval: int = 24
+    max_cells: int = 300_000
+    top_layers: int = 10
+    tolerance: float = 1e-3
+    max_sweeps: int = 300
+
+    def __post_init__(self):
+        if not (self.n_polar >= 1 and self.n_azimuth >= 4 and self.n_azimuth % 4 == 0 and 0 <= self.max_degree <= 3
+                and self.max_cell_tau > 0 and self.max_levels_per_interval >= 1 and self.max_cells >= 1000
+                and self.top_layers >= 1 and 0 < self.tolerance < 1 and self.max_sweeps >= 4):
+            raise SwimInputError(f"DiffuseSettings out of range: {self}")
+
+
+@dataclass
+class DiffuseField:
+    """The diffuse solution on the optical volume's levels, as the march reads it.
+
+    Attributes
+    ----------
+    field : numpy.ndarray
+        (nk, ny_c, nx_c, 3 + 3 nm) float32 on the volume's levels and the coarsened columns: channels 0-2 the ratio
+        of the diffuse radiance's isotropic moment to the clear column's at that height [-] (per wavelength),
+        then per wavelength the nm = (L + 1)^2 moments of the diffuse radiance L' [-] (4 pi I_lm, F0 = 1).
+    ground : numpy.ndarray
+        (ny_c, nx_c, 3) float32: the ground's diffuse irradiance relative to the clear column's [-].
+    coarsen : int
+        Columns per block along each axis.
+    rotation : numpy.ndarray
+        (2, 2): scene (x, y) -> the solver's (along i, across) horizontal frame of the moments.
+    max_degree : int
+        L.
+    ground_diffuse : numpy.ndarray
+        (ny_c, nx_c, 3) float32: the ground's diffuse irradiance relative to E_TOA [-] (the solve's own).
+    above : numpy.ndarray
+        (n_above, ny_c, nx_c, 3) float32: the isotropic moment's ratio to the clear column's at the grid's top level
+        and in the clear layers above it, at the heights ``above_heights`` (n_above,) [m]: the air above the grid
+        sees the light the clouds send up.
+    sweeps, residual, cells : int, float, int
+        The solve's statistics.
+    """
+
+    field: np.ndarray
+    ground: np.ndarray
+    coarsen: int
+    rotation: np.ndarray
+    max_degree: int
+    ground_diffuse: np.ndarray | None = None
+    above: np.ndarray | None = None
+    above_heights: np.ndarray | None = None
+    sweeps: int = 0
+    residual: float = 0.0
+    cells: int = 0
+    seconds: dict = field(default_factory=dict)
+
+
+def _block_mean(a, c):
+    """Mean of ``a`` (..., ny, nx) over blocks of c x c columns (the last blocks partial)."""
+    if c == 1:
+        return np.asarray(a, np.float32)
+    ny, nx = a.shape[-2:]
+    nyc, nxc = -(-ny // c), -(-nx // c)
+    pad = [(0, 0)] * (a.ndim - 2) + [(0, nyc * c - ny), (0, nxc * c - nx)]
+    s = np.pad(np.asarray(a, np.float64), pad).reshape(a.shape[:-2] + (nyc, c, nxc, c)).sum(axis=(-3, -1))
+    n = np.pad(np.ones((ny, nx)), pad[-2:]).reshape(nyc, c, nxc, c).sum(axis=(1, 3))
+    return (s / n).astype(np.float32)
+
+
+def solver_levels(levels, scaled_tau_interval, settings: DiffuseSettings, top_m):
+    """The solver's cell edges [m] (bottom first) and, per volume interval, its first cell and cell count.
+
+    Parameters
+    ----------
+    levels : numpy.ndarray
+        (nk,) the volume's levels [m].
+    scaled_tau_interval : numpy.ndarray
+        (nk - 1,) the largest scaled optical thickness of each interval over the columns [-].
+    top_m : float
+        Top of the atmosphere [m].
+    """
+    n_split = np.clip(np.ceil(scaled_tau_interval / settings.max_cell_tau), 1,
+                      settings.max_levels_per_interval).astype(int)
+    edges = [levels[0]]
+    first = []
+    for k in range(levels.size - 1):
+        first.append(len(edges) - 1)
+        edges.extend(levels[k] + (levels[k + 1] - levels[k]) * np.arange(1, n_split[k] + 1) / n_split[k])
+    z_top = levels[-1]
+    if top_m > z_top:
+        t = np.arange(1, settings.top_layers + 1) / settings.top_layers
+        s = 4.0  # layers thin near the grid's top, thick above
+        edges.extend(z_top + (top_m - z_top) * np.expm1(s * t) / math.expm1(s))
+    return np.asarray(edges), np.asarray(first), n_split
+
+
+def _gas_profiles(gas, z):
+    """Extinction [m-1] of molecules, background and stratospheric aerosol at heights ``z`` (n,), each (n, 3)."""
+    h = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
+    out = []
+    for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric):
+        b = np.asarray(b, float)
+        out.append(np.stack([np.interp(z, h, b[:, c]) for c in range(3)], axis=-1))
+    return out
+
+
+def _sun_transmittance(gas, z, mu0):
+    """The gas tables' transmittance towards the sun at heights ``z`` (n,) and sun cosine mu0: (n, 3)."""
+    table = np.asarray(gas.sun_transmittance, float)  # (n_u, n_mu, 3)
+    n_u, n_mu = table.shape[:2]
+    fu = np.clip(np.sqrt(np.clip(np.asarray(z, float) / gas.top_m, 0.0, 1.0)) * (n_u - 1), 0, n_u - 1.000001)
+    fm = min(max((mu0 + 1.0) * 0.5 * (n_mu - 1), 0.0), n_mu - 1.000001)
+    u0, m0 = fu.astype(int), int(fm)
+    a, b = fu - u0, fm - m0
+    t = ((1 - a)[:, None] * ((1 - b) * table[u0, m0] + b * table[u0, m0 + 1])
+         + a[:, None] * ((1 - b) * table[u0 + 1, m0] + b * table[u0 + 1, m0 + 1]))
+    return t
+
+
+def _air_optics(gas, z, max_degree):
+    """Scaled extinction (n, 3) and scattering moments beta* omega* chi*_l (n, 3, L + 1) of the clear air at heights
+    ``z`` (molecules, background and stratospheric aerosol; delta-M with f = chi_{L+1} for the aerosols)."""
+    from ..validation.disort import phase_function_legendre_moments, rayleigh_legendre_moments
+
+    b_r, b_a, b_s = _gas_profiles(gas, z)
+    n_l = max_degree + 1
+    chi_r = rayleigh_legendre_moments(gas.depolarization, n_l)[:n_l]
+    beta = b_r.copy()
+    sigma = b_r[..., None] * chi_r[None, None, :]
+    parts = ((b_a, gas.aerosol.ssa, gas.aerosol.type.phase_function),
+             (b_s, gas.aerosol.stratospheric.ssa, gas.aerosol.stratospheric.phase_function))
+    for b, ssa, phase_function in parts:
+        if not np.any(b > 0):
+            continue
+        ssa = np.broadcast_to(np.asarray(ssa, float), (3,))
+        chi = phase_function_legendre_moments(lambda x, pf=phase_function: np.asarray(pf(x)), n_l)
+        chi = np.broadcast_to(np.asarray(chi, float).reshape(n_l + 1, -1), (n_l + 1, 3))
+        f = chi[n_l]  # delta-M (3,)
+        beta = beta + b * (1.0 - ssa * f)[None, :]
+        sigma = sigma + (b * ssa[None, :])[..., None] * (chi[:n_l].T - f[:, None])[None, :, :]
+    return beta, sigma
+
+
+def clear_column(gas, edges, mu0, albedo, quad, settings: DiffuseSettings, sun):
+    """The clear atmosphere's plane-parallel diffuse solution on the solver's levels (the grid's surroundings).
+
+    Returns
+    -------
+    tuple
+        (column radiance (nz, n_dir, 3) [per unit E_TOA, 1/sr], moments (nz, 3, nm), ground diffuse irradiance
+        (3,) relative to E_TOA).
+    """
+    z = 0.5 * (edges[1:] + edges[:-1])
+    dz = np.diff(edges)
+    beta, sigma = _air_optics(gas, z, quad.max_degree)
+    t_top = _sun_transmittance(gas, edges[1:], mu0)
+    t_bot = _sun_transmittance(gas, edges[:-1], mu0)
+    beam = np.where(np.abs(t_bot - t_top) > 1e-9,
+                    (t_top - t_bot) / np.maximum(np.log(np.maximum(t_top, 1e-30) / np.maximum(t_bot, 1e-30)), 1e-30),
+                    0.5 * (t_top + t_bot))
+    nz = z.size
+    medium = DiffuseMedium(
+        beta=np.ascontiguousarray(beta.reshape(nz, 1, 1, 3), np.float32),
+        sigma=np.ascontiguousarray(sigma.reshape(nz, 1, 1, 3, -1), np.float32),
+        beam=np.ascontiguousarray(beam.reshape(nz, 1, 1, 3), np.float32),
+        dz=dz, dx=1.0, dy=1.0,
+        albedo=np.ascontiguousarray(np.reshape(albedo, (1, 1, 3)), np.float32),
+        ground_level=np.zeros((1, 1), np.int64),
+        ground_beam=np.ascontiguousarray((mu0 * t_bot[0]).reshape(1, 1, 3), np.float32), sun=np.asarray(sun, float))
+    sol = solve_diffuse(medium, quad, tolerance=min(settings.tolerance, 1e-5), max_sweeps=settings.max_sweeps,
+                        column=True)
+    return sol.column_radiance, sol.moments[:, 0, 0], sol.ground_diffuse[0, 0]
+
+
+def diffuse_field(volume, species, gas, sun_scene, optics,
+                  settings: DiffuseSettings = DiffuseSettings()) -> DiffuseField:
+    """Solve the render's medium (module docstring) and put its diffuse moments on the volume's levels.
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        The optical volume (:func:`swim.optics.volume.build_optical_volume`).
+    species : tuple of int
+        The packed species (indices into :data:`swim.constants.SPECIES`) whose extinction is not zero.
+    gas : swim.rt.gas.GasTables
+        The clear atmosphere.
+    sun_scene : array_like
+        (3,) unit vector towards the sun in the scene frame.
+    optics : swim.optics.cloud_phase.CloudOptics
+        The hydrometeors' phase functions and truncation (its ``max_degree`` must be ``settings.max_degree``).
+    settings : DiffuseSettings
+
+    Returns
+    -------
+    DiffuseField
+
+    Raises
+    ------
+    SwimInputError
+        If the sun is below the horizon, or the optics' degree differs from the settings'.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    sun = np.asarray(sun_scene, float)
+    mu0 = float(sun[2])
+    if mu0 <= 0.01:
+        raise SwimInputError(f"cloud_scattering='discrete_ordinates' needs the sun above the horizon (sun elevation "
+                             f"> 0.6 deg); got a sun cosine of {mu0:.3f}")
+    if optics.max_degree != settings.max_degree:
+        raise SwimInputError("diffuse_field: the cloud optics' max_degree differs from the settings'")
+    quad = make_quadrature(settings.n_polar, settings.n_azimuth, settings.max_degree)
+    levels = volume["level"].values.astype(float)
+    nk = levels.size
+    matrix = np.asarray(volume.attrs["affine_matrix"], float).reshape(2, 2)
+    ex, ey = matrix[:, 0], matrix[:, 1]
+    dx_m, dy_m = float(np.hypot(*ex)), float(np.hypot(*ey))
+    e1 = ex / dx_m
+    rotation = np.array([e1, [-e1[1], e1[0]]])  # scene xy -> solver xy (x along i)
+    if float(np.dot(rotation[1], ey)) < 0:
+        rotation[1] *= -1.0
+    sun_solver = np.array([*(rotation @ sun[:2]), sun[2]])
+
+    extinction = volume["extinction"]
+    names = [str(s) for s in extinction["species"].values]
+    packed = [SPECIES[s] for s in species]
+    beta_species = {s: extinction.sel(species=s).values for s in packed if s in names}
+    ny, nx = volume["terrain_height"].shape
+    # coarsening: the smallest block whose grid fits max_cells (with a first guess of the vertical split)
+    f = {s: float(optics.truncation[SPECIES.index(s)]) for s in beta_species}
+    hydro = np.zeros((nk, ny, nx), np.float32)
+    for s, b in beta_species.items():
+        hydro += np.float32(1.0 - f[s]) * b
+    aerosol3d = np.asarray(volume["aerosol_extinction"].values, np.float32)
+    dz_levels = np.diff(levels)
+    coarsen = 1
+    while True:
+        hydro_c = _block_mean(hydro, coarsen)
+        interval_tau = 0.5 * (hydro_c[1:] + hydro_c[:-1]).reshape(nk - 1, -1).max(axis=1) * dz_levels
+        edges, first, n_split = solver_levels(levels, interval_tau, settings, gas.top_m)
+        nyc, nxc = hydro_c.shape[1:]
+        if (edges.size - 1) * nyc * nxc <= settings.max_cells or max(nyc, nxc) <= 8:
+            break
+        coarsen += 1
+    nz = edges.size - 1
+    z = 0.5 * (edges[1:] + edges[:-1])
+    dz = np.diff(edges)
+    n_grid = int(first[-1] + n_split[-1]) if nk > 1 else 0  # cells inside the volume's levels
+
+    # where each grid cell sits between two volume levels (linear interpolation of the nodes' values)
+    kk = np.clip(np.searchsorted(levels, z[:n_grid], side="right") - 1, 0, nk - 2)
+    w = ((z[:n_grid] - levels[kk]) / dz_levels[kk]).astype(np.float32)
+
+    def on_cells(node_field):  # (nk, nyc, nxc) -> (n_grid, nyc, nxc)
+        return (1 - w)[:, None, None] * node_field[kk] + w[:, None, None] * node_field[kk + 1]
+
+    air_beta, air_sigma = _air_optics(gas, z, settings.max_degree)  # (nz, 3), (nz, 3, L + 1)
+    n_l = settings.max_degree + 1
+    beta = np.broadcast_to(air_beta[:, None, None, :], (nz, nyc, nxc, 3)).astype(np.float32)
+    sigma = np.broadcast_to(air_sigma[:, None, None, :, :], (nz, nyc, nxc, 3, n_l)).astype(np.float32)
+    for s, b in beta_species.items():
+        n = SPECIES.index(s)
+        b_cells = on_cells(_block_mean(b, coarsen))  # (n_grid, nyc, nxc)
+        beta[:n_grid] += (np.float32(1.0 - f[s]) * b_cells)[..., None]
+        chi = optics.moments[n, :n_l, :] - f[s]  # (L + 1, 3): beta (chi_l - f) = beta* omega* chi*_l
+        sigma[:n_grid] += b_cells[..., None, None] * chi.T[None, None, None].astype(np.float32)
+    if np.any(aerosol3d > 0):
+        from ..validation.disort import phase_function_legendre_moments
+
+        kind = gas.aerosol
+        ssa = np.asarray(kind.ssa, float)
+        chi = np.asarray(phase_function_legendre_moments(lambda x: np.asarray(kind.type.phase_function(x)), n_l),
+                         float).reshape(n_l + 1, -1)
+        chi = np.broadcast_to(chi, (n_l + 1, 3))
+        fa = chi[n_l]
+        ang = np.asarray(gas.angstrom_factor, float)
+        a_cells = on_cells(_block_mean(aerosol3d, coarsen))[..., None] * ang  # (n_grid, nyc, nxc, 3)
+        beta[:n_grid] += (a_cells * (1 - ssa * fa)).astype(np.float32)
+        sigma[:n_grid] += ((a_cells * ssa)[..., None] * (chi[:n_l].T - fa[:, None])).astype(np.float32)
+
+    # the direct beam: swept through the grid's clouds and 3-D aerosol along the sun (energy-conserving cells, see
+    # swim.rt.ordinates_cpu.beam_sweep), times the gas tables' transmittance (spherical atmosphere) at each height
+    terrain = _block_mean(volume["terrain_height"].values, coarsen)
+    ground_level = np.clip(np.searchsorted(edges, terrain - 0.5 * dz[0], side="left"), 0, n_grid - 1).astype(np.int64)
+    albedo = np.moveaxis(_block_mean(volume["surface_albedo"].transpose("wavelength", "y", "x").values, coarsen),
+                         0, -1)
+    beam, ground_t = _beam(beta[:n_grid] - air_beta[:n_grid, None, None, :].astype(np.float32), sun_solver,
+                           dx_m * coarsen, dy_m * coarsen, dz[:n_grid], ground_level)
+    t_gas = _sun_transmittance(gas, z, mu0)  # (nz, 3)
+    beam_all = np.empty((nz, nyc, nxc, 3), np.float32)
+    beam_all[:n_grid] = beam * t_gas[:n_grid, None, None, :]
+    beam_all[n_grid:] = t_gas[n_grid:, None, None, :]
+    beam = beam_all
+    jj, ii = np.indices(ground_level.shape)
+    t_ground = _sun_transmittance(gas, edges[ground_level].ravel(), mu0).reshape(ground_level.shape + (3,))
+    ground_beam = (mu0 * ground_t * t_ground).astype(np.float32)
+    t_build = time.perf_counter()
+
+    mean_albedo = albedo.reshape(-1, 3).mean(axis=0)
+    side, clear_moments, clear_ground = clear_column(gas, edges, mu0, mean_albedo, quad, settings, sun_solver)
+    t_clear = time.perf_counter()
+    medium = DiffuseMedium(beta=np.ascontiguousarray(beta), sigma=np.ascontiguousarray(sigma),
+                           beam=beam, dz=dz, dx=dx_m * coarsen, dy=dy_m * coarsen,
+                           albedo=np.ascontiguousarray(albedo, np.float32), ground_level=ground_level,
+                           ground_beam=np.ascontiguousarray(ground_beam), sun=sun_solver, side_radiance=side)
+    sol = solve_diffuse(medium, quad, tolerance=settings.tolerance, max_sweeps=settings.max_sweeps)
+    t_solve = time.perf_counter()
+
+    # onto the volume's levels: a level is the boundary of two cells (the mean of their moments)
+    moments = sol.moments  # (nz, nyc, nxc, 3, nm)
+    below = np.array([first[k - 1] + n_split[k - 1] - 1 if k > 0 else 0 for k in range(nk)])
+    above = np.clip(np.array([first[k] if k < nk - 1 else n_grid for k in range(nk)]), 0, nz - 1)
+    node = 0.5 * (moments[below] + moments[above])  # (nk, nyc, nxc, 3, nm)
+    # solid cells (below the terrain) take the first open cell's values, so that the march's interpolation next
+    # to the ground does not mix in zeros
+    open_node = np.clip(np.searchsorted(levels, terrain, side="left"), 0, nk - 1)
+    solid = np.arange(nk)[:, None, None] < open_node[None]
+    if solid.any():
+        fill = node[open_node, jj, ii]
+        node = np.where(solid[..., None, None], fill[None], node)
+    clear_node = 0.5 * (clear_moments[below] + clear_moments[above])  # (nk, 3, nm)
+    ratio = node[..., 0] / np.maximum(clear_node[:, None, None, :, 0], 1e-30)  # (nk, nyc, nxc, 3)
+    nm = moments.shape[-1]
+    field_out = np.empty((nk, nyc, nxc, 3 + 3 * nm), np.float32)
+    field_out[..., :3] = ratio
+    field_out[..., 3:] = (4.0 * math.pi * node).reshape(nk, nyc, nxc, 3 * nm)
+    ground = (sol.ground_diffuse / np.maximum(clear_ground, 1e-30)).astype(np.float32)
+    above_ratio = moments[n_grid:, ..., 0] / np.maximum(clear_moments[n_grid:, None, None, :, 0], 1e-30)
+    above = np.concatenate([ratio[-1:], above_ratio]).astype(np.float32)  # the top level, then the clear layers
+    above_heights = np.concatenate([[levels[-1]], z[n_grid:]])
+    seconds = {"build": t_build - t0, "clear": t_clear - t_build, "solve": t_solve - t_clear,
+               "total": time.perf_counter() - t0}
+    log.info("diffuse field: %d x %d x %d cells (columns coarsened %d x), %d sweeps, %.2f s (solve %.2f s)", nz, nyc,
+             nxc, coarsen, sol.sweeps, seconds["total"], seconds["solve"])
+    return DiffuseField(field=field_out, ground=ground, coarsen=coarsen, rotation=rotation,
+                        max_degree=settings.max_degree, ground_diffuse=sol.ground_diffuse.astype(np.float32),
+                        above=above, above_heights=above_heights,
+                        sweeps=sol.sweeps, residual=sol.residual,
+                        cells=nz * nyc * nxc, seconds=seconds)
+
+
+def _beam(beta, sun, dx, dy, dz, ground_level):
+    """The direct beam's cell means (nz, ny, nx, 3) and what reaches the ground (ny, nx, 3), relative to its value
+    outside the grid, through the scaled extinction ``beta`` (:func:`swim.rt.ordinates_cpu.beam_sweep`)."""
+    from .ordinates_cpu import beam_sweep
+
+    p = -np.asarray(sun, float)
+    mean = np.empty(beta.shape, np.float32)
+    ground = np.zeros(beta.shape[1:3] + (3,), np.float32)
+    beam_sweep(np.ascontiguousarray(beta, np.float32), abs(p[0]) / dx, abs(p[1]) / dy, abs(p[2]),
+               1.0 / np.asarray(dz, float), 1 if p[0] >= 0 else -1, 1 if p[1] >= 0 else -1, ground_level, mean,
+               ground)
+    return mean, ground
