@@ -113,7 +113,32 @@ CASES = {
                      "domain_m": 400e3, "view": GROUND},
     "mc_ratio": {"kind": "mc", "scene": "rico", "camera": "allsky", "mc_case": "rico_ground_sza30", "size": 41, "ref_spp": 4096,
                  "noise_target": 0.02},
+    # the 3-D cloud scattering (cloud_scattering="discrete_ordinates"): the same cases, warm (the diffuse solution of
+    # the scene and sun reused; benchmarks/bench_clouds3d.py times the solve itself); the Monte Carlo case with the
+    # reference's phase function (Henyey-Greenstein g 0.85)
+    "synthetic_allsky_adaptive_3d": {"kind": "render", "scene": "synthetic", "camera": "allsky", "image": (1024, 1024),
+                                     "view": GROUND, "sampling": ADAPTIVE, "cloud_scattering": "discrete_ordinates"},
+    "mc_ratio_3d": {"kind": "mc", "scene": "rico", "camera": "allsky", "mc_case": "rico_ground_sza30", "size": 41,
+                    "ref_spp": 4096, "noise_target": 0.02,
+                    "cloud_scattering": {"method": "discrete_ordinates", "phase_function": {"liquid": ["hg", 0.85]}}},
 }
+
+
+def march_settings(spec):
+    """The case's renderer settings: its backend and cloud scattering (None: the renderer's defaults)."""
+    from swim.rt.march import MarchSettings
+
+    clouds = spec.get("cloud_scattering")
+    kw = {}
+    if spec.get("backend", "auto") != "auto":
+        kw["backend"] = spec["backend"]
+    if isinstance(clouds, dict):
+        from swim.rt.clouds import CloudScattering
+
+        kw["cloud_scattering"] = CloudScattering(clouds["method"], clouds.get("phase_function", "physical"))
+    elif clouds:
+        kw["cloud_scattering"] = clouds
+    return MarchSettings(**kw) if kw else None
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -277,10 +302,9 @@ def render_kwargs(spec, image=None):
     kw = dict(spec["view"], camera=spec["camera"], camera_options=options)
     if spec.get("crop") and "crop" in inspect.signature(swim.render).parameters:
         kw["crop"] = True
-    if spec.get("backend", "auto") != "auto":
-        from swim.rt.march import MarchSettings
-
-        kw["settings"] = MarchSettings(backend=spec["backend"])
+    settings = march_settings(spec)
+    if settings is not None:
+        kw["settings"] = settings
     if spec.get("coarsen") is not None:
         kw["coarsen"] = spec["coarsen"]
     if spec.get("sampling"):
@@ -590,12 +614,14 @@ def run_mc(spec, probe):
     case = RICO_CASES[spec["mc_case"]]
     scene = load_scene(spec)
     settings = {"allsky_size": spec["size"]}
-    sv, cold, cold_compile, _ = timed(probe, swim_view, scene, case["view"], case["sun_zenith"], settings=settings)
+    ms = march_settings(spec)
+    sv, cold, cold_compile, _ = timed(probe, swim_view, scene, case["view"], case["sun_zenith"], settings=settings,
+                                      march_settings=ms)
     # swim's ~20 ms render moves by +-30 % from call to call on a shared machine: a median of at least
     # SWIM_MC_REPEATS calls (Mitsuba's sweep keeps the suite's repeats: its calls take seconds)
     def swim_runs(count):
-        return [timed(probe, swim_view, scene, case["view"], case["sun_zenith"], settings=settings)[1]
-                for _ in range(count)]
+        return [timed(probe, swim_view, scene, case["view"], case["sun_zenith"], settings=settings,
+                      march_settings=ms)[1] for _ in range(count)]
 
     runs = swim_runs(max(spec["repeats"], SWIM_MC_REPEATS))
     swim_px = sv["image"][:, sv["mask"]].T  # (n, 3) the compared pixels (view zenith <= 75 deg, sun excluded)

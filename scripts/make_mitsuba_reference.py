@@ -6,6 +6,9 @@
   looking straight down, the field of view spanning the domain), sun zenith 30° and 60°, azimuth 135°, Rayleigh atmosphere (no aerosol), sea albedo
   (swim.render defaults otherwise), with the inputs recorded (:func:`swim.validation.mitsuba.make_rico_reference`).
 * ``rayleigh_sza30.npz``: the adapter against DISORT on a Rayleigh sky (16 view directions).
+* with ``--clouds3d``: ``clouds3d/<field>_<view>_sza<zz>.npz``, the 3-D cloud scattering's references
+  (:mod:`swim.validation.clouds3d`: RICO, stratocumulus and Katrina's eyewall; all-sky, nadir and 45° views; Mie
+  phase functions in both codes; 8 x 8-pixel block means of 96 x 96 images), and docs/validation/clouds3d_*.png.
 
 It also writes the comparison images docs/validation/<case>.png (swim | Mitsuba | relative difference) and
 prints the table rows (:func:`swim.validation.mitsuba.rico_table_rows`).
@@ -14,6 +17,7 @@ Usage::
 
     pip install -e '.[validation]'
     python scripts/make_mitsuba_reference.py [--cases rico_ground_sza30 ...] [--spp N] [--skip-rayleigh]
+    python scripts/make_mitsuba_reference.py --clouds3d [--cases rico_ground_sza30 ...] [--spp N]
 
 Runtime (2 CPU cores, ``llvm_ad_rgb`` with LLVM 19): about 2-4 minutes per RICO case; ``scalar_rgb``
 (no LLVM >= 17 found) is several times slower.
@@ -58,11 +62,39 @@ def rayleigh_check(spp=100_000, sun_zenith=30.0, sun_azimuth=135.0):
     return path
 
 
+def clouds3d(cases, spp, only_images):
+    """The 3-D cloud scattering's references and their comparison images."""
+    from swim.validation import clouds3d as C
+    from swim.validation.mitsuba import comparison_png
+
+    shared = LES_DIR.parent
+    cases = cases or list(C.CASES)
+    if not only_images:
+        for case in cases:
+            C.make_case_reference(case, shared, spp=spp)
+    rows, images = C.case_rows(cases, shared)
+    print("| case | λ [nm] | blocks | r | mean abs. error | bias | MC std. error |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['case']} | {r['wavelength_nm']:.0f} | {r['n_blocks']} | {r['pearson_r']:.3f} | "
+              f"{r['mean_abs_error']:.3f} | {r['bias']:+.3f} | {r['mc_stderr']:.3f} |")
+    for case, (ours, mask, ref546) in images.items():
+        sel = [r for r in rows if r["case"] == case]
+        title = (f"{case}: 8x8 blocks r = " + ", ".join(f"{x['pearson_r']:.2f}" for x in sel) + ", mean |err| = "
+                 + ", ".join(f"{x['mean_abs_error']:.0%}" for x in sel))
+        ref = np.repeat(ref546[None], 3, axis=0)
+        white = 1.5 if C.CASES[case]["view"] == "ground" else 2.0
+        grey = np.repeat(ours[1:2], 3, axis=0)  # the reference keeps 546 nm only: both shown grey
+        comparison_png(grey, np.where(mask[None], ref, np.nan), DOC_DIR / f"clouds3d_{case}.png", title=title,
+                       white_level=white)
+
+
 def main():
     from swim.validation import mitsuba as M
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", nargs="*", default=list(M.RICO_CASES))
+    parser.add_argument("--cases", nargs="*", default=None)
+    parser.add_argument("--clouds3d", action="store_true", help="the 3-D cloud scattering's references")
     parser.add_argument("--spp", type=int, default=None, help="paths per pixel (default: swim.validation.mitsuba.RICO_SPP)")
     parser.add_argument("--skip-rayleigh", action="store_true")
     parser.add_argument("--only-images", action="store_true", help="no Mitsuba runs: table and images from the cache")
@@ -72,6 +104,11 @@ def main():
         logging.getLogger(name).setLevel(logging.WARNING)
     OUT_DIR.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    if args.clouds3d:
+        clouds3d(args.cases, args.spp, args.only_images)
+        print(f"done in {time.perf_counter() - t0:.0f} s")
+        return
+    args.cases = args.cases or list(M.RICO_CASES)
     if not args.only_images:
         if not args.skip_rayleigh:
             rayleigh_check()

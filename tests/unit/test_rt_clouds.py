@@ -53,3 +53,11 @@ def test_solver_levels_split_thick_intervals_and_reach_the_top():
     np.testing.assert_allclose(edges[:7], [0, 100, 125, 150, 175, 200, 300])
     assert edges[-1] == pytest.approx(100e3) and np.all(np.diff(edges) > 0)
     assert math.isclose(edges[6], 300.0)
+
+
+def test_solver_levels_keep_to_their_budget():
+    """A convective scene's thick intervals split into thicker cells than max_cell_tau rather than into more levels
+    than max_level_factor times the volume's intervals."""
+    levels = np.array([0.0, 100.0, 200.0, 300.0])
+    _, _, n_split = solver_levels(levels, np.array([10.0, 10.0, 10.0]), DiffuseSettings(max_cell_tau=0.25), 100e3)
+    assert n_split.sum() <= 9 and list(n_split) == [3, 3, 3]

@@ -343,8 +343,9 @@ def split_phase_function(p, moments, f):
     part as if it had been scattered once (a glow 10-40 deg from the sun up to 3x too bright under HG g = 0.85,
     +12-38 % in the GHI of an all-sky image; docs/decisions/0001-cloud-diffuse-solution.md). Here P is split:
 
-    * the forward excess E(theta) = P - (1 - f) P* up to its first zero (theta_c, 38-44 deg for droplets),
-      normalised to the energy f (Pi = f E / int E): the light the delta stands for;
+    * the forward excess E(theta) = P - (1 - f) P* up to its first zero (theta_c, 38-44 deg for droplets), all of it
+      within the aureole and beyond it scaled so that the whole has the energy f (Pi): the light the delta stands
+      for;
     * its part within the aureole (:data:`AUREOLE_HALF_ANGLE_RAD`, above its value there): the narrow peak, energy
       f_a, delivered as the circumsolar aureole (swim.pipeline);
     * the rest of Pi scatters the beam dimmed by all but the narrow peak, e^{-(1 - f_a) tau_s} (a sharp
@@ -378,12 +379,19 @@ def split_phase_function(p, moments, f):
     scaled_beam = np.empty_like(p)
     unscaled = np.empty_like(p)
     narrow = np.zeros(3)
+    inner = theta < AUREOLE_HALF_ANGLE_RAD
     for c in range(3):
         negative = np.flatnonzero(excess[:, c] <= 0)
         cone = negative[0] if negative.size else theta.size
         pi = np.where(np.arange(theta.size) < cone, np.maximum(excess[:, c], 0.0), 0.0)
-        energy = 0.5 * np.trapezoid(pi[::-1], mu[::-1])
-        pi = f * pi / energy if energy > 0 else pi
+        # all of the excess within the aureole (so that P - Pi has no peak narrower than a pixel), the rest of f
+        # from the excess beyond it
+        e_inner = 0.5 * np.trapezoid(np.where(inner, pi, 0.0)[::-1], mu[::-1])
+        e_outer = 0.5 * np.trapezoid(np.where(inner, 0.0, pi)[::-1], mu[::-1])
+        if e_inner <= f and e_outer > 0:
+            pi = np.where(inner, pi, pi * (f - e_inner) / e_outer)
+        else:  # a peak holding more than f: scaled as a whole
+            pi = f * pi / max(e_inner + e_outer, 1e-30)
         scaled_beam[:, c] = np.maximum(p[:, c] - pi, 0.0)
         edge = np.interp(AUREOLE_HALF_ANGLE_RAD, theta, pi)
         outside = np.where(theta < AUREOLE_HALF_ANGLE_RAD, np.minimum(pi, edge), pi)

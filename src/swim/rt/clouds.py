@@ -176,9 +176,10 @@ def direct_weights(volume, optics):
 
 
 def cloud_ray_inputs(directions, sun_scene, species, constants) -> dict:
-    """Per-ray inputs of the 3-D cloud scattering: ``p_hydro`` (n, n_sp, 3) the packed species' phase functions at
-    the rays' scattering angles and ``y_view`` (n, nm) the harmonics of the light's propagation direction (towards
-    the observer) in the diffuse solution's frame."""
+    """Per-ray inputs of the 3-D cloud scattering: ``p_hydro`` (n, n_sp, 6) the packed species' split phase
+    functions at the rays' scattering angles (:meth:`swim.optics.cloud_phase.CloudOptics.phase_at`) and ``ray_ms``
+    (n, n_sp, 3 nm) the weights of the diffuse solution's moments in each species' source, (chi_l - f) Y_lm of the
+    light's propagation direction (towards the observer) in the solution's frame, per wavelength."""
     from .ordinates import real_spherical_harmonics
 
     d = np.asarray(directions, float)
@@ -188,8 +189,13 @@ def cloud_ray_inputs(directions, sun_scene, species, constants) -> dict:
     rot = constants["cloud_rotation"]
     prop = -d
     prop_solver = np.concatenate([prop[:, :2] @ rot.T, prop[:, 2:3]], axis=1)
-    y_view = real_spherical_harmonics(prop_solver, optics.max_degree).astype(np.float32)
-    return {"p_hydro": p_hydro, "y_view": y_view}
+    y_view = real_spherical_harmonics(prop_solver, optics.max_degree)  # (n, nm)
+    degree = np.asarray(constants["degree"])
+    if not len(species):  # a cloudless scene: weights the march does not read
+        return {"p_hydro": p_hydro, "ray_ms": np.zeros((d.shape[0], 1, 3 * degree.size), np.float32)}
+    chi = np.asarray(constants["hydro_chi"], float)  # (n_sp, 3, L + 1): chi_l - f
+    ray_ms = (y_view[:, None, None, :] * chi[None, :, :, degree]).reshape(d.shape[0], chi.shape[0], -1)
+    return {"p_hydro": p_hydro, "ray_ms": ray_ms.astype(np.float32)}
 
 
 def _readonly(a):

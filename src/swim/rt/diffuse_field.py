@@ -58,9 +58,15 @@ class DiffuseSettings:
     max_degree : int
         Degree L of the scaled phase functions and of the stored moments ((L + 1)^2 per wavelength).
     max_cell_tau : float
-        Largest scaled optical thickness of a cell in the vertical [-].
+        Largest scaled optical thickness of a cell in the vertical [-], in the ``thick_quantile`` of the columns (the
+        thickest few cores of a convective scene do not set every level's split); raised where the split would give
+        more than ``max_level_factor`` times the volume's levels.
     max_levels_per_interval : int
         Most cells an interval between two of the volume's levels is split into.
+    thick_quantile : float
+        Quantile of the columns' scaled optical thickness in an interval that its split resolves [-].
+    max_level_factor : float
+        Most cells in the vertical, as a multiple of the volume's intervals.
     max_cells : int
         Columns are averaged in blocks (coarsened) until the grid has at most this many cells.
     top_layers : int
@@ -76,14 +82,17 @@ class DiffuseSettings:
     max_degree: int = 2
     max_cell_tau: float = 0.25
     max_levels_per_interval: int = 24
+    thick_quantile: float = 0.995
+    max_level_factor: float = 3.0
     max_cells: int = 300_000
     top_layers: int = 10
-    tolerance: float = 1e-3
+    tolerance: float = 1e-4
     max_sweeps: int = 300
 
     def __post_init__(self):
         if not (self.n_polar >= 1 and self.n_azimuth >= 4 and self.n_azimuth % 4 == 0 and 0 <= self.max_degree <= 3
                 and self.max_cell_tau > 0 and self.max_levels_per_interval >= 1 and self.max_cells >= 1000
+                and 0.5 <= self.thick_quantile <= 1 and self.max_level_factor >= 1
                 and self.top_layers >= 1 and 0 < self.tolerance < 1 and self.max_sweeps >= 4):
             raise SwimInputError(f"DiffuseSettings out of range: {self}")
 
@@ -150,12 +159,18 @@ def solver_levels(levels, scaled_tau_interval, settings: DiffuseSettings, top_m)
     levels : numpy.ndarray
         (nk,) the volume's levels [m].
     scaled_tau_interval : numpy.ndarray
-        (nk - 1,) the largest scaled optical thickness of each interval over the columns [-].
+        (nk - 1,) the scaled optical thickness of each interval to resolve (a high quantile over the columns) [-].
     top_m : float
         Top of the atmosphere [m].
     """
-    n_split = np.clip(np.ceil(scaled_tau_interval / settings.max_cell_tau), 1,
-                      settings.max_levels_per_interval).astype(int)
+    def split(limit):
+        return np.clip(np.ceil(scaled_tau_interval / limit), 1, settings.max_levels_per_interval).astype(int)
+
+    limit = settings.max_cell_tau
+    budget = max(settings.max_level_factor * (levels.size - 1), levels.size - 1)
+    while split(limit).sum() > budget:  # thicker cells rather than more levels than the budget
+        limit *= 1.1
+    n_split = split(limit)
     edges = [levels[0]]
     first = []
     for k in range(levels.size - 1):
@@ -311,7 +326,8 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
     coarsen = 1
     while True:
         hydro_c = _block_mean(hydro, coarsen)
-        interval_tau = 0.5 * (hydro_c[1:] + hydro_c[:-1]).reshape(nk - 1, -1).max(axis=1) * dz_levels
+        interval_tau = np.quantile(0.5 * (hydro_c[1:] + hydro_c[:-1]).reshape(nk - 1, -1), settings.thick_quantile,
+                                   axis=1) * dz_levels
         edges, first, n_split = solver_levels(levels, interval_tau, settings, gas.top_m)
         nyc, nxc = hydro_c.shape[1:]
         if (edges.size - 1) * nyc * nxc <= settings.max_cells or max(nyc, nxc) <= 8:

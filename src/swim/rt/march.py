@@ -2616,13 +2616,12 @@ def _numba_tables(consts, prepare=True):
     # the 3-D cloud scattering's tables (swim.rt.clouds.cloud_constants), or placeholders the kernel does not read
     tables["cloud_mode"] = "ms_field" in consts
     if tables["cloud_mode"]:
-        tables.update({key: consts[key] for key in ("hydro_scale", "hydro_chi", "hydro_narrow", "hydro_aureole",
-                                                    "degree", "ms_field", "ms_above", "above_heights",
-                                                    "backscatter_scaled")},
+        tables.update({key: consts[key] for key in ("hydro_scale", "hydro_narrow", "hydro_aureole", "ms_field",
+                                                    "ms_above", "above_heights", "backscatter_scaled")},
                       ms_coarsen=float(consts["ms_coarsen"]))
     else:
-        tables.update(hydro_scale=arr(np.zeros(1)), hydro_chi=arr(np.zeros((1, 3, 1))), hydro_narrow=arr(np.zeros(1)),
-                      degree=arr(np.zeros(1, np.int64)), ms_field=arr(np.zeros((1, 1, 1, 4), np.float32)),
+        tables.update(hydro_scale=arr(np.zeros(1)), hydro_narrow=arr(np.zeros(1)),
+                      ms_field=arr(np.zeros((1, 1, 1, 4), np.float32)),
                       ms_above=arr(np.ones((2, 1, 1, 3), np.float32)), above_heights=arr(np.array([0.0, 1.0])),
                       ms_coarsen=1.0)
     if prepare:  # the source table with each corner's (n_u, 9) profiles as one row
@@ -2707,9 +2706,9 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
     if tables["cloud_mode"]:
-        p_hydro, y_view = rays["p_hydro"][:n].astype(float), rays["y_view"][:n].astype(float)
+        p_hydro, ray_ms = rays["p_hydro"][:n].astype(float), rays["ray_ms"][:n].astype(float)
     else:
-        p_hydro, y_view = np.zeros((1, 1, 6)), np.zeros((1, 1))
+        p_hydro, ray_ms = np.zeros((1, 1, 6)), np.zeros((1, 1, 3))
     state["l_cloud"] = np.zeros((padded, 3))
     samples = np.empty(n, np.int64)
     ray_class = (np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float))  # the march's and the ground's
@@ -2723,9 +2722,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         MAX_PROBES, CELL_SLACK, settings.resolved_empty_steps(), EMPTY_CELLS_PER_STEP, settings.sunlit_steps,
         SUNLIT_CELLS_PER_STEP, CLEAR_PROBES, CLEAR_STEP_POWER,
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
-        TERRAIN_BISECTIONS, float(settings.stop_tau), *out, bool(t["cloud_mode"]), p_hydro, y_view, t["hydro_scale"],
-        t["hydro_chi"], t["hydro_narrow"], t["degree"], t["ms_field"], t["ms_coarsen"], t["ms_above"],
-        t["above_heights"], state["l_cloud"][:n])
+        TERRAIN_BISECTIONS, float(settings.stop_tau), *out, bool(t["cloud_mode"]), p_hydro, ray_ms, t["hydro_scale"],
+        t["hydro_narrow"], t["ms_field"], t["ms_coarsen"], t["ms_above"], t["above_heights"], state["l_cloud"][:n])
     if kernel == "numba":  # composed in numba too: the clouds (section 35) and the ground (section 37)
         return {**_compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, ray_class, n),
                 "steps": samples.astype(np.int32)}

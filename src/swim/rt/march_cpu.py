@@ -794,8 +794,8 @@ def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, sou
 
 
 @_helper_jit()
-def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree,
-                   ms_field, ms_coarsen, beta_h, t_cloud, e0, e1, e2):
+def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scale, hydro_narrow, ms_field, ms_coarsen,
+                   beta_h, t_cloud, e0, e1, e2):
     """The hydrometeors' sources at a step of ``cloud_scattering="discrete_ordinates"``, per wavelength [m-1]:
 
     * single scattering of the direct beam with the species' phase functions split in two
@@ -803,15 +803,16 @@ def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, y_view, hydro_scal
       columns scatter the beam with its delta-M scaled transmittance ``t_cloud`` (in ``e0..e2``, Nakajima and Tanaka
       1988's TMS), the last three the beam dimmed by all but the narrow forward peak, t_cloud^x with
       x = sum_s beta_s (f_s - f_a,s) / sum_s beta_s (1 - f_s) (``hydro_narrow``: f - f_a; exact for one species);
-    * the diffuse solution's source: sum_l (sum_s beta_s (chi_s,l - f_s)) sum_m Y_lm(-d) L'_lm(x), the moments
-      ``ms_field`` (nk, ny_c, nx_c, 3 + 3 nm) interpolated trilinearly at the step's level ``k`` and columns
-      ((j, i) + 1/2) / ``ms_coarsen`` - 1/2, ``hydro_chi`` (n_sp, 3, L + 1) = chi_l - f, ``y_view[row]`` the
-      harmonics of the ray's propagation direction, ``degree`` (nm,) l of each moment;
+    * the diffuse solution's source sum_s beta_s sum_lm (chi_s,l - f_s) Y_lm(-d) L'_lm(x): the ray's weights
+      ``ray_ms[row]`` (n_sp, 3 nm), (chi_s,l - f_s) Y_lm(-d) per wavelength and moment, on the moments ``ms_field``
+      (nk, ny_c, nx_c, 3 + 3 nm) interpolated trilinearly at the step's level ``k`` and columns
+      ((j, i) + 1/2) / ``ms_coarsen`` - 1/2 (corner by corner: each corner's moments one contiguous read);
 
     and the ratio of the diffuse radiance to the clear sky's (channels 0-2), which scales the air's diffuse source,
     and the hydrometeors' scaled extinction sum_s (1 - f_s) beta_s (``hydro_scale``: 1 - f)."""
     nyc, nxc = ms_field.shape[1], ms_field.shape[2]
-    nm = y_view.shape[1]
+    nm3 = ray_ms.shape[2]
+    nm = nm3 // 3
     inv = 1.0 / ms_coarsen
     fk = _clip(k, 0.0, nk - 1.0)
     fj = _clip((j + 0.5) * inv - 0.5, 0.0, nyc - 1.0)
@@ -846,17 +847,26 @@ def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, y_view, hydro_scal
     ss1 += su1 * extra
     ss2 += su2 * extra
     ms0 = ms1 = ms2 = 0.0
-    for m in range(nm):
-        l = degree[m]
-        y = y_view[row, m]
-        c0 = c1 = c2 = 0.0
-        for s in range(n_species):
-            c0 += vol[s] * hydro_chi[s, 0, l]
-            c1 += vol[s] * hydro_chi[s, 1, l]
-            c2 += vol[s] * hydro_chi[s, 2, l]
-        ms0 += y * c0 * _field_at(ms_field, 3 + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
-        ms1 += y * c1 * _field_at(ms_field, 3 + nm + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
-        ms2 += y * c2 * _field_at(ms_field, 3 + 2 * nm + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
+    for s in range(n_species):
+        b = vol[s]
+        if b <= 0.0:
+            continue
+        for corner in range(8):
+            kc = k1 if corner & 4 else k0
+            jc = j1 if corner & 2 else j0
+            ic = i1 if corner & 1 else i0
+            w = ((ak if corner & 4 else 1.0 - ak) * (aj if corner & 2 else 1.0 - aj)
+                 * (ai if corner & 1 else 1.0 - ai)) * b
+            if w == 0.0:
+                continue
+            a0 = a1 = a2 = 0.0
+            for m in range(nm):  # the corner's moments, contiguous: one vector per wavelength
+                a0 += ray_ms[row, s, m] * ms_field[kc, jc, ic, 3 + m]
+                a1 += ray_ms[row, s, nm + m] * ms_field[kc, jc, ic, 3 + nm + m]
+                a2 += ray_ms[row, s, 2 * nm + m] * ms_field[kc, jc, ic, 3 + 2 * nm + m]
+            ms0 += w * a0
+            ms1 += w * a1
+            ms2 += w * a2
     return d0, d1, d2, ss0 * e0 + ms0, ss1 * e1 + ms1, ss2 * e2 + ms2, beta_eff
 
 
@@ -919,7 +929,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
                      l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, cloud_mode,
-                     p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree, ms_field, ms_coarsen, ms_above,
+                     p_hydro, ray_ms, hydro_scale, hydro_narrow, ms_field, ms_coarsen, ms_above,
                      above_heights, l_cloud, edges, cdf,
                      stack_lo, stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
@@ -1277,8 +1287,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     dr0, dr1, dr2 = _ratio_above(h, j, i, ms_above, above_heights, ms_coarsen)
                 if cloud_mode and in_grid:
                     dr0, dr1, dr2, cs0, cs1, cs2, beta_eff = _cloud_sources(
-                        row, k, j, i, nk, vol, n_species, p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree,
-                        ms_field, ms_coarsen, beta_h, t_cloud, e0, e1, e2)
+                        row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scale, hydro_narrow, ms_field,
+                        ms_coarsen, beta_h, t_cloud, e0, e1, e2)
                 if use_ms:
                     jr0, jr1, jr2, jr3 = _profile_lanes(ms_lanes, ua, ub, 0, wu)
                     ja0, ja1, ja2, ja3 = _profile_lanes(ms_lanes, ua, ub, LANES, wu)
@@ -1495,8 +1505,8 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                sunlit_cells_per_step, n_clear_probe, clear_power,
                clear_floor, tau_refine, max_depth, refine_budget, refine_visible, refine_slots, n_bisections, stop_tau,
                tau_clear, tau_h, tau_species, l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out,
-               samples_out, cloud_mode, p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree, ms_field,
-               ms_coarsen, ms_above, above_heights, l_cloud):
+               samples_out, cloud_mode, p_hydro, ray_ms, hydro_scale, hydro_narrow, ms_field, ms_coarsen, ms_above,
+               above_heights, l_cloud):
     """March rays through the three segments of :func:`swim.rt.march.ray_segments`, one after the other.
 
     The compiled loop over the rays, :func:`_march_ray_range`, runs without the GIL, so that
@@ -1550,5 +1560,5 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
                      clear_floor, tau_refine, max_depth,
                      refine_budget, refine_visible, refine_slots, n_bisections, stop_tau, tau_clear, tau_h, tau_species,
                      l_clear, i_nogas, i_gas, i_cloud_t, alive_out, hit_out, s_hit_out, samples_out, cloud_mode,
-                     p_hydro, y_view, hydro_scale, hydro_chi, hydro_narrow, degree, ms_field, ms_coarsen, ms_above,
-                     above_heights, l_cloud, *work)
+                     p_hydro, ray_ms, hydro_scale, hydro_narrow, ms_field, ms_coarsen, ms_above, above_heights,
+                     l_cloud, *work)
