@@ -68,7 +68,8 @@ def render_turns(scene, repeats, size):
 
     kw = {"camera": "allsky", "camera_options": {"size": size}, "height": 2.0,
           "sampling": AdaptiveSampling(tolerance=0.0085, coarse_spacing=8, edge_test_size=8)}
-    methods = {"albers2020": MarchSettings(), "discrete_ordinates": MarchSettings(cloud_scattering="discrete_ordinates")}
+    methods = {"albers2020": MarchSettings(),
+               "discrete_ordinates": MarchSettings(cloud_scattering="discrete_ordinates")}
     cold = {}
     for name, s in methods.items():  # cold: compile and (3-D) the diffuse solve of this sun
         t0 = time.perf_counter()

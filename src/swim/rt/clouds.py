@@ -67,7 +67,8 @@ class CloudScattering:
             raise SwimInputError(f"cloud_phase_function must be 'physical' or a mapping of species to models, got "
                                  f"{spec!r}")
         if not isinstance(self.diffuse, DiffuseSettings):
-            raise SwimInputError(f"CloudScattering.diffuse must be a DiffuseSettings, got {type(self.diffuse).__name__}")
+            raise SwimInputError(f"CloudScattering.diffuse must be a DiffuseSettings, got "
+                                 f"{type(self.diffuse).__name__}")
         from ..optics.cloud_phase import resolve_phase_spec
 
         resolve_phase_spec(self.phase_mapping())  # checks the names and models now, not in the middle of a render
@@ -128,7 +129,6 @@ def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScatte
         (n_sp, 3, L + 1) chi_l - f, ``degree`` (nm,), ``ms_field``, ``ms_coarsen``, ``surface`` (14, ny, nx) and
         ``surface_outside`` (14,) with the ground's diffuse ratios, ``backscatter_scaled`` (5,) 1 - f per species.
     """
-    from ..constants import SPECIES
     from .diffuse_field import diffuse_field
     from .ordinates import harmonic_degrees
 
@@ -185,7 +185,10 @@ def cloud_ray_inputs(directions, sun_scene, species, constants) -> dict:
     d = np.asarray(directions, float)
     optics = constants["cloud_optics"]
     cos_theta = d @ np.asarray(sun_scene, float)
-    p_hydro = optics.phase_at(cos_theta, list(species)).astype(np.float32) if len(species) else np.zeros((d.shape[0], 1, 3), np.float32)
+    if len(species):
+        p_hydro = optics.phase_at(cos_theta, list(species)).astype(np.float32)
+    else:
+        p_hydro = np.zeros((d.shape[0], 1, 6), np.float32)
     rot = constants["cloud_rotation"]
     prop = -d
     prop_solver = np.concatenate([prop[:, :2] @ rot.T, prop[:, 2:3]], axis=1)

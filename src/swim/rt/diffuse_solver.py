@@ -135,32 +135,40 @@ class _Sweeper:
         self.az = np.abs(d[:, 2])
         self.inv_dz = 1.0 / np.asarray(medium.dz, float)
         side = medium.side_radiance
-        self.side = (np.zeros((nz, quad.n_directions, 3), np.float32) if side is None
-                     else np.ascontiguousarray(side, np.float32))
-        self.zero_side = np.zeros((nz, nq, 3), np.float32)
+        side = np.zeros((nz, quad.n_directions, 3), np.float32) if side is None else np.asarray(side, np.float32)
+        # per octant, contiguous: (nz, 3 nq), direction q and wavelength c at 3 q + c
+        self.side = [np.ascontiguousarray(side[:, o * nq:(o + 1) * nq].reshape(nz, 3 * nq)) for o in range(8)]
+        self.zero_side = np.zeros((nz, 3 * nq), np.float32)
+        # the kernel's flat arrays: a row per cell, its wavelengths (and degrees or moments) along it
+        self.flat = {"beta": medium.beta.reshape(-1, 3), "sigma": medium.sigma.reshape(nz * ny * nx, -1),
+                     "beam": medium.beam.reshape(-1, 3),
+                     "ground_level": np.ascontiguousarray(medium.ground_level.reshape(-1))}
         n_workers = min(threads(), 4)
         self.groups = [list(range(w, 4, n_workers)) for w in range(n_workers)]
         self.buffers = [np.zeros((nz, ny, nx, 3, self.nm), np.float32) for _ in self.groups[1:]]
-        self.flux = [np.zeros((ny, nx, 3)) for _ in self.groups]
-        self.work = [(np.zeros((ny, nx, nq, 3), np.float32), np.zeros((nx, nq, 3), np.float32)) for _ in self.groups]
-        self.column_radiance = (np.zeros((nz, quad.n_directions, 3), np.float32) if column
-                                else np.zeros((0, nq, 3), np.float32))
+        self.flux = [np.zeros((ny * nx, 3)) for _ in self.groups]
+        self.work = [(np.zeros((ny * nx, 3 * nq), np.float32), np.zeros((nx, 3 * nq), np.float32)) for _ in self.groups]
+        self.column_radiance = [np.zeros((nz if column else 0, 3 * nq), np.float32) for _ in range(8)]
         self.ground_flux = np.zeros((ny, nx, 3))
         self.sweeps = 0
 
     def _octant(self, o, phi_in, phi_out, flux, emission, sources, work):
         from .ordinates_cpu import sweep_octant
 
-        m, q = self.medium, self.quad
+        q, f = self.quad, self.flat
+        nz, ny, nx = self.medium.shape
         s = slice(o * q.per_octant, (o + 1) * q.per_octant)
         sx, sy, sz = (int(v) for v in q.octants[o])
-        side = self.side[:, s] if sources else self.zero_side
-        column = self.column_radiance[:, s] if self.column else self.column_radiance
-        sweep_octant(sx, sy, sz, m.beta, m.sigma, m.beam, phi_in, phi_out, q.harmonics[s], self.beam_phase[s],
-                     self.degree, q.weights[s], self.ax[s], self.ay[s], self.az[s], self.inv_dz, side, side,
-                     m.ground_level, emission, flux, bool(sources), work[0], work[1], column)
-        if self.column:
-            self.column_radiance[:, s] = column
+        side = self.side[o] if sources else self.zero_side
+        sweep_octant(sx, sy, sz, nz, ny, nx, f["beta"], f["sigma"], f["beam"], phi_in.reshape(nz * ny * nx, -1),
+                     phi_out.reshape(nz * ny * nx, -1), q.harmonics[s], self.beam_phase[s], self.degree,
+                     q.weights[s], self.ax[s], self.ay[s], self.az[s], self.inv_dz, side, side, f["ground_level"],
+                     emission.reshape(ny * nx, 3), flux, bool(sources), work[0], work[1], self.column_radiance[o])
+
+    def column_radiances(self):
+        """The one-column solve's radiance per level, direction and wavelength (nz, n_dir, 3)."""
+        nq = self.quad.per_octant
+        return np.concatenate([c.reshape(c.shape[0], nq, 3) for c in self.column_radiance], axis=1)
 
     def __call__(self, phi_in, out, sources):
         """``out`` = the moments of one sweep of ``phi_in`` (plus the sources' when ``sources``)."""
@@ -184,7 +192,7 @@ class _Sweeper:
                     f.result()
 
         run(True)
-        self.ground_flux = sum(self.flux)
+        self.ground_flux = sum(self.flux).reshape(self.medium.albedo.shape)
         incident = self.ground_flux + (self.medium.ground_beam if sources else 0.0)
         emission[...] = self.medium.albedo * incident / math.pi
         run(False)
@@ -194,76 +202,8 @@ class _Sweeper:
         return out
 
 
-class _ColumnDiffusion:
-    """The preconditioner of the solve: a diffusion-synthetic correction of the isotropic moment in each column.
-
-    In optically thick, conservative cloud the slow error of the fixed point is nearly isotropic and varies slowly in
-    the vertical; it obeys the diffusion (P1) equation -d/dz (1 / (3 sigma_tr)) dPhi/dz + sigma_a Phi = sigma_s0
-    Phi_r, Phi_r the scalar flux of the residual (Alcouffe 1977's DSA). Each column's equation is solved exactly
-    (a tridiagonal system, finite volumes on the solver's cells, Marshak's conditions: no light entering from above,
-    the ground's Lambertian albedo below; solid cells absorbing) and its solution added to the isotropic moment.
-    Horizontal transport is left out: the correction needs to catch the slow modes only, and BiCGStab keeps the
-    solve exact whatever the preconditioner (a cheap, inconsistent DSA under a Krylov method is robust: Warsa et al.
-    2004, doi:10.13182/NSE147-218).
-    """
-
-    def __init__(self, medium: DiffuseMedium):
-        m = medium
-        beta = m.beta.astype(np.float64)  # (nz, ny, nx, 3)
-        sigma0 = m.sigma[..., 0].astype(np.float64)
-        sigma1 = m.sigma[..., 1].astype(np.float64) if m.sigma.shape[-1] > 1 else np.zeros_like(beta)
-        nz = beta.shape[0]
-        dz = np.asarray(m.dz, float)[:, None, None, None]
-        solid = (np.arange(nz)[:, None, None] < m.ground_level[None])[..., None]
-        sig_a = np.where(solid, 1e3, np.maximum(beta - sigma0, 0.0))
-        sig_tr = np.where(solid, 1e3, np.maximum(beta - sigma1, 1e-12))
-        half = 1.5 * sig_tr * dz  # the resistance of half a cell to the flux, 3 sigma_tr dz / 2
-        couple = 1.0 / (half[1:] + half[:-1])  # (nz - 1, ...): flux per unit difference across an interior face
-        top = 1.0 / (2.0 + half[-1])
-        albedo = np.clip(m.albedo.astype(np.float64), 0.0, 0.999)[None]
-        bottom = 1.0 / (2.0 * (1.0 + albedo) / (1.0 - albedo) + half[0])
-        diag = sig_a * dz
-        diag[:-1] += couple
-        diag[1:] += couple
-        diag[-1] += top
-        diag[0] += bottom[0]
-        self.lower = -couple  # coefficient of Phi_{k-1} in row k (k >= 1)
-        self.upper = -couple  # coefficient of Phi_{k+1} in row k (k < nz - 1)
-        self.diag = diag
-        self.source = sigma0 * dz  # times the residual's scalar flux
-        self._factor()
-
-    def _factor(self):
-        """The Thomas algorithm's forward elimination, once (the same matrix for every application)."""
-        nz = self.diag.shape[0]
-        c = np.empty_like(self.diag)  # modified upper coefficients
-        d = np.empty_like(self.diag)  # modified diagonal's inverse
-        d[0] = 1.0 / self.diag[0]
-        c[0] = 0.0
-        for k in range(1, nz):
-            c[k - 1] = self.upper[k - 1] * d[k - 1]
-            d[k] = 1.0 / (self.diag[k] - self.lower[k - 1] * c[k - 1])
-        self.c, self.d = c, d
-
-    def __call__(self, v, out):
-        """``out`` = v plus the diffusion correction of its isotropic moment (out may be v)."""
-        nz = self.diag.shape[0]
-        scale = math.sqrt(4.0 * math.pi)  # the scalar flux of the l = 0 moment
-        rhs = self.source * (scale * v[..., 0].astype(np.float64))
-        y = np.empty_like(rhs)
-        y[0] = rhs[0] * self.d[0]
-        for k in range(1, nz):
-            y[k] = (rhs[k] - self.lower[k - 1] * y[k - 1]) * self.d[k]
-        for k in range(nz - 2, -1, -1):
-            y[k] -= self.c[k] * y[k + 1]
-        if out is not v:
-            out[...] = v
-        out[..., 0] += (y / scale).astype(np.float32)
-        return out
-
-
 def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e-4, max_sweeps: int = 400,
-                  column: bool = False, precondition: bool = True) -> DiffuseSolution:
+                  column: bool = False) -> DiffuseSolution:
     """Solve a medium for the moments of its diffuse radiance.
 
     Parameters
@@ -279,8 +219,6 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
     column : bool
         A one-column medium (nx = ny = 1) without horizontal transport: a plane-parallel solve, whose radiance per
         direction is returned (``column_radiance``).
-    precondition : bool
-        Precondition BiCGStab with each column's diffusion correction (:class:`_ColumnDiffusion`).
 
     Returns
     -------
@@ -313,16 +251,9 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
     p = np.zeros_like(b)
     s = np.empty_like(b)
     t = np.empty_like(b)
-    y = np.empty_like(b)  # M^-1 p
-    z = np.empty_like(b)  # M^-1 s
-    if precondition:
-        correct = _ColumnDiffusion(medium)
-    else:
-        def correct(a, out):
-            out[...] = a
-            return out
     rel = float(np.linalg.norm(r)) / b_norm
-    # BiCGStab with right preconditioning (van der Vorst 1992, Alg. 2 with M^-1 applied before each product)
+    # BiCGStab (van der Vorst 1992), unpreconditioned: a diffusion correction of each column's isotropic moment
+    # helps plane-parallel decks but slows 3-D fields, whose light leaks sideways (docs/decisions/0001-...)
     while rel > tolerance and sweep.sweeps + 2 <= max_sweeps:
         rho_new = float(np.vdot(r0, r))
         if rho_new == 0.0:
@@ -332,23 +263,21 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
         p -= np.float32(omega) * v
         p *= np.float32(beta_k)
         p += r
-        correct(p, y)
-        sweep(y, v, False)
-        np.subtract(y, v, out=v)  # (I - K) M^-1 p
+        sweep(p, v, False)
+        np.subtract(p, v, out=v)  # (I - K) p
         alpha = rho / float(np.vdot(r0, v))
         np.subtract(r, np.float32(alpha) * v, out=s)
         if float(np.linalg.norm(s)) / b_norm <= tolerance:
-            x += np.float32(alpha) * y
+            x += np.float32(alpha) * p
             r[...] = s
             rel = float(np.linalg.norm(r)) / b_norm
             break
-        correct(s, z)
-        sweep(z, t, False)
-        np.subtract(z, t, out=t)  # (I - K) M^-1 s
+        sweep(s, t, False)
+        np.subtract(s, t, out=t)  # (I - K) s
         tt = float(np.vdot(t, t))
         omega = float(np.vdot(t, s)) / tt if tt > 0 else 0.0
-        x += np.float32(alpha) * y
-        x += np.float32(omega) * z
+        x += np.float32(alpha) * p
+        x += np.float32(omega) * s
         np.subtract(s, np.float32(omega) * t, out=r)
         rel = float(np.linalg.norm(r)) / b_norm
         if omega == 0.0:
@@ -362,7 +291,7 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
     log.info("diffuse solution: %d sweeps, residual %.2g, grid %s x %d directions", sweep.sweeps, rel,
              medium.shape, quad.n_directions)
     return DiffuseSolution(moments=final, ground_diffuse=sweep.ground_flux.copy(),
-                           column_radiance=sweep.column_radiance.copy() if column else None,
+                           column_radiance=sweep.column_radiances() if column else None,
                            sweeps=sweep.sweeps, residual=rel)
 
 

@@ -1311,7 +1311,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         df0, df1, df2, df3 = _corner_lanes(sky_lanes, su0u, sv0u, su1u, sv1u, LANES, sa, sb)
                     irr = (e0 + 2.0 * df0 * t_cloud, e1 + 2.0 * df1 * t_cloud, e2 + 2.0 * df2 * t_cloud,
                            e3 + 2.0 * df3 * t_cloud)
-                if cloud_mode:
+                if cloud_mode and beta_h > 0.0:
                     lcl = _accumulate_cloud(lcl, to, (cs0, cs1, cs2), (br0 + ba0 + bs0, br1 + ba1 + bs1,
                                                                        br2 + ba2 + bs2), beta_eff, ds_eff)
                 tc, to, lc, i_ng, i_g = _accumulate_lanes(tc, to, lc, i_ng, i_g,

@@ -36,22 +36,24 @@ from .march_cpu import _JIT_KERNEL
 
 
 @njit(**_JIT_KERNEL, nogil=True)
-def sweep_octant(sx, sy, sz, beta, sigma, beam, phi_in, phi_out, harmonics, beam_phase, degree, weights, ax, ay,
-                 az, inv_dz, side_x, side_y, ground_level, ground_emission, ground_flux, with_beam,
+def sweep_octant(sx, sy, sz, nz, ny, nx, beta, sigma, beam, phi_in, phi_out, harmonics, beam_phase, degree, weights,
+                 ax, ay, az, inv_dz, side_x, side_y, ground_level, ground_emission, ground_flux, with_beam,
                  plane, row, column_radiance):  # pragma: no cover - compiled
-    """Sweep the ``nq`` directions of one octant (signs ``sx``, ``sy``, ``sz`` of their x, y, z components).
+    """Sweep the ``nq`` directions of one octant (signs ``sx``, ``sy``, ``sz`` of their x, y, z components) through a
+    grid of ``nz`` x ``ny`` x ``nx`` cells, cell n = (k ny + j) nx + i of the flat arrays (one row per cell: its
+    values per wavelength c, or per wavelength and moment, c nm + m).
 
     Parameters
     ----------
-    beta : (nz, ny, nx, 3) float32
+    beta : (n_cells, 3) float32
         Scaled extinction beta* [m-1] per wavelength.
-    sigma : (nz, ny, nx, 3, L + 1) float32
+    sigma : (n_cells, 3 (L + 1)) float32
         beta* omega* chi*_l [m-1].
-    beam : (nz, ny, nx, 3) float32
+    beam : (n_cells, 3) float32
         Direct-beam irradiance normal to the beam, relative to E_TOA [-] (the cell's mean).
-    phi_in : (nz, ny, nx, 3, nm) float32
-        Moments I_lm [sr-1 relative to E_TOA ... per unit E_TOA] of the current diffuse radiance.
-    phi_out : (nz, ny, nx, 3, nm) float32
+    phi_in : (n_cells, 3 nm) float32
+        Moments I_lm (per unit E_TOA) of the current diffuse radiance.
+    phi_out : (n_cells, 3 nm) float32
         Moments of this sweep's radiance, added to.
     harmonics : (nq, nm) float64
         Y_lm of the octant's directions; ``degree`` (nm,) int64: l of each moment.
@@ -62,84 +64,87 @@ def sweep_octant(sx, sy, sz, beta, sigma, beam, phi_in, phi_out, harmonics, beam
     ax, ay, az : (nq,) float64
         |Omega_x| / dx, |Omega_y| / dy [m-1] and |Omega_z| [-] (divided by the level's thickness, ``inv_dz``
         (nz,) [m-1]).
-    side_x, side_y : (nz, nq, 3) float32
-        Radiance entering through the grid's x and y sides (the clear surroundings).
-    ground_level : (ny, nx) int64
+    side_x, side_y : (nz, 3 nq) float32
+        Radiance entering through the grid's x and y sides (the clear surroundings), direction q, wavelength c at
+        3 q + c.
+    ground_level : (ny nx,) int64
         First cell above the ground of each column (cells below are solid and absorb what reaches their sides).
-    ground_emission : (ny, nx, 3) float32
+    ground_emission : (ny nx, 3) float32
         Radiance the ground emits upwards (Lambertian reflection), read by upward octants.
-    ground_flux : (ny, nx, 3) float64
+    ground_flux : (ny nx, 3) float64
         Downward diffuse flux onto the ground, added to by downward octants.
     with_beam : bool
         Include the direct beam's source.
-    plane : (ny, nx, nq, 3) float32, row : (nx, nq, 3) float32
+    plane : (ny nx, 3 nq) float32, row : (nx, 3 nq) float32
         Work arrays: the radiance leaving the previous level and row.
-    column_radiance : (nz, nq, 3) float32 or (0, nq, 3)
+    column_radiance : (nz, 3 nq) float32 or (0, 3 nq)
         Where it has nz rows, the radiance of each direction in the cells of column (0, 0) is written into it
         (the clear surroundings' radiance, from a one-column solve).
     """
-    nz, ny, nx = beta.shape[0], beta.shape[1], beta.shape[2]
     nq = harmonics.shape[0]
     nm = harmonics.shape[1]
-    n_l = sigma.shape[4]
+    n_l = beam_phase.shape[1]
+    nqc = 3 * nq
     # per cell: the moments weighted by their degree's scattering coefficient, and the beam's per degree
-    psi = np.empty((3, nm))
-    beam_l = np.zeros((3, n_l))
-    value = np.empty((nq, 3))
+    psi = np.empty(3 * nm)
+    beam_l = np.zeros(3 * n_l)
+    value = np.empty(nqc)
     weighted = np.empty((nq, nm))  # w_q Y_lm(q): a direction's weight in each moment
     for q in range(nq):
         for m in range(nm):
             weighted[q, m] = weights[q] * harmonics[q, m]
-    cx = np.empty((nq, 3), np.float32)
-    acc_m = np.empty(nm)
-    for j in range(ny):
-        for i in range(nx):
-            for q in range(nq):
-                for c in range(3):
-                    plane[j, i, q, c] = ground_emission[j, i, c] if sz > 0 else np.float32(0.0)
+    a_x = np.empty(nq)
+    a_y = np.empty(nq)
+    a_z = np.empty(nq)
+    inv_a = np.empty(nq)
+    cx = np.empty(nqc)
+    acc = np.empty(nm)
+    write_column = column_radiance.shape[0] == nz
+    for col in range(ny * nx):
+        for qc in range(nqc):
+            plane[col, qc] = ground_emission[col, qc % 3] if sz > 0 else np.float32(0.0)
     for kk in range(nz):
         k = kk if sz > 0 else nz - 1 - kk
-        azk = inv_dz[k]
         for q in range(nq):
-            for i in range(nx):
-                for c in range(3):
-                    row[i, q, c] = side_y[k, q, c]
+            a_x[q], a_y[q], a_z[q] = ax[q], ay[q], az[q] * inv_dz[k]
+            inv_a[q] = 1.0 / (a_x[q] + a_y[q] + a_z[q])
+        for i in range(nx):
+            for qc in range(nqc):
+                row[i, qc] = side_y[k, qc]
         for jj in range(ny):
             j = jj if sy > 0 else ny - 1 - jj
-            for q in range(nq):
-                for c in range(3):
-                    cx[q, c] = side_x[k, q, c]
+            for qc in range(nqc):
+                cx[qc] = side_x[k, qc]
             for ii in range(nx):
                 i = ii if sx > 0 else nx - 1 - ii
-                kg = ground_level[j, i]
+                col = j * nx + i
+                cell = k * ny * nx + col
+                kg = ground_level[col]
                 if k < kg:  # solid: absorbs what reaches its sides; below, the ground's emission is carried up
-                    for q in range(nq):
-                        for c in range(3):
-                            cx[q, c] = 0.0
-                            row[i, q, c] = 0.0
-                            plane[j, i, q, c] = ground_emission[j, i, c] if sz > 0 else np.float32(0.0)
+                    for qc in range(nqc):
+                        cx[qc] = 0.0
+                        row[i, qc] = 0.0
+                        plane[col, qc] = ground_emission[col, qc % 3] if sz > 0 else np.float32(0.0)
                     continue
                 for c in range(3):
                     for m in range(nm):
-                        psi[c, m] = sigma[k, j, i, c, degree[m]] * phi_in[k, j, i, c, m]
+                        psi[c * nm + m] = sigma[cell, c * n_l + degree[m]] * phi_in[cell, c * nm + m]
                     if with_beam:
-                        b = beam[k, j, i, c]
+                        b = beam[cell, c]
                         for l in range(n_l):
-                            beam_l[c, l] = b * sigma[k, j, i, c, l]
+                            beam_l[c * n_l + l] = b * sigma[cell, c * n_l + l]
                 for q in range(nq):
-                    a_x, a_y, a_z = ax[q], ay[q], az[q] * azk
-                    a_sum = a_x + a_y + a_z
-                    inv_a = 1.0 / a_sum
                     for c in range(3):
+                        qc = 3 * q + c
                         s = 0.0
                         for m in range(nm):
-                            s += harmonics[q, m] * psi[c, m]
+                            s += harmonics[q, m] * psi[c * nm + m]
                         if with_beam:
                             for l in range(n_l):
-                                s += beam_phase[q, l] * beam_l[c, l]
-                        inflow = (a_x * cx[q, c] + a_y * row[i, q, c] + a_z * plane[j, i, q, c]) * inv_a
-                        x = beta[k, j, i, c] * inv_a  # the optical path across the cell along the direction
-                        src = s * inv_a  # the source over the path, S / a = (S / beta) x
+                                s += beam_phase[q, l] * beam_l[c * n_l + l]
+                        inflow = (a_x[q] * cx[qc] + a_y[q] * row[i, qc] + a_z[q] * plane[col, qc]) * inv_a[q]
+                        x = beta[cell, c] * inv_a[q]  # the optical path across the cell along the direction
+                        src = s * inv_a[q]  # the source over the path, S / a = (S / beta) x
                         if x > 0.05:
                             e = math.exp(-x)
                             one_minus = 1.0 - e
@@ -148,28 +153,28 @@ def sweep_octant(sx, sy, sz, beta, sigma, beam, phi_in, phi_out, harmonics, beam
                             out = src / x * one_minus + inflow * e
                         else:  # the same to ~1e-8 without the division: e^-x and (1 - e^-x) / x by their series
                             mean = 1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0 - x / 120.0)))
-                            one_minus = x * mean
-                            e = 1.0 - one_minus
+                            e = 1.0 - x * mean
                             half = 0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0 - x * (1.0 / 120.0 - x / 720.0)))
                             v = src * half + inflow * mean
                             out = src * mean + inflow * e
-                        cx[q, c] = out
-                        row[i, q, c] = out
-                        plane[j, i, q, c] = out
-                        value[q, c] = v
+                        cx[qc] = out
+                        row[i, qc] = out
+                        plane[col, qc] = out
+                        value[qc] = v
                         if sz < 0 and k == kg:
-                            ground_flux[j, i, c] += weights[q] * az[q] * out
-                        if j == 0 and i == 0 and column_radiance.shape[0] == nz:
-                            column_radiance[k, q, c] = v
+                            ground_flux[col, c] += weights[q] * az[q] * out
+                if write_column and col == 0:
+                    for qc in range(nqc):
+                        column_radiance[k, qc] = value[qc]
                 for c in range(3):
                     for m in range(nm):
-                        acc_m[m] = 0.0
+                        acc[m] = 0.0
                     for q in range(nq):
-                        v = value[q, c]
+                        v = value[3 * q + c]
                         for m in range(nm):  # contiguous in m: one vector of moments per direction
-                            acc_m[m] += weighted[q, m] * v
+                            acc[m] += weighted[q, m] * v
                     for m in range(nm):
-                        phi_out[k, j, i, c, m] += acc_m[m]
+                        phi_out[cell, c * nm + m] += acc[m]
 
 
 @njit(**_JIT_KERNEL, nogil=True)
