@@ -54,8 +54,9 @@ def accuracy(settings):
     from swim.validation import clouds3d as C
     from swim.validation.stratus import compare_stratus
 
+    rows, _ = C.case_rows(["rico_ground_sza30"], SHARED, settings=MarchSettings(
+        cloud_scattering=CloudScattering("discrete_ordinates", C.PHASE, settings)))
     ms = MarchSettings(cloud_scattering=CloudScattering("discrete_ordinates", diffuse=settings))
-    rows, _ = C.case_rows(["rico_ground_sza30"], SHARED, settings=ms)
     deck = compare_stratus(20.0, 60.0, camera_size=41, settings=ms, n_streams=32,
                            g=legendre_moments(mie_liquid_phase(10e-6), 512), space_views=())
     return rows[1]["mean_abs_error"], float(deck["ghi_err"][1]), float(deck["zenith_err"][1])

@@ -33,6 +33,8 @@ def views(data: Path):
     katrina = data / "wrf_katrina" / "ci_test_file.nc"
     rico = data / "les" / "rico122x106x39.txt"
     met_em = data / "wrf_geo" / "met_em.d01.2005-08-28_12_00_00.nc"
+    stcu = data / "les" / "les_stcu.txt"
+    three_d = swim.MarchSettings(cloud_scattering="discrete_ordinates")
     return {
         "default_allsky": dict(scene=lambda: swim.default_scene(), camera="allsky", camera_options={"size": 511},
                                caption="Built-in default scene: all-sky view from the ground (cumulus, cirrus deck, hill)."),
@@ -62,6 +64,24 @@ def views(data: Path):
                            camera_options={"width": 512, "height": 512, "fov_deg": 40.0,
                                            "view_azimuth_deg": 0.0, "view_zenith_deg": 180.0},
                            caption="RICO cumulus seen from above: nadir view from 4 km, 40° field of view (north up)."),
+        "rico_below_3d": dict(scene=lambda: swim.open_scene(rico, reference_lat=RICO_LAT, reference_lon=RICO_LON),
+                              time=RICO_TIME, height=2.0, camera="allsky", camera_options={"size": 511},
+                              settings=three_d,
+                              caption="The same view with the 3-D cloud scattering (`--cloud-scattering "
+                                      "discrete_ordinates`: Mie droplets, the diffuse light solved in 3-D): grey "
+                                      "bases, sunlit sides and the forward glow towards the sun."),
+        "rico_above_3d": dict(scene=lambda: swim.open_scene(rico, reference_lat=RICO_LAT, reference_lon=RICO_LON),
+                              time=RICO_TIME, height=4000.0, camera="perspective",
+                              camera_options={"width": 512, "height": 512, "fov_deg": 40.0,
+                                              "view_azimuth_deg": 0.0, "view_zenith_deg": 180.0},
+                              settings=three_d,
+                              caption="RICO from above with the 3-D cloud scattering: shaded flanks and soft shadows "
+                                      "on the sea."),
+        "stcu_below_3d": dict(scene=lambda: swim.open_scene(stcu, reference_lat=RICO_LAT, reference_lon=RICO_LON),
+                              time=RICO_TIME, height=2.0, camera="allsky", camera_options={"size": 511},
+                              settings=three_d,
+                              caption="Stratocumulus (SHDOM's LES, 55 m grid, 3.5 km across) from the sea surface "
+                                      "with the 3-D cloud scattering: a deck of grey cells, brighter where it is thin."),
         "volcanic_twilight": dict(scene=lambda: swim.default_scene(), camera="panorama",
                                   camera_options={"width": 1024, "height": 512}, sun_zenith=86.0, sun_azimuth=270.0,
                                   aerosol=swim.AerosolBackground(stratospheric_aod_550=0.15),
@@ -127,8 +147,19 @@ def main(argv=None):
                   f"{attrs['observer_height_above_ground_m']:.0f} m above ground; time {attrs['time'] or 'n/a'}",
                   f"- median L' (615/546/450 nm): {median[0]:.3f} / {median[1]:.3f} / {median[2]:.3f}; "
                   f"render time {elapsed:.1f} s (2-core CPU)", ""]
-    if not args.only:
-        (args.out / "README.md").write_text("\n".join(lines))
+    readme = args.out / "README.md"
+    if args.only and readme.is_file():  # the views rendered replace their own sections, the others are kept
+        text = readme.read_text()
+        head, *sections = text.split("\n## ")
+        kept = {part.split("\n", 1)[0]: part for part in sections}
+        new = "\n".join(lines).split("\n## ")[1:]
+        for part in new:
+            kept[part.split("\n", 1)[0]] = part
+        order = [name for name in views(args.data) if name in kept]
+        text = head + "".join("\n## " + kept[name].rstrip("\n") + "\n" for name in order)
+        readme.write_text(text)
+    else:
+        readme.write_text("\n".join(lines))
 
 
 if __name__ == "__main__":

@@ -300,8 +300,10 @@ def clouds3d_section(rows):
                "distribution (55 m) and Katrina's eyewall (6 × 6 WRF columns refined to 500 m, cloud water), each "
                "from the ground (96 × 96 all-sky, view zenith ≤ 75°), from 700 km at nadir and at a view zenith of "
                "45° (96 × 96, 0.9 of the domain), sun zenith 30° and 60° (azimuth 135°), a Rayleigh atmosphere "
-               "and the sea. Both codes use the Mie phase function of the field's mean effective radius (Mitsuba's "
-               "`tabphase` on 100 001 cosines). Compared: 8 × 8-pixel block means (blocks at least half inside the "
+               "and the sea. Both codes use the droplets' phase function of the I3RC comparisons, Henyey–Greenstein "
+               "g = 0.85 (the Mie physics is held to DISORT in section 2b: with Mie droplets Mitsuba's next-event "
+               "estimates of the diffraction peak make its cloud blocks unreliable at these path counts; "
+               "`swim.validation.clouds3d`). Compared: 8 × 8-pixel block means (blocks at least half inside the "
                "compared pixels; 5° around the sun left out), 256 paths per pixel; 'MC std. error' is the median "
                "relative standard error of the reference's blocks.")
     out.append("")

@@ -1,4 +1,5 @@
-"""The 3-D cloud scattering against Mitsuba 3 Monte Carlo with the same (Mie) phase functions, on the RICO cumulus,
+"""The 3-D cloud scattering against Mitsuba 3 Monte Carlo with the same phase function (Henyey-Greenstein g 0.85, the
+I3RC convention), on the RICO cumulus,
 the stratocumulus LES and Katrina's eyewall, from the ground, from space at nadir and at 45° (swim.validation.
 clouds3d): 8 x 8-pixel block means, goal r >= 0.95 and mean |error| <= 15 % per wavelength, with the Monte Carlo
 standard error of the block means <= 3 %.
@@ -39,7 +40,7 @@ def test_references_are_small_and_complete():
     assert {f.stem for f in files} == set(C.CASES)
     assert sum(f.stat().st_size for f in files) < 600_000
     ref = C.load_case_reference("rico_ground_sza30")
-    for key in ("blocks", "block_stderr", "mask", "image_546", "spp", "variant", "effective_radius_m"):
+    for key in ("blocks", "block_stderr", "mask", "image_546", "spp", "variant", "phase"):
         assert key in ref
     assert ref["blocks"].shape[0] == 3 and np.all(ref["blocks"] > 0)
 

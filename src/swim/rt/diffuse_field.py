@@ -300,61 +300,133 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
     if optics.max_degree != settings.max_degree:
         raise SwimInputError("diffuse_field: the cloud optics' max_degree differs from the settings'")
     quad = make_quadrature(settings.n_polar, settings.n_azimuth, settings.max_degree)
-    levels = volume["level"].values.astype(float)
-    nk = levels.size
+    rotation, dx_m, dy_m = _solver_frame(volume)
+    sun_solver = np.array([*(rotation @ sun[:2]), sun[2]])
+    names = [str(s) for s in volume["extinction"]["species"].values]
+    beta_species = {SPECIES[s]: volume["extinction"].sel(species=SPECIES[s]).values for s in species
+                    if SPECIES[s] in names}
+    grid = _solver_grid(volume, beta_species, optics, settings, gas.top_m)
+    beta, sigma, air_beta = _medium_optics(grid, volume, beta_species, optics, gas, settings.max_degree)
+    terrain = _block_mean(volume["terrain_height"].values, grid.coarsen)
+    ground_level = np.clip(np.searchsorted(grid.edges, terrain - 0.5 * grid.dz[0], side="left"), 0,
+                           grid.n_grid - 1).astype(np.int64)
+    albedo = np.moveaxis(_block_mean(volume["surface_albedo"].transpose("wavelength", "y", "x").values,
+                                     grid.coarsen), 0, -1)
+    beam, ground_beam = _medium_beam(grid, beta, air_beta, gas, sun_solver, dx_m, dy_m, ground_level)
+    t_build = time.perf_counter()
+
+    side, clear_moments, clear_ground = clear_column(gas, grid.edges, mu0, albedo.reshape(-1, 3).mean(axis=0), quad,
+                                                     settings, sun_solver)
+    t_clear = time.perf_counter()
+    medium = DiffuseMedium(beta=np.ascontiguousarray(beta), sigma=np.ascontiguousarray(sigma), beam=beam,
+                           dz=grid.dz, dx=dx_m * grid.coarsen, dy=dy_m * grid.coarsen,
+                           albedo=np.ascontiguousarray(albedo, np.float32), ground_level=ground_level,
+                           ground_beam=ground_beam, sun=sun_solver, side_radiance=side)
+    sol = solve_diffuse(medium, quad, tolerance=settings.tolerance, max_sweeps=settings.max_sweeps)
+    t_solve = time.perf_counter()
+
+    field_out, ratio = _on_levels(grid, sol.moments, clear_moments, terrain)
+    above_ratio = sol.moments[grid.n_grid:, ..., 0] / np.maximum(clear_moments[grid.n_grid:, None, None, :, 0], 1e-30)
+    seconds = {"build": t_build - t0, "clear": t_clear - t_build, "solve": t_solve - t_clear,
+               "total": time.perf_counter() - t0}
+    nz, nyc, nxc = beta.shape[:3]
+    log.info("diffuse field: %d x %d x %d cells (columns coarsened %d x), %d sweeps, %.2f s (solve %.2f s)", nz, nyc,
+             nxc, grid.coarsen, sol.sweeps, seconds["total"], seconds["solve"])
+    return DiffuseField(
+        field=field_out, ground=(sol.ground_diffuse / np.maximum(clear_ground, 1e-30)).astype(np.float32),
+        coarsen=grid.coarsen, rotation=rotation, max_degree=settings.max_degree,
+        ground_diffuse=sol.ground_diffuse.astype(np.float32),
+        above=np.concatenate([ratio[-1:], above_ratio]).astype(np.float32),  # the top level, then the clear layers
+        above_heights=np.concatenate([[grid.levels[-1]], grid.z[grid.n_grid:]]), sweeps=sol.sweeps,
+        residual=sol.residual, cells=nz * nyc * nxc, seconds=seconds)
+
+
+def _solver_frame(volume):
+    """The solver's horizontal frame: the rotation (2, 2) from scene (x, y) to the solver's (x along the grid's i
+    axis), and the grid's spacings along i and j [m]."""
     matrix = np.asarray(volume.attrs["affine_matrix"], float).reshape(2, 2)
     ex, ey = matrix[:, 0], matrix[:, 1]
     dx_m, dy_m = float(np.hypot(*ex)), float(np.hypot(*ey))
     e1 = ex / dx_m
-    rotation = np.array([e1, [-e1[1], e1[0]]])  # scene xy -> solver xy (x along i)
+    rotation = np.array([e1, [-e1[1], e1[0]]])
     if float(np.dot(rotation[1], ey)) < 0:
         rotation[1] *= -1.0
-    sun_solver = np.array([*(rotation @ sun[:2]), sun[2]])
+    return rotation, dx_m, dy_m
 
-    extinction = volume["extinction"]
-    names = [str(s) for s in extinction["species"].values]
-    packed = [SPECIES[s] for s in species]
-    beta_species = {s: extinction.sel(species=s).values for s in packed if s in names}
+
+@dataclass
+class _Grid:
+    """The solver's grid: columns averaged in blocks of ``coarsen``, the volume's ``levels`` split into cells with
+    ``edges`` (bottom first; ``first``/``n_split`` per interval), the first ``n_grid`` cells inside the volume and clear
+    layers above; ``below_k``/``weight`` place each of those cells between two volume levels."""
+
+    coarsen: int
+    levels: np.ndarray
+    edges: np.ndarray
+    first: np.ndarray
+    n_split: np.ndarray
+    n_grid: int
+    shape: tuple
+    below_k: np.ndarray
+    weight: np.ndarray
+
+    @property
+    def z(self):
+        return 0.5 * (self.edges[1:] + self.edges[:-1])
+
+    @property
+    def dz(self):
+        return np.diff(self.edges)
+
+    def on_cells(self, node_field):
+        """A field on the volume's levels (nk, ny_c, nx_c[, ...]) at the cells' centres (n_grid, ny_c, nx_c[, ...])."""
+        w = self.weight.reshape((-1,) + (1,) * (node_field.ndim - 1))
+        return (1 - w) * node_field[self.below_k] + w * node_field[self.below_k + 1]
+
+
+def _solver_grid(volume, beta_species, optics, settings, top_m) -> _Grid:
+    """The smallest column blocks whose grid, split to ``max_cell_tau``, holds at most ``max_cells`` cells."""
+    levels = volume["level"].values.astype(float)
+    nk = levels.size
     ny, nx = volume["terrain_height"].shape
-    # coarsening: the smallest block whose grid fits max_cells (with a first guess of the vertical split)
-    f = {s: float(optics.truncation[SPECIES.index(s)]) for s in beta_species}
     hydro = np.zeros((nk, ny, nx), np.float32)
     for s, b in beta_species.items():
-        hydro += np.float32(1.0 - f[s]) * b
-    aerosol3d = np.asarray(volume["aerosol_extinction"].values, np.float32)
+        hydro += np.float32(1.0 - optics.truncation[SPECIES.index(s)]) * b
     dz_levels = np.diff(levels)
     coarsen = 1
     while True:
         hydro_c = _block_mean(hydro, coarsen)
         interval_tau = np.quantile(0.5 * (hydro_c[1:] + hydro_c[:-1]).reshape(nk - 1, -1), settings.thick_quantile,
                                    axis=1) * dz_levels
-        edges, first, n_split = solver_levels(levels, interval_tau, settings, gas.top_m)
+        edges, first, n_split = solver_levels(levels, interval_tau, settings, top_m)
         nyc, nxc = hydro_c.shape[1:]
         if (edges.size - 1) * nyc * nxc <= settings.max_cells or max(nyc, nxc) <= 8:
             break
         coarsen += 1
-    nz = edges.size - 1
-    z = 0.5 * (edges[1:] + edges[:-1])
-    dz = np.diff(edges)
-    n_grid = int(first[-1] + n_split[-1]) if nk > 1 else 0  # cells inside the volume's levels
+    n_grid = int(first[-1] + n_split[-1]) if nk > 1 else 0
+    z = 0.5 * (edges[1:n_grid + 1] + edges[:n_grid])
+    below = np.clip(np.searchsorted(levels, z, side="right") - 1, 0, nk - 2)
+    weight = ((z - levels[below]) / dz_levels[below]).astype(np.float32)
+    return _Grid(coarsen, levels, edges, first, n_split, n_grid, (edges.size - 1, nyc, nxc), below, weight)
 
-    # where each grid cell sits between two volume levels (linear interpolation of the nodes' values)
-    kk = np.clip(np.searchsorted(levels, z[:n_grid], side="right") - 1, 0, nk - 2)
-    w = ((z[:n_grid] - levels[kk]) / dz_levels[kk]).astype(np.float32)
 
-    def on_cells(node_field):  # (nk, nyc, nxc) -> (n_grid, nyc, nxc)
-        return (1 - w)[:, None, None] * node_field[kk] + w[:, None, None] * node_field[kk + 1]
-
-    air_beta, air_sigma = _air_optics(gas, z, settings.max_degree)  # (nz, 3), (nz, 3, L + 1)
-    n_l = settings.max_degree + 1
+def _medium_optics(grid, volume, beta_species, optics, gas, max_degree):
+    """The scaled extinction beta* (nz, ny_c, nx_c, 3), the scattering moments beta* omega* chi*_l
+    (nz, ny_c, nx_c, 3, L + 1) of the solver's cells, and the clear air's beta* (nz, 3)."""
+    nz, nyc, nxc = grid.shape
+    n_l = max_degree + 1
+    n_grid = grid.n_grid
+    air_beta, air_sigma = _air_optics(gas, grid.z, max_degree)  # (nz, 3), (nz, 3, L + 1)
     beta = np.broadcast_to(air_beta[:, None, None, :], (nz, nyc, nxc, 3)).astype(np.float32)
     sigma = np.broadcast_to(air_sigma[:, None, None, :, :], (nz, nyc, nxc, 3, n_l)).astype(np.float32)
     for s, b in beta_species.items():
         n = SPECIES.index(s)
-        b_cells = on_cells(_block_mean(b, coarsen))  # (n_grid, nyc, nxc)
-        beta[:n_grid] += (np.float32(1.0 - f[s]) * b_cells)[..., None]
-        chi = optics.moments[n, :n_l, :] - f[s]  # (L + 1, 3): beta (chi_l - f) = beta* omega* chi*_l
+        f = float(optics.truncation[n])
+        b_cells = grid.on_cells(_block_mean(b, grid.coarsen))  # (n_grid, nyc, nxc)
+        beta[:n_grid] += (np.float32(1.0 - f) * b_cells)[..., None]
+        chi = optics.moments[n, :n_l, :] - f  # (L + 1, 3): beta (chi_l - f) = beta* omega* chi*_l
         sigma[:n_grid] += b_cells[..., None, None] * chi.T[None, None, None].astype(np.float32)
+    aerosol3d = np.asarray(volume["aerosol_extinction"].values, np.float32)
     if np.any(aerosol3d > 0):
         from ..validation.disort import phase_function_legendre_moments
 
@@ -365,69 +437,51 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
         chi = np.broadcast_to(chi, (n_l + 1, 3))
         fa = chi[n_l]
         ang = np.asarray(gas.angstrom_factor, float)
-        a_cells = on_cells(_block_mean(aerosol3d, coarsen))[..., None] * ang  # (n_grid, nyc, nxc, 3)
+        a_cells = grid.on_cells(_block_mean(aerosol3d, grid.coarsen))[..., None] * ang  # (n_grid, nyc, nxc, 3)
         beta[:n_grid] += (a_cells * (1 - ssa * fa)).astype(np.float32)
         sigma[:n_grid] += ((a_cells * ssa)[..., None] * (chi[:n_l].T - fa[:, None])).astype(np.float32)
+    return beta, sigma, air_beta
 
-    # the direct beam: swept through the grid's clouds and 3-D aerosol along the sun (energy-conserving cells, see
-    # swim.rt.ordinates_cpu.beam_sweep), times the gas tables' transmittance (spherical atmosphere) at each height
-    terrain = _block_mean(volume["terrain_height"].values, coarsen)
-    ground_level = np.clip(np.searchsorted(edges, terrain - 0.5 * dz[0], side="left"), 0, n_grid - 1).astype(np.int64)
-    albedo = np.moveaxis(_block_mean(volume["surface_albedo"].transpose("wavelength", "y", "x").values, coarsen),
-                         0, -1)
-    beam, ground_t = _beam(beta[:n_grid] - air_beta[:n_grid, None, None, :].astype(np.float32), sun_solver,
-                           dx_m * coarsen, dy_m * coarsen, dz[:n_grid], ground_level)
-    t_gas = _sun_transmittance(gas, z, mu0)  # (nz, 3)
-    beam_all = np.empty((nz, nyc, nxc, 3), np.float32)
-    beam_all[:n_grid] = beam * t_gas[:n_grid, None, None, :]
-    beam_all[n_grid:] = t_gas[n_grid:, None, None, :]
-    beam = beam_all
-    jj, ii = np.indices(ground_level.shape)
-    t_ground = _sun_transmittance(gas, edges[ground_level].ravel(), mu0).reshape(ground_level.shape + (3,))
-    ground_beam = (mu0 * ground_t * t_ground).astype(np.float32)
-    t_build = time.perf_counter()
 
-    mean_albedo = albedo.reshape(-1, 3).mean(axis=0)
-    side, clear_moments, clear_ground = clear_column(gas, edges, mu0, mean_albedo, quad, settings, sun_solver)
-    t_clear = time.perf_counter()
-    medium = DiffuseMedium(beta=np.ascontiguousarray(beta), sigma=np.ascontiguousarray(sigma),
-                           beam=beam, dz=dz, dx=dx_m * coarsen, dy=dy_m * coarsen,
-                           albedo=np.ascontiguousarray(albedo, np.float32), ground_level=ground_level,
-                           ground_beam=np.ascontiguousarray(ground_beam), sun=sun_solver, side_radiance=side)
-    sol = solve_diffuse(medium, quad, tolerance=settings.tolerance, max_sweeps=settings.max_sweeps)
-    t_solve = time.perf_counter()
+def _medium_beam(grid, beta, air_beta, gas, sun_solver, dx_m, dy_m, ground_level):
+    """The direct beam's cell means (nz, ny_c, nx_c, 3) and its irradiance on the ground (ny_c, nx_c, 3): swept
+    through the grid's clouds and 3-D aerosol along the sun (energy-conserving cells,
+    :func:`swim.rt.ordinates_cpu.beam_sweep`), times the gas tables' transmittance (spherical atmosphere) at each
+    height."""
+    n_grid = grid.n_grid
+    mu0 = float(sun_solver[2])
+    inside, ground_t = _beam(beta[:n_grid] - air_beta[:n_grid, None, None, :].astype(np.float32), sun_solver,
+                             dx_m * grid.coarsen, dy_m * grid.coarsen, grid.dz[:n_grid], ground_level)
+    t_gas = _sun_transmittance(gas, grid.z, mu0)  # (nz, 3)
+    beam = np.empty(beta.shape, np.float32)
+    beam[:n_grid] = inside * t_gas[:n_grid, None, None, :]
+    beam[n_grid:] = t_gas[n_grid:, None, None, :]
+    t_ground = _sun_transmittance(gas, grid.edges[ground_level].ravel(), mu0).reshape(ground_level.shape + (3,))
+    return beam, np.ascontiguousarray((mu0 * ground_t * t_ground).astype(np.float32))
 
-    # onto the volume's levels: a level is the boundary of two cells (the mean of their moments)
-    moments = sol.moments  # (nz, nyc, nxc, 3, nm)
+
+def _on_levels(grid, moments, clear_moments, terrain):
+    """The march's field on the volume's levels (nk, ny_c, nx_c, 3 + 3 nm) and the isotropic ratio (nk, ny_c,
+    nx_c, 3): a level is the boundary of two cells (the mean of their moments); solid cells (below the terrain) take
+    the first open level's values, so that the march's interpolation next to the ground mixes in no zeros."""
+    levels, first, n_split = grid.levels, grid.first, grid.n_split
+    nk = levels.size
+    nz, nyc, nxc = grid.shape
     below = np.array([first[k - 1] + n_split[k - 1] - 1 if k > 0 else 0 for k in range(nk)])
-    above = np.clip(np.array([first[k] if k < nk - 1 else n_grid for k in range(nk)]), 0, nz - 1)
+    above = np.clip(np.array([first[k] if k < nk - 1 else grid.n_grid for k in range(nk)]), 0, nz - 1)
     node = 0.5 * (moments[below] + moments[above])  # (nk, nyc, nxc, 3, nm)
-    # solid cells (below the terrain) take the first open cell's values, so that the march's interpolation next
-    # to the ground does not mix in zeros
     open_node = np.clip(np.searchsorted(levels, terrain, side="left"), 0, nk - 1)
     solid = np.arange(nk)[:, None, None] < open_node[None]
     if solid.any():
-        fill = node[open_node, jj, ii]
-        node = np.where(solid[..., None, None], fill[None], node)
+        jj, ii = np.indices(open_node.shape)
+        node = np.where(solid[..., None, None], node[open_node, jj, ii][None], node)
     clear_node = 0.5 * (clear_moments[below] + clear_moments[above])  # (nk, 3, nm)
-    ratio = node[..., 0] / np.maximum(clear_node[:, None, None, :, 0], 1e-30)  # (nk, nyc, nxc, 3)
+    ratio = node[..., 0] / np.maximum(clear_node[:, None, None, :, 0], 1e-30)
     nm = moments.shape[-1]
-    field_out = np.empty((nk, nyc, nxc, 3 + 3 * nm), np.float32)
-    field_out[..., :3] = ratio
-    field_out[..., 3:] = (4.0 * math.pi * node).reshape(nk, nyc, nxc, 3 * nm)
-    ground = (sol.ground_diffuse / np.maximum(clear_ground, 1e-30)).astype(np.float32)
-    above_ratio = moments[n_grid:, ..., 0] / np.maximum(clear_moments[n_grid:, None, None, :, 0], 1e-30)
-    above = np.concatenate([ratio[-1:], above_ratio]).astype(np.float32)  # the top level, then the clear layers
-    above_heights = np.concatenate([[levels[-1]], z[n_grid:]])
-    seconds = {"build": t_build - t0, "clear": t_clear - t_build, "solve": t_solve - t_clear,
-               "total": time.perf_counter() - t0}
-    log.info("diffuse field: %d x %d x %d cells (columns coarsened %d x), %d sweeps, %.2f s (solve %.2f s)", nz, nyc,
-             nxc, coarsen, sol.sweeps, seconds["total"], seconds["solve"])
-    return DiffuseField(field=field_out, ground=ground, coarsen=coarsen, rotation=rotation,
-                        max_degree=settings.max_degree, ground_diffuse=sol.ground_diffuse.astype(np.float32),
-                        above=above, above_heights=above_heights,
-                        sweeps=sol.sweeps, residual=sol.residual,
-                        cells=nz * nyc * nxc, seconds=seconds)
+    out = np.empty((nk, nyc, nxc, 3 + 3 * nm), np.float32)
+    out[..., :3] = ratio
+    out[..., 3:] = (4.0 * math.pi * node).reshape(nk, nyc, nxc, 3 * nm)
+    return out, ratio
 
 
 def _beam(beta, sun, dx, dy, dz, ground_level):
