@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Run the Mitsuba 3 Monte Carlo references of issue 3 and cache them under tests/data/validation/.
+"""Run the Mitsuba 3 Monte Carlo references and cache them under tests/data/validation/.
 
 * ``rico_<view>_sza<zz>.npz``: the RICO LES cumulus (``../shared/data/les/rico122x106x39.txt``) seen from the
   ground (41 x 41 all-sky image, view zenith <= 75°) and from space (32 x 28 perspective image from 700 km
@@ -7,8 +7,8 @@
   (swim.render defaults otherwise), with the inputs recorded (:func:`swim.validation.mitsuba.make_rico_reference`).
 * ``rayleigh_sza30.npz``: the adapter against DISORT on a Rayleigh sky (16 view directions).
 * with ``--clouds3d``: ``clouds3d/<field>_<view>_sza<zz>.npz``, the 3-D cloud scattering's references
-  (:mod:`swim.validation.clouds3d`: RICO, stratocumulus and Katrina's eyewall; all-sky, nadir and 45° views; Mie
-  phase functions in both codes; 8 x 8-pixel block means of 96 x 96 images), and docs/validation/clouds3d_*.png.
+  (:mod:`swim.validation.clouds3d`: RICO and stratocumulus; all-sky, nadir and 45° views;
+  Henyey-Greenstein g 0.85 in both codes; 8 x 8-pixel block means of 96 x 96 images), and docs/validation/clouds3d_*.png.
 
 It also writes the comparison images docs/validation/<case>.png (swim | Mitsuba | relative difference) and
 prints the table rows (:func:`swim.validation.mitsuba.rico_table_rows`).

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Write docs/validation.md: swim against reference solvers (issue 3's accuracy table).
+"""Write docs/validation.md: swim against reference solvers.
 
 Usage::
 
@@ -182,7 +182,7 @@ def rico_rows():
     return rows, ""
 
 
-#: The 3-D cloud scattering's DISORT grid (issue 80): liquid (Mie r_e 10 um) and ice decks.
+#: The 3-D cloud scattering's DISORT grid: liquid (Mie r_e 10 um) and ice decks.
 CLOUD_LIQUID_TAUS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
 CLOUD_ICE_TAUS = (0.5, 1.0, 3.0)
 CLOUD_SUN_ZENITHS = (30.0, 60.0, 75.0)
@@ -241,7 +241,7 @@ def clouds3d_rows():
 
 
 def cloud_goal_lines(rows, rows3d):
-    """Issue 80's goals for the 3-D cloud scattering, with the worst case over the grid."""
+    """The goals for the 3-D cloud scattering, with the worst case over the grid."""
     out = []
     new = [r for r in rows if r["method"] == "discrete_ordinates" and r["sun_zenith_deg"] <= 75]
     thick = [r for r in new if r["kind"] == "liquid" and r["tau"] >= 5 and r["albedo"] <= 0.6]
@@ -263,10 +263,11 @@ def cloud_goal_lines(rows, rows3d):
         r_min = min(r["pearson_r"] for r in rows3d)
         e_max = max(100 * r["mean_abs_error"] for r in rows3d)
         se_max = max(100 * r["mc_stderr"] for r in rows3d)
-        out.append(f"| 3-D clouds against Monte Carlo (RICO, stratocumulus, eyewall; ground, nadir, 45°; sun 30/60°), "
+        out.append(f"| 3-D clouds against Monte Carlo (RICO, stratocumulus; ground, nadir, 45°; sun 30/60°), "
                    f"8 × 8 block means: r ≥ 0.95 | {r_min:.3f} | {'yes' if r_min >= 0.95 else 'no'} | – |")
-        out.append(f"| … mean abs. error ≤ 15 % (Monte Carlo std. error of the blocks ≤ {se_max:.1f} %) | {e_max:.1f} % | "
-                   f"{'yes' if e_max <= 15 else 'no'} | – |")
+        out.append(f"| … mean abs. error ≤ 15 % | {e_max:.1f} % | {'yes' if e_max <= 15 else 'no'} | – |")
+        out.append(f"| … the references' block std. error ≤ 3 % (median per case and λ) | {se_max:.1f} % | "
+                   f"{'yes' if se_max <= 3 else 'no'} | – |")
     return out
 
 
@@ -297,15 +298,19 @@ def clouds_section(rows):
 def clouds3d_section(rows):
     out = ["## 3b. The 3-D cloud scattering against Monte Carlo (Mitsuba 3)", ""]
     out.append("`swim.validation.clouds3d`: the RICO cumulus (20 m columns), the stratocumulus LES of the SHDOM "
-               "distribution (55 m) and Katrina's eyewall (6 × 6 WRF columns refined to 500 m, cloud water), each "
+               "distribution (55 m), each "
                "from the ground (96 × 96 all-sky, view zenith ≤ 75°), from 700 km at nadir and at a view zenith of "
                "45° (96 × 96, 0.9 of the domain), sun zenith 30° and 60° (azimuth 135°), a Rayleigh atmosphere "
                "and the sea. Both codes use the droplets' phase function of the I3RC comparisons, Henyey–Greenstein "
                "g = 0.85 (the Mie physics is held to DISORT in section 2b: with Mie droplets Mitsuba's next-event "
                "estimates of the diffraction peak make its cloud blocks unreliable at these path counts; "
                "`swim.validation.clouds3d`). Compared: 8 × 8-pixel block means (blocks at least half inside the "
-               "compared pixels; 5° around the sun left out), 256 paths per pixel; 'MC std. error' is the median "
-               "relative standard error of the reference's blocks.")
+               "compared pixels; 5° around the sun left out), 128–512 paths per pixel (the `spp` of each cached "
+               "reference); 'MC std. error' is the median relative standard error of the reference's blocks. Deep "
+               "convection (Katrina's eyewall, vertical optical depths up to 480) has no reference: Monte Carlo "
+               "needs thousands of scattering events per path there (8 paths per pixel took 122–130 s on 2 cores "
+               "for block standard errors of 12–17 % even on the eyewall's thinner flank, so 35–65 min per case for "
+               "3 %); swim's nadir view of it is held to the thick-layer limit (tests/system/test_clouds_3d.py).")
     out.append("")
     out.append("| case | λ [nm] | blocks | r | mean abs. error [%] | bias [%] | MC std. error [%] |")
     out.append("|---|---|---|---|---|---|---|")
@@ -328,7 +333,7 @@ def _worst(values):
 
 def summary_lines(rows, stratus, rico):
     """The issue-3 goals with what swim reaches (worst case over cases and wavelengths)."""
-    out = ["| goal (issue 3) | measured (worst case) | met | paper (Table 4) |", "|---|---|---|---|"]
+    out = ["| goal | measured (worst case) | met | paper (Table 4) |", "|---|---|---|---|"]
     default = [r for r in rows if r[0] == "default"]
     med = max(float(np.max(r[4]["median_abs"])) for r in default)
     out.append(f"| clear sky, view zenith ≤ 85°: median abs. radiance error ≤ 5 % per wavelength | {_pct(med)} % | "
@@ -367,7 +372,7 @@ def markdown(rows, conv, camera_size, n_streams, elapsed, stratus=(), rico=(), r
     w("<!-- generated by scripts/make_validation_table.py; do not edit by hand -->")
     w("")
     w(f"Generated {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} with swim {swim.__version__}, "
-      f"Python {platform.python_version()} ({elapsed:.0f} s). Issue 3: the accuracy table.")
+      f"Python {platform.python_version()} ({elapsed:.0f} s).")
     w("")
     w("## Summary")
     w("")

@@ -84,6 +84,7 @@ def test_a_bright_ground_brightens_the_cloud_base():
     assert gain_3d > 1.8 and gain_3d > gain_paper + 0.5
 
 
+@pytest.mark.full
 def test_katrina_from_space_and_below(shared_data):
     scene = swim.open_scene(shared_data / "wrf_katrina" / "ci_test_file.nc", time="2005-08-28T18:00")
     below = swim.render(scene, time="2005-08-28T18:00", lat=24.7, lon=-88.6, height=2.0, camera="allsky",
@@ -99,6 +100,21 @@ def test_katrina_from_space_and_below(shared_data):
     mu0 = np.cos(np.radians(space.attrs["sun_zenith_reference_deg"]))
     assert np.nanmax(green) < 4 * mu0 * 1.2
     assert np.nanpercentile(green, 99) > 2 * np.nanmedian(green)
+
+
+@pytest.mark.full
+def test_the_eyewall_deck_from_space(shared_data):
+    """Katrina's eyewall (vertical optical depths up to 480, median 150; the deep field without a Monte Carlo
+    reference): a thick, conservative deck's nadir reflectance factor at sun zenith 30 deg is R_inf - t K(1) K(mu0)
+    ~ 1.0 - 0.055 * 1.29 * 1.17 ~ 0.92 by the asymptotic thick-layer relations (t ~ 1 / (0.75 (1 - g) tau + 1.4),
+    van de Hulst 1980, Multiple Light Scattering, ch. 14), above the thinner flank's and below 1.2 anywhere."""
+    from swim.validation import clouds3d as C
+
+    out = C.render_case(C.case_scene("eyewall", shared_data), "nadir", 30.0, C.settings_3d())
+    factor = out["image"][:, out["mask"]] / (4.0 * np.cos(np.radians(30.0)))
+    assert np.all(np.isfinite(factor))
+    assert np.all((np.median(factor, axis=1) > 0.85) & (np.median(factor, axis=1) < 1.1))
+    assert np.percentile(factor, 99) < 1.2
 
 
 def test_the_jax_backend_refuses_the_method(default_scene):

@@ -107,7 +107,7 @@ def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume, settings, 
     assert opaque_rays >= 1, "a ray must stop in opaque cloud"
 
 
-@pytest.mark.parametrize("backend", ["jax", "numba"])
+@pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])
 def test_the_air_in_front_of_the_ground_does_not_depend_on_the_step_count(backend):
     """Rays from 14 m above the ground, just above the horizon, that meet the rising ground 280-480 m away: the
     gas and aerosol light in front of it (``radiance_clear``) and the whole radiance against the NumPy reference's
@@ -256,6 +256,7 @@ def _random_rays(n, seed=0):
                                   "plume, 8 probes", "plume, 4 probes, one per cell crossed",
                                   "plume, at most 4 empty steps", "plume, at most 4 empty steps, no refinement",
                                   "fog on the ground, 8 grid steps"])
+@pytest.mark.full
 def test_numba_march_matches_the_jax_march(case):
     """The fused per-ray CPU march (swim.rt.march_cpu) is the JAX kernel's step loop written again: both
     must give the same pixels, to float32 round-off, for rays that cross cloud, the plume, the terrain (hits
@@ -386,7 +387,7 @@ def test_numba_set_up_matches_the_jax_set_up(plume):
     assert np.all(untouched == -1.0) and np.array_equal(lower[same], lower_jax[same])
 
 
-@pytest.mark.parametrize("backend", ["jax", "numba"])
+@pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])
 def test_rays_that_do_not_look_down_stop_in_opaque_cloud_with_the_same_radiance(backend):
     """MarchSettings.stop_tau: a ray that does not look down stops where its hydrometeor optical depth passes 50.
     Against the same rays marched to their ends (``stop_tau=0``): every radiance the same (what lies behind
@@ -638,6 +639,7 @@ def _grid_samples_of_both_kernels(monkeypatch, scene, largest_zenith, **settings
     return counts[:n].copy(), jax_out, numba_out
 
 
+@pytest.mark.full
 def test_numba_and_jax_refine_alike_sample_by_sample(monkeypatch):
     """The numba kernel and the lockstep JAX kernel take the same samples per ray in the grid: the same halvings,
     predicted halvings and roll-backs (equal results do not show that: where a prediction is right, the accumulated
@@ -651,6 +653,7 @@ def test_numba_and_jax_refine_alike_sample_by_sample(monkeypatch):
     np.testing.assert_allclose(jax_out["tau_hydrometeor"], numba_out["tau_hydrometeor"], rtol=2e-3, atol=1e-3)
 
 
+@pytest.mark.full
 def test_a_stopped_ray_samples_no_more_in_jax_than_in_numba(monkeypatch):
     """A ray that stops (in opaque cloud, or at the ground) leaves the JAX kernel's grid loop, as it leaves numba's:
     the rays stopped in opaque cloud take the same grid samples in both kernels, and those at the ground as many
@@ -964,7 +967,7 @@ def test_a_new_sun_refills_the_shared_packed_volume(aerosol_plume):
         solar_transmittance(volume, sun_2, nonzero_levels=(levels[0][:-1], levels[1]))
 
 
-@pytest.mark.parametrize("backend", ["jax", "numba"])
+@pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])
 def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(backend):
     """Packing the species that are zero everywhere (rain, snow and graupel in the tiny scene) changes no output of
     either kernel: their channels only add zeros, and the per-species optical depths of the packed ones are put
@@ -1165,7 +1168,7 @@ def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean():
         assert surface[2] < surface[3] < surface[1], (backend, surface)
 
 
-@pytest.mark.parametrize("backend", ["jax", "numba"])
+@pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])
 def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
     """Beyond the grid the terrain keeps its edge heights, so a ray that leaves the grid sideways on its way down meets
     the ground before its segment after the grid ends (on the sea-level sphere). No later step finds a crossing in

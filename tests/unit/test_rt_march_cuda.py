@@ -117,6 +117,7 @@ _SIMULATED = """
 
 
 @pytest.mark.slow
+@pytest.mark.full
 def test_cuda_march_matches_the_cpu_march_in_the_simulator(tmp_path):
     """The same rays (ground, aircraft and 20 km views through cloud, a smoke plume, terrain and a stratospheric
     layer) marched by the CPU kernel and, in numba's CUDA simulator, by the CUDA kernel built from the same code
@@ -212,6 +213,7 @@ def _nvvm_available():
 
 @pytest.mark.slow
 @pytest.mark.skipif(not _nvvm_available(), reason="needs libNVVM (the CUDA toolkit) to compile PTX")
+@pytest.mark.full
 def test_cuda_kernel_compiles_for_hopper_in_one_function(tmp_path):
     """The kernel compiles for an H100/H200 (sm_90) with the argument types of a real render, every device
     function inlined into one entry (no calls in the step loop), and a thread's work arrays in local memory of

@@ -23,6 +23,7 @@ from test_rt_march import _random_rays, _tiny_scene, _trace
 @pytest.mark.parametrize("case", ["plume, multiple scattering, 5 aerosol classes",
                                   "no plume, single scattering, at most 4 empty steps",
                                   "plume, deep refinement (tau_refine 0.02)"])
+@pytest.mark.full
 def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
     """Rays from the ground, inside the grid and from 20 km (looking down) through cloud, the smoke plume (aerosol
     classes, the 3-D aerosol channels), terrain and the grid's edges: every output of the render's kernel within
@@ -99,6 +100,7 @@ def captured_kernel_call(kernel="fused", values=False, plume=False, **settings):
     return got["args"], got["kwargs"]
 
 
+@pytest.mark.full
 def test_a_block_whose_rays_have_stopped_takes_no_steps():
     """"fused-march": a block of rays that have all stopped (or are padding: not valid) leaves every loop of the
     kernel at once, its state as it came (``gap`` and ``s_last`` are not moved by samples that add nothing), while the

@@ -54,6 +54,7 @@ def test_table_rows_give_trace_rays_outputs():
     np.testing.assert_allclose(out["distance"], reference["distance"], rtol=1e-6, atol=1e-3)
 
 
+@pytest.mark.full
 def test_a_range_of_rows_is_marched_as_the_same_rows_listed(monkeypatch):
     """A frame's whole table passed as a range (read as slices of the host's arrays, no gathers) with the sun's ray
     after it: the same outputs, bit for bit, as the rows listed, where the extra ray shares the last chunk and where it
@@ -101,6 +102,7 @@ def test_a_range_of_rows_is_marched_as_the_same_rows_listed(monkeypatch):
 
 
 @pytest.mark.parametrize("kernel", ["lockstep", "fused"])
+@pytest.mark.full
 def test_padding_rows_are_marched_as_rays_outside_the_camera(kernel):
     """A batch filled up to its bucket (its last row repeated, ``padding_from``) and a chunk's own padding: the
     padding marched as rays that start stopped (zero radiance, no ground), the batch's own rows as without it, bit for
@@ -264,6 +266,7 @@ def test_step1a_and_sampler_on_the_device_by_default_only_on_an_accelerator(monk
 
 
 @pytest.mark.parametrize("sampling", [None, AdaptiveSampling()], ids=["every pixel", "adaptive"])
+@pytest.mark.full
 def test_render_with_the_table_gives_the_same_image(sampling):
     """The default scene's all-sky with the camera's rays on the device: the same pixels traced, the same samples,
     the same 8-bit image and radiance to float32 rounding; the second frame (another sun) reuses the table."""

@@ -116,6 +116,7 @@ def test_refill_checks_its_inputs():
         MarchSettings(step1a_on_device="yes")
 
 
+@pytest.mark.full
 def test_a_new_sun_in_a_render_refills_the_device_copy(monkeypatch):
     """With MarchSettings.step1a_on_device, a render's new sun takes the device's path where the JAX kernel left a
     copy of the packed volume (not the first sun: no copy yet), gives the host path's image, and leaves the device's
