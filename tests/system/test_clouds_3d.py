@@ -107,13 +107,14 @@ def test_the_eyewall_deck_from_space(shared_data):
     """Katrina's eyewall (vertical optical depths up to 480, median 150; the deep field without a Monte Carlo
     reference): a thick, conservative deck's nadir reflectance factor at sun zenith 30 deg is R_inf - t K(1) K(mu0)
     ~ 1.0 - 0.055 * 1.29 * 1.17 ~ 0.92 by the asymptotic thick-layer relations (t ~ 1 / (0.75 (1 - g) tau + 1.4),
-    van de Hulst 1980, Multiple Light Scattering, ch. 14), above the thinner flank's and below 1.2 anywhere."""
+    van de Hulst 1980, Multiple Light Scattering, ch. 14); no block brighter than 1.2 (the 99th percentile)."""
     from swim.validation import clouds3d as C
 
     out = C.render_case(C.case_scene("eyewall", shared_data), "nadir", 30.0, C.settings_3d())
     factor = out["image"][:, out["mask"]] / (4.0 * np.cos(np.radians(30.0)))
     assert np.all(np.isfinite(factor))
-    assert np.all((np.median(factor, axis=1) > 0.85) & (np.median(factor, axis=1) < 1.1))
+    median = np.median(factor, axis=1)
+    assert np.all((median > 0.85) & (median < 1.1)), median
     assert np.percentile(factor, 99) < 1.2
 
 

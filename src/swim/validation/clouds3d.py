@@ -6,10 +6,9 @@ eyewall: WRF, 6 x 6 columns of 10 km refined bilinearly to 500 m, cloud water on
 up to 480, median 150), is rendered (``case_scene("eyewall")``) but has no reference: Monte Carlo needs thousands of
 scattering events per path there, and even on the eyewall's thinner outer flank (optical depths 0-75) 8 paths
 per pixel took 122-130 s on 2 cores for block standard errors of 12-17 %, i.e. 35-65 min per case for 3 %.
-Three views of each
-(:func:`render_case`): an all-sky image from the ground at the domain's centre, a nadir view from 700 km and an
-oblique view from 700 km at a view zenith of 45 deg, towards the sun's azimuth; sun zenith 30 and 60 deg, a
-Rayleigh atmosphere, the sea (albedo 0.04/0.05/0.07).
+Three views of each (:func:`render_case`): an all-sky image from the ground at the domain's centre, a nadir view
+from 700 km and an oblique view from 700 km at a view zenith of 45 deg, towards the sun's azimuth; sun zenith 30 and
+60 deg, a Rayleigh atmosphere, the sea (albedo 0.04/0.05/0.07).
 
 Both codes use the same phase function: Henyey-Greenstein with g = 0.85 for the droplets (the I3RC convention,
 ``cloud_phase_function={"liquid": ("hg", 0.85)}`` in swim, Mitsuba's ``hg``). Mie droplets were tried first: with a
@@ -30,7 +29,6 @@ from __future__ import annotations
 
 import json
 import logging
-from datetime import UTC
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +60,8 @@ PHASE = {"liquid": ("hg", 0.85)}
 REFERENCE_DIR = Path(__file__).resolve().parents[3] / "tests" / "data" / "validation" / "clouds3d"
 #: The fields with Monte Carlo references.
 FIELDS = ("rico", "stcu")
+#: Every field :func:`case_scene` builds: those with references and the eyewall.
+SCENE_FIELDS = (*FIELDS, "eyewall")
 VIEWS = ("ground", "nadir", "oblique")
 SUN_ZENITHS = (30.0, 60.0)
 #: The cases: "<field>_<view>_sza<sun zenith>".
@@ -76,7 +76,7 @@ SEA_ALBEDO = (0.04, 0.05, 0.07)
 
 
 def case_scene(field, shared_data):
-    """The canonical scene of a field ("rico", "stcu" or "eyewall"), from ``shared_data`` (../shared/data).
+    """The canonical scene of a field (one of :data:`SCENE_FIELDS`), from ``shared_data`` (../shared/data).
 
     Raises
     ------
@@ -92,7 +92,7 @@ def case_scene(field, shared_data):
         return read_shdom_les(shared / "les" / "les_stcu.txt")
     if field == "eyewall":
         return _eyewall_scene(shared / "wrf_katrina" / "ci_test_file.nc")
-    raise SwimInputError(f"field must be one of {FIELDS + ('eyewall',)}, got {field!r}")
+    raise SwimInputError(f"field must be one of {SCENE_FIELDS}, got {field!r}")
 
 
 def _eyewall_scene(path, rows=slice(42, 48), cols=slice(35, 41), dx_m=500.0):
@@ -217,7 +217,7 @@ def settings_3d():
 
 def make_case_reference(case, shared_data, spp=None, seed=1, out_dir=None, variant=None):
     """Run the Mitsuba reference of ``case`` and cache its block means; returns the .npz path."""
-    from datetime import datetime
+    from datetime import UTC, datetime
 
     import mitsuba
 
