@@ -777,9 +777,9 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     clouds = settings.cloud_scattering
     cloud_optics = cloud_key = None
     if clouds.three_d:
-        if backend != "numba":
-            raise SwimInputError(f"cloud_scattering='discrete_ordinates' runs in the numba kernel (backend 'numba' or "
-                                 f"'auto' on a CPU); the {backend!r} backend does not have it yet")
+        if backend == "cuda":
+            raise SwimInputError("cloud_scattering='discrete_ordinates' runs in the numba and JAX kernels (backend "
+                                 "'numba', 'jax' or 'auto'); the 'cuda' backend does not have it")
         cloud_optics = _STAGE_CACHE.get(("cloud optics", fingerprint, clouds),
                                         lambda: scene_cloud_optics(volume, clouds))
         cloud_key = clouds

@@ -15,6 +15,7 @@ import functools
 import numpy as np
 import pytest
 
+from swim.errors import SwimInputError
 from swim.validation import clouds3d as C
 
 pytestmark = pytest.mark.validation
@@ -65,3 +66,22 @@ def test_block_means_and_their_errors():
     assert means.shape == (3, 3)
     np.testing.assert_allclose(means[0], [3.0, 1.0, 1.0])
     np.testing.assert_allclose(se, 0.1)  # 0.8 / sqrt(64)
+
+
+def test_references_of_two_seeds_merge_by_their_paths(tmp_path):
+    """Two runs of a case with different seeds merge into one of all their paths: means weighted by paths per pixel,
+    standard errors combined as independent estimates; a shared seed is refused."""
+    ref = C.load_case_reference("rico_ground_sza30")
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d, seed, spp, scale in ((a, 1, 100, 1.0), (b, 2, 300, 1.2)):
+        d.mkdir()
+        np.savez_compressed(d / "rico_ground_sza30.npz", **{**ref, "seed": seed, "spp": spp,
+                                                            "blocks": ref["blocks"] * scale})
+    out = C.merge_case_references([a / "rico_ground_sza30.npz", b / "rico_ground_sza30.npz"],
+                                  tmp_path / "rico_ground_sza30.npz")
+    merged = C.load_case_reference("rico_ground_sza30", out.parent)
+    assert merged["spp"] == 400 and merged["seeds"] == "[1, 2]"
+    np.testing.assert_allclose(merged["blocks"], ref["blocks"] * (0.25 + 0.75 * 1.2), rtol=1e-5)
+    np.testing.assert_allclose(merged["block_stderr"], ref["block_stderr"] * np.sqrt(0.25**2 + 0.75**2), rtol=1e-5)
+    with pytest.raises(SwimInputError, match="share a seed"):
+        C.merge_case_references([a / "rico_ground_sza30.npz", a / "rico_ground_sza30.npz"], tmp_path / "x.npz")

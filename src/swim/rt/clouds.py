@@ -143,7 +143,7 @@ def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScatte
     readonly = lambda a: _readonly(np.ascontiguousarray(a))  # noqa: E731
     return {
         "cloud_optics": optics, "diffuse_field": field_,
-        "hydro_scale": readonly(np.asarray(1.0 - f[idx], np.float64).reshape(max(n_sp, 1) if n_sp else 1)),
+        "hydro_scale": readonly(np.asarray(1.0 - f[idx], np.float64) if n_sp else np.zeros(1)),
         "hydro_chi": readonly(np.asarray(hydro_chi, np.float64) if n_sp else np.zeros((1, 3, 1))),
         # f - f_a: the forward peak's share outside the aureole (swim.optics.cloud_phase.split_phase_function)
         "hydro_narrow": readonly(np.asarray(f[idx] - optics.narrow[idx], np.float64) if n_sp else np.zeros(1)),

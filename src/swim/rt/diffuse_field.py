@@ -143,11 +143,12 @@ def _block_mean(a, c):
     """Mean of ``a`` (..., ny, nx) over blocks of c x c columns (the last blocks partial)."""
     if c == 1:
         return np.asarray(a, np.float32)
+    a = np.asarray(a)
     ny, nx = a.shape[-2:]
-    nyc, nxc = -(-ny // c), -(-nx // c)
-    pad = [(0, 0)] * (a.ndim - 2) + [(0, nyc * c - ny), (0, nxc * c - nx)]
-    s = np.pad(np.asarray(a, np.float64), pad).reshape(a.shape[:-2] + (nyc, c, nxc, c)).sum(axis=(-3, -1))
-    n = np.pad(np.ones((ny, nx)), pad[-2:]).reshape(nyc, c, nxc, c).sum(axis=(1, 3))
+    # sums along each axis in turn (no padded copy of a big volume), in float64
+    starts_y, starts_x = np.arange(0, ny, c), np.arange(0, nx, c)
+    s = np.add.reduceat(np.add.reduceat(a, starts_x, axis=-1, dtype=np.float64), starts_y, axis=-2)
+    n = np.outer(np.diff(np.append(starts_y, ny)), np.diff(np.append(starts_x, nx)))
     return (s / n).astype(np.float32)
 
 
@@ -393,7 +394,10 @@ def _solver_grid(volume, beta_species, optics, settings, top_m) -> _Grid:
     for s, b in beta_species.items():
         hydro += np.float32(1.0 - optics.truncation[SPECIES.index(s)]) * b
     dz_levels = np.diff(levels)
-    coarsen = 1
+    # every interval between the volume's levels is at least one cell: fewer blocks than that never fit the budget
+    # (nor beyond the first blocks that leave at most 8 x 8 columns, where the search stops)
+    coarsen = max(1, min(int(math.ceil(math.sqrt(max(nk - 1, 1) * ny * nx / settings.max_cells))) - 1,
+                         -(-max(ny, nx) // 8)))
     while True:
         hydro_c = _block_mean(hydro, coarsen)
         interval_tau = np.quantile(0.5 * (hydro_c[1:] + hydro_c[:-1]).reshape(nk - 1, -1), settings.thick_quantile,

@@ -68,7 +68,7 @@ def _ground_tables():
            "subsurface": np.array(water.WATER_SUBSURFACE_REFLECTANCE, dtype=np.float64),
            # the 11 fields of surface_fields, then the diffuse solution's 3 ratios of the ground's skylight
            # (cloud_scattering="discrete_ordinates"), which fade as the lighting does
-           "fade_cells": np.concatenate([surface_fade_cells(), surface_fade_cells()[-3:]]).astype(np.float64)}
+           "fade_cells": surface_fade_cells(14).astype(np.float64)}
     for a in out.values():
         a.flags.writeable = False  # one compiled type for every call (read-only arrays)
     return out

@@ -61,6 +61,7 @@ from ..errors import SwimInputError
 from ..surface.lighting import SURFACE_MODELS, surface_radiance
 from ..workers import (in_blocks, in_worker_thread, parallel_map, threads,  # threads: also swim.rt.march.threads
                        worker_pool)
+from .clouds_device import CLOUD_HOST_KEYS, cloud_sources, ratio_above_grid, three_d
 from .export_cache import exported_jit
 from .gas import GasTables
 from .solar import transmittance_delta_eddington
@@ -221,7 +222,7 @@ class MarchSettings:
         sessions 58-67). The same results to float32 rounding; the other kernels ignore it.
     cloud_scattering : str or CloudScattering
         How clouds scatter light (:mod:`swim.rt.clouds`): "albers2020" (the paper's Eqs. 12-26, the default) or
-        "discrete_ordinates" (the 3-D diffuse solution, numba backend only), or a
+        "discrete_ordinates" (the 3-D diffuse solution; the numba and JAX kernels, not "cuda"), or a
         :class:`swim.rt.clouds.CloudScattering` with its phase functions and accuracy settings; kept as the latter.
     fused_fma : bool
         Whether ptxas may contract the fused GPU kernel's float32 multiplies and adds into fused multiply-adds on
@@ -326,7 +327,10 @@ class MarchSettings:
 
     def resolved_grid_kernel(self) -> str:
         """The JAX kernel's march of the grid segment (:attr:`grid_kernel`): "auto" resolved to "fused" where JAX's
-        default device is a GPU and Pallas can lower to Triton there, else "lockstep"."""
+        default device is a GPU and Pallas can lower to Triton there, else "lockstep"; always "lockstep" with the 3-D
+        cloud scattering, whose sources the fused kernel does not carry."""
+        if self.cloud_scattering.three_d:
+            return "lockstep"
         if self.grid_kernel != "auto":
             return self.grid_kernel
         from .march_pallas import pallas_triton_available
@@ -353,9 +357,10 @@ class MarchSettings:
         return self._jax_device_switch(self.step1a_on_device)
 
     def _jax_device_switch(self, value) -> bool:
-        """A switch of the JAX kernel's device copies (``value``: True, False or None): False for the other kernels,
-        else ``value``, None resolved to whether the march runs on an accelerator."""
-        if self.resolved_backend() != "jax":
+        """A switch of the JAX kernel's device copies (``value``: True, False or None): False for the other kernels
+        and with the 3-D cloud scattering (its per-ray inputs and scaled Step 1a are the host's), else ``value``,
+        None resolved to whether the march runs on an accelerator."""
+        if self.resolved_backend() != "jax" or self.cloud_scattering.three_d:
             return False
         return self.on_accelerator() if value is None else bool(value)
 
@@ -1140,6 +1145,7 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
     """
     multiple_scattering = ms_profile is not None
+    clouds_3d = three_d(consts)  # cloud_scattering="discrete_ordinates" (swim.rt.clouds_device)
     n_c = consts["volume"].shape[-1]
     n_sp = consts["species_matrix"].shape[0]  # the packed species (packed_species)
     aerosol_3d = packed_aerosol_3d(n_c, n_sp)  # packed only where it is not zero
@@ -1194,11 +1200,19 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
         irradiance_h = irradiance + skylight if in_grid else irradiance
         beta_clear = beta_r + beta_a + beta_a3 + beta_s
         beta_h = beta_sp.sum(axis=1)
-        x = (beta_clear + beta_h[:, None]) * ds_eff[:, None]
+        # the extinction that dims the light on its way to the observer: with the 3-D cloud scattering the
+        # hydrometeors' delta-M scaled one (the forward peak's light stays in the view), whose sources are
+        # integrated along the ray; the diffuse solution's ratio to the clear sky dims the air's diffuse source
+        beta_view, dims_diffuse = beta_h, t_cloud[:, None]
+        if clouds_3d and in_grid:
+            dims_diffuse, cloud_source, beta_view = cloud_sources(beta_sp, k, j, i, t_cloud, irradiance, rays, consts)
+        elif clouds_3d:
+            dims_diffuse = ratio_above_grid(h, k, j, i, consts, consts["volume"].shape[:3])
+        x = (beta_clear + beta_view[:, None]) * ds_eff[:, None]
         # (1 - e^-x) / x, also for the terminal step's negative x (a step back)
         big = jnp.abs(x) > 1e-4
         step_mean = jnp.where(big, -jnp.expm1(-x) / jnp.where(big, x, 1.0), 1.0 - 0.5 * x)
-        t_obs = jnp.exp(-(st["tau_clear"] + st["tau_h"][:, None]))
+        t_obs = jnp.exp(-(st["tau_clear"] + (st["tau_view"] if clouds_3d else st["tau_h"])[:, None]))
         scat_a = (beta_a + beta_a3) * consts["aerosol_ssa"]
         scat_s = beta_s * consts["stratospheric_ssa"]
         source = (beta_r * rays["p_rayleigh"][:, None] + scat_a * rays["p_aerosol"]
@@ -1207,16 +1221,23 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
             # Orders >= 2: the diffuse source of the successive-orders table (molecules, aerosol,
             # stratospheric aerosol), dimmed under clouds by their transmittance like the skylight.
             j = _profile_at(ms_profile, h, consts)
-            source = source + (beta_r * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * t_cloud[:, None]
+            source = source + (beta_r * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * dims_diffuse
         l_clear = st["l_clear"] + t_obs * source * (ds_eff[:, None] * step_mean)
         # Eq. 12 integrand over the first two optical depths of hydrometeors.
         t0 = st["tau_h"]
         t1 = t0 + beta_h * ds_eff
-        weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
-        weight = jnp.where(t1 >= t0, jnp.maximum(weight, 0.0), weight)  # negative for a step back
-        i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
-        i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
-        i_cloud_t = st["i_cloud_t"] + t_cloud * shadow * weight
+        if clouds_3d:  # the clouds' light is integrated along the ray (swim.rt.clouds), not composed by Eq. 12
+            i_nogas, i_gas, i_cloud_t = st["i_nogas"], st["i_gas"], st["i_cloud_t"]
+            extra = {"tau_view": st["tau_view"] + beta_view * ds_eff, "l_cloud": st["l_cloud"]}
+            if in_grid:
+                extra["l_cloud"] = st["l_cloud"] + t_obs * cloud_source * (ds_eff[:, None] * step_mean)
+        else:
+            weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
+            weight = jnp.where(t1 >= t0, jnp.maximum(weight, 0.0), weight)  # negative for a step back
+            i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
+            i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
+            i_cloud_t = st["i_cloud_t"] + t_cloud * shadow * weight
+            extra = {}
         hit_s = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
         # bracket of the crossing for the bisection after the march: the previous sample (above) and this one
         hit_lo = jnp.where(hit_now, st["s_last"], st["hit_lo"])
@@ -1248,6 +1269,7 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
             "hit_from": hit_from,
             "gap": gap,
             "s_last": s,
+            **extra,
         }, beta_h
 
     def body(m, st):
@@ -1522,6 +1544,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
         "hit_from": jnp.zeros(n, jnp.float32),
         "gap": jnp.full(n, 1e9, jnp.float32), "s_last": jnp.zeros(n, jnp.float32),
     }
+    if three_d(consts):  # the hydrometeors' scaled optical depth to the observer and their radiance
+        state.update(tau_view=jnp.zeros(n, jnp.float32), l_cloud=zeros3)
     from .march_pallas import Segment, march_grid_fused, march_segments_fused
 
     zero = jnp.zeros(n, jnp.float32)
@@ -1550,7 +1574,8 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     # the fused kernel marches whole blocks of rays: a batch of another size (a chunk set by hand) is marched by the
     # lockstep loops
     kernel = settings.resolved_grid_kernel()
-    fused = kernel in ("fused", "fused-march") and fused_fits(n)
+    # (the fused kernel does not carry the 3-D cloud scattering's sources)
+    fused = kernel in ("fused", "fused-march") and fused_fits(n) and not three_d(consts)
     interpret = jax.default_backend() == "cpu"
     # the fused kernel's register cap, loads and fused multiply-adds: settings, so that programs built with other
     # ones are kept apart
@@ -1589,6 +1614,8 @@ def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, sett
         l_surface = _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit)
     else:
         l_surface = jnp.zeros_like(state["l_clear"])
+    if three_d(consts):
+        return _compose_three_d(consts, state, valid, surface, s_hit, l_surface)
     return _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface)
 
 
@@ -1616,11 +1643,18 @@ def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_cl
     t_cloud = fields[:, 8]
     shadow = fields[:, 9]
     t_aerosol = jnp.exp(-fields[:, 10:11] * consts["angstrom"][None, :])
+    # with the 3-D cloud scattering the diffuse light at the ground is the diffuse solution's (its ratio to the
+    # clear sky's, channels 11-13), which includes the light between the ground and the cloud base
+    clouds_3d = three_d(consts)
+    diffuse = diffuse * (fields[:, 11:14] if clouds_3d else t_cloud[:, None])
     up = q + jnp.array([0.0, 0.0, 1.0], jnp.float32) * consts["radius"]
     up = up / jnp.linalg.norm(up, axis=1, keepdims=True)
     l_ground = surface_radiance(up, -direction, consts["sun"], slope, fields[:, :3], fields[:, 3], fields[:, 4],
-                                fields[:, 5], t_sun * t_aerosol * (t_cloud * shadow)[:, None], diffuse * t_cloud[:, None],
+                                fields[:, 5], t_sun * t_aerosol * (t_cloud * shadow)[:, None], diffuse,
                                 model=settings.surface)
+    if clouds_3d:  # seen through the delta-M scaled optical depth: the forward peak's light stays in the view
+        t_hydro = jnp.exp(-(state["tau_species"] @ consts["backscatter_scaled"]))
+        return jnp.where(surface[:, None], l_ground * (jnp.exp(-state["tau_clear"]) * t_hydro[:, None]), 0.0)
     # Seen from above, the ground under a cloud layer shines through the layer's total (direct + diffuse)
     # transmittance at the view angle (reciprocity), the same delta-Eddington T as in Step 1a; rays that do
     # not look down (blend as for the clouds) keep the direct e^{-tau} (docs/rendering.md, "Overcast accuracy").
@@ -1631,6 +1665,27 @@ def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_cl
         tau_hydro, state["tau_species"] @ consts["backscatter"], jnp.maximum(mu_down_ground, FROM_ABOVE_BLEND))
     transmit = jnp.exp(-state["tau_clear"]) * t_hydro[:, None]
     return jnp.where(surface[:, None], l_ground * transmit, 0.0)
+
+
+def _compose_three_d(consts, state, valid, surface, s_hit, l_surface):
+    """The outputs of :func:`_compose` with the 3-D cloud scattering, whose hydrometeors' radiance was integrated
+    along the rays (:mod:`swim.rt.clouds_device`), given the ground's part ``l_surface`` (n, 3); ``tau_narrow``
+    (n,) is the optical depth that dims the beam but for the forward peak's narrow part (the circumsolar aureole,
+    :func:`swim.optics.cloud_phase.split_phase_function`). The numba kernel's twin: :func:`_compose_numba`."""
+    n_sp = consts["species_matrix"].shape[0]
+    aureole = consts["species_matrix"].T @ consts["hydro_aureole"][:n_sp].astype(jnp.float32)  # (SPECIES,)
+    radiance = jnp.where(valid[:, None], state["l_clear"] + state["l_cloud"] + l_surface, 0.0)
+    return {
+        "radiance": radiance,
+        "radiance_clear": state["l_clear"],
+        "radiance_cloud": state["l_cloud"],
+        "radiance_surface": l_surface,
+        "tau_hydrometeor": state["tau_h"],
+        "tau_clear": state["tau_clear"],
+        "surface": surface,
+        "distance": jnp.where(surface, s_hit, jnp.nan),
+        "tau_narrow": state["tau_species"] @ aureole,
+    }
 
 
 def _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface):
@@ -1782,13 +1837,15 @@ def surface_beyond_edge(clamped, outside, ny, nx, j, i):
     view. The fade keeps the ground continuous at the edge and the mean some cells beyond it."""
     dj = jnp.maximum(jnp.maximum(-j, j - (ny - 1)), 0.0)
     di = jnp.maximum(jnp.maximum(-i, i - (nx - 1)), 0.0)
-    w = jnp.exp(-jnp.sqrt(dj * dj + di * di)[:, None] / surface_fade_cells()[None, :])
+    w = jnp.exp(-jnp.sqrt(dj * dj + di * di)[:, None] / surface_fade_cells(clamped.shape[-1])[None, :])
     return outside[None, :] + (clamped - outside[None, :]) * w
 
 
-def surface_fade_cells():
-    """The e-folding distance [cells] of each of the 11 fields of :func:`surface_fields` beyond the grid (11,)."""
-    return np.array([SURFACE_EDGE_FADE_CELLS] * 8 + [LIGHTING_EDGE_FADE_CELLS] * 3, np.float32)
+def surface_fade_cells(n_fields=11):
+    """The e-folding distance [cells] of each of the 11 fields of :func:`surface_fields` beyond the grid (11,), or
+    with ``n_fields`` 14 also of the 3-D cloud scattering's diffuse ratios at the ground (lighting, like T)
+    (:func:`swim.rt.clouds.cloud_constants`)."""
+    return np.array([SURFACE_EDGE_FADE_CELLS] * 8 + [LIGHTING_EDGE_FADE_CELLS] * (n_fields - 8), np.float32)
 
 
 def surface_fields_outside(fields):
@@ -2394,7 +2451,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
 
         # the probes' program takes the constants as the ray table's build gives them (one compiled program for
         # both), the march those and the fused kernel's padded volume
-        probe_consts = _device_constants(consts)
+        probe_consts = _device_constants(_jax_cloud_constants(consts))
         consts = with_vector_volume(probe_consts, settings)
     outputs = {}  # written chunk by chunk into arrays for all rays (a list and a concatenate would hold two)
     # [first ray, end, phase arrays of those rays]: all rays for a dict, blocks of SEGMENT_BLOCK for a function
@@ -2485,6 +2542,18 @@ _DEVICE_COPIES = {}
 #: Every cache that :func:`device_copies` has served (the JAX kernel's, the CUDA kernel's), for
 #: :func:`forget_device_copies_of`.
 _COPY_CACHES = [_DEVICE_COPIES]
+
+
+def _jax_cloud_constants(consts):
+    """``consts`` without the 3-D cloud scattering's host-only entries (:data:`swim.rt.clouds_device.CLOUD_HOST_KEYS`)
+    and with its arrays on the device, once per render (a jitted call would copy a numpy array every time)."""
+    if not three_d(consts):
+        return consts
+    out = {key: value for key, value in consts.items() if key not in CLOUD_HOST_KEYS}
+    for key in ("hydro_scale", "hydro_narrow", "hydro_aureole", "ms_field", "ms_above", "above_heights",
+                "backscatter_scaled", "ms_coarsen"):
+        out[key] = jnp.asarray(np.asarray(out[key], np.float32))
+    return out
 
 
 def _device_constants(consts):
@@ -2777,7 +2846,8 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
         radiance = (st["l_clear"] + st["l_cloud"] + l_surface).astype(np.float32)
         radiance[~np.asarray(valid[:n], bool)] = 0.0
         # the optical depth that dims the beam but for the forward peak's narrow part (the circumsolar aureole)
-        tau_narrow = st["tau_species"] @ np.asarray(tables["hydro_aureole"], float)
+        # (a cloudless scene packs no species: its placeholder weight is not read)
+        tau_narrow = st["tau_species"] @ np.asarray(tables["hydro_aureole"], float)[:st["tau_species"].shape[1]]
         return {"radiance": radiance, "radiance_clear": st["l_clear"].astype(np.float32), "radiance_cloud": l_cloud,
                 "radiance_surface": l_surface, "tau_hydrometeor": st["tau_h"].astype(np.float32),
                 "tau_clear": st["tau_clear"].astype(np.float32), "surface": surface,

@@ -47,6 +47,7 @@ __all__ = [
     "case_scene",
     "load_case_reference",
     "make_case_reference",
+    "merge_case_references",
     "render_case",
 ]
 
@@ -72,6 +73,11 @@ SPACE_HEIGHT_M = 700.0e3
 #: Paths per pixel of the references by view: block means of 64 pixels whose standard error stays within ~2 % (a
 #: view from space has less noise per path: fewer paths end in a dark sky or the sea).
 SPP = {"ground": 256, "nadir": 128, "oblique": 128}
+#: Cases that need more paths for a median block standard error of <= 3 % at every wavelength: the
+#: stratocumulus's thick cells scatter paths more (at the views' paths above its medians were 3.3-5.3 %). Their
+#: cached references are two runs (seeds 1 and 2) merged by :func:`merge_case_references`.
+CASE_SPP = {"stcu_ground_sza60": 640, "stcu_nadir_sza30": 384, "stcu_nadir_sza60": 512, "stcu_oblique_sza30": 384,
+            "stcu_oblique_sza60": 384}
 SEA_ALBEDO = (0.04, 0.05, 0.07)
 
 
@@ -226,7 +232,7 @@ def make_case_reference(case, shared_data, spp=None, seed=1, out_dir=None, varia
     from .mitsuba import mitsuba_radiance
 
     spec = CASES[case]
-    spp = int(spp or SPP[spec["view"]])
+    spp = int(spp or CASE_SPP.get(case, SPP[spec["view"]]))
     scene = case_scene(spec["field"], shared_data)
     volume = build_optical_volume(scene)
     sv = render_case(scene, spec["view"], spec["sun_zenith"], settings_3d())
@@ -253,6 +259,41 @@ def make_case_reference(case, shared_data, spp=None, seed=1, out_dir=None, varia
         settings=json.dumps({"size": SIZE, "block": BLOCK, "sun_azimuth": SUN_AZIMUTH, "sea_albedo": SEA_ALBEDO}))
     log.info("%s: %d pixels x %d spp in %.0f s -> %s", case, int(sv["mask"].sum()), spp, out["seconds"], path)
     return path
+
+
+def merge_case_references(paths, out_path):
+    """Merge references of one case made with different seeds (:func:`make_case_reference`) into one with all their
+    paths: the block means and the 546 nm image weighted by paths per pixel, the blocks' standard errors combined
+    (se^2 = sum_i n_i^2 se_i^2 / (sum_i n_i)^2), the seeds listed in ``seeds``. Returns ``out_path``.
+
+    Raises
+    ------
+    SwimInputError
+        If the references are of different cases, pixels or settings, or share a seed.
+    """
+    refs = [load_case_reference(Path(p).stem, Path(p).parent) | {"_path": str(p)} for p in paths]
+    first = refs[0]
+    seeds = [int(s) for r in refs for s in json.loads(str(r.get("seeds", f"[{r['seed']}]")))]
+    for r in refs[1:]:
+        for key in ("case", "phase", "settings", "variant"):
+            if r[key] != first[key]:
+                raise SwimInputError(f"merge_case_references: {r['_path']} differs in {key!r} from {first['_path']}")
+        if not np.array_equal(r["mask"], first["mask"]):
+            raise SwimInputError(f"merge_case_references: {r['_path']} compares other pixels than {first['_path']}")
+    if len(set(seeds)) != len(seeds):
+        raise SwimInputError(f"merge_case_references: the references share a seed ({seeds}): their paths are not "
+                             f"independent")
+    n = np.array([float(r["spp"]) for r in refs])
+    w = n / n.sum()
+    blocks = sum(wi * r["blocks"].astype(float) for wi, r in zip(w, refs))
+    stderr = np.sqrt(sum((wi * r["block_stderr"].astype(float)) ** 2 for wi, r in zip(w, refs)))
+    image = sum(wi * r["image_546"].astype(float) for wi, r in zip(w, refs))
+    out = {key: value for key, value in first.items() if key != "_path"}
+    out.update(blocks=blocks.astype(np.float32), block_stderr=stderr.astype(np.float32),
+               image_546=image.astype(np.float16), spp=int(n.sum()), seed=int(seeds[0]), seeds=json.dumps(seeds),
+               seconds=float(sum(float(r["seconds"]) for r in refs)))
+    np.savez_compressed(out_path, **out)
+    return Path(out_path)
 
 
 def load_case_reference(case, ref_dir=None):
