@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-__all__ = ["CLOUD_HOST_KEYS", "cloud_sources", "clamped_trilinear", "ratio_above_grid", "three_d"]
+__all__ = ["CLOUD_HOST_KEYS", "clamped_trilinear", "cloud_sources", "ratio_above_grid", "three_d"]
 
 #: Entries of :func:`swim.rt.clouds.cloud_constants` that only the host reads (objects, tuples, the moments' degrees):
 #: the JAX kernel's constants leave them out.

@@ -396,7 +396,7 @@ def _solver_grid(volume, beta_species, optics, settings, top_m) -> _Grid:
     dz_levels = np.diff(levels)
     # every interval between the volume's levels is at least one cell: fewer blocks than that never fit the budget
     # (nor beyond the first blocks that leave at most 8 x 8 columns, where the search stops)
-    coarsen = max(1, min(int(math.ceil(math.sqrt(max(nk - 1, 1) * ny * nx / settings.max_cells))) - 1,
+    coarsen = max(1, min(math.ceil(math.sqrt(max(nk - 1, 1) * ny * nx / settings.max_cells)) - 1,
                          -(-max(ny, nx) // 8)))
     while True:
         hydro_c = _block_mean(hydro, coarsen)
