@@ -679,10 +679,13 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     if camera_options is not None and not isinstance(camera_options, Mapping):
         raise SwimInputError(f"camera_options must be a mapping of option names to values, got "
                              f"{type(camera_options).__name__}")
-    try:
+    # a number, not text or a flag that float() would take: a misread "2" or True is a mistake, not a height
+    height_m = None
+    if isinstance(height, (int, float, np.integer, np.floating)) and not isinstance(height, (bool, np.bool_)):
         height_m = float(height)
-    except (TypeError, ValueError):
-        height_m = None
+    if not (aerosol is None or isinstance(aerosol, (str, AerosolBackground))):
+        raise SwimInputError(f"aerosol must be None (the default background), an aerosol type name or an "
+                             f"AerosolBackground; got {aerosol!r} ({type(aerosol).__name__})")
     filled_later = ()
     if "view_azimuth_deg" not in (camera_options or {}):  # _default_perspective_view: the view, and from space its
         # field of view where no look_at is given (the ground's height, at most 9 km, not yet known)
@@ -692,7 +695,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     if lat is not None and not (-90 <= float(lat) <= 90):
         raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
     if height_m is None or not np.isfinite(height_m) or height_m < 0:
-        raise SwimInputError(f"observer height must be >= 0 m above the ground, got {height}")
+        raise SwimInputError(f"observer height must be a number >= 0 [m above the ground], got {height!r}")
+    height = height_m
     check_coarsening(coarsen)
     if crop or coarsen is not None:
         # Before anything is loaded in full; the scene frame stays that of the whole grid.
@@ -1210,9 +1214,19 @@ def _default_perspective_view(volume, lat, lon, height_asl, look_at, options):
 
 
 def write_png(image: xr.Dataset, path) -> Path:
-    """Write the ``rgb`` of a rendered image as an 8-bit sRGB PNG (atomically)."""
+    """Write the ``rgb`` of a rendered image as an 8-bit sRGB PNG (atomically).
+
+    Raises
+    ------
+    SwimInputError
+        If ``image`` is not a rendered image: no ``rgb`` variable of (rows, columns, 3) 8-bit values.
+    """
     from PIL import Image
 
+    rgb = image.get("rgb") if isinstance(image, xr.Dataset) else None
+    if rgb is None or rgb.ndim != 3 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8:
+        raise SwimInputError("write_png: image must be a rendered image (swim.render) with an 'rgb' variable of "
+                             "(rows, columns, 3) 8-bit sRGB values")
     atomic_write(Path(path), lambda tmp: Image.fromarray(np.asarray(image["rgb"].values, dtype=np.uint8), "RGB").save(tmp, format="PNG"))
     return Path(path)
 

@@ -61,11 +61,23 @@ def modules_loaded() -> None:
         gc.enable()
 
 
+def _print_version(value: bool):
+    if value:
+        from .. import __version__
+
+        console.print(f"swim {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
-def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the stages.")):
+def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the stages."),
+         version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                      help="Print the version and exit.")):
     """SWIm command-line interface."""
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
                         handlers=[RichHandler(console=console, show_path=False)])
+    # JAX's search for accelerators it was not built for ("Unable to initialize backend 'tpu'") is not a stage
+    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
 
 
 def _cloud_scattering(method, phase):
@@ -270,6 +282,8 @@ def render(
         options = {"allsky": {"size": size},
                    "panorama": {"width": width, "height": image_height},
                    "perspective": {"width": width, "height": image_height}}[camera.value]
+        if view_zenith is not None and view_azimuth is None:
+            raise SwimInputError("--view-zenith needs --view-azimuth (the view's direction is both angles)")
         if camera is CameraKind.perspective:
             if fov is not None:
                 options["fov_deg"] = fov

@@ -126,7 +126,7 @@ def _index_base(name: str, idx: np.ndarray, n: int, label: str) -> int:
     raise SwimInputError(f"{label}: index {name} spans [{lo}, {hi}], outside the grid of {n} points (0-based)")
 
 
-def read_shdom_les(path, reference_lat: float = 0.0, reference_lon: float = 0.0, time=None):
+def read_shdom_les(path, reference_lat: float | None = None, reference_lon: float | None = None, time=None):
     """Read an SHDOM-style LES liquid-water file into the canonical scene.
 
     Parameters
@@ -134,8 +134,9 @@ def read_shdom_les(path, reference_lat: float = 0.0, reference_lon: float = 0.0,
     path : str or os.PathLike
         The text file (format in the module docstring), e.g. ``les/rico122x106x39.txt``, ``les/rico32x37x26.txt``
         or ``les/les_stcu.txt`` of the shared data.
-    reference_lat, reference_lon : float
-        Where to put the centre of the LES domain [deg] (LES has no geolocation); default (0, 0).
+    reference_lat, reference_lon : float, optional
+        Where to put the centre of the LES domain [deg] (LES has no geolocation); default (0, 0), with a warning
+        where neither is given: the sun's position from a time depends on it.
     time : str, datetime or numpy.datetime64, optional
         Valid time (UTC) to attach as the scalar coordinate ``time``; none by default.
 
@@ -154,6 +155,11 @@ def read_shdom_les(path, reference_lat: float = 0.0, reference_lon: float = 0.0,
         non-finite or negative, or a reff is outside [0.1, 1e5] um where lwc > 0.
     """
     p = Path(path)
+    if reference_lat is None and reference_lon is None:
+        logger.warning("LES file %s has no geolocation: placed at 0 deg N, 0 deg E (reference_lat/reference_lon; CLI "
+                    "--scene-lat/--scene-lon), where the sun of a time is computed", p.name)
+    reference_lat = 0.0 if reference_lat is None else reference_lat
+    reference_lon = 0.0 if reference_lon is None else reference_lon
     header = read_shdom_les_header(p)
     nx, ny, nz = header["nx"], header["ny"], header["nz"]
     label = f"LES file {p.name}"

@@ -857,6 +857,20 @@ def _canonical_time(kwargs):
     return time
 
 
+def _reader_options(reader, kind, kwargs, internal=("source",)):
+    """Refuse ``open_scene`` options that ``reader`` (the reader of a file of ``kind``) does not take, naming them
+    and the ones it takes: a misspelt option (``tme=``) would otherwise end in a TypeError from deep inside."""
+    import inspect
+
+    params = list(inspect.signature(reader).parameters.items())[1:]  # after the path or dataset
+    names = [name for name, par in params if par.kind in (par.POSITIONAL_OR_KEYWORD, par.KEYWORD_ONLY)
+             and name not in internal]
+    unknown = sorted(set(kwargs) - set(names))
+    if unknown:
+        raise SwimInputError(f"open_scene: unknown option(s) {', '.join(map(repr, unknown))} for {kind}; it takes "
+                             f"{', '.join(names) or 'no options'}")
+
+
 def _canonical_scene(scene, p, time):
     """Finish a canonical scene read from file p: a requested time must be within 1.5 h of the scene's, and an
     unknown source becomes the file's path."""
@@ -934,6 +948,7 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     if suffix in _LES_SUFFIXES:
         from .les import read_shdom_les
 
+        _reader_options(read_shdom_les, "an SHDOM-style LES file", kwargs)
         return read_shdom_les(p, **kwargs)
     wrf_like = "wrf" in p.name.lower() or p.name.lower().startswith(("geo_em", "met_em"))
     if suffix and suffix not in _NETCDF_SUFFIXES and not suffix[1:].isdigit() and not wrf_like:
@@ -947,11 +962,13 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
         if _is_wrf(ds):
             from .wrf import read_wrf
 
+            _reader_options(read_wrf, "a WRF file", kwargs)
             ds.load()
             return read_wrf(ds, **kwargs)
         if _is_wps(ds) and not {"height", "lat", "lon"} <= set(ds.variables):
             from .wps import read_wps_geogrid
 
+            _reader_options(read_wps_geogrid, "a WPS file", kwargs)
             ds.load()
             return read_wps_geogrid(ds, source=str(p), **kwargs)
         if {"height", "lat", "lon"} <= set(ds.variables):

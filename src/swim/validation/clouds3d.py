@@ -93,9 +93,9 @@ def case_scene(field, shared_data):
 
     shared = Path(shared_data)
     if field == "rico":
-        return read_shdom_les(shared / "les" / "rico122x106x39.txt")
+        return read_shdom_les(shared / "les" / "rico122x106x39.txt", reference_lat=0.0, reference_lon=0.0)
     if field == "stcu":
-        return read_shdom_les(shared / "les" / "les_stcu.txt")
+        return read_shdom_les(shared / "les" / "les_stcu.txt", reference_lat=0.0, reference_lon=0.0)
     if field == "eyewall":
         return _eyewall_scene(shared / "wrf_katrina" / "ci_test_file.nc")
     raise SwimInputError(f"field must be one of {SCENE_FIELDS}, got {field!r}")

@@ -830,7 +830,7 @@ def make_rico_reference(case, les_dir, spp=None, seed=1, out_dir=None, variant=N
 
     spec = RICO_CASES[case]
     spp = int(spp or RICO_SPP[spec["view"]])
-    scene = read_shdom_les(Path(les_dir) / spec["les"])
+    scene = read_shdom_les(Path(les_dir) / spec["les"], reference_lat=0.0, reference_lon=0.0)
     sv = swim_view(scene, spec["view"], spec["sun_zenith"])
     volume = build_optical_volume(scene)
     out = mitsuba_radiance(volume, spec["sun_zenith"], RICO_SETTINGS["sun_azimuth"], sv["observer"], sv["directions"],
@@ -900,7 +900,7 @@ def rico_table_rows(les_dir=None, ref_dir=None, cases=None, render=True, march_s
             if les_dir is None:
                 raise SwimInputError("rico_table_rows(render=True) needs les_dir")
             if ref["les"] not in scenes:
-                scenes[ref["les"]] = read_shdom_les(Path(les_dir) / ref["les"])
+                scenes[ref["les"]] = read_shdom_les(Path(les_dir) / ref["les"], reference_lat=0.0, reference_lon=0.0)
             sv = swim_view(scenes[ref["les"]], ref["view"], ref["sun_zenith"], march_settings=march_settings)
             if sv["mask"].shape != ref["mask"].shape or np.any(sv["mask"] != ref["mask"]):
                 raise SwimInputError(f"{case}: the rendered pixels differ from the cached reference's; regenerate it")

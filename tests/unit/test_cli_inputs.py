@@ -1,0 +1,44 @@
+"""The command line's small promises: its version, options that only work together, an LES scene placed without a
+word of where, and no noise from JAX's search for accelerators in ``-v``."""
+
+import logging
+
+from typer.testing import CliRunner
+
+from swim import __version__
+from swim.cli.main import app
+
+
+def test_version():
+    result = CliRunner().invoke(app, ["--version"])
+    assert result.exit_code == 0 and result.output.strip() == f"swim {__version__}"
+
+
+def test_view_zenith_needs_view_azimuth(tmp_path):
+    out = tmp_path / "x.png"
+    result = CliRunner().invoke(app, ["render", "--camera", "perspective", "--view-zenith", "30", "--size", "9",
+                                      "--out", str(out)])
+    assert result.exit_code == 2 and "--view-zenith needs --view-azimuth" in result.output
+    assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_an_les_scene_without_a_place_is_placed_with_a_warning(shared_data, caplog):
+    from swim.io.les import read_shdom_les
+
+    with caplog.at_level(logging.WARNING, logger="swim.io.les"):
+        scene = read_shdom_les(shared_data / "les" / "rico32x37x26.txt")
+    assert "no geolocation" in caplog.text and "--scene-lat" in caplog.text
+    assert float(scene.attrs["reference_lat"]) == 0.0 and float(scene.attrs["reference_lon"]) == 0.0
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="swim.io.les"):
+        read_shdom_les(shared_data / "les" / "rico32x37x26.txt", reference_lat=15.0, reference_lon=-60.0)
+    assert "no geolocation" not in caplog.text
+
+
+def test_the_verbose_log_leaves_out_jax_s_accelerator_search():
+    search = logging.getLogger("jax._src.xla_bridge")
+    search.setLevel(logging.NOTSET)
+    result = CliRunner().invoke(app, ["-v", "render", "--help"])  # the group's callback configures the log
+    assert result.exit_code == 0
+    assert search.level == logging.WARNING
