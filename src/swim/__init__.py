@@ -3,7 +3,7 @@
 Physics after Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020.
 
 Public API: :func:`open_scene`, :func:`default_scene`, :func:`scene_from_arrays`, :func:`render`,
-:func:`write_png`, :func:`write_netcdf`, :class:`AerosolBackground` (1-D and stratospheric aerosol),
+:func:`write_image`, :func:`write_png`, :func:`write_netcdf`, :class:`AerosolBackground` (1-D and stratospheric aerosol),
 :class:`MarchSettings`, :func:`sky_irradiance` (GHI/DHI/DNI from an all-sky image).
 """
 
@@ -21,6 +21,7 @@ _API = {
     "read_wrf": "swim.io.wrf",
     "read_shdom_les": "swim.io.les",
     "render": "swim.pipeline",
+    "write_image": "swim.pipeline",
     "write_png": "swim.pipeline",
     "write_netcdf": "swim.pipeline",
     "render_series": "swim.series",

@@ -114,6 +114,14 @@ def _output_paths(pattern, frames, what) -> list[Path | None]:
             raise SwimInputError(f"{what} pattern {pattern!r} names frames {seen[path]} and {i} alike ({path}); "
                                  "add {index} or {time:%Y%m%dT%H%M%S}")
         seen[path] = i
+    # every frame's file checked before the first frame is rendered: its format and its folder
+    from .io.atomic import check_output_path
+    from .pipeline import image_format
+
+    for path in paths:
+        if what == "out":
+            image_format(path, what)
+        check_output_path(path, what)
     return paths
 
 
@@ -150,16 +158,13 @@ def _open(path: str, opening: tuple):
 
 def _render_frame(index, scene, opening, kwargs, png, netcdf):
     """One frame, in this process or on a dask worker: render, write, and return its row of the table."""
-    from .pipeline import render, write_netcdf, write_png
+    from .pipeline import render, write_outputs
 
     started = wall_clock.perf_counter()
     if isinstance(scene, (str, os.PathLike)):
         scene = _opened(str(scene), opening)
     image = render(scene, **kwargs)
-    if png is not None:
-        write_png(image, png)
-    if netcdf is not None:
-        write_netcdf(image, netcdf)
+    write_outputs(image, png, netcdf)
     attrs = image.attrs
     return {"index": index, "time": _utc(attrs["time"]) if attrs.get("time") else pd.NaT,
             "png": None if png is None else str(png), "netcdf": None if netcdf is None else str(netcdf),

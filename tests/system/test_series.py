@@ -124,7 +124,13 @@ def test_bad_series_fail_before_any_frame(scene, tmp_path):
     with pytest.raises(SwimInputError, match="frame 0: 1700000000 is neither a time"):
         render_series(scene, [1700000000], out=tmp_path / "{index}.png")
     with pytest.raises(SwimInputError, match="out and netcdf name the same file"):
-        render_series(scene, times, out=tmp_path / "{index}", netcdf=tmp_path / "{index}")
+        render_series(scene, times, out=tmp_path / "{index}.png", netcdf=tmp_path / "{index}.png")
+    with pytest.raises(SwimInputError, match="out .*: unknown image format '.gif'"):
+        render_series(scene, times, out=tmp_path / "{index}.gif")
+    (tmp_path / "1.nc").mkdir()
+    with pytest.raises(SwimInputError, match="netcdf .*1.nc: exists and is a directory"):
+        render_series(scene, times, netcdf=tmp_path / "{index}.nc")
+    (tmp_path / "1.nc").rmdir()
     with pytest.raises(SwimInputError, match="either client .* or workers"):
         render_series(scene, times, out=tmp_path / "{index}.png", workers=2, client=object())
     assert not list(tmp_path.iterdir()), "nothing written"

@@ -44,5 +44,5 @@ def cache(
                           budget)
         Console().print(table)
     except SwimInputError as exc:
-        console.print(f"[red]error:[/red] {escape(str(exc))}")
+        console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None

@@ -125,7 +125,7 @@ def compare(
         if json_out is not None:
             write_json(scores, json_out)
     except SwimInputError as exc:
-        err.print(f"[red]error:[/red] {escape(str(exc))}")
+        err.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
 
     table = Table(title=f"simulated vs camera ({quantity.value}, fit {fit.value}, {weighting.value} weights)")

@@ -12,6 +12,7 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from ..errors import SwimInputError
 
@@ -135,7 +136,7 @@ def ghi(
             plot_ghi(table, obs, plot, clear=clear, reference=ref,
                      title=f"swim GHI at {lat:.2f}, {lon:.2f} (AOD550 {aod:g} {aerosol}, pw {pw:.2f} cm, {size} px)")
     except SwimInputError as exc:
-        console.print(f"[red]error:[/red] {exc}")
+        console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
     day = table["rendered"]
     console.print(f"wrote {out}" + (f" and {plot}" if plot else "")

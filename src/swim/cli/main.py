@@ -229,7 +229,7 @@ def render(
                                               "Henyey-Greenstein per phase, e.g. 'liquid=0.85,ice=0.75'."),
     scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
     scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
-    out: Optional[Path] = typer.Option(None, help="PNG output path (default swim.png); with --end a pattern such as "
+    out: Optional[Path] = typer.Option(None, help="Image output path, PNG, JPEG or TIFF by its suffix (default swim.png); with --end a pattern such as "
                                        "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height)."),
     netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here (a pattern with "
                                           "--end)."),
@@ -247,13 +247,20 @@ def render(
     precompile.start_early(backend)  # on a cold numba cache: the march compiles in a helper while the rest loads
     from .. import default_scene, open_scene
     from ..geometry.level_of_detail import check_coarsening
-    from ..pipeline import render as render_image, write_netcdf, write_png
+    from ..io.atomic import check_output_path
+    from ..pipeline import image_format, render as render_image, write_outputs
     from ..rt.gas import AerosolBackground
     from ..rt.image_sampling import AdaptiveSampling
     from ..rt.march import MarchSettings
 
     modules_loaded()
     try:
+        if end is None and not workers and not scheduler:  # a series checks each frame's files (render_series)
+            # the outputs before any work: a render that cannot be written is not started
+            image_format(Path("swim.png") if out is None else out, "--out")
+            check_output_path(Path("swim.png") if out is None else out, "--out")
+            if netcdf is not None:
+                check_output_path(netcdf, "--netcdf")
         place = {}
         if scene_lat is not None or scene_lon is not None:
             if scene is None or scene.suffix.lower() not in (".txt", ".lwc", ".dat"):
@@ -332,11 +339,9 @@ def render(
             task = bar.add_task("render", total=1.0)
             image = render_image(ds, time=time, progress=lambda done, total: bar.update(task, completed=done / total),
                                  **common)
-        write_png(image, out)
-        if netcdf is not None:
-            write_netcdf(image, netcdf)
+        write_outputs(image, out, netcdf)
     except SwimInputError as exc:
-        console.print(f"[red]error:[/red] {escape(str(exc))}")
+        console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
     console.print(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
                   + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")

@@ -1,0 +1,94 @@
+"""Output files: written through symlinks, never over something that is not a regular file, checked before the
+render, in the format of their suffix, with what they show written into them, and an image and its netCDF file
+both or neither."""
+
+import os
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+import swim
+from swim.cli.main import app
+from swim.errors import SwimInputError
+from swim.io.atomic import atomic_write, check_output_path
+from swim.pipeline import write_image, write_outputs
+
+
+@pytest.fixture(scope="module")
+def image():
+    from swim.io.default_scene import default_scene
+
+    return swim.render(default_scene(), camera="allsky", camera_options={"size": 9}, sun_zenith=40.0,
+                       sun_azimuth=150.0)
+
+
+def test_a_symlink_is_written_through(tmp_path, image):
+    target = tmp_path / "real.png"
+    target.write_bytes(b"old")
+    link = tmp_path / "link.png"
+    link.symlink_to(target)
+    write_image(image, link)
+    assert link.is_symlink() and Image.open(target).format == "PNG"
+
+
+@pytest.mark.parametrize("kind", ["directory", "fifo", "parent is a file"])
+def test_what_is_not_a_regular_file_is_refused(tmp_path, kind):
+    if kind == "directory":
+        path = tmp_path / "d.png"
+        path.mkdir()
+    elif kind == "fifo":
+        path = tmp_path / "f.png"
+        os.mkfifo(path)
+    else:
+        (tmp_path / "file").write_text("x")
+        path = tmp_path / "file" / "x.png"
+    before = sorted(tmp_path.iterdir())
+    with pytest.raises(SwimInputError, match="is a directory|not a regular file|is not a folder"):
+        atomic_write(path, lambda tmp: open(tmp, "w").write("new"))
+    with pytest.raises(SwimInputError):
+        check_output_path(path, "--out")
+    assert sorted(tmp_path.iterdir()) == before  # nothing replaced, no temporary file left
+
+
+@pytest.mark.parametrize("suffix, fmt", [(".png", "PNG"), (".jpg", "JPEG"), (".JPEG", "JPEG"), (".tif", "TIFF")])
+def test_the_suffix_chooses_the_format(tmp_path, image, suffix, fmt):
+    path = write_image(image, tmp_path / f"sky{suffix}")
+    with Image.open(path) as im:
+        assert im.format == fmt and im.size == (9, 9)
+        if fmt == "PNG":
+            assert im.text["Software"].startswith("swim") and "sun zenith 40.00 deg" in im.text["Description"]
+
+
+def test_an_unknown_suffix_is_refused_before_the_render(tmp_path):
+    out = tmp_path / "sky.bmp"
+    result = CliRunner().invoke(app, ["render", "--size", "9", "--out", str(out)])
+    assert result.exit_code == 2 and "unknown image format '.bmp'" in result.output
+    assert len(result.output.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_a_netcdf_that_cannot_be_written_stops_the_render_before_the_image(tmp_path):
+    (tmp_path / "file").write_text("x")
+    out = tmp_path / "sky.png"
+    result = CliRunner().invoke(app, ["render", "--size", "9", "--out", str(out), "--netcdf",
+                                      str(tmp_path / "file" / "sky.nc")])
+    assert result.exit_code == 2 and "--netcdf" in result.output and "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_an_image_and_its_netcdf_are_written_both_or_neither(tmp_path, image, monkeypatch):
+    write_outputs(image, tmp_path / "a.png", tmp_path / "a.nc")
+    assert (tmp_path / "a.png").is_file() and (tmp_path / "a.nc").is_file()
+    with pytest.raises(SwimInputError, match="unknown image format"):
+        write_outputs(image, tmp_path / "b.bmp", tmp_path / "b.nc")
+    import swim.pipeline as pipeline
+
+    def broken(image, tmp):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pipeline, "_netcdf_to", broken)
+    with pytest.raises(OSError):
+        write_outputs(image, tmp_path / "c.png", tmp_path / "c.nc")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.nc", "a.png"]
+    np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "a.png")), image["rgb"].values)
