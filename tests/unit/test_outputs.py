@@ -3,6 +3,7 @@ render, in the format of their suffix, with what they show written into them, an
 both or neither."""
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -46,7 +47,7 @@ def test_what_is_not_a_regular_file_is_refused(tmp_path, kind):
         path = tmp_path / "file" / "x.png"
     before = sorted(tmp_path.iterdir())
     with pytest.raises(SwimInputError, match="is a directory|not a regular file|is not a folder"):
-        atomic_write(path, lambda tmp: open(tmp, "w").write("new"))
+        atomic_write(path, lambda tmp: Path(tmp).write_text("new"))
     with pytest.raises(SwimInputError):
         check_output_path(path, "--out")
     assert sorted(tmp_path.iterdir()) == before  # nothing replaced, no temporary file left
@@ -82,7 +83,7 @@ def test_an_image_and_its_netcdf_are_written_both_or_neither(tmp_path, image, mo
     assert (tmp_path / "a.png").is_file() and (tmp_path / "a.nc").is_file()
     with pytest.raises(SwimInputError, match="unknown image format"):
         write_outputs(image, tmp_path / "b.bmp", tmp_path / "b.nc")
-    import swim.pipeline as pipeline
+    from swim import pipeline
 
     def broken(image, tmp):
         raise OSError("disk full")
