@@ -589,8 +589,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         of view, and a lower one looks at the horizon towards the north.
     aerosol : AerosolBackground or str, optional
         Background 1-D aerosol and the type of all aerosol (a type name alone keeps the default profile,
-        docs/aerosols.md); default: type "continental", AOD 0.05 at 550 nm, or no background where the
-        scene has a 3-D ``aerosol_extinction``.
+        docs/aerosols.md); ``"none"``: no background aerosol; default: type "continental", AOD 0.05 at 550 nm,
+        or no background where the scene has a 3-D ``aerosol_extinction`` (which a scene's 3-D aerosol keeps).
     settings : MarchSettings
         Ray-marching step counts.
     white_level : float, optional
@@ -772,6 +772,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     sun_key = tuple(np.round(sun_scene, 12))
     if aerosol is None:
         aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene_vars else AerosolBackground()
+    elif isinstance(aerosol, str) and aerosol.strip().lower() == "none":
+        aerosol = AerosolBackground(aod_550=0.0)  # no background aerosol (a scene's 3-D aerosol field stays)
     elif isinstance(aerosol, str):
         aerosol = AerosolBackground(type_name=aerosol)
     mean_albedo, aerosol_profile, classes = _STAGE_CACHE.get(("atmosphere inputs", fingerprint),

@@ -51,3 +51,10 @@ def test_write_png_wants_a_rendered_image(tmp_path, image):
     with pytest.raises(SwimInputError, match="write_png: image must be a rendered image"):
         write_png(image, tmp_path / "out.png")
     assert not (tmp_path / "out.png").exists()
+
+
+def test_aerosol_none_switches_the_background_off(scene):
+    none = _render(scene, aerosol="none")
+    assert none.attrs["aerosol_optical_depth_550"] == 0.0
+    clean = _render(scene, aerosol=swim.AerosolBackground(aod_550=0.0))
+    np.testing.assert_array_equal(none["radiance"].values, clean["radiance"].values)

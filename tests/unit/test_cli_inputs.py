@@ -42,3 +42,13 @@ def test_the_verbose_log_leaves_out_jax_s_accelerator_search():
     result = CliRunner().invoke(app, ["-v", "render", "--help"])  # the group's callback configures the log
     assert result.exit_code == 0
     assert search.level == logging.WARNING
+
+
+def test_aerosol_none(tmp_path):
+    out = tmp_path / "clean.png"
+    result = CliRunner().invoke(app, ["render", "--aerosol", "none", "--size", "9", "--sun-zenith", "40",
+                                      "--sun-azimuth", "150", "--out", str(out)])
+    assert result.exit_code == 0 and out.is_file(), result.output
+    result = CliRunner().invoke(app, ["render", "--aerosol", "none", "--aod", "0.2", "--size", "9", "--out",
+                                      str(tmp_path / "x.png")])
+    assert result.exit_code == 2 and "--aerosol none has no optical depth" in result.output

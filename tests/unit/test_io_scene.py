@@ -485,3 +485,11 @@ def test_lazy_open_rejects_what_it_cannot_open_lazily(tmp_path):
         open_scene(path, lazy=True, month=7)
     with pytest.raises(SwimInputError, match="holds only"):
         open_scene(path, lazy=True, time="2001-01-01T00:00")
+
+
+@pytest.mark.parametrize("dtype", [complex, object])
+def test_variables_that_are_not_real_numbers_are_refused(dtype):
+    ds = _scene()
+    ds["cloud_liquid_content"] = ds["cloud_liquid_content"].astype(dtype)
+    with pytest.raises(SwimInputError, match="'cloud_liquid_content' holds .* values; expected real numbers"):
+        validate_scene(ds)

@@ -241,3 +241,26 @@ def test_snow_from_swe_and_sea_ice():
     assert s["snow_cover"].values[1, 4] == 1.0
     assert s["snow_cover"].values[0, 0] == pytest.approx(0.7)
     assert s["snow_cover"].values[1, 3] == 0.0
+
+
+def test_a_wrfout_without_cloud_water_says_so(caplog):
+    with caplog.at_level(logging.WARNING, logger="swim.io.wrf"):
+        read_wrf(_wrf().drop_vars(["QCLOUD", "RE_CLOUD"]), time="2020-07-01T12:00")
+    assert "none of QCLOUD" in caplog.text and "clear sky" in caplog.text
+    caplog.clear()
+    ds = _wrf()
+    ds["QICE"] = ds["QCLOUD"]
+    with caplog.at_level(logging.WARNING, logger="swim.io.wrf"):
+        read_wrf(ds.drop_vars(["QCLOUD", "RE_CLOUD"]), time="2020-07-01T12:00")
+    assert "no QCLOUD" in caplog.text and "QICE" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="swim.io.wrf"):
+        read_wrf(_wrf(), time="2020-07-01T12:00")
+    assert "QCLOUD" not in caplog.text
+
+
+def test_complex_wrf_fields_are_refused():
+    ds = _wrf()
+    ds["QCLOUD"] = ds["QCLOUD"].astype(complex)
+    with pytest.raises(SwimInputError, match="QCLOUD holds complex128 values; expected real numbers"):
+        read_wrf(ds, time="2020-07-01T12:00")

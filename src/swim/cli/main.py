@@ -129,7 +129,8 @@ def render(
     sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
     sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
     aerosol: str = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
-                                                    "sea_salt, stratospheric_sulfate (docs/aerosols.md)."),
+                                                    "sea_salt, stratospheric_sulfate (docs/aerosols.md); none: no "
+                                                    "background aerosol."),
     aod: Optional[float] = typer.Option(None, help="Background aerosol optical depth at 550 nm (default 0.05; 0 "
                                                    "where the scene has a 3-D aerosol field)."),
     strat_aod: float = typer.Option(0.0, "--strat-aod", help="Optical depth at 550 nm of a stratospheric "
@@ -299,6 +300,10 @@ def render(
             if view_azimuth is not None:
                 options.update(view_azimuth_deg=view_azimuth, view_zenith_deg=90.0 if view_zenith is None else view_zenith)
         strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height}
+        if aerosol.strip().lower() == "none":  # no background aerosol (a scene's 3-D aerosol field stays)
+            if aod is not None and aod != 0:
+                raise SwimInputError(f"--aerosol none has no optical depth; got --aod {aod}")
+            aerosol, aod = "continental", 0.0
         if aod is not None:
             background = AerosolBackground(aod_550=aod, type_name=aerosol, **strat)
         elif "aerosol_extinction" in ds:

@@ -280,7 +280,12 @@ def layer_thickness(height, terrain_height) -> np.ndarray:
 
 
 def _as_dataarray(name: str, ds: xr.Dataset) -> xr.DataArray:
-    return ds[name].reset_coords(drop=True)
+    da = ds[name].reset_coords(drop=True)
+    # real numbers only: a complex field would lose its imaginary part, text or objects would fail deep inside
+    if not (np.issubdtype(da.dtype, np.floating) or np.issubdtype(da.dtype, np.integer)
+            or np.issubdtype(da.dtype, np.bool_)):
+        raise SwimInputError(f"scene variable '{name}' holds {da.dtype} values; expected real numbers")
+    return da
 
 
 def _check_dims(name: str, da: xr.DataArray, dims: tuple[str, ...]) -> xr.DataArray:

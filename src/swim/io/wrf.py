@@ -146,6 +146,8 @@ def _select_time(ds: xr.Dataset, time, label: str) -> tuple[int, np.datetime64 |
 
 def _field(ds: xr.Dataset, name: str, itime: int) -> np.ndarray:
     da = ds[name]
+    if not (np.issubdtype(da.dtype, np.floating) or np.issubdtype(da.dtype, np.integer)):
+        raise SwimInputError(f"WRF variable {name} holds {da.dtype} values; expected real numbers")
     if "Time" in da.dims:
         da = da.isel(Time=itime)
     return np.asarray(da.values, dtype=float)
@@ -384,6 +386,12 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str, albedo_band
     data["height"] = xr.DataArray(height, dims=dims3, attrs={"units": "m"})
 
     contents: dict[str, np.ndarray] = {}
+    missing = [var for var in WRF_SPECIES.values() if var not in ds.variables]
+    if len(missing) == len(WRF_SPECIES):
+        logger.warning("read_wrf: %s has none of %s: it renders as a clear sky", label, ", ".join(missing))
+    elif "QCLOUD" in missing:
+        logger.warning("read_wrf: %s has no QCLOUD: no cloud water (only %s)", label,
+                       ", ".join(v for v in WRF_SPECIES.values() if v not in missing))
     for species, var in WRF_SPECIES.items():
         if var not in ds.variables:
             logger.debug("read_wrf: %s has no %s: %s content is zero", label, var, species)
