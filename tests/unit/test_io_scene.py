@@ -296,7 +296,8 @@ def test_scene_from_arrays_latlon_roundtrip():
     p = geodetic_to_scene(out["lat"].values, out["lon"].values, 0.0, -33.0, 151.0)
     np.testing.assert_allclose(np.linalg.norm(p, axis=-1), EARTH_RADIUS_M, rtol=1e-12)
     # the reference point itself
-    out0 = scene_from_arrays(x=[-1.0, 0.0, 1.0], y=[0.0, 1.0], z=[100.0, 200.0], reference_lat=-33.0, reference_lon=151.0)
+    out0 = scene_from_arrays(x=[-10.0, 0.0, 10.0], y=[0.0, 10.0], z=[100.0, 200.0], reference_lat=-33.0,
+                             reference_lon=151.0)
     assert out0["lat"].values[0, 1] == pytest.approx(-33.0, abs=1e-12)
     assert out0["lon"].values[0, 1] == pytest.approx(151.0, abs=1e-12)
     # y north => latitude increases with y; x east => longitude increases with x
@@ -319,9 +320,9 @@ def test_scene_from_arrays_3d_heights_and_time():
 
 def test_scene_from_arrays_rejects_irregular_x_and_bad_shapes():
     with pytest.raises(SwimInputError, match="x"):
-        scene_from_arrays(x=[0.0, 1.0, 3.0], y=[0.0, 1.0], z=[100.0, 200.0], reference_lat=0, reference_lon=0)
+        scene_from_arrays(x=[0.0, 10.0, 30.0], y=[0.0, 10.0], z=[100.0, 200.0], reference_lat=0, reference_lon=0)
     with pytest.raises(SwimInputError, match="cloud_liquid_content"):
-        scene_from_arrays(x=[0.0, 1.0], y=[0.0, 1.0], z=[100.0, 200.0], reference_lat=0, reference_lon=0,
+        scene_from_arrays(x=[0.0, 10.0], y=[0.0, 10.0], z=[100.0, 200.0], reference_lat=0, reference_lon=0,
                           cloud_liquid_content=np.zeros((2, 3, 2)))
 
 
@@ -493,3 +494,10 @@ def test_variables_that_are_not_real_numbers_are_refused(dtype):
     ds["cloud_liquid_content"] = ds["cloud_liquid_content"].astype(dtype)
     with pytest.raises(SwimInputError, match="'cloud_liquid_content' holds .* values; expected real numbers"):
         validate_scene(ds)
+
+
+def test_horizontal_axes_in_km_are_refused():
+    with pytest.raises(SwimInputError, match="x/y spacing 1 m under levels 1000 m apart: expected x and y in metres"):
+        _scene(x=np.arange(NX) * 1.0 - 2.5, y=np.arange(NY) * 1.0 - 1.5)
+    fine = _scene(x=np.arange(NX) * 20.0, y=np.arange(NY) * 20.0, z=np.linspace(0.0, 400.0, NZ))  # an LES grid
+    assert fine.sizes["x"] == NX

@@ -279,6 +279,24 @@ def layer_thickness(height, terrain_height) -> np.ndarray:
     return np.diff(interfaces, axis=0)
 
 
+#: Least plausible horizontal spacing [m] of a grid whose levels are more than :data:`KM_ASPECT` times further apart:
+#: below it the x/y axes are taken for km (a 3 km grid given as 3.0 against levels 100-500 m apart).
+LEAST_SPACING_M = 5.0
+KM_ASPECT = 20.0
+
+
+def _check_horizontal_metres(xv, yv, height):
+    """Refuse x/y axes [m] that look like km: a spacing below :data:`LEAST_SPACING_M` under levels more than
+    :data:`KM_ASPECT` times further apart."""
+    spacing = [float(np.median(np.diff(v))) for v in (xv, yv) if v.size > 1]
+    if not spacing or height.shape[0] < 2:
+        return
+    dz = float(np.median(np.diff(height, axis=0)))
+    dx = min(spacing)
+    if dx < LEAST_SPACING_M and dz > KM_ASPECT * dx:
+        raise SwimInputError(f"x/y spacing {dx:g} m under levels {dz:.4g} m apart: expected x and y in metres, not km")
+
+
 def _as_dataarray(name: str, ds: xr.Dataset) -> xr.DataArray:
     da = ds[name].reset_coords(drop=True)
     # real numbers only: a complex field would lose its imaginary part, text or objects would fail deep inside
@@ -774,6 +792,7 @@ graupel_effective_radius : array_like, optional
     else:
         raise SwimInputError(f"z must have shape (nz,) or (nz, ny, nx) = (nz, {ny}, {nx}) [m above sea level]; got {zv.shape}")
     nz = height.shape[0]
+    _check_horizontal_metres(xv, yv, height)
 
     gx, gy = np.meshgrid(xv, yv)
     r2 = gx**2 + gy**2
