@@ -264,3 +264,15 @@ def test_complex_wrf_fields_are_refused():
     ds["QCLOUD"] = ds["QCLOUD"].astype(complex)
     with pytest.raises(SwimInputError, match="QCLOUD holds complex128 values; expected real numbers"):
         read_wrf(ds, time="2020-07-01T12:00")
+
+
+def test_a_truncated_netcdf3_wrfout_is_named_truncated(tmp_path):
+    """WRF writes netCDF-3 by default; a copy cut short reads back zeros for its tail in netCDF-C."""
+    path = tmp_path / "wrfout_d01_2020-07-01_12:00:00"
+    _wrf().to_netcdf(path, format="NETCDF3_64BIT")
+    assert open_scene(path, time="2020-07-01T12:00")["height"].shape == (NZ, NY, NX)
+    data = path.read_bytes()
+    cut = tmp_path / "wrfout_d01_cut"
+    cut.write_bytes(data[: int(0.7 * len(data))])
+    with pytest.raises(SwimInputError, match="is truncated or damaged: its netCDF-3 header describes more data"):
+        open_scene(cut, time="2020-07-01T12:00")
