@@ -24,6 +24,7 @@ import ctypes.util
 import functools
 import gc
 import logging
+import os
 import sys
 import threading
 import time
@@ -153,3 +154,19 @@ def release_compiled_programs(fraction: float = MAPPING_FRACTION, min_interval_s
         _floor[0] = 0
         log.info("%d memory mappings of at most %d: JAX's compiled programs dropped (%s left)", count, limit, left)
     return True
+
+
+def available_memory_bytes() -> int | None:
+    """The memory the system can give a process now without swapping [bytes]: ``MemAvailable`` of /proc/meminfo
+    (Linux), else the free physical pages; None where neither is known."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None

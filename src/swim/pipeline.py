@@ -565,7 +565,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
            aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
            white_level=None, progress=None, crop: bool = True, sampling: AdaptiveSampling | None = None,
-           coarsen=None) -> xr.Dataset:
+           coarsen=None, check_memory: bool = True) -> xr.Dataset:
     """Render what a camera at a vantage point sees in a scene.
 
     Parameters
@@ -617,6 +617,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         of big grids"): the volume, Step 1a and the march then hold N^2 times fewer columns. ``"auto"``: the largest
         N whose blocks are no wider than the smallest pixel footprint on the grid (perspective cameras only; 1 for
         the others). Default None: the grid as it is.
+    check_memory : bool
+        Refuse, before any work, an image whose render would need more memory than the system has available
+        (:data:`RENDER_BYTES_PER_PIXEL` per pixel); False renders it anyway.
 
     Returns
     -------
@@ -635,7 +638,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     ------
     SwimInputError
         Bad scene, observer below the terrain or out of reach, bad camera options, time or ``coarsen``; a march kernel
-        (``settings.backend``) that cannot run here (numba missing, or no GPU for "cuda").
+        (``settings.backend``) that cannot run here (numba missing, or no GPU for "cuda"); an image too big for the
+        memory available (``check_memory``).
 
     Notes
     -----
@@ -669,7 +673,8 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
 
 
 def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
-            settings, white_level, progress, crop, sampling, coarsen, guess: _DigestGuess | None) -> xr.Dataset:
+            settings, white_level, progress, crop, sampling, coarsen, check_memory,
+            guess: _DigestGuess | None) -> xr.Dataset:
     """:func:`render`'s work. ``guess``: where the scene's digest may be taken by its arrays' identity
     (:func:`_fingerprint_by_identity`; None: hashed first)."""
     if not isinstance(scene, xr.Dataset):
@@ -691,7 +696,9 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         # field of view where no look_at is given (the ground's height, at most 9 km, not yet known)
         space = height_m is not None and height_m + 9000.0 > SPACE_VIEW_HEIGHT_M
         filled_later = ("view_azimuth_deg", "view_zenith_deg") + (("fov_deg",) if space and look_at is None else ())
-    check_camera_options(camera, dict(camera_options or {}), filled_later=filled_later)
+    preview = check_camera_options(camera, dict(camera_options or {}), filled_later=filled_later)
+    if check_memory:
+        check_render_memory(int(np.prod(preview.shape)))
     if lat is not None and not (-90 <= float(lat) <= 90):
         raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
     if height_m is None or not np.isfinite(height_m) or height_m < 0:
@@ -1256,6 +1263,29 @@ def _rgb(image, caller):
         raise SwimInputError(f"{caller}: image must be a rendered image (swim.render) with an 'rgb' variable of "
                              "(rows, columns, 3) 8-bit sRGB values")
     return np.asarray(rgb.values, dtype=np.uint8)
+
+
+#: Peak memory of a render per image pixel [bytes]: ~216 measured for all-sky images of the built-in scene between
+#: 512^2 and 1024^2 pixels (its planes, the rays' outputs and the colour stage), with a margin; the scene's volume
+#: comes on top.
+RENDER_BYTES_PER_PIXEL = 250
+
+
+def check_render_memory(n_pixels: int) -> None:
+    """Refuse an image of ``n_pixels`` whose render would need more memory than the system has available.
+
+    Raises
+    ------
+    SwimInputError
+        If ``n_pixels`` x :data:`RENDER_BYTES_PER_PIXEL` exceeds :func:`swim.memory.available_memory_bytes`.
+    """
+    from .memory import available_memory_bytes
+
+    need, have = n_pixels * RENDER_BYTES_PER_PIXEL, available_memory_bytes()
+    if have is not None and need > have:
+        raise SwimInputError(f"an image of {n_pixels:,} pixels needs about {need / 2**30:.1f} GiB to render, more than "
+                             f"the {have / 2**30:.1f} GiB available: a smaller image, or check_memory=False "
+                             f"(CLI --no-memory-check) to try anyway")
 
 
 def write_image(image: xr.Dataset, path) -> Path:

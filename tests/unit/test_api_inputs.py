@@ -58,3 +58,14 @@ def test_aerosol_none_switches_the_background_off(scene):
     assert none.attrs["aerosol_optical_depth_550"] == 0.0
     clean = _render(scene, aerosol=swim.AerosolBackground(aod_550=0.0))
     np.testing.assert_array_equal(none["radiance"].values, clean["radiance"].values)
+
+
+def test_an_image_too_big_for_the_memory_is_refused_before_any_work(scene, monkeypatch):
+    import swim.memory
+
+    monkeypatch.setattr(swim.memory, "available_memory_bytes", lambda: 1_000_000)
+    with pytest.raises(SwimInputError, match=r"an image of 10,201 pixels needs about .* GiB to render, more than"):
+        swim.render(scene, camera="allsky", camera_options={"size": 101}, sun_zenith=40.0, sun_azimuth=150.0)
+    image = swim.render(scene, camera="allsky", camera_options={"size": 101}, sun_zenith=40.0, sun_azimuth=150.0,
+                        check_memory=False)
+    assert image["rgb"].shape == (101, 101, 3)

@@ -52,3 +52,10 @@ def test_aerosol_none(tmp_path):
     result = CliRunner().invoke(app, ["render", "--aerosol", "none", "--aod", "0.2", "--size", "9", "--out",
                                       str(tmp_path / "x.png")])
     assert result.exit_code == 2 and "--aerosol none has no optical depth" in result.output
+
+
+def test_a_size_beyond_the_memory_is_refused_at_once(tmp_path):
+    out = tmp_path / "big.png"
+    result = CliRunner().invoke(app, ["render", "--size", "100000", "--out", str(out)])
+    assert result.exit_code == 2 and "needs about" in result.output and "--no-memory-check" in result.output
+    assert len(result.output.strip().splitlines()) == 1 and not out.exists()

@@ -122,6 +122,8 @@ def render(
     view_azimuth: Optional[float] = typer.Option(None, help="Perspective view azimuth [deg from north]."),
     view_zenith: Optional[float] = typer.Option(None, help="Perspective view zenith angle [deg]."),
     look_at: Optional[str] = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'."),
+    memory_check: bool = typer.Option(True, "--memory-check/--no-memory-check",
+                                      help="Refuse an image too big for the memory available (before any work)."),
     coarsen: Optional[str] = typer.Option(None, help="Keep one column of each block of N x N of the grid's columns, "
                                           "for a distant view of a big grid: an integer N, or 'auto' (the largest "
                                           "blocks no wider than a pixel's footprint on the grid; perspective cameras "
@@ -328,7 +330,8 @@ def render(
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                      settings=settings, white_level=white_level, sampling=sampling, coarsen=level_of_detail)
+                      settings=settings, white_level=white_level, sampling=sampling, coarsen=level_of_detail,
+                      check_memory=memory_check)
         if end is not None or workers or scheduler:
             if sun_zenith is not None or sun_azimuth is not None:
                 raise SwimInputError("--sun-zenith/--sun-azimuth fix the sun: every frame of a series from --time to "

@@ -820,7 +820,7 @@ def _camera_class(kind, options):
 _STAND_IN_OPTIONS = {"view_azimuth_deg": 0.0, "view_zenith_deg": 90.0, "fov_deg": 60.0}
 
 
-def check_camera_options(kind: str, options: dict, filled_later=()) -> None:
+def check_camera_options(kind: str, options: dict, filled_later=()) -> Camera:
     """Check a camera's kind and options before any work that the camera does not need (a scene's loading), as
     :func:`make_camera` will check them.
 
@@ -834,6 +834,11 @@ def check_camera_options(kind: str, options: dict, filled_later=()) -> None:
         Options that the caller fills in later where they are not given (``view_azimuth_deg``, ``view_zenith_deg``,
         ``fov_deg``: :func:`swim.render`'s default view of a perspective camera); not required here.
 
+    Returns
+    -------
+    Camera
+        The camera, with stand-ins for the options filled later: its ``shape`` is the image's.
+
     Raises
     ------
     SwimInputError
@@ -844,7 +849,7 @@ def check_camera_options(kind: str, options: dict, filled_later=()) -> None:
     names = {f.name for f in fields(cls)}
     stand_ins = {name: _STAND_IN_OPTIONS[name] for name in filled_later
                  if name not in options and name in names and name in _STAND_IN_OPTIONS}
-    make_camera(key, **options, **stand_ins)
+    return make_camera(key, **options, **stand_ins)
 
 
 def look_at_angles(observer_lat, observer_lon, observer_height, target_lat, target_lon, target_height):
