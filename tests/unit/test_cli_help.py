@@ -9,6 +9,7 @@ import re
 from dataclasses import fields
 
 import typer
+from typer.testing import CliRunner
 
 from swim.cli.main import app
 from swim.rt.image_sampling import AdaptiveSampling
@@ -32,3 +33,16 @@ def test_quoted_defaults_are_the_settings_classes_own():
     # the options that quote a class default (a help text reworded so that the pattern misses it fails here)
     assert {"n_grid", "n_probe", "probe_spacing", "tau_refine", "stop_tau", "tau_tolerance",
             "clear_tolerance"} <= set(quoted)
+
+
+def test_the_render_help_puts_the_users_options_first_and_hides_the_gpu_tuning():
+    from swim.cli.main import GPU_TUNING_OPTIONS
+
+    text = CliRunner().invoke(app, ["render", "--help"], env={"COLUMNS": "200"}).output
+    options = [line.split()[0] for line in text.splitlines() if line.startswith("  --")]
+    assert options.index("--out") < options.index("--steps") and options.index("--cloud-scattering") < options.index(
+        "--backend")
+    epilog = re.sub(r"-\n\s+", "-", text.split("Show this message and exit.")[-1])  # unwrapped at hyphens
+    for hidden in GPU_TUNING_OPTIONS:
+        assert hidden not in options and hidden in epilog  # named in the epilog, not listed
+    assert "section" not in text

@@ -105,7 +105,13 @@ def _given(**options):
     return {name: value for name, value in options.items() if value is not None}
 
 
-@app.command()
+#: The render command's GPU kernel options, hidden from its help page (they tune execution, not the image).
+GPU_TUNING_OPTIONS = ("--grid-kernel", "--ray-table", "--step1a-on-device", "--device-sampling", "--device-image",
+                      "--fused-max-registers", "--fused-vector-loads", "--fused-fma")
+
+
+@app.command(epilog="GPU kernel tuning, not shown above: " + ", ".join(GPU_TUNING_OPTIONS)
+             + " (MarchSettings; docs/performance.md).")
 def render(
     scene: Optional[Path] = typer.Argument(None, help="Scene file (WRF wrfout netCDF, WPS geo_em/met_em netCDF, canonical "
                                            "netCDF, SHDOM LES .txt); "
@@ -122,12 +128,6 @@ def render(
     view_azimuth: Optional[float] = typer.Option(None, help="Perspective view azimuth [deg from north]."),
     view_zenith: Optional[float] = typer.Option(None, help="Perspective view zenith angle [deg]."),
     look_at: Optional[str] = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'."),
-    memory_check: bool = typer.Option(True, "--memory-check/--no-memory-check",
-                                      help="Refuse an image too big for the memory available (before any work)."),
-    coarsen: Optional[str] = typer.Option(None, help="Keep one column of each block of N x N of the grid's columns, "
-                                          "for a distant view of a big grid: an integer N, or 'auto' (the largest "
-                                          "blocks no wider than a pixel's footprint on the grid; perspective cameras "
-                                          "only). docs/rendering.md, 'Distant views of big grids'."),
     sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
     sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
     aerosol: str = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
@@ -140,79 +140,6 @@ def render(
     strat_height: float = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km]."),
     white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
                                                              "4 above 100 km)."),
-    steps: Optional[int] = typer.Option(None, help="Ray-marching steps through the model grid (default: "
-                                                    "MarchSettings().n_grid, 128 adaptive steps)."),
-    empty_steps: Optional[int] = typer.Option(None, "--empty-steps",
-                                              help="Most grid steps a ray puts into empty grid cells, or one per 2 "
-                                                   "empty cells where it crosses more (default: a quarter of "
-                                                   "--steps, 32; 0: every ray takes --steps steps)."),
-    probes: Optional[int] = typer.Option(None, help="Occupancy probes per ray, at least, that place the grid steps "
-                                                     "(default: MarchSettings().n_probe, 64; 256 with --steps 256 for "
-                                                     "views that graze a big grid near the horizon)."),
-    probe_spacing: Optional[float] = typer.Option(None, "--probe-spacing",
-                                                  help="Most grid cells between a ray's occupancy probes: rays that "
-                                                       "cross more cells take more probes (default: "
-                                                       "MarchSettings().probe_spacing, 2; 0 for --probes on every "
-                                                       "ray)."),
-    tau_refine: Optional[float] = typer.Option(None, "--tau-refine",
-                                               help="Largest hydrometeor optical depth of a grid step, and "
-                                                    "change of it at a cloud face, near the observer: thicker "
-                                                    "steps and faces are halved (default: "
-                                                    "MarchSettings().tau_refine, 0.25; 0 turns it off)."),
-    stop_tau: Optional[float] = typer.Option(None, "--stop-tau",
-                                             help="Hydrometeor optical depth at which rays that do not look down "
-                                                  "stop: opaque, the radiance unchanged (default: "
-                                                  "MarchSettings().stop_tau, 50; 0 marches every ray to its end)."),
-    lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
-                                                    "columns the camera can see (big grids; docs/rendering.md)."),
-    adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
-                                  "the image is not smooth, interpolating the rest (big images 3-6x faster; "
-                                  "docs/rendering.md)."),
-    tolerance: Optional[float] = typer.Option(None, help="Relative radiance error allowed where --adaptive "
-                                              "interpolates [-] (default: AdaptiveSampling().tolerance, 0.0085)."),
-    tau_tolerance: Optional[float] = typer.Option(None, "--tau-tolerance",
-                                                  help="Relative error of the line-of-sight hydrometeor optical depth "
-                                                       "allowed where --adaptive interpolates [-] (default: "
-                                                       "AdaptiveSampling().tau_tolerance, 0.05)."),
-    clear_tolerance: Optional[float] = typer.Option(None, "--clear-tolerance",
-                                                    help="Relative error of the radiance of the air in front of the "
-                                                         "clouds allowed where --adaptive interpolates [-] (default: "
-                                                         "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested)."),
-    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
-                                "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
-    grid_kernel: str = typer.Option("auto", "--grid-kernel", help="The JAX kernel's march of the grid: auto (fused on "
-                                    "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
-                                    "kernel), or fused-march (the clear air in it too: ~15 % faster per frame, ~40 s "
-                                    "more compilation, for long series; docs/performance.md, sections 72, 74)."),
-    ray_table: Optional[bool] = typer.Option(None, "--ray-table/--no-ray-table", help="Keep the camera's rays on "
-                                             "the device between the frames of a series (the JAX kernel: "
-                                             "MarchSettings.ray_table; default: on a GPU, docs/performance.md, "
-                                             "section 74)."),
-    step1a_on_device: Optional[bool] = typer.Option(None, "--step1a-on-device/--no-step1a-on-device", help="A "
-                                                    "series' new suns: Step 1a on the device's copy of the packed "
-                                                    "volume (the JAX kernel: MarchSettings.step1a_on_device; "
-                                                    "default: on a GPU, docs/performance.md, section 85)."),
-    device_sampling: Optional[bool] = typer.Option(None, "--device-sampling/--no-device-sampling", help="With "
-                                                   "--adaptive and the camera's rays on the device (--ray-table): the "
-                                                   "sampler's image, tests and interpolation on the device "
-                                                   "(MarchSettings.device_sampling; default: wherever the ray table "
-                                                   "is, docs/performance.md, section 85)."),
-    device_image: Optional[bool] = typer.Option(None, "--device-image/--no-device-image", help="With the camera's "
-                                                "rays on the device (--ray-table): the image's planes and its colour "
-                                                "made on the device, then copied to the host at once "
-                                                "(MarchSettings.device_image; default: on a GPU, "
-                                                "docs/performance.md, section 86)."),
-    fused_max_registers: Optional[int] = typer.Option(None, "--fused-max-registers", help="Registers per thread "
-                                                      "that the fused GPU kernel may take, 16-255 (PTX's .maxnreg; "
-                                                      "MarchSettings.fused_max_registers; default: ptxas's choice, "
-                                                      "docs/performance.md, section 87)."),
-    fused_vector_loads: bool = typer.Option(True, "--fused-vector-loads/--no-fused-vector-loads", help="The fused "
-                                            "GPU kernel reads its tables' channels up to four a load (default) or "
-                                            "one scalar gather each (MarchSettings.fused_vector_loads; "
-                                            "docs/performance.md, section 87)."),
-    fused_fma: bool = typer.Option(False, "--fused-fma/--no-fused-fma", help="Let ptxas contract the fused GPU "
-                                   "kernel's float32 multiplies and adds into fused multiply-adds (NVIDIA GPUs, "
-                                   "jaxlib > 0.10.2; MarchSettings.fused_fma; docs/performance.md, section 88)."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -243,6 +170,84 @@ def render(
                                 "(0: one after the other in this process; needs dask.distributed)."),
     scheduler: Optional[str] = typer.Option(None, help="Address of a running dask.distributed scheduler for a "
                                             "series' frames (e.g. tcp://10.0.0.5:8786)."),
+    steps: Optional[int] = typer.Option(None, help="Ray-marching steps through the model grid (default: "
+                                                    "MarchSettings().n_grid, 128 adaptive steps)."),
+    empty_steps: Optional[int] = typer.Option(None, "--empty-steps",
+                                              help="Most grid steps a ray puts into empty grid cells, or one per 2 "
+                                                   "empty cells where it crosses more (default: a quarter of "
+                                                   "--steps, 32; 0: every ray takes --steps steps)."),
+    probes: Optional[int] = typer.Option(None, help="Occupancy probes per ray, at least, that place the grid steps "
+                                                     "(default: MarchSettings().n_probe, 64; 256 with --steps 256 for "
+                                                     "views that graze a big grid near the horizon)."),
+    probe_spacing: Optional[float] = typer.Option(None, "--probe-spacing",
+                                                  help="Most grid cells between a ray's occupancy probes: rays that "
+                                                       "cross more cells take more probes (default: "
+                                                       "MarchSettings().probe_spacing, 2; 0 for --probes on every "
+                                                       "ray)."),
+    tau_refine: Optional[float] = typer.Option(None, "--tau-refine",
+                                               help="Largest hydrometeor optical depth of a grid step, and "
+                                                    "change of it at a cloud face, near the observer: thicker "
+                                                    "steps and faces are halved (default: "
+                                                    "MarchSettings().tau_refine, 0.25; 0 turns it off)."),
+    stop_tau: Optional[float] = typer.Option(None, "--stop-tau",
+                                             help="Hydrometeor optical depth at which rays that do not look down "
+                                                  "stop: opaque, the radiance unchanged (default: "
+                                                  "MarchSettings().stop_tau, 50; 0 marches every ray to its end)."),
+    lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
+                                                    "columns the camera can see (big grids; docs/rendering.md)."),
+    coarsen: Optional[str] = typer.Option(None, help="Keep one column of each block of N x N of the grid's columns, "
+                                          "for a distant view of a big grid: an integer N, or 'auto' (the largest "
+                                          "blocks no wider than a pixel's footprint on the grid; perspective cameras "
+                                          "only). docs/rendering.md, 'Distant views of big grids'."),
+    adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
+                                  "the image is not smooth, interpolating the rest (big images 3-6x faster; "
+                                  "docs/rendering.md)."),
+    tolerance: Optional[float] = typer.Option(None, help="Relative radiance error allowed where --adaptive "
+                                              "interpolates [-] (default: AdaptiveSampling().tolerance, 0.0085)."),
+    tau_tolerance: Optional[float] = typer.Option(None, "--tau-tolerance",
+                                                  help="Relative error of the line-of-sight hydrometeor optical depth "
+                                                       "allowed where --adaptive interpolates [-] (default: "
+                                                       "AdaptiveSampling().tau_tolerance, 0.05)."),
+    clear_tolerance: Optional[float] = typer.Option(None, "--clear-tolerance",
+                                                    help="Relative error of the radiance of the air in front of the "
+                                                         "clouds allowed where --adaptive interpolates [-] (default: "
+                                                         "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested)."),
+    memory_check: bool = typer.Option(True, "--memory-check/--no-memory-check",
+                                      help="Refuse an image too big for the memory available (before any work)."),
+    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
+                                "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
+    grid_kernel: str = typer.Option("auto", "--grid-kernel", hidden=True, help="The JAX kernel's march of the grid: auto (fused on "
+                                    "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
+                                    "kernel), or fused-march (the clear air in it too: ~15 % faster per frame, ~40 s "
+                                    "more compilation, for long series; docs/performance.md)."),
+    ray_table: Optional[bool] = typer.Option(None, "--ray-table/--no-ray-table", hidden=True, help="Keep the camera's rays on "
+                                             "the device between the frames of a series (the JAX kernel: "
+                                             "MarchSettings.ray_table; default: on a GPU, docs/performance.md)."),
+    step1a_on_device: Optional[bool] = typer.Option(None, "--step1a-on-device/--no-step1a-on-device", hidden=True, help="A "
+                                                    "series' new suns: Step 1a on the device's copy of the packed "
+                                                    "volume (the JAX kernel: MarchSettings.step1a_on_device; "
+                                                    "default: on a GPU, docs/performance.md)."),
+    device_sampling: Optional[bool] = typer.Option(None, "--device-sampling/--no-device-sampling", hidden=True, help="With "
+                                                   "--adaptive and the camera's rays on the device (--ray-table): the "
+                                                   "sampler's image, tests and interpolation on the device "
+                                                   "(MarchSettings.device_sampling; default: wherever the ray table "
+                                                   "is, docs/performance.md)."),
+    device_image: Optional[bool] = typer.Option(None, "--device-image/--no-device-image", hidden=True, help="With the camera's "
+                                                "rays on the device (--ray-table): the image's planes and its colour "
+                                                "made on the device, then copied to the host at once "
+                                                "(MarchSettings.device_image; default: on a GPU, "
+                                                "docs/performance.md)."),
+    fused_max_registers: Optional[int] = typer.Option(None, "--fused-max-registers", hidden=True, help="Registers per thread "
+                                                      "that the fused GPU kernel may take, 16-255 (PTX's .maxnreg; "
+                                                      "MarchSettings.fused_max_registers; default: ptxas's choice, "
+                                                      "docs/performance.md)."),
+    fused_vector_loads: bool = typer.Option(True, "--fused-vector-loads/--no-fused-vector-loads", hidden=True, help="The fused "
+                                            "GPU kernel reads its tables' channels up to four a load (default) or "
+                                            "one scalar gather each (MarchSettings.fused_vector_loads; "
+                                            "docs/performance.md)."),
+    fused_fma: bool = typer.Option(False, "--fused-fma/--no-fused-fma", hidden=True, help="Let ptxas contract the fused GPU "
+                                   "kernel's float32 multiplies and adds into fused multiply-adds (NVIDIA GPUs, "
+                                   "jaxlib > 0.10.2; MarchSettings.fused_fma; docs/performance.md)."),
 ):
     """Render an all-sky, panorama or perspective image of a scene, or a time series of them (--end)."""
     from ..rt import precompile
