@@ -458,11 +458,17 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance, radius=SUN_ANGULA
     ny, nx = dirs_enu.shape[:2]
     r = int(np.clip(np.rint(row[0]), 0, ny - 1))
     c = int(np.clip(np.rint(col[0]), 0, nx - 1))
-    neighbour = dirs_enu[r, c + 1] if c + 1 < nx else dirs_enu[r, c - 1]
-    pitch = float(np.arccos(np.clip(np.dot(dirs_enu[r, c], neighbour), -1, 1))) if valid[r, c] else 0.0
-    if not np.isfinite(pitch) or pitch <= 0:
+    # the pixel's angular pitch across and along the rows: a panorama's columns close up towards the zenith
+    # (cos elevation), and its rows may be further apart than its columns
+    across = dirs_enu[r, c + 1] if c + 1 < nx else dirs_enu[r, c - 1]
+    along = dirs_enu[r + 1, c] if r + 1 < ny else dirs_enu[r - 1, c]
+    pitches = [float(np.arccos(np.clip(np.dot(dirs_enu[r, c], d), -1, 1))) if valid[r, c] else 0.0
+               for d in (across, along)]
+    if not all(np.isfinite(x) and x > 0 for x in pitches):
         return none
-    radius = max(radius, 0.75 * pitch)
+    # at least 0.75 of the larger pitch: a disk that no pixel centre falls into would lose the sun
+    radius = max(radius, 0.75 * max(pitches))
+    pitch = float(np.sqrt(pitches[0] * pitches[1]))  # the pixel's solid angle is about pitch^2
     # the pixels within the disk's angular radius, looked for in the window that holds them (the whole image only
     # where the disk reaches outside the camera's field): a 1024^2 image's every direction took ~5 ms a frame
     (r0, r1), (c0, c1) = _disk_window(camera, np.asarray(sun_enu, dtype=float), radius, row[0], col[0], ny, nx)

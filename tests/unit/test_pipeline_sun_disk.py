@@ -81,3 +81,22 @@ def test_a_disk_that_reaches_outside_the_field_takes_the_whole_image():
     sun_enu = np.asarray(enu_from_azimuth_zenith(30.0, 89.95), float)  # its edge below the horizon
     row, col = camera.pixel_of_direction(sun_enu[None, :])
     assert _disk_window(camera, sun_enu, SUN_ANGULAR_RADIUS_RAD, row[0], col[0], ny, nx) == ((0, ny), (0, nx))
+
+
+@pytest.mark.parametrize("options, sun", [
+    ({"width": 1024, "height": 64}, (150.0, 30.0)),   # rows 2.8 deg apart, columns 0.35 deg
+    ({"width": 720, "height": 256}, (150.0, 12.0)),    # near the zenith the columns close up
+    ({"width": 128, "height": 64}, (33.0, 61.0)),     # 2.8 deg pixels
+])
+def test_a_coarse_panorama_keeps_the_sun_and_its_energy(options, sun):
+    """At any pitch the disk covers at least one pixel and delivers 4 pi T: the sum of its radiance times the pixels'
+    solid angles (a panorama's pixel: d_azimuth d_elevation cos elevation)."""
+    camera = make_camera("panorama", **options)
+    dirs, valid = camera.cached_directions()
+    pixels, radiance = _sun_disk(camera, dirs, valid, enu_from_azimuth_zenith(*sun), np.array([0.5, 0.4, 0.3]))
+    assert pixels.size >= 1
+    elevation = np.arcsin(np.clip(dirs.reshape(-1, 3)[pixels, 2], -1, 1))
+    d_az = np.radians(camera.azimuth_span_deg) / camera.width
+    d_el = np.radians(camera.elevation_max_deg - camera.elevation_min_deg) / camera.height
+    energy = radiance[:, None] * (d_az * d_el * np.cos(elevation))[None, :]
+    np.testing.assert_allclose(energy.sum(axis=1), 4 * np.pi * np.array([0.5, 0.4, 0.3]), rtol=0.05)
