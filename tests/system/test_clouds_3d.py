@@ -153,6 +153,7 @@ def test_the_jax_kernel_matches_the_numba_kernel(default_scene):
     assert (images[0]["radiance_cloud"].values > 0).sum() > 100
 
 
+@pytest.mark.full
 def test_the_jax_kernel_delivers_the_aureole():
     """Through a thin ice deck the sun's narrow forward peak (the aureole's transmittance) and the sky agree between
     the kernels."""
