@@ -1156,6 +1156,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         "history": f"{datetime.now(timezone.utc).isoformat(timespec='seconds')} rendered by swim {__version__}",
         "scene_title": str(scene.attrs.get("title", "")),
         "scene_source": str(scene.attrs.get("source", "")),
+        # the model time whose fields were rendered (a series' frame may lie up to 90 min from it)
+        "scene_time": pd.Timestamp(scene["time"].values).isoformat() if "time" in scene.coords else "",
         "time": "" if sun.time is None else pd.Timestamp(sun.time).isoformat(),
         "sun_zenith_deg": float(sun_zen_obs),
         "sun_azimuth_deg": float(sun_az_obs),

@@ -262,34 +262,104 @@ def render_series(scene, frames, *, out=None, netcdf=None, client=None, workers:
                              f"{open_options!r}") from None
     jobs = []
     for i, frame in enumerate(merged):
-        kwargs = {k: v for k, v in frame.items() if k != "scene"}
+        kwargs = {k: v for k, v in frame.items() if k not in ("scene", "open_options")}
         given = frame.get("scene", scene)
         if isinstance(given, (str, os.PathLike)):
             given = Path(given).absolute()  # as the output paths: the same file on every worker
         elif not isinstance(given, xr.Dataset):
             raise SwimInputError(f"frame {i}: the scene must be an xarray.Dataset or a scene file path; got "
                                  f"{type(given).__name__}")
-        jobs.append((i, given, kwargs, pngs[i], ncs[i]))
+        own = frame.get("open_options")  # a frame's own reader options (its model time), over the common ones
+        frame_opening = opening if own is None else (opening[0], tuple(sorted({**dict(opening[1]), **own}.items())))
+        jobs.append((i, given, kwargs, pngs[i], ncs[i], frame_opening))
     if client is None and workers:
-        return _on_local_cluster(jobs, merged, workers, opening, progress)
+        return _on_local_cluster(jobs, merged, workers, progress)
     if client is None:
-        return _in_this_process(jobs, merged, opening, progress)
-    return _on_cluster(client, jobs, merged, opening, progress)
+        return _in_this_process(jobs, merged, progress)
+    return _on_cluster(client, jobs, merged, progress)
+
+
+def scene_file_times(path) -> list[pd.Timestamp]:
+    """The model times (UTC) a scene file holds: a WRF file's (``Times``/``XTIME``), a canonical scene's or a WPS
+    file's ``time``; empty for a file without one (an LES file, a geogrid file), whose fields have no time."""
+    from .io.files import open_netcdf
+    from .io.scene import _LES_SUFFIXES, _is_wrf
+    from .io.wrf import wrf_times
+
+    p = Path(path)
+    if p.suffix.lower() in _LES_SUFFIXES:
+        return []
+    with open_netcdf(p, "scene file") as ds:
+        if _is_wrf(ds):
+            return [pd.Timestamp(t) for t in (wrf_times(ds) or [])]
+        if "time" in ds.variables:
+            return [pd.Timestamp(t) for t in pd.to_datetime(ds["time"].values.ravel())]
+    return []
+
+
+def model_time_frames(path, times, open_options=None, freeze_fields=False) -> list[dict]:
+    """The frames of a series of ``times`` from a scene file of one or more model times: each frame rendered from the
+    file's time nearest to it (a frame's own ``open_options``), which must lie within the readers' tolerance of 90 min
+    (:data:`swim.io.wrf.TIME_TOLERANCE`), as for a single render.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scene file (:func:`swim.open_scene`).
+    times : sequence
+        The frames' times (UTC; e.g. :func:`series_times`).
+    open_options : dict, optional
+        The reader's other options (``time`` is set per frame).
+    freeze_fields : bool
+        Render every frame from the model time nearest to the first frame, however far the others lie from it
+        (clouds frozen while the sun moves).
+
+    Returns
+    -------
+    list of dict
+        ``{"time": t, "scene": path, "open_options": {..., "time": model time}}`` per frame; without model times in the
+        file (LES), ``{"time": t, "scene": path}``.
+
+    Raises
+    ------
+    SwimInputError
+        If a frame lies more than 90 min from every model time of the file (and ``freeze_fields`` is False).
+    """
+    from .io.wrf import TIME_TOLERANCE
+
+    stamps = [_utc(t) for t in times]
+    model = sorted(scene_file_times(path))
+    base = dict(open_options or {})
+    base.pop("time", None)
+    if not model:
+        return [{"time": t, "scene": str(path), **({"open_options": base} if base else {})} for t in stamps]
+    nearest = [min(model, key=lambda m, t=t: abs(m - t)) for t in stamps]
+    if freeze_fields:
+        nearest = [nearest[0]] * len(stamps)
+    else:
+        for i, (t, m) in enumerate(zip(stamps, nearest)):
+            if abs(m - t) > TIME_TOLERANCE:
+                raise SwimInputError(
+                    f"frame {i} at {t:%Y-%m-%d %H:%M} UTC is {abs(m - t)} from the nearest model time of {Path(path).name} "
+                    f"(it holds {model[0]:%Y-%m-%d %H:%M} to {model[-1]:%Y-%m-%d %H:%M} UTC); a frame may be 90 min "
+                    f"from one (--freeze-fields renders every frame from one model time)")
+    return [{"time": t, "scene": str(path), "open_options": {**base, "time": m.isoformat()}}
+            for t, m in zip(stamps, nearest)]
 
 
 def _table(rows) -> pd.DataFrame:
     return pd.DataFrame(rows).set_index("index").sort_index().loc[:, list(COLUMNS)]
 
 
-def _in_this_process(jobs, frames, opening, progress):
+def _in_this_process(jobs, frames, progress):
     rows = []
-    opened = (None, None)  # the last scene file and its scene: held for the series only, not after it
-    for i, given, kwargs, png, nc in jobs:
+    opened = (None, None)  # the last scene file (and options) and its scene: held for the series only, not after it
+    for i, given, kwargs, png, nc, opening in jobs:
         try:
             if isinstance(given, (str, os.PathLike)):
-                if opened[0] != str(given):
+                if opened[0] != (str(given), opening):
                     opened = (None, None)  # the previous scene goes before the next is read
-                    opened = (str(given), _open(str(given), opening))
+                    opened = ((str(given), opening), _open(str(given), opening))
                 given = opened[1]
             rows.append(_render_frame(i, given, opening, kwargs, png, nc))
         except SwimInputError as err:
@@ -300,14 +370,14 @@ def _in_this_process(jobs, frames, opening, progress):
     return _table(rows)
 
 
-def _on_cluster(client, jobs, frames, opening, progress):
+def _on_cluster(client, jobs, frames, progress):
     from dask.distributed import as_completed
 
     remote = {}  # in-memory scenes, sent to every worker once each
     futures = {}
     rows = []
     try:
-        for i, given, kwargs, png, nc in jobs:
+        for i, given, kwargs, png, nc, opening in jobs:
             if isinstance(given, xr.Dataset):
                 if id(given) not in remote:
                     remote[id(given)] = client.scatter(given, broadcast=True)
@@ -360,8 +430,8 @@ def local_cluster(workers: int):
                         dashboard_address=None, env={"SWIM_NUM_THREADS": str(per_worker)})
 
 
-def _on_local_cluster(jobs, frames, workers, opening, progress):
+def _on_local_cluster(jobs, frames, workers, progress):
     from dask.distributed import Client
 
     with local_cluster(workers) as cluster, Client(cluster) as client:
-        return _on_cluster(client, jobs, frames, opening, progress)
+        return _on_cluster(client, jobs, frames, progress)

@@ -166,6 +166,9 @@ def render(
     end: Optional[str] = typer.Option(None, help="Render a time series from --time (default: the scene's time) to "
                                       "this UTC time, ISO 8601, the sun moving over the same scene."),
     every: float = typer.Option(10.0, help="Time step of a series [min]."),
+    freeze_fields: bool = typer.Option(False, "--freeze-fields", help="A series from a scene file: render every frame "
+                                       "from the model time nearest to --time (frozen clouds, a moving sun) "
+                                       "instead of each frame's nearest model time within 90 min."),
     workers: int = typer.Option(0, help="Render a series' frames on a local dask cluster of this many processes "
                                 "(0: one after the other in this process; needs dask.distributed)."),
     scheduler: Optional[str] = typer.Option(None, help="Address of a running dask.distributed scheduler for a "
@@ -344,7 +347,7 @@ def render(
             # a cluster's workers open a plain scene file themselves (no scene sent through the scheduler)
             source = None if scene is None or albedo_image is not None else (
                 scene, {**_given(time=time), **place}, lazy)
-            _render_series(ds, source, time, end, every, workers, scheduler, out, netcdf, common)
+            _render_series(ds, source, time, end, every, workers, scheduler, out, netcdf, common, freeze_fields)
             return
         out = Path("swim.png") if out is None else out
         with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
@@ -360,13 +363,13 @@ def render(
                   + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
 
 
-def _render_series(scene, source, start, end, every, workers, scheduler, out, netcdf, common):
+def _render_series(scene, source, start, end, every, workers, scheduler, out, netcdf, common, freeze_fields=False):
     """``swim render --end``: the frames from ``start`` to ``end`` (:func:`swim.series.render_series`). ``scene`` is the
     opened scene; ``source`` (path, reader options, lazy) the file it came from, which the workers of a cluster open
     themselves, or None."""
     import pandas as pd
 
-    from ..series import render_series, series_times
+    from ..series import model_time_frames, render_series, series_times
 
     if end is None:
         raise SwimInputError("--workers and --scheduler render a series: give its last time with --end")
@@ -400,11 +403,12 @@ def _render_series(scene, source, start, end, every, workers, scheduler, out, ne
         with Progress(TextColumn("[bold]frames"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f}"),
                       TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
             task = bar.add_task("frames", total=len(times))
-            given, opening = scene, {}
-            if (client is not None or workers) and source is not None:
-                given, options, lazy = source
-                opening = {"open_options": options, "lazy": lazy}
-            table = render_series(given, times, out=out, netcdf=netcdf, client=client, workers=workers or None,
+            given, frames, opening = scene, times, {}
+            if source is not None:  # a scene file: each frame from its nearest model time (model_time_frames)
+                path, options, lazy = source
+                given, opening = None, {"lazy": lazy}
+                frames = model_time_frames(path, times, options, freeze_fields=freeze_fields)
+            table = render_series(given, frames, out=out, netcdf=netcdf, client=client, workers=workers or None,
                                   progress=lambda done, total: bar.update(task, completed=done), **opening, **common)
     finally:
         if client is not None:
