@@ -305,7 +305,7 @@ def clouds3d_section(rows):
                "g = 0.85 (the Mie physics is held to DISORT in section 2b: with Mie droplets Mitsuba's next-event "
                "estimates of the diffraction peak make its cloud blocks unreliable at these path counts; "
                "`swim.validation.clouds3d`). Compared: 8 × 8-pixel block means (blocks at least half inside the "
-               "compared pixels; 5° around the sun left out), 128–512 paths per pixel (the `spp` of each cached "
+               "compared pixels; 5° around the sun left out), 128–640 paths per pixel (the `spp` of each cached "
                "reference); 'MC std. error' is the median relative standard error of the reference's blocks. Deep "
                "convection (Katrina's eyewall, vertical optical depths up to 480) has no reference: Monte Carlo "
                "needs thousands of scattering events per path there (8 paths per pixel took 122–130 s on 2 cores "
