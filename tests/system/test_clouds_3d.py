@@ -141,6 +141,7 @@ def _agree(ours, theirs):
     assert np.percentile(error, 99) < 1e-3 and error.max() < 0.02, (np.percentile(error, 99), error.max())
 
 
+@pytest.mark.full
 def test_the_jax_kernel_matches_the_numba_kernel(default_scene):
     """The JAX kernel (float32, rays in lockstep) against the numba kernel (float64, per ray) on the built-in scene:
     the clouds' integrated sources, the air's diffuse source scaled by the diffuse solution and the ground lit by it
