@@ -152,7 +152,7 @@ def render(
                                          help="How clouds scatter light: albers2020 (the paper's Eqs. 12-26) or "
                                          "discrete_ordinates (a 3-D solution of the diffuse light for the scene and "
                                          "sun, with Mie and ice phase functions and cloud-ground interreflection; "
-                                         "CPU backend; docs/rendering.md, '3-D cloud scattering')."),
+                                         "numba and JAX kernels; docs/rendering.md, '3-D cloud scattering')."),
     cloud_phase: Optional[str] = typer.Option(None, "--cloud-phase",
                                               help="Phase functions of --cloud-scattering discrete_ordinates: "
                                               "physical (default: Mie droplets, roughened-aggregate ice) or "
@@ -164,7 +164,8 @@ def render(
     netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here (a pattern with "
                                           "--end)."),
     end: Optional[str] = typer.Option(None, help="Render a time series from --time (default: the scene's time) to "
-                                      "this UTC time, ISO 8601, the sun moving over the same scene."),
+                                      "this UTC time, ISO 8601: each frame from the scene file's nearest model time "
+                                      "(within 90 min), the sun moving."),
     every: float = typer.Option(10.0, help="Time step of a series [min]."),
     freeze_fields: bool = typer.Option(False, "--freeze-fields", help="A series from a scene file: render every frame "
                                        "from the model time nearest to --time (frozen clouds, a moving sun) "
