@@ -59,3 +59,18 @@ def test_a_size_beyond_the_memory_is_refused_at_once(tmp_path):
     result = CliRunner().invoke(app, ["render", "--size", "100000", "--out", str(out)])
     assert result.exit_code == 2 and "needs about" in result.output and "--no-memory-check" in result.output
     assert len(result.output.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_quiet_reports_nothing_but_errors(tmp_path):
+    out = tmp_path / "q.png"
+    try:
+        result = CliRunner().invoke(app, ["-q", "render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth",
+                                          "150", "--out", str(out)])
+        assert result.exit_code == 0 and out.is_file() and result.output.strip() == ""
+        bad = CliRunner().invoke(app, ["-q", "render", "--size", "9", "--out", str(tmp_path / "q.bmp")])
+        assert bad.exit_code == 2 and "unknown image format" in bad.output
+    finally:
+        CliRunner().invoke(app, ["render", "--help"])  # the next command in this process is not quiet
+    loud = CliRunner().invoke(app, ["render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth", "150", "--out",
+                                    str(out)])
+    assert "wrote" in loud.output

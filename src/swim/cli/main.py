@@ -69,11 +69,23 @@ def _print_version(value: bool):
         raise typer.Exit()
 
 
+#: ``-q``: no progress bars and no report of the files written (errors and warnings still).
+QUIET = {"on": False}
+
+
+def _report(text):
+    if not QUIET["on"]:
+        console.print(text)
+
+
 @app.callback()
 def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the stages."),
+         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars and no report of the files "
+                                    "written (errors and warnings still)."),
          version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
                                       help="Print the version and exit.")):
     """SWIm command-line interface."""
+    QUIET["on"] = quiet
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
                         handlers=[RichHandler(console=console, show_path=False)])
     # JAX's search for accelerators it was not built for ("Unable to initialize backend 'tpu'") is not a stage
@@ -352,7 +364,8 @@ def render(
             return
         out = Path("swim.png") if out is None else out
         with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                      TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
+                      TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
+                      disable=QUIET["on"]) as bar:
             task = bar.add_task("render", total=1.0)
             image = render_image(ds, time=time, progress=lambda done, total: bar.update(task, completed=done / total),
                                  **common)
@@ -360,7 +373,7 @@ def render(
     except SwimInputError as exc:
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
-    console.print(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
+    _report(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
                   + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
 
 
@@ -402,7 +415,8 @@ def _render_series(scene, source, start, end, every, workers, scheduler, out, ne
             raise SwimInputError(f"--scheduler {scheduler}: no dask scheduler answered ({err})") from None
     try:
         with Progress(TextColumn("[bold]frames"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f}"),
-                      TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
+                      TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
+                      disable=QUIET["on"]) as bar:
             task = bar.add_task("frames", total=len(times))
             given, frames, opening = scene, times, {}
             if source is not None:  # a scene file: each frame from its nearest model time (model_time_frames)
@@ -415,7 +429,7 @@ def _render_series(scene, source, start, end, every, workers, scheduler, out, ne
         if client is not None:
             client.close()
     files = table["png"] if out is not None else table["netcdf"]
-    console.print(f"wrote {len(table)} frames, {escape(str(files.iloc[0]))} ... {escape(str(files.iloc[-1]))} "
+    _report(f"wrote {len(table)} frames, {escape(str(files.iloc[0]))} ... {escape(str(files.iloc[-1]))} "
                   f"({table['seconds'].median():.2f} s per frame in median)")
 
 
