@@ -297,12 +297,22 @@ def _check_horizontal_metres(xv, yv, height):
         raise SwimInputError(f"x/y spacing {dx:g} m under levels {dz:.4g} m apart: expected x and y in metres, not km")
 
 
+def require_real_numbers(label: str, dtype) -> None:
+    """Refuse a field ``label`` of values that are not real numbers (float, integer or bool ``dtype``): a complex
+    field would lose its imaginary part, text or objects would fail deep inside.
+
+    Raises
+    ------
+    SwimInputError
+        Naming ``label`` and the dtype.
+    """
+    if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.bool_)):
+        raise SwimInputError(f"{label} holds {dtype} values; expected real numbers")
+
+
 def _as_dataarray(name: str, ds: xr.Dataset) -> xr.DataArray:
     da = ds[name].reset_coords(drop=True)
-    # real numbers only: a complex field would lose its imaginary part, text or objects would fail deep inside
-    if not (np.issubdtype(da.dtype, np.floating) or np.issubdtype(da.dtype, np.integer)
-            or np.issubdtype(da.dtype, np.bool_)):
-        raise SwimInputError(f"scene variable '{name}' holds {da.dtype} values; expected real numbers")
+    require_real_numbers(f"scene variable '{name}'", da.dtype)
     return da
 
 

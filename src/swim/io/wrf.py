@@ -33,7 +33,7 @@ from ..constants import (
 )
 from ..errors import SwimInputError
 from .files import open_netcdf
-from .scene import RADIUS_RANGE_M, domain_centre, to_utc_datetime64, validate_scene
+from .scene import RADIUS_RANGE_M, domain_centre, require_real_numbers, to_utc_datetime64, validate_scene
 
 logger = logging.getLogger(__name__)
 
@@ -146,8 +146,7 @@ def _select_time(ds: xr.Dataset, time, label: str) -> tuple[int, np.datetime64 |
 
 def _field(ds: xr.Dataset, name: str, itime: int) -> np.ndarray:
     da = ds[name]
-    if not (np.issubdtype(da.dtype, np.floating) or np.issubdtype(da.dtype, np.integer)):
-        raise SwimInputError(f"WRF variable {name} holds {da.dtype} values; expected real numbers")
+    require_real_numbers(f"WRF variable {name}", da.dtype)
     if "Time" in da.dims:
         da = da.isel(Time=itime)
     return np.asarray(da.values, dtype=float)

@@ -143,12 +143,12 @@ def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScatte
     readonly = lambda a: _readonly(np.ascontiguousarray(a))  # noqa: E731
     return {
         "cloud_optics": optics, "diffuse_field": field_,
-        "hydro_scale": readonly(np.asarray(1.0 - f[idx], np.float64) if n_sp else np.zeros(1)),
+        "hydro_scale": readonly(np.asarray(1.0 - f[idx], np.float64)),
         "hydro_chi": readonly(np.asarray(hydro_chi, np.float64) if n_sp else np.zeros((1, 3, 1))),
         # f - f_a: the forward peak's share outside the aureole (swim.optics.cloud_phase.split_phase_function)
-        "hydro_narrow": readonly(np.asarray(f[idx] - optics.narrow[idx], np.float64) if n_sp else np.zeros(1)),
+        "hydro_narrow": readonly(np.asarray(f[idx] - optics.narrow[idx], np.float64)),
         # 1 - f_a: the species' weights of the optical depth that dims the beam but for the aureole
-        "hydro_aureole": readonly(np.asarray(1.0 - optics.narrow[idx], np.float64) if n_sp else np.zeros(1)),
+        "hydro_aureole": readonly(np.asarray(1.0 - optics.narrow[idx], np.float64)),
         "degree": readonly(harmonic_degrees(optics.max_degree).astype(np.int64)),
         "ms_field": readonly(field_.field), "ms_coarsen": float(field_.coarsen),
         "ms_above": readonly(field_.above), "above_heights": readonly(np.asarray(field_.above_heights, np.float64)),

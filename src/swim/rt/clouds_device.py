@@ -18,11 +18,14 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-__all__ = ["CLOUD_HOST_KEYS", "clamped_trilinear", "cloud_sources", "ratio_above_grid", "three_d"]
+__all__ = ["CLOUD_HOST_KEYS", "CLOUD_KERNEL_KEYS", "clamped_trilinear", "cloud_sources", "ratio_above_grid", "three_d"]
 
 #: Entries of :func:`swim.rt.clouds.cloud_constants` that only the host reads (objects, tuples, the moments' degrees):
 #: the JAX kernel's constants leave them out.
 CLOUD_HOST_KEYS = ("cloud_optics", "diffuse_field", "cloud_rotation", "cloud_species", "degree")
+#: Its arrays that the march kernels read (numba and JAX), besides ``ms_coarsen``.
+CLOUD_KERNEL_KEYS = ("hydro_scale", "hydro_narrow", "hydro_aureole", "ms_field", "ms_above", "above_heights",
+                     "backscatter_scaled")
 
 
 def three_d(consts) -> bool:
@@ -100,9 +103,9 @@ def cloud_sources(beta_species, k, j, i, t_cloud, irradiance, rays, consts):
         zero = jnp.zeros(n, beta_species.dtype)
         return ratio, jnp.zeros((n, 3), beta_species.dtype), zero
     beta_h = beta_species.sum(axis=1)
-    beta_scaled = beta_species @ consts["hydro_scale"][:n_sp].astype(beta_species.dtype)
-    gap = beta_species @ consts["hydro_narrow"][:n_sp].astype(beta_species.dtype)
-    phase = rays["p_hydro"][:, :n_sp]
+    beta_scaled = beta_species @ consts["hydro_scale"].astype(beta_species.dtype)
+    gap = beta_species @ consts["hydro_narrow"].astype(beta_species.dtype)
+    phase = rays["p_hydro"]
     scattered = jnp.einsum("ns,nsc->nc", beta_species, phase[..., :3])
     peak = jnp.einsum("ns,nsc->nc", beta_species, phase[..., 3:])
     # the beam without the broad part of the forward peak: t_cloud^(gap / beta_scaled) times t_cloud
@@ -110,7 +113,7 @@ def cloud_sources(beta_species, k, j, i, t_cloud, irradiance, rays, consts):
     extra = jnp.where(lit, jnp.exp(jnp.log(jnp.where(lit, t_cloud, 1.0)) * gap / jnp.where(lit, beta_scaled, 1.0)), 0.0)
     single = (scattered + peak * extra[:, None]) * irradiance
     nm = field.shape[1] // 3 - 1
-    weights = rays["ray_ms"][:, :n_sp].reshape(n, n_sp, 3, nm)
+    weights = rays["ray_ms"].reshape(n, n_sp, 3, nm)
     diffuse = jnp.einsum("ns,nscm,ncm->nc", beta_species, weights, field[:, 3:].reshape(n, 3, nm))
     source = jnp.where((beta_h > 0)[:, None], single + diffuse, 0.0)
     return ratio, source, jnp.where(beta_h > 0, beta_scaled, 0.0)

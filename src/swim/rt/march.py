@@ -61,7 +61,7 @@ from ..errors import SwimInputError
 from ..surface.lighting import SURFACE_MODELS, surface_radiance
 from ..workers import (in_blocks, in_worker_thread, parallel_map, threads,  # threads: also swim.rt.march.threads
                        worker_pool)
-from .clouds_device import CLOUD_HOST_KEYS, cloud_sources, ratio_above_grid, three_d
+from .clouds_device import CLOUD_HOST_KEYS, CLOUD_KERNEL_KEYS, cloud_sources, ratio_above_grid, three_d
 from .export_cache import exported_jit
 from .gas import GasTables
 from .solar import transmittance_delta_eddington
@@ -1574,8 +1574,7 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     # the fused kernel marches whole blocks of rays: a batch of another size (a chunk set by hand) is marched by the
     # lockstep loops
     kernel = settings.resolved_grid_kernel()
-    # (the fused kernel does not carry the 3-D cloud scattering's sources)
-    fused = kernel in ("fused", "fused-march") and fused_fits(n) and not three_d(consts)
+    fused = kernel in ("fused", "fused-march") and fused_fits(n)
     interpret = jax.default_backend() == "cpu"
     # the fused kernel's register cap, loads and fused multiply-adds: settings, so that programs built with other
     # ones are kept apart
@@ -1672,8 +1671,7 @@ def _compose_three_d(consts, state, valid, surface, s_hit, l_surface):
     along the rays (:mod:`swim.rt.clouds_device`), given the ground's part ``l_surface`` (n, 3); ``tau_narrow``
     (n,) is the optical depth that dims the beam but for the forward peak's narrow part (the circumsolar aureole,
     :func:`swim.optics.cloud_phase.split_phase_function`). The numba kernel's twin: :func:`_compose_numba`."""
-    n_sp = consts["species_matrix"].shape[0]
-    aureole = consts["species_matrix"].T @ consts["hydro_aureole"][:n_sp].astype(jnp.float32)  # (SPECIES,)
+    aureole = consts["species_matrix"].T @ consts["hydro_aureole"].astype(jnp.float32)  # (SPECIES,)
     radiance = jnp.where(valid[:, None], state["l_clear"] + state["l_cloud"] + l_surface, 0.0)
     return {
         "radiance": radiance,
@@ -2550,8 +2548,7 @@ def _jax_cloud_constants(consts):
     if not three_d(consts):
         return consts
     out = {key: value for key, value in consts.items() if key not in CLOUD_HOST_KEYS}
-    for key in ("hydro_scale", "hydro_narrow", "hydro_aureole", "ms_field", "ms_above", "above_heights",
-                "backscatter_scaled", "ms_coarsen"):
+    for key in (*CLOUD_KERNEL_KEYS, "ms_coarsen"):
         out[key] = jnp.asarray(np.asarray(out[key], np.float32))
     return out
 
@@ -2685,9 +2682,7 @@ def _numba_tables(consts, prepare=True):
     # the 3-D cloud scattering's tables (swim.rt.clouds.cloud_constants), or placeholders the kernel does not read
     tables["cloud_mode"] = "ms_field" in consts
     if tables["cloud_mode"]:
-        tables.update({key: consts[key] for key in ("hydro_scale", "hydro_narrow", "hydro_aureole", "ms_field",
-                                                    "ms_above", "above_heights", "backscatter_scaled")},
-                      ms_coarsen=float(consts["ms_coarsen"]))
+        tables.update({key: consts[key] for key in CLOUD_KERNEL_KEYS}, ms_coarsen=float(consts["ms_coarsen"]))
     else:
         tables.update(hydro_scale=arr(np.zeros(1)), hydro_narrow=arr(np.zeros(1)),
                       ms_field=arr(np.zeros((1, 1, 1, 4), np.float32)),
@@ -2846,8 +2841,7 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
         radiance = (st["l_clear"] + st["l_cloud"] + l_surface).astype(np.float32)
         radiance[~np.asarray(valid[:n], bool)] = 0.0
         # the optical depth that dims the beam but for the forward peak's narrow part (the circumsolar aureole)
-        # (a cloudless scene packs no species: its placeholder weight is not read)
-        tau_narrow = st["tau_species"] @ np.asarray(tables["hydro_aureole"], float)[:st["tau_species"].shape[1]]
+        tau_narrow = st["tau_species"] @ np.asarray(tables["hydro_aureole"], float)
         return {"radiance": radiance, "radiance_clear": st["l_clear"].astype(np.float32), "radiance_cloud": l_cloud,
                 "radiance_surface": l_surface, "tau_hydrometeor": st["tau_h"].astype(np.float32),
                 "tau_clear": st["tau_clear"].astype(np.float32), "surface": surface,
