@@ -21,6 +21,7 @@ import xxhash
 
 from . import __version__
 from .color import DEFAULT_WHITE_LEVEL, SPACE_WHITE_LEVEL, solar_relative_to_srgb8
+from .color.display import auto_white_level, exposure_white_level
 from .constants import ATMOSPHERE_TOP_M, EARTH_RADIUS_M, SUN_ANGULAR_RADIUS_RAD, WAVELENGTHS_NM
 from .optics.cloud_phase import AUREOLE_HALF_ANGLE_RAD
 from .digest import update_with_array
@@ -570,8 +571,8 @@ def _rendering_alone() -> bool:
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
            aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
-           white_level=None, progress=None, crop: bool = True, sampling: AdaptiveSampling | None = None,
-           coarsen=None, check_memory: bool = True) -> xr.Dataset:
+           white_level=None, exposure: float = 0.0, progress=None, crop: bool = True,
+           sampling: AdaptiveSampling | None = None, coarsen=None, check_memory: bool = True) -> xr.Dataset:
     """Render what a camera at a vantage point sees in a scene.
 
     Parameters
@@ -599,10 +600,14 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         or no background where the scene has a 3-D ``aerosol_extinction`` (which a scene's 3-D aerosol keeps).
     settings : MarchSettings
         Ray-marching step counts.
-    white_level : float, optional
-        Solar-relative radiance shown as display white (docs/colour.md); default 1.5 for observers in the
-        atmosphere (a camera's exposure) and 4.0 above 100 km (reflectance 1 is white, as in satellite
-        imagery).
+    white_level : float or "auto", optional
+        Exposure: the solar-relative radiance mapped to display white before the tone curve, whose shoulder
+        rolls brighter light off to neutral white (docs/colour.md); default 1.5 for observers in the atmosphere
+        (a camera's exposure) and 4.0 above 100 km (reflectance 1 is white, as in satellite imagery). ``"auto"``:
+        from the image's luminance, its log-average shown at 0.18 of white (a camera's average metering,
+        :func:`swim.color.auto_white_level`). The radiance planes do not depend on it.
+    exposure : float
+        Exposure shift [EV, stops] on top of ``white_level``: +1 shows the image twice as bright.
     progress : callable, optional
         Called with (rays done, rays total).
     crop : bool
@@ -678,13 +683,27 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     return _render(**call, guess=_DigestGuess())
 
 
+def _check_exposure(white_level, exposure) -> bool:
+    """Check ``render``'s exposure arguments before any work; True for auto exposure."""
+    exposure_white_level(1.0, exposure)  # raises SwimInputError for a bad shift
+    if isinstance(white_level, str):
+        if white_level != "auto":
+            raise SwimInputError(f"white_level must be a positive number (solar-relative L' [-]) or 'auto'; got "
+                                 f"{white_level!r}")
+        return True
+    if white_level is not None:
+        exposure_white_level(white_level)
+    return False
+
+
 def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
-            settings, white_level, progress, crop, sampling, coarsen, check_memory,
+            settings, white_level, exposure, progress, crop, sampling, coarsen, check_memory,
             guess: _DigestGuess | None) -> xr.Dataset:
     """:func:`render`'s work. ``guess``: where the scene's digest may be taken by its arrays' identity
     (:func:`_fingerprint_by_identity`; None: hashed first)."""
     if not isinstance(scene, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
+    auto_exposure = _check_exposure(white_level, exposure)
     # the camera's kind and options checked before the scene is read (a whole CONUS grid: ~40 s and ~11 GB); a
     # perspective camera's view is filled in from the grid later (_default_perspective_view)
     if camera_options is not None and not isinstance(camera_options, Mapping):
@@ -945,10 +964,16 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
 
     ny, nx = cam.shape
     planes = {}  # image outputs (channel, y, x), NaN outside the camera's pixels
-    if white_level is None:
-        white_level = SPACE_WHITE_LEVEL if height_asl > SPACE_VIEW_HEIGHT_M else DEFAULT_WHITE_LEVEL
+    if auto_exposure:  # from the image's radiance, on the host, before the colour stage
+        white_level = None
+    else:
+        if white_level is None:
+            white_level = SPACE_WHITE_LEVEL if height_asl > SPACE_VIEW_HEIGHT_M else DEFAULT_WHITE_LEVEL
+        white_level = exposure_white_level(white_level, exposure)
     # MarchSettings.device_image: the image's planes and colour made on the device, then one copy of them to the host
+    # (the colour there needs the white level before the image exists: not with auto exposure)
     device_image = table is not None and settings.resolved_device_image()
+    device_colour = device_image and not auto_exposure
     device_rgb = None  # with it: the colour stage's codes (y, x, 3) and the pixels it left to the host (y, x)
 
     def planes_to_host(device_planes, *extra, colour):
@@ -978,7 +1003,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         device_planes, sun_row, first_steps = planes_on_device(
             result, valid_pixels, (ny, nx), IMAGE_OUTPUTS, sun_keys=("tau_clear", "tau_hydrometeor", "surface", "steps"))
         del result
-        planes, device_rgb, (sun_row, first_steps) = planes_to_host(device_planes, sun_row, first_steps, colour=True)
+        planes, device_rgb, (sun_row, first_steps) = planes_to_host(device_planes, sun_row, first_steps,
+                                                                    colour=device_colour)
         del device_planes
         sun_out.update(sun_row)
         march_samples = int(valid_pixels.size) * int(first_steps)  # the lockstep's steps, the same for every ray
@@ -1050,7 +1076,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             # first
             device_planes = {key: device_plane(out.pop(key), ny, nx) for key in IMAGE_OUTPUTS}
             device_planes, device_rgb, (out, traced, sun_padded) = planes_to_host(device_planes, out, traced, sun_rows,
-                                                                                  colour=device_image)
+                                                                                  colour=device_colour)
             sun_out.update({key: value[0] for key, value in sun_padded.items()})  # the rest is the chunk's padding
             planes.update(device_planes)
             traced = np.asarray(traced)
@@ -1110,6 +1136,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         flat = radiance.reshape(3, -1)
         flat[:, disk_pixels] = flat[:, disk_pixels] + disk_radiance[:, None]
         radiance = flat.reshape(radiance.shape)
+    if auto_exposure:
+        white_level = exposure_white_level(auto_white_level(radiance), exposure)
     # the colour stage is per pixel: in blocks of rows (float64 copies of a block) on up to 8 cores, its compiled
     # pass without the GIL (swim.color.srgb_cpu: ~0.05 s for a 1024^2 image on one core here, 0.26-0.39 s in NumPy)
     if device_rgb is not None:
@@ -1175,6 +1203,9 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         "reference_lat": lat0,
         "reference_lon": lon0,
         "white_level": float(white_level),
+        "exposure": "auto" if auto_exposure else "fixed",
+        "exposure_ev": float(exposure),
+        "display_transform": "filmic",
         "aerosol_type": aerosol.type_name,
         "aerosol_optical_depth_550": float(aerosol.aod_550),
         "camera": camera,

@@ -40,7 +40,7 @@ def numpy_chain(radiance, white_level, gamut):
 
 
 @pytest.mark.parametrize("shape", [(), (7,), (40, 50), (3, 16, 16)], ids=["pixel", "row", "image", "3-d"])
-@pytest.mark.parametrize("gamut", ["preserve_hue", "clip"])
+@pytest.mark.parametrize("gamut", ["filmic", "preserve_hue", "clip"])
 @pytest.mark.parametrize("white_level", [1.5, 0.3])
 def test_device_codes_are_the_numpy_chains(shape, gamut, white_level):
     r = sky_like(shape, seed=len(shape))
@@ -62,19 +62,22 @@ def test_device_codes_are_the_host_kernels_on_a_big_image():
     pixels of it are flagged."""
     r = sky_like((512, 512), seed=3)
     codes, need = (np.asarray(a) for a in solar_relative_to_srgb8_device(jnp.asarray(r), 1.5))
-    host = _srgb8_compiled(r.astype(float), 1.5, "preserve_hue")
+    host = _srgb8_compiled(r.astype(float), 1.5, "filmic")
     assert 0 < need.sum() < need.size
     np.testing.assert_array_equal(codes[~need], host[~need])
 
 
 def test_exposure_and_flat_white():
-    """A flat L' equal to the white level is display white (255, 255, 255) and half of it a neutral grey; black for
-    0 (paper Sect. 3.8: the sun's spectrum is white)."""
+    """A flat L' equal to the white level is display white (255, 255, 255) without the tone curve and the neutral
+    grey of its shoulder with it, half of it a neutral grey; black for 0 (paper Sect. 3.8: the sun's spectrum is
+    white)."""
     r = np.array([[1.5, 0.75, 0.0]] * 3, np.float32)
-    codes, need = solar_relative_to_srgb8_device(jnp.asarray(r), 1.5)
+    codes, need = solar_relative_to_srgb8_device(jnp.asarray(r), 1.5, gamut="preserve_hue")
     codes = np.asarray(codes)
     assert not np.asarray(need).any()
     np.testing.assert_array_equal(codes[0], [255, 255, 255])
+    filmic = np.asarray(solar_relative_to_srgb8_device(jnp.asarray(r), 1.5)[0])
+    np.testing.assert_array_equal(filmic[0], [sc.encode_srgb8(np.array(0.6 + 0.4 * (1 - np.exp(-1.0))))] * 3)
     assert codes[1, 0] == codes[1, 1] == codes[1, 2] == sc.encode_srgb8(np.array(0.5))
     np.testing.assert_array_equal(codes[2], [0, 0, 0])
 

@@ -92,6 +92,16 @@ def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the st
     logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
 
 
+def _white_level(text):
+    """--white-level: a number, 'auto' or unset."""
+    if text is None or text.strip().lower() == "auto":
+        return None if text is None else "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise SwimInputError(f"--white-level must be a positive number (L') or 'auto', got {text!r}") from None
+
+
 def _cloud_scattering(method, phase):
     """The :class:`swim.rt.clouds.CloudScattering` of ``--cloud-scattering`` and ``--cloud-phase``."""
     from ..rt.clouds import CloudScattering
@@ -150,8 +160,11 @@ def render(
     strat_aod: float = typer.Option(0.0, "--strat-aod", help="Optical depth at 550 nm of a stratospheric "
                                                              "(volcanic sulfate) aerosol layer at 20 km."),
     strat_height: float = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km]."),
-    white_level: Optional[float] = typer.Option(None, help="L' shown as display white (exposure; default 1.5, "
-                                                             "4 above 100 km)."),
+    white_level: Optional[str] = typer.Option(None, help="Exposure: the L' mapped to display white before the "
+                                              "highlights roll off (default 1.5, 4 above 100 km), or 'auto' (from "
+                                              "the image's luminance)."),
+    exposure: float = typer.Option(0.0, help="Exposure shift in stops [EV] on top of --white-level: +1 is twice "
+                                             "as bright."),
     albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
                                                 "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
     albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
@@ -351,7 +364,8 @@ def render(
                                           probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
-                      settings=settings, white_level=white_level, sampling=sampling, coarsen=level_of_detail,
+                      settings=settings, white_level=_white_level(white_level), exposure=exposure,
+                      sampling=sampling, coarsen=level_of_detail,
                       check_memory=memory_check)
         if end is not None or workers or scheduler:
             if sun_zenith is not None or sun_azimuth is not None:

@@ -2,7 +2,8 @@
 
 Chain: three solar-relative radiances ``L'`` (615, 546, 450 nm) -> quadratic spectrum x solar spectrum
 (:func:`solar_relative_to_spectrum`) -> CIE 1931 XYZ (:func:`solar_relative_to_XYZ`) -> linear sRGB
-with the sun as white and an exposure ``white_level`` (:func:`XYZ_to_display_rgb`) -> 8-bit sRGB
+with the sun as white, an exposure ``white_level`` and a tone curve whose highlights roll off to white
+(:func:`XYZ_to_display_rgb`) -> 8-bit sRGB
 (:func:`encode_srgb8`); all at once: :func:`solar_relative_to_srgb8`. See docs/colour.md.
 """
 
@@ -15,14 +16,19 @@ from swim.color._tables import (
     solar_irradiance_on_grid,
 )
 from swim.color.display import (
+    AUTO_EXPOSURE_KEY,
     CHROMATIC_ADAPTATION_TRANSFORM,
     DEFAULT_WHITE_LEVEL,
+    FILMIC_KNEE,
     SPACE_WHITE_LEVEL,
     GAMUT_MAPPINGS,
     PAPER_EQ36_MATRIX,
     XYZ_to_display_rgb,
+    auto_white_level,
     display_matrix,
     encode_srgb8,
+    exposure_white_level,
+    filmic_tone,
     oetf_srgb,
     solar_relative_to_srgb8,
     sun_white_XYZ,
@@ -37,14 +43,19 @@ __all__ = [
     "cie_1931_cmfs",
     "cie_1931_cmfs_on_grid",
     "solar_irradiance_on_grid",
+    "AUTO_EXPOSURE_KEY",
     "CHROMATIC_ADAPTATION_TRANSFORM",
     "DEFAULT_WHITE_LEVEL",
+    "FILMIC_KNEE",
     "SPACE_WHITE_LEVEL",
     "GAMUT_MAPPINGS",
     "PAPER_EQ36_MATRIX",
     "XYZ_to_display_rgb",
+    "auto_white_level",
     "display_matrix",
     "encode_srgb8",
+    "exposure_white_level",
+    "filmic_tone",
     "oetf_srgb",
     "solar_relative_to_srgb8",
     "sun_white_XYZ",

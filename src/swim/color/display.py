@@ -9,8 +9,14 @@ Chain (per pixel):
    exposure ``white_level``. A spectrally flat ``L' = white_level`` maps to ``RGB = (1, 1, 1)``
    exactly (a per-channel renormalisation of at most 1.6e-4 absorbs the 4-digit rounding of the sRGB
    matrix). This replaces the paper's Eq. 36 matrix (see :data:`PAPER_EQ36_MATRIX`).
-3. Gamut mapping into [0, 1]^3 (default ``"preserve_hue"``, see :func:`XYZ_to_display_rgb`).
+3. Tone and gamut mapping into [0, 1]^3 (default ``"filmic"``, see :func:`XYZ_to_display_rgb`): linear up to
+   :data:`FILMIC_KNEE` of white, then a shoulder that rolls the luminance off towards white and the colour towards
+   neutral, as film and camera view transforms do, so that over-exposed light turns white instead of keeping its
+   hue; out-of-gamut colours lose chroma at constant luminance.
 4. sRGB opto-electronic transfer function (the paper's "gamma 2.2", step 3) and 8-bit quantisation.
+
+The exposure is ``white_level`` (a fixed solar-relative radiance, the default), optionally shifted by an exposure
+value in stops (:func:`exposure_white_level`), or set from the image's luminance (:func:`auto_white_level`).
 """
 
 from __future__ import annotations
@@ -34,6 +40,10 @@ __all__ = [
     "CHROMATIC_ADAPTATION_TRANSFORM",
     "PAPER_EQ36_MATRIX",
     "GAMUT_MAPPINGS",
+    "FILMIC_KNEE",
+    "AUTO_EXPOSURE_KEY",
+    "auto_white_level",
+    "exposure_white_level",
     "sun_white_XYZ",
     "display_matrix",
     "XYZ_to_display_rgb",
@@ -42,11 +52,12 @@ __all__ = [
     "solar_relative_to_srgb8",
 ]
 
-#: Exposure: the solar-relative radiance ``L'`` [-] of a spectrally flat (sun-coloured) scene that is
-#: shown as display white ``RGB = (1, 1, 1)``. Displayed linear brightness is ``L' / DEFAULT_WHITE_LEVEL``
-#: (paper Sect. 3.8: displayed brightness proportional to scene brightness). 2.5 puts sunlit cloud
-#: tops (L' ~ 2-4) at or near white, cloud bases (L' ~ 0.5-1.5) in mid greys and the clear sky
-#: (L' ~ 0.07-0.25) in darker blues. A white Lambertian surface facing the sun has L' = 4 (Eq. 2).
+#: Exposure: the solar-relative radiance ``L'`` [-] of a spectrally flat (sun-coloured) scene that maps to
+#: display white ``RGB = (1, 1, 1)`` before the tone mapping. Displayed linear brightness is
+#: ``L' / DEFAULT_WHITE_LEVEL`` up to the ``"filmic"`` mapping's knee (paper Sect. 3.8: displayed brightness
+#: proportional to scene brightness). 1.5 puts sunlit cloud tops (L' ~ 2-4) in the shoulder near white, cloud
+#: bases (L' ~ 0.5-1.5) in mid to light greys and the clear sky (L' ~ 0.07-0.25) in darker blues. A white
+#: Lambertian surface facing the sun has L' = 4 (Eq. 2).
 DEFAULT_WHITE_LEVEL = 1.5
 #: White level for views from space (observer above 100 km): L' of a white Lambertian surface facing the
 #: sun (Eq. 2), so that reflectance 1 is display white as in satellite imagery.
@@ -67,8 +78,16 @@ PAPER_EQ36_MATRIX = np.array(
 )
 PAPER_EQ36_MATRIX.flags.writeable = False
 
-#: Accepted values of the ``gamut`` argument of :func:`XYZ_to_display_rgb`.
-GAMUT_MAPPINGS = ("preserve_hue", "clip", "none")
+#: Accepted values of the ``gamut`` argument of :func:`XYZ_to_display_rgb` (the first is the default).
+GAMUT_MAPPINGS = ("filmic", "preserve_hue", "clip", "none")
+
+#: The ``"filmic"`` mapping's knee: the display luminance (a fraction of white) up to which the mapping is linear
+#: (displayed brightness proportional to scene brightness, paper Sect. 3.8) and above which the shoulder rolls off.
+FILMIC_KNEE = 0.6
+
+#: Auto exposure's key: the display luminance that the image's log-average luminance is given (Reinhard et al. 2002,
+#: the "middle grey" 0.18 of a camera's average metering).
+AUTO_EXPOSURE_KEY = 0.18
 
 
 def sun_white_XYZ() -> np.ndarray:
@@ -134,6 +153,8 @@ def _luminance_row(transform: str) -> np.ndarray:
 
 
 def _check_white_level(white_level) -> float:
+    if isinstance(white_level, (bool, np.bool_)):
+        raise SwimInputError(f"white_level must be a positive number (solar-relative L' [-]); got {white_level!r}")
     try:
         w = float(white_level)
     except (TypeError, ValueError):
@@ -147,11 +168,121 @@ def _check_white_level(white_level) -> float:
     return w
 
 
+def exposure_white_level(white_level, exposure_ev=0.0) -> float:
+    """The white level after an exposure change of ``exposure_ev`` stops: ``white_level * 2^-exposure_ev``.
+
+    Parameters
+    ----------
+    white_level : float
+        Solar-relative radiance ``L'`` [-] shown as white at exposure 0, > 0.
+    exposure_ev : float
+        Exposure value [EV, stops]; +1 doubles the displayed brightness.
+
+    Returns
+    -------
+    float
+        The white level [-].
+
+    Raises
+    ------
+    SwimInputError
+        If ``white_level`` is not a positive finite number or ``exposure_ev`` is not a finite number within
+        +-20 EV.
+    """
+    w = _check_white_level(white_level)
+    try:
+        ev = float(exposure_ev)
+    except (TypeError, ValueError):
+        raise SwimInputError(f"exposure must be a number of stops [EV]; got {exposure_ev!r}") from None
+    if not np.isfinite(ev) or abs(ev) > 20.0:
+        raise SwimInputError(f"exposure must be a finite number of stops within +-20 [EV]; got {exposure_ev!r}")
+    return w * 2.0 ** -ev
+
+
+def auto_white_level(radiance, key=AUTO_EXPOSURE_KEY, *, wavelengths_nm=None) -> float:
+    """Auto exposure: the white level that shows the image's log-average luminance at ``key`` of white.
+
+    A camera's average metering (Reinhard et al. 2002, Eq. 1): ``white = exp(mean(log Y)) / key``, with ``Y`` the
+    luminance of each valid pixel relative to a flat ``L' = 1`` (:func:`swim.color.solar_relative_to_XYZ`'s Y).
+    The log-average lets a few very bright pixels (the sun's disc) barely move it.
+
+    Parameters
+    ----------
+    radiance : array_like, shape (n, ...)
+        Solar-relative spectral radiance ``L'`` [-], wavelength axis first; NaN marks pixels without a ray.
+    key : float
+        Display luminance of the log-average [-], in (0, 1).
+    wavelengths_nm : array_like, shape (n,), optional
+        Wavelengths of ``radiance`` [nm]; default 615, 546, 450.
+
+    Returns
+    -------
+    float
+        The white level [-] (solar-relative radiance shown as white).
+
+    Raises
+    ------
+    SwimInputError
+        If ``key`` is not in (0, 1), or no pixel has a positive luminance.
+
+    References
+    ----------
+    Reinhard, E., Stark, M., Shirley, P. and Ferwerda, J. (2002): Photographic tone reproduction for digital images,
+    ACM Trans. Graph. 21, 267-276, doi:10.1145/566654.566575.
+    """
+    k = float(key)
+    if not 0.0 < k < 1.0:
+        raise SwimInputError(f"auto exposure key must be in (0, 1); got {key!r}")
+    r = np.asarray(radiance, dtype=float)
+    wl = _DEFAULT_WAVELENGTHS if wavelengths_nm is None else _check_wavelengths(wavelengths_nm)
+    y = np.tensordot(_linear_matrix(wl)[1], r.reshape(r.shape[0], -1), axes=1)
+    y = y[np.isfinite(y) & (y > 0.0)]
+    if y.size == 0:
+        raise SwimInputError("auto exposure needs at least one pixel with a positive luminance; the image has none")
+    return float(np.exp(np.mean(np.log(y))) / k)
+
+
+def filmic_tone(y):
+    """The ``"filmic"`` mapping's tone curve and its colour's share, of display luminance ``y`` (white 1) [-].
+
+    Linear up to :data:`FILMIC_KNEE` (k); above it an exponential shoulder that meets the line with equal slope and
+    approaches white, ``T = k + (1 - k) (1 - exp(-(y - k) / (1 - k)))``: the old white (y = 1) shows at 0.85, twice
+    it at 0.99. The colour's share, ``sqrt((1 - T) / (1 - k))``, falls from 1 at the knee to 0 at white, so that
+    highlights turn neutral as on film.
+
+    Returns
+    -------
+    tone, share : numpy.ndarray
+        Same shape as ``y``.
+    """
+    y = np.asarray(y, dtype=float)
+    k = FILMIC_KNEE
+    over = np.maximum(y - k, 0.0) / (1.0 - k)
+    fall = np.exp(-over)
+    tone = np.where(y > k, k + (1.0 - k) * (1.0 - fall), y)
+    return tone, np.sqrt(fall)
+
+
+def _filmic(flat, lum):
+    """The ``"filmic"`` mapping of linear display RGB rows (n, 3) in place (see :func:`XYZ_to_display_rgb`)."""
+    y = flat @ lum
+    tone, share = filmic_tone(y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chroma = (flat * (tone / y)[:, None] - tone[:, None]) * share[:, None]
+        # the largest share of the chroma that keeps every channel within [0, 1] at this luminance
+        room = np.where(chroma < 0.0, tone[:, None] / -chroma, np.where(chroma > 0.0, (1.0 - tone[:, None]) / chroma,
+                                                                        np.inf))
+    s = np.minimum(room.min(axis=1), 1.0)[:, None]
+    # (clipped for the rounding of a channel that the chroma's room puts at 0 or 1; the encoders clip the same)
+    flat[...] = np.clip(np.where(y[:, None] > 0.0, tone[:, None] + s * chroma, 0.0), 0.0, 1.0)
+    return flat
+
+
 def XYZ_to_display_rgb(
     XYZ,
     white_level=DEFAULT_WHITE_LEVEL,
     *,
-    gamut: str = "preserve_hue",
+    gamut: str = "filmic",
     transform: str = CHROMATIC_ADAPTATION_TRANSFORM,
 ) -> np.ndarray:
     """Linear display RGB in sRGB primaries with the sun as white (paper, Sect. 3.8, step 2).
@@ -164,12 +295,16 @@ def XYZ_to_display_rgb(
         CIE 1931 tristimulus values normalised as in :func:`swim.color.solar_relative_to_XYZ`
         (``Y = 1`` for a spectrally flat ``L' = 1``).
     white_level : float, optional
-        Exposure: the flat ``L'`` [-] shown as ``RGB = (1, 1, 1)``; default
-        :data:`DEFAULT_WHITE_LEVEL` (2.5).
-    gamut : {"preserve_hue", "clip", "none"}, optional
+        Exposure: the flat ``L'`` [-] mapped to ``RGB = (1, 1, 1)`` before the tone mapping; default
+        :data:`DEFAULT_WHITE_LEVEL` (1.5).
+    gamut : {"filmic", "preserve_hue", "clip", "none"}, optional
         Mapping of out-of-range values into [0, 1]:
 
-        - ``"preserve_hue"`` (default): a pixel with a negative channel (chromaticity outside the
+        - ``"filmic"`` (default): the luminance ``y`` is kept up to :data:`FILMIC_KNEE` and rolled off towards
+          white above it (:func:`filmic_tone`), the colour's chroma scaled by the tone curve's share so that
+          highlights become neutral white, then, where a channel would still leave [0, 1], the chroma reduced at
+          constant luminance until it fits (hue kept). Pixels with luminance <= 0 become black.
+        - ``"preserve_hue"``: a pixel with a negative channel (chromaticity outside the
           sRGB triangle) is desaturated towards the neutral grey of the same luminance until its
           smallest channel is 0 (hue and luminance kept); then a pixel whose largest channel
           exceeds 1 is scaled down by that channel (chromaticity kept, brightness saturates).
@@ -203,6 +338,8 @@ def XYZ_to_display_rgb(
         return rgb
     if gamut == "clip":
         return np.clip(rgb, 0.0, 1.0)
+    if gamut == "filmic":
+        return _filmic(rgb.reshape(-1, 3), _luminance_row(transform)).reshape(rgb.shape)
     # preserve_hue: work on the (few) offending pixels only
     flat = rgb.reshape(-1, 3)
     lum = _luminance_row(transform)  # luminance Y / Y_white from rgb; the coefficients sum to 1
@@ -271,7 +408,7 @@ def solar_relative_to_srgb8(
     radiance,
     white_level=DEFAULT_WHITE_LEVEL,
     *,
-    gamut: str = "preserve_hue",
+    gamut: str = "filmic",
     wavelengths_nm=None,
 ) -> np.ndarray:
     """The whole colour stage: solar-relative radiance to 8-bit sRGB (paper, Sect. 3.8).
@@ -287,7 +424,7 @@ def solar_relative_to_srgb8(
         rendered black.
     white_level : float, optional
         Exposure: the flat ``L'`` shown as white; default :data:`DEFAULT_WHITE_LEVEL`.
-    gamut : {"preserve_hue", "clip", "none"}, optional
+    gamut : {"filmic", "preserve_hue", "clip", "none"}, optional
         See :func:`XYZ_to_display_rgb` (``"none"`` behaves as ``"clip"`` here, via the encoder).
     wavelengths_nm : array_like, shape (n,), optional
         Wavelengths of ``radiance`` [nm]; default :data:`swim.constants.WAVELENGTHS_NM`.
@@ -325,6 +462,12 @@ def solar_relative_to_srgb8(
     return out
 
 
+def gamut_mode(gamut: str) -> int:
+    """The compiled kernels' code of a gamut mapping: 0 "clip" (and "none", clipped by the encoder), 1
+    "preserve_hue", 2 "filmic"."""
+    return {"preserve_hue": 1, "filmic": 2}.get(gamut, 0)
+
+
 def _srgb8_compiled(radiance, white_level, gamut):
     """:func:`solar_relative_to_srgb8` at the default wavelengths in one compiled pass per pixel
     (:func:`swim.color.srgb_cpu.srgb8_pixels`, ~6x faster than the NumPy chain); the pixels whose spectrum needs
@@ -337,7 +480,7 @@ def _srgb8_compiled(radiance, white_level, gamut):
     need = np.empty(flat.shape[1], bool)
     transform = CHROMATIC_ADAPTATION_TRANSFORM
     srgb8_pixels(flat, _linear_matrix(wl), _monomial_solve(wl), display_matrix(transform) / white_level,
-                 _luminance_row(transform), gamut == "preserve_hue", *code_tables(), out, need)
+                 _luminance_row(transform), gamut_mode(gamut), FILMIC_KNEE, *code_tables(), out, need)
     if need.any():
         out[need] = encode_srgb8(XYZ_to_display_rgb(solar_relative_to_XYZ(flat[:, need]), white_level, gamut=gamut))
     return out.reshape(radiance.shape[1:] + (3,))

@@ -12,8 +12,8 @@ The arithmetic is that of the NumPy functions, step by step and in their order (
    quadratic of the three wavelengths is >= 0 between 380 and 780 nm). A pixel whose quadratic may be negative there
    (:func:`swim.color.spectrum._may_clip_quadratic`; rare in rendered skies) is only flagged: the caller computes it
    with the clipped spectral sum in NumPy.
-2. ``rgb = (display_matrix / white_level) @ XYZ`` and the gamut mapping of
-   :func:`swim.color.display.XYZ_to_display_rgb` ("preserve_hue" or "clip").
+2. ``rgb = (display_matrix / white_level) @ XYZ`` and the tone and gamut mapping of
+   :func:`swim.color.display.XYZ_to_display_rgb` ("filmic", "preserve_hue" or "clip").
 3. :func:`swim.color.display.encode_srgb8`: clipped to [0, 1], the sRGB transfer function, rounded to 0-255. The
    kernel finds each code among the 255 linear values at which the code steps up (:func:`code_tables`, found once
    with the transfer function itself) instead of computing a ``pow`` per channel: three ``pow`` were half of a
@@ -97,7 +97,30 @@ def _encode_by_table(v, steps, start):
 
 
 @njit(**_JIT)
-def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, steps, start, out, need):
+def _filmic(r, g, bl, luminance, knee):
+    """:func:`swim.color.display._filmic` of one pixel's linear display RGB: the tone curve of its luminance
+    (:func:`swim.color.display.filmic_tone`), its chroma scaled by the curve's share, then reduced at constant
+    luminance until every channel fits in [0, 1]."""
+    y = r * luminance[0] + g * luminance[1] + bl * luminance[2]
+    if not y > 0.0:
+        return 0.0, 0.0, 0.0
+    over = max(y - knee, 0.0) / (1.0 - knee)
+    fall = math.exp(-over)
+    tone = knee + (1.0 - knee) * (1.0 - fall) if y > knee else y
+    share = math.sqrt(fall)
+    f = tone / y
+    c0, c1, c2 = (r * f - tone) * share, (g * f - tone) * share, (bl * f - tone) * share
+    s = 1.0
+    for c in (c0, c1, c2):
+        if c < 0.0:
+            s = min(s, tone / -c)
+        elif c > 0.0:
+            s = min(s, (1.0 - tone) / c)
+    return tone + s * c0, tone + s * c1, tone + s * c2
+
+
+@njit(**_JIT)
+def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, mode, knee, steps, start, out, need):
     """8-bit sRGB of pixels whose three-wavelength spectrum needs no clipping.
 
     Parameters
@@ -114,8 +137,10 @@ def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, st
         Shape (3, 3) float64: linear display RGB from XYZ, the exposure included (``display_matrix / white_level``).
     luminance : numpy.ndarray
         Shape (3,) float64: luminance from display RGB (:func:`swim.color.display._luminance_row`).
-    preserve_hue : bool
-        The "preserve_hue" gamut mapping; False: "clip".
+    mode : int
+        The gamut mapping (:func:`swim.color.display.gamut_mode`): 0 "clip", 1 "preserve_hue", 2 "filmic".
+    knee : float
+        The "filmic" tone curve's knee (:data:`swim.color.display.FILMIC_KNEE`).
     steps, start : numpy.ndarray
         Shapes (257,) float64 and (CODE_BINS + 1,) int64: :func:`code_tables`.
     out : numpy.ndarray
@@ -145,7 +170,9 @@ def srgb8_pixels(radiance, to_xyz, monomial, to_rgb, luminance, preserve_hue, st
         r = to_rgb[0, 0] * x + to_rgb[0, 1] * y + to_rgb[0, 2] * z
         g = to_rgb[1, 0] * x + to_rgb[1, 1] * y + to_rgb[1, 2] * z
         bl = to_rgb[2, 0] * x + to_rgb[2, 1] * y + to_rgb[2, 2] * z
-        if preserve_hue:
+        if mode == 2:
+            r, g, bl = _filmic(r, g, bl, luminance, knee)
+        elif mode == 1:
             smallest = min(min(r, g), bl)
             if smallest < 0.0:  # towards the grey of the same luminance until the smallest channel is 0
                 lum = r * luminance[0] + g * luminance[1] + bl * luminance[2]

@@ -12,7 +12,8 @@ this program alone) and in the same order (paper, Sect. 3.8, Eqs. 33-35; docs/co
 1. ``XYZ = M @ L'`` where the interpolating quadratic of the three wavelengths is >= 0 between 380 and 780 nm; a pixel
    whose quadratic may be negative there is only flagged (``need``): the caller computes it with the clipped spectral
    sum on the host (:func:`swim.color.solar_relative_to_srgb8`). It is rare in rendered skies.
-2. ``rgb = (display_matrix / white_level) @ XYZ`` and the gamut mapping ("preserve_hue" or "clip").
+2. ``rgb = (display_matrix / white_level) @ XYZ`` and the tone and gamut mapping ("filmic", "preserve_hue" or
+   "clip").
 3. The sRGB encoding by :func:`swim.color.srgb_cpu.code_tables`' steps (the linear values where a code steps up).
 
 A device may fuse a product and a sum (one rounding instead of two): a value then moves by ~1e-16 relative, which
@@ -28,7 +29,15 @@ import numpy as np
 
 from ..errors import SwimInputError
 from ..rt.export_cache import exported_jit
-from .display import CHROMATIC_ADAPTATION_TRANSFORM, GAMUT_MAPPINGS, _check_white_level, _luminance_row, display_matrix
+from .display import (
+    CHROMATIC_ADAPTATION_TRANSFORM,
+    FILMIC_KNEE,
+    GAMUT_MAPPINGS,
+    _check_white_level,
+    _luminance_row,
+    display_matrix,
+    gamut_mode,
+)
 from .spectrum import _DEFAULT_WAVELENGTHS, _linear_matrix, _monomial_solve
 from .srgb_cpu import CODE_BINS, code_tables
 
@@ -47,8 +56,27 @@ def _encode_by_table(v, steps, start):
     return (code + (v >= steps[code + 1]).astype(code.dtype) - (v < steps[code]).astype(code.dtype)).astype(jnp.uint8)
 
 
-@exported_jit(static_argnames=("preserve_hue",))
-def _srgb8_planes(radiance, to_xyz, monomial, to_rgb, luminance, steps, start, *, preserve_hue):
+def _filmic(r, g, bl, luminance, knee):
+    """:func:`swim.color.srgb_cpu._filmic` on arrays."""
+    y = r * luminance[0] + g * luminance[1] + bl * luminance[2]
+    lit = y > 0.0
+    safe_y = jnp.where(lit, y, 1.0)
+    fall = jnp.exp(-(jnp.maximum(y - knee, 0.0) / (1.0 - knee)))
+    tone = jnp.where(y > knee, knee + (1.0 - knee) * (1.0 - fall), y)
+    share = jnp.sqrt(fall)
+    f = tone / safe_y
+    chroma = [(ch * f - tone) * share for ch in (r, g, bl)]
+    s = jnp.ones_like(y)
+    for c in chroma:
+        neg, pos = c < 0.0, c > 0.0
+        safe_c = jnp.where(neg | pos, c, 1.0)
+        s = jnp.where(neg, jnp.minimum(s, tone / -safe_c), s)
+        s = jnp.where(pos, jnp.minimum(s, (1.0 - tone) / safe_c), s)
+    return tuple(jnp.where(lit, tone + s * c, 0.0) for c in chroma)
+
+
+@exported_jit(static_argnames=("mode",))
+def _srgb8_planes(radiance, to_xyz, monomial, to_rgb, luminance, knee, steps, start, *, mode):
     """Codes (..., 3) uint8 and ``need`` (...) bool of ``radiance`` (3, ...), as :func:`swim.color.srgb_cpu.
     srgb8_pixels` gives them per pixel (a pixel with a NaN channel: 0, 0, 0; a flagged pixel: 0, 0, 0 too)."""
     l0, l1, l2 = (radiance[c].astype(jnp.float64) for c in range(3))
@@ -62,7 +90,9 @@ def _srgb8_planes(radiance, to_xyz, monomial, to_rgb, luminance, steps, start, *
     need = ~invalid & (lo < 0.0)
     x, y, z = (_dot3(to_xyz, k, l0, l1, l2) for k in range(3))
     r, g, bl = (_dot3(to_rgb, k, x, y, z) for k in range(3))
-    if preserve_hue:
+    if mode == 2:
+        r, g, bl = _filmic(r, g, bl, luminance, knee)
+    elif mode == 1:
         smallest = jnp.minimum(jnp.minimum(r, g), bl)
         lum = r * luminance[0] + g * luminance[1] + bl * luminance[2]
         shift = (smallest < 0.0) & (lum > 0.0)  # towards the grey of the same luminance until the smallest is 0
@@ -79,7 +109,7 @@ def _srgb8_planes(radiance, to_xyz, monomial, to_rgb, luminance, steps, start, *
     return codes, need
 
 
-def solar_relative_to_srgb8_device(radiance, white_level, *, gamut: str = "preserve_hue"):
+def solar_relative_to_srgb8_device(radiance, white_level, *, gamut: str = "filmic"):
     """8-bit sRGB codes of a device array of solar-relative radiance, on the device, and the pixels left to the host.
 
     Parameters
@@ -90,7 +120,7 @@ def solar_relative_to_srgb8_device(radiance, white_level, *, gamut: str = "prese
         (rendered black).
     white_level : float
         Exposure: the flat ``L'`` shown as white [-] (:func:`swim.color.solar_relative_to_srgb8`).
-    gamut : {"preserve_hue", "clip", "none"}
+    gamut : {"filmic", "preserve_hue", "clip", "none"}
         As for :func:`swim.color.solar_relative_to_srgb8` ("none" behaves as "clip").
 
     Returns
@@ -130,5 +160,7 @@ def solar_relative_to_srgb8_device(radiance, white_level, *, gamut: str = "prese
     steps, start = code_tables()
     with jax.enable_x64(True):  # the host kernel's float64 arithmetic
         tables = [jnp.asarray(np.asarray(a, np.float64)) for a in (
-            _linear_matrix(wl), _monomial_solve(wl), display_matrix(transform) / w, _luminance_row(transform), steps)]
-        return _srgb8_planes(radiance, *tables, jnp.asarray(start), preserve_hue=gamut == "preserve_hue")
+            _linear_matrix(wl), _monomial_solve(wl), display_matrix(transform) / w, _luminance_row(transform))]
+        knee = jnp.asarray(np.float64(FILMIC_KNEE))
+        return _srgb8_planes(radiance, *tables, knee, jnp.asarray(np.asarray(steps, np.float64)), jnp.asarray(start),
+                             mode=gamut_mode(gamut))

@@ -123,7 +123,7 @@ def _argument_types():
         "rpv_q": ro(f8, 1), "snow_table": ro(f8, 2), "snow_albedo": ro(f8, 1), "subsurface": ro(f8, 1),
         "fade_cells": ro(f8, 1), "cloud_mode": b1, "out": a(f4, 2)}
     colour = {"radiance": a(f8, 2), "to_xyz": ro(f8, 2), "monomial": ro(f8, 2), "to_rgb": a(f8, 2),
-              "luminance": ro(f8, 1), "preserve_hue": b1, "steps": ro(f8, 1), "start": ro(i8, 1),
+              "luminance": ro(f8, 1), "mode": i8, "knee": f8, "steps": ro(f8, 1), "start": ro(i8, 1),
               "out": a(types.uint8, 2), "need": a(b1, 1)}
     work = {"edges": a(f8, 1), "cdf": a(f8, 1), "stack_lo": a(f8, 1), "stack_hi": a(f8, 1), "stack_depth": a(i8, 1),
             "saved": a(f8, 1), "tsp": a(f8, 1), "ms_lanes": a(f8, 2), "vol": a(f8, 1), "vol32": a(f4, 1),
