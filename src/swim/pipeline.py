@@ -5,6 +5,7 @@ Each stage is a function between xarray objects or small dataclasses; :func:`ren
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import threading
@@ -696,6 +697,20 @@ def _check_exposure(white_level, exposure) -> bool:
     return False
 
 
+def settings_attributes(settings: MarchSettings) -> dict:
+    """The march settings as netCDF attributes ``settings_<field>``: numbers as they are, booleans as 0 or 1, the
+    rest (None, methods, nested settings) as text."""
+    out = {}
+    for field in dataclasses.fields(settings):
+        value = getattr(settings, field.name)
+        if isinstance(value, (bool, np.bool_)):
+            value = int(value)
+        elif not isinstance(value, (int, float, np.integer, np.floating)):
+            value = str(value)
+        out[f"settings_{field.name}"] = value
+    return out
+
+
 def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
             settings, white_level, exposure, progress, crop, sampling, coarsen, check_memory,
             guess: _DigestGuess | None) -> xr.Dataset:
@@ -1172,9 +1187,13 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             "comment": (f"rays that do not look down stop where it passes {settings.stop_tau:g} (opaque): there it "
                         f"is {settings.stop_tau:g}, a lower bound") if settings.stop_tau
                        else "the whole line of sight"}),
-        "rgb": (("y", "x", "channel"), rgb, {"long_name": "true-colour image, 8-bit sRGB"}),
-        "view_azimuth": (("y", "x"), view_az, {"units": "degree", "long_name": "view azimuth, clockwise from north"}),
-        "view_zenith": (("y", "x"), view_zen, {"units": "degree", "long_name": "view zenith angle"}),
+        "rgb": (("y", "x", "channel"), rgb, {"units": "1", "long_name": "true-colour image, 8-bit sRGB codes",
+                                             "comment": "display transform: see the display_transform, white_level "
+                                                        "and exposure attributes; the radiance does not depend on it"}),
+        "view_azimuth": (("y", "x"), view_az, {"units": "degree", "standard_name": "sensor_azimuth_angle",
+                                               "long_name": "view azimuth, clockwise from north"}),
+        "view_zenith": (("y", "x"), view_zen, {"units": "degree", "standard_name": "sensor_zenith_angle",
+                                              "long_name": "view zenith angle"}),
     }
     attrs = {
         "title": f"SWIm {camera} image",
@@ -1221,13 +1240,21 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         "Conventions": "CF-1.8",
     }
     attrs.update(cam.to_attrs())  # keys start with "camera_"
+    attrs.update(settings_attributes(settings))  # keys start with "settings_"
     del radiance, rgb
     if trim:
         release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
     # A long-lived process that renders many grids keeps every program JAX compiled; near the process's limit of
     # memory mappings XLA's next executable would fail to map and leave the process to crash (swim.memory).
     release_compiled_programs(min_interval_s=COMPILED_PROGRAMS_CHECK_S)
-    return xr.Dataset(data, coords=_image_coordinates(), attrs=attrs)
+    image = xr.Dataset(data, coords=_image_coordinates(), attrs=attrs)
+    when = sun.time if sun.time is not None else (scene["time"].values if "time" in scene.coords else None)
+    if when is not None:  # a scalar time coordinate (CF 4.4): the sun's time, else the scene's
+        stamp = pd.Timestamp(when)
+        stamp = stamp.tz_convert("UTC").tz_localize(None) if stamp.tzinfo is not None else stamp
+        image = image.assign_coords(time=xr.Variable((), np.datetime64(stamp.to_datetime64(), "ns"),
+                                                     {"standard_name": "time", "long_name": "time of the image (UTC)"}))
+    return image
 
 
 @functools.lru_cache(maxsize=1)
@@ -1236,7 +1263,8 @@ def _image_coordinates() -> xr.Coordinates:
     making them took half of the output Dataset's ~0.3 ms. A Dataset copies the variables' attributes, and the
     indexes' values are read-only, so images that share them cannot change one another's."""
     return xr.Coordinates({"wavelength": xr.Variable("wavelength", np.asarray(WAVELENGTHS_NM, dtype=float),
-                                                     {"units": "nm", "long_name": "wavelength"}),
+                                                     {"units": "nm", "standard_name": "radiation_wavelength",
+                                                      "long_name": "wavelength"}),
                            "channel": ["R", "G", "B"]})
 
 
@@ -1373,8 +1401,21 @@ def write_netcdf(image: xr.Dataset, path) -> Path:
     return Path(path)
 
 
+def cf_dataset(image: xr.Dataset) -> xr.Dataset:
+    """A rendered image as written to netCDF (CF-1.8): the ``channel`` labels as a character variable
+    ``channel_name`` (CF 6.1.1 labels; CF 2.2 allows no variable-length strings) instead of a string coordinate."""
+    if "channel" in image.coords and image["channel"].dtype.kind in "OUS":
+        names = np.asarray(image["channel"].values).astype("S1")
+        image = image.drop_vars("channel").assign_coords(
+            channel_name=xr.Variable("channel", names, {"long_name": "colour channel of rgb (R, G, B)"}))
+    return image
+
+
 def _netcdf_to(image, tmp):
+    image = cf_dataset(image)
     encoding = {name: {"zlib": True, "complevel": 4} for name in image.data_vars}
+    if "channel_name" in image.coords:
+        encoding["channel_name"] = {"dtype": "S1"}
     image.to_netcdf(tmp, format="NETCDF4", encoding=encoding)
 
 

@@ -74,3 +74,25 @@ def test_quiet_reports_nothing_but_errors(tmp_path):
     loud = CliRunner().invoke(app, ["render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth", "150", "--out",
                                     str(out)])
     assert "wrote" in loud.output
+
+
+def test_exposure_options(tmp_path):
+    """--white-level auto meters the image, --exposure shifts it in stops; a bad value of either is one line, exit
+    code 2 and no file."""
+    import xarray as xr
+
+    base = ["render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth", "150"]
+    nc = tmp_path / "auto.nc"
+    result = CliRunner().invoke(app, [*base, "--white-level", "auto", "--exposure", "1", "--out",
+                                      str(tmp_path / "auto.png"), "--netcdf", str(nc)])
+    assert result.exit_code == 0, result.output
+    with xr.open_dataset(nc) as image:
+        assert image.attrs["exposure"] == "auto" and image.attrs["exposure_ev"] == 1.0
+        assert 0.0 < image.attrs["white_level"] < 10.0
+    for option, value, message in (("--white-level", "bright", "--white-level"), ("--white-level", "-1", "white_level"),
+                                   ("--exposure", "40", "exposure")):
+        out = tmp_path / "x.png"
+        result = CliRunner().invoke(app, [*base, option, value, "--out", str(out)])
+        assert result.exit_code == 2 and message in result.output, result.output
+        assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
+        assert not out.exists()

@@ -93,3 +93,31 @@ def test_an_image_and_its_netcdf_are_written_both_or_neither(tmp_path, image, mo
         write_outputs(image, tmp_path / "c.png", tmp_path / "c.nc")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.nc", "a.png"]
     np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "a.png")), image["rgb"].values)
+
+
+def test_the_netcdf_follows_cf(tmp_path, image):
+    """What cfchecker (CF-1.8) checks in the image's file: no variable-length strings (CF 2.2: the channel labels are
+    a character variable), units on every data variable, standard names where CF has them, a time coordinate even
+    with the sun set by angles (the scene's time then), and the march settings and exposure as attributes."""
+    import netCDF4
+    import xarray as xr
+
+    path = swim.write_netcdf(image, tmp_path / "a.nc")
+    with netCDF4.Dataset(path) as nc:
+        for name, var in nc.variables.items():
+            assert not isinstance(var.datatype, netCDF4.VLType) and var.dtype is not str, name
+        assert nc.getncattr("Conventions") == "CF-1.8"
+        for name in ("radiance", "radiance_clear", "rgb", "view_zenith", "view_azimuth", "tau_hydrometeor"):
+            assert "units" in nc.variables[name].ncattrs(), name
+        assert nc.variables["view_zenith"].standard_name == "sensor_zenith_angle"
+        assert nc.variables["view_azimuth"].standard_name == "sensor_azimuth_angle"
+        assert nc.variables["wavelength"].standard_name == "radiation_wavelength"
+        assert nc.variables["time"].standard_name == "time" and "since" in nc.variables["time"].units
+        assert "channel_name" in nc.variables["rgb"].coordinates
+        assert nc.getncattr("settings_n_grid") == image.attrs["settings_n_grid"] > 0
+        assert nc.getncattr("display_transform") == "filmic" and nc.getncattr("exposure") == "fixed"
+    with xr.open_dataset(path) as back:
+        assert [c.decode() for c in back["channel_name"].values] == ["R", "G", "B"]
+        assert back["time"].values == np.datetime64(swim.default_scene()["time"].values)
+        np.testing.assert_array_equal(back["rgb"].values, image["rgb"].values)
+    assert list(image["channel"].values) == ["R", "G", "B"]  # the image in memory keeps its labels
