@@ -3,6 +3,7 @@ word of where, and no noise from JAX's search for accelerators in ``-v``."""
 
 import logging
 
+import numpy as np
 from typer.testing import CliRunner
 
 from swim import __version__
@@ -96,3 +97,25 @@ def test_exposure_options(tmp_path):
         assert result.exit_code == 2 and message in result.output, result.output
         assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
         assert not out.exists()
+
+
+def test_a_clear_site_from_the_command_line(tmp_path):
+    """--site renders swim ghi's cloud-free site scene at --lat/--lon and --elevation: no cloud on the line of sight
+    and the observer on the site's ground; without its place or time, or beside a scene file, it is refused."""
+    import xarray as xr
+
+    nc = tmp_path / "site.nc"
+    result = CliRunner().invoke(app, ["render", "--site", "--lat", "37.70", "--lon", "-105.92", "--elevation", "2317",
+                                      "--time", "2016-06-01T18:00", "--aod", "0.1", "--size", "15", "--out",
+                                      str(tmp_path / "site.png"), "--netcdf", str(nc)])
+    assert result.exit_code == 0, result.output
+    with xr.open_dataset(nc) as image:
+        assert image.attrs["observer_height_asl_m"] == 2317.0 + 2.0
+        assert abs(image.attrs["observer_lat"] - 37.70) < 1e-9 and image.attrs["aerosol_optical_depth_550"] == 0.1
+        assert float(np.nanmax(image["tau_hydrometeor"].values)) == 0.0
+    for args, message in ((["--lat", "37.7"], "--lat and --lon"),
+                          (["--lat", "37.7", "--lon", "-105.9"], "--time"),
+                          (["scene.nc", "--lat", "37.7", "--lon", "-105.9", "--time", "2016-06-01T18:00"], "one or the other")):
+        result = CliRunner().invoke(app, ["render", "--site", *args, "--size", "9", "--out", str(tmp_path / "x.png")])
+        assert result.exit_code == 2 and message in result.output, result.output
+        assert len(result.output.strip().splitlines()) == 1

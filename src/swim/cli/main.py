@@ -92,6 +92,21 @@ def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log the st
     logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
 
 
+def _site_scene(scene, lat, lon, elevation, albedo, time, sun_zenith):
+    """--site: the clear site scene of ``swim ghi`` (:func:`swim.diagnostics.ghi.clear_site_scene`)."""
+    from ..diagnostics.ghi import clear_site_scene
+
+    if scene is not None:
+        raise SwimInputError("--site renders a cloud-free site instead of a scene file: give one or the other")
+    if lat is None or lon is None:
+        raise SwimInputError("--site needs --lat and --lon (the site [deg])")
+    if time is None and sun_zenith is None:
+        raise SwimInputError("--site needs --time (UTC) or --sun-zenith/--sun-azimuth: a site has no model time")
+    if not 0.0 <= albedo <= 1.0:
+        raise SwimInputError(f"--site-albedo must be within [0, 1], got {albedo}")
+    return clear_site_scene(lat, lon, elevation, surface_albedo=albedo, time=time)
+
+
 def _white_level(text):
     """--white-level: a number, 'auto' or unset."""
     if text is None or text.strip().lower() == "auto":
@@ -142,6 +157,10 @@ def render(
     lat: Optional[float] = typer.Option(None, help="Observer latitude [deg] (default: domain centre)."),
     lon: Optional[float] = typer.Option(None, help="Observer longitude [deg] (default: domain centre)."),
     height: float = typer.Option(2.0, help="Observer height above the ground [m]."),
+    site: bool = typer.Option(False, "--site", help="No scene file: a cloud-free site at --lat/--lon (flat ground at "
+                              "--elevation, albedo --site-albedo) in the clear atmosphere of --aerosol/--aod."),
+    elevation: float = typer.Option(0.0, help="--site: ground elevation [m above sea level]."),
+    site_albedo: float = typer.Option(0.2, "--site-albedo", help="--site: ground albedo [-]."),
     camera: CameraKind = typer.Option(CameraKind.allsky, help="Camera kind."),
     size: int = typer.Option(511, help="All-sky image size [pixels]."),
     width: int = typer.Option(1024, help="Panorama / perspective width [pixels]."),
@@ -312,7 +331,12 @@ def render(
             except ValueError:
                 raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
         check_coarsening(level_of_detail)
-        ds = default_scene() if scene is None else open_scene(scene, lazy=lazy, time=time, **place)
+        if site:
+            ds = _site_scene(scene, lat, lon, elevation, site_albedo, time, sun_zenith)
+        elif scene is None:
+            ds = default_scene()
+        else:
+            ds = open_scene(scene, lazy=lazy, time=time, **place)
         if albedo_image is not None:
             from ..surface.albedo import scene_with_albedo_from_image
 
