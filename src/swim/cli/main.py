@@ -107,6 +107,35 @@ def _site_scene(scene, lat, lon, elevation, albedo, time, sun_zenith):
     return clear_site_scene(lat, lon, elevation, surface_albedo=albedo, time=time)
 
 
+def _numbers(text, option):
+    """'0.9' or '0.9,0.92,0.95' as a float or a list of floats."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise SwimInputError(f"{option} must be one number or three separated by commas, got {text!r}") from None
+    if len(values) not in (1, 3):
+        raise SwimInputError(f"{option} must be one number or three separated by commas, got {text!r}")
+    return values[0] if len(values) == 1 else values
+
+
+def _aerosol_optics(type_name, ssa, g, angstrom, phase, scale_height_km):
+    """AerosolBackground arguments for the aerosol's own optics and scale height (none where none is given)."""
+    from ..optics.aerosol_types import custom_aerosol_type, read_phase_function_table
+
+    out = {}
+    if scale_height_km is not None:
+        out["scale_height_m"] = float(scale_height_km) * 1e3
+    if ssa is None and g is None and angstrom is None and phase is None:
+        return out
+    if type_name.strip().lower() == "none":
+        raise SwimInputError("--aerosol none has no optics to change")
+    out["optics"] = custom_aerosol_type(
+        type_name, ssa=None if ssa is None else _numbers(ssa, "--aerosol-ssa"),
+        g=None if g is None else _numbers(g, "--aerosol-g"), angstrom_exponent=angstrom,
+        phase_function=None if phase is None else read_phase_function_table(phase))
+    return out
+
+
 def _white_level(text):
     """--white-level: a number, 'auto' or unset."""
     if text is None or text.strip().lower() == "auto":
@@ -176,6 +205,17 @@ def render(
                                                     "background aerosol."),
     aod: Optional[float] = typer.Option(None, help="Background aerosol optical depth at 550 nm (default 0.05; 0 "
                                                    "where the scene has a 3-D aerosol field)."),
+    aerosol_ssa: Optional[str] = typer.Option(None, "--aerosol-ssa", help="The aerosol's own single-scattering "
+                                              "albedo: one value or 'w615,w546,w450' (replaces the type's)."),
+    aerosol_g: Optional[str] = typer.Option(None, "--aerosol-g", help="The aerosol's own asymmetry parameter "
+                                            "(Henyey-Greenstein): one value or three (615, 546, 450 nm)."),
+    aerosol_angstrom: Optional[float] = typer.Option(None, "--aerosol-angstrom", help="The aerosol's own "
+                                                     "Angstrom exponent [-]."),
+    aerosol_phase: Optional[Path] = typer.Option(None, "--aerosol-phase", help="The aerosol's own phase function: a "
+                                                 "text table of scattering angle [deg] and P (or P at 615, 546, "
+                                                 "450 nm), 0-180 deg."),
+    aerosol_scale_height: Optional[float] = typer.Option(None, "--aerosol-scale-height", help="Scale height of the "
+                                                         "background aerosol [km] (default 1.5)."),
     strat_aod: float = typer.Option(0.0, "--strat-aod", help="Optical depth at 550 nm of a stratospheric "
                                                              "(volcanic sulfate) aerosol layer at 20 km."),
     strat_height: float = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km]."),
@@ -359,7 +399,9 @@ def render(
                 options["fov_deg"] = 60.0
             if view_azimuth is not None:
                 options.update(view_azimuth_deg=view_azimuth, view_zenith_deg=90.0 if view_zenith is None else view_zenith)
-        strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height}
+        strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height,
+                 **_aerosol_optics(aerosol, aerosol_ssa, aerosol_g, aerosol_angstrom, aerosol_phase,
+                                   aerosol_scale_height)}
         if aerosol.strip().lower() == "none":  # no background aerosol (a scene's 3-D aerosol field stays)
             if aod is not None and aod != 0:
                 raise SwimInputError(f"--aerosol none has no optical depth; got --aod {aod}")

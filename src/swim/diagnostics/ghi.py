@@ -193,8 +193,7 @@ def time_range(start, end, step) -> pd.DatetimeIndex:
 def _aerosol_shape_parameters(aerosol):
     """(ssa near 400 nm, asymmetry at 546 nm) of an aerosol type for the SPCTRL2 diffuse shape."""
     t = aerosol.type
-    fc, g1, g2 = (np.asarray(v, dtype=float) for v in (t.fc, t.g1, t.g2))
-    g = fc * g1 + (1.0 - fc) * g2
+    g = np.asarray(t.asymmetry_parameter(), dtype=float)
     return float(np.clip(t.ssa[2], 0.3, 1.0)), float(np.clip(g[_GREEN], 0.0, 0.95))
 
 

@@ -323,3 +323,170 @@ def aerosol_type(name: str) -> AerosolType:
         aliases = ", ".join(f"{a} -> {c}" for a, c in sorted(AEROSOL_TYPE_ALIASES.items()))
         raise SwimInputError(f"unknown aerosol type {name!r}; valid types: {valid} (aliases: {aliases})")
     return AEROSOL_TYPES[key]
+
+
+def _triplet(value, field, name):
+    """A scalar or 3 values (615, 546, 450 nm) as 3 floats (checked by :class:`AerosolType`)."""
+    v = np.atleast_1d(np.asarray(value, dtype=float)) if not isinstance(value, str) else None
+    if v is None or v.ndim != 1 or v.size not in (1, 3):
+        raise SwimInputError(f"aerosol {name!r}: {field} must be one number or three (615, 546, 450 nm); got {value!r}")
+    return tuple(float(x) for x in np.broadcast_to(v, (3,)))
+
+
+@dataclass(frozen=True)
+class TabulatedAerosolType(AerosolType):
+    """An aerosol type whose phase function is a table of scattering angle and value (user optics).
+
+    The DHG parameters it inherits hold the Henyey-Greenstein function of the table's asymmetry parameter (g1 = g2
+    = g, f_c = 1, f_b = 0), for the code that needs a parametric stand-in; :meth:`phase_function` and
+    :meth:`asymmetry_parameter` are the table's.
+
+    Attributes
+    ----------
+    table_cos_theta : tuple of float
+        cos θ of the table's scattering angles, increasing [-].
+    table_values : tuple of tuple of float
+        P at each cos θ for 615, 546, 450 nm (n, 3) [-], normalised to mean 1 over the sphere.
+    """
+
+    table_cos_theta: tuple = ()
+    table_values: tuple = ()
+
+    def phase_function(self, cos_theta):
+        """The table's phase function, linear in cos θ between its angles (mean 1 over the sphere), shape
+        ``cos_theta.shape + (3,)``."""
+        mu = jnp.clip(jnp.asarray(cos_theta), -1.0, 1.0)
+        xp = jnp.asarray(self.table_cos_theta)
+        values = jnp.asarray(self.table_values)
+        return jnp.stack([jnp.interp(mu, xp, values[:, c]) for c in range(3)], axis=-1)
+
+    def asymmetry_parameter(self):
+        """Mean cos θ of the table's phase function (3,) [-]."""
+        mu = np.asarray(self.table_cos_theta)
+        values = np.asarray(self.table_values)
+        return np.array([np.trapezoid(mu * values[:, c], mu) / np.trapezoid(values[:, c], mu) for c in range(3)])
+
+
+def read_phase_function_table(path):
+    """A phase-function table from a text file: columns scattering angle [deg] and P, or P at 615, 546, 450 nm.
+
+    Lines starting with ``#`` and a header line of text are skipped; commas or whitespace separate the columns.
+
+    Returns
+    -------
+    angles_deg : numpy.ndarray
+        (n,) scattering angles [deg].
+    values : numpy.ndarray
+        (n,) or (n, 3) phase function [-] (any normalisation).
+
+    Raises
+    ------
+    SwimInputError
+        A missing file, fewer than 2 or more than 4 columns, or text where numbers belong.
+    """
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise SwimInputError(f"aerosol phase-function table not found: {p}")
+    rows = []
+    for number, line in enumerate(p.read_text(errors="replace").splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        fields = line.replace(",", " ").split()
+        try:
+            rows.append([float(v) for v in fields])
+        except ValueError:
+            if rows:  # text after the numbers began: not a header
+                raise SwimInputError(f"{p}, line {number}: expected numbers (angle [deg], P), got {line[:60]!r}") from None
+            continue
+    if not rows or len({len(r) for r in rows}) != 1 or len(rows[0]) not in (2, 4):
+        raise SwimInputError(f"{p}: expected rows of 2 columns (angle [deg], P) or 4 (angle, P at 615, 546, 450 nm)")
+    table = np.array(rows)
+    return table[:, 0], (table[:, 1] if table.shape[1] == 2 else table[:, 1:])
+
+
+def custom_aerosol_type(base="continental", *, ssa=None, g=None, angstrom_exponent=None, phase_function=None,
+                        name=None) -> AerosolType:
+    """An aerosol type of the user's own optics: a named type with some of its properties replaced.
+
+    Parameters
+    ----------
+    base : str or AerosolType
+        The type whose properties are kept where none is given (:func:`aerosol_type`).
+    ssa : float or sequence of 3 floats, optional
+        Single-scattering albedo [-], 0 < ω ≤ 1, one value or one at each of 615, 546, 450 nm.
+    g : float or sequence of 3 floats, optional
+        Asymmetry parameter [-], 0 ≤ g < 1: the phase function becomes Henyey-Greenstein with it.
+    angstrom_exponent : float, optional
+        Extinction Ångström exponent α [-]: β(λ) = β_550 (λ / 550 nm)^-α.
+    phase_function : tuple of (angles_deg, values), optional
+        A tabulated phase function: scattering angles [deg] (0 and 180 included, increasing) and P (n,) or at
+        615, 546, 450 nm (n, 3), any normalisation (it is normalised to mean 1 over the sphere); exclusive with
+        ``g``. See :func:`read_phase_function_table`.
+    name : str, optional
+        The type's name in the image's attributes; default ``"<base>+custom"``.
+
+    Returns
+    -------
+    AerosolType
+        A :class:`TabulatedAerosolType` with ``phase_function``.
+
+    Raises
+    ------
+    SwimInputError
+        Values out of range, both ``g`` and ``phase_function``, or a table that does not cover 0-180 deg or has
+        negative values.
+
+    References
+    ----------
+    Henyey, L. G. and Greenstein, J. L. (1941), Astrophys. J. 93, 70-83, doi:10.1086/144246.
+    """
+    t = base if isinstance(base, AerosolType) else aerosol_type(base)
+    label = name if name is not None else f"{t.name}+custom"
+    if g is not None and phase_function is not None:
+        raise SwimInputError(f"aerosol {label!r}: give an asymmetry parameter g or a phase-function table, not both")
+    fields = {"name": label, "g1": t.g1, "g2": t.g2, "fc": t.fc, "fb": t.fb, "ssa": t.ssa,
+              "angstrom_exponent": t.angstrom_exponent, "description": f"{t.description} (user optics)",
+              "reference": "user-supplied optics"}
+    if ssa is not None:
+        fields["ssa"] = _triplet(ssa, "ssa", label)
+    if angstrom_exponent is not None:
+        try:
+            fields["angstrom_exponent"] = float(angstrom_exponent)
+        except (TypeError, ValueError):
+            raise SwimInputError(f"aerosol {label!r}: angstrom_exponent must be a number; got {angstrom_exponent!r}") from None
+        if not -1.0 <= fields["angstrom_exponent"] <= 4.0:
+            raise SwimInputError(f"aerosol {label!r}: angstrom_exponent must lie in [-1, 4] [-]; got {angstrom_exponent!r}")
+    if g is not None:
+        gg = _triplet(g, "g", label)
+        fields.update(g1=gg, g2=gg, fc=(1.0, 1.0, 1.0), fb=(0.0, 0.0, 0.0))
+    if phase_function is None:
+        return AerosolType(**fields)
+    return _tabulated(fields, *phase_function)
+
+
+def _tabulated(fields, angles_deg, values):
+    label = fields["name"]
+    angles = np.asarray(angles_deg, dtype=float)
+    p = np.asarray(values, dtype=float)
+    p = np.repeat(p[:, None], 3, axis=1) if p.ndim == 1 else p
+    if angles.ndim != 1 or angles.size < 2 or p.shape != (angles.size, 3):
+        raise SwimInputError(f"aerosol {label!r}: the phase-function table needs n >= 2 angles and n values (or n x 3)")
+    if not (np.all(np.isfinite(angles)) and np.all(np.isfinite(p))) or np.any(p < 0):
+        raise SwimInputError(f"aerosol {label!r}: the phase-function table must be finite and not negative")
+    if np.any(np.diff(angles) <= 0) or abs(angles[0]) > 1e-6 or abs(angles[-1] - 180.0) > 1e-6:
+        raise SwimInputError(f"aerosol {label!r}: the table's angles must increase from 0 to 180 deg; got "
+                             f"{angles[0]:g} ... {angles[-1]:g}")
+    mu = np.cos(np.radians(angles))[::-1]  # increasing cos theta
+    p = p[::-1]
+    mean = np.array([np.trapezoid(p[:, c], mu) / 2.0 for c in range(3)])  # (1 / 4 pi) int P dOmega
+    if np.any(mean <= 0):
+        raise SwimInputError(f"aerosol {label!r}: the phase-function table is zero everywhere")
+    p = p / mean
+    g = [float(np.trapezoid(mu * p[:, c], mu) / 2.0) for c in range(3)]
+    g = tuple(min(max(v, 0.0), 0.999) for v in g)
+    fields.update(g1=g, g2=g, fc=(1.0, 1.0, 1.0), fb=(0.0, 0.0, 0.0))
+    return TabulatedAerosolType(**fields, table_cos_theta=tuple(float(x) for x in mu),
+                                table_values=tuple(tuple(float(v) for v in row) for row in p))

@@ -39,7 +39,7 @@ import numpy as np
 from ..constants import ATMOSPHERE_TOP_M, DEFAULT_AEROSOL, EARTH_RADIUS_M, WAVELENGTHS_NM
 from ..optics.aerosol import exponential_aerosol_extinction
 from ..errors import SwimInputError
-from ..optics.aerosol_types import aerosol_type
+from ..optics.aerosol_types import AerosolType, aerosol_type
 from ..optics.atmosphere import us_standard_atmosphere_1976
 from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio, rayleigh_phase_function
 from .compilation_cache import disk_cached, package_sources
@@ -68,6 +68,9 @@ class AerosolBackground:
         Gaussian standard deviation of the layer [m], 0.5-15 km (default 3 km).
     stratospheric_type : str
         Aerosol type of the layer (default ``stratospheric_sulfate``).
+    optics : AerosolType, optional
+        The aerosol's own optics (:func:`swim.optics.aerosol_types.custom_aerosol_type`) in place of the named
+        type's; ``type_name`` becomes its name.
 
     Raises
     ------
@@ -82,6 +85,7 @@ class AerosolBackground:
     stratospheric_height_m: float = 20_000.0
     stratospheric_width_m: float = 3_000.0
     stratospheric_type: str = "stratospheric_sulfate"
+    optics: AerosolType | None = None
 
     def __post_init__(self):
         if not (np.isfinite(self.aod_550) and self.aod_550 >= 0):
@@ -94,13 +98,19 @@ class AerosolBackground:
             raise SwimInputError(f"stratospheric aerosol peak height must be 10000-50000 m, got {self.stratospheric_height_m}")
         if not (500.0 <= self.stratospheric_width_m <= 15_000.0):
             raise SwimInputError(f"stratospheric aerosol layer width must be 500-15000 m, got {self.stratospheric_width_m}")
-        object.__setattr__(self, "type_name", aerosol_type(self.type_name).name)
+        if self.optics is not None:
+            if not isinstance(self.optics, AerosolType):
+                raise SwimInputError(f"aerosol optics must be an AerosolType (swim.optics.aerosol_types."
+                                     f"custom_aerosol_type); got {type(self.optics).__name__}")
+            object.__setattr__(self, "type_name", self.optics.name)
+        else:
+            object.__setattr__(self, "type_name", aerosol_type(self.type_name).name)
         object.__setattr__(self, "stratospheric_type", aerosol_type(self.stratospheric_type).name)
 
     @property
     def type(self):
-        """The :class:`swim.optics.aerosol_types.AerosolType`."""
-        return aerosol_type(self.type_name)
+        """The :class:`swim.optics.aerosol_types.AerosolType`: ``optics`` where given, else the named type."""
+        return self.optics if self.optics is not None else aerosol_type(self.type_name)
 
     @property
     def ssa(self):
