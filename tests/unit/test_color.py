@@ -350,22 +350,37 @@ def test_oetf_srgb_is_colour_sciences(shape):
     assert np.shape(sc.oetf_srgb(x)) == shape
 
 
-def test_a_render_takes_colour_science_data_from_the_disk_cache(tmp_path):
-    """The first process builds the colour-science entry of the disk cache; a second one encodes an image without
-    importing colour-science (~0.6-1.2 s of every render's start, docs/performance.md section 40), to the same bytes."""
-    import os
+def test_a_render_needs_no_colour_science():
+    """The colour stage runs on the tables shipped with swim: a process encodes an image without importing
+    colour-science (~0.6-1.2 s and ~100 MB)."""
     import subprocess
     import sys
 
     script = ("import sys, numpy as np; from swim.color import solar_relative_to_srgb8; "
               "rgb = solar_relative_to_srgb8(np.linspace(0.01, 3.0, 96).reshape(3, 4, 8)); "
               "print(int('colour' in sys.modules), rgb.tobytes().hex())")
-    env = {**os.environ, "SWIM_CACHE_DIR": str(tmp_path)}
-    first, second = (subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
-                                    check=True).stdout.split() for _ in range(2))
-    assert first[0] == "1" and second[0] == "0"
-    assert first[1] == second[1]
-    assert list((tmp_path / "colour").glob("*.pkl"))
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.split()
+    assert out[0] == "0"
+    np.testing.assert_array_equal(np.frombuffer(bytes.fromhex(out[1]), np.uint8).reshape(4, 8, 3),
+                                  sc.solar_relative_to_srgb8(np.linspace(0.01, 3.0, 96).reshape(3, 4, 8)))
+
+
+def test_the_shipped_colour_tables_are_colour_sciences():
+    """src/swim/data/colour_tables.npz (scripts/make_colour_tables.py) holds colour-science's CIE 1931 colour matching
+    functions, sRGB matrix and D65 white, and every chromatic adaptation transform's matrix, exactly."""
+    from swim.color._tables import colour_science_data
+
+    data = colour_science_data()
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    np.testing.assert_array_equal(data["cmfs_wavelength_nm"], cmfs.wavelengths)
+    np.testing.assert_array_equal(data["cmfs"], cmfs.values)
+    srgb = colour.RGB_COLOURSPACES["sRGB"]
+    np.testing.assert_array_equal(data["srgb_XYZ_to_RGB"], srgb.matrix_XYZ_to_RGB)
+    np.testing.assert_array_equal(data["srgb_whitepoint_XYZ"], colour.xy_to_XYZ(srgb.whitepoint))
+    for name, matrix in colour.CHROMATIC_ADAPTATION_TRANSFORMS.items():
+        np.testing.assert_array_equal(colour_science_data(name)["cat"], matrix)
+    with pytest.raises(SwimInputError, match="Bradford"):
+        colour_science_data("Brad")
 
 
 def test_oetf_srgb_published_constants():

@@ -2,8 +2,8 @@
 and the regular wavelength grid on which the spectral reconstruction of Sect. 3.8 is evaluated.
 
 Everything here is computed once and cached; the arrays handed out are read-only. What comes from colour-science is
-also cached on disk (:func:`colour_science_data`), so that a render does not import it (~0.6 s, ~1.2 s where
-matplotlib is installed, whose ``pyplot`` colour-science imports; docs/performance.md, section 40).
+shipped with swim as a table (:func:`colour_science_data`), so that a render needs no colour-science: importing it
+took ~0.6 s (~1.2 s where matplotlib is installed) and it weighs ~100 MB.
 
 Sources
 -------
@@ -11,21 +11,20 @@ Sources
   (:func:`pvlib.spectrum.get_reference_spectra`, column ``'extraterrestrial'``), W m-2 nm-1 at 1 AU,
   scaled by its publisher to a total solar irradiance of 1366.1 W m-2.
 - CIE 1931 2-degree standard observer colour matching functions, 1 nm table from colour-science
-  (``colour.MSDS_CMFS['CIE 1931 2 Degree Standard Observer']``; CIE 015:2018, Table 1).
+  (``colour.MSDS_CMFS['CIE 1931 2 Degree Standard Observer']``; CIE 015:2018, Table 1), shipped in
+  ``swim/data/colour_tables.npz`` with the sRGB matrix and the adaptation transforms (``scripts/make_colour_tables.py``).
 """
 
 from __future__ import annotations
 
 import functools
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 from swim.constants import SOLAR_CONSTANT_W_M2
 from swim.errors import SwimInputError
-
-#: Version of what :func:`colour_science_data` takes from colour-science (part of its disk cache's key).
-_COLOUR_DATA_LAYOUT = 1
 
 #: Regular wavelength grid of the reconstructed spectrum [nm]: 380-780 nm in 5 nm steps (81 samples),
 #: the CIE 015 recommended summation interval for colorimetry.
@@ -48,7 +47,7 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 
 
 def import_colour():
-    """colour-science, imported when first needed.
+    """colour-science (the tables' source, for their script and the tests), imported when first needed.
 
     Returns
     -------
@@ -61,12 +60,22 @@ def import_colour():
     return colour
 
 
+#: The colorimetric tables taken from colour-science (``scripts/make_colour_tables.py``), shipped with swim.
+COLOUR_TABLES_PATH = Path(__file__).resolve().parents[1] / "data" / "colour_tables.npz"
+
+
+@functools.lru_cache(maxsize=1)
+def _shipped_tables() -> dict:
+    with np.load(COLOUR_TABLES_PATH) as data:
+        return {key: data[key] for key in data.files}
+
+
 @functools.lru_cache(maxsize=8)
 def colour_science_data(transform: str | None = None) -> dict:
-    """What the colour stage takes from colour-science, from swim's disk cache (kind ``colour``).
+    """What the colour stage takes from colour-science, from the tables shipped with swim.
 
-    The cache is keyed by the installed colour-science version, so colour-science is imported only to build an entry
-    (once per installation and version), not by every render.
+    ``src/swim/data/colour_tables.npz`` is made from colour-science by ``scripts/make_colour_tables.py`` and held to
+    it by ``tests/unit/test_color.py``, so that a render does not need colour-science at all.
 
     Parameters
     ----------
@@ -87,37 +96,21 @@ def colour_science_data(transform: str | None = None) -> dict:
     swim.errors.SwimInputError
         If ``transform`` is not one of colour-science's chromatic adaptation transforms.
     """
-    from importlib.metadata import PackageNotFoundError, version
-
-    from swim.rt.compilation_cache import disk_cached
-
-    try:
-        colour_version = version("colour-science")
-    except PackageNotFoundError:  # not installed as a distribution (e.g. vendored): ask the module itself
-        colour_version = import_colour().__version__
-    key = ("colour-science data", _COLOUR_DATA_LAYOUT, colour_version, CMFS_NAME, transform)
-    return disk_cached("colour", key, lambda: _colour_science_data(transform))
+    tables = _shipped_tables()
+    data = {key: _readonly(tables[key]) for key in ("cmfs_wavelength_nm", "cmfs", "srgb_XYZ_to_RGB",
+                                                    "srgb_whitepoint_XYZ")}
+    if transform is not None:
+        names = [str(n) for n in tables["cat_names"]]
+        if not isinstance(transform, str) or transform not in names:
+            raise unknown_transform(transform)
+        data["cat"] = _readonly(tables["cat_matrices"][names.index(transform)])
+    return data
 
 
 def unknown_transform(transform) -> SwimInputError:
     """The error for a chromatic adaptation transform that colour-science does not know, naming those it does."""
-    known = sorted(import_colour().CHROMATIC_ADAPTATION_TRANSFORMS)
+    known = sorted(str(n) for n in _shipped_tables()["cat_names"])
     return SwimInputError(f"transform must be one of {known}; got {transform!r}")
-
-
-def _colour_science_data(transform):
-    colour = import_colour()
-    if transform is not None and transform not in colour.CHROMATIC_ADAPTATION_TRANSFORMS:
-        raise unknown_transform(transform)
-    cmfs = colour.MSDS_CMFS[CMFS_NAME]
-    srgb = colour.RGB_COLOURSPACES["sRGB"]
-    data = {"cmfs_wavelength_nm": np.array(cmfs.wavelengths, dtype=float),
-            "cmfs": np.array(cmfs.values, dtype=float),
-            "srgb_XYZ_to_RGB": np.array(srgb.matrix_XYZ_to_RGB, dtype=float),
-            "srgb_whitepoint_XYZ": np.array(colour.xy_to_XYZ(srgb.whitepoint), dtype=float)}
-    if transform is not None:
-        data["cat"] = np.array(colour.CHROMATIC_ADAPTATION_TRANSFORMS[transform], dtype=float)
-    return data
 
 
 @functools.lru_cache(maxsize=1)

@@ -1,6 +1,6 @@
 """Bounded disk caches: what swim keeps in ``$SWIM_CACHE_DIR`` stays below a budget, and can be listed and cleared.
 
-swim keeps six caches on disk (:func:`swim.rt.compilation_cache.cache_directory`):
+swim keeps five caches on disk (:func:`swim.rt.compilation_cache.cache_directory`):
 
 ========  ===========================================================  =============================================
 kind      what                                                         bound
@@ -8,9 +8,6 @@ kind      what                                                         bound
 gas       the successive-orders clear-sky tables (:mod:`swim.rt.gas`),  :func:`max_bytes`, least recently used first
           9-42 MB each, one per aerosol, surface albedo and profile
 surface   the BRDF tables (:mod:`swim.surface.brdf`)                   :func:`max_bytes`, least recently used first
-colour    colour-science's colour matching functions and sRGB and      :func:`max_bytes`, least recently used first
-          adaptation matrices (:func:`swim.color._tables.colour_science_data`,
-          a few kB per version), so that a render does not import it
 jax       JAX's compiled executables                                   :func:`max_bytes`, JAX's own LRU eviction
                                                                        (``jax_compilation_cache_max_size``)
 jax-      the JAX kernels' traced programs                             :func:`max_bytes`, least recently used first
@@ -21,7 +18,7 @@ numba     numba's machine code, one folder per version of the code     the :data
 
 Without bounds they only grow: every new scene aerosol profile or albedo adds a table of up to 42 MB, and every
 upgrade of swim adds new tables and a new numba folder (a development machine held 28 GB of tables after two days).
-``SWIM_CACHE_MAX_MB`` sets the budget of each of the first five kinds (default :data:`DEFAULT_MAX_MB`); entries are
+``SWIM_CACHE_MAX_MB`` sets the budget of each of the first four kinds (default :data:`DEFAULT_MAX_MB`); entries are
 removed, least recently used first, when a new one is written. ``swim cache`` lists the caches and
 ``swim cache --clear`` empties them (:func:`cache_usage`, :func:`clear_caches`).
 """
@@ -42,7 +39,7 @@ from .compilation_cache import cache_directory
 log = logging.getLogger(__name__)
 
 #: The caches, in the order ``swim cache`` lists them.
-KINDS = ("gas", "surface", "colour", "jax", "jax-export", "numba")
+KINDS = ("gas", "surface", "jax", "jax-export", "numba")
 #: Budget of each of the table and JAX caches [MB] (``SWIM_CACHE_MAX_MB`` overrides it): ~24 of the largest gas tables.
 DEFAULT_MAX_MB = 1024
 #: numba code versions kept (each a folder named by its code's digest): the current one and the two used before it,
@@ -143,7 +140,7 @@ def mark_used(path: Path) -> None:
 #: that folder is ever removed.
 _CODE_VERSION = re.compile(r"[0-9a-f]{16}")
 #: Endings of the files that swim's (and JAX's) caches write: nothing else in their folders is ever removed.
-_OWN_FILES = {"gas": (".pkl", ".tmp"), "surface": (".pkl", ".tmp"), "colour": (".pkl", ".tmp"),
+_OWN_FILES = {"gas": (".pkl", ".tmp"), "surface": (".pkl", ".tmp"),
               "jax": ("-cache", "-atime", ".lockfile"), "jax-export": (".jaxexport", ".tmp")}
 #: Name of the lock file by which live processes hold their code version's numba folder (:func:`hold_code_version`).
 IN_USE = ".in-use"
