@@ -103,3 +103,34 @@ def test_geostationary_reflectance_factor(scene):
     # dark vegetated ground / lake plus Rayleigh path radiance, up to bright cumulus
     assert 0.02 < np.min(R) and np.max(R) < 1.5
     assert np.median(R[2]) > np.median(R[0])  # blue path radiance
+
+
+def test_cli_compare_downsampled(simulated, tmp_path):
+    """--downsample 2: the same fake camera compared on pixels twice as large (a quarter of the work) recovers the
+    same gain and correlation, and the difference image has the coarser grid; a camera mask image applies to it."""
+    image, nc = simulated
+    model = FisheyeCameraModel.from_radius(180, 140, 62.0, projection="equisolid", cx=91.3, cy=68.6,
+                                           azimuth_up_deg=-35.0, mirror=True)
+    mask = np.full((140, 180), 255, np.uint8)
+    mask[:, :40] = 0  # a building on the left
+    Image.fromarray(mask).save(tmp_path / "mask.png")
+    model = FisheyeCameraModel(**{**{k: getattr(model, k) for k in ("width", "height", "focal_length_px", "projection",
+                                                                     "cx", "cy", "azimuth_up_deg", "mirror")},
+                                  "mask_path": str(tmp_path / "mask.png")})
+    model.to_toml(tmp_path / "camera.toml")
+    linear = reproject(image, model)["rgb_linear"].values
+    observed = np.clip(GAIN * np.nan_to_num(linear) + OFFSET, 0.0, 1.0)
+    png = tmp_path / "camera.png"
+    Image.fromarray(np.rint(linear_to_srgb(observed) * 255).astype(np.uint8)).save(png)
+    result = CliRunner().invoke(cli(), [str(nc), str(png), "--camera-model", str(tmp_path / "camera.toml"), "--fit",
+                                        "gain_offset", "--sun-exclusion", "12", "--min-elevation", "10",
+                                        "--downsample", "2", "--diff", str(tmp_path / "diff.png"), "--json",
+                                        str(tmp_path / "s.json")])
+    assert result.exit_code == 0, result.output
+    scores = json.loads((tmp_path / "s.json").read_text())
+    assert scores["r_mean"] >= 0.98 and scores["downsample"] == 2
+    np.testing.assert_allclose(scores["gain"], GAIN, rtol=0.03)
+    with Image.open(tmp_path / "diff.png") as diff:
+        assert diff.size == (90, 70)
+    small = model.downsampled(2)
+    assert small.mask_image()[:, :20].sum() == 0 and small.mask_image()[:, 20:].any()

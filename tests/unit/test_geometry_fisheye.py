@@ -347,3 +347,43 @@ def test_fit_orientation_recovers_tilt_of_a_mirrored_camera():
     p = fit.parameters
     assert (p["azimuth_up_deg"], p["tilt_deg"], p["tilt_azimuth_deg"]) == pytest.approx((123.0, 3.0, 40.0), abs=1e-5)
     assert (p["cx"], p["cy"]) == pytest.approx((101.2, 78.9), abs=1e-5)
+
+
+def test_detect_sun_passes_over_a_bigger_saturated_cloud_and_says_so(caplog):
+    """A ragged saturated cloud edge bigger than the sun's disc (what took a real 2048^2 JPEG's sun 350 px away) is
+    not round: the disc is taken and the cloud is logged; with only the cloud the detection fails loudly."""
+    import logging
+
+    rows, cols = np.mgrid[0:200, 0:200]
+    img = np.full((200, 200, 3), 90, np.uint8)
+    disk = (rows - 60.2) ** 2 + (cols - 140.7) ** 2 <= 25
+    img[disk] = 255
+    rng = np.random.default_rng(1)
+    cloud = ((rows - 140) ** 2 / 900 + (cols - 60) ** 2 / 100 <= 1) & (rng.random((200, 200)) < 0.7)
+    cloud |= (np.abs(rows - 120) < 2) & (np.abs(cols - 80) < 60)  # a thin saturated rim joined to it
+    img[cloud] = 255
+    with caplog.at_level(logging.WARNING, logger="swim.geometry.fisheye"):
+        row, col = detect_sun(img)
+    assert (row, col) == pytest.approx((rows[disk].mean(), cols[disk].mean()), abs=1e-9)
+    assert "larger saturated blob" in caplog.text
+    img[disk] = 90
+    with pytest.raises(SwimInputError, match="not round|can be the sun"):
+        detect_sun(img)
+
+
+def test_detect_sun_takes_the_blob_at_the_sun_s_zenith_angle():
+    """Two round saturated blobs (the sun and a reflection): the camera model and the sun's zenith angle pick the
+    one at the right distance from the image centre, whichever is larger."""
+    model = make("equidistant", width=201, height=201, radius=90.0)
+    zen = 40.0
+    expected_r = 90.0 * zen / 90.0
+    rows, cols = np.mgrid[0:201, 0:201]
+    img = np.zeros((201, 201, 3), np.uint8)
+    sun = (rows - (model.cy - expected_r)) ** 2 + (cols - model.cx) ** 2 <= 9
+    flare = (rows - (model.cy + 60)) ** 2 + (cols - (model.cx + 50)) ** 2 <= 25
+    img[sun | flare] = 255
+    assert detect_sun(img)[0] == pytest.approx(rows[flare].mean())  # without the model: the larger blob
+    row, col = detect_sun(img, model=model, sun_zenith_deg=zen)
+    assert (row, col) == pytest.approx((rows[sun].mean(), cols[sun].mean()), abs=1e-9)
+    with pytest.raises(SwimInputError, match="from the image centre"):
+        detect_sun(img, model=model, sun_zenith_deg=60.0)

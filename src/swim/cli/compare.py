@@ -70,6 +70,8 @@ def compare(
     sun_zenith: Optional[float] = typer.Option(None, "--sun-zenith", help="Override the sun zenith angle in deg "
                                                "(default: from the simulated image)."),
     sun_azimuth: Optional[float] = typer.Option(None, "--sun-azimuth", help="Override the sun azimuth in deg."),
+    downsample: int = typer.Option(1, "--downsample", help="Compare on pixels N times larger (the camera image "
+                                   "averaged over N x N blocks): a 2048^2 image by 4 in a sixteenth of the time."),
     diff: Optional[Path] = typer.Option(None, "--diff", help="Write a difference image (PNG) here."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the scores (JSON) here."),
 ):
@@ -78,6 +80,7 @@ def compare(
 
     from ..diagnostics.cloud_mask import compare_cloud_masks
     from ..diagnostics.compare import (
+        block_mean_codes,
         compare_images,
         read_camera_image,
         reproject,
@@ -101,11 +104,12 @@ def compare(
         except (OSError, ValueError) as exc:
             raise SwimInputError(f"simulated image {str(simulated)!r} cannot be read as netCDF: {exc}") from None
         obs = read_camera_image(camera_image, model)
-        projected = reproject(sim, model)
+        projected = reproject(sim, model.downsampled(downsample))
         result = compare_images(projected, obs, model, sun_azimuth_deg=sun_azimuth, sun_zenith_deg=sun_zenith,
                                 sun_exclusion_deg=sun_exclusion, fit=fit.value, min_elevation_deg=min_elevation,
                                 quantity=quantity.value, weighting=weighting.value,
-                                exclude_saturated=exclude_saturated)
+                                exclude_saturated=exclude_saturated, downsample=downsample)
+        obs = block_mean_codes(obs, downsample)
         mask = result["mask"].values
         weights = projected["solid_angle"].values if weighting is WeightingKind.solid_angle else None
         clouds = compare_cloud_masks(projected["rgb"].values, obs, mask, method=cloud_method.value,

@@ -204,6 +204,9 @@ class FisheyeCameraModel:
         empty: no profile). Interpolated linearly, periodic in azimuth.
     mask_path : str, optional
         Path of a mask image of size (height, width): grey >= 128 usable, darker masked.
+    mask_block : int, default 1
+        The mask image is ``mask_block`` times the camera's size (a :meth:`downsampled` camera): a pixel is usable
+        where every pixel of its block is.
 
     Raises
     ------
@@ -227,6 +230,7 @@ class FisheyeCameraModel:
     horizon_azimuth_deg: tuple[float, ...] = ()
     horizon_elevation_deg: tuple[float, ...] = ()
     mask_path: str | None = None
+    mask_block: int = 1
     _rotation: np.ndarray = field(init=False, repr=False, compare=False)
 
     kind: ClassVar[str] = "fisheye"
@@ -287,7 +291,33 @@ class FisheyeCameraModel:
             if not isinstance(self.mask_path, (str, Path)) or str(self.mask_path) == "":
                 raise SwimInputError(f"mask_path must be a file path, got {self.mask_path!r}")
             set_("mask_path", str(self.mask_path))
+        set_("mask_block", _as_int("mask_block", self.mask_block))
         set_("_rotation", self._tilt_rotation())
+
+    def downsampled(self, factor: int) -> "FisheyeCameraModel":
+        """The camera with pixels ``factor`` times larger: ``width // factor`` x ``height // factor`` pixels, each the
+        block of ``factor`` x ``factor`` of this camera's pixels from the top left (a remainder of rows and columns
+        is left out); the same sky on them.
+
+        Raises
+        ------
+        SwimInputError
+            If ``factor`` is not an integer >= 1 or leaves fewer than 8 pixels across.
+        """
+        f = _as_int("factor", factor)
+        if f == 1:
+            return self
+        if self.width // f < 8 or self.height // f < 8:
+            raise SwimInputError(f"downsampling by {f} leaves fewer than 8 pixels across a {self.width} x "
+                                 f"{self.height} image")
+        shift = 0.5 * (f - 1)  # a block's centre in this camera's pixel coordinates, from its first pixel
+        changes = {"width": self.width // f, "height": self.height // f, "cx": (self.cx - shift) / f,
+                   "cy": (self.cy - shift) / f, "mask_block": self.mask_block * f}
+        if self.projection == "polynomial":
+            changes["coefficients"] = tuple(k / f for k in self.coefficients)
+        else:
+            changes["focal_length_px"] = self.focal_length_px / f
+        return dataclasses.replace(self, **changes)
 
     @classmethod
     def from_radius(cls, width: int, height: int, radius_px: float, *, radius_zenith_deg: float = 90.0,
@@ -499,9 +529,14 @@ class FisheyeCameraModel:
                 grey = np.asarray(im.convert("L"))
         except (OSError, UnidentifiedImageError) as err:
             raise SwimInputError(f"mask_path {self.mask_path!r} cannot be read as an image: {err}") from None
+        b = self.mask_block
+        expected = (self.height * b, self.width * b)
+        if b > 1 and grey.shape[0] >= expected[0] and grey.shape[1] >= expected[1]:
+            usable = grey[:expected[0], :expected[1]] >= 128
+            return usable.reshape(self.height, b, self.width, b).all(axis=(1, 3))
         if grey.shape != self.shape:
             raise SwimInputError(f"mask image {self.mask_path!r} has size (height, width) = {grey.shape}, expected "
-                                 f"{self.shape} [px]")
+                                 f"{expected} [px]")
         return grey >= 128
 
     def sky_mask(self, dirs: np.ndarray | None = None) -> np.ndarray:
@@ -684,13 +719,24 @@ def _write_text_atomic(path: Path, text: str) -> None:
 # --------------------------------------------------------------------------------------------------------
 # sun detection and orientation fit
 # --------------------------------------------------------------------------------------------------------
-def detect_sun(image, *, saturation: float = 0.98, valid=None, min_pixels: int = 1) -> tuple[float, float]:
-    """Centroid (row, col) [px] of the largest blob of saturated pixels: the sun in a clear-sky image.
+#: A blob is sun-like when its pixels fill at least this share of the circle about its centroid through its farthest
+#: pixel (a disc 1, a square 0.64, the ragged edge of a saturated cloud far less).
+SUN_MIN_ROUNDNESS = 0.4
+#: A blob larger than this share of the image is not the sun (with its glare), but a saturated cloud or sky.
+SUN_MAX_AREA_FRACTION = 0.03
+
+
+def detect_sun(image, *, saturation: float = 0.98, valid=None, min_pixels: int = 9, model=None,
+               sun_zenith_deg=None, radius_tolerance: float = 0.1) -> tuple[float, float]:
+    """Centroid (row, col) [px] of the sun: the largest round blob of saturated pixels, where the sun can be.
 
     A pixel is saturated where its *smallest* channel reaches ``saturation`` times the full scale (255 for
     8-bit, 65535 for 16-bit integer images, 1.0 for floats), i.e. it is clipped white. Connected saturated
-    pixels (8-connectivity) form blobs; the largest (ties: the first) gives the centroid. Lens flare and
-    bright clouds can produce other saturated regions: use clear images, or ``valid`` to restrict the search.
+    pixels (8-connectivity) form blobs. A blob is a candidate when it is round (its pixels fill at least
+    :data:`SUN_MIN_ROUNDNESS` of the circle about its centroid through its farthest pixel), no larger than
+    :data:`SUN_MAX_AREA_FRACTION` of the image and, given the camera ``model`` and the sun's zenith angle, at the
+    polar radius where the model puts that zenith angle (within ``radius_tolerance``); bright cloud edges and lens
+    flare fail these tests. The largest candidate wins; a larger blob that is not one is logged.
 
     Parameters
     ----------
@@ -700,8 +746,15 @@ def detect_sun(image, *, saturation: float = 0.98, valid=None, min_pixels: int =
         Fraction of full scale [-], in (0, 1].
     valid : array_like of bool, optional
         Shape (ny, nx): only these pixels are searched.
-    min_pixels : int, default 1
-        Smallest blob accepted [px].
+    min_pixels : int, default 9
+        Smallest blob accepted [px] (speckles of saturated cloud are smaller than the sun's disc and glare).
+    model : FisheyeCameraModel, optional
+        The camera (its centre and projection; its rotation is not needed), with ``sun_zenith_deg``.
+    sun_zenith_deg : float, optional
+        The sun's zenith angle [deg] at the image's time.
+    radius_tolerance : float, default 0.1
+        Allowed relative difference of a candidate's distance from the image centre and the model's polar radius of
+        the sun's zenith angle (plus 3 px) [-].
 
     Returns
     -------
@@ -711,7 +764,8 @@ def detect_sun(image, *, saturation: float = 0.98, valid=None, min_pixels: int =
     Raises
     ------
     SwimInputError
-        For a bad shape or threshold, or if no saturated blob of ``min_pixels`` is found.
+        For a bad shape or threshold, no saturated blob, or no blob that can be the sun (the message says what was
+        found and why it was refused).
     """
     from scipy import ndimage
 
@@ -719,10 +773,7 @@ def detect_sun(image, *, saturation: float = 0.98, valid=None, min_pixels: int =
     if img.ndim not in (2, 3):
         raise SwimInputError(f"image must have shape (ny, nx) or (ny, nx, channels), got {img.shape}")
     sat = _as_float("saturation", saturation, 0.0, 1.0, lo_open=True, unit="fraction of full scale")
-    if np.issubdtype(img.dtype, np.integer):
-        full = float(np.iinfo(img.dtype).max)
-    else:
-        full = 1.0
+    full = float(np.iinfo(img.dtype).max) if np.issubdtype(img.dtype, np.integer) else 1.0
     low = img.min(axis=-1) if img.ndim == 3 else img
     hot = np.asarray(low, dtype=float) >= sat * full
     if valid is not None:
@@ -734,12 +785,73 @@ def detect_sun(image, *, saturation: float = 0.98, valid=None, min_pixels: int =
     if n == 0:
         raise SwimInputError(f"no saturated pixels (smallest channel >= {sat} x full scale) found: the sun is not "
                              "visible in this image; give the sun's pixel explicitly")
-    sizes = ndimage.sum(hot, labels, index=np.arange(1, n + 1))
-    best = int(np.argmax(sizes)) + 1
-    if sizes[best - 1] < min_pixels:
-        raise SwimInputError(f"largest saturated blob has {int(sizes[best - 1])} px < min_pixels={min_pixels}")
-    row, col = ndimage.center_of_mass(hot, labels, best)
-    return float(row), float(col)
+    expected = _sun_radius_px(model, sun_zenith_deg)
+    blobs = _blobs(labels, n)
+    reasons = {}
+    for b in blobs:
+        reasons[b["label"]] = _refusal(b, min_pixels, hot.size, expected, radius_tolerance, model)
+    candidates = [b for b in blobs if reasons[b["label"]] is None]
+    largest = max(blobs, key=lambda b: b["area"])
+    if not candidates:
+        raise SwimInputError(f"no saturated blob can be the sun: the largest ({largest['area']} px at row "
+                             f"{largest['row']:.0f}, col {largest['col']:.0f}) {reasons[largest['label']]}; give the "
+                             "sun's pixel explicitly, a valid mask or another saturation")
+    best = max(candidates, key=lambda b: b["area"])
+    if best is not largest:
+        log.warning("detect_sun: a larger saturated blob (%d px at row %.0f, col %.0f) %s; the sun taken at row %.0f, "
+                    "col %.0f (%d px)", largest["area"], largest["row"], largest["col"], reasons[largest["label"]],
+                    best["row"], best["col"], best["area"])
+    return best["row"], best["col"]
+
+
+def _blobs(labels, n):
+    """Each blob's label, area [px], centroid and roundness."""
+    from scipy import ndimage
+
+    index = np.arange(1, n + 1)
+    areas = ndimage.sum(np.ones_like(labels), labels, index=index)
+    centres = ndimage.center_of_mass(labels > 0, labels, index)
+    out = []
+    for lab, area, (row, col), sl in zip(index, areas, centres, ndimage.find_objects(labels)):
+        rr, cc = np.nonzero(labels[sl] == lab)
+        r_max = float(np.sqrt(np.max((rr + sl[0].start - row) ** 2 + (cc + sl[1].start - col) ** 2))) + 0.5
+        out.append({"label": int(lab), "area": int(area), "row": float(row), "col": float(col),
+                    "roundness": float(area / (math.pi * r_max * r_max))})
+    return out
+
+
+def _refusal(blob, min_pixels, n_pixels, expected, tolerance, model):
+    """Why a blob cannot be the sun, or None."""
+    if blob["area"] < min_pixels:
+        return f"has fewer than min_pixels={min_pixels} px"
+    if blob["area"] > SUN_MAX_AREA_FRACTION * n_pixels:
+        return f"covers more than {SUN_MAX_AREA_FRACTION:.0%} of the image (a saturated cloud or sky)"
+    if blob["area"] >= 5 and blob["roundness"] < SUN_MIN_ROUNDNESS:
+        return f"is not round (it fills {blob['roundness']:.2f} of its circle, the sun's disc and glare >= " \
+               f"{SUN_MIN_ROUNDNESS})"
+    if expected is not None:
+        radius = math.hypot(blob["row"] - model.cy, blob["col"] - model.cx)
+        if abs(radius - expected) > tolerance * expected + 3.0:
+            return (f"lies {radius:.0f} px from the image centre, where the camera puts the sun's zenith angle at "
+                    f"{expected:.0f} px")
+    return None
+
+
+def _sun_radius_px(model, sun_zenith_deg):
+    """The polar radius [px] of the sun's zenith angle in an untilted ``model`` (None without both)."""
+    if model is None or sun_zenith_deg is None:
+        return None
+    if not isinstance(model, FisheyeCameraModel):
+        raise SwimInputError(f"model must be a FisheyeCameraModel, got {type(model).__name__}")
+    zen = _as_float("sun_zenith_deg", sun_zenith_deg, 0.0, 180.0, unit="deg")
+    level = dataclasses.replace(model, tilt_deg=0.0)
+    dirs = frames.enu_from_azimuth_zenith(np.arange(0.0, 360.0, 45.0), np.full(8, zen))
+    row, col = level.pixel_of_direction(dirs)
+    radius = np.hypot(np.asarray(row) - model.cy, np.asarray(col) - model.cx)
+    if not np.any(np.isfinite(radius)):
+        raise SwimInputError(f"the camera does not see the sun's zenith angle {zen:g} deg (max_zenith_deg "
+                             f"{model.max_zenith_deg:g})")
+    return float(np.nanmean(radius))
 
 
 @dataclass(frozen=True)
@@ -815,7 +927,8 @@ def fit_orientation_from_sun(model: FisheyeCameraModel, sun_azimuth_deg, sun_zen
     if sun_pixels is None:
         if images is None or len(images) != az.size:
             raise SwimInputError(f"give sun_pixels (n, 2) [px] or n = {az.size} clear-sky images")
-        sun_pixels = [detect_sun(img, saturation=saturation) for img in images]
+        sun_pixels = [detect_sun(img, saturation=saturation, model=model, sun_zenith_deg=z)
+                      for img, z in zip(images, zen)]
     obs = np.asarray(sun_pixels, dtype=float).reshape(-1, 2) if np.size(sun_pixels) else np.zeros((0, 2))
     if obs.shape != (az.size, 2) or not np.all(np.isfinite(obs)):
         raise SwimInputError(f"sun_pixels must have shape ({az.size}, 2) (row, col) [px] of finite values, got "
