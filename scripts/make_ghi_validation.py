@@ -105,12 +105,13 @@ def main(argv=None):
     from swim.diagnostics.ghi import (aerosol_for_site, attach_observations, clear_site_scene, error_statistics,
                                       ghi_at_sun_zeniths, ghi_time_series, plot_ghi, pvlib_clear_sky, site_aod_550,
                                       time_range, write_csv)
-    from swim.io.surfrad import clear_periods, observations_at, read_surfrad, surfrad_albedo, surfrad_precipitable_water
+    from swim.io.observations import clear_periods, observations_at, observed_albedo, observed_precipitable_water
+    from swim.io.surfrad import read_surfrad
 
     t0 = time.time()
     obs = read_surfrad(SHARED / "surfrad-slv16001.dat")
     lat, lon, elev = obs.attrs["latitude"], obs.attrs["longitude"], obs.attrs["elevation_m"]
-    pw, albedo = surfrad_precipitable_water(obs), surfrad_albedo(obs)
+    pw, albedo = observed_precipitable_water(obs), observed_albedo(obs)
     clear = clear_periods(obs)
     scene = clear_site_scene(lat, lon, elev, surface_albedo=albedo)
     numbers = {"site": {"lat": lat, "lon": lon, "elevation_m": elev, "precipitable_water_cm": pw, "albedo": albedo,

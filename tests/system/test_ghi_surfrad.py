@@ -18,7 +18,8 @@ from typer.testing import CliRunner
 from swim.diagnostics.ghi import (DEFAULT_SIZE, aerosol_for_site, attach_observations, clear_site_scene,
                                   error_statistics, ghi_at_sun_zeniths, ghi_time_series, pvlib_clear_sky,
                                   site_aod_550, time_range)
-from swim.io.surfrad import clear_periods, observations_at, read_surfrad, surfrad_albedo, surfrad_precipitable_water
+from swim.io.observations import clear_periods, observations_at, observed_albedo, observed_precipitable_water
+from swim.io.surfrad import read_surfrad
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
@@ -33,9 +34,9 @@ def site(shared_data):
         pytest.skip(f"{path} not found")
     obs = read_surfrad(path)
     lat, lon, elev = obs.attrs["latitude"], obs.attrs["longitude"], obs.attrs["elevation_m"]
-    albedo = surfrad_albedo(obs)
+    albedo = observed_albedo(obs)
     return {"obs": obs, "path": path, "lat": lat, "lon": lon, "elev": elev, "albedo": albedo,
-            "pw": surfrad_precipitable_water(obs), "scene": clear_site_scene(lat, lon, elev, surface_albedo=albedo),
+            "pw": observed_precipitable_water(obs), "scene": clear_site_scene(lat, lon, elev, surface_albedo=albedo),
             "aerosol": aerosol_for_site(AOD_550, elev + 2.0, "continental")}
 
 

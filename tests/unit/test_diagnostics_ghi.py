@@ -1,4 +1,5 @@
-"""GHI forward-operator helpers (swim.diagnostics.ghi), the SURFRAD reader (swim.io.surfrad) and ``swim ghi``."""
+"""GHI forward-operator helpers (swim.diagnostics.ghi), the SURFRAD reader (swim.io.surfrad), the comparison helpers
+(swim.io.observations) and ``swim ghi``."""
 
 import math
 
@@ -13,8 +14,8 @@ from swim.cli.ghi import ghi
 from swim.diagnostics.ghi import (aerosol_for_site, attach_observations, clear_site_scene, error_statistics,
                                   plot_ghi, pvlib_clear_sky, site_aod_550, time_range)
 from swim.errors import SwimInputError
-from swim.io.surfrad import (SURFRAD_COLUMNS, clear_periods, observations_at, read_surfrad, surfrad_albedo,
-                             surfrad_precipitable_water)
+from swim.io.observations import clear_periods, observations_at, observed_albedo, observed_precipitable_water
+from swim.io.surfrad import SURFRAD_COLUMNS, read_surfrad
 
 SURFRAD_NAME = "surfrad-slv16001.dat"
 
@@ -103,8 +104,8 @@ def test_surfrad_clear_periods_and_site_parameters(alamosa):
     rho_v = 216.7 * 0.402 * es / t
     hv = 0.4976 + 1.5265 * t / 273.15 + math.exp(13.6897 * t / 273.15 - 14.9188 * (t / 273.15) ** 3)
     assert 0.1 * hv * rho_v == pytest.approx(0.32, abs=0.01)
-    assert surfrad_precipitable_water(alamosa) == pytest.approx(0.33, abs=0.05)
-    assert 0.1 < surfrad_albedo(alamosa) < 0.3  # dry winter grass, no snow (uw/dw ~ 0.18 at noon)
+    assert observed_precipitable_water(alamosa) == pytest.approx(0.33, abs=0.05)
+    assert 0.1 < observed_albedo(alamosa) < 0.3  # dry winter grass, no snow (uw/dw ~ 0.18 at noon)
 
 
 @pytest.mark.realdata

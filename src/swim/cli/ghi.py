@@ -34,10 +34,11 @@ def ghi(
     scene: Optional[Path] = typer.Argument(None, help="Scene file (as for 'swim render'); default: a cloud-free site "
                                            "scene at --lat/--lon/--elevation."),
     lat: Optional[float] = typer.Option(None, help="Observer latitude [deg] (default: --observed station, else the "
-                                        "scene centre)."),
-    lon: Optional[float] = typer.Option(None, help="Observer longitude [deg, east +]."),
+                                        "scene centre; overrides the --observed file's; required with an MIDC "
+                                        "file)."),
+    lon: Optional[float] = typer.Option(None, help="Observer longitude [deg, east +] (as --lat)."),
     elevation: Optional[float] = typer.Option(None, help="Site elevation [m] for the clear site scene (default: "
-                                              "--observed station, else 0)."),
+                                              "--observed station, else 0; as --lat)."),
     start: str = typer.Option(..., help="First instant, ISO 8601 UTC (e.g. 2016-01-01T14:00Z)."),
     end: str = typer.Option(..., help="Last instant, ISO 8601 UTC."),
     step: str = typer.Option("30min", help="Step between instants (e.g. 10min, 1h)."),
@@ -55,8 +56,10 @@ def ghi(
     out: Path = typer.Option(Path("ghi.csv"), help="CSV output (written atomically)."),
     plot: Optional[Path] = typer.Option(None, help="Also write a PNG of simulated (vs observed) irradiance "
                                         "(needs matplotlib)."),
-    observed: Optional[Path] = typer.Option(None, help="SURFRAD daily file to compare with (adds *_obs columns, "
-                                            "clear flags and MBE/RMSE)."),
+    observed: Optional[Path] = typer.Option(None, help="Radiation observations to compare with: a SURFRAD daily "
+                                            "file, a BSRN station-to-archive file (plain or .gz) or an NREL MIDC "
+                                            "CSV (with --lat/--lon/--elevation), recognised by content; adds *_obs "
+                                            "columns, clear flags and MBE/RMSE."),
 ):
     """Broadband GHI, DNI and DHI [W m-2] over a period from small all-sky renders (docs/irradiance.md)."""
     from ..rt import precompile
@@ -80,15 +83,17 @@ def ghi(
         times = time_range(start, end, step)
         obs = clear = None
         if observed is not None:
-            from ..io.surfrad import clear_periods, read_surfrad, surfrad_albedo, surfrad_precipitable_water
+            from ..io.observations import clear_periods, observed_albedo, observed_precipitable_water, read_observations
 
-            obs = read_surfrad(observed)
-            lat = obs.attrs["latitude"] if lat is None else lat
-            lon = obs.attrs["longitude"] if lon is None else lon
-            elevation = obs.attrs["elevation_m"] if elevation is None else elevation
-            pw = surfrad_precipitable_water(obs) if pw is None else pw
-            albedo = surfrad_albedo(obs) if albedo is None else albedo
+            obs = read_observations(observed, latitude=lat, longitude=lon, elevation_m=elevation)
+            lat, lon, elevation = obs.attrs["latitude"], obs.attrs["longitude"], obs.attrs["elevation_m"]
+            pw = observed_precipitable_water(obs) if pw is None else pw
+            albedo = observed_albedo(obs) if albedo is None else albedo
             clear = clear_periods(obs)
+            console.print(f"observed: {obs.attrs['format'].upper()} {escape(str(obs.attrs['station']))}, "
+                          f"{len(obs)} rows {obs.index[0]:%Y-%m-%d %H:%M} to {obs.index[-1]:%Y-%m-%d %H:%M} UTC; "
+                          f"pw {'default' if pw is None else f'{pw:.2f} cm'}, albedo "
+                          f"{'default' if albedo is None else f'{albedo:.2f}'}")
         pw = 1.0 if pw is None else pw
         if scene is None:
             if lat is None or lon is None:
@@ -123,7 +128,7 @@ def ghi(
                               earth_sun_distance_au=sim["earth_sun_distance_au"], surface_albedo=sim.attrs["surface_albedo"])
         table = sim.join(ref[["bird_ghi", "ineichen_ghi", "solis_ghi"]])
         if obs is not None:
-            from ..io.surfrad import observations_at
+            from ..io.observations import observations_at
 
             table = attach_observations(table, observations_at(obs, sim.index, clear=clear))
             mask = table["clear"].values & table["rendered"].values

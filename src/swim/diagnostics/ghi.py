@@ -601,7 +601,7 @@ def plot_ghi(sim: pd.DataFrame, obs: pd.DataFrame | None, path, *, clear=None, r
         From :func:`ghi_time_series` (index UTC).
     obs : pandas.DataFrame, optional
         Observations with columns ``ghi``/``dni``/``dhi`` [W m-2] and a UTC index (e.g. a SURFRAD day from
-        :func:`swim.io.surfrad.read_surfrad`), drawn as lines.
+        :func:`swim.io.observations.read_observations`), drawn as lines.
     path : str or pathlib.Path
         Output PNG.
     clear : pandas.Series, optional
@@ -684,7 +684,7 @@ def attach_observations(sim: pd.DataFrame, observed: pd.DataFrame, columns=("ghi
         From :func:`ghi_time_series`.
     observed : pandas.DataFrame
         Observations at the instants of ``sim`` (same index), e.g. from
-        :func:`swim.io.surfrad.observations_at`; an optional boolean ``clear`` column is copied as is.
+        :func:`swim.io.observations.observations_at`; an optional boolean ``clear`` column is copied as is.
     columns : sequence of str
         Columns to copy [W m-2].
 

@@ -1,4 +1,5 @@
-"""Reader for NOAA SURFRAD daily radiation files, and a clear-period detector (issue 5, item 1).
+"""Reader for NOAA SURFRAD daily radiation files (:func:`swim.io.observations.read_observations` dispatches
+SURFRAD, BSRN and MIDC files; the clear-period detector and the other comparison helpers live there).
 
 SURFRAD (Surface Radiation Budget Network, NOAA Global Monitoring Laboratory; Augustine et al. 2000,
 BAMS 81, 2341-2357, doi:10.1175/1520-0477(2000)081<2341:SAINSR>2.3.CO;2; Augustine et al. 2005, J. Appl.
@@ -25,8 +26,8 @@ Two properties of the files, checked against the Alamosa file of 2016-01-01 (tes
   picks the sign whose solar zenith matches the ``zen`` column and stores east-positive longitude.
 * ``zen`` is the refracted solar zenith angle 30 s before the time stamp (to 0.04 deg for zenith < 85 deg,
   NREL SPA via pvlib): a row is the mean over the minute that *ends* at its stamp. The reader keeps the
-  stamps (UTC) as the index, as pvlib's ``read_surfrad`` does; :func:`observations_at` interpolates to
-  the centres of the intervals.
+  stamps (UTC) as the index, as pvlib's ``read_surfrad`` does; :func:`swim.io.observations.observations_at`
+  interpolates to the centres of the intervals.
 """
 
 from __future__ import annotations
@@ -41,8 +42,7 @@ from ..errors import SwimInputError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SURFRAD_COLUMNS", "SURFRAD_MISSING", "read_surfrad", "clear_periods", "surfrad_precipitable_water",
-           "surfrad_albedo", "observations_at"]
+__all__ = ["SURFRAD_COLUMNS", "SURFRAD_MISSING", "read_surfrad"]
 
 _PAIRS = ("dw_solar", "uw_solar", "direct_n", "diffuse", "dw_ir", "dw_casetemp", "dw_dometemp", "uw_ir",
           "uw_casetemp", "uw_dometemp", "uvb", "par", "netsolar", "netir", "totalnet", "temp", "rh",
@@ -169,144 +169,3 @@ def _station_longitude(table, lat, lon_file, elev, path):
         log.info("%s: header longitude %.2f read as %.2f deg east (zenith column matches to %.3f deg)",
                  path.name, lon_file, best, errors[best])
     return best
-
-
-def clear_periods(obs: pd.DataFrame, window_length=10, max_zenith_deg=85.0) -> pd.Series:
-    """Clear-sky minutes of a SURFRAD day: pvlib's ``detect_clearsky`` (Reno & Hansen 2016) on GHI.
-
-    The reference clear sky is pvlib's Ineichen-Perez model with the climatological Linke turbidity of the
-    station; ``detect_clearsky`` scales it and tests the mean, maximum, line length, variability and slope
-    of GHI in sliding windows.
-
-    Parameters
-    ----------
-    obs : pandas.DataFrame
-        From :func:`read_surfrad` (regular 1-min index, ``ghi``, ``ghi_qc``, ``zenith``, station attrs).
-    window_length : int
-        Window [min].
-    max_zenith_deg : float
-        Minutes with a larger zenith angle [deg] are not clear (low sun: cosine errors of the pyranometer).
-
-    Returns
-    -------
-    pandas.Series
-        Boolean, index of ``obs``: True where the sky is clear, GHI is valid (qc 0) and the zenith is small
-        enough.
-
-    References
-    ----------
-    Reno, M. J. and Hansen, C. W. (2016), Renewable Energy 90, 520-531, doi:10.1016/j.renene.2015.12.031.
-    Ineichen, P. and Perez, R. (2002), Sol. Energy 73, 151-157, doi:10.1016/S0038-092X(02)00045-2.
-    """
-    import pvlib
-
-    try:
-        lat, lon, elev = obs.attrs["latitude"], obs.attrs["longitude"], obs.attrs["elevation_m"]
-    except KeyError:
-        raise SwimInputError("clear_periods needs a DataFrame from read_surfrad (station attributes)") from None
-    ghi = obs["ghi"].fillna(0.0)
-    location = pvlib.location.Location(lat, lon, altitude=elev)
-    reference = location.get_clearsky(obs.index - pd.Timedelta(seconds=30), model="ineichen")["ghi"]
-    reference.index = obs.index
-    clear = pvlib.clearsky.detect_clearsky(ghi, reference, window_length=window_length)
-    ok = (obs["ghi_qc"] == 0) & obs["ghi"].notna() & (obs["zenith"] < max_zenith_deg)
-    return (pd.Series(np.asarray(clear, dtype=bool), index=obs.index) & ok).rename("clear")
-
-
-def surfrad_precipitable_water(obs: pd.DataFrame, max_zenith_deg=90.0) -> float:
-    """Daytime median precipitable water [cm] from the station's air temperature and relative humidity.
-
-    Gueymard (1994), Sol. Energy 53, 57-71, Eqs. 1-4 (pvlib ``gueymard94_pw``): w = 0.1 H_v rho_v with the
-    surface water-vapour density rho_v = 216.7 RH e_s / T and the water-vapour scale height H_v(T) [km].
-
-    Parameters
-    ----------
-    obs : pandas.DataFrame
-        From :func:`read_surfrad`.
-    max_zenith_deg : float
-        Use the minutes with a smaller zenith angle [deg].
-
-    Returns
-    -------
-    float
-        Precipitable water [cm].
-
-    Raises
-    ------
-    SwimInputError
-        If no valid temperature/humidity pair is in the selected minutes.
-    """
-    import pvlib
-
-    ok = (obs["zenith"] < max_zenith_deg) & obs["temp_air"].notna() & obs["relative_humidity"].notna()
-    ok &= (obs.get("temp_air_qc", 0) == 0) & (obs.get("relative_humidity_qc", 0) == 0)
-    if not ok.any():
-        raise SwimInputError("no valid air temperature / relative humidity in the SURFRAD file")
-    pw = pvlib.atmosphere.gueymard94_pw(obs.loc[ok, "temp_air"], obs.loc[ok, "relative_humidity"])
-    return float(np.median(pw))
-
-
-def surfrad_albedo(obs: pd.DataFrame, max_zenith_deg=75.0) -> float:
-    """Median broadband surface albedo uw_solar / ghi [-] over the minutes with zenith < ``max_zenith_deg``.
-
-    Raises
-    ------
-    SwimInputError
-        If no minute has valid, positive global and upwelling solar irradiance.
-    """
-    ok = (obs["zenith"] < max_zenith_deg) & (obs["ghi"] > 50.0) & obs["uw_solar"].notna()
-    ok &= (obs["ghi_qc"] == 0) & (obs.get("uw_solar_qc", 0) == 0)
-    if not ok.any():
-        raise SwimInputError("no valid daytime global / upwelling solar irradiance in the SURFRAD file")
-    return float(np.clip(np.median(obs.loc[ok, "uw_solar"] / obs.loc[ok, "ghi"]), 0.0, 1.0))
-
-
-def observations_at(obs: pd.DataFrame, times, columns=("ghi", "dni", "dhi"), clear=None) -> pd.DataFrame:
-    """Observed values at given instants: linear interpolation to the centres of the 1-min intervals.
-
-    A SURFRAD row is the mean over the minute ending at its stamp, so the value for instant t is the
-    interpolation at t + 30 s (half an interval). Values with a qc flag other than 0 are dropped first.
-
-    Parameters
-    ----------
-    obs : pandas.DataFrame
-        From :func:`read_surfrad`.
-    times : array_like of datetime
-        The instants (UTC).
-    columns : sequence of str
-        Columns to return.
-    clear : pandas.Series, optional
-        From :func:`clear_periods`; adds a boolean ``clear`` column (both neighbouring minutes clear).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Index ``times`` (UTC); the columns [W m-2]; NaN outside the record or where a neighbour is flagged.
-    """
-    index = pd.DatetimeIndex(pd.to_datetime(times, utc=True))
-    span = pd.Timedelta(seconds=(obs.index[1] - obs.index[0]).total_seconds() / 2.0) if len(obs) > 1 else pd.Timedelta(0)
-    target = index + span
-    x = pd.DatetimeIndex(obs.index).as_unit("ns").asi8.astype(float)
-    xt = target.as_unit("ns").asi8.astype(float)
-    out = {}
-    for name in columns:
-        v = obs[name].astype(float)
-        qc = f"{name}_qc"
-        if qc in obs:
-            v = v.where(obs[qc] == 0)
-        vals = v.values
-        good = np.isfinite(vals)
-        res = np.interp(xt, x[good], vals[good], left=np.nan, right=np.nan) if good.any() else np.full(xt.size, np.nan)
-        # NaN where either neighbour is bad
-        pos = np.searchsorted(x, xt)
-        lo, hi = np.clip(pos - 1, 0, x.size - 1), np.clip(pos, 0, x.size - 1)
-        res[~(good[lo] & good[hi])] = np.nan
-        out[name] = res
-    frame = pd.DataFrame(out, index=index)
-    if clear is not None:
-        c = np.asarray(clear.reindex(obs.index, fill_value=False), dtype=bool)
-        pos = np.searchsorted(x, xt)
-        lo, hi = np.clip(pos - 1, 0, x.size - 1), np.clip(pos, 0, x.size - 1)
-        inside = (xt >= x[0]) & (xt <= x[-1])
-        frame["clear"] = c[lo] & c[hi] & inside
-    return frame
