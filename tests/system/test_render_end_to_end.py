@@ -251,7 +251,7 @@ def test_cli_coarsens_a_distant_view(tmp_path):
     assert result.exit_code == 2 and "--coarsen" in result.output and not bad.exists()
 
 
-@pytest.mark.parametrize("scene_name", ["default", "katrina"])
+@pytest.mark.parametrize("scene_name", ["default", pytest.param("katrina", marks=pytest.mark.full)])
 def test_numba_and_jax_kernels_render_the_same_image(scene_name, request):
     """The CPU kernel (swim.rt.march_cpu) against the JAX kernel on whole images: terrain, cumulus and
     cirrus of the default scene, the hurricane's decks, the sun's disk."""
@@ -273,6 +273,7 @@ def test_numba_and_jax_kernels_render_the_same_image(scene_name, request):
     assert images["numba"].attrs["march_backend"] == "numba" and images["jax"].attrs["march_backend"] == "jax"
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_cli_backend_option(tmp_path):
     out = tmp_path / "jax.png"
     result = CliRunner().invoke(app, ["render", "--size", "31", "--backend", "jax", "--out", str(out)])

@@ -165,6 +165,7 @@ def test_the_cache_is_listed_bounded_and_cleared(cache_dir, monkeypatch):
     assert not list(cache_dir.glob(f"*{SUFFIX}"))
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_the_jax_march_and_step_1a_are_read_by_a_new_process_with_the_same_image(cache_dir, monkeypatch):
     """The real kernels export (an operation that JAX cannot export would fall back to plain jit silently), and a
     render whose programs are read from the cache gives the bits of one traced by jax.jit."""

@@ -110,8 +110,9 @@ def _surface_scene(aerosol_plume):
                              aerosol_extinction=aerosol)
 
 
-@pytest.mark.parametrize("surface,plume", [("brdf", False), ("brdf", True), ("lambertian", False)],
-                         ids=["brdf", "brdf, five aerosol classes", "lambertian"])
+@pytest.mark.parametrize("surface,plume", [pytest.param("brdf", False, marks=pytest.mark.full),
+                                           pytest.param("brdf", True, marks=pytest.mark.full), ("lambertian", False)],
+                         ids=["brdf", "brdf, five aerosol classes", "lambertian"])  # the BRDF cases: the full tier
 def test_the_numba_kernels_ground_is_the_jax_kernels(monkeypatch, surface, plume):
     """Views down from 3 km onto sea, coast, land and snow, from within the grid and beyond its edge (where the
     ground's fields fade to their edge mean), under a cloud and beside it, towards and away from the sun's glint:
@@ -146,6 +147,7 @@ def _surface_constants(plume, sun):
     return kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 @pytest.mark.parametrize("surface,plume", [("brdf", True), ("lambertian", False)],
                          ids=["brdf, five aerosol classes", "lambertian"])
 def test_the_numba_ground_term_of_rays_is_the_jax_one(surface, plume):

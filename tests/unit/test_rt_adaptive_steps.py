@@ -212,6 +212,7 @@ def test_empty_steps_setting():
     assert MarchSettings(empty_steps=7).resolved_empty_steps() == 7
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
     """swim.rt.march_cpu._adaptive_edges (the per-ray kernel's, also the CUDA kernel's) against grid_step_edges:
     the same step counts and edges, with and without a limit on the empty steps, through clear and cloudy grids,

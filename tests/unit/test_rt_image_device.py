@@ -14,6 +14,9 @@ from swim.rt.image_device import planes_on_device
 from swim.rt.image_sampling import AdaptiveSampling
 from swim.rt.march import MarchSettings
 
+#: Images made on the device run the JAX kernel, whose programs compile for minutes on an empty cache: the full tier.
+pytestmark = pytest.mark.full
+
 OUTPUTS = ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_hydrometeor", "rgb",
            "view_zenith", "view_azimuth")
 

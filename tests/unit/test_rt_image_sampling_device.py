@@ -9,6 +9,9 @@ from swim.rt.image_sampling import AdaptiveSampling, sample_image_adaptive
 from swim.rt.image_sampling_device import bucket_size, quadtree_levels, sample_image_adaptive_device
 
 
+#: The device sampler runs the JAX kernel, whose programs compile for minutes on an empty cache: the full tier.
+pytestmark = pytest.mark.full
+
 @pytest.fixture(autouse=True)
 def _no_exports(monkeypatch, request):
     """The device sampler's programs jitted as usual in these tests: exporting each image shape's programs (what a

@@ -43,6 +43,11 @@ def _tiny_scene(aerosol_plume=False):
                              aerosol_extinction=aerosol)
 
 
+#: Both kernels, the JAX one in the full tier: compiling its programs on an empty cache was two thirds of this
+#: file's time in the quick tier.
+BACKENDS_JAX_FULL = pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])
+
+
 def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), settings=MarchSettings(n_grid=400, n_after=200),
            rayleigh_scattering=True):
     volume = build_optical_volume(scene)
@@ -64,7 +69,7 @@ def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), setting
     return out, (volume, transmittance, gas, phase)
 
 
-@pytest.mark.parametrize("backend", ["jax", "numba"])
+@BACKENDS_JAX_FULL
 @pytest.mark.parametrize("settings", [MarchSettings(n_grid=400, n_after=200), MarchSettings()],
                          ids=["fine steps", "default adaptive steps"])
 @pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
@@ -296,6 +301,7 @@ def test_numba_march_matches_the_jax_march(case):
     np.testing.assert_allclose(numba_out["distance"], jax_out["distance"], rtol=1e-4, atol=0.5)  # NaN where no ground
 
 
+@pytest.mark.full  # numba against the JAX kernel: the JAX programs' compilation, the full tier
 def test_chunks_without_ground_compose_without_its_term():
     """The numba path composes a chunk in which no ray ends on the ground without the ground's term (a second
     compiled version of the composition); the JAX kernel always evaluates it. Rays that look up from 1 km above the
@@ -317,6 +323,7 @@ def test_chunks_without_ground_compose_without_its_term():
         np.testing.assert_allclose(out["numba"][key], out["jax"][key], rtol=2e-4, atol=1e-6, err_msg=key)
 
 
+@pytest.mark.full  # numba against the JAX kernel: the JAX programs' compilation, the full tier
 @pytest.mark.parametrize("looking_down", [40, 700], ids=["few rays on the ground", "most rays on the ground"])
 def test_the_grounds_term_of_a_chunk_with_ground_rays_matches_the_jax_kernel(monkeypatch, looking_down):
     """The numba path composes the clouds and, for chunks that have rays on the ground, the ground's term in numba:
@@ -416,6 +423,7 @@ def test_rays_that_do_not_look_down_stop_in_opaque_cloud_with_the_same_radiance(
         np.testing.assert_array_equal(stop["steps"][calm], full["steps"][calm])
 
 
+@pytest.mark.full  # numba against the JAX kernel: the JAX programs' compilation, the full tier
 def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     """``steps``: the numba kernel counts the samples each ray takes, the lockstep JAX kernel every step of every
     ray. Without refinement and without the empty-space limit a ray that never meets the ground takes every step
@@ -672,6 +680,7 @@ def test_a_stopped_ray_samples_no_more_in_jax_than_in_numba(monkeypatch):
     np.testing.assert_allclose(jax_out["tau_hydrometeor"], numba_out["tau_hydrometeor"], rtol=2e-3, atol=1e-3)
 
 
+@pytest.mark.full  # numba against the JAX kernel: the JAX programs' compilation, the full tier
 @pytest.mark.parametrize("chunk", [64, 256])
 def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
     """The JAX kernel marches a chunk on a worker thread while the next is prepared (outputs collected one chunk
@@ -1065,7 +1074,8 @@ def _cloud_wall(thick, count=120, liquid_content=4e-4):
     return scene, origins, dirs
 
 
-def test_probe_spacing_follows_the_cells_crossed():
+@BACKENDS_JAX_FULL
+def test_probe_spacing_follows_the_cells_crossed(backend):
     """A cloud wall one cell thick, crossed by near-horizontal rays along 12 cells: 3 probes miss it for most
     rays, whose 12 steps then sample it at one place each; one probe per cell crossed (probe_spacing=1) finds
     it and puts the steps there, so the hydrometeor optical depth must come much closer to a fine march, in
@@ -1075,16 +1085,16 @@ def test_probe_spacing_follows_the_cells_crossed():
     fine = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=2000, n_probe=1000, probe_spacing=0.0))[0]
     through = fine["tau_hydrometeor"] > 0.5
     assert through.sum() > 60, "the rays must cross the wall"
-    for backend in ("jax", "numba"):
-        err = {}
-        for probe_spacing in (0.0, 1.0):
-            out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, n_probe=3, backend=backend,
-                                                                           probe_spacing=probe_spacing))[0]
-            err[probe_spacing] = np.median(np.abs(out["tau_hydrometeor"] / fine["tau_hydrometeor"] - 1)[through])
-        assert err[1.0] < 0.3 * err[0.0] and err[1.0] < 0.1, (backend, err)
+    err = {}
+    for probe_spacing in (0.0, 1.0):
+        out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, n_probe=3, backend=backend,
+                                                                       probe_spacing=probe_spacing))[0]
+        err[probe_spacing] = np.median(np.abs(out["tau_hydrometeor"] / fine["tau_hydrometeor"] - 1)[through])
+    assert err[1.0] < 0.3 * err[0.0] and err[1.0] < 0.1, (backend, err)
 
 
-def test_thick_steps_are_refined():
+@BACKENDS_JAX_FULL
+def test_thick_steps_are_refined(backend):
     """A thick cloud wall (optical depth ~240 across) seen edge-on with few steps: the step that reaches its face
     samples the sunlight somewhere inside (one cell deep, the sun's transmittance there is far lower) unless
     thick steps are halved down to tau_refine, in both kernels; the cloud's radiance must then come much closer
@@ -1094,15 +1104,15 @@ def test_thick_steps_are_refined():
     fine = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=4000, tau_refine=0.0))[0]
     through = fine["tau_hydrometeor"] > 20.0
     assert through.sum() > 60, "the rays must cross the wall"
-    for backend in ("jax", "numba"):
-        err = {}
-        for tau_refine in (0.0, 0.5):
-            out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, backend=backend,
-                                                                           tau_refine=tau_refine))[0]
-            err[tau_refine] = np.median(np.abs(out["radiance"] / fine["radiance"] - 1)[through])
-        assert err[0.5] < 0.3 * err[0.0] and err[0.5] < 0.02, (backend, err)
+    err = {}
+    for tau_refine in (0.0, 0.5):
+        out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, backend=backend,
+                                                                       tau_refine=tau_refine))[0]
+        err[tau_refine] = np.median(np.abs(out["radiance"] / fine["radiance"] - 1)[through])
+    assert err[0.5] < 0.3 * err[0.0] and err[0.5] < 0.02, (backend, err)
 
 
+@pytest.mark.full  # numba against the JAX kernel: the JAX programs' compilation, the full tier
 @pytest.mark.parametrize("sun_azimuth", [270.0, 90.0])
 def test_cloud_face_inside_a_clear_step_is_found(sun_azimuth):
     """A wall of cloud one cell thick, seen edge-on with 12 steps: where the face lies in a step whose midpoint is
@@ -1140,7 +1150,8 @@ def test_any_cut_of_the_rays_into_chunks_gives_the_same_pixels(monkeypatch):
             np.testing.assert_allclose(out[key], ref[key], rtol=1e-5, atol=1e-7, err_msg=f"{key}, {threads} threads, chunk {chunk}")
 
 
-def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean():
+@BACKENDS_JAX_FULL
+def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean(backend):
     """Beyond the grid the ground fades from the nearest edge cell's surface to the mean of the edge cells
     (swim.rt.march.surface_beyond_edge): seen from above it must be continuous across the edge (it jumped to the
     mean, drawing the domain's outline in views from space), and a few cells away the same along the edge (no
@@ -1159,17 +1170,16 @@ def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean():
     origins = np.column_stack([ground, np.full(len(ground), EARTH_RADIUS_M + 3000.0)])
     down = np.tile([0.0, 0.0, -1.0], (len(ground), 1))
     sun = enu_from_azimuth_zenith(200.0, 30.0)
-    for backend in ("jax", "numba"):
-        out = _trace(scene, origins, down, sun, settings=MarchSettings(surface="lambertian", backend=backend))[0]
-        surface = out["radiance_surface"][:, 1]
-        assert out["surface"].all()
-        assert abs(surface[1] / surface[0] - 1) < 0.02, (backend, surface)  # across the edge: continuous
-        assert surface[1] > 3 * surface[2], (backend, surface)  # near the edge: the edge cells' own ground
-        assert abs(surface[3] / surface[4] - 1) < 1e-3, (backend, surface)  # far beyond: the edge mean
-        # 15 cells out the patch has faded (with a 6-cell fade a hurricane's edge winds drew a streak this far
-        # beyond Katrina's grid in views from space)
-        assert abs(surface[5] / surface[6] - 1) < 0.01, (backend, surface)
-        assert surface[2] < surface[3] < surface[1], (backend, surface)
+    out = _trace(scene, origins, down, sun, settings=MarchSettings(surface="lambertian", backend=backend))[0]
+    surface = out["radiance_surface"][:, 1]
+    assert out["surface"].all()
+    assert abs(surface[1] / surface[0] - 1) < 0.02, (backend, surface)  # across the edge: continuous
+    assert surface[1] > 3 * surface[2], (backend, surface)  # near the edge: the edge cells' own ground
+    assert abs(surface[3] / surface[4] - 1) < 1e-3, (backend, surface)  # far beyond: the edge mean
+    # 15 cells out the patch has faded (with a 6-cell fade a hurricane's edge winds drew a streak this far
+    # beyond Katrina's grid in views from space)
+    assert abs(surface[5] / surface[6] - 1) < 0.01, (backend, surface)
+    assert surface[2] < surface[3] < surface[1], (backend, surface)
 
 
 @pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])

@@ -18,6 +18,7 @@ from test_rt_march import _random_rays, _tiny_scene, _trace
 KEYS = ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear")
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_table_rows_give_trace_rays_outputs():
     """Rows of a table in a shuffled order, across two chunks, with an extra ray after them (the sun's in a render):
     each output that of trace_rays for the same rays, from the ground, inside the grid and from 20 km through cloud,

@@ -85,6 +85,7 @@ def test_the_donating_refill_gives_the_same_channels_and_frees_the_old_copy(monk
     np.testing.assert_array_equal(np.asarray(new), packed)
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_the_kernel_is_compiled_once_whatever_the_switches_it_does_not_read():
     """MarchSettings.ray_table (None or False) and step1a_on_device are not the march kernel's settings: a render with
     other values of them runs the same compiled program (a recompilation takes tens of seconds on a GPU)."""
