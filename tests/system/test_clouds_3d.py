@@ -33,6 +33,7 @@ def default_3d(default_scene):
                        sun_azimuth=150.0, settings=MarchSettings(cloud_scattering=coarse))
 
 
+@pytest.mark.full  # the built-in scene's 3-D solve (~15 s); the quick tier renders the method on a small LES field
 def test_default_scene_renders_with_3d_clouds(default_3d):
     image = default_3d
     assert image.attrs["cloud_scattering"] == "discrete_ordinates"

@@ -74,7 +74,7 @@ def numba_radiance(pts, model):
     return out
 
 
-@pytest.mark.parametrize("model", ["brdf", "lambertian"])
+@pytest.mark.parametrize("model", [pytest.param("brdf", marks=pytest.mark.full), "lambertian"])
 def test_the_numba_surface_radiance_is_the_jax_one(model):
     rng = np.random.default_rng(7)
     pts = random_points(rng, 4000)
@@ -111,8 +111,9 @@ def _surface_scene(aerosol_plume):
 
 
 @pytest.mark.parametrize("surface,plume", [pytest.param("brdf", False, marks=pytest.mark.full),
-                                           pytest.param("brdf", True, marks=pytest.mark.full), ("lambertian", False)],
-                         ids=["brdf", "brdf, five aerosol classes", "lambertian"])  # the BRDF cases: the full tier
+                                           pytest.param("brdf", True, marks=pytest.mark.full),
+                                           pytest.param("lambertian", False, marks=pytest.mark.full)],
+                         ids=["brdf", "brdf, five aerosol classes", "lambertian"])  # the JAX programs' compilation: the full tier
 def test_the_numba_kernels_ground_is_the_jax_kernels(monkeypatch, surface, plume):
     """Views down from 3 km onto sea, coast, land and snow, from within the grid and beyond its edge (where the
     ground's fields fade to their edge mean), under a cloud and beside it, towards and away from the sun's glint:

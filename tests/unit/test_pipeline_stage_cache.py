@@ -207,7 +207,7 @@ def test_scene_directions_are_the_camera_s_rotated_and_shared_by_equal_views():
     assert not np.allclose(other[0][flat], dirs[flat])
 
 
-@pytest.mark.parametrize("backend", ["numba", "jax"])
+@pytest.mark.parametrize("backend", ["numba", pytest.param("jax", marks=pytest.mark.full)])
 def test_a_new_sun_refills_the_packed_volume_in_place(backend):
     """A new sun reuses the packed grid (its Step 1a channels filled again, no second copy of the grid) and the
     kernel's device copies of it are made again: every image equals a render from an empty cache."""

@@ -58,6 +58,7 @@ def _in_fresh_cache(code, cache, timeout=300):
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.full  # a cold compile of the whole march in a helper process: the full tier
 @pytest.mark.slow
 def test_the_helper_compiles_the_march_into_the_disk_cache(tmp_path):
     check = "from swim.rt import precompile; print(precompile.is_cached('_march_ray_range'))"

@@ -693,6 +693,7 @@ def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
         np.testing.assert_allclose(many[key], one[key], rtol=1e-5, atol=1e-7, err_msg=key)
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_a_jax_chunk_s_error_reaches_the_caller_and_the_next_call_works(monkeypatch):
     """The JAX kernel's chunks run on a worker thread: an error in one of them is raised by trace_rays itself (not
     lost in the thread, no partial output), and the next call, on the same worker, traces every ray."""

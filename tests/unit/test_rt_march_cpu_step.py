@@ -213,6 +213,7 @@ def _blocks_in_loops(body):
     return {b: "\n".join(blocks[b]) for b in looped}
 
 
+@pytest.mark.full  # an inspection of the compiled code: the full tier
 @pytest.mark.slow
 def test_the_kernel_changes_no_reference_count_inside_its_loops():
     """The march kernel's loops take no array views (``volume[k, j, i]``, a table's row): numba raises and lowers a

@@ -311,6 +311,7 @@ def test_render_with_the_table_gives_the_same_image(sampling):
     assert not ray_table._LAST_TABLE
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_camera_table_is_rebuilt_for_another_observer():
     scene = swim.default_scene()
     ray_table.forget_ray_tables()

@@ -42,7 +42,7 @@ def _scenes(which):
     return _full_and_empty_scenes()[0 if which.startswith("cloud") else 1]
 
 
-@pytest.mark.parametrize("backend", ["jax", "numba"])
+@pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])
 @pytest.mark.parametrize("zenith, azimuth", [(20.0, 135.0), (87.0, 250.0), (95.0, 60.0)],
                          ids=["high sun", "low sun (4 sub-steps per level)", "sun below the horizon"])
 @pytest.mark.parametrize("which", ["cloud, terrain and 3-D aerosol", "ridge above a low cloud", "nothing to sweep"])

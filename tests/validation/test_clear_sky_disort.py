@@ -162,6 +162,7 @@ def test_irradiance_within_3_percent(aod, sz):
     assert np.all(np.abs(ghi_err) < 0.03), ghi_err
 
 
+@pytest.mark.full  # more of the validation grid: the full tier
 def test_stratospheric_sulfate_layer_against_disort():
     """A volcanic stratospheric layer (AOD 0.2 at 20 km) over the background aerosol: Step 2's 1-D
     stratospheric variable (paper Sect. 3.3) against DISORT with the same layer."""
@@ -218,6 +219,7 @@ def test_swim_against_disort_from_space(aod, sz):
     assert np.all(r["median_abs"] < 0.015)
 
 
+@pytest.mark.full  # more of the validation grid: the full tier
 def test_uniform_3d_smoke_layer_against_disort():
     """A scene's 3-D aerosol field (smoke, AOD 1, uniform over 600 km) against DISORT with the same 1-D
     aerosol: the kernel's single scattering lit through e^{-tau} of the 3-D aerosol towards the sun plus the
@@ -232,6 +234,7 @@ def test_uniform_3d_smoke_layer_against_disort():
     assert np.all(s["max_abs"] < 0.02)
 
 
+@pytest.mark.full  # more of the validation grid: the full tier
 @pytest.mark.parametrize("inside", [True, False], ids=["under the plume", "beside the plume"])
 def test_absorbing_smoke_plume_per_column_against_disort(inside):
     """A smoke plume (AOD 2, omega 0.86-0.90) over part of the domain, seen from the ground and from space
@@ -250,6 +253,7 @@ def test_absorbing_smoke_plume_per_column_against_disort(inside):
     assert np.all(s["max_abs"] < 0.025)
 
 
+@pytest.mark.full  # more of the validation grid: the full tier
 @pytest.mark.parametrize("tau", [1.0, 10.0])
 def test_aerosol_layer_albedo_against_disort(tau):
     """The plane albedo of an isolated smoke layer (Eq. 31's a) by successive orders against DISORT's flux
