@@ -175,6 +175,7 @@ def test_a_dask_cluster_renders_the_same_frames(scene, tmp_path):
         render_series(path, times, out=tmp_path / "d" / "{index}.png", open_options={"time": ["not", "hashable"]})
 
 
+@pytest.mark.full  # dask worker processes, each importing and compiling anew: the full tier
 @pytest.mark.slow
 def test_worker_processes_render_the_same_frames(scene, tmp_path):
     pytest.importorskip("dask.distributed")
@@ -211,6 +212,7 @@ def test_the_render_command_renders_a_series(tmp_path, monkeypatch):
     assert not list(tmp_path.glob("*.png")), "no PNG unless --out is given"
 
 
+@pytest.mark.full  # dask worker processes, each importing and compiling anew: the full tier
 @pytest.mark.slow
 def test_the_render_command_on_worker_processes_opens_the_file_there(scene, tmp_path, monkeypatch):
     from swim.cli.main import app

@@ -44,6 +44,7 @@ def test_a_render_trims_the_heap_only_for_images_of_many_pixels(monkeypatch):
     assert len(calls) == 2 and image["rgb"].shape == (16, 16, 3)
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/maps and vm.max_map_count are Linux's")
 def test_compiled_programs_are_dropped_above_the_share_of_the_mapping_limit(monkeypatch):
     """Each XLA:CPU executable that JAX keeps holds memory mappings of its own; above the given share of

@@ -1306,6 +1306,7 @@ def test_clear_air_steps_follow_the_air_and_integrate_it_better(n_steps):
     assert abs(placed - exact) < 0.5 * abs(equal - exact), (placed, equal, exact)
 
 
+@pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
 def test_numba_clear_air_steps_match_the_jax_ones():
     import jax.numpy as jnp
 

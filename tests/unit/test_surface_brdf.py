@@ -244,7 +244,9 @@ def test_float32_jit_random_directions():
     assert np.isfinite(grazing) and grazing < 10
 
 
-@pytest.mark.parametrize("shape", [(), (7,), (4, 5)])
+# each shape compiles its own JAX programs: the larger ones in the full tier
+@pytest.mark.parametrize("shape", [(), pytest.param((7,), marks=pytest.mark.full),
+                                   pytest.param((4, 5), marks=pytest.mark.full)])
 def test_shapes(shape):
     rng = np.random.default_rng(8)
     sun = np.broadcast_to(vec(40.0), shape + (3,))

@@ -263,7 +263,9 @@ def test_float32_jit_random_directions_finite_and_zero_below_horizon():
         assert np.isfinite(r) and r * sun[2] / np.pi < 1000.0
 
 
-@pytest.mark.parametrize("shape", [(), (7,), (4, 5)])
+# each shape compiles its own JAX programs: the larger ones in the full tier
+@pytest.mark.parametrize("shape", [(), pytest.param((7,), marks=pytest.mark.full),
+                                   pytest.param((4, 5), marks=pytest.mark.full)])
 def test_shapes(shape):
     rng = np.random.default_rng(4)
     s = np.broadcast_to(vec(30.0), shape + (3,))
