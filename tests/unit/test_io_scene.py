@@ -496,6 +496,17 @@ def test_variables_that_are_not_real_numbers_are_refused(dtype):
         validate_scene(ds)
 
 
+def test_complex_arrays_are_refused_by_scene_from_arrays():
+    """A complex field or axis would lose its imaginary part (numpy's cast only warns): each is named."""
+    lwc = np.full((NZ, NY, NX), 1e-4) * (1 + 1j)
+    with pytest.raises(SwimInputError, match="scene_from_arrays: cloud_liquid_content holds complex128 values"):
+        _scene(cloud_liquid_content=lwc)
+    with pytest.raises(SwimInputError, match="x holds complex128 values"):
+        _scene(x=(np.arange(NX) * 1000.0 - 2500.0).astype(complex))
+    with pytest.raises(SwimInputError, match="z holds complex128 values"):
+        _scene(z=np.linspace(100.0, 4100.0, NZ).astype(complex))
+
+
 def test_horizontal_axes_in_km_are_refused():
     with pytest.raises(SwimInputError, match="x/y spacing 1 m under levels 1000 m apart: expected x and y in metres"):
         _scene(x=np.arange(NX) * 1.0 - 2.5, y=np.arange(NY) * 1.0 - 1.5)

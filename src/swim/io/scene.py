@@ -699,6 +699,7 @@ def _validate_time(t: xr.DataArray) -> xr.DataArray:
 
 
 def _regular_axis(name: str, values) -> np.ndarray:
+    require_real_numbers(name, np.asarray(values).dtype)
     v = np.asarray(values, dtype=float)
     if v.ndim != 1 or v.size < 1:
         raise SwimInputError(f"{name} must be a 1-D array of grid coordinates [m]; got shape {v.shape}")
@@ -794,6 +795,7 @@ graupel_effective_radius : array_like, optional
     xv = _regular_axis("x", x)
     yv = _regular_axis("y", y)
     nx, ny = xv.size, yv.size
+    require_real_numbers("z", np.asarray(z).dtype)
     zv = np.asarray(z, dtype=float)
     if zv.ndim == 1:
         height = np.broadcast_to(zv[:, None, None], (zv.size, ny, nx)).copy()
@@ -812,7 +814,12 @@ graupel_effective_radius : array_like, optional
     lat, lon, _ = scene_to_geodetic(p, reference_lat, reference_lon)
 
     def _field(name, value, shape, dims):
-        a = np.asarray(value, dtype=float)
+        raw = np.asarray(value)
+        require_real_numbers(f"scene_from_arrays: {name}", raw.dtype)
+        try:
+            a = raw.astype(float)
+        except (TypeError, ValueError):
+            raise SwimInputError(f"scene_from_arrays: {name} holds values that are not numbers") from None
         try:
             a = np.broadcast_to(a, shape).copy()
         except ValueError as exc:
