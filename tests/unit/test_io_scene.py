@@ -457,6 +457,7 @@ def test_default_scene_is_deterministic():
 
 
 def test_lazy_open_reads_nothing_until_render_and_renders_the_same(tmp_path):
+    pytest.importorskip("dask")  # the scale extra
     import dask.array
 
     import swim

@@ -2,7 +2,6 @@
 
 import math
 
-import dask.array as da
 import numpy as np
 import pytest
 
@@ -135,7 +134,8 @@ def test_sampling_keeps_each_block_s_middle_column(factor):
 def test_a_lazy_scene_stays_lazy_and_gives_the_eager_scene_s_values(method):
     """Nothing of a lazy scene is computed while it is coarsened (dask's scheduler made to fail), and its values are
     then the eager scene's."""
-    import dask
+    dask = pytest.importorskip("dask")  # the scale extra
+    da = pytest.importorskip("dask.array")
 
     scene = _scene()
     lazy = scene.copy()

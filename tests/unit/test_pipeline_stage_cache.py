@@ -101,6 +101,7 @@ def test_a_lazy_scene_is_not_read_again_but_its_changes_are_seen(tmp_path, caplo
     """A lazily opened scene is identified by its dask graph (file name and modification time, the crop's
     slices, attributes): a warm render reuses the stages without running a single dask task, while changed
     attributes (validated again) and a rewritten file (new values) are not served from the cache."""
+    pytest.importorskip("dask")  # the scale extra
     import dask.array
     from dask.callbacks import Callback
 
