@@ -9,7 +9,11 @@ from typer.testing import CliRunner
 import swim
 from swim.cli.main import app
 from swim.errors import SwimInputError
-from swim.optics.aerosol_types import aerosol_type, custom_aerosol_type, read_phase_function_table
+from swim.optics.aerosol_types import (
+    aerosol_type,
+    custom_aerosol_type,
+    read_phase_function_table,
+)
 from swim.rt.gas import AerosolBackground
 
 
@@ -43,7 +47,7 @@ def test_a_tabulated_phase_function_is_normalised_and_keeps_its_shape():
 
 def test_custom_optics_change_the_render_as_they_should():
     """With the same optical depth, a more absorbing aerosol darkens the sky; the image records the optics."""
-    kw = dict(camera_options={"size": 15}, sun_zenith=40.0, sun_azimuth=150.0)
+    kw = {"camera_options": {"size": 15}, "sun_zenith": 40.0, "sun_azimuth": 150.0}
     bright = swim.render(swim.default_scene(), aerosol=AerosolBackground(
         aod_550=0.5, optics=custom_aerosol_type("continental", ssa=1.0)), **kw)
     dark = swim.render(swim.default_scene(), aerosol=AerosolBackground(
@@ -69,7 +73,7 @@ def test_bad_custom_optics():
 def test_the_command_line_takes_the_aerosol_s_own_optics(tmp_path):
     table = tmp_path / "phase.txt"
     table.write_text("# angle [deg], P\nangle P\n0, 10\n90, 0.4\n180, 0.2\n")
-    angles, values = read_phase_function_table(table)
+    angles, _values = read_phase_function_table(table)
     np.testing.assert_array_equal(angles, [0, 90, 180])
     nc = tmp_path / "a.nc"
     result = CliRunner().invoke(app, ["render", "--aerosol", "smoke", "--aod", "0.4", "--aerosol-ssa", "0.8,0.82,0.85",

@@ -16,7 +16,12 @@ from typer.testing import CliRunner
 
 from swim.errors import SwimInputError
 from swim.io import read_observations
-from swim.io.observations import clear_periods, observations_at, observed_albedo, observed_precipitable_water
+from swim.io.observations import (
+    clear_periods,
+    observations_at,
+    observed_albedo,
+    observed_precipitable_water,
+)
 from swim.io.surfrad import read_surfrad
 
 LAT, LON, ELEV = 39.742, -105.18, 1829.0  # NREL SRRL (the MIDC "BMS" station)

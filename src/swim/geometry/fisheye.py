@@ -294,7 +294,7 @@ class FisheyeCameraModel:
         set_("mask_block", _as_int("mask_block", self.mask_block))
         set_("_rotation", self._tilt_rotation())
 
-    def downsampled(self, factor: int) -> "FisheyeCameraModel":
+    def downsampled(self, factor: int) -> FisheyeCameraModel:
         """The camera with pixels ``factor`` times larger: ``width // factor`` x ``height // factor`` pixels, each the
         block of ``factor`` x ``factor`` of this camera's pixels from the top left (a remainder of rows and columns
         is left out); the same sky on them.
