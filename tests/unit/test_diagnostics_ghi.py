@@ -307,3 +307,19 @@ def test_cli_night_run_writes_a_csv(app, tmp_path):
     assert len(table) == 3 and (table["ghi"] == 0).all() and (~table["rendered"]).all()
     assert {"ghi", "dni", "dhi", "ghi_rel_546", "sun_zenith_deg", "bird_ghi"} <= set(table.columns)
     assert (table["sun_zenith_deg"] > 90).all()
+
+
+def test_cli_quiet_reports_nothing_but_the_file_is_written(tmp_path, monkeypatch):
+    """``swim -q ghi``: no progress bar and no report lines, the CSV written all the same."""
+    from swim.cli import main as cli_main
+
+    monkeypatch.setitem(cli_main.QUIET, "on", False)  # restored after the test: -q sets it for the process
+    out = tmp_path / "night.csv"
+    args = ["ghi", "--lat", "37.7", "--lon", "-105.92", "--elevation", "2317", "--start", "2016-01-01T06:00Z",
+            "--end", "2016-01-01T07:00Z", "--step", "1h", "--pw", "0.3", "--out", str(out)]
+    loud = CliRunner().invoke(cli_main.app, args)
+    assert loud.exit_code == 0 and "wrote" in loud.output and "rendering" in loud.output, loud.output
+    out.unlink()
+    quiet = CliRunner().invoke(cli_main.app, ["-q", *args])
+    assert quiet.exit_code == 0 and quiet.output.strip() == "", quiet.output
+    assert out.is_file()

@@ -69,9 +69,13 @@ def ghi(
 
     from ..diagnostics.ghi import (aerosol_for_site, attach_observations, clear_site_scene, error_statistics,
                                    ghi_time_series, plot_ghi, pvlib_clear_sky, site_aod_550, time_range, write_csv)
-    from .main import modules_loaded
+    from .main import QUIET, modules_loaded
 
     modules_loaded()
+
+    def report(text):  # -q: no progress bars and no report of what is done (the scores and errors still)
+        if not QUIET["on"]:
+            console.print(text)
     try:
         if plot is not None:
             from ..diagnostics.ghi import matplotlib_pyplot
@@ -90,10 +94,10 @@ def ghi(
             pw = observed_precipitable_water(obs) if pw is None else pw
             albedo = observed_albedo(obs) if albedo is None else albedo
             clear = clear_periods(obs)
-            console.print(f"observed: {obs.attrs['format'].upper()} {escape(str(obs.attrs['station']))}, "
-                          f"{len(obs)} rows {obs.index[0]:%Y-%m-%d %H:%M} to {obs.index[-1]:%Y-%m-%d %H:%M} UTC; "
-                          f"pw {'default' if pw is None else f'{pw:.2f} cm'}, albedo "
-                          f"{'default' if albedo is None else f'{albedo:.2f}'}")
+            report(f"observed: {obs.attrs['format'].upper()} {escape(str(obs.attrs['station']))}, "
+                   f"{len(obs)} rows {obs.index[0]:%Y-%m-%d %H:%M} to {obs.index[-1]:%Y-%m-%d %H:%M} UTC; "
+                   f"pw {'default' if pw is None else f'{pw:.2f} cm'}, albedo "
+                   f"{'default' if albedo is None else f'{albedo:.2f}'}")
         pw = 1.0 if pw is None else pw
         if scene is None:
             if lat is None or lon is None:
@@ -111,11 +115,11 @@ def ghi(
 
         ground = _terrain_at(build_optical_volume(ds), lat, lon)[0]
         background = aerosol_for_site(aod, ground + height, aerosol)
-        console.print(f"rendering {len(times)} instants ({size} px) at {lat:.3f}, {lon:.3f}, ground {ground:.0f} m")
+        report(f"rendering {len(times)} instants ({size} px) at {lat:.3f}, {lon:.3f}, ground {ground:.0f} m")
         from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
         with Progress(TextColumn("[bold]ghi"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                      TimeRemainingColumn(), console=console, transient=True) as bar:
+                      TimeRemainingColumn(), console=console, transient=True, disable=QUIET["on"]) as bar:
             task = bar.add_task("ghi", total=len(times))
             sim = ghi_time_series(ds, lat, lon, times, height=height, size=size, aerosol=background,
                                   precipitable_water_cm=pw, ozone_atm_cm=ozone, surface_albedo=albedo,
@@ -144,5 +148,5 @@ def ghi(
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
     day = table["rendered"]
-    console.print(f"wrote {out}" + (f" and {plot}" if plot else "")
+    report(f"wrote {out}" + (f" and {plot}" if plot else "")
                   + f" ({int(day.sum())} daylight instants, max GHI {float(np.nanmax(table['ghi'])):.0f} W m-2)")
