@@ -250,10 +250,22 @@ def filmic_tone(y):
     it at 0.99. The colour's share, ``sqrt((1 - T) / (1 - k))``, falls from 1 at the knee to 0 at white, so that
     highlights turn neutral as on film.
 
+    Parameters
+    ----------
+    y : array_like
+        Display luminance [-] (1: the exposure's white), any shape.
+
     Returns
     -------
     tone, share : numpy.ndarray
-        Same shape as ``y``.
+        Same shape as ``y``: the displayed luminance [-], in [0, 1) and the share of the chroma kept [-], in (0, 1].
+
+    Notes
+    -----
+    The curve is this project's (docs/colour.md, "Tone and gamut mapping"), after the highlight roll-off of film
+    and of camera view transforms (ACES, AgX), not a published formula: linear below the knee so that the paper's
+    rule of displayed brightness proportional to scene brightness (Albers et al. 2020, Sect. 3.8,
+    doi:10.5194/amt-13-3235-2020) holds for everything but highlights.
     """
     y = np.asarray(y, dtype=float)
     k = FILMIC_KNEE

@@ -69,7 +69,7 @@ import xarray as xr
 from .. import frames
 from ..errors import SwimInputError
 from ..geometry.cameras import CAMERA_KINDS, Camera, make_camera
-from ..geometry.fisheye import FisheyeCameraModel
+from ..geometry.fisheye import FisheyeCameraModel, reduce_blocks
 from ..io.atomic import atomic_write
 
 __all__ = [
@@ -500,23 +500,6 @@ def _downsample_factor(value) -> int:
     return int(value)
 
 
-def _block_mean(channels, factor):
-    """(c, ny, nx) averaged over blocks of factor x factor pixels from the top left (the remainder left out)."""
-    if factor == 1:
-        return channels
-    c, ny, nx = channels.shape
-    h, w = ny // factor, nx // factor
-    return channels[:, :h * factor, :w * factor].reshape(c, h, factor, w, factor).mean(axis=(2, 4))
-
-
-def _block_any(flags, factor):
-    if factor == 1:
-        return flags
-    ny, nx = flags.shape
-    h, w = ny // factor, nx // factor
-    return flags[:h * factor, :w * factor].reshape(h, factor, w, factor).any(axis=(1, 3))
-
-
 def block_mean_codes(image, factor: int) -> np.ndarray:
     """An image (ny, nx, c) of display codes averaged over blocks of ``factor`` x ``factor`` pixels, rounded to its
     dtype (the grid of :meth:`FisheyeCameraModel.downsampled`)."""
@@ -524,7 +507,7 @@ def block_mean_codes(image, factor: int) -> np.ndarray:
     factor = _downsample_factor(factor)
     if factor == 1:
         return img
-    mean = np.moveaxis(_block_mean(np.moveaxis(img.astype(float), -1, 0), factor), 0, -1)
+    mean = np.moveaxis(reduce_blocks(np.moveaxis(img.astype(float), -1, 0), factor, np.mean), 0, -1)
     return np.rint(mean).astype(img.dtype) if np.issubdtype(img.dtype, np.integer) else mean
 
 
@@ -617,7 +600,7 @@ def compare_images(simulated, observed, camera: FisheyeCameraModel, *, sun_azimu
             raise SwimInputError(f"simulated array must have shape {camera.shape + (3,)}, got {arr.shape}")
         sim = np.moveaxis(arr, -1, 0)
     obs_raw = observed
-    obs = _block_mean(_observed_channels(observed, quantity, full_camera.shape), factor)
+    obs = reduce_blocks(_observed_channels(observed, quantity, full_camera.shape), factor, np.mean)
 
     if sun_azimuth_deg is None and sun_zenith_deg is None and attrs_src:
         sun_azimuth_deg = attrs_src.get("sun_azimuth_deg")
@@ -634,7 +617,7 @@ def compare_images(simulated, observed, camera: FisheyeCameraModel, *, sun_azimu
     if exclude_saturated:
         raw = read_camera_image(obs_raw) if isinstance(obs_raw, (str, Path)) else np.asarray(obs_raw)
         if np.issubdtype(raw.dtype, np.integer):
-            mask &= ~_block_any(np.any(raw[..., :3] >= _full_scale(raw), axis=-1), factor)
+            mask &= ~reduce_blocks(np.any(raw[..., :3] >= _full_scale(raw), axis=-1), factor, np.any)
     n = int(mask.sum())
     if n < 2:
         raise SwimInputError(f"only {n} pixels remain after masking (image circle, horizon, min_elevation_deg="

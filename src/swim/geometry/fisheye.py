@@ -109,6 +109,7 @@ __all__ = [
     "FISHEYE_PROJECTIONS",
     "FisheyeCameraModel",
     "OrientationFit",
+    "reduce_blocks",
     "detect_sun",
     "fit_orientation_from_sun",
 ]
@@ -166,6 +167,18 @@ def _radial_derivative(projection: str, theta, f: float, coefficients: tuple[flo
     if projection == "orthographic":
         return f * np.cos(t)
     return np.polynomial.polynomial.polyval(t, tuple(k * (i + 1) for i, k in enumerate(coefficients)))
+
+
+def reduce_blocks(a, factor: int, reduce) -> np.ndarray:
+    """``a`` (..., ny, nx) over blocks of ``factor`` x ``factor`` pixels from the top left (a remainder of rows and
+    columns left out), each block reduced by ``reduce`` (``np.mean``, ``np.all``, ``np.any``): (..., ny // factor,
+    nx // factor), the grid of :meth:`FisheyeCameraModel.downsampled`."""
+    a = np.asarray(a)
+    if factor == 1:
+        return a
+    *lead, ny, nx = a.shape
+    h, w = ny // factor, nx // factor
+    return reduce(a[..., :h * factor, :w * factor].reshape(*lead, h, factor, w, factor), axis=(-3, -1))
 
 
 @dataclass(frozen=True)
@@ -532,8 +545,7 @@ class FisheyeCameraModel:
         b = self.mask_block
         expected = (self.height * b, self.width * b)
         if b > 1 and grey.shape[0] >= expected[0] and grey.shape[1] >= expected[1]:
-            usable = grey[:expected[0], :expected[1]] >= 128
-            return usable.reshape(self.height, b, self.width, b).all(axis=(1, 3))
+            return reduce_blocks(grey >= 128, b, np.all)[:self.height, :self.width]
         if grey.shape != self.shape:
             raise SwimInputError(f"mask image {self.mask_path!r} has size (height, width) = {grey.shape}, expected "
                                  f"{expected} [px]")

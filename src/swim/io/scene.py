@@ -815,11 +815,8 @@ graupel_effective_radius : array_like, optional
 
     def _field(name, value, shape, dims):
         raw = np.asarray(value)
-        require_real_numbers(f"scene_from_arrays: {name}", raw.dtype)
-        try:
-            a = raw.astype(float)
-        except (TypeError, ValueError):
-            raise SwimInputError(f"scene_from_arrays: {name} holds values that are not numbers") from None
+        require_real_numbers(f"scene_from_arrays: {name}", raw.dtype)  # then the cast to float cannot fail
+        a = raw.astype(float)
         try:
             a = np.broadcast_to(a, shape).copy()
         except ValueError as exc:
