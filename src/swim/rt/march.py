@@ -1818,8 +1818,8 @@ def surface_fields(volume, transmittance):
 #: e-folding distances [grid cells] over which the ground's fields fade beyond the grid's edge from the nearest
 #: edge cell's values to :func:`surface_fields_outside` (:func:`surface_beyond_edge`): the surface's properties
 #: (albedo, land, snow, wind, slope) over 2 cells, its lighting by Step 1a (cloud T, terrain shadow, 3-D aerosol
-#: towards the sun) over one, since no cloud beyond the grid casts a shadow. Over 6 cells a hurricane's edge winds
-#: drew streaks of glint tens of cells beyond Katrina's grid in views from space.
+#: towards the sun) over one, since no cloud beyond the grid casts a shadow. A longer fade carries an edge's
+#: features far out: over 6 cells a hurricane's edge winds show as streaks of glint tens of cells beyond the grid.
 SURFACE_EDGE_FADE_CELLS = 2.0
 LIGHTING_EDGE_FADE_CELLS = 1.0
 
