@@ -42,7 +42,7 @@ from .ordinates import make_quadrature
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DiffuseSettings", "DiffuseField", "diffuse_field", "clear_column", "solver_levels"]
+__all__ = ["DiffuseField", "DiffuseSettings", "clear_column", "diffuse_field", "solver_levels"]
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ class DiffuseSettings:
     max_levels_per_interval: int = 24
     thick_quantile: float = 0.995
     max_level_factor: float = 3.0
-    max_cells: int = 300_000
+    max_cells: int = 75_000
     top_layers: int = 10
     tolerance: float = 1e-4
     max_sweeps: int = 300
@@ -145,10 +145,15 @@ def _block_mean(a, c):
         return np.asarray(a, np.float32)
     a = np.asarray(a)
     ny, nx = a.shape[-2:]
-    # sums along each axis in turn (no padded copy of a big volume), in float64
     starts_y, starts_x = np.arange(0, ny, c), np.arange(0, nx, c)
-    s = np.add.reduceat(np.add.reduceat(a, starts_x, axis=-1, dtype=np.float64), starts_y, axis=-2)
     n = np.outer(np.diff(np.append(starts_y, ny)), np.diff(np.append(starts_x, nx)))
+    if a.ndim == 3 and a.dtype == np.float32:  # a volume: one compiled pass (5-8 x faster than two reduceats)
+        from .ordinates_cpu import block_sums
+
+        s = np.zeros((a.shape[0], starts_y.size, starts_x.size))
+        block_sums(np.ascontiguousarray(a), int(c), s)
+    else:  # sums along each axis in turn (no padded copy), in float64
+        s = np.add.reduceat(np.add.reduceat(a, starts_x, axis=-1, dtype=np.float64), starts_y, axis=-2)
     return (s / n).astype(np.float32)
 
 
@@ -211,7 +216,10 @@ def _sun_transmittance(gas, z, mu0):
 def _air_optics(gas, z, max_degree):
     """Scaled extinction (n, 3) and scattering moments beta* omega* chi*_l (n, 3, L + 1) of the clear air at heights
     ``z`` (molecules, background and stratospheric aerosol; delta-M with f = chi_{L+1} for the aerosols)."""
-    from ..validation.disort import phase_function_legendre_moments, rayleigh_legendre_moments
+    from ..validation.disort import (
+        phase_function_legendre_moments,
+        rayleigh_legendre_moments,
+    )
 
     b_r, b_a, b_s = _gas_profiles(gas, z)
     n_l = max_degree + 1
@@ -398,15 +406,33 @@ def _solver_grid(volume, beta_species, optics, settings, top_m) -> _Grid:
     # (nor beyond the first blocks that leave at most 8 x 8 columns, where the search stops)
     coarsen = max(1, min(math.ceil(math.sqrt(max(nk - 1, 1) * ny * nx / settings.max_cells)) - 1,
                          -(-max(ny, nx) // 8)))
-    while True:
-        hydro_c = _block_mean(hydro, coarsen)
+
+    def trial(c):  # the grid of c x c column blocks, and whether it fits the budget
+        hydro_c = _block_mean(hydro, c)
         interval_tau = np.quantile(0.5 * (hydro_c[1:] + hydro_c[:-1]).reshape(nk - 1, -1), settings.thick_quantile,
                                    axis=1) * dz_levels
-        edges, first, n_split = solver_levels(levels, interval_tau, settings, top_m)
+        levels_c = solver_levels(levels, interval_tau, settings, top_m)
         nyc, nxc = hydro_c.shape[1:]
-        if (edges.size - 1) * nyc * nxc <= settings.max_cells or max(nyc, nxc) <= 8:
-            break
-        coarsen += 1
+        return (levels_c[0].size - 1) * nyc * nxc <= settings.max_cells or max(nyc, nxc) <= 8, (levels_c, nyc, nxc)
+
+    # the smallest blocks that fit: larger blocks mean fewer columns and thinner block means, so the cells fall with
+    # the block size; steps that double until one fits, then bisection (a few passes over a big volume, not one
+    # per block size)
+    fits, found = trial(coarsen)
+    failed, step = coarsen, 1
+    while not fits:
+        coarsen = failed + step
+        fits, found = trial(coarsen)
+        if not fits:
+            failed, step = coarsen, 2 * step
+    while coarsen - failed > 1:
+        middle = (failed + coarsen) // 2
+        fits_middle, found_middle = trial(middle)
+        if fits_middle:
+            coarsen, found = middle, found_middle
+        else:
+            failed = middle
+    (edges, first, n_split), nyc, nxc = found
     n_grid = int(first[-1] + n_split[-1]) if nk > 1 else 0
     z = 0.5 * (edges[1:n_grid + 1] + edges[:n_grid])
     below = np.clip(np.searchsorted(levels, z, side="right") - 1, 0, nk - 2)

@@ -3,7 +3,7 @@
 A medium on a Cartesian grid of cells (:class:`DiffuseMedium`: delta-M scaled extinction, scattering moments and
 the direct beam of each cell, a Lambertian ground, clear surroundings) is solved for the moments I_lm of its
 diffuse radiance (:func:`solve_diffuse`). The transport is swept direction by direction
-(:func:`swim.rt.ordinates_cpu.sweep_octant`); the scattering couples the directions through the moments. The
+(:func:`swim.rt.ordinates_cpu.octant_sweep`); the scattering couples the directions through the moments. The
 fixed point x = K x + b (K: one sweep of the scattering source, b: one sweep of the beam, the ground's reflection
 of it and the light entering from the surroundings) is found by BiCGStab (van der Vorst 1992) on (I - K) x = b,
 which needs tens of sweeps where plain source iteration needs hundreds to thousands for optically thick clouds.
@@ -117,13 +117,14 @@ class _Sweeper:
     """One transport sweep of all octants: x -> K x (+ b with the sources), on the process's worker threads."""
 
     def __init__(self, medium: DiffuseMedium, quad: Quadrature, column: bool):
-        from .ordinates_cpu import sweep_octant  # noqa: F401  (compiled on first use)
+        from .ordinates_cpu import octant_sweep
 
         self.medium, self.quad, self.column = medium, quad, column
         nz, ny, nx = medium.shape
         nq = quad.per_octant
         self.nm = quad.harmonics.shape[1]
         self.degree = harmonic_degrees(quad.max_degree).astype(np.int64)
+        self.kernel = octant_sweep(nq, self.nm, quad.max_degree + 1, tuple(self.degree))
         # the beam propagates away from the sun: its moments are those of a delta in the direction -sun
         sun_harm = real_spherical_harmonics(-np.asarray(medium.sun, float), quad.max_degree)
         self.beam_phase = np.zeros((quad.n_directions, quad.max_degree + 1))
@@ -153,17 +154,15 @@ class _Sweeper:
         self.sweeps = 0
 
     def _octant(self, o, phi_in, phi_out, flux, emission, sources, work):
-        from .ordinates_cpu import sweep_octant
-
         q, f = self.quad, self.flat
         nz, ny, nx = self.medium.shape
         s = slice(o * q.per_octant, (o + 1) * q.per_octant)
         sx, sy, sz = (int(v) for v in q.octants[o])
         side = self.side[o] if sources else self.zero_side
-        sweep_octant(sx, sy, sz, nz, ny, nx, f["beta"], f["sigma"], f["beam"], phi_in.reshape(nz * ny * nx, -1),
-                     phi_out.reshape(nz * ny * nx, -1), q.harmonics[s], self.beam_phase[s], self.degree,
-                     q.weights[s], self.ax[s], self.ay[s], self.az[s], self.inv_dz, side, side, f["ground_level"],
-                     emission.reshape(ny * nx, 3), flux, bool(sources), work[0], work[1], self.column_radiance[o])
+        self.kernel(sx, sy, sz, nz, ny, nx, f["beta"], f["sigma"], f["beam"], phi_in.reshape(nz * ny * nx, -1),
+                    phi_out.reshape(nz * ny * nx, -1), q.harmonics[s], self.beam_phase[s], q.weights[s], self.ax[s],
+                    self.ay[s], self.az[s], self.inv_dz, side, side, f["ground_level"], emission.reshape(ny * nx, 3),
+                    flux, bool(sources), work[0], work[1], self.column_radiance[o])
 
     def column_radiances(self):
         """The one-column solve's radiance per level, direction and wavelength (nz, n_dir, 3)."""
