@@ -24,7 +24,7 @@ def default_scene():
 
 @pytest.fixture(scope="module")
 def default_3d(default_scene):
-    # the solver's columns coarsened to 50 000 cells: a solve of ~4 s instead of the default's ~15 s
+    # the solver's columns coarsened to 50 000 cells: a solve of ~3 s instead of the default's ~4 s
     from swim.rt.clouds import CloudScattering
     from swim.rt.diffuse_field import DiffuseSettings
 
@@ -33,7 +33,7 @@ def default_3d(default_scene):
                        sun_azimuth=150.0, settings=MarchSettings(cloud_scattering=coarse))
 
 
-@pytest.mark.full  # the built-in scene's 3-D solve (~15 s); the quick tier renders the method on a small LES field
+@pytest.mark.full  # the built-in scene's 3-D solve; the quick tier renders the method on a small LES field
 def test_default_scene_renders_with_3d_clouds(default_3d):
     image = default_3d
     assert image.attrs["cloud_scattering"] == "discrete_ordinates"
@@ -59,6 +59,7 @@ def test_the_albers_method_is_unchanged_by_default(default_scene):
     assert np.all(np.asarray(image.attrs["circumsolar_transmittance"]) == 0)
 
 
+@pytest.mark.full  # two 3-D renders of an ice deck (~20 s): a goal figure of the validation tier
 def test_ghi_does_not_depend_on_the_image_resolution(default_scene):
     """The forward peaks' narrow part is delivered as an energy-conserving aureole: the GHI integrated from all-sky
     images of 121^2 and 511^2 pixels agrees within 1 % (a thin ice deck with a diffraction peak ~0.1 deg wide)."""
