@@ -7,11 +7,7 @@ import numpy as np
 import pytest
 
 from swim.rt import ordinates_cpu
-from swim.rt.ordinates import (
-    harmonic_degrees,
-    make_quadrature,
-    real_spherical_harmonics,
-)
+from swim.rt.ordinates import harmonic_degrees, make_quadrature, real_spherical_harmonics
 
 
 def _reference_sweep(sx, sy, sz, nz, ny, nx, beta, sigma, beam, phi_in, phi_out, harmonics, beam_phase, degree,

@@ -42,7 +42,7 @@ from .ordinates import make_quadrature
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DiffuseField", "DiffuseSettings", "clear_column", "diffuse_field", "solver_levels"]
+__all__ = ["DiffuseSettings", "DiffuseField", "diffuse_field", "clear_column", "solver_levels"]
 
 
 @dataclass(frozen=True)
@@ -140,21 +140,19 @@ class DiffuseField:
 
 
 def _block_mean(a, c):
-    """Mean of ``a`` (..., ny, nx) over blocks of c x c columns (the last blocks partial)."""
+    """Mean of ``a`` (..., ny, nx) over blocks of c x c columns (the last blocks partial), summed in float64 in one
+    compiled pass (:func:`swim.rt.ordinates_cpu.block_sums`)."""
     if c == 1:
         return np.asarray(a, np.float32)
-    a = np.asarray(a)
-    ny, nx = a.shape[-2:]
-    starts_y, starts_x = np.arange(0, ny, c), np.arange(0, nx, c)
-    n = np.outer(np.diff(np.append(starts_y, ny)), np.diff(np.append(starts_x, nx)))
-    if a.ndim == 3 and a.dtype == np.float32:  # a volume: one compiled pass (5-8 x faster than two reduceats)
-        from .ordinates_cpu import block_sums
+    from .ordinates_cpu import block_sums
 
-        s = np.zeros((a.shape[0], starts_y.size, starts_x.size))
-        block_sums(np.ascontiguousarray(a), int(c), s)
-    else:  # sums along each axis in turn (no padded copy), in float64
-        s = np.add.reduceat(np.add.reduceat(a, starts_x, axis=-1, dtype=np.float64), starts_y, axis=-2)
-    return (s / n).astype(np.float32)
+    a = np.asarray(a)
+    *lead, ny, nx = a.shape
+    starts_y, starts_x = np.arange(0, ny, c), np.arange(0, nx, c)
+    s = np.zeros((math.prod(lead), starts_y.size, starts_x.size))
+    block_sums(np.ascontiguousarray(a).reshape(-1, ny, nx), int(c), s)
+    n = np.outer(np.diff(np.append(starts_y, ny)), np.diff(np.append(starts_x, nx)))
+    return (s / n).astype(np.float32).reshape(*lead, starts_y.size, starts_x.size)
 
 
 def solver_levels(levels, scaled_tau_interval, settings: DiffuseSettings, top_m):
@@ -216,10 +214,7 @@ def _sun_transmittance(gas, z, mu0):
 def _air_optics(gas, z, max_degree):
     """Scaled extinction (n, 3) and scattering moments beta* omega* chi*_l (n, 3, L + 1) of the clear air at heights
     ``z`` (molecules, background and stratospheric aerosol; delta-M with f = chi_{L+1} for the aerosols)."""
-    from ..validation.disort import (
-        phase_function_legendre_moments,
-        rayleigh_legendre_moments,
-    )
+    from ..validation.disort import phase_function_legendre_moments, rayleigh_legendre_moments
 
     b_r, b_a, b_s = _gas_profiles(gas, z)
     n_l = max_degree + 1
