@@ -33,7 +33,7 @@ from .geometry.level_of_detail import check_coarsening, coarsen_scene, resolve_c
 from .geometry.reach import crop_scene_to_view, with_reference_point
 from .geometry.sun import SunPosition, sun_from_angles, sun_position
 from .io.atomic import atomic_write
-from .io.scene import validate_scene
+from .io.scene import to_utc_datetime64, validate_scene
 from .memory import release_compiled_programs, release_free_memory
 from .optics.volume import build_optical_volume, grid_indices
 from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
@@ -1254,9 +1254,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     image = xr.Dataset(data, coords=_image_coordinates(), attrs=attrs)
     when = sun.time if sun.time is not None else (scene["time"].values if "time" in scene.coords else None)
     if when is not None:  # a scalar time coordinate (CF 4.4): the sun's time, else the scene's
-        stamp = pd.Timestamp(when)
-        stamp = stamp.tz_convert("UTC").tz_localize(None) if stamp.tzinfo is not None else stamp
-        image = image.assign_coords(time=xr.Variable((), np.datetime64(stamp.to_datetime64(), "ns"),
+        image = image.assign_coords(time=xr.Variable((), to_utc_datetime64(when),
                                                      {"standard_name": "time", "long_name": "time of the image (UTC)"}))
     return image
 
