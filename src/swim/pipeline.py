@@ -58,7 +58,8 @@ from .rt.march import (
     trace_rays,
     volume_constants,
 )
-from .rt.clouds import cloud_constants, cloud_ray_inputs, direct_weights, scene_cloud_optics
+from .rt.clouds import MIN_SUN_COSINE, cloud_constants, cloud_ray_inputs, direct_weights, scene_cloud_optics
+from .rt.diffuse_field import diffuse_field, solve_sun
 from .rt.solar import solar_transmittance, step1a_levels
 from .rt.solar_device import solar_transmittance_on_device
 from .workers import parallel_map
@@ -828,11 +829,19 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     gas = build_gas_tables(aerosol, surface_albedo=mean_albedo, scene_aerosol_profile=aerosol_profile,
                            aerosol_class_aod=classes)
     clouds = settings.cloud_scattering
+    if clouds.three_d and sun_scene[2] <= MIN_SUN_COSINE:
+        # the 3-D diffuse solution needs the sun above the horizon; twilight and night skies, lit by the clear sky's
+        # tables, keep the paper's method (the image's cloud_scattering attribute says which ran)
+        log.info("sun elevation %.2f deg: clouds scattered by the albers2020 method (the 3-D diffuse solution needs "
+                 "the sun above %.1f deg)", 90.0 - sun.zenith_deg, np.degrees(np.arcsin(MIN_SUN_COSINE)))
+        settings = dataclasses.replace(settings, cloud_scattering=dataclasses.replace(clouds, method="albers2020"))
+        clouds = settings.cloud_scattering
     cloud_optics = cloud_key = None
     if clouds.three_d:
         if backend == "cuda":
-            raise SwimInputError("cloud_scattering='discrete_ordinates' runs in the numba and JAX kernels (backend "
-                                 "'numba', 'jax' or 'auto'); the 'cuda' backend does not have it")
+            raise SwimInputError("cloud_scattering='discrete_ordinates' (the default) runs in the numba and JAX "
+                                 "kernels (backend 'numba', 'jax' or 'auto'); the 'cuda' backend has the albers2020 "
+                                 "method only (cloud_scattering='albers2020', --cloud-scattering albers2020)")
         cloud_optics = _STAGE_CACHE.get(("cloud optics", fingerprint, clouds),
                                         lambda: scene_cloud_optics(volume, clouds))
         cloud_key = clouds
@@ -904,11 +913,16 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
     # constants are looked up inside its build, after the old entry has gone: a new sun never holds two volumes.
     with _GRID_CONSTANTS_LOCK:
-        def with_clouds(grid):  # the 3-D cloud scattering's diffuse solution (swim.rt.clouds), once per sun and sky
+        def with_clouds(grid):  # the 3-D cloud scattering's diffuse solution (swim.rt.clouds), once per sun node
             if cloud_optics is None:
                 return {}
-            return cloud_constants(volume, grid, tuple(_STAGE_CACHE.peek(("packed species", fingerprint))), gas,
-                                   sun_scene, clouds, cloud_optics)
+            species = tuple(_STAGE_CACHE.peek(("packed species", fingerprint)))
+            # solved for the node of the grid of suns nearest this sun and kept while the sun stays near it: the
+            # frames of a series share it (swim.rt.diffuse_field.solve_sun)
+            node = solve_sun(sun_scene, clouds.diffuse.sun_step_deg)
+            solved = _STAGE_CACHE.get(("diffuse field", fingerprint, tuple(np.round(node, 12)), id(gas), clouds),
+                                      lambda: diffuse_field(volume, species, gas, node, cloud_optics, clouds.diffuse))
+            return cloud_constants(volume, grid, species, gas, sun_scene, clouds, cloud_optics, solved=solved)
 
         def build_constants():
             grid = _STAGE_CACHE.get(("grid constants", fingerprint, sun_key, cloud_key), grid_constants)

@@ -14,6 +14,9 @@ from swim.errors import SwimInputError
 from swim.series import COLUMNS, render_series, series_times
 
 SIZE = {"size": 47}
+#: The series' own behaviour is tested with the paper's cloud scattering, which needs no diffuse solve per sun; the
+#: 3-D method's reuse of its solution across frames: test_a_series_shares_the_3d_solution_while_the_sun_moves_little
+PAPER = swim.MarchSettings(cloud_scattering="albers2020")
 LAT, LON = 40.0, -105.3  # the default scene's reference point, where its observer stands by default
 
 
@@ -44,14 +47,14 @@ def test_frames_are_the_single_renders_and_the_sun_follows_the_ephemeris(scene, 
 
     times = series_times("2023-06-21T15:00", "2023-06-21T21:00", 180)
     table = render_series(scene, times, out=tmp_path / "f" / "{time:%H%M}.png", netcdf=tmp_path / "f" / "{index}.nc",
-                          camera_options=SIZE)
+                          camera_options=SIZE, settings=PAPER)
     assert list(table.columns) == list(COLUMNS) and list(table.index) == [0, 1, 2]
     assert list(table["time"]) == list(times)
     assert [p.rsplit("/", 1)[1] for p in table["png"]] == ["1500.png", "1800.png", "2100.png"]
     assert all(p.startswith("/") for p in table["png"]), "absolute, so that workers elsewhere write the same files"
     # each frame is what swim.render gives for that time on its own
     for t, png, nc in zip(times, table["png"], table["netcdf"]):
-        alone = swim.render(scene, time=t, camera_options=SIZE)
+        alone = swim.render(scene, time=t, camera_options=SIZE, settings=PAPER)
         np.testing.assert_array_equal(_pixels(png), alone["rgb"].values)
         with xr.open_dataset(nc) as written:
             np.testing.assert_allclose(written["radiance"].values, alone["radiance"].values, rtol=1e-6)
@@ -61,6 +64,24 @@ def test_frames_are_the_single_renders_and_the_sun_follows_the_ephemeris(scene, 
     np.testing.assert_allclose(table["sun_azimuth_deg"], spa["azimuth"], atol=0.05)
     assert table["sun_zenith_deg"].iloc[1] < table["sun_zenith_deg"].iloc[0], "the sun climbs towards noon"
     assert (table["traced_pixels"] > 1000).all() and (table["seconds"] > 0).all()
+
+
+def test_a_series_shares_the_3d_solution_while_the_sun_moves_little(tmp_path, caplog):
+    """The 3-D cloud scattering (the default) solves for the node of a grid of suns nearest each frame's sun
+    (swim.rt.diffuse_field.solve_sun): frames two minutes apart (the sun moves ~0.5 deg) share a solution, and every
+    frame is the image that swim.render gives for that time on its own."""
+    from swim.validation.stratus import stratus_scene
+
+    deck = stratus_scene(10.0, n_columns=5).assign_coords(time=np.datetime64("2023-06-21T18:00"))
+    times = series_times("2023-06-21T18:00", "2023-06-21T18:06", 2)
+    with caplog.at_level("INFO"):
+        table = render_series(deck, times, out=tmp_path / "{index}.png", camera_options={"size": 15})
+    solves = caplog.text.count("diffuse field: ")
+    assert 1 <= solves < len(times) and caplog.text.count("reusing the diffuse field") == len(times) - solves
+    for t, png in zip(times, table["png"]):
+        alone = swim.render(deck, time=t, camera_options={"size": 15})
+        assert alone.attrs["cloud_scattering"] == "discrete_ordinates"
+        np.testing.assert_array_equal(_pixels(png), alone["rgb"].values)
 
 
 def test_frames_as_sites_and_a_scene_file_per_frame(scene, tmp_path):
@@ -156,16 +177,16 @@ def test_a_frame_that_fails_on_a_cluster_is_named(scene, tmp_path):
 def test_a_dask_cluster_renders_the_same_frames(scene, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     times = series_times("2023-06-21T17:00", "2023-06-21T19:00", 60)
-    alone = render_series(scene, times, out=tmp_path / "a" / "{index}.png", camera_options=SIZE)
+    alone = render_series(scene, times, out=tmp_path / "a" / "{index}.png", camera_options=SIZE, settings=PAPER)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         done = []
         table = render_series(scene, times, out=tmp_path / "b" / "{index}.png", client=client, camera_options=SIZE,
-                              progress=lambda n, total: done.append((n, total)))
+                              progress=lambda n, total: done.append((n, total)), settings=PAPER)
         path = tmp_path / "scene.nc"
         scene.to_netcdf(path)
         from_file = render_series(path, times, out=tmp_path / "c" / "{index}.png", client=client, camera_options=SIZE,
-                                  open_options={"time": "2023-06-21T18:00"})  # the workers open the file
+                                  open_options={"time": "2023-06-21T18:00"}, settings=PAPER)  # the workers open it
     assert done[-1] == (3, 3)
     assert list(table["time"]) == list(times)
     for a, b, c in zip(alone["png"], table["png"], from_file["png"]):
@@ -193,7 +214,7 @@ def test_the_render_command_renders_a_series(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     runner = CliRunner()
     result = runner.invoke(app, ["render", "--time", "2023-06-21T18:00", "--end", "2023-06-21T18:20", "--every", "10",
-                                 "--size", "31", "--out", "frames/{time:%H%M}.png"])
+                                 "--size", "31", "--cloud-scattering", "albers2020", "--out", "frames/{time:%H%M}.png"])
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["1800.png", "1810.png", "1820.png"]
     same = runner.invoke(app, ["render", "--end", "2023-06-21T18:20", "--size", "31", "--out", "one.png"])
@@ -206,7 +227,7 @@ def test_the_render_command_renders_a_series(tmp_path, monkeypatch):
                                   "--scheduler", "nonsense://x"])
     assert nowhere.exit_code == 2 and "no dask scheduler answered" in nowhere.output
     netcdf_only = runner.invoke(app, ["render", "--time", "2023-06-21T18:00", "--end", "2023-06-21T18:10",
-                                      "--size", "31", "--netcdf", "nc/{index}.nc"])
+                                      "--size", "31", "--cloud-scattering", "albers2020", "--netcdf", "nc/{index}.nc"])
     assert netcdf_only.exit_code == 0, netcdf_only.output
     assert sorted(p.name for p in (tmp_path / "nc").iterdir()) == ["0.nc", "1.nc"]
     assert not list(tmp_path.glob("*.png")), "no PNG unless --out is given"

@@ -48,7 +48,7 @@ def test_the_verbose_log_leaves_out_jax_s_accelerator_search():
 def test_aerosol_none(tmp_path):
     out = tmp_path / "clean.png"
     result = CliRunner().invoke(app, ["render", "--aerosol", "none", "--size", "9", "--sun-zenith", "40",
-                                      "--sun-azimuth", "150", "--out", str(out)])
+                                      "--sun-azimuth", "150", "--cloud-scattering", "albers2020", "--out", str(out)])
     assert result.exit_code == 0 and out.is_file(), result.output
     result = CliRunner().invoke(app, ["render", "--aerosol", "none", "--aod", "0.2", "--size", "9", "--out",
                                       str(tmp_path / "x.png")])

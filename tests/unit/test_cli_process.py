@@ -66,8 +66,8 @@ def test_console_script_is_run():
 
 def test_run_renders_and_reports_bad_input_without_a_traceback(tmp_path):
     out = tmp_path / "small.png"
-    code = ("import sys; from swim.cli.main import run; sys.argv = ['swim', 'render', '--size', '15', '--out', "
-            f"{str(out)!r}]; run()")
+    code = ("import sys; from swim.cli.main import run; sys.argv = ['swim', 'render', '--size', '15', "
+            f"'--cloud-scattering', 'albers2020', '--out', {str(out)!r}]; run()")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     assert out.stat().st_size > 0

@@ -11,9 +11,37 @@ from swim import pipeline
 from swim.errors import SwimInputError
 
 
+#: The stages are tested with the paper's cloud scattering (no diffuse solve for each new sun); the 3-D solution's
+#: own stage: test_the_3d_solution_is_kept_for_the_suns_near_its_node
+PAPER = swim.MarchSettings(cloud_scattering="albers2020")
+
+
 def _render(scene, **kw):
+    kw.setdefault("settings", PAPER)
     return swim.render(scene, camera="allsky", camera_options={"size": 17}, sun_zenith=kw.pop("sun_zenith", 40.0),
                        sun_azimuth=150.0, **kw)
+
+
+def test_the_3d_solution_is_kept_for_the_suns_near_its_node(caplog):
+    """The diffuse solution is a stage of its own, keyed by the node of the sun (swim.rt.diffuse_field.solve_sun):
+    a sun 0.3 deg away reuses it (scaled to its cosine), one 5 deg away solves anew, and a render gets the same image
+    whichever render came before."""
+    from swim.validation.stratus import stratus_scene
+
+    deck = stratus_scene(10.0, n_columns=5)
+    kw = {"settings": swim.MarchSettings()}
+    pipeline._STAGE_CACHE.clear()
+    first = _render(deck, sun_zenith=40.0, **kw)
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        near = _render(deck, sun_zenith=40.3, **kw)
+    assert "reusing the diffuse field of the previous render" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        _render(deck, sun_zenith=45.0, **kw)
+    assert "reusing the diffuse field" not in caplog.text
+    pipeline._STAGE_CACHE.clear()
+    np.testing.assert_array_equal(near["radiance"].values, _render(deck, sun_zenith=40.3, **kw)["radiance"].values)
+    assert not np.array_equal(near["radiance"].values, first["radiance"].values)
 
 
 def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
@@ -214,7 +242,7 @@ def test_a_new_sun_refills_the_packed_volume_in_place(backend):
     kernel's device copies of it are made again: every image equals a render from an empty cache."""
     pipeline._STAGE_CACHE.clear()
     scene = swim.default_scene()
-    settings = swim.MarchSettings(backend=backend)
+    settings = swim.MarchSettings(backend=backend, cloud_scattering="albers2020")
     packed = []
     suns = (40.0, 65.0, 40.0)
     images = []
@@ -261,15 +289,16 @@ def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
     scene = swim.default_scene()
     size = {"size": 257}  # 51 900 valid pixels of 66 049: past TRIM_MIN_PIXELS
     assert 257 * 257 >= pipeline.TRIM_MIN_PIXELS
-    swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0)
+    swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0, settings=PAPER)
     assert len(calls) >= 2
     calls.clear()
-    swim.render(scene, camera_options=size, sun_zenith=41.0, sun_azimuth=150.0)  # a new sun: Step 1a's trim too
+    # a new sun: Step 1a's trim too
+    swim.render(scene, camera_options=size, sun_zenith=41.0, sun_azimuth=150.0, settings=PAPER)
     assert len(calls) == 3
     calls.clear()
     monkeypatch.setattr(MarchSettings, "on_accelerator", lambda self: True)
-    swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0)
-    swim.render(scene, camera_options=size, sun_zenith=42.0, sun_azimuth=150.0)  # a new sun
+    swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0, settings=PAPER)
+    swim.render(scene, camera_options=size, sun_zenith=42.0, sun_azimuth=150.0, settings=PAPER)  # a new sun
     assert calls == []
 
 

@@ -30,8 +30,9 @@ def test_the_argument_types_name_every_parameter_of_the_kernel(name):
 
 
 def test_the_signatures_are_those_a_render_calls_the_kernels_with(monkeypatch):
-    """A render whose rays end on the ground calls all five kernels, each with exactly the types the helper and
-    wait() compile for, or their work would be wasted (the argument types recorded at the calls, no helper)."""
+    """Renders whose rays end on the ground call all five kernels (with either cloud scattering), each with exactly
+    the types the helper and wait() compile for, or their work would be wasted (the argument types recorded at the
+    calls, no helper)."""
     monkeypatch.setenv("SWIM_PRECOMPILE", "0")
     expected = {name: {precompile.kernel_signature(name)} for name in precompile.KERNELS}
     called = {}
@@ -43,10 +44,16 @@ def test_the_signatures_are_those_a_render_calls_the_kernels_with(monkeypatch):
             return _kernel(*args)
 
         monkeypatch.setattr(sys.modules[module], name, recording)
-    image = swim.render(swim.default_scene(), camera="panorama", camera_options={"width": 32, "height": 16},
-                        time="2024-06-21T18:00:00Z", settings=MarchSettings(backend="numba"))
-    assert np.isfinite(image["radiance"].values).all()
-    assert float(image["radiance_surface"].max()) > 0, "the view must include the ground (ground_radiance)"
+    # the 3-D cloud scattering (the default) integrates the clouds along the ray; the paper's method composes them
+    # after the march (compose_clouds)
+    for method in ("discrete_ordinates", "albers2020"):
+        image = swim.render(swim.default_scene(), camera="panorama", camera_options={"width": 32, "height": 16},
+                            time="2024-06-21T18:00:00Z",
+                            settings=MarchSettings(backend="numba", cloud_scattering=method))
+        assert np.isfinite(image["radiance"].values).all()
+        assert float(image["radiance_surface"].max()) > 0, "the view must include the ground (ground_radiance)"
+        if method == "discrete_ordinates":
+            assert "compose_clouds" not in called and len(called) == len(precompile.KERNELS) - 1
     assert sorted(called) == sorted(precompile.KERNELS)
     assert called == expected
 

@@ -8,15 +8,15 @@ import pytest
 
 from swim.errors import SwimInputError
 from swim.rt.clouds import CLOUD_METHODS, CloudScattering, as_cloud_scattering
-from swim.rt.diffuse_field import DiffuseSettings, solver_levels
+from swim.rt.diffuse_field import MAX_NODE_COSINE_CHANGE, DiffuseField, DiffuseSettings, solve_sun, solver_levels
 from swim.rt.march import MarchSettings
 
 
 def test_settings_take_a_method_name_and_hash():
     s = MarchSettings(cloud_scattering="discrete_ordinates")
     assert isinstance(s.cloud_scattering, CloudScattering) and s.cloud_scattering.three_d
-    assert MarchSettings().cloud_scattering.method == "albers2020"
-    assert not MarchSettings().cloud_scattering.three_d
+    assert MarchSettings().cloud_scattering == s.cloud_scattering  # the default
+    assert not MarchSettings(cloud_scattering="albers2020").cloud_scattering.three_d
     a = CloudScattering("discrete_ordinates", {"liquid": ("hg", 0.85)})
     b = CloudScattering("discrete_ordinates", {"liquid": ["hg", 0.85]})
     assert a == b and hash(a) == hash(b)
@@ -61,3 +61,47 @@ def test_solver_levels_keep_to_their_budget():
     levels = np.array([0.0, 100.0, 200.0, 300.0])
     _, _, n_split = solver_levels(levels, np.array([10.0, 10.0, 10.0]), DiffuseSettings(max_cell_tau=0.25), 100e3)
     assert n_split.sum() <= 9 and list(n_split) == [3, 3, 3]
+
+
+def _sun(zenith_deg, azimuth_deg):
+    z, a = np.radians(zenith_deg), np.radians(azimuth_deg)
+    return np.array([np.sin(z) * np.sin(a), np.sin(z) * np.cos(a), np.cos(z)])
+
+
+@pytest.mark.parametrize("step", [0.5, 1.0, 2.0])
+def test_the_solved_sun_is_the_nearest_node_within_a_step(step):
+    rng = np.random.default_rng(3)
+    for zenith, azimuth in zip(rng.uniform(0, 75, 400), rng.uniform(-180, 180, 400)):
+        sun = _sun(zenith, azimuth)
+        node = solve_sun(sun, step)
+        assert np.linalg.norm(node) == pytest.approx(1.0)
+        assert np.degrees(np.arccos(min(1.0, node @ sun))) <= 0.75 * step  # half a step in zenith and in arc
+        assert abs(node[2] / sun[2] - 1) <= MAX_NODE_COSINE_CHANGE
+        # a node is its own node, and suns near each other share it: what a series reuses
+        np.testing.assert_allclose(solve_sun(node, step), node, atol=1e-12)
+    assert np.array_equal(solve_sun(_sun(30.2, 10.0), 1.0), solve_sun(_sun(29.9, 10.3), 1.0))
+
+
+def test_a_low_sun_and_a_zero_step_are_solved_for_exactly():
+    for sun in (_sun(89.5, 10.0), _sun(84.6, 200.0)):
+        np.testing.assert_array_equal(solve_sun(sun, 1.0), sun)
+    sun = _sun(30.3, 135.0)
+    np.testing.assert_array_equal(solve_sun(sun, 0.0), sun)
+    with pytest.raises(SwimInputError):
+        DiffuseSettings(sun_step_deg=-1.0)
+
+
+def test_a_solution_is_scaled_to_the_render_s_sun_cosine():
+    """The moments and the ground's diffuse irradiance scale with the sun's cosine; the ratios to the clear column
+    (channels 0-2, the ground's and the air's above) are kept."""
+    field = np.arange(2 * 3 * 4 * 30, dtype=np.float32).reshape(2, 3, 4, 30)
+    solved = DiffuseField(field=field, ground=np.ones((3, 4, 3), np.float32), coarsen=1, rotation=np.eye(2),
+                          max_degree=2, ground_diffuse=np.full((3, 4, 3), 0.2, np.float32), sun=_sun(30.0, 0.0))
+    assert solved.for_sun(_sun(30.0, 40.0)) is solved  # the same cosine: nothing to scale
+    scaled = solved.for_sun(_sun(30.5, 0.0))
+    ratio = np.cos(np.radians(30.5)) / np.cos(np.radians(30.0))
+    np.testing.assert_allclose(scaled.field[..., 3:], field[..., 3:] * ratio, rtol=1e-6)
+    np.testing.assert_array_equal(scaled.field[..., :3], field[..., :3])
+    np.testing.assert_allclose(scaled.ground_diffuse, 0.2 * ratio, rtol=1e-6)
+    np.testing.assert_array_equal(scaled.ground, solved.ground)
+    np.testing.assert_array_equal(solved.field, field)  # the kept solution is not changed

@@ -11,9 +11,17 @@ from swim.frames import enu_from_azimuth_zenith
 from swim.rt import ray_table
 from swim.rt.gas import AerosolBackground
 from swim.rt.image_sampling import AdaptiveSampling
-from swim.rt.march import MarchSettings, grid_geometry
+from swim.rt.march import MarchSettings as _MarchSettings
+from swim.rt.march import grid_geometry
 
 from test_rt_march import _random_rays, _tiny_scene, _trace
+
+
+def MarchSettings(**kw):  # noqa: N802 - a stand-in for the class in this module's tests
+    """The render's settings with the paper's cloud scattering: the JAX kernel's fast paths tested here (the fused grid
+    kernel, the ray table, Step 1a and the sampler on the device) serve ``cloud_scattering="albers2020"``; the 3-D
+    method marches in lockstep on the host's rays (tests/system/test_clouds_3d.py)."""
+    return _MarchSettings(**{"cloud_scattering": "albers2020", **kw})
 
 KEYS = ("radiance", "radiance_clear", "radiance_cloud", "radiance_surface", "tau_clear")
 

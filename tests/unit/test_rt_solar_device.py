@@ -12,11 +12,18 @@ from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
 from swim.rt import march, solar_device
-from swim.rt.march import (KERNEL_STEP1A_VARIABLES, MarchSettings, pack_volume, packed_species,
+from swim.rt.march import (KERNEL_STEP1A_VARIABLES, pack_volume, packed_species,
                            share_packed_channels)
+from swim.rt.march import MarchSettings as _MarchSettings
 from swim.rt.solar import solar_transmittance, step1a_levels
 
 from test_rt_solar import RADIUS, _full_and_empty_scenes
+
+
+def MarchSettings(**kw):  # noqa: N802 - a stand-in for the class in this module's tests
+    """The render's settings with the paper's cloud scattering: Step 1a on the device serves
+    ``cloud_scattering="albers2020"`` (the 3-D method's scaled beam is made on the host)."""
+    return _MarchSettings(**{"cloud_scattering": "albers2020", **kw})
 
 
 def _shared_volume(scene):
@@ -154,7 +161,7 @@ def test_a_render_alone_after_one_beside_others_reuses_its_step_classes(monkeypa
     refills that packed volume in place, and must refill those classes too (not an older render's), so that the
     device copies the render beside others made still match them (kept_device_copies)."""
     scene = swim.default_scene()
-    kwargs = dict(camera_options={"size": 24}, sun_azimuth=140.0)
+    kwargs = dict(camera_options={"size": 24}, sun_azimuth=140.0, settings=MarchSettings())
     pipeline._STAGE_CACHE.clear()
     swim.render(scene, sun_zenith=30.0, **kwargs)
     first = pipeline._STAGE_CACHE._entries["step classes"][1]

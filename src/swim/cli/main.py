@@ -232,11 +232,12 @@ def render(
                                              "--albedo-image [-]."),
     surface: str = typer.Option("brdf", help="Ground reflectance: brdf (land hot spot, snow, sun glint on water) "
                                 "or lambertian (docs/surfaces.md)."),
-    cloud_scattering: str = typer.Option("albers2020", "--cloud-scattering",
-                                         help="How clouds scatter light: albers2020 (the paper's Eqs. 12-26) or "
-                                         "discrete_ordinates (a 3-D solution of the diffuse light for the scene and "
-                                         "sun, with Mie and ice phase functions and cloud-ground interreflection; "
-                                         "numba and JAX kernels; docs/rendering.md, '3-D cloud scattering')."),
+    cloud_scattering: str = typer.Option("discrete_ordinates", "--cloud-scattering",
+                                         help="How clouds scatter light: discrete_ordinates (a 3-D solution of the "
+                                         "diffuse light for the scene and sun, with Mie and ice phase functions and "
+                                         "cloud-ground interreflection; numba and JAX kernels; seconds per new scene "
+                                         "and sun; docs/rendering.md, '3-D cloud scattering') or albers2020 (the "
+                                         "paper's Eqs. 12-26: a new sun at once, every kernel)."),
     cloud_phase: Optional[str] = typer.Option(None, "--cloud-phase",
                                               help="Phase functions of --cloud-scattering discrete_ordinates: "
                                               "physical (default: Mie droplets, roughened-aggregate ice) or "

@@ -2,13 +2,14 @@
 
 Two methods (``MarchSettings(cloud_scattering=...)``, CLI ``--cloud-scattering``):
 
-* ``"albers2020"``: the paper's parameterisation (Eqs. 12-26: per-ray phase-function blends of thin and thick
-  cloud, the cloud-top albedo seen from above), with the changes of docs/rendering.md ("Overcast accuracy").
-* ``"discrete_ordinates"``: a 3-D solution of the diffuse radiance field for the scene and sun
+* ``"discrete_ordinates"`` (the default): a 3-D solution of the diffuse radiance field for the scene and sun
   (:mod:`swim.rt.diffuse_field`), integrated along every camera ray as a source, with single scattering of the
   direct beam by the species' full phase functions (:mod:`swim.optics.cloud_phase`) and delta-M scaled
   attenuation (Nakajima and Tanaka 1988's TMS); cloud-ground interreflection included.
-  docs/decisions/0001-cloud-diffuse-solution.md records why.
+  docs/decisions/0001-cloud-diffuse-solution.md records why, and why it is the default.
+* ``"albers2020"``: the paper's parameterisation (Eqs. 12-26: per-ray phase-function blends of thin and thick
+  cloud, the cloud-top albedo seen from above), with the changes of docs/rendering.md ("Overcast accuracy"); also
+  the method of a render whose sun is below :data:`MIN_SUN_COSINE`.
 
 References
 ----------
@@ -26,10 +27,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import SwimInputError
-from .diffuse_field import DiffuseSettings
+from .diffuse_field import MIN_SUN_COSINE, DiffuseSettings
 
-__all__ = ["CloudScattering", "CLOUD_METHODS", "cloud_constants", "cloud_ray_inputs", "scene_cloud_optics",
-           "direct_weights", "as_cloud_scattering"]
+__all__ = ["CloudScattering", "CLOUD_METHODS", "MIN_SUN_COSINE", "cloud_constants", "cloud_ray_inputs",
+           "scene_cloud_optics", "direct_weights", "as_cloud_scattering"]
 
 #: The methods of cloud scattering.
 CLOUD_METHODS = ("albers2020", "discrete_ordinates")
@@ -52,7 +53,7 @@ class CloudScattering:
         Accuracy settings of the 3-D diffuse solution.
     """
 
-    method: str = "albers2020"
+    method: str = "discrete_ordinates"
     phase_function: object = "physical"
     diffuse: DiffuseSettings = field(default_factory=DiffuseSettings)
 
@@ -101,7 +102,7 @@ def mean_effective_radii(volume) -> dict:
     return {s: float(r) for s, r in zip(SPECIES, radii) if np.isfinite(r) and r > 0}
 
 
-def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScattering, optics) -> dict:
+def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScattering, optics, solved=None) -> dict:
     """The constants of the 3-D cloud scattering for the march and the ground: the diffuse field
     (:func:`swim.rt.diffuse_field.diffuse_field`) and the hydrometeors' optics.
 
@@ -120,6 +121,10 @@ def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScatte
     clouds : CloudScattering
     optics : swim.optics.cloud_phase.CloudOptics
         The hydrometeors' optics (:func:`scene_cloud_optics`), whose truncation Step 1a's scaled transmittance used.
+    solved : swim.rt.diffuse_field.DiffuseField, optional
+        The diffuse solution, where the caller keeps it (a render's is solved for the sun of
+        :func:`swim.rt.diffuse_field.solve_sun` and reused by the suns near it); default: solved here for
+        ``sun_scene``'s node. It is scaled to ``sun_scene`` (:meth:`~swim.rt.diffuse_field.DiffuseField.for_sun`).
 
     Returns
     -------
@@ -129,11 +134,14 @@ def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScatte
         (n_sp, 3, L + 1) chi_l - f, ``degree`` (nm,), ``ms_field``, ``ms_coarsen``, ``surface`` (14, ny, nx) and
         ``surface_outside`` (14,) with the ground's diffuse ratios, ``backscatter_scaled`` (5,) 1 - f per species.
     """
-    from .diffuse_field import diffuse_field
+    from .diffuse_field import diffuse_field, solve_sun
     from .ordinates import harmonic_degrees
 
     n_sp = len(species)
-    field_ = diffuse_field(volume, species, gas, sun_scene, optics, clouds.diffuse)
+    if solved is None:
+        solved = diffuse_field(volume, species, gas, solve_sun(sun_scene, clouds.diffuse.sun_step_deg), optics,
+                               clouds.diffuse)
+    field_ = solved.for_sun(sun_scene)
     idx = list(species)
     f = optics.truncation
     hydro_chi = (optics.moments[idx, :optics.max_degree + 1, :] - f[idx, None, None]).transpose(0, 2, 1)

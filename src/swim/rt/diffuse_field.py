@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -42,7 +42,16 @@ from .ordinates import make_quadrature
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DiffuseSettings", "DiffuseField", "diffuse_field", "clear_column", "solver_levels"]
+#: Lowest cosine of the sun's zenith angle the 3-D diffuse solution is solved for (0.6 deg elevation); a render with a
+#: lower sun scatters its clouds by the albers2020 method (swim.pipeline).
+MIN_SUN_COSINE = 0.01
+#: Largest relative difference of the sun's cosine from its node's (:func:`solve_sun`) for which a render takes the
+#: node's solution, scaled (at sun zenith 75 deg a 0.5 deg step is 3.3 %); beyond it (a sun lower than ~80 deg with
+#: the default step) the sun is solved for exactly.
+MAX_NODE_COSINE_CHANGE = 0.05
+
+__all__ = ["DiffuseSettings", "DiffuseField", "diffuse_field", "clear_column", "solver_levels", "solve_sun",
+           "MIN_SUN_COSINE"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +84,11 @@ class DiffuseSettings:
         Relative residual of the solve.
     max_sweeps : int
         Most transport sweeps.
+    sun_step_deg : float
+        Spacing [deg] of the grid of sun directions the solution is solved for (:func:`solve_sun`): a render solves
+        for the grid's sun nearest to its own and scales the solution to its own sun's cosine
+        (:meth:`DiffuseField.for_sun`), so that the frames of a time series share a solution while the sun moves
+        less than this. 0: every sun is solved for exactly.
     """
 
     n_polar: int = 2
@@ -88,12 +102,14 @@ class DiffuseSettings:
     top_layers: int = 10
     tolerance: float = 1e-4
     max_sweeps: int = 300
+    sun_step_deg: float = 1.0
 
     def __post_init__(self):
         if not (self.n_polar >= 1 and self.n_azimuth >= 4 and self.n_azimuth % 4 == 0 and 0 <= self.max_degree <= 3
                 and self.max_cell_tau > 0 and self.max_levels_per_interval >= 1 and self.max_cells >= 1000
                 and 0.5 <= self.thick_quantile <= 1 and self.max_level_factor >= 1
-                and self.top_layers >= 1 and 0 < self.tolerance < 1 and self.max_sweeps >= 4):
+                and self.top_layers >= 1 and 0 < self.tolerance < 1 and self.max_sweeps >= 4
+                and 0 <= self.sun_step_deg <= 5):
             raise SwimInputError(f"DiffuseSettings out of range: {self}")
 
 
@@ -123,6 +139,8 @@ class DiffuseField:
         sees the light the clouds send up.
     sweeps, residual, cells : int, float, int
         The solve's statistics.
+    sun : numpy.ndarray
+        (3,) the unit vector towards the sun the medium was solved for, scene frame.
     """
 
     field: np.ndarray
@@ -137,6 +155,65 @@ class DiffuseField:
     residual: float = 0.0
     cells: int = 0
     seconds: dict = field(default_factory=dict)
+    sun: np.ndarray | None = None
+
+    def for_sun(self, sun_scene) -> DiffuseField:
+        """The solution for a sun near the one it was solved for: the diffuse radiance's moments and the ground's
+        diffuse irradiance scaled by the ratio of the suns' cosines (the light the medium receives; their ratios to
+        the clear column's, which the march scales with its own sun's clear sky, are kept).
+
+        Parameters
+        ----------
+        sun_scene : array_like
+            (3,) unit vector towards the sun, scene frame.
+
+        Returns
+        -------
+        DiffuseField
+            ``self`` where the cosines agree, else a scaled copy.
+        """
+        if self.sun is None:
+            return self
+        scale = float(np.asarray(sun_scene, float)[2]) / float(self.sun[2])
+        if scale == 1.0:
+            return self
+        moments = self.field.copy()
+        moments[..., 3:] *= np.float32(scale)
+        ground_diffuse = None if self.ground_diffuse is None else self.ground_diffuse * np.float32(scale)
+        return replace(self, field=moments, ground_diffuse=ground_diffuse)
+
+
+def solve_sun(sun_scene, step_deg: float) -> np.ndarray:
+    """The sun direction a diffuse solution is solved for: the node nearest to ``sun_scene`` of a grid of directions
+    spaced ``step_deg`` in zenith angle and, on each ring of zenith angle z, in arc (round(360 sin z / step)
+    azimuths), so that the node does not depend on the frames rendered before (a frame alone and in a series
+    gets the same solution). A sun whose cosine differs from its node's by more than
+    :data:`MAX_NODE_COSINE_CHANGE` (a low sun) is its own node.
+
+    Parameters
+    ----------
+    sun_scene : array_like
+        (3,) unit vector towards the sun, scene frame.
+    step_deg : float
+        Spacing [deg]; 0 keeps ``sun_scene``.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3,) unit vector.
+    """
+    sun = np.asarray(sun_scene, float)
+    if step_deg <= 0:
+        return sun
+    zenith = math.degrees(math.acos(min(1.0, max(-1.0, sun[2]))))
+    z = round(zenith / step_deg) * step_deg
+    n_azimuth = max(1, round(360.0 * math.sin(math.radians(z)) / step_deg))
+    spacing = 360.0 / n_azimuth
+    a = round(math.degrees(math.atan2(sun[0], sun[1])) / spacing) * spacing
+    zr, ar = math.radians(z), math.radians(a)
+    if abs(math.cos(zr) / sun[2] - 1.0) > MAX_NODE_COSINE_CHANGE:
+        return sun  # a low sun: the node's light would differ by more than the cosine scaling makes good
+    return np.array([math.sin(zr) * math.sin(ar), math.sin(zr) * math.cos(ar), math.cos(zr)])
 
 
 def _block_mean(a, c):
@@ -298,7 +375,7 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
     t0 = time.perf_counter()
     sun = np.asarray(sun_scene, float)
     mu0 = float(sun[2])
-    if mu0 <= 0.01:
+    if mu0 <= MIN_SUN_COSINE:
         raise SwimInputError(f"cloud_scattering='discrete_ordinates' needs the sun above the horizon (sun elevation "
                              f"> 0.6 deg); got a sun cosine of {mu0:.3f}")
     if optics.max_degree != settings.max_degree:
@@ -342,7 +419,7 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
         ground_diffuse=sol.ground_diffuse.astype(np.float32),
         above=np.concatenate([ratio[-1:], above_ratio]).astype(np.float32),  # the top level, then the clear layers
         above_heights=np.concatenate([[grid.levels[-1]], grid.z[grid.n_grid:]]), sweeps=sol.sweeps,
-        residual=sol.residual, cells=nz * nyc * nxc, seconds=seconds)
+        residual=sol.residual, cells=nz * nyc * nxc, seconds=seconds, sun=sun.copy())
 
 
 def _solver_frame(volume):

@@ -221,9 +221,10 @@ class MarchSettings:
         1 893 (docs/performance.md, section 87). False: a scalar gather per channel and corner (the kernel of
         sessions 58-67). The same results to float32 rounding; the other kernels ignore it.
     cloud_scattering : str or CloudScattering
-        How clouds scatter light (:mod:`swim.rt.clouds`): "albers2020" (the paper's Eqs. 12-26, the default) or
-        "discrete_ordinates" (the 3-D diffuse solution; the numba and JAX kernels, not "cuda"), or a
-        :class:`swim.rt.clouds.CloudScattering` with its phase functions and accuracy settings; kept as the latter.
+        How clouds scatter light (:mod:`swim.rt.clouds`): "discrete_ordinates" (the 3-D diffuse solution, the
+        default; the numba and JAX kernels, not "cuda"; a sun below 0.6 deg of elevation falls back to
+        "albers2020") or "albers2020" (the paper's Eqs. 12-26), or a :class:`swim.rt.clouds.CloudScattering` with
+        its phase functions and accuracy settings; kept as the latter.
     fused_fma : bool
         Whether ptxas may contract the fused GPU kernel's float32 multiplies and adds into fused multiply-adds on
         NVIDIA GPUs (:mod:`swim.rt.ptx_edits`: Triton writes them with an explicit rounding mode, which forbids it;
@@ -264,7 +265,7 @@ class MarchSettings:
     fused_max_registers: int | None = None
     fused_vector_loads: bool = True
     fused_fma: bool = False
-    cloud_scattering: object = "albers2020"
+    cloud_scattering: object = "discrete_ordinates"
 
     def __post_init__(self):
         from .clouds import as_cloud_scattering

@@ -401,6 +401,14 @@ def reference_settings(settings=None):
     return dataclasses.replace(MarchSettings() if settings is None else settings, surface="lambertian")
 
 
+def paper_method_settings():
+    """``MarchSettings(cloud_scattering="albers2020")``: the paper's cloud scattering (Eqs. 12-26), which the
+    comparisons of its own phase functions (an HG cloud against DISORT, the RICO references) default to."""
+    from ..rt.march import MarchSettings
+
+    return MarchSettings(cloud_scattering="albers2020")
+
+
 def render_settings_variants():
     """Renderer settings to compare: ``{"default": MarchSettings()}``, plus ``"single scattering"`` (the
     renderer with ``multiple_scattering=False``) where :class:`swim.rt.march.MarchSettings` has that field."""

@@ -92,7 +92,7 @@ from ..errors import SwimInputError
 from ..frames import enu_from_azimuth_zenith
 from ..optics.rayleigh import rayleigh_phase_function
 from ..rt.gas import AerosolBackground, build_gas_tables
-from .disort import reference_settings
+from .disort import paper_method_settings, reference_settings
 
 log = logging.getLogger(__name__)
 
@@ -630,7 +630,9 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
     settings : dict, optional
         Overrides of :data:`RICO_SETTINGS`.
     march_settings : swim.rt.march.MarchSettings, optional
-        Renderer settings (default: the renderer's defaults).
+        Renderer settings (default: the renderer's with ``cloud_scattering="albers2020"``, the paper's method, whose
+        own phase functions these references compare; the 3-D method against references with its phase
+        function: :mod:`swim.validation.clouds3d`).
 
     Returns
     -------
@@ -660,7 +662,7 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
         raise SwimInputError(f"view must be 'ground' or 'space'; got {view!r}")
     ds = render(scene, camera=camera, camera_options=options, sun_zenith=float(sun_zenith_deg),
                 sun_azimuth=float(cfg["sun_azimuth"]), aerosol=aerosol, height=height,
-                settings=reference_settings(march_settings))
+                settings=reference_settings(paper_method_settings() if march_settings is None else march_settings))
     sky = radiance_without_sun_disk(ds)
     vz = ds.variables["view_zenith"].values.astype(float)  # Variables: a DataArray is made in ~30 us
     va = ds.variables["view_azimuth"].values.astype(float)
@@ -875,7 +877,7 @@ def rico_table_rows(les_dir=None, ref_dir=None, cases=None, render=True, march_s
     render : bool
         Render swim now (default); otherwise use the swim image stored with the reference.
     march_settings : swim.rt.march.MarchSettings, optional
-        Renderer settings.
+        Renderer settings (default: those of :func:`swim_view`).
     images : bool
         Include the image pair (``swim``, ``mitsuba`` (3, ny, nx)) in each row.
 

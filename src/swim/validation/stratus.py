@@ -32,6 +32,7 @@ from .disort import (
     _solve,
     cloud_layer_layers,
     disort_layers_irradiance,
+    paper_method_settings,
     reference_settings,
     sky_dome_directions,
 )
@@ -187,7 +188,8 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
     camera_size : int
         All-sky image size [pixels] (odd: the centre pixel looks at the zenith).
     settings : swim.rt.march.MarchSettings, optional
-        Renderer settings.
+        Renderer settings (default: ``cloud_scattering="albers2020"``, the paper's method, with its own phase
+        functions; the 3-D method's comparisons pass its settings and its phase function's moments as ``g``).
     aerosol : AerosolBackground, optional
         Background aerosol for both codes (default: swim's default background).
     surface_albedo : float
@@ -225,7 +227,7 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
     from ..pipeline import render
 
 
-    settings = reference_settings(settings)
+    settings = reference_settings(paper_method_settings() if settings is None else settings)
     aerosol = AerosolBackground() if aerosol is None else aerosol
     deck = dict(deck or {})
     scene = stratus_scene(tau, surface_albedo=surface_albedo, **deck)
