@@ -125,10 +125,17 @@ CASES = {
 
 
 def march_settings(spec):
-    """The case's renderer settings: its backend and cloud scattering (None: the renderer's defaults)."""
+    """The case's renderer settings: its backend and cloud scattering (None: the renderer's defaults). A case without
+    ``cloud_scattering`` renders with the paper's method ("albers2020"), whose figures the suite's history holds (the
+    renderer's default since the 3-D method became it: the "_3d" cases); older code without the setting renders
+    with its default, which was that method."""
+    import dataclasses
+
     from swim.rt.march import MarchSettings
 
     clouds = spec.get("cloud_scattering")
+    if clouds is None and "cloud_scattering" in {f.name for f in dataclasses.fields(MarchSettings)}:
+        clouds = "albers2020"
     kw = {}
     if spec.get("backend", "auto") != "auto":
         kw["backend"] = spec["backend"]

@@ -5,6 +5,7 @@ Each stage is a function between xarray objects or small dataclasses; :func:`ren
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import logging
@@ -346,10 +347,13 @@ class _StageCache:
     A time series, several cameras on one scene or a fly-through would otherwise rebuild them every frame,
     which on a big grid takes longer than the ray march (docs/performance.md). Keys are (kind, scene
     fingerprint, ...); one entry of each kind. Before an entry is rebuilt, it and every entry of another
-    scene are dropped, so the cache never holds two grids at once."""
+    scene are dropped, so the cache never holds two grids at once. Small values that do not hold a grid (the 3-D
+    diffuse solutions) are kept across scenes, a few at a time (:meth:`get_small`)."""
 
     def __init__(self):
         self._entries = {}
+        self._small = collections.OrderedDict()
+        self._lock = threading.Lock()
 
     def get(self, key, build):
         kind, fingerprint = key[:2]
@@ -379,9 +383,31 @@ class _StageCache:
             if other == kind or other_key[1] != fingerprint:
                 self._entries.pop(other, None)  # (another render's thread may have dropped it already)
 
+    def get_small(self, key, build, keep=None):
+        """The value of ``key`` from a store of :data:`SMALL_ENTRIES` small values kept across scenes (the least
+        recently used goes first), else ``build()``'s, kept. ``keep``: an object held with the value, whose identity
+        the key names (the gas tables of ``id(gas)``), so that its id is not reused while the entry lives."""
+        with self._lock:
+            entry = self._small.get(key)
+            if entry is not None:
+                self._small.move_to_end(key)
+                log.info("reusing the %s of an earlier render", key[0])
+                return entry[0]
+        value = build()
+        with self._lock:
+            self._small[key] = (value, keep)
+            while len(self._small) > SMALL_ENTRIES:
+                self._small.popitem(last=False)
+        return value
+
     def clear(self):
         self._entries.clear()
+        self._small.clear()
 
+
+#: Small stage values kept across scenes (:meth:`_StageCache.get_small`): the 3-D diffuse solutions (a few MB each),
+#: which renders that alternate between scenes, aerosols or sun nodes would otherwise solve again.
+SMALL_ENTRIES = 4
 
 _STAGE_CACHE = _StageCache()
 
@@ -920,8 +946,9 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             # solved for the node of the grid of suns nearest this sun and kept while the sun stays near it: the
             # frames of a series share it (swim.rt.diffuse_field.solve_sun)
             node = solve_sun(sun_scene, clouds.diffuse.sun_step_deg)
-            solved = _STAGE_CACHE.get(("diffuse field", fingerprint, tuple(np.round(node, 12)), id(gas), clouds),
-                                      lambda: diffuse_field(volume, species, gas, node, cloud_optics, clouds.diffuse))
+            key = ("diffuse field", fingerprint, tuple(np.round(node, 12)), id(gas), clouds)
+            solved = _STAGE_CACHE.get_small(key, lambda: diffuse_field(volume, species, gas, node, cloud_optics,
+                                                                       clouds.diffuse), keep=gas)
             return cloud_constants(volume, grid, species, gas, sun_scene, clouds, cloud_optics, solved=solved)
 
         def build_constants():

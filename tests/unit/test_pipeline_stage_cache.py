@@ -34,7 +34,7 @@ def test_the_3d_solution_is_kept_for_the_suns_near_its_node(caplog):
     first = _render(deck, sun_zenith=40.0, **kw)
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         near = _render(deck, sun_zenith=40.3, **kw)
-    assert "reusing the diffuse field of the previous render" in caplog.text
+    assert "reusing the diffuse field of an earlier render" in caplog.text
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         _render(deck, sun_zenith=45.0, **kw)
@@ -42,6 +42,27 @@ def test_the_3d_solution_is_kept_for_the_suns_near_its_node(caplog):
     pipeline._STAGE_CACHE.clear()
     np.testing.assert_array_equal(near["radiance"].values, _render(deck, sun_zenith=40.3, **kw)["radiance"].values)
     assert not np.array_equal(near["radiance"].values, first["radiance"].values)
+
+
+def test_3d_solutions_are_kept_across_scenes_a_few_at_a_time(caplog):
+    """Renders that alternate between two scenes reuse each one's diffuse solution (kept apart from the one-scene
+    stages, which hold grids); the oldest of more than SMALL_ENTRIES goes first."""
+    from swim.validation.stratus import stratus_scene
+
+    decks = [stratus_scene(tau, n_columns=5) for tau in (5.0, 10.0)]
+    kw = {"settings": swim.MarchSettings()}
+    pipeline._STAGE_CACHE.clear()
+    images = [_render(deck, **kw)["radiance"].values for deck in decks]
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        again = _render(decks[0], **kw)["radiance"].values
+    assert "reusing the diffuse field of an earlier render" in caplog.text
+    np.testing.assert_array_equal(again, images[0])
+    for zenith in range(20, 20 + 5 * pipeline.SMALL_ENTRIES, 5):  # other sun nodes push the first deck's out
+        _render(decks[1], sun_zenith=float(zenith), **kw)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="swim.pipeline"):
+        _render(decks[0], **kw)
+    assert "reusing the diffuse field" not in caplog.text
 
 
 def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
