@@ -30,7 +30,8 @@ def scene():
 
 @pytest.fixture(scope="module")
 def simulated(scene, tmp_path_factory):
-    image = swim.render(scene, camera="allsky", camera_options={"size": 129})
+    image = swim.render(scene, camera="allsky", camera_options={"size": 129},
+                        settings=swim.MarchSettings(cloud_scattering="albers2020"))  # the comparison is tested
     path = tmp_path_factory.mktemp("sim") / "sim.nc"
     swim.write_netcdf(image, path)
     return image, path

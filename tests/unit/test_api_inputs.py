@@ -17,7 +17,8 @@ def scene():
     return default_scene()
 
 
-def _render(scene, **kwargs):
+def _render(scene, **kwargs):  # the inputs' checks, with the paper's cloud scattering (no 3-D solve per aerosol)
+    kwargs.setdefault("settings", swim.MarchSettings(cloud_scattering="albers2020"))
     return swim.render(scene, camera="allsky", camera_options={"size": 9}, sun_zenith=40.0, sun_azimuth=150.0,
                        **kwargs)
 

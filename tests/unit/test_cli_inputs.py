@@ -66,14 +66,14 @@ def test_quiet_reports_nothing_but_errors(tmp_path):
     out = tmp_path / "q.png"
     try:
         result = CliRunner().invoke(app, ["-q", "render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth",
-                                          "150", "--out", str(out)])
+                                          "150", "--cloud-scattering", "albers2020", "--out", str(out)])
         assert result.exit_code == 0 and out.is_file() and result.output.strip() == ""
         bad = CliRunner().invoke(app, ["-q", "render", "--size", "9", "--out", str(tmp_path / "q.bmp")])
         assert bad.exit_code == 2 and "unknown image format" in bad.output
     finally:
         CliRunner().invoke(app, ["render", "--help"])  # the next command in this process is not quiet
-    loud = CliRunner().invoke(app, ["render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth", "150", "--out",
-                                    str(out)])
+    loud = CliRunner().invoke(app, ["render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth", "150",
+                                    "--cloud-scattering", "albers2020", "--out", str(out)])
     assert "wrote" in loud.output
 
 

@@ -33,7 +33,8 @@ def test_a_render_trims_the_heap_only_for_images_of_many_pixels(monkeypatch):
     import swim.pipeline as pipeline
 
     scene = swim.default_scene()
-    kwargs = dict(camera="allsky", camera_options={"size": 16}, sun_zenith=30.0, sun_azimuth=120.0)
+    kwargs = dict(camera="allsky", camera_options={"size": 16}, sun_zenith=30.0, sun_azimuth=120.0,
+                  settings=swim.MarchSettings(cloud_scattering="albers2020"))
     swim.render(scene, **kwargs)  # builds the scene's stages (and trims after them)
     calls = []
     monkeypatch.setattr(pipeline, "release_free_memory", lambda: calls.append(1) or False)

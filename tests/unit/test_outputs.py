@@ -22,7 +22,7 @@ def image():
     from swim.io.default_scene import default_scene
 
     return swim.render(default_scene(), camera="allsky", camera_options={"size": 9}, sun_zenith=40.0,
-                       sun_azimuth=150.0)
+                       sun_azimuth=150.0, settings=swim.MarchSettings(cloud_scattering="albers2020"))
 
 
 def test_a_symlink_is_written_through(tmp_path, image):
