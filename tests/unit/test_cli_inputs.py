@@ -82,7 +82,7 @@ def test_exposure_options(tmp_path):
     code 2 and no file."""
     import xarray as xr
 
-    base = ["render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth", "150"]
+    base = ["render", "--size", "9", "--sun-zenith", "40", "--sun-azimuth", "150", "--cloud-scattering", "albers2020"]
     nc = tmp_path / "auto.nc"
     result = CliRunner().invoke(app, [*base, "--white-level", "auto", "--exposure", "1", "--out",
                                       str(tmp_path / "auto.png"), "--netcdf", str(nc)])
