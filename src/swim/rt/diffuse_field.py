@@ -19,7 +19,9 @@ radiance of a one-column clear solve of the same atmosphere (:func:`clear_column
 The march reads (:class:`DiffuseField`) the moments of the diffuse radiance (solar-relative, L' = 4 pi I) on the
 volume's levels, and two ratios that carry the clouds' effect into the clear sky's validated terms: the diffuse
 radiance's isotropic moment against the clear column's (the air's multiple-scattering source, Step 2) and the
-ground's diffuse irradiance against the clear column's (the ground's skylight).
+ground's diffuse irradiance against the clear column's (the ground's skylight). With a 3-D aerosol field the
+reference is the grid's clear air with that aerosol over a flat ground of the mean albedo, solved the same way: the
+clear sky's terms the ratios scale already hold the aerosol (Step 2's column classes).
 
 References
 ----------
@@ -396,18 +398,35 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
     beam, ground_beam = _medium_beam(grid, beta, air_beta, gas, sun_solver, dx_m, dy_m, ground_level)
     t_build = time.perf_counter()
 
-    side, clear_moments, clear_ground = clear_column(gas, grid.edges, mu0, albedo.reshape(-1, 3).mean(axis=0), quad,
-                                                     settings, sun_solver)
+    mean_albedo = albedo.reshape(-1, 3).mean(axis=0)
+    side, clear_moments, clear_ground = clear_column(gas, grid.edges, mu0, mean_albedo, quad, settings, sun_solver)
+    # (nz, 1, 1, 3, nm) and (1, 1, 3): the clear column's, the same for every column
+    clear_moments, clear_ground = clear_moments[:, None, None], clear_ground[None, None]
+
+    def solve(beta, sigma, beam, albedo, ground_level, ground_beam, tolerance):
+        return solve_diffuse(DiffuseMedium(
+            beta=np.ascontiguousarray(beta), sigma=np.ascontiguousarray(sigma), beam=beam, dz=grid.dz,
+            dx=dx_m * grid.coarsen, dy=dy_m * grid.coarsen, albedo=np.ascontiguousarray(albedo, np.float32),
+            ground_level=ground_level, ground_beam=ground_beam, sun=sun_solver, side_radiance=side), quad,
+            tolerance=tolerance, max_sweeps=settings.max_sweeps)
+
+    if np.any(volume["aerosol_extinction"].values > 0):
+        # The ratios' reference is the grid's clear air with its 3-D aerosol over a flat ground of the mean albedo:
+        # the march scales the clear sky's terms, which already hold the 3-D aerosol (Step 2's tables of the
+        # field's column classes), so the ratios carry the clouds' and the terrain's effect alone (against the
+        # clear column they would count the aerosol's diffuse light twice: +57 % GHI under a smoke layer of AOD 1)
+        ref_beta, ref_sigma, _ = _medium_optics(grid, volume, {}, optics, gas, settings.max_degree)
+        flat = np.zeros_like(ground_level)
+        ref_beam, ref_ground_beam = _medium_beam(grid, ref_beta, air_beta, gas, sun_solver, dx_m, dy_m, flat)
+        uniform = np.broadcast_to(mean_albedo.astype(np.float32), albedo.shape)
+        ref = solve(ref_beta, ref_sigma, ref_beam, uniform, flat, ref_ground_beam, min(settings.tolerance, 1e-5))
+        clear_moments, clear_ground = ref.moments, ref.ground_diffuse
     t_clear = time.perf_counter()
-    medium = DiffuseMedium(beta=np.ascontiguousarray(beta), sigma=np.ascontiguousarray(sigma), beam=beam,
-                           dz=grid.dz, dx=dx_m * grid.coarsen, dy=dy_m * grid.coarsen,
-                           albedo=np.ascontiguousarray(albedo, np.float32), ground_level=ground_level,
-                           ground_beam=ground_beam, sun=sun_solver, side_radiance=side)
-    sol = solve_diffuse(medium, quad, tolerance=settings.tolerance, max_sweeps=settings.max_sweeps)
+    sol = solve(beta, sigma, beam, albedo, ground_level, ground_beam, settings.tolerance)
     t_solve = time.perf_counter()
 
     field_out, ratio = _on_levels(grid, sol.moments, clear_moments, terrain)
-    above_ratio = sol.moments[grid.n_grid:, ..., 0] / np.maximum(clear_moments[grid.n_grid:, None, None, :, 0], 1e-30)
+    above_ratio = sol.moments[grid.n_grid:, ..., 0] / np.maximum(clear_moments[grid.n_grid:, ..., 0], 1e-30)
     seconds = {"build": t_build - t0, "clear": t_clear - t_build, "solve": t_solve - t_clear,
                "total": time.perf_counter() - t0}
     nz, nyc, nxc = beta.shape[:3]
@@ -564,7 +583,7 @@ def _medium_beam(grid, beta, air_beta, gas, sun_solver, dx_m, dy_m, ground_level
 
 def _on_levels(grid, moments, clear_moments, terrain):
     """The march's field on the volume's levels (nk, ny_c, nx_c, 3 + 3 nm) and the isotropic ratio (nk, ny_c,
-    nx_c, 3): a level is the boundary of two cells (the mean of their moments); solid cells (below the terrain) take
+    nx_c, 3) to the reference ``clear_moments`` (nz, 1 or ny_c, 1 or nx_c, 3, nm): a level is the boundary of two cells (the mean of their moments); solid cells (below the terrain) take
     the first open level's values, so that the march's interpolation next to the ground mixes in no zeros."""
     levels, first, n_split = grid.levels, grid.first, grid.n_split
     nk = levels.size
@@ -577,8 +596,8 @@ def _on_levels(grid, moments, clear_moments, terrain):
     if solid.any():
         jj, ii = np.indices(open_node.shape)
         node = np.where(solid[..., None, None], node[open_node, jj, ii][None], node)
-    clear_node = 0.5 * (clear_moments[below] + clear_moments[above])  # (nk, 3, nm)
-    ratio = node[..., 0] / np.maximum(clear_node[:, None, None, :, 0], 1e-30)
+    clear_node = 0.5 * (clear_moments[below] + clear_moments[above])  # (nk, 1 or ny_c, 1 or nx_c, 3, nm)
+    ratio = node[..., 0] / np.maximum(clear_node[..., 0], 1e-30)
     nm = moments.shape[-1]
     out = np.empty((nk, nyc, nxc, 3 + 3 * nm), np.float32)
     out[..., :3] = ratio
