@@ -583,8 +583,9 @@ def _medium_beam(grid, beta, air_beta, gas, sun_solver, dx_m, dy_m, ground_level
 
 def _on_levels(grid, moments, clear_moments, terrain):
     """The march's field on the volume's levels (nk, ny_c, nx_c, 3 + 3 nm) and the isotropic ratio (nk, ny_c,
-    nx_c, 3) to the reference ``clear_moments`` (nz, 1 or ny_c, 1 or nx_c, 3, nm): a level is the boundary of two cells (the mean of their moments); solid cells (below the terrain) take
-    the first open level's values, so that the march's interpolation next to the ground mixes in no zeros."""
+    nx_c, 3) to the reference ``clear_moments`` (nz, 1 or ny_c, 1 or nx_c, 3, nm): a level is the boundary of two
+    cells (the mean of their moments); solid cells (below the terrain) take the first open level's values, so that
+    the march's interpolation next to the ground mixes in no zeros."""
     levels, first, n_split = grid.levels, grid.first, grid.n_split
     nk = levels.size
     nz, nyc, nxc = grid.shape
