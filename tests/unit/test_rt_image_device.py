@@ -12,7 +12,14 @@ from swim.errors import SwimInputError
 from swim.rt import ray_table
 from swim.rt.image_device import planes_on_device
 from swim.rt.image_sampling import AdaptiveSampling
-from swim.rt.march import MarchSettings
+from swim.rt.march import MarchSettings as _MarchSettings
+
+
+def MarchSettings(**kw):  # noqa: N802 - a stand-in for the class in this module's tests
+    """The render's settings with the paper's cloud scattering: the image made on the device serves
+    ``cloud_scattering="albers2020"`` (the 3-D method keeps the camera's rays on the host)."""
+    return _MarchSettings(**{"cloud_scattering": "albers2020", **kw})
+
 
 #: Images made on the device run the JAX kernel, whose programs compile for minutes on an empty cache: the full tier.
 pytestmark = pytest.mark.full
@@ -113,7 +120,7 @@ def test_planes_on_device_scatters_the_pixels_rows():
                          sun_keys=("radiance",))
 
 
-KW = dict(camera="allsky", camera_options={"size": 24}, sun_zenith=40.0, sun_azimuth=120.0)
+KW = dict(camera="allsky", camera_options={"size": 24}, sun_zenith=40.0, sun_azimuth=120.0, settings=MarchSettings())
 
 
 @pytest.fixture

@@ -268,7 +268,8 @@ def test_a_render_with_device_sampling_gives_the_host_samplers_image():
             images = [swim.render(scene, camera="allsky", camera_options={"size": 64}, sun_zenith=sun_zenith,
                                   sun_azimuth=120.0, sampling=AdaptiveSampling(),
                                   settings=MarchSettings(backend="jax", chunk=1024, ray_table=True,
-                                                         device_sampling=on_device))
+                                                         device_sampling=on_device,
+                                                         cloud_scattering="albers2020"))  # its device path
                       for on_device in (False, True)]
             host, device = images
             # (at 64 pixels across the scene's cumulus leave few cells smooth: the test is that some are)
