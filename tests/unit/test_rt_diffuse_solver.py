@@ -163,3 +163,32 @@ def test_bad_media_are_refused():
     m = _slab(1.0, 30.0, 0.1, [1.0, 0.5, 0.2], columns=2)
     with pytest.raises(SwimInputError, match="one-column"):
         solve_diffuse(m, quad, column=True)
+
+
+def test_the_solution_does_not_depend_on_the_thread_count(monkeypatch):
+    """The octants add into buffers of their own, summed in a fixed order, and the Krylov scalars are float64 sums in
+    a fixed order: one thread and several give the same bits (a dask worker process with one thread renders a
+    series' frame as the main process does)."""
+    import swim.rt.diffuse_solver as solver
+
+    quad = make_quadrature(2, 8, 2)
+    rng = np.random.default_rng(7)
+    grid = _slab(8.0, 40.0, 0.3, [1.0, 0.5, 0.2], columns=5, dx=400.0)
+    factor = rng.uniform(0.2, 1.8, grid.beta.shape[:3] + (1,)).astype(np.float32)  # a 3-D field of cells
+    grid.beta = np.ascontiguousarray(grid.beta * factor)
+    grid.sigma = np.ascontiguousarray(grid.sigma * factor[..., None])
+    solutions = []
+    for n in (1, 2, 4):
+        monkeypatch.setattr(solver, "threads", lambda n=n: n)
+        solutions.append(solve_diffuse(grid, quad, tolerance=1e-6))
+    for other in solutions[1:]:
+        np.testing.assert_array_equal(other.moments, solutions[0].moments)
+        np.testing.assert_array_equal(other.ground_diffuse, solutions[0].ground_diffuse)
+    assert solutions[0].sweeps > 4
+
+
+def test_the_float64_dot_product_is_numpy_s():
+    from swim.rt.ordinates_cpu import dot64
+
+    a, b = np.random.default_rng(1).normal(size=(2, 100_003)).astype(np.float32)
+    assert dot64(a, b) == pytest.approx(float(np.dot(a.astype(np.float64), b.astype(np.float64))), rel=1e-12)

@@ -144,8 +144,11 @@ class _Sweeper:
         self.flat = {"beta": medium.beta.reshape(-1, 3), "sigma": medium.sigma.reshape(nz * ny * nx, -1),
                      "beam": medium.beam.reshape(-1, 3),
                      "ground_level": np.ascontiguousarray(medium.ground_level.reshape(-1))}
-        n_workers = min(threads(), 4)
-        self.groups = [list(range(w, 4, n_workers)) for w in range(n_workers)]
+        # one group per octant pair (down o, up o + 4), each adding into its own buffer, summed in a fixed order:
+        # the moments' float32 round-off, and so the image, do not depend on the process's thread count (a dask
+        # worker process with one thread renders a frame to the bit as the main process with two)
+        self.n_workers = min(threads(), 4)
+        self.groups = [[o] for o in range(4)]
         self.buffers = [np.zeros((nz, ny, nx, 3, self.nm), np.float32) for _ in self.groups[1:]]
         self.flux = [np.zeros((ny * nx, 3)) for _ in self.groups]
         self.work = [(np.zeros((ny * nx, 3 * nq), np.float32), np.zeros((nx, 3 * nq), np.float32)) for _ in self.groups]
@@ -184,10 +187,11 @@ class _Sweeper:
                 for o in self.groups[w]:
                     self._octant(o + (0 if down else 4), phi_in, outs[w], self.flux[w], emission, sources,
                                  self.work[w])
-            if len(self.groups) == 1:
-                group(0)
+            if self.n_workers == 1:
+                for w in range(len(self.groups)):
+                    group(w)
             else:
-                for f in [worker_pool(len(self.groups)).submit(group, w) for w in range(len(self.groups))]:
+                for f in [worker_pool(self.n_workers).submit(group, w) for w in range(len(self.groups))]:
                     f.result()
 
         run(True)
@@ -228,6 +232,14 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
     SwimInputError
         If the arrays' shapes do not agree, or a value is negative or not finite.
     """
+    from .ordinates_cpu import dot64
+
+    def dot(a, b):  # in float64, in one order whatever the threads (not BLAS's): see _Sweeper
+        return dot64(a.reshape(-1), b.reshape(-1))
+
+    def norm(a):
+        return math.sqrt(dot(a, a))
+
     _check_medium(medium, quad, column)
     sweep = _Sweeper(medium, quad, column)
     shape = medium.beta.shape[:3] + (3, sweep.nm)
@@ -242,7 +254,7 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
         out -= x
         return out
 
-    b_norm = float(np.linalg.norm(b)) or 1.0
+    b_norm = norm(b) or 1.0
     residual(x, r)
     r0 = r.copy()
     rho = alpha = omega = 1.0
@@ -250,11 +262,11 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
     p = np.zeros_like(b)
     s = np.empty_like(b)
     t = np.empty_like(b)
-    rel = float(np.linalg.norm(r)) / b_norm
+    rel = norm(r) / b_norm
     # BiCGStab (van der Vorst 1992), unpreconditioned: a diffusion correction of each column's isotropic moment
     # helps plane-parallel decks but slows 3-D fields, whose light leaks sideways (docs/decisions/0001-...)
     while rel > tolerance and sweep.sweeps + 2 <= max_sweeps:
-        rho_new = float(np.vdot(r0, r))
+        rho_new = dot(r0, r)
         if rho_new == 0.0:
             break
         beta_k = (rho_new / rho) * (alpha / omega)
@@ -264,21 +276,21 @@ def solve_diffuse(medium: DiffuseMedium, quad: Quadrature, tolerance: float = 1e
         p += r
         sweep(p, v, False)
         np.subtract(p, v, out=v)  # (I - K) p
-        alpha = rho / float(np.vdot(r0, v))
+        alpha = rho / dot(r0, v)
         np.subtract(r, np.float32(alpha) * v, out=s)
-        if float(np.linalg.norm(s)) / b_norm <= tolerance:
+        if norm(s) / b_norm <= tolerance:
             x += np.float32(alpha) * p
             r[...] = s
-            rel = float(np.linalg.norm(r)) / b_norm
+            rel = norm(r) / b_norm
             break
         sweep(s, t, False)
         np.subtract(s, t, out=t)  # (I - K) s
-        tt = float(np.vdot(t, t))
-        omega = float(np.vdot(t, s)) / tt if tt > 0 else 0.0
+        tt = dot(t, t)
+        omega = dot(t, s) / tt if tt > 0 else 0.0
         x += np.float32(alpha) * p
         x += np.float32(omega) * s
         np.subtract(s, np.float32(omega) * t, out=r)
-        rel = float(np.linalg.norm(r)) / b_norm
+        rel = norm(r) / b_norm
         if omega == 0.0:
             break
     if rel > tolerance:

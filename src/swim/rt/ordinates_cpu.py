@@ -289,6 +289,16 @@ def beam_sweep(beta, ax, ay, az, inv_dz, sx, sy, ground_level, mean, ground):  #
 
 
 @njit(**_JIT_KERNEL, nogil=True)
+def dot64(a, b):  # pragma: no cover - compiled
+    """The dot product of two float32 vectors (n,) accumulated in float64, in an order fixed by the compiled code
+    (BLAS's depends on its thread count): the solver's Krylov scalars are the same in every process."""
+    total = 0.0
+    for i in range(a.size):
+        total += np.float64(a[i]) * np.float64(b[i])
+    return total
+
+
+@njit(**_JIT_KERNEL, nogil=True)
 def block_sums(a, c, out):  # pragma: no cover - compiled
     """Sums of ``a`` (nk, ny, nx) over blocks of c x c columns (the last blocks partial), in float64, added
     to ``out`` (nk, ceil(ny / c), ceil(nx / c)): the solver's coarsened columns in one pass over a big volume."""
