@@ -64,7 +64,7 @@ def test_the_3d_method_is_the_default_and_the_paper_s_stays_selectable():
     assert swim.render(scene, **kwargs).attrs["cloud_scattering"] == "discrete_ordinates"
 
 
-def test_a_sun_at_the_horizon_or_below_renders_with_the_paper_s_method(caplog):
+def test_a_set_sun_falls_back_to_the_paper_s_method_and_a_low_one_renders_in_3d(caplog):
     """The 3-D solution needs the sun above 0.6 deg elevation: a twilight or night render says so in the log and its
     cloud_scattering attribute, and renders (dark at night) instead of failing."""
     scene = swim.validation.stratus.stratus_scene(5.0, n_columns=5)
@@ -72,6 +72,13 @@ def test_a_sun_at_the_horizon_or_below_renders_with_the_paper_s_method(caplog):
         night = swim.render(scene, camera="allsky", camera_options={"size": 15}, sun_zenith=120.0, sun_azimuth=0.0)
     assert night.attrs["cloud_scattering"] == "albers2020" and "the 3-D diffuse solution needs" in caplog.text
     assert np.nanmax(night["radiance"].values) < 1e-3
+    # a low sun (4 deg high) under a stratospheric layer: the 3-D method runs where the lowest layers hardly see the
+    # sun (the clear column's beam was once made negative there, by the logarithmic mean of two near-zero values)
+    low = swim.render(swim.default_scene(), camera="allsky", camera_options={"size": 9}, sun_zenith=86.0,
+                      sun_azimuth=270.0, aerosol=swim.AerosolBackground(stratospheric_aod_550=0.15))
+    assert low.attrs["cloud_scattering"] == "discrete_ordinates"
+    rad = low["radiance"].values
+    assert np.all(rad[np.isfinite(rad)] >= 0) and np.isfinite(rad).sum() > 100
 
 
 @pytest.mark.full  # two 3-D renders of an ice deck (~20 s): a goal figure of the validation tier

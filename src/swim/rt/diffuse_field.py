@@ -326,11 +326,13 @@ def clear_column(gas, edges, mu0, albedo, quad, settings: DiffuseSettings, sun):
     z = 0.5 * (edges[1:] + edges[:-1])
     dz = np.diff(edges)
     beta, sigma = _air_optics(gas, z, quad.max_degree)
-    t_top = _sun_transmittance(gas, edges[1:], mu0)
-    t_bot = _sun_transmittance(gas, edges[:-1], mu0)
-    beam = np.where(np.abs(t_bot - t_top) > 1e-9,
-                    (t_top - t_bot) / np.maximum(np.log(np.maximum(t_top, 1e-30) / np.maximum(t_bot, 1e-30)), 1e-30),
-                    0.5 * (t_top + t_bot))
+    t_top = np.maximum(_sun_transmittance(gas, edges[1:], mu0), 0.0)
+    t_bot = np.maximum(_sun_transmittance(gas, edges[:-1], mu0), 0.0)
+    # the layer's mean of an exponential between its edges' values (their logarithmic mean); where either is ~0 (a
+    # sun so low that the earth shades the layer) or they agree, their plain mean
+    log_mean = (t_bot > 1e-12) & (t_top > 1e-12) & (np.abs(t_top - t_bot) > 1e-9)
+    beam = np.where(log_mean, (t_top - t_bot) / np.log(np.where(log_mean, t_top / np.where(log_mean, t_bot, 1.0),
+                                                                np.e)), 0.5 * (t_top + t_bot))
     nz = z.size
     medium = DiffuseMedium(
         beta=np.ascontiguousarray(beta.reshape(nz, 1, 1, 3), np.float32),
