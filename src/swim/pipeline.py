@@ -383,19 +383,19 @@ class _StageCache:
             if other == kind or other_key[1] != fingerprint:
                 self._entries.pop(other, None)  # (another render's thread may have dropped it already)
 
-    def get_small(self, key, build, keep=None):
+    def get_small(self, key, build, named=None):
         """The value of ``key`` from a store of :data:`SMALL_ENTRIES` small values kept across scenes (the least
-        recently used goes first), else ``build()``'s, kept. ``keep``: an object held with the value, whose identity
-        the key names (the gas tables of ``id(gas)``), so that its id is not reused while the entry lives."""
+        recently used goes first), else ``build()``'s, kept. ``named``: the object whose ``id`` the key holds (the
+        gas tables), referenced weakly: an entry whose object has gone (its id may be another's now) is not used."""
         with self._lock:
             entry = self._small.get(key)
-            if entry is not None:
+            if entry is not None and (entry[1] is None or entry[1]() is named):
                 self._small.move_to_end(key)
                 log.info("reusing the %s of an earlier render", key[0])
                 return entry[0]
         value = build()
         with self._lock:
-            self._small[key] = (value, keep)
+            self._small[key] = (value, None if named is None else weakref.ref(named))
             while len(self._small) > SMALL_ENTRIES:
                 self._small.popitem(last=False)
         return value
@@ -948,7 +948,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             node = solve_sun(sun_scene, clouds.diffuse.sun_step_deg)
             key = ("diffuse field", fingerprint, tuple(np.round(node, 12)), id(gas), clouds)
             solved = _STAGE_CACHE.get_small(key, lambda: diffuse_field(volume, species, gas, node, cloud_optics,
-                                                                       clouds.diffuse), keep=gas)
+                                                                       clouds.diffuse), named=gas)
             return cloud_constants(volume, grid, species, gas, sun_scene, clouds, cloud_optics, solved=solved)
 
         def build_constants():
