@@ -52,10 +52,10 @@ def views(data: Path):
                                  lat=24.2, lon=-89.0, height=3000.0, camera="panorama",
                                  camera_options={"width": 1024, "height": 512},
                                  caption="Katrina: 360° panorama from 3 km at 24.2 N, 89.0 W (north at the left edge, "
-                                         "azimuth increasing to the right; elevation -90..90). The bright band across "
-                                         "the cloud below is an artefact of the 3-D cloud scattering, not yet "
-                                         "understood (in the clouds' radiance, where the view's optical depth is ~2; "
-                                         "the paper's method has no such band)."),
+                                         "azimuth increasing to the right; elevation -90..90). The white arc across "
+                                         "the cloud below is the cloudbow, at scattering angles of 138–142° (~40° from "
+                                         "the anti-solar point): the Mie droplets of the 3-D cloud scattering; the "
+                                         "paper's phase functions have none."),
         "katrina_space": dict(scene=lambda: swim.open_scene(katrina, time=KATRINA_TIME), time=KATRINA_TIME,
                               height=36_000e3, camera="perspective", camera_options={"width": 512, "height": 512},
                               caption="Katrina seen from 36 000 km above the domain centre (north up)."),
