@@ -83,7 +83,7 @@ def test_the_solved_sun_is_the_nearest_node_within_a_step(step):
 
 
 def test_a_low_sun_and_a_zero_step_are_solved_for_exactly():
-    for sun in (_sun(89.5, 10.0), _sun(84.6, 200.0)):
+    for sun in (_sun(89.5, 10.0), _sun(84.6, 200.0), _sun(90.0, 0.0), _sun(120.0, 0.0)):
         np.testing.assert_array_equal(solve_sun(sun, 1.0), sun)
     sun = _sun(30.3, 135.0)
     np.testing.assert_array_equal(solve_sun(sun, 0.0), sun)

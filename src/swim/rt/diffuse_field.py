@@ -205,7 +205,7 @@ def solve_sun(sun_scene, step_deg: float) -> np.ndarray:
         (3,) unit vector.
     """
     sun = np.asarray(sun_scene, float)
-    if step_deg <= 0:
+    if step_deg <= 0 or sun[2] <= MIN_SUN_COSINE:  # (a sun so low is not solved for: swim.pipeline)
         return sun
     zenith = math.degrees(math.acos(min(1.0, max(-1.0, sun[2]))))
     z = round(zenith / step_deg) * step_deg
