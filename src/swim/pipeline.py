@@ -949,7 +949,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             key = ("diffuse field", fingerprint, tuple(np.round(node, 12)), id(gas), clouds)
             solved = _STAGE_CACHE.get_small(key, lambda: diffuse_field(volume, species, gas, node, cloud_optics,
                                                                        clouds.diffuse), named=gas)
-            return cloud_constants(volume, grid, species, gas, sun_scene, clouds, cloud_optics, solved=solved)
+            return cloud_constants(grid, species, sun_scene, cloud_optics, solved)
 
         def build_constants():
             grid = _STAGE_CACHE.get(("grid constants", fingerprint, sun_key, cloud_key), grid_constants)

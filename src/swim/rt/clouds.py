@@ -102,29 +102,25 @@ def mean_effective_radii(volume) -> dict:
     return {s: float(r) for s, r in zip(SPECIES, radii) if np.isfinite(r) and r > 0}
 
 
-def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScattering, optics, solved=None) -> dict:
-    """The constants of the 3-D cloud scattering for the march and the ground: the diffuse field
-    (:func:`swim.rt.diffuse_field.diffuse_field`) and the hydrometeors' optics.
+def cloud_constants(packed, species, sun_scene, optics, solved) -> dict:
+    """The constants of the 3-D cloud scattering for the march and the ground: the diffuse field scaled to the
+    render's sun and the hydrometeors' optics.
 
     Parameters
     ----------
-    volume : xarray.Dataset
-        The optical volume.
     packed : dict
         The render's grid constants (:func:`swim.rt.march.volume_constants`): ``volume`` (the packed channels,
         whose Step 1a channels hold the scaled direct transmittance), ``surface``, ``surface_outside``.
     species : tuple of int
         The packed species.
-    gas : swim.rt.gas.GasTables
     sun_scene : array_like
         (3,) towards the sun, scene frame.
-    clouds : CloudScattering
     optics : swim.optics.cloud_phase.CloudOptics
         The hydrometeors' optics (:func:`scene_cloud_optics`), whose truncation Step 1a's scaled transmittance used.
-    solved : swim.rt.diffuse_field.DiffuseField, optional
-        The diffuse solution, where the caller keeps it (a render's is solved for the sun of
-        :func:`swim.rt.diffuse_field.solve_sun` and reused by the suns near it); default: solved here for
-        ``sun_scene``'s node. It is scaled to ``sun_scene`` (:meth:`~swim.rt.diffuse_field.DiffuseField.for_sun`).
+    solved : swim.rt.diffuse_field.DiffuseField
+        The diffuse solution (:func:`swim.rt.diffuse_field.diffuse_field`), solved for the node of
+        :func:`swim.rt.diffuse_field.solve_sun` nearest ``sun_scene`` and scaled to it here
+        (:meth:`~swim.rt.diffuse_field.DiffuseField.for_sun`).
 
     Returns
     -------
@@ -134,13 +130,9 @@ def cloud_constants(volume, packed, species, gas, sun_scene, clouds: CloudScatte
         (n_sp, 3, L + 1) chi_l - f, ``degree`` (nm,), ``ms_field``, ``ms_coarsen``, ``surface`` (14, ny, nx) and
         ``surface_outside`` (14,) with the ground's diffuse ratios, ``backscatter_scaled`` (5,) 1 - f per species.
     """
-    from .diffuse_field import diffuse_field, solve_sun
     from .ordinates import harmonic_degrees
 
     n_sp = len(species)
-    if solved is None:
-        solved = diffuse_field(volume, species, gas, solve_sun(sun_scene, clouds.diffuse.sun_step_deg), optics,
-                               clouds.diffuse)
     field_ = solved.for_sun(sun_scene)
     idx = list(species)
     f = optics.truncation

@@ -331,8 +331,8 @@ def clear_column(gas, edges, mu0, albedo, quad, settings: DiffuseSettings, sun):
     # the layer's mean of an exponential between its edges' values (their logarithmic mean); where either is ~0 (a
     # sun so low that the earth shades the layer) or they agree, their plain mean
     log_mean = (t_bot > 1e-12) & (t_top > 1e-12) & (np.abs(t_top - t_bot) > 1e-9)
-    beam = np.where(log_mean, (t_top - t_bot) / np.log(np.where(log_mean, t_top / np.where(log_mean, t_bot, 1.0),
-                                                                np.e)), 0.5 * (t_top + t_bot))
+    ratio = np.divide(t_top, t_bot, out=np.full_like(t_top, np.e), where=log_mean)  # e where unused: log 1
+    beam = np.where(log_mean, (t_top - t_bot) / np.log(ratio), 0.5 * (t_top + t_bot))
     nz = z.size
     medium = DiffuseMedium(
         beta=np.ascontiguousarray(beta.reshape(nz, 1, 1, 3), np.float32),
@@ -391,7 +391,8 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
     beta_species = {SPECIES[s]: volume["extinction"].sel(species=SPECIES[s]).values for s in species
                     if SPECIES[s] in names}
     grid = _solver_grid(volume, beta_species, optics, settings, gas.top_m)
-    beta, sigma, air_beta = _medium_optics(grid, volume, beta_species, optics, gas, settings.max_degree)
+    clear_beta, clear_sigma, air_beta, has_aerosol3d = _clear_optics(grid, volume, gas, settings.max_degree)
+    beta, sigma = _with_hydrometeors(grid, clear_beta, clear_sigma, beta_species, optics)
     terrain = _block_mean(volume["terrain_height"].values, grid.coarsen)
     ground_level = np.clip(np.searchsorted(grid.edges, terrain - 0.5 * grid.dz[0], side="left"), 0,
                            grid.n_grid - 1).astype(np.int64)
@@ -412,16 +413,15 @@ def diffuse_field(volume, species, gas, sun_scene, optics,
             ground_level=ground_level, ground_beam=ground_beam, sun=sun_solver, side_radiance=side), quad,
             tolerance=tolerance, max_sweeps=settings.max_sweeps)
 
-    if np.any(volume["aerosol_extinction"].values > 0):
+    if has_aerosol3d:
         # The ratios' reference is the grid's clear air with its 3-D aerosol over a flat ground of the mean albedo:
         # the march scales the clear sky's terms, which already hold the 3-D aerosol (Step 2's tables of the
         # field's column classes), so the ratios carry the clouds' and the terrain's effect alone (against the
         # clear column they would count the aerosol's diffuse light twice: +57 % GHI under a smoke layer of AOD 1)
-        ref_beta, ref_sigma, _ = _medium_optics(grid, volume, {}, optics, gas, settings.max_degree)
         flat = np.zeros_like(ground_level)
-        ref_beam, ref_ground_beam = _medium_beam(grid, ref_beta, air_beta, gas, sun_solver, dx_m, dy_m, flat)
+        ref_beam, ref_ground_beam = _medium_beam(grid, clear_beta, air_beta, gas, sun_solver, dx_m, dy_m, flat)
         uniform = np.broadcast_to(mean_albedo.astype(np.float32), albedo.shape)
-        ref = solve(ref_beta, ref_sigma, ref_beam, uniform, flat, ref_ground_beam, min(settings.tolerance, 1e-5))
+        ref = solve(clear_beta, clear_sigma, ref_beam, uniform, flat, ref_ground_beam, min(settings.tolerance, 1e-5))
         clear_moments, clear_ground = ref.moments, ref.ground_diffuse
     t_clear = time.perf_counter()
     sol = solve(beta, sigma, beam, albedo, ground_level, ground_beam, settings.tolerance)
@@ -533,24 +533,19 @@ def _solver_grid(volume, beta_species, optics, settings, top_m) -> _Grid:
     return _Grid(coarsen, levels, edges, first, n_split, n_grid, (edges.size - 1, nyc, nxc), below, weight)
 
 
-def _medium_optics(grid, volume, beta_species, optics, gas, max_degree):
-    """The scaled extinction beta* (nz, ny_c, nx_c, 3), the scattering moments beta* omega* chi*_l
-    (nz, ny_c, nx_c, 3, L + 1) of the solver's cells, and the clear air's beta* (nz, 3)."""
+def _clear_optics(grid, volume, gas, max_degree):
+    """The scaled extinction beta* (nz, ny_c, nx_c, 3) and scattering moments beta* omega* chi*_l
+    (nz, ny_c, nx_c, 3, L + 1) of the solver's cells without hydrometeors (the clear air and the scene's 3-D aerosol),
+    the clear air's beta* (nz, 3), and whether the scene has a 3-D aerosol field."""
     nz, nyc, nxc = grid.shape
     n_l = max_degree + 1
     n_grid = grid.n_grid
     air_beta, air_sigma = _air_optics(gas, grid.z, max_degree)  # (nz, 3), (nz, 3, L + 1)
     beta = np.broadcast_to(air_beta[:, None, None, :], (nz, nyc, nxc, 3)).astype(np.float32)
     sigma = np.broadcast_to(air_sigma[:, None, None, :, :], (nz, nyc, nxc, 3, n_l)).astype(np.float32)
-    for s, b in beta_species.items():
-        n = SPECIES.index(s)
-        f = float(optics.truncation[n])
-        b_cells = grid.on_cells(_block_mean(b, grid.coarsen))  # (n_grid, nyc, nxc)
-        beta[:n_grid] += (np.float32(1.0 - f) * b_cells)[..., None]
-        chi = optics.moments[n, :n_l, :] - f  # (L + 1, 3): beta (chi_l - f) = beta* omega* chi*_l
-        sigma[:n_grid] += b_cells[..., None, None] * chi.T[None, None, None].astype(np.float32)
     aerosol3d = np.asarray(volume["aerosol_extinction"].values, np.float32)
-    if np.any(aerosol3d > 0):
+    has_aerosol3d = bool(np.any(aerosol3d > 0))
+    if has_aerosol3d:
         from ..validation.disort import phase_function_legendre_moments
 
         kind = gas.aerosol
@@ -563,7 +558,22 @@ def _medium_optics(grid, volume, beta_species, optics, gas, max_degree):
         a_cells = grid.on_cells(_block_mean(aerosol3d, grid.coarsen))[..., None] * ang  # (n_grid, nyc, nxc, 3)
         beta[:n_grid] += (a_cells * (1 - ssa * fa)).astype(np.float32)
         sigma[:n_grid] += ((a_cells * ssa)[..., None] * (chi[:n_l].T - fa[:, None])).astype(np.float32)
-    return beta, sigma, air_beta
+    return beta, sigma, air_beta, has_aerosol3d
+
+
+def _with_hydrometeors(grid, beta, sigma, beta_species, optics):
+    """Copies of the clear cells' ``beta`` and ``sigma`` (:func:`_clear_optics`) with the species' scaled extinction
+    and scattering moments added (``beta_species``: species name -> extinction (nk, ny, nx) [m-1])."""
+    beta, sigma = beta.copy(), sigma.copy()
+    n_l, n_grid = sigma.shape[-1], grid.n_grid
+    for s, b in beta_species.items():
+        n = SPECIES.index(s)
+        f = float(optics.truncation[n])
+        b_cells = grid.on_cells(_block_mean(b, grid.coarsen))  # (n_grid, nyc, nxc)
+        beta[:n_grid] += (np.float32(1.0 - f) * b_cells)[..., None]
+        chi = optics.moments[n, :n_l, :] - f  # (L + 1, 3): beta (chi_l - f) = beta* omega* chi*_l
+        sigma[:n_grid] += b_cells[..., None, None] * chi.T[None, None, None].astype(np.float32)
+    return beta, sigma
 
 
 def _medium_beam(grid, beta, air_beta, gas, sun_solver, dx_m, dy_m, ground_level):

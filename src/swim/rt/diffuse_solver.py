@@ -144,14 +144,13 @@ class _Sweeper:
         self.flat = {"beta": medium.beta.reshape(-1, 3), "sigma": medium.sigma.reshape(nz * ny * nx, -1),
                      "beam": medium.beam.reshape(-1, 3),
                      "ground_level": np.ascontiguousarray(medium.ground_level.reshape(-1))}
-        # one group per octant pair (down o, up o + 4), each adding into its own buffer, summed in a fixed order:
-        # the moments' float32 round-off, and so the image, do not depend on the process's thread count (a dask
-        # worker process with one thread renders a frame to the bit as the main process with two)
+        # each octant pair (down o, up o + 4, o = 0..3) adds into its own buffer (o = 0: the output), summed in a
+        # fixed order: the moments' float32 round-off, and so the image, do not depend on the process's thread count
+        # (a dask worker process with one thread renders a frame to the bit as the main process with two)
         self.n_workers = min(threads(), 4)
-        self.groups = [[o] for o in range(4)]
-        self.buffers = [np.zeros((nz, ny, nx, 3, self.nm), np.float32) for _ in self.groups[1:]]
-        self.flux = [np.zeros((ny * nx, 3)) for _ in self.groups]
-        self.work = [(np.zeros((ny * nx, 3 * nq), np.float32), np.zeros((nx, 3 * nq), np.float32)) for _ in self.groups]
+        self.buffers = [np.zeros((nz, ny, nx, 3, self.nm), np.float32) for _ in range(3)]
+        self.flux = [np.zeros((ny * nx, 3)) for _ in range(4)]
+        self.work = [(np.zeros((ny * nx, 3 * nq), np.float32), np.zeros((nx, 3 * nq), np.float32)) for _ in range(4)]
         self.column_radiance = [np.zeros((nz if column else 0, 3 * nq), np.float32) for _ in range(8)]
         self.ground_flux = np.zeros((ny, nx, 3))
         self.sweeps = 0
@@ -183,15 +182,13 @@ class _Sweeper:
             flux[...] = 0.0
 
         def run(down):
-            def group(w):
-                for o in self.groups[w]:
-                    self._octant(o + (0 if down else 4), phi_in, outs[w], self.flux[w], emission, sources,
-                                 self.work[w])
+            def octant(o):
+                self._octant(o + (0 if down else 4), phi_in, outs[o], self.flux[o], emission, sources, self.work[o])
             if self.n_workers == 1:
-                for w in range(len(self.groups)):
-                    group(w)
+                for o in range(4):
+                    octant(o)
             else:
-                for f in [worker_pool(self.n_workers).submit(group, w) for w in range(len(self.groups))]:
+                for f in [worker_pool(self.n_workers).submit(octant, o) for o in range(4)]:
                     f.result()
 
         run(True)
