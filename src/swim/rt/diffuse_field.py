@@ -173,6 +173,11 @@ class DiffuseField:
         -------
         DiffuseField
             ``self`` where the cosines agree, else a scaled copy.
+
+        References
+        ----------
+        docs/decisions/0001-cloud-diffuse-solution.md, "Which method is the default" (the sun nodes and their
+        measured error against an exact solve).
         """
         if self.sun is None:
             return self
@@ -203,6 +208,10 @@ def solve_sun(sun_scene, step_deg: float) -> np.ndarray:
     -------
     numpy.ndarray
         (3,) unit vector.
+
+    References
+    ----------
+    docs/decisions/0001-cloud-diffuse-solution.md, "Which method is the default".
     """
     sun = np.asarray(sun_scene, float)
     if step_deg <= 0 or sun[2] <= MIN_SUN_COSINE:  # (a sun so low is not solved for: swim.pipeline)
