@@ -13,7 +13,7 @@ for JAX's duration events (``jax._src.monitoring``) and then runs the CLI in pla
 caches must be warm: the first round is a warm-up and is not counted. Reported per variant (medians over the rounds):
 the process's wall time, the CLI's time, and the seconds of JAX's tracing (``jaxpr_trace_duration``), lowering
 (``jaxpr_to_mlir_module_duration``) and reads of compiled executables (``cache_retrieval_time_sec``). Results go to
-``benchmarks/results/cold-<UTC date and time>.json`` (``--out`` to change). docs/performance.md, section 67.
+``benchmarks/results/cold-<UTC date and time>.json`` (``--out`` to change). docs/decisions/0008-cold-start.md
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ with the inputs already on the device (median of ``--repeats`` synchronised laun
 * ``--save``/``--launch``: the captured chunk to an ``.npz`` file and one launch of it in a new process (no render),
   for Nsight Compute (``ncu``).
 
-docs/performance.md, section 52, has the results of an H100.
+What an H100's results decided: docs/decisions/0006-gpu-kernels.md.
 """
 
 from __future__ import annotations

@@ -51,7 +51,7 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   numba kernel on the host's cores (median and 99th percentile of the relative difference).
 
 Figures print as a table at the end and go to ``--out`` as JSON (with the images as PNG beside it); ``--size``
-renders smaller images for a quick check. docs/performance.md, section 18, has the results of an H100.
+renders smaller images for a quick check. The H100's and H200's figures are in docs/decisions/0006-gpu-kernels.md.
 """
 
 from __future__ import annotations
@@ -174,8 +174,7 @@ def kernel_resources(kernel):
 def compare_ray_table(name, scene, kw, args):
     """Warm renders with and without ``MarchSettings.ray_table``, taking turns (``args.repeats`` each): every pixel,
     adaptive with ``args.sampling``, and a new sun every frame with ``args.sun_series``; each variant's median and
-    runs, and the largest relative radiance difference between the two images (sections 73-74 of
-    docs/performance.md)."""
+    runs, and the largest relative radiance difference between the two images (docs/decisions/0006-gpu-kernels.md)."""
     variants = [("every pixel", {})]
     if args.sampling:
         from swim.rt.image_sampling import AdaptiveSampling
@@ -225,7 +224,8 @@ def compare_setting(name, scene, kw, args, field, variants):
                    values_over_1e_4=int(np.sum(rel > 1e-4)))
         codes = np.abs(images[False]["rgb"].values.astype(int) - images[True]["rgb"].values.astype(int))
         row.update(rgb_max_code_diff=int(codes.max()), rgb_pixels_apart=int(np.count_nonzero(codes.max(axis=-1))))
-        # where the largest difference lies (section 85: 3.6e-3 of one pixel with Step 1a on the device, not located)
+        # where the largest difference lies (docs/decisions/0006-gpu-kernels.md: 3.6e-3 of one pixel with Step 1a on the
+        # device, not located)
         full = np.where(ok, np.abs(a - b) / np.maximum(np.abs(a), 1e-3), 0.0)
         at = np.unravel_index(int(np.argmax(full)), full.shape)
         worst = {"index": dict(zip(images[False]["radiance"].dims, (int(i) for i in at))),
@@ -553,10 +553,9 @@ def compare_kernels(name, probe, kernel):
 
 def sweep_fused_blocks(name, probe, blocks):
     """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"), capped
-    at N registers per thread ("RAYSxWARPSrN": ``MarchSettings.fused_max_registers``; docs/performance.md,
-    section 87), with a scalar gather per table channel ("s": ``MarchSettings.fused_vector_loads`` off, section 87),
-    with fused multiply-adds ("f": ``MarchSettings.fused_fma``, section 88), and with an "m" last, the "fused-march"
-    kernel (section 85)."""
+    at N registers per thread ("RAYSxWARPSrN": ``MarchSettings.fused_max_registers``), with a scalar gather per table
+    channel ("s": ``MarchSettings.fused_vector_loads`` off), with fused multiply-adds ("f":
+    ``MarchSettings.fused_fma``), and with an "m" last, the "fused-march" kernel (docs/decisions/0006-gpu-kernels.md)."""
     import jax
 
     from swim.rt import march_pallas
@@ -690,16 +689,17 @@ def main(argv=None):
                     help="also time warm renders with MarchSettings.ray_table against without, taking turns")
     ap.add_argument("--step1a-on-device", action="store_true",
                     help="also time frames with a new sun each, MarchSettings.step1a_on_device on against off, taking "
-                         "turns (docs/performance.md, section 75)")
+                         "turns (docs/decisions/0006-gpu-kernels.md)")
     ap.add_argument("--device-sampling", action="store_true",
                     help="also time adaptive frames with the sampler on the device (MarchSettings.device_sampling) "
                          "against the host's, taking turns, the ray table on")
     ap.add_argument("--device-image", action="store_true",
                     help="also time frames with the image's planes and colour made on the device "
                          "(MarchSettings.device_image) against the host's, taking turns, every pixel and adaptive, "
-                         "the ray table on (docs/performance.md, section 86)")
+                         "the ray table on (docs/decisions/0006-gpu-kernels.md)")
     ap.add_argument("--barriers", action="store_true",
-                    help="also the kernel with its CPU optimisation barriers forced on (section 18 of docs/performance.md)")
+                    help="also the kernel with its CPU optimisation barriers forced on "
+                         "(docs/decisions/0006-gpu-kernels.md)")
     ap.add_argument("--compare", action="store_true", help="also render with numba on the host and compare")
     ap.add_argument("--data", type=Path, default=bench_suite.DATA)
     ap.add_argument("--out", type=Path, default=None, help="JSON file (its folder also gets the PNGs)")

@@ -5,7 +5,7 @@ Usage::
     python benchmarks/bench_host.py                              # synthetic 1024² all-sky, every pixel and adaptive
     python benchmarks/bench_host.py --size 512 --repeats 7 --profile
 
-On a GPU, a warm frame of the JAX kernel is mostly host work (docs/performance.md, sections 53, 66, 72): the rays'
+On a GPU, a warm frame of the JAX kernel is mostly host work (docs/decisions/0006-gpu-kernels.md): the rays'
 segments, the phase functions, the chunks' inputs and outputs, adaptive sampling between its batches, the image's
 planes and the colour stage, while the device's march of a 1024² all-sky takes tens of milliseconds. On a CPU that host
 work hides behind the JAX kernel's march (seconds). This script measures it on any machine: it replaces the compiled
@@ -13,12 +13,13 @@ chunk (:func:`swim.rt.march._trace_chunk`) by a stand-in that returns outputs of
 so that adaptive sampling refines (a smooth sky with sharp-edged "clouds" by direction), at a cost of a few
 milliseconds per chunk, and times warm renders of the suite's all-sky view with the JAX kernel in the GPU's chunks
 (``GPU_CHUNK`` rays; ``--chunk`` to change), taking turns between
-``MarchSettings.ray_table`` off and on (the camera's rays kept on the device, section 73). What it reports is the frame
-without its march: the host's share that a GPU frame pays, on this machine's cores (a GPU machine's host has more and
-faster ones). ``--profile`` adds a wall-clock profile of one frame of each variant (:mod:`wall_profile`).
+``MarchSettings.ray_table`` off and on (the camera's rays kept on the device, docs/decisions/0006-gpu-kernels.md). What
+it reports is the frame without its march: the host's share that a GPU frame pays, on this machine's cores (a GPU
+machine's host has more and faster ones). ``--profile`` adds a wall-clock profile of one frame of each variant
+(:mod:`wall_profile`).
 
 Since session 67 a GPU frame also finishes its image on the device (``MarchSettings.device_image``: the planes and the
-colour stage there) and takes a known scene's digest by identity (docs/performance.md, section 86); on a CPU both are
+colour stage there) and takes a known scene's digest by identity (docs/decisions/0006-gpu-kernels.md); on a CPU both are
 off by default, so the "with the table" variant measures the host's planes and colour stage. ``--device-image`` turns
 both on in that variant, as on a GPU: the device's part (the stand-in, the scatters, the colour stage) then runs on
 this machine's cores too and counts in the figure, which is then an upper bound of the host's share.
@@ -107,7 +108,9 @@ def main(argv=None):
     base = replace(kw["settings"], backend="jax") if "settings" in kw else MarchSettings(backend="jax")
     base = replace(base, chunk=args.chunk or march.GPU_CHUNK)
     march._trace_chunk = stand_in_chunk()
-    if args.device_image:  # as on a GPU (section 86): the digest by identity in every variant, the image with the table
+    # as on a GPU (docs/decisions/0006-gpu-kernels.md): the digest by identity in every variant, the image with the
+    # table
+    if args.device_image:
         import swim.pipeline as pipeline
 
         pipeline._speculate_digest = lambda settings: True

@@ -13,7 +13,7 @@ cent in the kernel. This script renders the suite's all-sky view of a scene once
 scenes and vantages), keeps the arguments of every call of :func:`swim.rt.march_cpu.march_rays` (each chunk of
 rays with the tables it reads), and replays them on one thread, several times, alternating between kernels:
 the minimum over the repeats then moves by ~1-2 %. It reports rays, samples (the medium's samples per ray that
-the kernel counts, docs/performance.md section 25), ns per sample and µs per ray.
+the kernel counts, docs/performance.md, "How to measure"), ns per sample and µs per ray.
 
 ``--scene mc`` captures the view of the suite's Monte Carlo case instead (``mc_ratio``: the RICO LES seen from
 the ground, :func:`swim.validation.mitsuba.swim_view`, 41² in the suite). ``--flush MB`` writes to a buffer of that
@@ -25,7 +25,7 @@ outside the caches (what a small render sees).
 largest difference of its outputs from the installed kernel's. ``--interleave`` alternates the kernels chunk by
 chunk instead of pass by pass and adds each one's time over the installed kernel's, with its range over the passes:
 the machine's load then falls alike on all of them, and two kernels' time ratio moves by ~1-3 % from pass to pass,
-where whole passes taken in turn differ by 5-10 % (docs/performance.md, section 64). Use it to judge a change of a
+where whole passes taken in turn differ by 5-10 % (docs/performance.md, "How to measure"). Use it to judge a change of a
 few per cent, against a plain copy of march_cpu.py replayed beside it: a copy compiled in this process ran 0.98-1.01
 times the installed kernel's time (loaded from numba's disk cache) in session 51.
 

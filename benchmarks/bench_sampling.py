@@ -15,13 +15,13 @@ what it reports is the sampler's alone: the pixels it traces, the march samples 
 three wavelengths of |L' - L'_full| / max(L'_full, 1e-3), over all valid pixels, the sky below ``--rim`` degrees of
 view zenith and the rim above it), the line-of-sight hydrometeor optical depth's (floor 0.1), and the cloud pixels it
 lost (optical depth > 0.3 in the full image, < a tenth of it interpolated). The march's own error, and the time, are
-``bench_settings.py``'s (docs/performance.md, sections 44-46 and 56).
+``bench_settings.py``'s (docs/decisions/0004-step-placement.md and docs/decisions/0005-adaptive-sampling.md).
 
 ``--device`` also replays each variant with :func:`swim.rt.image_sampling_device.sample_image_adaptive_device` (the
 image's arrays, tests and interpolation on the JAX device) and compares it with the host's sampler on the same image:
 the pixels that only one of them traced, each output's largest difference, and each sampler's time, taking turns
-(docs/performance.md, section 76). On a CPU that times the device sampler's JAX programs on the CPU; on a GPU machine
-it is what an adaptive frame's sampling costs there.
+(docs/decisions/0005-adaptive-sampling.md). On a CPU that times the device sampler's JAX programs on the CPU; on a GPU
+machine it is what an adaptive frame's sampling costs there.
 """
 
 from __future__ import annotations

@@ -14,16 +14,15 @@ such a variant renders adaptively); ``""`` is the defaults. ``--adaptive`` rende
 
 The scene and view are the suite's (``bench_suite.CASES``: ``synthetic_allsky`` is the 400 x 400 x 60 grid with all
 five species and terrain, seen from 2 m). The reference is one render of every pixel with ``--reference`` settings
-(default ``n_grid=1024,tau_refine=0.25``: the march converged to ~0.1 % in the median, docs/performance.md,
-sections 8, 43 and 44). Each variant is rendered once to warm up, then ``--repeats`` times, the variants taking
-turns so that the machine's drift (±15-25 % on this project's shared 2-core machine) falls on all of them alike;
-its time is the median. The error of a pixel is the largest over the three wavelengths of
-|L' - L'_ref| / max(|L'_ref|, 1e-3), reported as median / 99th / 99.9th percentile over all valid pixels, over those
-below a view zenith of ``--rim`` degrees (the sky overhead) and over those above it (the horizon's ring, where an
-all-sky image's rays are longest and most of the error lies). The hydrometeor optical depth along the line of sight
-(``tau_hydrometeor``, which adaptive sampling interpolates too) is compared the same way, with a floor of 0.1. Results
-go to
-``benchmarks/results/settings-<case>-<UTC date and time>.json`` (``--out`` to change).
+(default ``n_grid=1024,tau_refine=0.25``: the march converged to ~0.1 % in the median,
+docs/decisions/0002-per-ray-cpu-kernel.md and docs/decisions/0004-step-placement.md). Each variant is rendered once to
+warm up, then ``--repeats`` times, the variants taking turns so that the machine's drift (±15-25 % on this project's
+shared 2-core machine) falls on all of them alike; its time is the median. The error of a pixel is the largest over the
+three wavelengths of |L' - L'_ref| / max(|L'_ref|, 1e-3), reported as median / 99th / 99.9th percentile over all valid
+pixels, over those below a view zenith of ``--rim`` degrees (the sky overhead) and over those above it (the horizon's
+ring, where an all-sky image's rays are longest and most of the error lies). The hydrometeor optical depth along the
+line of sight (``tau_hydrometeor``, which adaptive sampling interpolates too) is compared the same way, with a floor of
+0.1. Results go to ``benchmarks/results/settings-<case>-<UTC date and time>.json`` (``--out`` to change).
 """
 
 from __future__ import annotations

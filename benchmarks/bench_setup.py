@@ -17,7 +17,7 @@ channels: :func:`swim.rt.march.volume_constants`; its swept levels, :func:`swim.
 before the packing as a render finds them). It prints the best and the
 median of each stage over the repeats after a first, warm-up one (numba's kernels loaded, NumPy's pools made). On
 this project's shared 2-core machine alternate runs of the two codes: a figure moves by 10-20 % from hour to hour
-(docs/performance.md, section 41).
+(docs/decisions/0007-scene-set-up.md).
 """
 
 from __future__ import annotations

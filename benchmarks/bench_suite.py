@@ -38,7 +38,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 DATA = ROOT.parent / "shared" / "data"
 #: A machine probe at most this many times the fastest one (of the suite's reference, taken before its first case, and
 #: of the case's own) counts as the machine's fast state (machine_probe.py: its two states are ~1.45x apart on the AMD
-#: EPYC, with probes between them too; docs/performance.md section 82).
+#: EPYC, with probes between them too; docs/performance.md, "How to measure").
 FAST_STATE = 1.1
 #: Seconds of one-pass probes before the first case whose fastest is the suite's reference (machine_probe.reference).
 PROBE_REFERENCE_S = 6.0
@@ -59,18 +59,20 @@ ORBIT = {"height": 700e3}
 ORBIT_FOV_DEG = 30.0
 # the same satellite 8 deg of latitude south of the synthetic scene's reference point, looking at it (a view zenith of
 # 49 deg there) with a 12 deg field of view: the image's upper rows see past the grid's far edge, where rays leave the
-# grid sideways on their way down to the ground (docs/performance.md, sections 51, 54)
+# grid sideways on their way down to the ground (docs/performance.md, "How to measure" and
+# docs/decisions/0004-step-placement.md)
 _LAT0, _LON0, _ = SYNTHETIC_REFERENCE
 ORBIT_OBLIQUE = {"lat": _LAT0 - 8.0, "lon": _LON0, "height": 700e3, "look_at": [_LAT0, _LON0, 0.0]}
 ORBIT_OBLIQUE_FOV_DEG = 12.0
 # the whole CONUS grid from geostationary orbit (GOES-East's longitude), looking at the grid's centre with a 9 deg
 # field of view (~5 800 km across at the grid): every column is in view, so nothing is cropped; one column of each
-# block as wide as a pixel's footprint (render's coarsen="auto": 3 x 3 at 512^2; docs/performance.md, section 92)
+# block as wide as a pixel's footprint (render's coarsen="auto": 3 x 3 at 512^2; docs/performance.md, "Distant views of
+# big grids")
 GEO = {"lat": 0.0, "lon": -75.2, "height": 35786e3, "look_at": [CONUS_REFERENCE[0], CONUS_REFERENCE[1], 0.0],
        "sun_zenith": 30.0, "sun_azimuth": 180.0}
 GEO_FOV_DEG = 9.0
 # swim.rt.image_sampling.AdaptiveSampling() defaults (since session 44; before: tolerance 0.01, coarse spacing 4, no
-# edge tests, docs/performance.md, section 56)
+# edge tests, docs/decisions/0005-adaptive-sampling.md)
 ADAPTIVE = {"tolerance": 0.0085, "coarse_spacing": 8, "edge_test_size": 8}
 
 CASES = {
@@ -350,7 +352,7 @@ def throughput(image, rays, seconds):
 
     if "march_samples" in image.attrs:
         backend = image.attrs.get("march_backend", "?")
-        # per-ray counts since session 16 (docs/performance.md 25.): older results hold lockstep counts
+        # per-ray counts since session 16 (docs/performance.md, "How to measure"): older results hold lockstep counts
         counted = "lockstep count" if backend == "jax" else "per-ray count"
         samples, how = (float(image.attrs["march_samples"]),
                         f"march_samples attribute of the render output ({counted}, {backend} kernel)")

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The fused grid march (swim.rt.march_pallas) on a lent GPU: the script given to the `device` tool in session 58
-# (docs/performance.md, section 72). Run from the repository root there, with the wheels swim needs beyond that
+# (docs/decisions/0006-gpu-kernels.md). Run from the repository root there, with the wheels swim needs beyond that
 # machine's image in .whl/ and the Katrina file in .devdata/wrf_katrina/ (both carried). STAGE=compare (the default):
 # the 1024^2 all-sky views with the fused kernel, each scene's captured chunk against the kernels in $AGAINST (default:
 # the lockstep loops and "fused-march", which session 58 could not time any more); STAGE=profile:
@@ -8,26 +8,29 @@
 # processes (the second reads the exported program with its Triton call); STAGE=table (session 59, the next GPU
 # session's first run, ~300 s): the synthetic 1024^2 all-sky's captured chunk with "fused" against "fused-march", and
 # warm frames with the camera's rays kept on the device (MarchSettings.ray_table, swim.rt.ray_table) against without,
-# taking turns: every pixel, adaptive and a new sun every frame (docs/performance.md, section 73; run in session 60,
-# section 74: ~340 s on a fresh H100, of which ~140 s compilations, so the adaptive and new-sun rows need SYNTHETIC_S=420);
-# STAGE=step1a (session 60, section 75): the tests of a new sun's Step 1a on the device, then frames with a new sun each
-# with and without it; STAGE=sampler (session 61, section 76): the device sampler's tests, then adaptive frames with
-# the sampler on the device against the host's; STAGE=readme: the README's render in two new processes; STAGE=next (the next GPU session's first run, ~300 s on a fresh machine): STAGE=sampler; then, on the warm machine,
-# STAGE=step1a (~200 s) and STAGE=readme (~100 s): run in session 66 (section 85), as STAGE=next, then STAGE=second
+# taking turns: every pixel, adaptive and a new sun every frame (docs/decisions/0006-gpu-kernels.md; run in session 60,
+# docs/decisions/0006-gpu-kernels.md: ~340 s on a fresh H100, of which ~140 s compilations, so the adaptive and new-sun
+# rows need SYNTHETIC_S=420); STAGE=step1a (session 60, docs/decisions/0006-gpu-kernels.md): the tests of a new sun's
+# Step 1a on the device, then frames with a new sun each with and without it; STAGE=sampler (session 61,
+# docs/decisions/0005-adaptive-sampling.md): the device sampler's tests, then adaptive frames with the sampler on the
+# device against the host's; STAGE=readme: the README's render in two new processes; STAGE=next (the next GPU session's
+# first run, ~300 s on a fresh machine): STAGE=sampler; then, on the warm machine, STAGE=step1a (~200 s) and
+# STAGE=readme (~100 s): run in session 66 (docs/decisions/0006-gpu-kernels.md), as STAGE=next, then STAGE=second
 # (STAGE=step1a with its tests cut short, then Nsight Compute's counters of the fused kernel) and STAGE=readme.
 # STAGE=blocks (session 66, the next GPU session's first run, ~300 s on a fresh machine): the captured chunk of the
 # synthetic 1024^2 all-sky with the fused kernels in other block shapes (benchmarks/pallas_registers.py: 512 rays x 16
 # warps caps ptxas at 128 registers, twice the occupancy of 128 x 4's 255, with 88 bytes of spills) and, first, 128 x 4
-# capped at 128 and 168 registers (session 68, section 87: the same occupancy as 512 x 16 with 128-ray lockstep), and
-# the scalar gathers of session 66's kernel, each against the render's kernel; since session 69 (section 88) first
-# the fused multiply-adds, alone and with the caps (512 x 16 left out: 128 x 4 at 128 registers has its occupancy
-# with less lockstep). STAGE=image (session 67, section 86; ~200 s on the warm machine after STAGE=blocks): the tests of
-# the image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it
-# against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it. STAGE=parts
-# (session 70, section 89; ~240 s): benchmarks/frame_parts.py, each of a warm frame's programs waited for, every pixel
-# and adaptive. STAGE=first (session 70: the next GPU session's first run, ~560 s on a fresh machine): STAGE=blocks,
-# then STAGE=parts; then STAGE=image on the warm machine.
-# Results go to $OUT/results.tar.gz (the device tool returns at most 8 files).
+# capped at 128 and 168 registers (session 68, docs/decisions/0006-gpu-kernels.md: the same occupancy as 512 x 16 with
+# 128-ray lockstep), and the scalar gathers of session 66's kernel, each against the render's kernel; since session 69
+# (docs/decisions/0006-gpu-kernels.md) first the fused multiply-adds, alone and with the caps (512 x 16 left out: 128 x
+# 4 at 128 registers has its occupancy with less lockstep). STAGE=image (session 67, docs/decisions/0006-gpu-kernels.md;
+# ~200 s on the warm machine after STAGE=blocks): the tests of the image finished on the device
+# (MarchSettings.device_image: its planes and colour there), then warm frames with it against without, taking turns,
+# every pixel and adaptive, and a wall-clock profile of each with it. STAGE=parts (session 70,
+# docs/decisions/0005-adaptive-sampling.md; ~240 s): benchmarks/frame_parts.py, each of a warm frame's programs waited
+# for, every pixel and adaptive. STAGE=first (session 70: the next GPU session's first run, ~560 s on a fresh machine):
+# STAGE=blocks, then STAGE=parts; then STAGE=image on the warm machine. Results go to $OUT/results.tar.gz (the device
+# tool returns at most 8 files).
 #
 # Preparing the carried folders here (both are in .git/info/exclude):
 #   for p in netCDF4 cftime pvlib pytz colour-science; do python3 -m pip download -q --no-deps --only-binary=:all: \
@@ -47,12 +50,13 @@ trap 'save; ls -la "$RES"' EXIT
 quiet() { grep -v "^WARNING\|^I0000\|absl"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
-step1a() {  # session 60's MarchSettings.step1a_on_device (section 75), ~200 s: its tests on the GPU first (the
+step1a() {  # session 60's MarchSettings.step1a_on_device (docs/decisions/0006-gpu-kernels.md), ~200 s: its tests on the GPU first (the
     # donating program runs only there; where the machine has pytest), then frames with a new sun each, taking turns
     timeout "${TESTS_S:-150}" python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
     timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
         --sun-series 3 --repeats 4 --out "$RES/step1a-synthetic.json" 2>&1 | quiet
-    # session 72 (section 91): the two paths' fields and the step classes that they flip, on the GPU's JAX (~60 s)
+    # session 72 (docs/decisions/0007-scene-set-up.md): the two paths' fields and the step classes that they flip, on
+    # the GPU's JAX (~60 s)
     timeout "${PATHS_S:-120}" python3 benchmarks/step1a_paths.py --sun 31.5 138 2>&1 | grep -v Warning | tee "$RES/step1a-paths.txt" | tail -5
 }
 readme() {  # the README's render at 1024^2 in two new processes (the second reads the first's caches)
@@ -62,7 +66,7 @@ readme() {  # the README's render at 1024^2 in two new processes (the second rea
         echo "README render at 1024^2, new process $k: $(python3 -c "import sys, time; print(f'{time.time() - float(sys.argv[1]):.2f}')" "$t0") s"
     done
 }
-sampler() {  # session 61's MarchSettings.device_sampling (section 76), ~300 s on a fresh machine: its tests on the GPU, then adaptive
+sampler() {  # session 61's MarchSettings.device_sampling (docs/decisions/0005-adaptive-sampling.md), ~300 s on a fresh machine: its tests on the GPU, then adaptive
     # frames with the sampler on the device against the host's, taking turns (the ray table on for both; the images
     # compared there, so the tests that render, which would compile the march here first, are left out)
     timeout "${TESTS_S:-120}" python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene and not render_with" tests/unit/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
@@ -80,7 +84,7 @@ kernel_counters() {  # session 66: Nsight Compute's counters of the fused kernel
         --data .devdata --repeats 1 --out "$RES/ncu-run/ncu-run.json" > "$RES/ncu-synthetic.txt" 2>&1
     grep -v "^WARNING\|^I0000\|absl" "$RES/ncu-synthetic.txt" | grep -i "swim_fused\|Registers\|Occupancy\|Throughput\|Stall\|Duration\|Eligible\|Issued\|Block Size\|Grid Size\|Warp Cycles\|Hit Rate\|Local" | head -80
 }
-blocks() {  # sessions 66, 68 and 69 (sections 85, 87 and 88), each against the render's kernel (since session 68
+blocks() {  # sessions 66, 68 and 69 (docs/decisions/0006-gpu-kernels.md), each against the render's kernel (since session 68
     # its tables read four channels a load): "f" fused multiply-adds (MarchSettings.fused_fma), "rN" at most N
     # registers per thread (PTX's .maxnreg: 168 fits three 128-ray programs per SM, 128 four, against two), "s" a
     # scalar gather per channel (session 66's kernel); most telling first, each line printed as it is timed (the
@@ -88,22 +92,22 @@ blocks() {  # sessions 66, 68 and 69 (sections 85, 87 and 88), each against the 
     timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --repeats 3 \
         --fused-blocks ${BLOCKS:-128x4f 128x4r168 128x4r168f 128x4s 128x4r128 128x4r128f} \
         --out "$RES/blocks-synthetic.json" 2>&1 | quiet
-    # should this JAX's Pallas not lower the vector loads (checked with JAX 0.10.2 only, section 87), the render's
-    # kernel with scalar gathers, and the caps with them
+    # should this JAX's Pallas not lower the vector loads (checked with JAX 0.10.2 only,
+    # docs/decisions/0006-gpu-kernels.md), the render's kernel with scalar gathers, and the caps with them
     [ -s "$RES/blocks-synthetic.json" ] || timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic \
         --data .devdata --repeats 3 --scalar-loads --fused-blocks 128x4sf 128x4r168s 128x4r168sf \
         --out "$RES/blocks-synthetic-scalar.json" 2>&1 | quiet
 }
-image() {  # session 67's MarchSettings.device_image (section 86): its tests on the GPU (the colour stage's float64
+image() {  # session 67's MarchSettings.device_image (docs/decisions/0006-gpu-kernels.md): its tests on the GPU (the colour stage's float64
     # on the device), then warm frames with the image finished on the device against the host, taking turns, and
-    # where a new process's README render (its caches warm) spends its ~11 s (section 85)
+    # where a new process's README render (its caches warm) spends its ~11 s (docs/decisions/0006-gpu-kernels.md)
     timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/test_color_device.py 2>&1 | tail -3 || true
     timeout "${IMAGE_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
         --repeats 5 --out "$RES/image-synthetic.json" 2>&1 | quiet
     save
     readme_profile
 }
-parts() {  # session 70 (section 89): each program of a warm 1024^2 frame waited for, every pixel and adaptive (the
+parts() {  # session 70 (docs/decisions/0005-adaptive-sampling.md): each program of a warm 1024^2 frame waited for, every pixel and adaptive (the
     # march, the table's rows, the sampler's tests, splits, scatters and fill, the planes, the colour stage), the rest
     # the host's; the first render compiles (~85 s on a fresh H200)
     timeout "${PARTS_S:-240}" python3 benchmarks/frame_parts.py --data .devdata --repeats 3 --profile \
@@ -135,7 +139,7 @@ elif [ "${STAGE:-compare}" = second ]; then  # session 66's second run on the wa
 elif [ "${STAGE:-compare}" = next ]; then  # the next GPU session's first run (~300 s on a fresh machine): the sampler
     # on the device; then, on the warm machine, STAGE=step1a (~200 s) and the README's render (STAGE=readme)
     sampler
-elif [ "${STAGE:-compare}" = readme ]; then  # the README's render with the ray table on by default (section 74: a
+elif [ "${STAGE:-compare}" = readme ]; then  # the README's render with the ray table on by default (docs/decisions/0006-gpu-kernels.md: a
     # new process's frame not yet timed with it)
     readme
 elif [ "${STAGE:-compare}" = sampler ]; then

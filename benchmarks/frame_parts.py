@@ -22,8 +22,8 @@ for comparison.
 The ray table, the device sampler and the image on the device are switched on (on a GPU they are the defaults). On a
 CPU the "device" is the host's cores: XLA's CPU code is slower than a GPU's for these programs, so use ``--stand-in``
 there to leave the march out (the images are then not physical) and read the figures as an upper bound. Results go to
-``benchmarks/results/frame-parts-<scene>-<UTC date and time>.json`` (``--out`` to change); docs/performance.md,
-section 89.
+``benchmarks/results/frame-parts-<scene>-<UTC date and time>.json`` (``--out`` to change);
+docs/decisions/0005-adaptive-sampling.md
 """
 
 from __future__ import annotations
@@ -121,8 +121,9 @@ def main(argv=None):
                        device_image=True)
     if args.stand_in:
         march._trace_chunk = bench_host.stand_in_chunk()
-        # a known scene's digest taken by identity and checked beside the march, as on a GPU (section 86); on a CPU
-        # the render hashes the scene first, which would count in the rest
+        # a known scene's digest taken by identity and checked beside the march, as on a GPU
+        # (docs/decisions/0006-gpu-kernels.md); on a CPU the render hashes the scene first, which would count in the
+        # rest
         import swim.pipeline as pipeline
 
         pipeline._speculate_digest = lambda settings: True

@@ -2,12 +2,13 @@
 
 The fused Pallas kernel (``swim.rt.march_pallas``) marches a program's block of rays in lockstep: its loop over the
 grid runs until the block's last ray has taken its last sample, and a ray that has finished runs the loop's body with
-its results discarded. Nsight Compute cannot see that waste (those threads are not predicated off: docs/performance.md,
-section 85). This script counts it on a CPU: it renders the suite's all-sky view with the numba kernel on one thread
-(so that its ``march_rays`` calls come in the pixels' order, the order of the GPU's batches with every pixel traced),
-replays the calls through ``sample_kinds.py``'s counting copy of the kernel, and takes each ray's samples in the grid
-(every kind but the clear air before and after it and the terminal steps). Each sample of the numba kernel is one
-iteration of the GPU's grid loop (a predicted halving samples the interval's first half in the same iteration).
+its results discarded. Nsight Compute cannot see that waste (those threads are not predicated off:
+docs/decisions/0006-gpu-kernels.md). This script counts it on a CPU: it renders the suite's all-sky view with the numba
+kernel on one thread (so that its ``march_rays`` calls come in the pixels' order, the order of the GPU's batches with
+every pixel traced), replays the calls through ``sample_kinds.py``'s counting copy of the kernel, and takes each ray's
+samples in the grid (every kind but the clear air before and after it and the terminal steps). Each sample of the numba
+kernel is one iteration of the GPU's grid loop (a predicted halving samples the interval's first half in the same
+iteration).
 
 For blocks of B consecutive rays it prints the efficiency, the sum of the rays' grid samples over the sum of B times
 each block's largest, and the iterations per ray that a program runs: in the order traced (8 x 8 pixel tiles,
@@ -21,7 +22,7 @@ the device sampler's row-major order (``np.flatnonzero``), in 8 x 8 tiles, sorte
 (the nearest pixel traced at an earlier level; the view zenith angle on the first) and sorted by the samples
 themselves; then the efficiency if each lane of a program marched K of the batch's consecutive rays one after the
 other (a finished ray's lane taking the next: "lane refill", one iteration per refill), and the programs that leaves
-per batch (docs/performance.md, section 86).
+per batch (docs/decisions/0006-gpu-kernels.md).
 
 Usage::
 

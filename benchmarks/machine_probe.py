@@ -7,20 +7,20 @@ Usage::
 
 This project's shared 2-core machines run the same code at (at least) two speeds, switching between them within a
 second to tens of seconds: on the AMD EPYC of sessions 59-65 the march's replay took 0.62 s in one state and 0.85-0.95 s in the other
-(docs/performance.md, section 82). A "fast hour" is an hour spent mostly in the first state. So a figure means little
-without the state it was taken in. The probe measures that state, independently of swim's code: the benchmark suite
-(``bench_suite.py``) takes a reference before its first case (:func:`reference`), then one probe before every warm
+(docs/performance.md, "How to measure"). A "fast hour" is an hour spent mostly in the first state. So a figure means
+little without the state it was taken in. The probe measures that state, independently of swim's code: the benchmark
+suite (``bench_suite.py``) takes a reference before its first case (:func:`reference`), then one probe before every warm
 render of a render case and one after the last, and stores them beside the render times (``machine_probe_ns``).
 
 The workload imitates the march's step loop without being it, so that a change to swim does not change the probe:
 rays of 96 steps through a (24, 48, 48, 8) float32 volume of 1.8 MB, each step a trilinear sample of 8 channels (eight
 corner loads of 32 bytes) and four wavelength lanes of multiply-adds and a Taylor polynomial. Rays leave in bundles of
 64 from one point in nearby directions, as a tile of pixels' rays do. The volume stays in the caches: like the march
-(sections 27, 47 and 64), the probe is bound by the instructions it issues, which is what the machine's slow state
-slows. A version with a 201 MB volume and libm's exponentials, bound by memory and calls, saw the slow state as 1.17×
-its fast one where the march saw 1.4× (section 82). Each core marches its own rays, in a compiled loop without the
-GIL, all cores at once. The result is the best of the passes (the least disturbed), as ns per sample per core: ~36 ns
-in that AMD EPYC's fast state, ~53 ns in its slow one.
+(docs/performance.md, "How to measure"), the probe is bound by the instructions it issues, which is what the machine's
+slow state slows. A version with a 201 MB volume and libm's exponentials, bound by memory and calls, saw the slow state
+as 1.17× its fast one where the march saw 1.4× (docs/performance.md, "How to measure"). Each core marches its own rays,
+in a compiled loop without the GIL, all cores at once. The result is the best of the passes (the least disturbed), as ns
+per sample per core: ~36 ns in that AMD EPYC's fast state, ~53 ns in its slow one.
 """
 
 from __future__ import annotations
@@ -160,9 +160,9 @@ def probe(cores=None, passes=3):
 
 def reference(seconds=6.0, cores=None):
     """The fastest of one-pass probes taken one after the other for ``seconds`` [s]: the machine's fast state, if
-    it visited it meanwhile (it switches within a second to tens of seconds, section 82). ``bench_suite.py`` takes
-    it once before its first case, so that a case that never sees the fast state is not judged against its own
-    fastest probe alone. Returns ns per sample [ns]."""
+    it visited it meanwhile (it switches within a second to tens of seconds, docs/performance.md, "How to measure").
+    ``bench_suite.py`` takes it once before its first case, so that a case that never sees the fast state is not judged
+    against its own fastest probe alone. Returns ns per sample [ns]."""
     ready(cores)
     best, end = math.inf, time.monotonic() + seconds
     while time.monotonic() < end:

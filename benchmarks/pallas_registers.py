@@ -1,6 +1,6 @@
 """Registers, spills and occupancy of the fused GPU march (``swim.rt.march_pallas``) for an H100/H200, on a CPU.
 
-Nsight Compute on an H200 (docs/performance.md, section 85) found the fused kernel at 255 registers per thread: two
+Nsight Compute on an H200 (docs/decisions/0006-gpu-kernels.md) found the fused kernel at 255 registers per thread: two
 programs of 128 rays per multiprocessor, 12.5 % occupancy, and its warps waiting on their gathers 59 % of the time.
 How many registers a variant of the kernel needs can be known without a GPU: this script captures the kernel's
 arguments from a small render of the synthetic scene (JAX's CPU backend), lowers it for CUDA
@@ -14,8 +14,9 @@ only 128 (four programs of 4 warps' worth per multiprocessor, at the price of sp
 Pallas offers no other cap (no ``maxnreg``); swim's kernels take one through their name (``--blocks 128x4r128``:
 128 registers per thread, PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`); ``128x4s``: the tables read by a scalar
 gather per channel (``MarchSettings.fused_vector_loads`` off, the kernel before session 68); ``128x4f``: the float32
-multiplies and adds free to be contracted into fused multiply-adds (``MarchSettings.fused_fma``, section 88). The
-grid loop's instructions are also counted by kind (``loop_ops``: FFMA, FMUL, FADD, FSEL, LDG, ...).
+multiplies and adds free to be contracted into fused multiply-adds (``MarchSettings.fused_fma``,
+docs/decisions/0006-gpu-kernels.md). The grid loop's instructions are also counted by kind (``loop_ops``: FFMA, FMUL,
+FADD, FSEL, LDG, ...).
 
 Needs, beside swim's own environment (nothing that the tests or a render need):
 

@@ -15,7 +15,7 @@ process, and then reads the hot addresses' machine code from its own memory and 
 * each hot code region (a kernel or a helper that numba did not inline) and its share;
 * numba's reference counting (``NRT_incref``/``NRT_decref``: a ``lock inc``/``lock dec`` on the array's count),
   found by its instructions: each array view that the kernel makes in a loop (``volume[k, j, i]``) costs one of
-  each, atomic, on a count that all threads share. This is how section 60 of docs/performance.md found that they
+  each, atomic, on a count that all threads share. This is how docs/decisions/0003-cpu-kernel-code.md found that they
   took ~1/4 of the march's cycles;
 * the hottest instructions with the few before them (a cost lands on the instruction after a slow one).
 

@@ -20,7 +20,7 @@ halvings and the roll-backs. The kinds:
 
 The copy is made by replacing lines of the kernel's source; the script stops with an error naming the line if the
 kernel has changed so that one is no longer found. The copy's other outputs are the kernel's (its samples agree with
-the installed kernel's count, which the table checks). docs/performance.md, section 80, has the first table.
+the installed kernel's count, which the table checks). What its counts decided: docs/decisions/0004-step-placement.md.
 """
 
 from __future__ import annotations

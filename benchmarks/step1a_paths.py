@@ -17,7 +17,7 @@ It prints, per field, the largest difference and how many cells differ, and how 
 (:func:`swim.rt.march.step_classes`: sunlit clear air where the direct sun's transmittance is at least
 ``SUNLIT_TRANSMITTANCE`` around a cell). The two paths round in another order (float32), so T differs by ~1e-5 in
 some cells; a class is a threshold on T, so a few cells near it may flip, and a ray that crosses one places its grid
-steps otherwise (docs/performance.md, section 91).
+steps otherwise (docs/decisions/0007-scene-set-up.md).
 """
 
 from __future__ import annotations

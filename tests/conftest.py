@@ -30,7 +30,7 @@ def _no_drops_inside_a_render_of_a_test():
 def _drop_compiled_programs_near_the_mapping_limit():
     """A pytest worker compiles thousands of JAX programs, ~3 memory mappings each, and JAX keeps them all: at
     vm.max_map_count XLA cannot map the next one and the worker later dies of a segmentation fault
-    (swim.memory, docs/performance.md section 90). Checked after each test, at most every 5 s (a count takes
+    (swim.memory, docs/decisions/0010-memory.md). Checked after each test, at most every 5 s (a count takes
     ~1 ms per 1 000 mappings)."""
     yield
     from swim.memory import release_compiled_programs

@@ -27,7 +27,7 @@ AFTER_MIN_STEPS = 4
 #: the middles of equal intervals. A straight path in grid indices measures the same from any two; the horizon's
 #: rays, whose height index bends over the Earth's curvature, measure a little less from fewer: from 16 rather than
 #: 64 at most 0.3 % less on the synthetic 400 x 400 x 60 all-sky (0.5 % of its rays one probe fewer) and 1 % on
-#: Katrina's (docs/performance.md, section 61). At most ``swim.rt.march_cpu.PROBE_BLOCK`` (one block of probes).
+#: Katrina's (docs/decisions/0003-cpu-kernel-code.md). At most ``swim.rt.march_cpu.PROBE_BLOCK`` (one block of probes).
 CELL_PROBES = 16
 #: Total solar irradiance at 1 AU [W m-2] (paper, Sect. 3.1).
 SOLAR_CONSTANT_W_M2 = 1362.0

@@ -1,7 +1,7 @@
 """Digests of arrays for swim's in-process caches: streaming XXH3-128 (``xxhash``).
 
-XXH3 hashes ~34 GB/s on one core here, SHA-256 1.8 GB/s (docs/performance.md, section 20). The digests key caches
-within one process (the stage cache's scene digest, the crop's column geometry); they are not meant to resist
+XXH3 hashes ~34 GB/s on one core here, SHA-256 1.8 GB/s (docs/decisions/0009-work-around-the-march.md). The digests key
+caches within one process (the stage cache's scene digest, the crop's column geometry); they are not meant to resist
 crafted collisions.
 """
 

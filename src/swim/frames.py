@@ -88,7 +88,7 @@ def enu_basis_ecef(lat, lon):
 @functools.lru_cache(maxsize=64)
 def _enu_basis_ecef_at(lat, lon):
     """:func:`enu_basis_ecef` of one point, remembered: a render asks for the same few points (observer, scene
-    reference) several times, ~25 us each with NumPy on scalars (docs/performance.md, section 34)."""
+    reference) several times, ~25 us each with NumPy on scalars (docs/decisions/0009-work-around-the-march.md)."""
     return _enu_basis_ecef(lat, lon)
 
 

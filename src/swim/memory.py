@@ -5,7 +5,7 @@ freed) live on the C heap, and the heaps of threads (the kernel's, the thread po
 middle of them. A render of a big grid frees hundreds of MB of such blocks in each stage (the optical volume's
 blocks of rows, Step 1a's levels, the ray march's chunks), which the process then holds as resident memory: the
 peak of a 1024^2 render of the 400 x 400 x 60 scene with three warm renders fell from 2 144 to 1 852 MB above the
-scene when :func:`swim.pipeline.render` called this between its stages (docs/performance.md, section 19).
+scene when :func:`swim.pipeline.render` called this between its stages (docs/decisions/0010-memory.md).
 ``malloc_trim(0)`` gives those pages back (it walks every arena), at a cost of 3-12 ms.
 
 The process's count of memory mappings is watched as well (:func:`release_compiled_programs`). Every XLA:CPU
@@ -14,7 +14,7 @@ thousands of programs (a pytest worker; a service rendering many different grids
 (``vm.max_map_count``, 65 530 by default). LLVM's linker inside XLA then fails to finish the next executable's code
 (setting its pages' protections needs new mappings) and, on that error path, frees the code but leaves the unwinder's
 record of its exception-handling frames behind: the next C++ exception anywhere in the process crashes it with a
-segmentation fault in ``libgcc_s`` (docs/performance.md, section 90).
+segmentation fault in ``libgcc_s`` (docs/decisions/0010-memory.md).
 """
 
 from __future__ import annotations

@@ -99,7 +99,8 @@ def _fingerprint(scene: xr.Dataset) -> str:
     those digests, in the variables' sorted order, and of the scene's attributes. The variables of a big scene are
     hashed on up to 8 threads (xxhash releases the GIL): the 12 MB RICO LES takes ~0.4 ms per render (7 ms with
     SHA-256 on the thread pool), the 0.47 GB of the 400 x 400 x 60 benchmark scene ~17 ms on one core here and
-    75 ms on one core of the H100 machine's host (docs/performance.md, sections 20 and 53)."""
+    75 ms on one core of the H100 machine's host (docs/decisions/0009-work-around-the-march.md and
+    docs/decisions/0006-gpu-kernels.md)."""
     names = sorted(scene.variables)
 
     def variable_digest(name):
@@ -253,7 +254,7 @@ def _fingerprint_by_identity(scene: xr.Dataset, guess: _DigestGuess | None) -> s
     digest is returned at once and ``guess`` checks it on another thread meanwhile (:meth:`_DigestGuess.held`,
     which :func:`render` asks before it returns, and the volume's build before it builds anything under the guessed
     digest). In an H100 frame of the 400 x 400 x 60 scene the hash of its 0.47 GB took ~14 ms of the host's
-    0.135 s (docs/performance.md, sections 74 and 86). Otherwise the digest is computed here, and with ``guess``
+    0.135 s (docs/decisions/0006-gpu-kernels.md). Otherwise the digest is computed here, and with ``guess``
     remembered with the identity."""
     if guess is None:
         return _fingerprint(scene)
@@ -299,7 +300,7 @@ def _phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type
     :func:`swim.optics.rayleigh.rayleigh_phase_function` and the two-term DHG of paper Eq. 28, Albers et al. 2020,
     doi:10.5194/amt-13-3235-2020) at the scattering-angle cosines ``cos_theta`` (n,), as numpy arrays: one compiled call, padded to a power of two (at least 256) so
     that a few sizes serve every image. Dispatched operation by operation they took 8 of the 36 ms of an 11²
-    image (docs/performance.md, section 12)."""
+    image (docs/decisions/0009-work-around-the-march.md)."""
     n = len(cos_theta)
     padded = padded_batch_size(n, 1 << 30)
     cos_theta = np.concatenate([np.asarray(cos_theta, np.float32), np.zeros(padded - n, np.float32)])
@@ -311,7 +312,7 @@ def _scene_directions(camera, rotation):
     """The camera's pixels' unit view directions in the scene frame, (ny * nx, 3) float64 (zeros where not valid), and
     the flat indices of its valid pixels (n,) in tile order (:func:`swim.rt.image_sampling.tile_order`): read-only,
     computed once for the last two cameras and rotations (a time series' frames and the renders of one view share
-    them; ~0.1 s per 1024^2 frame on the H100 machine's host, docs/performance.md, section 53).
+    them; ~0.1 s per 1024^2 frame on the H100 machine's host, docs/decisions/0006-gpu-kernels.md).
     ``rotation``: :func:`swim.frames.enu_to_scene_rotation` (3, 3)."""
     try:
         return _scene_directions_of(camera, np.asarray(rotation, dtype=float).tobytes())
@@ -479,7 +480,7 @@ def _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance, radius=SUN_ANGULA
     With another ``radius`` [rad] (at least 0.75 pixel), a circumsolar disc of that radius.
 
     Only its pixels are returned (rather than an image of zeros that a render added to its radiance: two passes
-    over 24 MB of float64 for a 1024^2 image, docs/performance.md, section 58)."""
+    over 24 MB of float64 for a 1024^2 image, docs/decisions/0009-work-around-the-march.md)."""
     none = np.zeros(0, np.int64), np.zeros(3)
     row, col = camera.pixel_of_direction(np.asarray(sun_enu)[None, :])
     if not (np.isfinite(row[0]) and np.isfinite(col[0])):
@@ -685,10 +686,10 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     The renders of a process share the last scene's stages: the optical volume, the packed grid and Step 1a. A
     render of the same scene and sun reuses them; a new sun (a time series' frame) redoes Step 1a only, into the
     same packed grid where no other render is running, else into a new one. Renders may run on several threads
-    at once (a dask worker's); docs/performance.md, section 66. Where the march runs on a GPU, a scene whose arrays
+    at once (a dask worker's); docs/decisions/0006-gpu-kernels.md Where the march runs on a GPU, a scene whose arrays
     were rendered before is recognised by them and hashed while the device marches; if their values were changed in
     place since, the render finds it before it returns and renders the scene again (a warning says so, and
-    ``progress`` counts the rays twice; docs/performance.md, section 86).
+    ``progress`` counts the rays twice; docs/decisions/0006-gpu-kernels.md).
     """
     call = dict(locals())
     guess = _DigestGuess()
@@ -874,14 +875,14 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
 
     def grid_constants():
         # The grid is packed first and the volume's extinctions become views of the packed channels, so the
-        # grid is held once before Step 1a's fields are made (docs/performance.md, memory); species that are zero
-        # everywhere are not packed (a march through fewer channels reads fewer cache lines, section 31)
-        # the species packed and Step 1a's levels with extinction depend on the volume alone: a new sun (a time
-        # series' frame) reuses them (their scans read every species' extinction: ~0.1 and ~0.2 s for the 400 x 400
-        # x 60 scene on this project's 2 cores, docs/performance.md, section 66)
+        # grid is held once before Step 1a's fields are made (docs/performance.md, "Memory"); species that are zero
+        # everywhere are not packed (a march through fewer channels reads fewer cache lines,
+        # docs/decisions/0007-scene-set-up.md) the species packed and Step 1a's levels with extinction depend on the
+        # volume alone: a new sun (a time series' frame) reuses them (their scans read every species' extinction: ~0.1
+        # and ~0.2 s for the 400 x 400 x 60 scene on this project's 2 cores, docs/decisions/0006-gpu-kernels.md)
         species = _STAGE_CACHE.get(("packed species", fingerprint), lambda: packed_species(volume))
         # before the packing, which makes the extinctions strided views: the scan of a new scene's contiguous
-        # arrays took 84-90 ms against 440-490 ms through the views (400 x 400 x 60, section 66)
+        # arrays took 84-90 ms against 440-490 ms through the views (400 x 400 x 60, docs/decisions/0006-gpu-kernels.md)
         nonzero_levels = _STAGE_CACHE.get(("step 1a levels", fingerprint), lambda: step1a_levels(volume))
         # A new sun refills the packed volume's Step 1a channels in place (the grid's channels are the same), where
         # this render is the only one in the process: beside others (a dask worker's threads) one of them may still
@@ -914,8 +915,9 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             del kept["volume"]  # (donated to the new copy on a GPU)
         else:
             # Step 1a, only the fields that the kernel constants read, written straight into the packed volume's
-            # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy (docs/performance.md, 70.)
-            # (the 3-D cloud scattering: the direct beam's delta-M scaled transmittance in place of T)
+            # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy
+            # (docs/decisions/0007-scene-set-up.md) (the 3-D cloud scattering: the direct beam's delta-M scaled
+            # transmittance in place of T)
             transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
                                                 backend=settings.backend, nonzero_levels=nonzero_levels,
                                                 out=step1a_channel_views(packed, species),
@@ -932,7 +934,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         if not settings.on_accelerator():
             # Step 1a's freed levels, before the ray march; not where the march runs on a GPU, whose host has the
             # memory to spare: there the trim took 0.06 s of a new sun's 0.58 s frame on an H100 machine's 16
-            # cores (docs/performance.md, sections 66, 74)
+            # cores (docs/decisions/0006-gpu-kernels.md)
             release_free_memory()
         return constants
 
@@ -1080,7 +1082,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             plane[pixels] = value[:, channel] if value.ndim == 2 else value
 
         # every channel at once on the pools' threads: the 13 channels' scatters of a 1024^2 all-sky took 77 ms
-        # one after the other on a GPU machine's host while the device idled (docs/performance.md, section 66)
+        # one after the other on a GPU machine's host while the device idled (docs/decisions/0006-gpu-kernels.md)
         parallel_map(scatter, [(key, c) for key, plane in planes.items() for c in range(plane.shape[0])],
                      min(threads(), 8) if pixels.size >= PLANES_THREADED_PIXELS else 1)
         planes = {key: plane.reshape(-1, ny, nx) for key, plane in planes.items()}
@@ -1142,7 +1144,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
 
             # (ny * nx, C) -> (C, ny, nx), one output at a time, its rows in blocks on several threads (NumPy's copy
             # without the GIL), each output dropped once copied: with all of them copied at once, every output and
-            # its copy were alive together, the render's peak for big images (docs/performance.md, section 83). The
+            # its copy were alive together, the render's peak for big images (docs/decisions/0010-memory.md). The
             # arrays travel in the blocks' items, so that no function outlives the loop holding the last output
             def copy_rows(block):
                 source, target, r0 = block
@@ -1166,7 +1168,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
 
     # Not where the march ran on a GPU: its chunks lived on the device, and on an H100 machine's host (16 cores, JAX's
     # runtime threads and their heaps) the two trims took 30-40 ms of a 0.4 s frame for ~0.2 GB of a 7 GB peak
-    # (docs/performance.md, section 66)
+    # (docs/decisions/0006-gpu-kernels.md)
     trim = ny * nx >= TRIM_MIN_PIXELS and not settings.on_accelerator()
     if trim:
         release_free_memory()  # the march's freed chunks, before the image is assembled

@@ -5,7 +5,7 @@ swim runs whole-grid copies, the Step 1a sweep, the rays' segments and the chunk
 malloc arenas, and arenas keep pages that :func:`swim.memory.release_free_memory` cannot give back. With new
 threads for every stage of every render, the resident memory after each warm 1024² render of the 400 x 400 x 60
 scene (image freed, heap trimmed) grew from 1 315 to 1 462 MB above the scene over six renders; with these
-long-lived threads it stays at 1 286-1 301 MB (docs/performance.md, section 19).
+long-lived threads it stays at 1 286-1 301 MB (docs/decisions/0010-memory.md).
 
 Tasks given to a pool must not wait on tasks of the same pool (a pool's threads could all be waiting); swim's
 tasks are leaves (NumPy and numba calls), and :func:`worker_pool` refuses to be called from one of its own

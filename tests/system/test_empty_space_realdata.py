@@ -7,7 +7,7 @@ from swim import MarchSettings, read_shdom_les, render
 
 def test_empty_steps_keep_the_rico_all_sky_as_accurate(shared_data):
     """Against a fine march (1024 grid steps, no limit on the empty ones), the default limit of 32 steps in empty
-    space (docs/performance.md, section 23) must leave the error of the default march where it was, although most
+    space (docs/decisions/0004-step-placement.md) must leave the error of the default march where it was, although most
     rays now take a quarter of the grid steps."""
     scene = read_shdom_les(shared_data / "les" / "rico122x106x39.txt")
     view = {"sun_zenith": 30.0, "sun_azimuth": 135.0, "height": 2.0, "camera_options": {"size": 63}}

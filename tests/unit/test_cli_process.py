@@ -1,5 +1,5 @@
 """The ``swim`` console command's process handling (swim.cli.main.run): the cyclic garbage collector paused while
-the command's modules load, then frozen (docs/performance.md, 24.)."""
+the command's modules load, then frozen (docs/decisions/0008-cold-start.md)."""
 
 import gc
 import subprocess

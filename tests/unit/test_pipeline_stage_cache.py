@@ -302,7 +302,7 @@ def test_a_new_sun_beside_another_render_packs_the_grid_anew():
 
 def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
     """The C heap's trims (swim.memory) follow a big image's march and a new sun's Step 1a on the host's cores, not
-    those on a GPU (docs/performance.md, sections 66, 74)."""
+    those on a GPU (docs/decisions/0006-gpu-kernels.md)."""
     from swim.rt.march import MarchSettings
 
     calls = []

@@ -120,7 +120,7 @@ def test_the_air_in_front_of_the_ground_does_not_depend_on_the_step_count(backen
     middle sample had gone below the ground: with 1-32 grid steps that light was 10-410 % too bright (the whole
     radiance up to 2.6 %). It now ends at the refined crossing, and where the crossing lies in the far half of
     the step before, that step is taken back and taken again up to it (swim.rt.march._terminal_step;
-    docs/performance.md, section 43)."""
+    docs/decisions/0004-step-placement.md)."""
     scene = _tiny_scene().copy()
     for name in ("cloud_liquid_content", "cloud_ice_content"):
         scene[name] = scene[name] * 0.0
@@ -665,8 +665,8 @@ def test_numba_and_jax_refine_alike_sample_by_sample(monkeypatch):
 def test_a_stopped_ray_samples_no_more_in_jax_than_in_numba(monkeypatch):
     """A ray that stops (in opaque cloud, or at the ground) leaves the JAX kernel's grid loop, as it leaves numba's:
     the rays stopped in opaque cloud take the same grid samples in both kernels, and those at the ground as many
-    but numba's terminal steps (up to 3). Before session 69 (docs/performance.md, 88.) JAX's rays went on to their
-    last grid step (50-105 samples more here), their later samples adding nothing."""
+    but numba's terminal steps (up to 3). Before session 69 (docs/decisions/0006-gpu-kernels.md) JAX's rays went on to
+    their last grid step (50-105 samples more here), their later samples adding nothing."""
     jax_steps, jax_out, numba_out = _grid_samples_of_both_kernels(monkeypatch, _tiny_scene(True), 150.0,
                                                                   stop_tau=40.0)
     numba_steps = np.asarray(numba_out["steps"])
@@ -805,8 +805,8 @@ def test_non_finite_rays_are_rejected_before_the_kernel(backend):
 @pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
 def test_packed_volume_is_one_host_array_without_empty_channels(aerosol_plume):
     """The packed volume is held once, as a read-only numpy array (the numba kernel reads it in place), and
-    without a 3-D aerosol its two all-zero channels are left out (docs/performance.md, memory), as are the species
-    that are zero everywhere (the tiny scene has cloud liquid and ice only; section 31)."""
+    without a 3-D aerosol its two all-zero channels are left out (docs/performance.md, "Memory"), as are the species
+    that are zero everywhere (the tiny scene has cloud liquid and ice only; docs/decisions/0007-scene-set-up.md)."""
     from swim.rt.march import HOST_CONSTANTS, _device_constants, packed_species
 
     scene = _tiny_scene(aerosol_plume)
@@ -1187,10 +1187,11 @@ def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean(ba
 def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
     """Beyond the grid the terrain keeps its edge heights, so a ray that leaves the grid sideways on its way down meets
     the ground before its segment after the grid ends (on the sea-level sphere). No later step finds a crossing in
-    the far half of that segment's last step: the ray's zero-length end step does (docs/performance.md, section 54).
-    Without it all 57 of these rays ended on the sea-level sphere, up to 1.2 km too far, with the air under the
-    terrain in their path (a view from orbit 8 deg off nadir had 2 % errors and stripes beyond the grid's far edge).
-    Against the analytic crossing (the sphere of radius R + the terrain's height) and the NumPy reference."""
+    the far half of that segment's last step: the ray's zero-length end step does
+    (docs/decisions/0004-step-placement.md). Without it all 57 of these rays ended on the sea-level sphere, up to 1.2 km
+    too far, with the air under the terrain in their path (a view from orbit 8 deg off nadir had 2 % errors and stripes
+    beyond the grid's far edge). Against the analytic crossing (the sphere of radius R + the terrain's height) and the
+    NumPy reference."""
     n, spacing, terrain = 12, 400.0, 20.0
     x = (np.arange(n) - n / 2 + 0.5) * spacing
     z = np.arange(0.0, 5000.0, 250.0) + 125.0
@@ -1219,7 +1220,7 @@ def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
 
 def test_samples_above_the_terrains_top_skip_its_lookup_and_meet_the_ground_alike(monkeypatch):
     """The numba kernel looks the terrain up only below its highest point (march_cpu.pack_parameters'
-    TERRAIN_TOP_MARGIN; docs/performance.md, section 62). Rays from 6 km down and from 300 m up and down onto the
+    TERRAIN_TOP_MARGIN; docs/decisions/0003-cpu-kernel-code.md). Rays from 6 km down and from 300 m up and down onto the
     tiny scene's 600 m hill, its flanks and the plain around it, and rays that graze it sideways: where they meet the
     ground, with what radiance and optical depths, the same as when every sample looks it up (to round-off: the sample
     before the crossing is then looked up when the crossing is found, not when it is taken)."""

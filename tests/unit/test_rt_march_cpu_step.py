@@ -1,7 +1,7 @@
 """Pieces of the CPU kernel's step (swim.rt.march_cpu) held to closed forms, and its cache hint.
 
 The whole kernel is held to the float64 reference and to the JAX kernel in test_rt_march.py; these check the
-shortcuts of section 29 of docs/performance.md on their own, where a slip would be small enough to hide there.
+shortcuts of docs/decisions/0003-cpu-kernel-code.md on their own, where a slip would be small enough to hide there.
 """
 
 import math
@@ -66,7 +66,8 @@ def test_sky_lanes_hold_the_sky_table_wavelengths_innermost():
 
 def test_corner_prefetch_reads_nothing_and_compiles_to_cache_hints():
     """Prefetching a block's corners, edges and outside of the grid included, changes nothing and leaves no
-    out-of-range address; on x86-64 the hint is a prefetch instruction (else the saving of section 29 is gone)."""
+    out-of-range address; on x86-64 the hint is a prefetch instruction (else the prefetch's saving,
+    docs/decisions/0003-cpu-kernel-code.md, is gone)."""
     volume = np.arange(3 * 4 * 5 * 7, dtype=np.float32).reshape(3, 4, 5, 7)
     step_at = np.zeros((6, march_cpu.PROBE_BLOCK))
     step_at[2:5, :6] = np.array([[0.0, 2.0, 1.5, -0.5, 2.0, np.nan],
@@ -84,7 +85,7 @@ def test_corner_prefetch_reads_nothing_and_compiles_to_cache_hints():
 
 def test_only_the_kernels_that_python_calls_have_python_wrappers():
     """Every compiled function of the CPU kernels' modules that Python does not call is compiled without numba's
-    CPython and C wrappers (an empty cache compiles the march ~17 % faster, docs/performance.md section 40), and
+    CPython and C wrappers (an empty cache compiles the march ~17 % faster, docs/decisions/0008-cold-start.md), and
     the kernels that the render calls keep theirs; a helper stays callable through ``callable_from_python``."""
     from swim.optics import columns_cpu
     from swim.rt import compose_cpu, ground_cpu, occupancy_cpu, solar_cpu
@@ -108,7 +109,7 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
 
 
 def test_the_march_compiles_with_the_slp_vectoriser_and_leaves_numbas_setting_as_it_was():
-    """The march (_march_ray_range) compiles with LLVM's SLP vectoriser on (section 48 of docs/performance.md) and
+    """The march (_march_ray_range) compiles with LLVM's SLP vectoriser on (docs/decisions/0003-cpu-kernel-code.md) and
     restores numba's global setting afterwards, also when the compilation fails."""
     assert isinstance(march_cpu._march_ray_range, march_cpu._VectorisingDispatcher)
     seen = []
@@ -139,7 +140,7 @@ def test_the_march_compiles_with_the_slp_vectoriser_and_leaves_numbas_setting_as
 def test_work_arrays_have_their_sizes_and_share_no_cache_line(sizes):
     """march_rays' work arrays: the sizes of work_sizes (which the CUDA kernel's local arrays take too), the types
     that _march_ray_range is compiled for, the multiple-scattering lanes zeroed, and each array on cache lines of its
-    own (docs/performance.md, section 50)."""
+    own (docs/decisions/0003-cpu-kernel-code.md)."""
     n_before, n_grid, n_after, n_probe, n_probe_max, n_clear, slots, n_species, n_channels, n_u = sizes
     work = march_cpu.work_arrays(*march_cpu.work_sizes(*sizes))
     names = list(precompile._argument_types()["_march_ray_range"])[-len(work):]
@@ -218,7 +219,7 @@ def _blocks_in_loops(body):
 def test_the_kernel_changes_no_reference_count_inside_its_loops():
     """The march kernel's loops take no array views (``volume[k, j, i]``, a table's row): numba raises and lowers a
     view's reference count with atomic instructions on a count that every thread shares, which took ~1/4 of the
-    march's cycles (docs/performance.md, section 60). In the compiled kernel (its helpers inlined) no reference
+    march's cycles (docs/decisions/0003-cpu-kernel-code.md). In the compiled kernel (its helpers inlined) no reference
     count changes inside a loop: only its arguments' and a view made once per call, before the loop over rays."""
     import re
 
@@ -256,7 +257,7 @@ def test_probes_round_to_the_nearest_cell_as_numpy_does_halves_to_even():
 def test_the_probes_loop_converts_no_float_to_an_integer():
     """_probe_indices' loop rounds in floating point: x86 converts float64 to int64 in vectors only with AVX-512,
     which the kernels leave out on Intel CPUs (swim.rt.numba_target), and scalar conversions there made the loop
-    take 8.2 % of the march's time instead of 4.0 % (docs/performance.md, section 62)."""
+    take 8.2 % of the march's time instead of 4.0 % (docs/decisions/0003-cpu-kernel-code.md)."""
     fresh = numba.njit(cache=False, fastmath=march_cpu._FASTMATH, error_model="numpy")(
         march_cpu._probe_indices.py_func)
     probe_at = np.zeros((6, march_cpu.PROBE_BLOCK))

@@ -1,7 +1,7 @@
 """The fused grid march (swim.rt.march_pallas) against the lockstep XLA loop it replaces on GPUs.
 
 No GPU is needed: on a CPU the Pallas kernel runs in Pallas's interpreter, the same program that Triton compiles
-on a GPU (its lowering is checked on the H100/H200 machines, docs/performance.md, section 72).
+on a GPU (its lowering is checked on the H100/H200 machines, docs/decisions/0006-gpu-kernels.md).
 """
 
 from dataclasses import replace
@@ -46,7 +46,8 @@ def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
     plume = case.startswith("plume")
     kernels = ("fused", "fused-march", "fused scalar", "fused-march scalar") if plume else ("fused-march",)
     extra = {} if plume else {"multiple_scattering": False, "empty_steps": 4, "n_probe": 16}
-    if "deep" in case:  # many splits and roll-backs: the pending intervals' compact stack (section 85) filled deep
+    # many splits and roll-backs: the pending intervals' compact stack (docs/decisions/0006-gpu-kernels.md) filled deep
+    if "deep" in case:
         kernels, extra = ("fused",), {"tau_refine": 0.02}
     scene = _tiny_scene(plume)
     origins, dirs = _random_rays(256, seed=1)
@@ -112,7 +113,7 @@ def test_a_block_whose_rays_have_stopped_takes_no_steps():
     """"fused-march": a block of rays that have all stopped (or are padding: not valid) leaves every loop of the
     kernel at once, its state as it came (``gap`` and ``s_last`` are not moved by samples that add nothing), while the
     other block of the batch is marched as when alone (the same bits); with its rays alive the first block's loops
-    do run (docs/performance.md, section 88)."""
+    do run (docs/decisions/0006-gpu-kernels.md)."""
     args, kwargs = captured_kernel_call("fused-march", values=True, plume=True)
     state, *rest = args
     kwargs = {**kwargs, "interpret": True, "block_rays": 64, "num_warps": 2}  # two blocks of 64 rays

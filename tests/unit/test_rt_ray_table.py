@@ -247,7 +247,7 @@ def test_ray_table_default_is_on_only_for_the_jax_kernel_on_an_accelerator(monke
 
 def test_step1a_and_sampler_on_the_device_by_default_only_on_an_accelerator(monkeypatch):
     """step1a_on_device and device_sampling (None by default) resolve like the ray table: on where the JAX kernel
-    runs on a GPU (measured faster there, docs/performance.md, section 85), off on a CPU and for the numba kernel
+    runs on a GPU (measured faster there, docs/decisions/0006-gpu-kernels.md), off on a CPU and for the numba kernel
     even when asked; the sampler on the device also needs the ray table."""
     import jax
 

@@ -40,7 +40,7 @@ def run() -> None:
     interpreter exits (~0.7 s after the README's render had written its picture). The collector is therefore
     paused until the command's modules are loaded (:func:`modules_loaded`), which then freezes them (the
     collector no longer visits them; they live as long as the process anyway), and everything is frozen before
-    the interpreter exits. Together 1.2-1.5 s of the README's render (docs/performance.md, 24.). Tests call
+    the interpreter exits. Together 1.2-1.5 s of the README's render (docs/decisions/0008-cold-start.md). Tests call
     :data:`app` in their own process and keep the collector as it is.
     """
     global _GC_PAUSED

@@ -4,7 +4,7 @@
 pass: 0.26-0.39 s for a 1024 x 1024 image on one core of the 2-core benchmark machine, 0.22 s of a warm 1024^2 render
 on both (its last stage, while the march's threads are idle). This kernel does the same arithmetic for each pixel in
 one pass: ~0.05 s on one core. JAX's fused version of it took 0.11 s (and 0.7 s to compile), so numba
-(docs/performance.md, section 58).
+(docs/decisions/0009-work-around-the-march.md).
 
 The arithmetic is that of the NumPy functions, step by step and in their order (paper, Sect. 3.8):
 
@@ -17,7 +17,7 @@ The arithmetic is that of the NumPy functions, step by step and in their order (
 3. :func:`swim.color.display.encode_srgb8`: clipped to [0, 1], the sRGB transfer function, rounded to 0-255. The
    kernel finds each code among the 255 linear values at which the code steps up (:func:`code_tables`, found once
    with the transfer function itself) instead of computing a ``pow`` per channel: three ``pow`` were half of a
-   pixel's ~57 ns (docs/performance.md, section 63).
+   pixel's ~57 ns (docs/decisions/0009-work-around-the-march.md).
 
 ``tests/unit/test_color.py`` holds it to the NumPy chain.
 """

@@ -122,7 +122,7 @@ def _pixel_centres(ny: int, nx: int) -> tuple[np.ndarray, np.ndarray]:
 
 #: Pixels per block of :func:`_view_angles` [-]: its float64 temporaries (~70 bytes a pixel) for a block at a time
 #: rather than the whole image, whose first render computes them after the march, with the image's planes alive
-#: (at 2048^2 the render's peak was there: docs/performance.md, section 83).
+#: (at 2048^2 the render's peak was there: docs/decisions/0010-memory.md).
 VIEW_ANGLE_BLOCK = 1 << 16
 
 

@@ -2,9 +2,9 @@
 
 A satellite's view of a whole HRRR-size grid (1799 x 1059 x 50 columns of 3 km) from geostationary orbit sees ~20
 km per pixel in a 256^2 image, yet the render would build the optical volume of every 3 km column: 14.3 GB and 64-82 s
-on this project's 2-core machine (docs/performance.md, section 92). Where each pixel covers several columns,
-:func:`coarsen_scene` makes one column of each block of ``factor`` x ``factor`` columns before anything is read in
-full (lazy arrays stay lazy), so that the volume, Step 1a and the march hold ``factor``^2 times fewer columns.
+on this project's 2-core machine (docs/performance.md, "Distant views of big grids"). Where each pixel covers several
+columns, :func:`coarsen_scene` makes one column of each block of ``factor`` x ``factor`` columns before anything is read
+in full (lazy arrays stay lazy), so that the volume, Step 1a and the march hold ``factor``^2 times fewer columns.
 :func:`coarsening_factor` chooses the largest blocks no wider than the smallest pixel footprint on the grid.
 
 :data:`METHODS`, how a block's columns become one:
@@ -26,7 +26,7 @@ full (lazy arrays stay lazy), so that the volume, Step 1a and the march hold ``f
 
 On the synthetic CONUS grid seen from geostationary orbit at 256^2 (blocks of 7 x 7 columns), against the render
 of the whole grid, the grid's pixels came out on average 6 % darker with ``"sample"``, 19 % darker with
-``"effective_thickness"`` and 43 % brighter with ``"mean"`` (docs/performance.md, section 92).
+``"effective_thickness"`` and 43 % brighter with ``"mean"`` (docs/performance.md, "Distant views of big grids").
 
 With the means, over a block:
 

@@ -19,7 +19,7 @@ few of its cells under the observer. See ``docs/rendering.md``, "Cropping big gr
 
 The reach of a camera's rays (most of the window's time) is remembered for the next window with the same camera,
 observer and grid, so that a repeated render or a fixed camera's time series redoes only the ray towards the sun
-and the sun-ward margin (docs/performance.md, section 18).
+and the sun-ward margin (docs/decisions/0006-gpu-kernels.md).
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ MAX_CROP_FRACTION = 0.9
 #: The render's crop widens its window to whole blocks of columns, each block a power of two near this fraction of the
 #: window's extent (at least :data:`MIN_CROP_BLOCK` columns): a camera that moves by less than a block keeps the same
 #: crop, so the frames of a fly-through reuse its optical volume and Step 1a instead of rebuilding them
-#: (docs/performance.md, section 21). The window then holds up to ~2 / 8 more columns per axis.
+#: (docs/decisions/0007-scene-set-up.md). The window then holds up to ~2 / 8 more columns per axis.
 CROP_BLOCK_FRACTION = 1.0 / 8.0
 #: Smallest block of columns of :data:`CROP_BLOCK_FRACTION`.
 MIN_CROP_BLOCK = 8
@@ -108,7 +108,8 @@ def _in_memory(scene: xr.Dataset, name: str, dims: tuple) -> np.ndarray | None:
     """The values of ``name`` as a NumPy array with axes ``dims`` (a length-1 ``time`` dropped), without an
     xarray object on the way, where they are held in memory; None where they are lazy (dask, a file) or shaped
     otherwise (the xarray path then reads them, and reports what is wrong). A repeated render of a small image
-    spent ~3 ms of its ~25 ms making DataArrays for the few values the window needs (docs/performance.md, 26.)."""
+    spent ~3 ms of its ~25 ms making DataArrays for the few values the window needs
+    (docs/decisions/0009-work-around-the-march.md)."""
     var = scene.variables.get(name)
     if var is None or type(var._data) is not np.ndarray:  # noqa: SLF001 - only a plain in-memory array, not read
         return None
@@ -527,7 +528,7 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
     # follow with the same camera, observer and grid: a time series or a repeated render redoes only the sun. The
     # windows made with them are remembered too, per sun and margins: a render repeated under the same sun (an
     # assimilation's calls of the operator on one grid) does not trace the sun's ray again (~0.5 ms, a 30th of a
-    # 41 x 41 render; docs/performance.md, section 33).
+    # 41 x 41 render; docs/decisions/0009-work-around-the-march.md).
     key = None
     if isinstance(directions, Camera) and valid is None:
         key = (directions, columns.digest(), lat, lon, height, top, edge_max, tuple(grounds), samples)

@@ -7,8 +7,8 @@ values, a zeroed extinction array, the scatter into it, one ``take`` per target 
 resampling were found by one ``searchsorted`` per model level: 1.0-1.4 s for the 400 x 400 x 60 scene with all five
 species on this project's 2 cores. These kernels do each in one pass (0.39-0.50 s) and give the same bits: the weights
 and the interpolation in float32, operation by operation as NumPy rounds them (no fast-math, so no contraction into
-FMAs), and the physics of Eq. 7 stays in :mod:`swim.optics.hydrometeors`, on the cloudy cells only (docs/performance.md,
-section 69).
+FMAs), and the physics of Eq. 7 stays in :mod:`swim.optics.hydrometeors`, on the cloudy cells only
+(docs/decisions/0007-scene-set-up.md).
 
 They release the GIL, so :func:`swim.workers.in_blocks` and :func:`swim.workers.parallel_map` run them on every core,
 a block of columns each.

@@ -211,7 +211,7 @@ class ColumnInterpolation:
 
         # one compiled pass per block of columns (a merge of each column's model levels with the regular ones), on
         # every core: NumPy's searchsorted per model level, running counts and takes per level, 0.3 s for 400 x 400
-        # x 60 (docs/performance.md, section 69), gave the same values
+        # x 60 (docs/decisions/0007-scene-set-up.md), gave the same values
         in_blocks(lambda c0, c1: column_weights(h[:, c0:c1], levels, top[c0:c1], ground[c0:c1], self.k0[:, c0:c1],
                                                 self.w[:, c0:c1], self.zero[:, c0:c1]), ncol)
         self.shape = (levels.size,) + height.shape[1:]
@@ -228,7 +228,7 @@ class ColumnInterpolation:
         ``values`` (nz, ...) holds those columns only (any shape whose trailing axes flatten to c1 - c0), so a
         big grid can be resampled in blocks of rows, each with small temporaries. A target level whose model
         levels either side are zero in every one of these columns is zero, without interpolating: a cloud
-        species fills a few of a model's levels (docs/performance.md, section 42)."""
+        species fills a few of a model's levels (docs/decisions/0007-scene-set-up.md)."""
         n = c1 - c0
         v = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
         nz = values.shape[0]
@@ -386,7 +386,7 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     interpolation = ColumnInterpolation(height, terrain, levels)
     # Eq. 7 and the resampling in blocks of rows: the float64 temporaries of a species (content, radius,
     # extinction, masks) then take ~16 MB each instead of a whole field each (~77 MB each for 400 x 400 x 60),
-    # which set the peak memory of a render of a big grid (docs/performance.md, memory). The blocks run on every
+    # which set the peak memory of a render of a big grid (docs/performance.md, "Memory"). The blocks run on every
     # core (NumPy releases the GIL), each thread's blocks that much smaller, so the temporaries stay ~16 MB each.
     workers = threads()
     rows = max(1, min(ny, _BLOCK_BYTES // (8 * nz * nx * workers)))
@@ -411,7 +411,7 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
             cells = nz * (j1 - j0) * nx
             where, values = np.empty(cells, np.int64), np.empty(cells, np.float64)
             # one pass: the check of the values and the cloudy cells (1-10 % of a model's cells), where Eq. 7 is
-            # computed: elsewhere beta is 0 (docs/performance.md, sections 42 and 69)
+            # computed: elsewhere beta is 0 (docs/decisions/0007-scene-set-up.md)
             bad, present = scan_content(content, where, values)
             if bad:
                 content = np.asarray(content, dtype=float)

@@ -6,8 +6,8 @@ B1-B3; thick-cloud terms, Eqs. 19-23) seen from below, blended with the cloud-to
 above (Albers et al. 2020, doi:10.5194/amt-13-3235-2020, with the decisions of docs/phase-functions.md and
 docs/rendering.md, "Overcast accuracy"). In JAX that is one XLA program per chunk of rays; for the small chunks of
 a small image its dispatch, its wait on XLA's threads and its share of the GIL cost more than its arithmetic (~1 ms
-of a 41 x 41 render's ~15, docs/performance.md, section 35). This module computes the same per ray, without the GIL,
-in the worker that marched the chunk, after the ground's term (Eq. 35, its BRDFs: :mod:`swim.rt.ground_cpu`).
+of a 41 x 41 render's ~15, docs/decisions/0009-work-around-the-march.md). This module computes the same per ray, without
+the GIL, in the worker that marched the chunk, after the ground's term (Eq. 35, its BRDFs: :mod:`swim.rt.ground_cpu`).
 
 Each function mirrors a function of :mod:`swim.optics.phase` or :mod:`swim.rt.solar` (named in its docstring) and
 reads its coefficients from there; ``tests/unit/test_compose_cpu.py`` holds this module to the JAX composition.

@@ -3,7 +3,7 @@
 JAX's persistent compilation cache (:mod:`swim.rt.compilation_cache`) keeps the compiled executables, but every new
 process still traces each jitted function in Python and lowers it to StableHLO before it can look the executable up.
 For the lockstep march (:func:`swim.rt.march._trace_chunk`) that is ~1.1 s of a new process's first render on a CPU
-(0.8 s of tracing, 0.3 s of lowering: docs/performance.md, section 67; ~3 s under cProfile on a GPU host, section
+(0.8 s of tracing, 0.3 s of lowering: docs/decisions/0008-cold-start.md; ~3 s under cProfile on a GPU host, section
 66). :func:`exported_jit` wraps a function like ``jax.jit`` and, the first time a process calls it with given static
 arguments and input shapes, loads the function's serialized ``jax.export.Exported`` from
 ``$SWIM_CACHE_DIR/jax-export`` instead of tracing it; where there is none, it exports the function, writes it there

@@ -224,7 +224,7 @@ def _slant_optical_depth(h, mu, heights, beta, top, radius, n_steps=400):
     tau = np.empty((r0.size, beta.shape[1]))
     # Blocks of start points bound the temporaries. The height grid is equally spaced, so a sample's cell is its
     # height over the spacing, found once for all channels (numpy.interp searched the grid for every sample and
-    # channel), and each channel is gathered from its own contiguous column (docs/performance.md, section 40).
+    # channel), and each channel is gathered from its own contiguous column (docs/decisions/0008-cold-start.md).
     block = max(1, 262144 // n_steps)
     n_nodes = heights.size
     columns = np.ascontiguousarray(beta.T)

@@ -5,8 +5,9 @@
 (Kokhanovsky) and water (Fresnel, Cox-Munk glint, water-leaving light) reflectance of :mod:`swim.surface`, lit by Step
 1a's cloud transmittance and terrain shadow and seen through the clear sky and the hydrometeors on the way. In JAX it
 is one XLA program per chunk whose tracing costs ~0.6 s in every new process (the README's render) and whose dispatch
-costs a few per cent of a big warm render (docs/performance.md, section 37). This module computes the same per ray,
-without the GIL, in the worker that marched the chunk, after :mod:`swim.rt.compose_cpu` has done the clouds' part.
+costs a few per cent of a big warm render (docs/decisions/0009-work-around-the-march.md). This module computes the same
+per ray, without the GIL, in the worker that marched the chunk, after :mod:`swim.rt.compose_cpu` has done the clouds'
+part.
 
 Each function mirrors one of :mod:`swim.surface.lighting`, :mod:`swim.surface.brdf`, :mod:`swim.surface.water` or
 :mod:`swim.rt.march` (named in its docstring) and reads its constants and normalisation tables from there

@@ -21,7 +21,7 @@ display", Commun. ACM 23, 343-349, doi:10.1145/358876.358882, with an explicit e
 
 With the defaults (a spacing of 8 and edge tests in cells of 8 pixels) a smooth image is traced on the lattice of
 every 4th row and column, 1/16 of its pixels, and each 8 x 8 cell is tested at 5 of them. A feature smaller
-than a cell that touches none of its tested pixels can be missed; docs/performance.md (sections 9, 45 and 56)
+than a cell that touches none of its tested pixels can be missed; docs/decisions/0005-adaptive-sampling.md
 gives the measured errors on real scenes.
 """
 
@@ -46,7 +46,7 @@ class AdaptiveSampling:
         Largest relative difference [-] between a cell's traced centre (and edge midpoints') radiance, in each
         channel, and the interpolation of its corners for the cell to be interpolated. Default 0.0085 (0.01 before
         session 44: with the edge tests, 0.0085 gives a smaller interpolation error than 0.01 without them, on
-        every scene measured, for fewer rays; docs/performance.md, section 56).
+        every scene measured, for fewer rays; docs/decisions/0005-adaptive-sampling.md).
     coarse_spacing : int
         Pixels between the rows and columns of the first lattice (>= 2). Larger spacings trace fewer rays in
         smooth regions and risk missing smaller features. Default 8 (4 before session 44).
@@ -57,7 +57,7 @@ class AdaptiveSampling:
         The same for the hydrometeor optical depth along the line of sight [-]. Default 0.05: the test is
         there to catch clouds whose radiance happens to match the sky's; at 1 % it refined smooth thick
         cloud for the optical-depth image alone (~14 % of an all-sky render's rays, 17 % of its time,
-        docs/performance.md, section 45).
+        docs/decisions/0005-adaptive-sampling.md).
     tau_floor : float
         Absolute hydrometeor optical depth [-] added to the tolerance of the optical-depth test.
     edge_test_size : int
@@ -67,7 +67,7 @@ class AdaptiveSampling:
         they are interpolated from too (:func:`quarters_of_edged_cells`); with the
         default coarse spacing and tolerance they trace 10-28 % fewer rays than a spacing of 4 with centre tests
         alone at a 1 % tolerance, with a smaller 99.9th percentile of the interpolation's error
-        (docs/performance.md, section 56). Default 8.
+        (docs/decisions/0005-adaptive-sampling.md). Default 8.
     clear_tolerance : float
         The same as ``tolerance`` for the gas and aerosol part of the radiance (``radiance_clear``, with the floor
         ``radiance_floor``), where the trace returns it; 0: no such test. Seen from below, the air between the
@@ -75,7 +75,7 @@ class AdaptiveSampling:
         jumps from a near cloud to a far one: there the optical depth along the line of sight, capped where rays stop
         (``MarchSettings.stop_tau``), does not change, and the total radiance may happen to. Default 0.05: on the
         CONUS all-sky it takes the interpolation's largest error from 53 % to 21 % (pixels more than 10 % off: 14 →
-        2) for 0.7 % more traced pixels, and changes nothing on Katrina (docs/performance.md, section 59).
+        2) for 0.7 % more traced pixels, and changes nothing on Katrina (docs/decisions/0005-adaptive-sampling.md).
     """
 
     tolerance: float = 0.0085
@@ -113,7 +113,7 @@ def tile_order(flat, shape, tile=TRACE_TILE):
     Rays of neighbouring pixels cross the same grid cells, so traced one after the other they find them in the
     CPU's caches; in image rows they revisit a cell only a row (hundreds of rays) later. On the 400 x 400 x 60
     scene (0.9 GB volume) a 511^2 all-sky renders ~5 % faster in 8 x 8 tiles than in rows; on small grids,
-    which stay in the caches, the order makes no difference (docs/performance.md, section 16).
+    which stay in the caches, the order makes no difference (docs/decisions/0003-cpu-kernel-code.md).
 
     Parameters
     ----------
@@ -200,7 +200,8 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     def run(wanted):
         # the new valid pixels among those ``wanted`` (a mask over the image), in increasing order: not np.unique's
         # sort of a list with duplicates, which took 135-154 ms of the synthetic 1024^2 all-sky's three batches
-        # (131 000-347 000 pixels) on the main thread while the cores idled (docs/performance.md, 37.)
+        # (131 000-347 000 pixels) on the main thread while the cores idled
+        # (docs/decisions/0009-work-around-the-march.md)
         flat = np.flatnonzero(wanted & valid_flat & ~traced)
         if flat.size == 0:
             return
@@ -272,7 +273,7 @@ def quarters_of_edged_cells(cells, edge_test_size):
     interpolated from four traced corners: the fill then meets every traced pixel of the cell, where the four corners
     alone missed the five tested ones (on the 1024^2 all-sky of the 400 x 400 x 60 scene, the same traced pixels,
     the radiance's median error against the converged reference 0.079 -> 0.066 % below a view zenith of 72 deg, the
-    hydrometeor optical depth's 0.055 -> 0.020 %; docs/performance.md, section 78).
+    hydrometeor optical depth's 0.055 -> 0.020 %; docs/decisions/0005-adaptive-sampling.md).
 
     Parameters
     ----------
@@ -341,8 +342,9 @@ def _smooth_cells(values, valid_flat, traced, cells, nx, sampling, max_threads=1
 
     One compiled pass per output over the cells (:mod:`swim.rt.smooth_cpu`): the NumPy gathers it replaces took ~0.09
     s of a 1024^2 all-sky's three levels while the march's threads waited, for the same decisions
-    (docs/performance.md, section 60). Each cell is tested on its own, so the cells are split into up to
-    ``max_threads`` blocks tested at once (the kernels release the GIL; section 63)."""
+    (docs/decisions/0003-cpu-kernel-code.md). Each cell is tested on its own, so the cells are split into up to
+    ``max_threads`` blocks tested at once (the kernels release the GIL;
+    docs/decisions/0009-work-around-the-march.md)."""
     from .smooth_cpu import cells_match, cells_traced_alike
 
     ok = np.ones(len(cells), bool)
@@ -378,7 +380,7 @@ def _fill(values, traced, valid_flat, levels, nx, max_threads=1):
     Float arrays go through the compiled :func:`swim.rt.fill_cpu.fill_cells`, all of one precision in one pass over
     the cells' pixels (the weights computed once per pixel and rounded once to the arrays' precision), on bands of
     image rows, one per thread: 0.17 s of a 1024^2 all-sky's end in NumPy, ~0.03 s compiled one output at a time, the
-    NumPy gathers giving the same bits (docs/performance.md, sections 58 and 63). Booleans are copied from a corner
+    NumPy gathers giving the same bits (docs/decisions/0009-work-around-the-march.md). Booleans are copied from a corner
     (the corners of a smooth cell agree), integers (step counts) are 0, one array per thread."""
     if not any(len(cells) for cells in levels):
         return

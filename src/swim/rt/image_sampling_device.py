@@ -1,7 +1,7 @@
 """Adaptive image sampling with the image on the device (JAX): the quadtree of
 :func:`swim.rt.image_sampling.sample_image_adaptive` as whole-image array operations.
 
-On a GPU the host's sampler is most of an adaptive frame (docs/performance.md, section 74: 68 % of a 1024^2 all-sky's
+On a GPU the host's sampler is most of an adaptive frame (docs/decisions/0006-gpu-kernels.md: 68 % of a 1024^2 all-sky's
 0.135 s on an H100): after each batch of rays the march's outputs come back to the host, are scattered into the
 image's arrays, its cells are tested there and the next batch's pixels listed, and at the end the smooth cells are
 interpolated, while the device waits. Here the image's arrays stay on the device. The cells of a level are not a list
@@ -217,7 +217,7 @@ def _fill(arrays, smooth_levels, traced, valid, *, nx, edge_test_size, levels_ke
     """Every array (N, C) with the untraced valid pixels of the smooth cells interpolated from their corners, level
     by level coarse to fine (a pixel of a finer smooth cell takes its value): :func:`swim.rt.image_sampling._fill`.
     Each pixel is interpolated once, in the finest smooth cell that holds it (8.5x less time on a CPU for a 1024^2
-    frame than every level in turn; docs/performance.md, section 89).
+    frame than every level in turn; docs/decisions/0005-adaptive-sampling.md).
     A smooth cell that tested its edges is interpolated by its children on the next level, its quarters, whose
     corners are its traced corners, edge midpoints and centre
     (:func:`swim.rt.image_sampling.quarters_of_edged_cells`); a cell whose centre is traced and strictly inside it
@@ -388,7 +388,7 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
     References
     ----------
     Whitted, T. (1980), "An improved illumination model for shaded display", Commun. ACM 23, 343-349,
-    doi:10.1145/358876.358882 (the refinement); docs/performance.md, sections 9, 56 and 76 (this module).
+    doi:10.1145/358876.358882 (the refinement); docs/decisions/0005-adaptive-sampling.md (this module).
     """
     valid = np.asarray(valid)
     if valid.ndim != 2 or valid.dtype != bool or min(valid.shape) < 3:

@@ -27,8 +27,8 @@ and ground behind it are attenuated by its optical depth. docs/rendering.md stat
 The kernels are JAX (float32, jit-compiled once per batch size, chunked over pixels). On a CPU the step
 loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, ~5x faster there), with its
 per-ray set-up (:func:`swim.rt.march_cpu.prepare_rays`) and the clouds' composition (:mod:`swim.rt.compose_cpu`)
-and the ground's (:mod:`swim.rt.ground_cpu`) in numba too (:attr:`MarchSettings.backend`; docs/performance.md,
-sections 8, 30, 35 and 37).
+and the ground's (:mod:`swim.rt.ground_cpu`) in numba too (:attr:`MarchSettings.backend`;
+docs/decisions/0002-per-ray-cpu-kernel.md and docs/decisions/0009-work-around-the-march.md).
 """
 
 from __future__ import annotations
@@ -109,14 +109,14 @@ class MarchSettings:
         lies above its exit, at least :data:`swim.constants.AFTER_MIN_STEPS` (:func:`after_step_counts`; the midpoint
         rule's error of the segment, relative to the ray's clear sky, then stays the same). Default 28: the rays of a
         ground view of the RICO LES (grid top 2 km, 2.4 km wide) take 22-28, 2 % more samples than 24 each and
-        12 % less error; those leaving a 20 km grid top 6 (docs/performance.md, section 49).
+        12 % less error; those leaving a 20 km grid top 6 (docs/decisions/0004-step-placement.md).
     empty_steps : int or None
         Most grid steps [-] that a ray puts into the empty (unoccupied) part of its grid segment, unless that part
         is longer than 2 ``empty_steps`` cells (then one step per :data:`EMPTY_CELLS_PER_STEP` empty cells);
         its occupied part keeps the step density that ``n_grid`` gives it, so a ray that crosses clear air only
         takes ``empty_steps`` steps instead of ``n_grid`` (:func:`grid_step_edges`). None (the default):
         ``n_grid // 4``; 0: every ray takes ``n_grid`` steps. The RICO cumulus all-sky renders 1.5x faster, views
-        of overcast or terrain-filled grids do not change (docs/performance.md, section 23).
+        of overcast or terrain-filled grids do not change (docs/decisions/0004-step-placement.md).
     sunlit_steps : int
         Most grid steps [-] that a ray puts into the sunlit clear air of its grid segment (:func:`step_classes`:
         empty cells whose every neighbour the sun reaches through no cloud, terrain or 3-D aerosol, transmittance
@@ -124,7 +124,7 @@ class MarchSettings:
         is longer than ``sunlit_steps`` x :data:`SUNLIT_CELLS_PER_STEP` cells (then one step per
         :data:`SUNLIT_CELLS_PER_STEP` such cells); the other empty cells keep ``empty_steps``' limit
         (:func:`grid_step_edges`). Default 4: the 400 x 400 x 60 synthetic scene's rays take 13 % fewer samples
-        with the error against a converged reference unchanged (docs/performance.md, section 79). 0: sunlit clear
+        with the error against a converged reference unchanged (docs/decisions/0004-step-placement.md). 0: sunlit clear
         air counts as empty air, as before session 63. Ignored where ``empty_steps`` is 0.
     n_probe : int
         Occupancy probes per ray along its grid segment, at least, which place the ``n_grid`` steps
@@ -135,13 +135,13 @@ class MarchSettings:
         :data:`MAX_PROBES` (:func:`probe_counts`). With 2, no ray passes through the central half of an
         occupied cell unseen (the occupancy is dilated by one cell); the 99th percentile of the error of a
         view 6° above the horizon of a 400 km grid falls from 20 % to 10 %, and other views do not change
-        (docs/performance.md, section 13). 0 probes every ray ``n_probe`` times.
+        (docs/decisions/0004-step-placement.md). 0 probes every ray ``n_probe`` times.
     tau_refine : float
         Largest hydrometeor optical depth [-] of a grid step, and largest change of it between neighbouring
         steps, while the ray's own is below 8: a thicker step is replaced by its halves, and so is a step at a
         cloud face, recursively (:func:`_march_grid_refined`), so that the face is sampled where its light comes
         from. 0 turns this off. Default 0.25: against 0.5 the 99th percentile of a 1024² all-sky's error falls
-        from 2.3 to 1.8 % for ~1-3 % more samples (docs/performance.md, sections 44 and 46).
+        from 2.3 to 1.8 % for ~1-3 % more samples (docs/decisions/0004-step-placement.md).
     stop_tau : float
         Hydrometeor optical depth [-] along a ray at which a ray that does not look down (view zenith <= 90 deg)
         stops: beyond it nothing reaches the observer (e^-50 ~ 2e-22) and the cloud radiance of Eqs. 12-23 seen
@@ -149,14 +149,15 @@ class MarchSettings:
         radiance is the same as if the ray went on. Such a ray's ``tau_hydrometeor`` is ``stop_tau`` (a lower bound
         of the line of sight's: "opaque"), and it does not see the ground behind. Rays that look down keep going
         (the cloud-top reflection of Eqs. 24-26 depends on the whole optical depth). 0 turns it off; otherwise at
-        least :data:`STOP_TAU_MIN`. Default 50 (docs/rendering.md, "Opaque rays"; docs/performance.md, section 57).
+        least :data:`STOP_TAU_MIN`. Default 50 (docs/rendering.md, "Opaque rays";
+        docs/decisions/0004-step-placement.md).
     chunk : int or None
         Rays per kernel call; None (the default): :data:`CPU_CHUNK` on a CPU, :data:`GPU_CHUNK` when the JAX
         kernel runs on a GPU (:meth:`resolved_chunk`). Small chunks keep the kernel's working set in the CPU
         caches: on a 2-core machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096
         or 8192, 4.2 s with 2048 and 6.1 s with 1024 (benchmarks/, docs/rendering.md). A GPU needs big ones to
         fill it: on an H100 the JAX kernel marches 1.9 million rays/s in chunks of 32768 and 4.0 million in
-        chunks of 262144 (docs/performance.md, "GPU").
+        chunks of 262144 (docs/performance.md, "The GPU kernels").
     multiple_scattering : bool
         Add the directional source of the higher scattering orders (:mod:`swim.rt.multiple_scattering`)
         to the clear-sky source (docs/rendering.md); False gives pure single scattering (Eq. 3).
@@ -166,11 +167,11 @@ class MarchSettings:
     backend : {"auto", "jax", "numba", "cuda"}
         Kernel of the step loop: "jax" marches a chunk of rays in lockstep (GPUs, gradients); "numba" runs
         the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, ~5x faster on a
-        CPU: the default scene's 255^2 all-sky in 1.0 s against 4.6-5.1 s; docs/performance.md, sections 8 and
-        18); "cuda" compiles that same per-ray code for an NVIDIA GPU, one thread per ray (:mod:`swim.rt.march_cuda`,
-        numba-cuda; opt-in: on an H100 its images match numba's, but it renders no faster than the JAX kernel,
-        docs/performance.md, sections 22 and 52); "auto" takes numba when JAX's default device is the CPU, else
-        jax.
+        CPU: the default scene's 255^2 all-sky in 1.0 s against 4.6-5.1 s; docs/decisions/0002-per-ray-cpu-kernel.md and
+        docs/decisions/0006-gpu-kernels.md); "cuda" compiles that same per-ray code for an NVIDIA GPU, one thread per
+        ray (:mod:`swim.rt.march_cuda`, numba-cuda; opt-in: on an H100 its images match numba's, but it renders no
+        faster than the JAX kernel, docs/decisions/0006-gpu-kernels.md); "auto" takes numba when JAX's default device is
+        the CPU, else jax.
     grid_kernel : {"auto", "lockstep", "fused", "fused-march"}
         How the JAX kernel marches the grid segment with refinement (``tau_refine`` > 0): "lockstep", one XLA
         program per iteration of every ray's march (:func:`_march_grid_refined`); "fused", one Pallas kernel whose
@@ -180,7 +181,7 @@ class MarchSettings:
         the grid and the zero-length step at each ray's end in the same kernel too
         (:func:`swim.rt.march_pallas.march_segments_fused`; on an H100 a 262 144-ray chunk in 22.6 ms against 26.5 ms
         for "fused", but its first compilation takes ~40 s longer: for long series). "auto" takes "fused" where JAX's
-        default device is a GPU that Pallas can compile for, else "lockstep" (docs/performance.md, sections 72, 74). The
+        default device is a GPU that Pallas can compile for, else "lockstep" (docs/decisions/0006-gpu-kernels.md). The
         numba and CUDA backends ignore it.
     ray_table : bool or None
         Keep the camera's rays on the device between frames (:mod:`swim.rt.ray_table`, the JAX kernel only): the
@@ -189,7 +190,7 @@ class MarchSettings:
         kernel and results to float32 rounding of the scattering angle's cosine. None (the default): on where the
         JAX kernel runs on a GPU (:meth:`resolved_ray_table`; on an H100 a warm 1024^2 all-sky with every pixel
         traced renders in 0.151 s with it against 0.324 s without, adaptive 0.161 against 0.227 s, a new sun every
-        frame 0.659 against 0.834 s; docs/performance.md, section 74), off on a CPU, where the march dominates and
+        frame 0.659 against 0.834 s; docs/decisions/0006-gpu-kernels.md), off on a CPU, where the march dominates and
         the table only holds memory. The numba and CUDA backends ignore it.
     step1a_on_device : bool or None
         A new sun's Step 1a where the JAX kernel marches (:mod:`swim.rt.solar_device`): the previous sun's device copy
@@ -197,7 +198,7 @@ class MarchSettings:
         volume to the device again (~1.3 GB of transfers for the 400 x 400 x 60 scene). The same equations and sweep;
         the channels agree to float32 round-off. None (the default): on where the JAX kernel runs on a GPU
         (:meth:`resolved_step1a_on_device`; on an H200 a 1024^2 all-sky with a new sun every frame renders in 0.392 s
-        with it against 0.614 s without, docs/performance.md, section 85), off on a CPU, where numba's sweep on the
+        with it against 0.614 s without, docs/decisions/0006-gpu-kernels.md), off on a CPU, where numba's sweep on the
         host is faster than JAX's. Used only by the JAX kernel, for a scene rendered before with another sun in the
         same process.
     device_sampling : bool or None
@@ -206,19 +207,19 @@ class MarchSettings:
         smooth ones interpolated on the device, and only each batch's mask of wanted pixels and the finished image
         come to the host. The same traced pixels and image as the host's sampler (to float32 rounding). None (the
         default): on wherever the ray table is (:meth:`resolved_device_sampling`; on an H200 an adaptive 1024^2
-        all-sky in 0.136 s with it against 0.152 s without, docs/performance.md, section 85). Ignored without a ray
+        all-sky in 0.136 s with it against 0.152 s without, docs/decisions/0006-gpu-kernels.md). Ignored without a ray
         table or without adaptive sampling.
     fused_max_registers : int or None
         Registers per thread that the fused GPU kernel ("fused", "fused-march") may take on NVIDIA GPUs, in [16, 255]
         (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`; it needs jaxlib > 0.10.2, else it is logged and ignored).
         None (the default): ptxas's choice, 255 at 128 rays a program, which fits two programs per Hopper
-        multiprocessor (12.5 % occupancy); 168 fits three and 128 four, at the price of spills (docs/performance.md,
-        section 87: which is fastest is to be timed). The other kernels ignore it.
+        multiprocessor (12.5 % occupancy); 168 fits three and 128 four, at the price of spills
+        (docs/decisions/0006-gpu-kernels.md: which is fastest is to be timed). The other kernels ignore it.
     fused_vector_loads : bool
         Whether the fused GPU kernel reads its tables (the volume, gas, sky, diffuse and multiple-scattering tables)
         with their channels last, up to four channels a load (:func:`swim.rt.march_pallas._load_groups`): on sm_90a
         its grid loop then issues 48 global loads an iteration instead of 110 and 1 617 instructions instead of
-        1 893 (docs/performance.md, section 87). False: a scalar gather per channel and corner (the kernel of
+        1 893 (docs/decisions/0006-gpu-kernels.md). False: a scalar gather per channel and corner (the kernel of
         sessions 58-67). The same results to float32 rounding; the other kernels ignore it.
     cloud_scattering : str or CloudScattering
         How clouds scatter light (:mod:`swim.rt.clouds`): "discrete_ordinates" (the 3-D diffuse solution, the
@@ -229,7 +230,7 @@ class MarchSettings:
         Whether ptxas may contract the fused GPU kernel's float32 multiplies and adds into fused multiply-adds on
         NVIDIA GPUs (:mod:`swim.rt.ptx_edits`: Triton writes them with an explicit rounding mode, which forbids it;
         it needs jaxlib > 0.10.2, else it is logged and ignored). On sm_90a the grid loop then issues 1 440
-        instructions an iteration instead of 1 617 at the same registers (docs/performance.md, section 88). A
+        instructions an iteration instead of 1 617 at the same registers (docs/decisions/0006-gpu-kernels.md). A
         contracted pair rounds once instead of twice, so the results move by float32 rounding. False (the default)
         until timed on a GPU; the other kernels, and the fused kernel in Pallas's interpreter, ignore it.
     device_image : bool or None
@@ -240,7 +241,7 @@ class MarchSettings:
         host in one copy. The same planes, and the same 8-bit codes but where the device rounds a fused
         multiply-add once (a code apart at most, at a value within ~1e-16 of a code's step); the rare pixels whose
         spectrum needs clipping, and the sun's disk, are coloured on the host. None (the default): on where the JAX
-        kernel runs on a GPU (:meth:`resolved_device_image`; docs/performance.md, section 86), off elsewhere, where
+        kernel runs on a GPU (:meth:`resolved_device_image`; docs/decisions/0006-gpu-kernels.md), off elsewhere, where
         the host's cores are the device's and its compiled colour stage is faster than XLA's.
     """
 
@@ -400,7 +401,7 @@ class MarchSettings:
 CPU_CHUNK = 4096
 #: Rays per kernel call of the JAX kernel on a GPU: on an H100 1.9 million rays/s in chunks of 32768, 4.0 million
 #: in chunks of 262144 and 4.4 million in one chunk of 1048576 (a 1024 x 1024 all-sky's 823 593 rays then pad to
-#: 1048576: no faster); 1.6 GB of device memory at the peak (docs/performance.md, "GPU").
+#: 1048576: no faster); 1.6 GB of device memory at the peak (docs/performance.md, "The GPU kernels").
 GPU_CHUNK = 262144
 
 #: Kernels of the step loop (:attr:`MarchSettings.backend`).
@@ -526,8 +527,8 @@ def ray_segments_compiled(origins, directions, geometry: GridGeometry, top=100_0
     """:func:`ray_segments` one ray at a time in compiled code (:mod:`swim.rt.segments_cpu`): the same arguments
     and dict, ~10x faster on a CPU (no float64 temporaries: 47 -> 4.7 ms for 200 000 rays on one thread here);
     what :func:`trace_rays` calls. The same operations in the same order, so the same results where NumPy's
-    ``einsum`` sums three terms as this machine's does, else within float64 round-off (docs/performance.md,
-    section 65)."""
+    ``einsum`` sums three terms as this machine's does, else within float64 round-off
+    (docs/decisions/0009-work-around-the-march.md)."""
     from .segments_cpu import ray_segments_into
 
     o = np.ascontiguousarray(origins, dtype=np.float64)
@@ -565,8 +566,8 @@ def ray_segments_parallel(origins, directions, geometry: GridGeometry, top=100_0
     """:func:`ray_segments_compiled` in blocks on up to 8 cores (the kernel runs without the GIL), a block per thread
     at least where there are :data:`SEGMENT_MIN_BLOCK` rays per thread: what :func:`trace_rays` and
     :func:`swim.rt.ray_table.build_ray_table` call. Compiled, ~45 -> ~7 ms of a warm 1024^2 adaptive all-sky
-    (docs/performance.md, section 65); an adaptive render's batches of 20 000-70 000 rays were one block, on one
-    thread while the others waited (section 63). The same arguments and dict as :func:`ray_segments`."""
+    (docs/decisions/0009-work-around-the-march.md); an adaptive render's batches of 20 000-70 000 rays were one block,
+    on one thread while the others waited. The same arguments and dict as :func:`ray_segments`."""
     workers = min(threads(), 8)
     block = min(SEGMENT_BLOCK, max(SEGMENT_MIN_BLOCK, -(-len(origins) // workers)))
 
@@ -584,13 +585,13 @@ def ray_segments_parallel(origins, directions, geometry: GridGeometry, top=100_0
 # The tables are stored channel-major, (C, ...), and sampled by one scalar gather per channel and corner from their
 # flattened form: XLA on CPU fuses scalar gathers into the surrounding arithmetic, while a gather of (C,)-rows was
 # a separate, several times slower operation (a 6-channel bilinear lookup took 35 ns per sample against 209 ns;
-# docs/performance.md, section 1). The volume's trilinear sample is the exception since JAX 0.10: see trilinear.
+# docs/decisions/0006-gpu-kernels.md). The volume's trilinear sample is the exception since JAX 0.10: see trilinear.
 
 def _materialise(x):
     """Compute x once: without the barrier XLA on a CPU may fuse the gathers into each of x's consumers and repeat
     them (the kernel ~9 % slower). On a GPU the barriers cost more than they save: each ends a fusion, so its
-    values go through device memory; without them the kernel is 18 % faster on an H100 (docs/performance.md,
-    section 18), so there x passes unchanged."""
+    values go through device memory; without them the kernel is 18 % faster on an H100
+    (docs/decisions/0006-gpu-kernels.md), so there x passes unchanged."""
     if jax.default_backend() != "cpu":
         return x
     return jax.lax.optimization_barrier(x)
@@ -684,7 +685,7 @@ def trilinear(volume, k, j, i, outside):
     The channels of a cell stay adjacent in memory (one cache line for all of them). On a CPU each of the 8
     corners is read as one row of C channels: with JAX 0.10 the kernel marches 1.9x faster so than with one scalar
     gather per channel and corner, the reverse of what an older XLA did (see the note above :func:`_lerp_table`;
-    docs/performance.md, section 18). On a GPU the scalar gathers from the flattened volume stay
+    docs/decisions/0006-gpu-kernels.md). On a GPU the scalar gathers from the flattened volume stay
     (:func:`trilinear_gathers`): rows were 6 % slower on an H100."""
     if jax.default_backend() != "cpu":
         return _materialise(jnp.stack(trilinear_gathers(volume.reshape(-1), volume.shape, k, j, i, outside,
@@ -853,12 +854,12 @@ EMPTY_STEP_WEIGHT = 0.125
 #: Empty cells [-] per grid step beyond :attr:`MarchSettings.empty_steps` (:func:`grid_step_edges`): a ray that
 #: grazes a big grid through hundreds of empty cells still samples their cloud shadows and aerosol once per 2
 #: cells (with one step per 4, a view 6 deg above the horizon of the 400 km synthetic grid had its 99th
-#: percentile error raised from 1.0 to 1.2 % and its largest from 7 to 13 %; docs/performance.md, section 23).
+#: percentile error raised from 1.0 to 1.2 % and its largest from 7 to 13 %; docs/decisions/0004-step-placement.md).
 EMPTY_CELLS_PER_STEP = 2.0
 #: Sunlit clear cells [-] per grid step beyond :attr:`MarchSettings.sunlit_steps` (:func:`grid_step_edges`): there the
 #: clear sky's source follows the smooth height profiles of the gas and the background aerosol alone (the steps
 #: after the grid cross all the air above it in 4-28; with one step per 16 or 32 such cells the sky's error grew,
-#: docs/performance.md, section 79).
+#: docs/decisions/0004-step-placement.md).
 SUNLIT_CELLS_PER_STEP = 8.0
 #: Least transmittance [-] of the direct sun (cloud, terrain shadow and 3-D aerosol together, Step 1a) at a grid
 #: node and all its neighbours for a cell without hydrometeors to count as sunlit clear air (:func:`step_classes`).
@@ -922,7 +923,7 @@ def segment_cells(start, direction, s0, length, consts):
     Measured apart from the occupancy probes, at fewer points: the march probed every ray's occupancy at ``n_probe``
     points for its length alone before probing it again at the count that length asks for (every ray of a 1024^2
     all-sky of the 400 x 400 x 60 scene, whose 160 levels make even the zenith's ray cross more than ``n_probe``
-    times ``probe_spacing`` cells): 64 of a ray's ~147 probes there (docs/performance.md, section 61)."""
+    times ``probe_spacing`` cells): 64 of a ray's ~147 probes there (docs/decisions/0003-cpu-kernel-code.md)."""
     k, j, i = _probe_indices(start, direction, s0, length, consts, CELL_PROBES)
     return _segment_cells(k, j, i, CELL_PROBES)
 
@@ -957,7 +958,7 @@ def grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCC
     happens, few where nothing does.
 
     The steps of :func:`adaptive_step_edges` (density 1 in occupied and ``empty_weight`` in empty probe intervals),
-    with the steps in empty space limited (empty-space skipping; docs/performance.md, section 23): where the
+    with the steps in empty space limited (empty-space skipping; docs/decisions/0004-step-placement.md): where the
     empty intervals would get more than ``max(empty_steps, empty cells / EMPTY_CELLS_PER_STEP)`` steps (the empty
     cells are the segment's ``cells`` (n,) times its share of empty probes), they get that many, and the ray
     takes fewer steps in all, ``ceil(occupied steps + that)``, so that its occupied intervals keep their step
@@ -968,7 +969,7 @@ def grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCC
     Where ``consts["occupancy"]`` holds the step classes of :func:`step_classes` and ``sunlit_steps`` > 0, the
     sunlit clear intervals (code :data:`SUNLIT_CLEAR`) are limited in the same way on their own, to
     ``max(sunlit_steps, sunlit cells / SUNLIT_CELLS_PER_STEP)`` steps, and the weight left to the unoccupied
-    intervals is shared in proportion to the two kinds' limited steps (docs/performance.md, section 79); with
+    intervals is shared in proportion to the two kinds' limited steps (docs/decisions/0004-step-placement.md); with
     ``sunlit_steps`` 0 they count as empty.
 
     ``probes`` (n,): each ray's probe count (:func:`probe_counts`, at most ``n_probe``), or None for ``n_probe``
@@ -1059,8 +1060,9 @@ def clear_step_edges(start, direction, s0, length, n_steps, consts, n_probe=CLEA
     :data:`CLEAR_STEP_FLOOR` times its largest value (so that the thin air far up still gets steps). Against a
     march of 384 + 256 equal steps, the default 24 steps after and 12 before the grid so placed are as accurate
     as the 48 and 32 equal steps they replace, or more (median error of ground views 0.013 % against 0.022 %, of
-    a view from 800 km 0.25 % against 0.26 %; docs/performance.md, section 17). A ray that rises out of
-    the grid takes fewer steps after it where little of its air lies there (:func:`after_step_counts`, section 49).
+    a view from 800 km 0.25 % against 0.26 %; docs/decisions/0004-step-placement.md). A ray that rises out of
+    the grid takes fewer steps after it where little of its air lies there (:func:`after_step_counts`,
+    docs/decisions/0004-step-placement.md).
 
     Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), the segment's start ``s0``
     and ``length`` (n,) [m]; ``steps`` (n,) <= n_steps: each ray's own step count (:func:`after_step_counts`), the
@@ -1113,8 +1115,8 @@ def after_step_counts(start, direction, bounds, n_after, consts):
     Why: the midpoint rule's error over a segment placed by :func:`clear_step_edges` falls as 1 / n² of the segment's
     own clear-sky radiance, roughly q times the ray's (the air above a 20 km grid top holds ~4 % of the vertical optical
     depth at 546 nm, above a 2 km LES top ~60 %). With n ∝ √q the error relative to the ray's
-    clear sky is the same for every ray: that of ``n_after`` steps through the whole column (docs/performance.md,
-    section 49; our choice, not the paper's, which marches Step 2 separately).
+    clear sky is the same for every ray: that of ``n_after`` steps through the whole column
+    (docs/decisions/0004-step-placement.md; our choice, not the paper's, which marches Step 2 separately).
 
     Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3) and ``bounds`` (n, 3) [m] of
     :func:`ray_segments`; ``consts`` with the column row :data:`swim.constants.GAS_COLUMN_ROW` of ``beta_gas``
@@ -1304,7 +1306,7 @@ STOP_TAU_MIN = 40.0
 #: Iterations of the lockstep grid loop per test of its condition on an accelerator. On a GPU XLA copies the while
 #: loop's condition to the host after every iteration and launches the next from there. An H100 marched a 262 144-ray
 #: chunk of the synthetic scene in 58.1-58.8 ms with one iteration per test, 48.7-50.6 ms with two and 46.4-47.8 ms
-#: with four (Katrina: 53.6-53.7, 44.5-46.2 and 42.0-44.3 ms), the same bits (docs/performance.md, section 68). The
+#: with four (Katrina: 53.6-53.7, 44.5-46.2 and 42.0-44.3 ms), the same bits (docs/decisions/0006-gpu-kernels.md). The
 #: loop's body is compiled that many times: a fresh H100 machine's first 1024^2 render compiled for 52-55 s with four
 #: against 39-43 s with two. On a CPU there is no such round trip (1).
 GRID_LOOP_UNROLL_ACCELERATOR = 4
@@ -1347,10 +1349,10 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, u
     * an interval whose length times the extinction of the accumulated interval just before it exceeds
       ``tau_refine`` is halved before it is sampled (:func:`_predicted_halving`, one level): inside a cloud its
       own sample would find it too thick and be discarded for its halves. On the synthetic 400 x 400 x 60 all-sky
-      that saves ~5 % of the samples, at a slightly smaller error (docs/performance.md, section 80).
+      that saves ~5 % of the samples, at a slightly smaller error (docs/decisions/0004-step-placement.md).
 
     So a cloud face is resolved where the light comes from, and neighbouring pixels whose step midpoints fall on
-    either side of the face agree (the stripes of docs/performance.md, section 13).
+    either side of the face agree (the stripes of docs/decisions/0004-step-placement.md).
 
     Rays in lockstep, each with its own pending intervals (:data:`REFINE_SLOTS`, a refinement only where they
     fit): every iteration each ray takes its next interval (the last pending one, or its next step; its first half,
@@ -1368,7 +1370,8 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, u
 
     def finished(carry):
         # a ray that has stopped (the ground, opaque cloud) is finished: its later samples would add nothing (their
-        # length counts as 0 in every sum), so its steps and pending intervals are left (docs/performance.md, 88.)
+        # length counts as 0 in every sum), so its steps and pending intervals are left
+        # (docs/decisions/0006-gpu-kernels.md)
         st, m, pending, *_ = carry
         return ((pending == 0) & (m >= last)) | ~st["alive"]
 
@@ -1492,7 +1495,7 @@ def _terminal_step(state, start, direction, rays, consts, ms_profile, aerosol_cl
     crossing. The step back inverts Eq. 3's exponential step exactly ((T, L) -> (T e^-x, L + T S (1 - e^-x) / x)
     with -x) and Eq. 12's weight e^-min(tau0, 2) - e^-min(tau1, 2) changes sign (Albers et al. 2020,
     doi:10.5194/amt-13-3235-2020). So the light of the air in front of the ground no longer depends on the step
-    count (docs/performance.md, section 43). :mod:`swim.rt.march_cpu` takes the same steps.
+    count (docs/decisions/0004-step-placement.md). :mod:`swim.rt.march_cpu` takes the same steps.
 
     ``state``: the march's per-ray arrays (n,) or (n, 3) of :func:`_march_rays` with ``s_hit`` (n,) [m]; ``start``
     (n, 3) [m], unit ``direction`` (n, 3); the rest as :func:`_march_segment` takes them. Returns the state
@@ -1570,7 +1573,7 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
                                                  settings.n_after, consts, steps=steps), settings.n_after, steps))
     # one more step, of zero length at each ray's end: where that end lies on the sea-level sphere, below the terrain
     # (which beyond the grid keeps its edge's heights), its sample detects a crossing in the far half of the ray's
-    # last step, which no later step would (docs/performance.md, section 54); elsewhere it adds nothing
+    # last step, which no later step would (docs/decisions/0004-step-placement.md); elsewhere it adds nothing
     segments.append(Segment(jnp.stack([bounds[:, 2], bounds[:, 2]]), 1))
     # the fused kernel marches whole blocks of rays: a batch of another size (a chunk set by hand) is marched by the
     # lockstep loops
@@ -1606,8 +1609,8 @@ def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, sett
 
     ``ground`` (static): False where no ray of the batch ends on the ground, whose term is then 0 without being
     evaluated (as it is for such rays anyway). The chunks of an all-sky camera on the ground and the upper rows of a
-    panorama see no ground, and the ground's BRDF is about half of the composition's cost (docs/performance.md,
-    section 31)."""
+    panorama see no ground, and the ground's BRDF is about half of the composition's cost
+    (docs/decisions/0009-work-around-the-march.md)."""
     surface = _ends_on_surface(state, ends_on_ground)
     s_hit = state["s_hit"]
     if ground:
@@ -1883,7 +1886,7 @@ def occupancy_grid(volume):
     top = maximum_filter(terrain, size=3) if np.any(terrain > 1.0) else np.zeros_like(terrain)
     occupied = np.empty(extinction.shape[1:], bool)
     # the cloud and the terrain in one compiled pass, blocks of levels on every core (a float32 matrix-vector
-    # product per cell on one thread, then two passes: 0.22 s for 400 x 400 x 60, docs/performance.md, section 71)
+    # product per cell on one thread, then two passes: 0.22 s for 400 x 400 x 60, docs/decisions/0007-scene-set-up.md)
     in_blocks(lambda k0, k1: occupied_cells(extinction, np.float32(OCCUPIED_EXTINCTION), levels, top, dz, k0, k1,
                                             occupied), occupied.shape[0])
     aerosol = volume["aerosol_extinction"].values
@@ -1955,9 +1958,9 @@ def step_classes(occupancy, fields, out=None):
 def dilated_by_one_cell(mask):
     """A boolean array with every cell next to a True cell (a 3 x 3 x ... cube around it) set: what
     ``scipy.ndimage.maximum_filter(mask, size=3)`` gives, by one shifted ``|=`` per side and axis (bytes, in
-    place: 0.03 s against scipy's 0.18 s for 160 x 400 x 400; docs/performance.md, section 41); a 3-D mask (a grid's)
-    in two compiled passes on every core where numba is installed (:func:`swim.rt.occupancy_cpu.dilate_cells`,
-    section 86).
+    place: 0.03 s against scipy's 0.18 s for 160 x 400 x 400; docs/decisions/0007-scene-set-up.md); a 3-D mask (a
+    grid's) in two compiled passes on every core where numba is installed (:func:`swim.rt.occupancy_cpu.dilate_cells`,
+    docs/decisions/0006-gpu-kernels.md).
 
     Parameters
     ----------
@@ -2018,8 +2021,8 @@ def packed_aerosol_3d(n_channels, n_species) -> bool:
     optical depth towards the sun (550 nm), Step 1a's cloud transmittance T, the terrain shadow (last). The terrain
     shadow cuts the direct beam only; the skylight under a cloud is dimmed by T alone. Species that are zero
     everywhere and, without a 3-D aerosol, its two channels are left out: RICO's liquid-only cumulus packs 3
-    channels instead of 7 (18.5 -> 7.9 MB), and a march through it is 6-16 % faster for it (docs/performance.md,
-    section 31)."""
+    channels instead of 7 (18.5 -> 7.9 MB), and a march through it is 6-16 % faster for it
+    (docs/decisions/0007-scene-set-up.md)."""
     return n_channels == n_species + 4
 
 
@@ -2077,7 +2080,7 @@ def pack_volume(volume, species=None):
 
     A render packs the grid before Step 1a and then lets the optical volume share the packed channels
     (:func:`share_packed_channels`), so the volume's own extinctions are freed before Step 1a's fields are made
-    (docs/performance.md, memory). Channels: the extinctions of ``species`` (indices into
+    (docs/performance.md, "Memory"). Channels: the extinctions of ``species`` (indices into
     :data:`swim.constants.SPECIES`; default :func:`packed_species`, those not zero everywhere: a march through
     fewer channels reads fewer cache lines), then with a 3-D aerosol its extinction and ``aerosol_tau_sun``, then
     ``cloud_transmittance`` and ``terrain_shadow`` (``len(species) + 4`` channels with the aerosol, two fewer
@@ -2101,8 +2104,8 @@ def pack_volume(volume, species=None):
 def _fill_channels(packed, values):
     """``packed[..., c] = value`` for each channel c and its ``value`` (level, y, x) of the dict ``values``, on every
     core: level by level, each level's channels one after the other while its cache lines are in the caches (0.056 s
-    for the 400 x 400 x 60 scene's grid, 0.136 s channel by channel; docs/performance.md, section 41). A transpose and
-    a concatenate would each copy the whole volume."""
+    for the 400 x 400 x 60 scene's grid, 0.136 s channel by channel; docs/decisions/0007-scene-set-up.md). A transpose
+    and a concatenate would each copy the whole volume."""
     def fill(k0, k1):
         for k in range(k0, k1):
             for c, value in values.items():
@@ -2130,7 +2133,7 @@ def shared_packed_volume(volume, species):
         they are not (a volume not yet shared, or shared with another layout), and the caller packs it anew.
 
     A new sun's repacking copied the whole grid (0.7 GB for the 400 x 400 x 60 scene's 160 levels and 7 channels,
-    0.25-1.5 s on this project's 2 cores) and held two packed volumes at once (docs/performance.md, section 66).
+    0.25-1.5 s on this project's 2 cores) and held two packed volumes at once (docs/decisions/0006-gpu-kernels.md).
     """
     n = len(species)
     channels = volume["extinction"].values
@@ -2174,7 +2177,7 @@ def step1a_channel_views(packed, species):
 
     The fields were made whole (~100 MB each at 400 x 400 x 160, all held until the copy) and then copied into the
     channels: one compiled pass instead takes 0.04-0.08 s off a new sun's 0.63-0.68 s for the 400 x 400 x 60 scene
-    (docs/performance.md, section 70)."""
+    (docs/decisions/0007-scene-set-up.md)."""
     aerosol_3d = packed_aerosol_3d(packed.shape[-1], len(species))
     names = step1a_channel_names(aerosol_3d)
     first = packed.shape[-1] - len(names)
@@ -2247,7 +2250,7 @@ def share_packed_channels(volume, packed, species=None):
     """Point the optical volume's ``extinction`` (species, level, y, x) and, where packed, ``aerosol_extinction``
     (level, y, x) at their channels of a packed volume (:func:`pack_volume`, or the ``"volume"`` of
     :func:`volume_constants`) as read-only views, freeing the volume's own copies: a render then holds the grid's
-    extinctions once (docs/performance.md, memory).
+    extinctions once (docs/performance.md, "Memory").
 
     The values are unchanged (the packed channels are copies of them), but the ``species`` coordinate then names
     only the packed ones (``species``, indices into :data:`swim.constants.SPECIES`; default
@@ -2348,9 +2351,9 @@ def chunk_spans(n, chunk, cores, least=TAIL_CHUNK):
     This is "factoring" (Hummel, Schonberg and Flynn 1992, "Factoring: a method for scheduling parallel loops",
     Commun. ACM 35(8), 90-101, doi:10.1145/135226.135232). A ray's cost varies ~10-fold across an image (the horizon's
     rays cross far more cells than the zenith's), so chunks of equal size left one core marching the batch's last
-    chunk alone for 0.04-0.15 s of a 1024^2 all-sky's three batches while the other waited (docs/performance.md,
-    section 61); with chunks this small at the end, it waits for a small one. A small batch (a small image, a level of
-    adaptive sampling) still runs on every core from the start.
+    chunk alone for 0.04-0.15 s of a 1024^2 all-sky's three batches while the other waited
+    (docs/decisions/0002-per-ray-cpu-kernel.md); with chunks this small at the end, it waits for a small one. A small
+    batch (a small image, a level of adaptive sampling) still runs on every core from the start.
 
     Parameters
     ----------
@@ -2497,7 +2500,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                     continue
                 # On a GPU the call returns only when the march is done (XLA reads its while loop's condition on
                 # the host every step): a worker thread waits for it while this one prepares the next chunk
-                # (docs/performance.md, section 53); the one before is collected now (two chunks at most are held)
+                # (docs/decisions/0006-gpu-kernels.md); the one before is collected now (two chunks at most are held)
                 future = jax_pool.submit(job)
                 pending.append((future.result, hi, future.cancel))
                 if len(pending) > 1:
@@ -2515,7 +2518,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
                 # the first round's jobs are made before any is submitted: a worker's Python calls (the kernels'
                 # dispatch) do not compete for the GIL with the making of the next job, and the chunks of a small
                 # image start together (the second chunk of the Monte Carlo case's 41^2 view started ~0.8 ms after
-                # the first; the view -0.1 ms in median, docs/performance.md, section 36)
+                # the first; the view -0.1 ms in median, docs/decisions/0005-adaptive-sampling.md)
                 continue
             for ready, ready_hi in held:
                 future = pool.submit(ready)
@@ -2642,7 +2645,7 @@ def _buffer_identity(a):
 def _host_rows(out, n):
     """The first n rows of a chunk's device outputs as host arrays (waits for the device)."""
     # one device_get starts every output's copy before waiting for any: on an H100 a warm 1024^2 adaptive frame took
-    # 10-25 ms less than with one blocking copy per output (docs/performance.md, section 68)
+    # 10-25 ms less than with one blocking copy per output (docs/decisions/0006-gpu-kernels.md)
     return {key: value[:n] for key, value in jax.device_get(out).items()}
 
 
@@ -2728,7 +2731,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
 
     The chunk's arrays stay numpy arrays between the stages (the jitted stages take them as they are, and their
     outputs are fetched once): a JAX operation per slice or conversion cost ~30 dispatches per chunk, ~3 ms
-    (docs/performance.md, section 20)."""
+    (docs/decisions/0009-work-around-the-march.md)."""
     from . import march_cpu, precompile
 
     if kernel == "numba":  # a helper process compiling the march on a cold cache: its result loaded, not redone;
@@ -2743,7 +2746,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # The batch is padded (repeats of its last ray) to a size the JAX stages are compiled for; numba marches only
     # the real rays, and the padding rows of the state repeat the last one as the inputs do.
     padded = start.shape[0]
-    if kernel == "numba":  # the set-up in numba too: no JAX call per chunk (docs/performance.md, section 30)
+    # the set-up in numba too: no JAX call per chunk (docs/decisions/0009-work-around-the-march.md)
+    if kernel == "numba":
         class_lower, class_weight = np.empty(padded, np.int32), np.empty(padded)
         ms = np.empty((9, n, tables["n_u"]) if settings.multiple_scattering else (9, 1, 2), np.float32)
         march_cpu.prepare_rays(*(a[:n] for a in exact), tables["p"], tables["coef"], tables["aerosol_column"],
@@ -2759,7 +2763,7 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
             ms_profile = np.zeros((9, n, 2), np.float32)
         elif hasattr(ms, "__cuda_array_interface__"):
             # on a GPU the kernel reads JAX's array in place: 9 x chunk x n_u float32 (~0.4 GB per 262 144 rays)
-            # not fetched to the host and copied back (docs/performance.md, section 52); rows beyond n are not read
+            # not fetched to the host and copied back (docs/decisions/0006-gpu-kernels.md); rows beyond n are not read
             ms_profile = ms.block_until_ready()
         else:  # JAX on the CPU (numba's CUDA simulator): a writable copy, the kernel's compiled types
             ms_profile = np.array(ms)
@@ -2790,7 +2794,8 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
         CLEAR_STEP_FLOOR, float(settings.tau_refine), REFINE_DEPTH, REFINE_BUDGET, REFINE_VISIBLE_TAU, REFINE_SLOTS,
         TERRAIN_BISECTIONS, float(settings.stop_tau), *out, bool(t["cloud_mode"]), p_hydro, ray_ms, t["hydro_scale"],
         t["hydro_narrow"], t["ms_field"], t["ms_coarsen"], t["ms_above"], t["above_heights"], state["l_cloud"][:n])
-    if kernel == "numba":  # composed in numba too: the clouds (section 35) and the ground (section 37)
+    # the clouds and the ground composed in numba too (docs/decisions/0009-work-around-the-march.md)
+    if kernel == "numba":
         return {**_compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, ray_class, n),
                 "steps": samples.astype(np.int32)}
     _pad_state(state, n, tables)

@@ -1,7 +1,7 @@
 """The fused per-ray march on NVIDIA GPUs: :mod:`swim.rt.march_cpu`'s step loop compiled by numba-cuda.
 
 The lockstep JAX march passes every ray's state through device memory ~20 times per step, which caps it at
-~5 frames/s at 1024² on an H100 (docs/performance.md, section 18). Here each CUDA thread marches one ray with
+~5 frames/s at 1024² on an H100 (docs/decisions/0006-gpu-kernels.md). Here each CUDA thread marches one ray with
 its state in registers and local memory, as :func:`swim.rt.march_cpu.march_rays` does on a CPU core.
 
 There is one source: the functions of :mod:`swim.rt.march_cpu` (written for numba's CPU target) are compiled a

@@ -3,9 +3,9 @@
 The lockstep JAX march (:func:`swim.rt.march._march_grid_refined`) runs one iteration of every ray's march as ~20
 XLA kernels that pass the rays' state (~90 values a ray: the accumulators, their snapshot for roll-backs, the pending
 intervals) through device memory; on an H100 that iteration's traffic, not its arithmetic, sets the time (~270 us
-per 262 144 rays, 173 iterations a chunk: docs/performance.md, sections 18 and 68). The per-ray CUDA kernel
+per 262 144 rays, 173 iterations a chunk: docs/decisions/0006-gpu-kernels.md). The per-ray CUDA kernel
 (:mod:`swim.rt.march_cuda`) keeps the state in registers but its threads diverge between the march's phases (5.4 of
-a warp's 32 threads active, section 52).
+a warp's 32 threads active, docs/decisions/0006-gpu-kernels.md).
 
 This kernel keeps both virtues: the same lockstep iteration, written branch-free over a block of rays as
 :func:`~swim.rt.march._march_grid_refined` is, but inside one Triton program per block of :data:`BLOCK_RAYS` rays,
@@ -15,10 +15,10 @@ by gathers from device memory (their caches); where a point has several channels
 channels last and reads them up to four at a time (``vector_loads``, :func:`_load_groups`).
 
 :func:`march_grid_fused` marches the grid segment with refinement (``MarchSettings.grid_kernel="fused"``, the default on
-GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/performance.md, section 72);
+GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/decisions/0006-gpu-kernels.md);
 :func:`march_segments_fused` marches consecutive segments in one kernel, the clear air before and after the grid too
 (``"fused-march"``: the ~10 ms per chunk of XLA loops and copies left around the grid kernel; 0.85x "fused"'s chunk
-time on an H100, section 74).
+time on an H100, docs/decisions/0006-gpu-kernels.md).
 Each computes what :func:`swim.rt.march._march_segment` computes for its segments, the same equations in the same
 order (Eqs. 3, 8 and 12 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020; see that function), so its state agrees
 with the XLA kernel's to float32 rounding; ``tests/unit/test_rt_march_pallas.py`` holds it to that in Pallas's
@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 #: Rays per Triton program (a block of the lockstep march) and the program's warps: one ray per thread. At 128 x 4
 #: ptxas gives the kernel 255 registers (two programs per Hopper SM, 12.5 % occupancy); 512 x 16 caps it at 128 with
 #: 88 bytes of spills (12 with scalar gathers; 25 %), to be timed on a GPU (``benchmarks/pallas_registers.py``,
-#: docs/performance.md, sections 85 and 87).
+#: docs/decisions/0006-gpu-kernels.md).
 BLOCK_RAYS = 128
 NUM_WARPS = 4
 
@@ -113,7 +113,7 @@ def with_vector_volume(consts, settings):
     The copy is made once per device volume and kept while that volume lives (a new sun's Step 1a on the device makes
     a new volume, and so a new copy; :func:`forget_vector_volume` drops it before): without it each chunk's program
     padded the volume again (for the 400 x 400 x 60 scene's 160 x 400 x 400 x 7 packed volume, 0.82 GB written a
-    chunk, ~0.3 ms on an H200; docs/performance.md, section 87). Only the last volume's copy is kept."""
+    chunk, ~0.3 ms on an H200; docs/decisions/0006-gpu-kernels.md). Only the last volume's copy is kept."""
     kernel = settings.resolved_grid_kernel()
     volume = consts.get("volume")
     if kernel not in ("fused", "fused-march") or not settings.fused_vector_loads or volume is None \
@@ -588,7 +588,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
                 out = jnp.where(index == slot, stack[slot], out)
             return out
 
-        # The pending intervals, stored compactly (fewer registers: docs/performance.md, section 85). The stack of
+        # The pending intervals, stored compactly (fewer registers: docs/decisions/0006-gpu-kernels.md). The stack of
         # _march_grid_refined is a contiguous partition of the ray's path: each interval pushed above another ends
         # where that one begins (a split's halves share their midpoint; a roll-back's three intervals are the
         # previous interval's halves and the current one, adjacent to it by definition), so slot s > 0 ends at slot
@@ -613,7 +613,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             top_slot = jnp.maximum(pending - 1, 0)
             next_step = jnp.maximum(jnp.minimum(m, last - 1), 0)
             # a ray that has stopped (the ground, opaque cloud) samples nothing more: done, its pending intervals
-            # dropped (_march_grid_refined's, docs/performance.md, section 88)
+            # dropped (_march_grid_refined's, docs/decisions/0006-gpu-kernels.md)
             done = (~stacked & (m >= last)) | ~st["alive"]
             lo = jnp.where(stacked, pick(stack_lo, top_slot), edges_ref[next_step * n + ray])
             top_hi = jnp.where(top_slot == 0, hi0, pick(stack_lo, top_slot - 1))
@@ -684,7 +684,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
         def plain(st, edges_ref, last, n_steps, in_grid):
             """:func:`swim.rt.march._march_segment`'s loop of ``n_steps`` midpoint steps; a ray's steps beyond its
             own count ``last`` leave it as it is. The block's loop ends when no ray that has not stopped has steps
-            left: a stopped ray's samples add nothing (docs/performance.md, section 88), so a block of padding or of
+            left: a stopped ray's samples add nothing (docs/decisions/0006-gpu-kernels.md), so a block of padding or of
             rays stopped in the grid takes none of the steps after it."""
             def body(carry):
                 m, st = carry

@@ -2,11 +2,11 @@
 
 numba compiles for the host CPU's every feature. On an Intel Xeon with AVX-512 (Emerald Rapids) LLVM then puts
 512-bit registers, mask registers and 512-bit-indexed gathers into the march kernel (:mod:`swim.rt.march_cpu`),
-whose arithmetic is four float64 lanes, one 256-bit register (section 48 of docs/performance.md). Compiled without
+whose arithmetic is four float64 lanes, one 256-bit register (docs/decisions/0003-cpu-kernel-code.md). Compiled without
 AVX-512 for the same CPU (its tuning kept, AVX2 and FMA kept), the kernel replayed on one core took 7-18 % less time
 on the synthetic scene in seven of eight rounds (1 % more in one; median 10.5 % less) and 13-20 % less on Katrina, the
-two builds running side by side on the machine's two cores (docs/performance.md, section 61). Leaving out only the
-gathers (LLVM's ``-fast-gather``) did not do it.
+two builds running side by side on the machine's two cores (docs/decisions/0003-cpu-kernel-code.md). Leaving out only
+the gathers (LLVM's ``-fast-gather``) did not do it.
 
 So, as numba's CPU target is first set up, :func:`choose_cpu_features` hands numba the host's features with every
 AVX-512 feature (and AVX10, which implies it) turned off, where

@@ -4,7 +4,7 @@ A new scene's occupancy grid summed the species' extinction as one float32 matri
 thread), compared the sum with :data:`swim.rt.march.OCCUPIED_EXTINCTION` and the levels with the raised terrain in
 further whole-grid passes: ~0.22 s of a new 400 x 400 x 60 scene's set-up. :func:`occupied_cells` decides each cell
 in one pass over the packed volume's species channels (a cell's channels are one cache line), in blocks of levels
-on every core, without the GIL (docs/performance.md, section 71).
+on every core, without the GIL (docs/decisions/0007-scene-set-up.md).
 """
 
 from __future__ import annotations

@@ -3,10 +3,10 @@ and fused multiply-adds (float32 multiplies and adds without ``.rn``, which ptxa
 
 **The register cap.** The fused march (:mod:`swim.rt.march_pallas`) waits on its gathers' latency: on an H200 ptxas
 gives it 255 registers a thread, so only two 128-ray programs fit a multiprocessor (12.5 % occupancy) and too few
-warps hide the wait (Nsight Compute, docs/performance.md, section 85). Pallas offers no register cap (Triton's
+warps hide the wait (Nsight Compute, docs/decisions/0006-gpu-kernels.md). Pallas offers no register cap (Triton's
 ``maxnreg`` is not among its compiler parameters), and the only other lever, bigger programs, costs lockstep
-efficiency (section 85: 90.2 % of the iterations useful at 128 rays a program, 82.2 % at 512). PTX has the cap as a
-directive of the kernel's entry, ``.maxnreg N``, which ptxas and the driver's JIT both obey.
+efficiency (docs/decisions/0006-gpu-kernels.md: 90.2 % of the iterations useful at 128 rays a program, 82.2 % at 512).
+PTX has the cap as a directive of the kernel's entry, ``.maxnreg N``, which ptxas and the driver's JIT both obey.
 
 **Fused multiply-adds.** Triton's PTX writes every float32 multiply, add and subtract of the kernel with an explicit
 rounding mode (``mul.rn.f32``, ``add.rn.f32``, ``sub.rn.f32``), and PTX forbids ptxas to contract an instruction
@@ -14,10 +14,10 @@ with a rounding mode into a fused multiply-add (PTX ISA, ``add``/``mul``: "mul/a
 modifiers may be optimized to use fused-multiply-add instructions"). The fused kernel's grid loop then issues 399
 FMUL and 308 FADD and only 56 FFMA on sm_90a. Without the modifiers (``.rn`` is the default rounding, so each
 instruction that stays alone rounds as before) ptxas contracts ~180 pairs: the loop falls from 1 617 to 1 440
-instructions at the same 255 registers (section 88). A contracted pair rounds once instead of twice, as nvcc's
-default ``--fmad=true`` does, so the results move by float32 rounding (and a decision at a threshold, such as a
-terrain crossing or a refinement, may flip for a rare ray); the kernel makes no decision on the exact equality of
-values computed apart (its roll-back's adjacency test compares a stored bound with itself). The edit cannot tell
+instructions at the same 255 registers (docs/decisions/0006-gpu-kernels.md). A contracted pair rounds once instead of
+twice, as nvcc's default ``--fmad=true`` does, so the results move by float32 rounding (and a decision at a threshold,
+such as a terrain crossing or a refinement, may flip for a rare ray); the kernel makes no decision on the exact equality
+of values computed apart (its roll-back's adjacency test compares a stored bound with itself). The edit cannot tell
 LLVM's protective ``.rn`` from a deliberate one (``__fmul_rn`` in an inlined libdevice function, which nvcc would
 keep); the fused kernel's inlined ``expf``/``expm1f`` have no ``mul.rn`` that feeds an add (checked in session 69),
 and a new libdevice call in the kernel should be checked again.

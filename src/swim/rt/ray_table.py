@@ -1,6 +1,6 @@
 """A camera's rays kept on the device for the JAX kernel (:attr:`swim.rt.march.MarchSettings.ray_table`).
 
-A GPU frame of the JAX kernel did most of its work on the host (docs/performance.md, sections 53, 66, 72): for every
+A GPU frame of the JAX kernel did most of its work on the host (docs/decisions/0006-gpu-kernels.md): for every
 batch of rays the host clipped the rays to the grid (:func:`swim.rt.march.ray_segments_compiled`), evaluated the
 phase functions on the device and copied them back, padded and converted ten per-ray arrays chunk by chunk and sent
 them to the device again. For a camera that does not move, none of that changes between frames except the phase
@@ -19,7 +19,7 @@ round the cosine to neighbouring float32 values. Everything else is what :func:`
 the same rays (``tests/unit/test_rt_ray_table.py``).
 
 On an H100 a warm 1024² all-sky with every pixel traced renders in 0.151 s with the table against 0.324 s without
-(docs/performance.md, section 74), so ``MarchSettings.ray_table`` is on by default where the JAX kernel runs on a GPU
+(docs/decisions/0006-gpu-kernels.md), so ``MarchSettings.ray_table`` is on by default where the JAX kernel runs on a GPU
 (:meth:`swim.rt.march.MarchSettings.resolved_ray_table`).
 """
 

@@ -3,7 +3,8 @@
 :func:`swim.rt.march.ray_segments` clips the rays to the top of the atmosphere, the sea-level sphere and the model
 grid with NumPy: ~40 passes over (n,) and (n, 3) float64 temporaries. A warm 1024^2 adaptive all-sky spent ~34 ms in
 it per render, between the batches while the march's threads waited, and the Monte Carlo case's 41^2 view ~0.4 ms
-of its ~12-14 ms (docs/performance.md, sections 63-65). This kernel does the same arithmetic for each ray in registers.
+of its ~12-14 ms (docs/decisions/0009-work-around-the-march.md). This kernel does the same arithmetic for each ray in
+registers.
 
 The same operations in the same order as the NumPy function, without fast-math: the dot products of
 :func:`swim.frames.ray_sphere_intersections` summed as NumPy's ``einsum`` sums three terms, ``(x0 y0 + x2 y2) + x1

@@ -6,7 +6,7 @@ bilinear interpolation of the cell's corners in every channel of the radiance, t
 radiance. In NumPy that test built per-cell index and weight arrays and gathered every corner and tested pixel of
 every output channel, pass after pass: ~0.09 s of the 1024^2 synthetic all-sky's three levels, on the main thread
 while the march's threads waited for the next batch. These kernels do the same float64 arithmetic per cell in one
-pass (docs/performance.md, section 60).
+pass (docs/decisions/0003-cpu-kernel-code.md).
 
 Bit for bit NumPy's decision: the weights are computed in float64 as ``(yc - y0) / max(y1 - y0, 1)``, the
 interpolation is summed corner by corner in the same order without fused multiply-adds (no fast-math), and a NaN
@@ -14,7 +14,7 @@ anywhere fails the test as NumPy's comparisons do.
 
 :func:`split_cells` and :func:`mark_tested` then give the next level's cells and mark the pixels to trace for them in
 one pass each: NumPy's column views, stacks and index arrays for that took ~30 ms of the same render's levels, again
-while the march's threads waited (docs/performance.md, section 63).
+while the march's threads waited (docs/decisions/0009-work-around-the-march.md).
 """
 
 from __future__ import annotations

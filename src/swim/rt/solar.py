@@ -137,7 +137,8 @@ def transmittance_delta_eddington(tau_s, b_tau_s, mu0):
 
 
 #: :func:`transmittance_delta_eddington` compiled once per block shape: called op by op, its dozen array operations
-#: were each compiled (or loaded from the disk cache) on a process's first render, ~0.25 s (docs/performance.md, 24.)
+#: were each compiled (or loaded from the disk cache) on a process's first render, ~0.25 s
+#: (docs/decisions/0008-cold-start.md)
 _transmittance_delta_eddington_jit = jax.jit(transmittance_delta_eddington)
 
 
@@ -209,7 +210,7 @@ def step1a_levels(volume: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
     They depend on the volume alone, so a render keeps them for a new sun (a time series' frame): the scan reads
     every species' extinction, ~0.2 s of a new sun's Step 1a for the 400 x 400 x 60 scene where the extinctions
     are views of the packed volume's channels, and ~0.09 s on a new scene's own contiguous arrays, where a render
-    now scans them (docs/performance.md, section 66).
+    now scans them (docs/decisions/0006-gpu-kernels.md).
 
     Parameters
     ----------
@@ -476,7 +477,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         a = np.empty((nk,) + shape, np.float32)
         a[swept_levels:] = above  # each level written once: the swept ones below
         # in blocks of levels, so the transform's temporaries stay small (a whole field of each took ~0.5 GB
-        # of a render's peak memory at 400 x 400 x 160: docs/performance.md, memory)
+        # of a render's peak memory at 400 x 400 x 160: docs/performance.md, "Memory")
         for k0 in range(0, swept_levels, TRANSFORM_LEVELS):
             k1 = min(k0 + TRANSFORM_LEVELS, swept_levels)
             a[k0:k1] = taus[c][k0:k1] if transform is None else transform(k0, k1)

@@ -3,7 +3,7 @@
 :func:`swim.rt.solar._sweep` integrates the extinction along the sun ray from every grid point: 16 levels
 directly (one bilinear lookup per level and sub-step) plus the optical depth 16 levels up, interpolated. In JAX
 on a CPU that costs ~7 ns per lookup (a loop over levels of whole-field operations, each written to memory),
-~10 s for a 400 x 400 x 60 grid (docs/performance.md, section 15). Every point of a level shares the same
+~10 s for a 400 x 400 x 60 grid (docs/decisions/0007-scene-set-up.md). Every point of a level shares the same
 sun-ward shift, so the lookups of a grid row are a stencil with four constant weights over contiguous memory,
 which a compiled loop vectorises: this module computes the same sums ~5x faster (Step 1a as a whole ~3x), the
 measurement the project's rule asks for before numba is used ("numba only where a measurement shows JAX cannot
@@ -49,7 +49,7 @@ def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, midpoints, r
 
     The sums are taken in float32, the fields' type, as the JAX sweep takes them: in float64 every term was a
     conversion and the vectorised loop half as wide (the sweep 0.47-0.59 → 0.31-0.37 s for the 400 x 400 x 60
-    scene, the optical depths within 8e-7 relative; docs/performance.md, section 69)."""
+    scene, the optical depths within 8e-7 relative; docs/decisions/0007-scene-set-up.md)."""
     c, nk = fields.shape[0], fields.shape[1]
     scale32 = np.float32(scale)
     acc = np.empty(nx, np.float32)
@@ -74,7 +74,7 @@ def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, midpoints, r
                                               np.float32(fj * (1 - fi)), np.float32(fj * fi))
                         t32 = np.float32(t)
                         # the stencil's four rows as 1-D slices indexed from 0: LLVM then vectorises the loop
-                        # (indexed by i + offset, it stayed scalar: ~4x slower; docs/performance.md, section 41)
+                        # (indexed by i + offset, it stayed scalar: ~4x slower; docs/decisions/0007-scene-set-up.md)
                         n, x0 = end - first, first + offset
                         out = acc[first:end]
                         a0, a1 = lower[j0, x0:x0 + n], lower[j0, x0 + 1:x0 + 1 + n]
@@ -128,7 +128,7 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
     Where the species are channels of the packed volume (adjacent in memory,
     :func:`swim.rt.march.share_packed_channels`), each cell's species are one cache line's read for both sums: two
     sums over the species (one a weighted sum) read the volume twice (the fill 0.17-0.18 → 0.12-0.14 s of a new sun's
-    Step 1a for the 400 x 400 x 60 scene; docs/performance.md, section 69)."""
+    Step 1a for the 400 x 400 x 60 scene; docs/decisions/0007-scene-set-up.md)."""
     n, _, ny, nx = extinction.shape
     for k in range(k0, k1):
         for j in range(ny):
@@ -156,7 +156,7 @@ def step1a_channels(k0, k1, mu0, n_hydro, tau, b_tau, n_terrain, terrain_tau, n_
     hold their first ``n_hydro``, ``n_terrain`` and ``n_aerosol`` levels; above them T and the shadow are 1 and the
     aerosol's optical depth 0 (0 levels: a field that nothing makes). An output whose ``write_*`` flag is False is
     not written. In NumPy, each field was made whole and then copied into the packed volume's channel: three
-    strided passes over it (docs/performance.md, section 70). With ``direct_beam``, ``cloud_t`` is the direct beam's
+    strided passes over it (docs/decisions/0007-scene-set-up.md). With ``direct_beam``, ``cloud_t`` is the direct beam's
     e^-b_tau instead (``b_tau`` then the delta-M scaled optical depth, :func:`swim.rt.solar.solar_transmittance`)."""
     ny, nx = cloud_t.shape[1], cloud_t.shape[2]
     c73 = np.float32(ONE_MINUS_G_PER_BACKSCATTER)
@@ -227,7 +227,7 @@ def sweep(fields, di, dj, path_per_level, n_sub, block):
     if midpoints:
         # One point per level, half-way between two levels: the mean of the two levels is taken once per level
         # here, in place from the bottom up (level k + 1 is still the input when level k is replaced), rather than
-        # by each of the 16 rays through it (the direct integrals 1.4x faster: docs/performance.md, section 41);
+        # by each of the 16 rays through it (the direct integrals 1.4x faster: docs/decisions/0007-scene-set-up.md);
         # blocks of rows on every core (NumPy releases the GIL)
         def mean_of_levels(j0, j1):
             for k in range(nk - 1):

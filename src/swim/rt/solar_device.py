@@ -3,7 +3,7 @@
 On a GPU, a new sun (a time series seen by a fixed camera) used to cost ~1.3 GB of transfers between the host and
 the device for the 400 x 400 x 60 scene's 160 levels: the sweep's input (the species' sums, made on the host's cores)
 to the device, the swept optical depths back, and then the whole packed volume (0.7 GB) to the device again, because
-its Step 1a channels had changed on the host (docs/performance.md, section 74: 0.29-0.36 s of Step 1a and 0.08-0.12 s
+its Step 1a channels had changed on the host (docs/decisions/0006-gpu-kernels.md: 0.29-0.36 s of Step 1a and 0.08-0.12 s
 of the volume's copy in a 0.58 s frame on an H100). The packed volume's grid channels (the extinctions) do not depend
 on the sun, and the previous sun's device copy holds them. :func:`refill_step1a_channels` makes the sweep's input
 from them on the device, sweeps it there (:func:`swim.rt.solar._sweep`, the same program as the host's JAX path),

@@ -149,7 +149,7 @@ def _disk_cached(name, build, *args):
     """``build(*args)``, kept on disk between processes (:func:`swim.rt.compilation_cache.disk_cached`, keyed by
     the arguments and the code of every module of :mod:`swim.surface`, where all that the tables are built from
     lives): the two tables take ~0.45 s together, most of the ground's share of a new process's first render
-    (docs/performance.md, section 37)."""
+    (docs/decisions/0009-work-around-the-march.md)."""
     from ..rt.compilation_cache import disk_cached  # here: swim.rt imports this module
 
     sources = sorted(Path(__file__).resolve().parent.glob("*.py"))
