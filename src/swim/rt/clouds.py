@@ -197,8 +197,9 @@ def cloud_ray_inputs(directions, sun_scene, species, constants) -> dict:
     if not len(species):  # a cloudless scene: weights the march does not read
         return {"p_hydro": p_hydro, "ray_ms": np.zeros((d.shape[0], 1, 3 * degree.size), np.float32)}
     chi = np.asarray(constants["hydro_chi"], float)  # (n_sp, 3, L + 1): chi_l - f
-    ray_ms = (y_view[:, None, None, :] * chi[None, :, :, degree]).reshape(d.shape[0], chi.shape[0], -1)
-    return {"p_hydro": p_hydro, "ray_ms": ray_ms.astype(np.float32)}
+    ray_ms = np.empty((d.shape[0], chi.shape[0], 3, degree.size), np.float32)  # one pass, in the kernel's precision
+    np.multiply(y_view.astype(np.float32)[:, None, None, :], chi[:, :, degree].astype(np.float32)[None], out=ray_ms)
+    return {"p_hydro": p_hydro, "ray_ms": ray_ms.reshape(d.shape[0], chi.shape[0], -1)}
 
 
 def _readonly(a):

@@ -2,13 +2,13 @@
 
 :mod:`swim.rt.march` marches a chunk of rays in lockstep with JAX: every step is ~45 XLA kernels over the
 whole chunk, each writing its result to memory for the next, and on a CPU that costs ~0.6 µs of CPU time per
-ray and step (~1400 cycles), far more than the step's arithmetic and ~150 table reads (docs/performance.md,
-section 8). This module runs the same steps with every intermediate in registers, one ray at a time, rays
-in parallel over the cores, and stops a ray as soon as it meets the ground. The loop and the per-ray set-up
-before it (aerosol class, diffuse-source profiles: :func:`prepare_rays`) are duplicated here; the clouds'
-composition after it is :mod:`swim.rt.compose_cpu` (the clouds) and :mod:`swim.rt.ground_cpu` (the ground's
-Eq. 35). The JAX march remains the kernel on GPUs and for gradients.
-``tests/unit/test_rt_march.py`` holds both kernels to the float64 reference and to each other.
+ray and step (~1400 cycles), far more than the step's arithmetic and ~150 table reads
+(docs/decisions/0002-per-ray-cpu-kernel.md). This module runs the same steps with every intermediate in registers, one
+ray at a time, rays in parallel over the cores, and stops a ray as soon as it meets the ground. The loop and the per-ray
+set-up before it (aerosol class, diffuse-source profiles: :func:`prepare_rays`) are duplicated here; the clouds'
+composition after it is :mod:`swim.rt.compose_cpu` (the clouds) and :mod:`swim.rt.ground_cpu` (the ground's Eq. 35). The
+JAX march remains the kernel on GPUs and for gradients. ``tests/unit/test_rt_march.py`` holds both kernels to the
+float64 reference and to each other.
 
 The same code is also the GPU's per-ray kernel: :mod:`swim.rt.march_cuda` compiles these functions' Python code
 for NVIDIA GPUs (numba-cuda), one thread per ray. Everything the loop calls must therefore stay within what
@@ -57,7 +57,7 @@ def numba_sources_digest() -> str:
     lookups, and ``swim.rt.compose_cpu``'s transmittance) into the caller's machine code, and the other modules'
     constants as well: after a change to this file a cached ``ground_radiance`` would keep running the old geometry.
     The cache therefore lives in a folder named by this digest, so that any change to any of these modules starts a
-    fresh one (docs/performance.md, sections 37 and 49)."""
+    fresh one (docs/decisions/0009-work-around-the-march.md and docs/decisions/0004-step-placement.md)."""
     digest = hashlib.sha256()
     rt = Path(__file__).parent
     for path in [*sorted(rt.glob("*_cpu.py")), *(rt / name for name in CONSTANTS_READ_FROM)]:
@@ -90,7 +90,7 @@ _FASTMATH = {"contract", "arcp", "nsz", "reassoc", "afn"}
 _JIT_KERNEL = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
 #: The functions that only compiled code calls (:func:`_helper_jit`): without the CPython and C wrappers that numba
 #: would otherwise compile (and cache) for each of them, an empty cache compiles the march and its set-up ~2.5 s
-#: (17 %) faster (docs/performance.md, section 40).
+#: (17 %) faster (docs/decisions/0008-cold-start.md).
 _JIT_HELPER = {**_JIT_KERNEL, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
 #: Kernels that must give the bits of the NumPy code they replace (the colour stage, adaptive sampling's fill and
 #: cells' test): no fast-math (no contraction into FMAs, no reassociation), without the GIL.
@@ -134,7 +134,8 @@ def _helper_jit(**options):
 class _VectorisingDispatcher(CPUDispatcher):
     """The march kernel's dispatcher: compiles with LLVM's SLP (straight-line code) vectoriser on, which numba leaves
     off by default (``NUMBA_SLP_VECTORIZE``). It vectorises the step's four wavelength lanes (:data:`LANES`): the
-    replayed march ~4-6 % faster (docs/performance.md, section 48). The setting is numba's global one, switched on
+    replayed march ~4-6 % faster (docs/decisions/0003-cpu-kernel-code.md). The setting is numba's global one, switched
+    on
     for this compilation (and the helpers it compiles and links) only."""
 
     def compile(self, sig):
@@ -274,8 +275,8 @@ def _round_half_even(x):
     :func:`_probe_indices`' loop. ``math.floor`` returns an integer in numba, and without AVX-512 (the kernels'
     target on Intel CPUs, :mod:`swim.rt.numba_target`) x86 has no vector conversion of float64 to int64: a round's
     two floors became four scalar conversions, and the probes' loop took 8.2 % of the march's time instead of 4.0 %
-    (docs/performance.md, section 62). Magnitudes from 2^51 on (whole numbers from 2^52 on; a probe far beyond the
-    grid, clipped to it after) and NaN are returned as they are."""
+    (docs/decisions/0003-cpu-kernel-code.md). Magnitudes from 2^51 on (whole numbers from 2^52 on; a probe far beyond
+    the grid, clipped to it after) and NaN are returned as they are."""
     if not abs(x) < ROUNDING_LIMIT:
         return x
     return (x + ROUNDING_SHIFT) - ROUNDING_SHIFT
@@ -285,8 +286,9 @@ def _round_half_even(x):
 def _ix(i):
     """An array index that is never negative, as an unsigned integer: numba then emits no wraparound of negative
     indices for it (a compare, a select and often a reload of the axis' length per index). The step loop's lookups
-    take their computed indices through this: 7.6 % fewer instructions, 3-6 % faster (docs/performance.md, section
-    47). Like any index here (bounds are not checked), it must lie within the axis."""
+    take their computed indices through this: 7.6 % fewer instructions, 3-6 % faster
+    (docs/decisions/0003-cpu-kernel-code.md). Like any index here (bounds are not checked), it must lie within the
+    axis."""
     return np.uint64(i)
 
 
@@ -322,7 +324,8 @@ def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_h
     return r, h, (h - z_bottom) / dz, j, i
 
 
-@_helper_jit(inline="always")  # numba-level inlining: LLVM left this call in the step loop (section 16)
+# numba-level inlining: LLVM left this call in the step loop (docs/decisions/0003-cpu-kernel-code.md)
+@_helper_jit(inline="always")
 def _point_geometry(q0, q1, q2, p, coef):
     """:func:`swim.rt.march._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
     radius = p[_P_RADIUS]
@@ -353,7 +356,7 @@ def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count,
 
     The geometry of :func:`_point_geometry` in a loop of its own, without table reads or branches and with the
     constants in registers, which LLVM vectorises: ~5 ns per probe instead of ~23 ns inside the loop of lookups
-    (docs/performance.md, section 28)."""
+    (docs/decisions/0003-cpu-kernel-code.md)."""
     (radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz), c = _geometry_constants(p, coef)
     for b in range(count):
         s = s0 + (first + b + 0.5) / n_probe * length
@@ -438,7 +441,7 @@ def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step
     """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
     ``edges`` [m]) into ``step_at[0:6, :count]`` (height [m], local solar-zenith cosine, k, j, i, and the sky
     table's height coordinate sqrt(height / top)): a loop that LLVM vectorises, as :func:`_probe_indices`
-    (docs/performance.md, sections 28 and 29)."""
+    (docs/decisions/0003-cpu-kernel-code.md)."""
     (radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz), c = _geometry_constants(p, coef)
     sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
     top = p[_P_TOP]
@@ -463,7 +466,7 @@ def _lower_corner(k, j, i, nk, ny, nx):
     are cells too): the step loop's volume sample and :func:`_prefetch_corners`."""
     if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:
         # >= 0 here, so truncation is the floor: numba's math.floor returns an integer, which the clip turned back
-        # into a float and int() into an integer again (docs/performance.md, section 62)
+        # into a float and int() into an integer again (docs/decisions/0003-cpu-kernel-code.md)
         return True, int(min(k, nk - 2.0)), int(min(j, ny - 2.0)), int(min(i, nx - 2.0))
     return False, 0, 0, 0
 
@@ -474,8 +477,8 @@ def _prefetch_corners(volume, count, step_at):
     grid indices (k, j, i) in ``step_at[2:5]``, from :func:`_step_geometry`), before the step loop reads them.
 
     The corners' reads waited on memory for ~30 % of the kernel's time where rays fan out from an observer through a
-    volume bigger than the caches (docs/performance.md, section 29); a block of 32 steps' corners (at most 256 cells
-    of 36 bytes or fewer) fits in the first-level cache."""
+    volume bigger than the caches (docs/decisions/0003-cpu-kernel-code.md); a block of 32 steps' corners (at most 256
+    cells of 36 bytes or fewer) fits in the first-level cache."""
     nk, ny, nx, _ = volume.shape
     for b in range(count):
         inside, k0, j0, i0 = _lower_corner(step_at[2, b], step_at[3, b], step_at[4, b], nk, ny, nx)
@@ -677,7 +680,8 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
 #: (:func:`_march_ray_range`): far above float64 round-off at the earth's radius, far below any height that matters.
 END_STEP_GAP = 1e-3
 #: Lanes of the step's wavelength arithmetic: the three wavelengths and one lane of padding, whose values are
-#: computed and never read. Four lanes of float64 fill a 256-bit vector register (section 48 of docs/performance.md).
+#: computed and never read. Four lanes of float64 fill a 256-bit vector register
+#: (docs/decisions/0003-cpu-kernel-code.md).
 LANES = 4
 #: Columns of :func:`sky_lanes`' rows: the direct-sun lanes, then the skylight lanes.
 SKY_LANE_COLUMNS = 2 * LANES
@@ -725,7 +729,7 @@ def _corner_lane(lanes, u0, v0, u1, v1, o, a, b):
 def _corner_lanes(lanes, u0, v0, u1, v1, o, a, b):
     """Lanes o ... o + 3 of :func:`_corner_lane`. The table is indexed element by element: a row taken as a view
     (``lanes[u0, v0]``) is a new array whose reference count numba raises and lowers with atomic instructions,
-    which took ~1/4 of the march's cycles over all its views (docs/performance.md, section 60)."""
+    which took ~1/4 of the march's cycles over all its views (docs/decisions/0003-cpu-kernel-code.md)."""
     return (_corner_lane(lanes, u0, v0, u1, v1, o, a, b), _corner_lane(lanes, u0, v0, u1, v1, o + 1, a, b),
             _corner_lane(lanes, u0, v0, u1, v1, o + 2, a, b), _corner_lane(lanes, u0, v0, u1, v1, o + 3, a, b))
 
@@ -806,7 +810,7 @@ def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scal
     * the diffuse solution's source sum_s beta_s sum_lm (chi_s,l - f_s) Y_lm(-d) L'_lm(x): the ray's weights
       ``ray_ms[row]`` (n_sp, 3 nm), (chi_s,l - f_s) Y_lm(-d) per wavelength and moment, on the moments ``ms_field``
       (nk, ny_c, nx_c, 3 + 3 nm) interpolated trilinearly at the step's level ``k`` and columns
-      ((j, i) + 1/2) / ``ms_coarsen`` - 1/2 (corner by corner: each corner's moments one contiguous read);
+      ((j, i) + 1/2) / ``ms_coarsen`` - 1/2 (the species' weights summed first, then one interpolation per moment);
 
     and the ratio of the diffuse radiance to the clear sky's (channels 0-2), which scales the air's diffuse source,
     and the hydrometeors' scaled extinction sum_s (1 - f_s) beta_s (``hydro_scale``: 1 - f)."""
@@ -846,27 +850,34 @@ def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scal
     ss0 += su0 * extra
     ss1 += su1 * extra
     ss2 += su2 * extra
+    # sum_s beta_s sum_m w_s,m F_m(x) as sum_m (sum_s beta_s w_s,m) F_m(x): the species' weights combined before the
+    # trilinear interpolation, which is then done once per moment (most cloudy cells hold two species or more)
+    c000 = (1.0 - ak) * (1.0 - aj) * (1.0 - ai)
+    c001 = (1.0 - ak) * (1.0 - aj) * ai
+    c010 = (1.0 - ak) * aj * (1.0 - ai)
+    c011 = (1.0 - ak) * aj * ai
+    c100 = ak * (1.0 - aj) * (1.0 - ai)
+    c101 = ak * (1.0 - aj) * ai
+    c110 = ak * aj * (1.0 - ai)
+    c111 = ak * aj * ai
     ms0 = ms1 = ms2 = 0.0
-    for s in range(n_species):
-        b = vol[s]
-        if b <= 0.0:
+    for m in range(3 * nm):
+        r = 0.0
+        for s in range(n_species):
+            r += vol[s] * ray_ms[row, s, m]
+        if r == 0.0:
             continue
-        for corner in range(8):
-            kc = k1 if corner & 4 else k0
-            jc = j1 if corner & 2 else j0
-            ic = i1 if corner & 1 else i0
-            w = ((ak if corner & 4 else 1.0 - ak) * (aj if corner & 2 else 1.0 - aj)
-                 * (ai if corner & 1 else 1.0 - ai)) * b
-            if w == 0.0:
-                continue
-            a0 = a1 = a2 = 0.0
-            for m in range(nm):  # the corner's moments, contiguous: one vector per wavelength
-                a0 += ray_ms[row, s, m] * ms_field[kc, jc, ic, 3 + m]
-                a1 += ray_ms[row, s, nm + m] * ms_field[kc, jc, ic, 3 + nm + m]
-                a2 += ray_ms[row, s, 2 * nm + m] * ms_field[kc, jc, ic, 3 + 2 * nm + m]
-            ms0 += w * a0
-            ms1 += w * a1
-            ms2 += w * a2
+        c = 3 + m
+        f = (c000 * ms_field[k0, j0, i0, c] + c001 * ms_field[k0, j0, i1, c]
+             + c010 * ms_field[k0, j1, i0, c] + c011 * ms_field[k0, j1, i1, c]
+             + c100 * ms_field[k1, j0, i0, c] + c101 * ms_field[k1, j0, i1, c]
+             + c110 * ms_field[k1, j1, i0, c] + c111 * ms_field[k1, j1, i1, c])
+        if m < nm:
+            ms0 += r * f
+        elif m < 2 * nm:
+            ms1 += r * f
+        else:
+            ms2 += r * f
     return d0, d1, d2, ss0 * e0 + ms0, ss1 * e1 + ms1, ss2 * e2 + ms2, beta_eff
 
 
@@ -940,12 +951,12 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     This is the compiled kernel that :func:`march_rays` calls from Python, without the GIL, with LLVM's SLP
     vectoriser on (:func:`_vectorising`). A compiled ``march_rays`` that allocated the work arrays and called this
     took 1.5-2 s longer to compile on an empty cache (numba optimised and emitted the whole loop a second time
-    for it), for no gain at run time (docs/performance.md, section 50).
+    for it), for no gain at run time (docs/decisions/0003-cpu-kernel-code.md).
 
     A ray's accumulators (per wavelength: the clear-sky optical depth, the transmittance to the observer, the
     clear-sky radiance and the two Eq. 12 integrals) are scalars, which LLVM keeps in registers; as elements of
     work arrays (which may alias the tables, as far as LLVM knows) they were loaded and stored at every step, and
-    the kernel was ~7 % slower (docs/performance.md, section 27)."""
+    the kernel was ~7 % slower (docs/decisions/0002-per-ray-cpu-kernel.md)."""
     nk, ny, nx, n_c = volume.shape
     n_species = tau_species.shape[1]
     aerosol_3d = n_c > n_species + 2  # the 3-D aerosol's two channels (packed only where it is not zero)
@@ -959,8 +970,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     terrain_top = p[_P_TERRAIN_TOP]
     # the wavelengths' constants (and each ray's phase functions, below) as tuples of scalars, read once: read from
     # their arrays, they were read again at every step (the loop's stores may alias them, as far as LLVM knows);
-    # 3-4 % faster (docs/performance.md, section 47). One per lane (LANES): the padding lane's is the sky table's zero
-    # column, a value that the compiler cannot fold away, so that the four lanes' arithmetic stays alike (section 48)
+    # 3-4 % faster (docs/decisions/0003-cpu-kernel-code.md). One per lane (LANES): the padding lane's is the sky table's
+    # zero column, a value that the compiler cannot fold away, so that the four lanes' arithmetic stays alike
+    # (docs/decisions/0003-cpu-kernel-code.md)
     pad = sky_lanes[0, 0, 3]
     spec_r = (float(spectra[0, 0]), float(spectra[0, 1]), float(spectra[0, 2]), pad)
     spec_a = (float(spectra[1, 0]), float(spectra[1, 1]), float(spectra[1, 2]), pad)
@@ -1032,8 +1044,9 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 n_steps = _after_steps(st0, st1, st2, d0, d1, d2, s0, n_after, p, beta_gas)
                 # a ray still alive that ends on the sea-level sphere under the terrain (which beyond the grid keeps
                 # its edge's heights) takes one more step, of zero length at that end: its sample detects a crossing
-                # in the far half of the ray's last step, which no later step would (docs/performance.md, 54.);
-                # not where the terrain is at sea level, whose crossing is that end (a gap of ~1e-9 m either way)
+                # in the far half of the ray's last step, which no later step would
+                # (docs/decisions/0004-step-placement.md); not where the terrain is at sea level, whose crossing is that
+                # end (a gap of ~1e-9 m either way)
                 end_step = (_descending_at(st0, st1, st2, d0, d1, d2, bounds[r, 2], p[_P_RADIUS])
                             and _gap_along(bounds[r, 2], st0, st1, st2, d0, d1, d2, p, coef, terrain) < -END_STEP_GAP)
             if terminal:
@@ -1124,7 +1137,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 fm = (mu_s + 1.0) * 0.5
                 su0, sv0, sa, sb = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
                 # the terrain looked up only below its highest point (pack_parameters): ~4 % of the march's time
-                # (docs/performance.md, section 62); above it, the gap is unknown (infinite) until it is needed,
+                # (docs/decisions/0003-cpu-kernel-code.md); above it, the gap is unknown (infinite) until it is needed,
                 # which is when the next sample meets the ground: then it is looked up at that earlier sample
                 gap = _terrain_gap(h, j, i, terrain) if h <= terrain_top else math.inf
                 hit_now = alive and gap < 0 and not terminal
@@ -1144,9 +1157,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         fk = _clip(k - k0, 0.0, 1.0)
                         fj = _clip(j - j0, 0.0, 1.0)
                         fi = _clip(i - i0, 0.0, 1.0)
-                        # in float32 with the corners' weights, channel by channel (section 16 of docs/performance.md;
-                        # the JAX kernel interpolates in float32 too): LLVM gathers a channel's eight corners into one
-                        # vector (a flat view whose channels it loaded 8 at a time was not faster, section 60)
+                        # in float32 with the corners' weights, channel by channel
+                        # (docs/decisions/0003-cpu-kernel-code.md; the JAX kernel interpolates in float32 too): LLVM
+                        # gathers a channel's eight corners into one vector (a flat view whose channels it loaded 8 at a
+                        # time was not faster, docs/decisions/0003-cpu-kernel-code.md)
                         w00 = np.float32((1 - fk) * (1 - fj))
                         w01 = np.float32((1 - fk) * fj)
                         w10 = np.float32(fk * (1 - fj))
@@ -1157,7 +1171,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                         kb, jb, ib = _ix(k0 + 1), _ix(j0 + 1), _ix(i0 + 1)
                         # element by element, not through views of the corners' channels (volume[ka, ja, ia]):
                         # each view's reference count is raised and lowered with atomic instructions, on a count
-                        # that every thread shares (docs/performance.md, section 60)
+                        # that every thread shares (docs/decisions/0003-cpu-kernel-code.md)
                         for c in range(n_c):
                             vol32[c] = (w_i0 * (w00 * volume[ka, ja, ia, c] + w01 * volume[ka, jb, ia, c]
                                                 + w10 * volume[kb, ja, ia, c] + w11 * volume[kb, jb, ia, c])
@@ -1257,7 +1271,8 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 ua, ub = _ix(u0), _ix(u0 + 1)  # the multiple-scattering profiles' two heights
                 sun = t_cloud * shadow
                 # what each lane (wavelength) adds at this step, lane by lane in one block of arithmetic, the
-                # corners' lanes each one contiguous load: LLVM vectorises it across the lanes (section 48)
+                # corners' lanes each one contiguous load: LLVM vectorises it across the lanes
+                # (docs/decisions/0003-cpu-kernel-code.md)
                 su0u, sv0u, su1u, sv1u = _ix(su0), _ix(sv0), _ix(su0 + 1), _ix(sv0 + 1)
                 e0, e1, e2, e3 = _corner_lanes(sky_lanes, su0u, sv0u, su1u, sv1u, 0, sa, sb)
                 e0, e1, e2, e3 = e0 * sun, e1 * sun, e2 * sun, e3 * sun
@@ -1378,7 +1393,7 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
     there. The aerosol classes are the project's form of Eqs. 30-31 (Albers et al. 2020,
     doi:10.5194/amt-13-3235-2020; docs/aerosols.md, section 8). In a render 0.5-0.6 us a ray (the table's rows read
     from the caches): 0.32-0.41 ms for a chunk of 657 rays, where the JAX call, with its dispatch and its wait on
-    XLA's threads beside the other chunk's march, took 1.1-2 ms (docs/performance.md, section 30)."""
+    XLA's threads beside the other chunk's march, took 1.1-2 ms (docs/decisions/0009-work-around-the-march.md)."""
     radius = p[_P_RADIUS]
     sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
     n_class = class_aod.shape[0]
@@ -1482,7 +1497,8 @@ def work_arrays(n_edges, n_cdf, n_slots, n_saved, n_species, n_channels, n_u):
 
     They are views of one zeroed buffer, each starting on a cache line of its own, with a spare line before and after
     the buffer. Allocated one by one with numpy, the 1024² render of the synthetic scene (two threads, each marching
-    its chunks with its own work arrays) took 3.03-3.05 s instead of 2.82-2.87 s (docs/performance.md, section 50)."""
+    its chunks with its own work arrays) took 3.03-3.05 s instead of 2.82-2.87 s
+    (docs/decisions/0003-cpu-kernel-code.md)."""
     specs = (((n_edges,), np.float64), ((n_cdf,), np.float64), ((n_slots,), np.float64), ((n_slots,), np.float64),
              ((n_slots,), np.int64), ((n_saved,), np.float64), ((n_species,), np.float64),
              ((n_u, 3 * LANES), np.float64), ((n_channels,), np.float64), ((n_channels,), np.float32),
