@@ -13,7 +13,8 @@ for JAX's duration events (``jax._src.monitoring``) and then runs the CLI in pla
 caches must be warm: the first round is a warm-up and is not counted. Reported per variant (medians over the rounds):
 the process's wall time, the CLI's time, and the seconds of JAX's tracing (``jaxpr_trace_duration``), lowering
 (``jaxpr_to_mlir_module_duration``) and reads of compiled executables (``cache_retrieval_time_sec``). Results go to
-``benchmarks/results/cold-<UTC date and time>.json`` (``--out`` to change). docs/decisions/0008-cold-start.md
+``benchmarks/results/cold-latest.json`` (``--out`` to change) and the medians to ``benchmarks/results/history.csv``.
+docs/decisions/0008-cold-start.md
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ import statistics
 import subprocess
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -92,12 +92,15 @@ def main():
     for variant, results in runs.items():
         summary[variant] = {key: statistics.median(r[key] for r in results) for key in keys}
         print(f"| {variant} | " + " | ".join(f"{summary[variant][key]:.2f}" for key in keys) + " |")
-    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H%M%SZ")
-    out = args.out or ROOT / "benchmarks" / "results" / f"cold-{stamp}.json"
+    out = args.out or ROOT / "benchmarks" / "results" / "cold-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"arguments": arguments, "rounds": args.rounds, "runs": runs, "medians": summary},
-                              indent=1))
-    print(f"\nwritten: {out}")
+    doc = {"arguments": arguments, "rounds": args.rounds, "runs": runs, "medians": summary}
+    out.write_text(json.dumps(doc, indent=1))
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import history
+
+    history.append("cold", history.cold_rows(doc), source="bench_cold.py")
+    print(f"\nwritten: {out}, {history.HISTORY}")
 
 
 if __name__ == "__main__":

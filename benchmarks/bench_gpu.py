@@ -50,8 +50,9 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
 * the GPU's peak memory (``memory_stats``) and, with ``--compare``, the radiance against a render with the
   numba kernel on the host's cores (median and 99th percentile of the relative difference).
 
-Figures print as a table at the end and go to ``--out`` as JSON (with the images as PNG beside it); ``--size``
-renders smaller images for a quick check. The H100's and H200's figures are in docs/decisions/0006-gpu-kernels.md.
+Figures print as a table at the end and go to ``--out`` as JSON (with the images as PNG beside it), the headline
+figures of each row to ``benchmarks/results/history.csv``; ``--size`` renders smaller images for a quick check.
+The H100's and H200's figures are in docs/decisions/0006-gpu-kernels.md.
 """
 
 from __future__ import annotations
@@ -717,6 +718,9 @@ def main(argv=None):
         doc["scenes"][name] = run_scene(name, args, probe, args.out.parent if args.out else None)
         if args.out:
             args.out.write_text(json.dumps(doc, indent=1, default=float))
+    import history
+
+    history.append("gpu", history.gpu_rows(doc), machine=history.machine_label(machine), source="bench_gpu.py")
     print("\n| scene | chunk | rays | warm render [s] | frames/s | in trace_rays [s] | kernel per chunk [ms] | "
           "kernel Mrays/s | kernel frames/s |\n|---|---|---|---|---|---|---|---|---|")
     for name, res in doc["scenes"].items():

@@ -24,8 +24,8 @@ off by default, so the "with the table" variant measures the host's planes and c
 both on in that variant, as on a GPU: the device's part (the stand-in, the scatters, the colour stage) then runs on
 this machine's cores too and counts in the figure, which is then an upper bound of the host's share.
 
-The images are not physical: only the times mean something. Results go to ``benchmarks/results/host-<UTC date and
-time>.json`` (``--out`` to change).
+The images are not physical: only the times mean something. Results go to ``benchmarks/results/host-latest.json``
+(``--out`` to change) and the times with and without to ``benchmarks/results/history.csv``.
 """
 
 from __future__ import annotations
@@ -36,7 +36,6 @@ import statistics
 import sys
 import time
 from dataclasses import replace
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -143,14 +142,17 @@ def main(argv=None):
                 text = sampler.report()
                 row[f"profile_{'with' if kept else 'without'}"] = text
                 print(f"\n### {label}, ray table {'on' if kept else 'off'}\n{text[:3000]}", flush=True)
-    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H%M%SZ")
-    out = args.out or ROOT / "results" / f"host-{args.scene}-{stamp}.json"
+    out = args.out or ROOT / "results" / "host-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"scene": args.scene, "size": args.size, "repeats": args.repeats,
-                               "chunk": base.chunk, "device_image": bool(args.device_image),
-                               "machine": bench_suite.machine_info(),
-                               "jax_backend": jax.default_backend(), "rows": rows}, indent=1))
-    print(f"written: {out}")
+    doc = {"scene": args.scene, "size": args.size, "repeats": args.repeats, "chunk": base.chunk,
+           "device_image": bool(args.device_image), "machine": bench_suite.machine_info(),
+           "jax_backend": jax.default_backend(), "rows": rows}
+    out.write_text(json.dumps(doc, indent=1))
+    import history
+
+    history.append("host", history.host_rows(doc), machine=history.machine_label(doc["machine"]),
+                   source="bench_host.py")
+    print(f"written: {out}, {history.HISTORY}")
 
 
 if __name__ == "__main__":

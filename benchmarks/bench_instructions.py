@@ -19,7 +19,8 @@ Zen 4 CPU numba compiles with AVX-512's 32 vector registers, so its own count is
 Compare counts with counts from this script only. The first run compiles under valgrind (~10 minutes on this
 machine), the others take ~1-2 minutes each. Needs ``valgrind`` on the PATH.
 
-Results go to ``benchmarks/results/instructions-<scene>-<UTC date and time>.json`` (``--out`` to change).
+Results go to ``benchmarks/results/instructions-latest.json`` (``--out`` to change) and the counts per sample to
+``benchmarks/results/history.csv``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_march  # noqa: E402  (benchmarks/ on the path first)
 import bench_suite  # noqa: E402
+import history  # noqa: E402
 
 CHILD = r"""
 import pickle, sys
@@ -114,11 +115,12 @@ def main(argv=None):
     for key, label in (("instructions", "instructions"), ("branches", "conditional branches"),
                        ("mispredicts", "mispredicted (simulated)")):
         print(f"| {label} | {per_pass[key]:,} | {result['per_sample'][key]:.1f} | {result['per_ray'][key]:,.0f} |")
-    out = opts.out or (ROOT / "benchmarks" / "results" /
-                       f"instructions-{opts.scene}-{datetime.now(timezone.utc).strftime('%Y-%m-%dT%H%M%SZ')}.json")
+    out = opts.out or ROOT / "benchmarks" / "results" / "instructions-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
-    print(f"\nwritten: {out}")
+    history.append("instructions", history.instructions_rows(result), machine=history.machine_label(result["machine"]),
+                   commit=history.commit_label(result["git"]), source="bench_instructions.py")
+    print(f"\nwritten: {out}, {history.HISTORY}")
 
 
 if __name__ == "__main__":

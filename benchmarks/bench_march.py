@@ -38,7 +38,8 @@ times the installed kernel's time (loaded from numba's disk cache) in session 51
   per-ray cost that does not grow with the steps: the occupancy and clear-air probes that place them, the
   set-up and the outputs (``set-up per ray`` = its µs per ray less its few samples at the full run's cost).
 
-Results go to ``benchmarks/results/march-<scene>-<UTC date and time>.json`` (``--out`` to change).
+Results go to ``benchmarks/results/march-latest.json`` (``--out`` to change) and ns per sample of each kernel to
+``benchmarks/results/history.csv``.
 """
 
 from __future__ import annotations
@@ -52,7 +53,6 @@ import statistics
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -284,14 +284,17 @@ def main(argv=None):
         print(f"\nset-up per ray (probes, step placement, outputs): {result['setup_per_ray_us']:.2f} µs, "
               f"{100 * result['setup_share']:.0f} % of the kernel's time")
 
-    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H%M%SZ")
-    out = args.out or bench_suite.RESULTS / f"march-{args.scene}-{stamp}.json"
+    out = args.out or bench_suite.RESULTS / "march-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"scene": args.scene, "size": args.size, "chunks": len(calls), "repeats": args.repeats,
            "flush_mb": args.flush, "interleaved": args.interleave,
            "machine": bench_suite.machine_info(), "git": bench_suite.git_info(), "results": result}
     out.write_text(json.dumps(doc, indent=1, default=float))
-    print(f"\nwritten: {out}")
+    import history  # benchmarks/ is on the path
+
+    history.append("march", history.march_rows(doc), machine=history.machine_label(doc["machine"]),
+                   commit=history.commit_label(doc["git"]), source="bench_march.py")
+    print(f"\nwritten: {out}, {history.HISTORY}")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,8 @@ three wavelengths of |L' - L'_ref| / max(|L'_ref|, 1e-3), reported as median / 9
 pixels, over those below a view zenith of ``--rim`` degrees (the sky overhead) and over those above it (the horizon's
 ring, where an all-sky image's rays are longest and most of the error lies). The hydrometeor optical depth along the
 line of sight (``tau_hydrometeor``, which adaptive sampling interpolates too) is compared the same way, with a floor of
-0.1. Results go to ``benchmarks/results/settings-<case>-<UTC date and time>.json`` (``--out`` to change).
+0.1. Results go to ``benchmarks/results/settings-latest.json`` (``--out`` to change) and each variant's time, pixels,
+samples and 99th percentile errors to ``benchmarks/results/history.csv``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,6 @@ import statistics
 import sys
 import time
 from dataclasses import asdict, fields
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -186,13 +186,15 @@ def main():
               f"{r['traced_pixels']} | {r['samples_per_ray']:.1f} | {cell(e['all'])} | {cell(e['sky'])} | {cell(e['rim'])} "
               f"| {cell(r['tau_error_pct']['all'])} |")
 
-    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H%M%SZ")
-    path = args.out or ROOT / "benchmarks" / "results" / f"settings-{args.case}-{stamp}.json"
+    path = args.out or ROOT / "benchmarks" / "results" / "settings-latest.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"case": args.case, "image": list(image), "reference": args.reference,
-                                "reference_s": ref_s, "rim_deg": args.rim, "repeats": args.repeats,
-                                "variants": results}, indent=1))
-    print(f"\nwritten: {path}")
+    doc = {"case": args.case, "image": list(image), "reference": args.reference, "reference_s": ref_s,
+           "rim_deg": args.rim, "repeats": args.repeats, "variants": results}
+    path.write_text(json.dumps(doc, indent=1))
+    import history  # benchmarks/ is on the path
+
+    history.append("settings", history.settings_rows(doc), source="bench_settings.py")
+    print(f"\nwritten: {path}, {history.HISTORY}")
 
 
 if __name__ == "__main__":

@@ -8,8 +8,9 @@ Usage::
 
 Every case runs in a fresh subprocess (so ``cold`` includes JIT compilation and ``peak_rss_mb`` is the case's
 own ``ru_maxrss``) under a timeout and a memory limit; a case that fails is reported as "not run: <reason>".
-Results go to ``benchmarks/results/suite-<date>.json`` and ``benchmarks/results/latest.json``; a Markdown
-table is printed at the end. See benchmarks/README.md for the cases and the JSON fields.
+Results go to ``benchmarks/results/latest.json`` (overwritten) and a few figures per case to
+``benchmarks/results/history.csv`` (appended, ``history.py``); a Markdown table is printed at the end. See
+benchmarks/README.md for the cases and the JSON fields.
 """
 
 from __future__ import annotations
@@ -928,7 +929,8 @@ def main(argv=None):
     ap.add_argument("--disk-caches", action="store_true",
                     help="keep swim's and JAX's persistent caches on (cold = a new process on a used machine)")
     ap.add_argument("--data", type=Path, default=DATA, help="folder of the real data (wrf_katrina/, les/)")
-    ap.add_argument("--results", type=Path, default=RESULTS, help="output folder (JSON, MC reference cache)")
+    ap.add_argument("--results", type=Path, default=RESULTS,
+                    help="output folder (latest.json, history.csv, MC reference cache)")
     ap.add_argument("--series-scene", choices=("katrina", "synthetic"), default="katrina",
                     help="series: Katrina with the sun moving, or the synthetic scene with advected clouds")
     ap.add_argument("--series-workers", type=int, default=0, help="series: also spread the frames over a dask LocalCluster")
@@ -973,9 +975,13 @@ def main(argv=None):
            "disk_caches": args.disk_caches, "machine_probe_reference_ns": probe_reference,
            "machine": machine, "git": git_info(), "total_s": time.monotonic() - t0, "cases": results}
     args.results.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(doc, indent=1, default=float)
-    (args.results / f"suite-{created.strftime('%Y-%m-%dT%H%M%SZ')}.json").write_text(text)
-    (args.results / "latest.json").write_text(text)
+    (args.results / "latest.json").write_text(json.dumps(doc, indent=1, default=float))
+    import history  # benchmarks/ is on the path
+
+    history.append("suite-quick" if args.quick else "suite", history.suite_rows(doc),
+                   date=created.strftime("%Y-%m-%dT%H:%M:%SZ"), machine=history.machine_label(machine),
+                   commit=history.commit_label(doc["git"]), source="bench_suite.py",
+                   path=args.results / history.HISTORY.name)
     print(markdown(doc))
 
 

@@ -22,8 +22,8 @@ for comparison.
 The ray table, the device sampler and the image on the device are switched on (on a GPU they are the defaults). On a
 CPU the "device" is the host's cores: XLA's CPU code is slower than a GPU's for these programs, so use ``--stand-in``
 there to leave the march out (the images are then not physical) and read the figures as an upper bound. Results go to
-``benchmarks/results/frame-parts-<scene>-<UTC date and time>.json`` (``--out`` to change);
-docs/decisions/0005-adaptive-sampling.md
+``benchmarks/results/frame-parts-latest.json`` (``--out`` to change) and each program's seconds to
+``benchmarks/results/history.csv``; docs/decisions/0005-adaptive-sampling.md
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ import statistics
 import sys
 import time
 from dataclasses import replace
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -175,14 +174,17 @@ def main(argv=None):
                 restore()
             row["profile"] = text = sampler.report()
             print(f"\n### {label}, each program waited for\n{text[:4000]}", flush=True)
-    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H%M%SZ")
-    out = args.out or ROOT / "results" / f"frame-parts-{args.scene}-{stamp}.json"
+    out = args.out or ROOT / "results" / "frame-parts-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"scene": args.scene, "size": args.size, "repeats": args.repeats,
-                               "stand_in": bool(args.stand_in), "chunk": settings.chunk,
-                               "machine": bench_suite.machine_info(), "jax_backend": jax.default_backend(),
-                               "rows": rows}, indent=1))
-    print(f"written: {out}")
+    doc = {"scene": args.scene, "size": args.size, "repeats": args.repeats, "stand_in": bool(args.stand_in),
+           "chunk": settings.chunk, "machine": bench_suite.machine_info(), "jax_backend": jax.default_backend(),
+           "rows": rows}
+    out.write_text(json.dumps(doc, indent=1))
+    import history
+
+    history.append("frame-parts", history.frame_parts_rows(doc), machine=history.machine_label(doc["machine"]),
+                   source="frame_parts.py")
+    print(f"written: {out}, {history.HISTORY}")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ Needs, beside swim's own environment (nothing that the tests or a render need):
 Usage::
 
     PYTHONPATH=/tmp/cuda-site python benchmarks/pallas_registers.py --kernels fused fused-march \
-        --blocks 128x4 512x16 1024x32 --out benchmarks/results/gpu/registers.json
+        --blocks 128x4 512x16 1024x32 --out /tmp/registers.json
 
 On this project's 2-core machine each kernel and shape takes ~15-25 s (the lowering and ptxas).
 """

@@ -21,7 +21,8 @@ process, and then reads the hot addresses' machine code from its own memory and 
 
 Needs ``perf`` (Linux) with user-space sampling allowed (``/proc/sys/kernel/perf_event_paranoid`` ≤ 2) and
 ``objdump``. On a virtual machine without hardware counters ``perf`` samples the CPU clock instead of cycles.
-Results go to ``benchmarks/results/profile-<scene>-<UTC date and time>.json`` (``--out`` to change).
+Results go to ``benchmarks/results/profile-latest.json`` (``--out`` to change) and ns per sample and the shares to
+``benchmarks/results/history.csv``.
 """
 
 from __future__ import annotations
@@ -37,7 +38,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -182,8 +182,7 @@ def main(argv=None):
             print(f"            {text}")
         top.append({"share": share, "address": address, "code": lines})
 
-    out = args.out or ROOT / "benchmarks" / "results" / (
-        f"profile-{args.scene}-{datetime.now(timezone.utc).strftime('%Y-%m-%dT%H%M%SZ')}.json")
+    out = args.out or ROOT / "benchmarks" / "results" / "profile-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     summary = {"scene": args.scene, "size": args.size, "samples": samples, "seconds": elapsed,
                "ns_per_sample": elapsed / samples * 1e9, "compiled_share": compiled, "libraries": libraries,
@@ -191,7 +190,10 @@ def main(argv=None):
                "regions": [{k: v for k, v in g.items() if k != "code"} for g in found], "top": top,
                "machine": bench_suite.machine_info() if hasattr(bench_suite, "machine_info") else None}
     out.write_text(json.dumps(summary, indent=1))
-    print(f"\nwritten {out}")
+    import history  # benchmarks/ is on the path
+
+    history.append("profile", history.profile_rows(summary), source="profile_march.py")
+    print(f"\nwritten {out}, {history.HISTORY}")
 
 
 if __name__ == "__main__":

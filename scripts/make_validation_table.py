@@ -332,7 +332,7 @@ def _worst(values):
 
 
 def summary_lines(rows, stratus, rico):
-    """The issue-3 goals with what swim reaches (worst case over cases and wavelengths)."""
+    """The accuracy goals with what swim reaches (worst case over cases and wavelengths)."""
     out = ["| goal | measured (worst case) | met | paper (Table 4) |", "|---|---|---|---|"]
     default = [r for r in rows if r[0] == "default"]
     med = max(float(np.max(r[4]["median_abs"])) for r in default)

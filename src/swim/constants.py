@@ -69,7 +69,7 @@ HYDROMETEOR_DENSITY = {
     "graupel": 500.0,
 }
 
-#: Default effective radii [m] where the scene gives none (issue 2; cloud liquid rises with content,
+#: Default effective radii [m] where the scene gives none (cloud liquid rises with content,
 #: see :func:`swim.optics.hydrometeors.effective_radius_liquid_martin1994`).
 DEFAULT_EFFECTIVE_RADIUS = {
     "cloud_liquid": 10e-6,
@@ -79,7 +79,7 @@ DEFAULT_EFFECTIVE_RADIUS = {
     "graupel": 10e-3,
 }
 
-#: Default background aerosol: optical depth at 550 nm, scale height [m] (issue 2) and type
+#: Default background aerosol: optical depth at 550 nm, scale height [m] and type
 #: (docs/aerosols.md).
 DEFAULT_AEROSOL = {
     "aod_550": 0.05,

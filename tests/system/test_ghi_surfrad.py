@@ -77,7 +77,7 @@ def test_clear_sky_against_pvlib_models_by_zenith(zeniths):
     """swim GHI vs pvlib for the same AOD, water vapour, ozone and pressure (docs/irradiance.md, Table 3).
 
     Measured (AOD 0.03, pw 0.33 cm, 2317 m), zenith 0/30/60/70 deg: vs Ineichen-Perez -2.97/-2.8/-1.1/+1.6 %
-    (the margin at zenith 0 is small: the issue's goal is the bound), vs simplified Solis +1.7 ... +2.5 %,
+    (the margin at zenith 0 is small: the 3 % goal is the bound), vs simplified Solis +1.7 ... +2.5 %,
     vs SPCTRL2 +0.4 ... +1.8 %, vs Bird +3.5 ... +4.4 %.
     """
     sim, ref = zeniths

@@ -1,4 +1,4 @@
-"""Land and water surfaces on real scenes (issue 4): sun glint, skyline, sunlit slopes, cast shadows.
+"""Land and water surfaces on real scenes: sun glint, skyline, sunlit slopes, cast shadows.
 
 Every expectation is computed here from geometry alone, independently of the renderer: the specular point
 by root finding on the sea-level sphere, the horizon by scanning the terrain field along each azimuth (earth
@@ -346,7 +346,7 @@ def test_panorama_skyline_from_the_tibet_peak_follows_the_terrain(tibet):
 def test_panorama_skyline_from_the_colorado_peak_follows_the_terrain(colorado):
     """As for Tibet, from the highest point (3267 m) of the 60 m met_em grid in Colorado, whose skyline lies
     beyond the grid (the clamped edge heights, 20-60 km away) for most azimuths: this needs the index map's
-    tangent-plane continuation beyond the grid (a cubic extrapolated that far was 14 cells off)."""
+    tangent-plane continuation beyond the grid (a cubic extrapolated that far is 14 cells off)."""
     _check_skyline(colorado, MarchSettings(surface="lambertian"))
 
 

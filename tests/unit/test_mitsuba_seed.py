@@ -1,4 +1,5 @@
-"""Monte Carlo seeds fit Mitsuba's 32-bit sampler seeds for any run seed (a seed >= 4295 used to overflow)."""
+"""Monte Carlo seeds fit Mitsuba's 32-bit sampler seeds for any run seed (seed * 1000003 + k alone overflows from
+seed 4295 on)."""
 
 from swim.validation.mitsuba import wavefront_seed
 

@@ -13,7 +13,7 @@ from swim.pipeline import _disk_window, _sun_disk
 
 
 def whole_image_disk(camera, dirs_enu, valid, sun_enu, transmittance, monkeypatch):
-    """The disk searched over every pixel (what _sun_disk did before its window): the reference."""
+    """The disk searched over every pixel (_sun_disk without its window): the reference."""
     with monkeypatch.context() as patch:
         patch.setattr(pipeline, "_disk_window", lambda camera, sun, radius, row, col, ny, nx: ((0, ny), (0, nx)))
         return _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance)

@@ -54,7 +54,7 @@ def test_paths_into_the_earth_are_opaque_and_grazing_ones_are_not():
 
 @pytest.mark.parametrize("dh", [100.0, 10.0])
 def test_matches_the_same_quadrature_with_numpy_interp_per_channel(dh):
-    """The same midpoint rule written with numpy.interp per channel (the implementation before session 30), on a
+    """The same midpoint rule written with numpy.interp per channel (a simpler, slower implementation), on a
     profile with structure (a stratospheric layer, a boundary layer), the table's own grid of heights and cosines, and
     the default and a fine height grid."""
     rng = np.random.default_rng(11)

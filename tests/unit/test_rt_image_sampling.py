@@ -402,7 +402,7 @@ def test_the_compiled_fill_interpolates_each_cell_in_the_values_precision_finer_
 
 
 def _smooth_cells_numpy(values, valid_flat, traced, cells, nx, sampling):
-    """The cells' test as NumPy gathers over all cells at once (the sampler's own until session 47): the reference
+    """The cells' test as NumPy gathers over all cells at once (a vectorised equivalent): the reference
     that swim.rt.smooth_cpu's per-cell kernels must reproduce."""
     y0, y1, x0, x1 = cells.T
     yc, xc = (y0 + y1) // 2, (x0 + x1) // 2
@@ -517,7 +517,7 @@ def test_a_tracer_may_return_its_rows_in_its_own_order(shape):
 
 
 def _split_cells_numpy(cells, smooth, nx, ny, edge_size):
-    """The next level in NumPy (the sampler's own until session 50): the reference for swim.rt.smooth_cpu's
+    """The next level in NumPy (a vectorised equivalent): the reference for swim.rt.smooth_cpu's
     split_cells. Returns the children (k, 4) and the mask of the pixels to trace."""
     split = cells[~smooth]
     y0, y1, x0, x1 = split.T

@@ -116,9 +116,9 @@ def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume, settings, 
 def test_the_air_in_front_of_the_ground_does_not_depend_on_the_step_count(backend):
     """Rays from 14 m above the ground, just above the horizon, that meet the rising ground 280-480 m away: the
     gas and aerosol light in front of it (``radiance_clear``) and the whole radiance against the NumPy reference's
-    2 m steps, with 1 to 400 grid steps. The step in which a ray meets the ground used to count up to where its
-    middle sample had gone below the ground: with 1-32 grid steps that light was 10-410 % too bright (the whole
-    radiance up to 2.6 %). It now ends at the refined crossing, and where the crossing lies in the far half of
+    2 m steps, with 1 to 400 grid steps. Were the step in which a ray meets the ground to count up to where its
+    middle sample has gone below the ground, that light would be 10-410 % too bright with 1-32 grid steps (the whole
+    radiance up to 2.6 %). It ends at the refined crossing, and where the crossing lies in the far half of
     the step before, that step is taken back and taken again up to it (swim.rt.march._terminal_step;
     docs/decisions/0004-step-placement.md)."""
     scene = _tiny_scene().copy()
@@ -665,8 +665,8 @@ def test_numba_and_jax_refine_alike_sample_by_sample(monkeypatch):
 def test_a_stopped_ray_samples_no_more_in_jax_than_in_numba(monkeypatch):
     """A ray that stops (in opaque cloud, or at the ground) leaves the JAX kernel's grid loop, as it leaves numba's:
     the rays stopped in opaque cloud take the same grid samples in both kernels, and those at the ground as many
-    but numba's terminal steps (up to 3). Before session 69 (docs/decisions/0006-gpu-kernels.md) JAX's rays went on to
-    their last grid step (50-105 samples more here), their later samples adding nothing."""
+    but numba's terminal steps (up to 3), instead of going on to their last grid step (50-105 samples more here),
+    where their later samples would add nothing (docs/decisions/0006-gpu-kernels.md)."""
     jax_steps, jax_out, numba_out = _grid_samples_of_both_kernels(monkeypatch, _tiny_scene(True), 150.0,
                                                                   stop_tau=40.0)
     numba_steps = np.asarray(numba_out["steps"])

@@ -1,8 +1,8 @@
-"""swim's clear sky against DISORT (issue 3, item 4): adapter sanity, then swim vs the reference.
+"""swim's clear sky against DISORT: adapter sanity, then swim vs the reference.
 
 Measured numbers are in docs/validation.md (scripts/make_validation_table.py): median |swim / DISORT - 1|
 0.1-2.2 % over the six clear-sky cases and three wavelengths, GHI within 0.1 %; each test's docstring
-quotes its own figures. The ceilings are the issue's goals or the measured values plus a margin.
+quotes its own figures. The ceilings are the accuracy goals or the measured values plus a margin.
 """
 
 from __future__ import annotations
@@ -145,15 +145,15 @@ def test_swim_against_disort_ground(aod, sz):
     assert np.all(r["pearson_r"] > 0.97)  # the sky's angular structure (paper's camera metric)
 
 
-def test_issue_goal_median_5_percent():
-    """Issue 3 goal: median |relative error| of the clear sky <= 5 % at each wavelength."""
+def test_goal_median_5_percent():
+    """Goal: median |relative error| of the clear sky <= 5 % at each wavelength."""
     worst = max(float(np.max(_case(aod, sz)["median_abs"])) for aod, sz in CASES)
     assert worst <= 0.05, f"worst median |err| {100 * worst:.1f} %"
 
 
 @pytest.mark.parametrize("aod, sz", list(CASES))
 def test_irradiance_within_3_percent(aod, sz):
-    """Issue 3 goal: GHI within 3 %. GHI from swim's all-sky image (exact pixel solid angles, direct beam
+    """Goal: GHI within 3 %. GHI from swim's all-sky image (exact pixel solid angles, direct beam
     explicit) against DISORT's direct + diffuse flux; the diffuse part alone too (measured 0.3-1.4 %)."""
     r = _case(aod, sz)
     err = r["diffuse_horizontal_swim"] / r["diffuse_horizontal_disort"] - 1

@@ -515,7 +515,7 @@ def _render_series(scene, source, start, end, every, workers, scheduler, out, ne
 
 
 def _register_diagnostics():
-    """The forward-operator commands live in their own modules (issue 5), and so does ``swim cache``."""
+    """The forward-operator commands live in their own modules, and so does ``swim cache``."""
     from .cache import cache
     from .compare import compare
     from .ghi import ghi

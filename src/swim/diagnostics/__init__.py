@@ -1,4 +1,4 @@
-"""Forward-operator diagnostics computed from rendered images (issue 5).
+"""Forward-operator diagnostics computed from rendered images.
 
 Irradiance from all-sky images (:mod:`.irradiance`) and its broadband conversion and time series
 (:mod:`.broadband`, :mod:`.ghi`), comparison with camera images (:mod:`.compare`, Eq. 37),

@@ -1,4 +1,4 @@
-"""Spectral (615/546/450 nm) -> broadband solar irradiance, with the gaseous absorption swim lacks (issue 5).
+"""Spectral (615/546/450 nm) -> broadband solar irradiance, with the gaseous absorption swim lacks.
 
 SWIm renders at three wavelengths only and has no gaseous absorption there (Rayleigh + aerosol + clouds).
 The paper (Albers et al. 2020, Sect. 3.1) takes broadband irradiance proportional to the relative

@@ -1,4 +1,4 @@
-"""Colour-ratio cloud masks of sky images and categorical scores (paper Sect. 4.2.3; issue 5, item 3).
+"""Colour-ratio cloud masks of sky images and categorical scores (paper Sect. 4.2.3).
 
 The paper suggests deriving cloud masks from both a simulated and a camera image "using for example sky
 color (e.g., red/blue intensity ratios)" and scoring their agreement with categorical skill scores

@@ -1,4 +1,4 @@
-"""Compare a simulated image with a real camera image (paper Sect. 4.2.3, Eq. 37; issue 5, item 2).
+"""Compare a simulated image with a real camera image (paper Sect. 4.2.3, Eq. 37).
 
 Workflow
 --------

@@ -1,4 +1,4 @@
-"""GHI forward operator: broadband irradiance time series from rendered all-sky images (issue 5, item 1).
+"""GHI forward operator: broadband irradiance time series from rendered all-sky images.
 
 For each instant :func:`ghi_time_series` renders a small all-sky image with :func:`swim.render`, integrates it
 over the hemisphere with exact pixel solid angles and the direct beam handled explicitly

@@ -1,4 +1,4 @@
-"""Irradiance at the observer from a rendered all-sky image (paper Sect. 3.1; issue 5, item 1).
+"""Irradiance at the observer from a rendered all-sky image (paper Sect. 3.1).
 
 With the solar-relative radiance of the paper's Eq. 2, ``L' = 4 pi L / E_TOA``, the irradiance on a horizontal
 surface relative to the TOA solar irradiance at normal incidence is
@@ -20,8 +20,8 @@ All three per wavelength (615, 546, 450 nm). An isotropic sky L' = const gives D
 
 Conversion to W m-2 (:func:`irradiance_w_m2`) is the paper's monochromatic proxy (Sect. 3.1): the broadband
 irradiance is taken proportional to the relative irradiance at 546 nm, E = (E / E_TOA)_546 x S / r^2 with
-the solar constant S = 1362 W m-2 and the sun-earth distance r [AU]. Issue 5 will replace it with a
-spectrally corrected conversion.
+the solar constant S = 1362 W m-2 and the sun-earth distance r [AU]. The spectrally corrected conversion, with
+the gaseous absorption swim lacks, is :func:`swim.diagnostics.broadband.broadband_irradiance`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Satellite views: reflectance factor images and render settings for nadir / geostationary views (issue 5, item 4).
+"""Satellite views: reflectance factor images and render settings for nadir / geostationary views.
 
 Reflectance factor
 ------------------

@@ -1,18 +1,17 @@
 """Adaptive sampling's interpolation of its smooth cells, one pixel at a time on the CPU (numba).
 
-:func:`swim.rt.image_sampling._fill` interpolated each output in NumPy: per cell size, index and weight arrays for
-every target pixel, then four gathers and three products per pixel and output array, each a pass with temporaries:
-0.17 s of a warm 1024^2 adaptive all-sky on 2 cores (~810 000 target pixels, 13 float channels), at the end of the
-render while the march's threads were idle. This kernel walks the cells and their pixels and does the same
-float32 arithmetic in one pass per output (docs/decisions/0009-work-around-the-march.md), and since session 50 in one
-pass over all the float outputs, the pixels' weights computed once, on bands of rows in parallel
+Interpolating each output in NumPy (per cell size, index and weight arrays for every target pixel, then four
+gathers and three products per pixel and output array, each a pass with temporaries) took 0.17 s of a warm 1024^2
+adaptive all-sky on 2 cores (~810 000 target pixels, 13 float channels), at the end of the render while the march's
+threads were idle. This kernel walks the cells and their pixels and does the same float32 arithmetic in one pass over
+all the float outputs, the pixels' weights computed once, on bands of rows in parallel
 (docs/decisions/0009-work-around-the-march.md).
 
 Bit for bit NumPy's result: the weights are computed in float64 as ``dy / h`` and ``dx / w`` and rounded once to
 float32, and the four corners' products are summed in the same order, without fused multiply-adds.
 
-Since session 62 a cell whose centre is traced and strictly inside it (the centre test's pixel) is interpolated
-through that centre too: the corners' bilinear value plus the centre's residual times a bump that is 1 at the centre,
+A cell whose centre is traced and strictly inside it (the centre test's pixel) is interpolated through that centre
+too: the corners' bilinear value plus the centre's residual times a bump that is 1 at the centre,
 0 on the cell's edges and bilinear on each quarter the centre makes (:func:`_centre_bump`). The edges stay the
 corners' lines, so neighbouring cells still agree along them (docs/decisions/0005-adaptive-sampling.md).
 """

@@ -48,7 +48,7 @@ from .multiple_scattering import DiffuseSourceTable, diffuse_source_table
 
 @dataclass(frozen=True)
 class AerosolBackground:
-    """Horizontally uniform 1-D aerosol of a named type (issue 2 default: AOD 0.05 at 550 nm, 1.5 km).
+    """Horizontally uniform 1-D aerosol of a named type (default: AOD 0.05 at 550 nm, 1.5 km).
 
     Attributes
     ----------

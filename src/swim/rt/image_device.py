@@ -1,9 +1,9 @@
 """An image's planes made on the device from the march's outputs, where the camera's rays are kept there
 (:mod:`swim.rt.ray_table`; ``MarchSettings.device_image``).
 
-With every pixel traced, the host used to copy each chunk's outputs back, then scatter each output's channels into
-the image's planes (C, ny, nx) on its cores: ~53 MB of rows and 13 channel scatters for a 1024^2 all-sky while the
-device idled. Here the chunks' outputs stay on the device, one program scatters them into the planes, and the frame's
+With every pixel traced, copying each chunk's outputs back to the host and scattering each output's channels into the
+image's planes (C, ny, nx) on its cores takes ~53 MB of rows and 13 channel scatters for a 1024^2 all-sky while the
+device idles. Here the chunks' outputs stay on the device, one program scatters them into the planes, and the frame's
 planes (and its colour, :mod:`swim.color.srgb_device`) come back in one copy (docs/decisions/0006-gpu-kernels.md).
 """
 

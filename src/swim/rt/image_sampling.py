@@ -44,12 +44,12 @@ class AdaptiveSampling:
     ----------
     tolerance : float
         Largest relative difference [-] between a cell's traced centre (and edge midpoints') radiance, in each
-        channel, and the interpolation of its corners for the cell to be interpolated. Default 0.0085 (0.01 before
-        session 44: with the edge tests, 0.0085 gives a smaller interpolation error than 0.01 without them, on
-        every scene measured, for fewer rays; docs/decisions/0005-adaptive-sampling.md).
+        channel, and the interpolation of its corners for the cell to be interpolated. Default 0.0085: with the edge
+        tests, 0.0085 gives a smaller interpolation error than 0.01 without them, on every scene measured, for
+        fewer rays (docs/decisions/0005-adaptive-sampling.md).
     coarse_spacing : int
         Pixels between the rows and columns of the first lattice (>= 2). Larger spacings trace fewer rays in
-        smooth regions and risk missing smaller features. Default 8 (4 before session 44).
+        smooth regions and risk missing smaller features. Default 8 (with the edge tests; see ``edge_test_size``).
     radiance_floor : float
         Absolute solar-relative radiance [-] added to the tolerance, so that dark pixels (night side, deep
         shadow) do not refine on differences far below what any output resolves.
@@ -62,7 +62,7 @@ class AdaptiveSampling:
         Absolute hydrometeor optical depth [-] added to the tolerance of the optical-depth test.
     edge_test_size : int
         Cells at least this many pixels high or wide [pixels] test the midpoints of their four edges too, each
-        against the linear interpolation of its edge's corners (0: centres only, as before session 44). A cell
+        against the linear interpolation of its edge's corners (0: centres only). A cell
         that splits traces those midpoints anyway, so the tests cost rays only where cells are smooth, and there
         they are interpolated from too (:func:`quarters_of_edged_cells`); with the
         default coarse spacing and tolerance they trace 10-28 % fewer rays than a spacing of 4 with centre tests

@@ -125,7 +125,7 @@ class MarchSettings:
         :data:`SUNLIT_CELLS_PER_STEP` such cells); the other empty cells keep ``empty_steps``' limit
         (:func:`grid_step_edges`). Default 4: the 400 x 400 x 60 synthetic scene's rays take 13 % fewer samples
         with the error against a converged reference unchanged (docs/decisions/0004-step-placement.md). 0: sunlit clear
-        air counts as empty air, as before session 63. Ignored where ``empty_steps`` is 0.
+        air counts as empty air. Ignored where ``empty_steps`` is 0.
     n_probe : int
         Occupancy probes per ray along its grid segment, at least, which place the ``n_grid`` steps
         (:func:`grid_step_edges`).
@@ -219,8 +219,8 @@ class MarchSettings:
         Whether the fused GPU kernel reads its tables (the volume, gas, sky, diffuse and multiple-scattering tables)
         with their channels last, up to four channels a load (:func:`swim.rt.march_pallas._load_groups`): on sm_90a
         its grid loop then issues 48 global loads an iteration instead of 110 and 1 617 instructions instead of
-        1 893 (docs/decisions/0006-gpu-kernels.md). False: a scalar gather per channel and corner (the kernel of
-        sessions 58-67). The same results to float32 rounding; the other kernels ignore it.
+        1 893 (docs/decisions/0006-gpu-kernels.md). False: a scalar gather per channel and corner. The same results
+        to float32 rounding; the other kernels ignore it.
     cloud_scattering : str or CloudScattering
         How clouds scatter light (:mod:`swim.rt.clouds`): "discrete_ordinates" (the 3-D diffuse solution, the
         default; the numba and JAX kernels, not "cuda"; a sun below 0.6 deg of elevation falls back to
@@ -1834,7 +1834,7 @@ def surface_beyond_edge(clamped, outside, ny, nx, j, i):
     (``clamped``, the lookup at the clamped indices) to ``outside`` (C,) (:func:`surface_fields_outside`), weight
     e^(-d / L) with L of :func:`surface_fade_cells`.
 
-    Beyond the grid the ground used to be ``outside`` at once: the domain's outline showed from space wherever
+    A ground that is ``outside`` at once beyond the grid shows the domain's outline from space wherever
     the edge cells differ from their mean (a hurricane's wind, a coast), 19-30 % in the surface radiance of the
     Katrina scene; clamping every field to its edge value instead draws streaks of edge values across the whole
     view. The fade keeps the ground continuous at the edge and the mean some cells beyond it."""

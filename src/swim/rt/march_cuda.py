@@ -75,7 +75,7 @@ def require_cuda():
 
 def _load_cuda_lowering():
     """Import numba-cuda's lowering registry, which its first compilation would import anyway: numba-cuda 0.30.4
-    fails there with NumPy 2.5 (an AttributeError for ``numpy.row_stack``; seen on an H100 machine, session 41).
+    fails there with NumPy 2.5 (an AttributeError for ``numpy.row_stack``; seen on an H100 machine).
     Nothing to check in numba's simulator or where the module does not exist."""
     from numba.core import config
 

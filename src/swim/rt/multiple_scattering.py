@@ -1,4 +1,4 @@
-"""Multiple scattering of the clear atmosphere: a precomputed diffuse-source table (issue 3, item 2).
+"""Multiple scattering of the clear atmosphere: a precomputed diffuse-source table.
 
 Single scattering of the direct beam (paper Eq. 3) leaves the blue sky 15-30 % too dark against DISORT
 (docs/validation.md). In the spirit of Bruneton and Neyret (2008) and Hillaire (2020) the higher orders

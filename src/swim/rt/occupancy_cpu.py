@@ -23,7 +23,7 @@ def occupied_cells(extinction, threshold, levels, terrain_top, dz, k0, k1, out):
     exceeds ``threshold`` (float32 [m-1]), or where ``terrain_top`` (y, x) [m] (the highest terrain around the
     column) is above 1 m and ``levels[k]`` [m] lies at most ``dz`` [m] above it; else False.
 
-    The float32 sum is the matrix-vector product's of the code before it, up to the order of its additions (float32
+    The float32 sum is a species-by-extinction matrix-vector product's, up to the order of its additions (float32
     round-off, which can move a cell only where its sum is within ~1e-7 relative of the threshold)."""
     n, _, ny, nx = extinction.shape
     for k in range(k0, k1):

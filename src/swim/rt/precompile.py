@@ -13,14 +13,13 @@ compiles it into that cache with the argument types that the render will pass (:
 render meanwhile reads the scene, builds the optics and runs Step 1a. Its first chunk (:func:`wait`, from
 :func:`swim.rt.march._trace_chunk_numba`) compiles the per-ray set-up, which it calls first, and the composition
 kernels, which it would compile after the march, then waits for the helper and loads the march from the cache.
-Measured with the README's render and an empty cache: 23.9-24.0 s → 16.1-17.5 s, 14.9-15.7 s since the command
-starts the helper (docs/decisions/0008-cold-start.md), 14.1-14.4 s since the kernels' helpers have no Python
-wrappers (docs/decisions/0008-cold-start.md); as the march grew, 16.9-18.0 s by session 39, and 15.1-15.4 s since its
-loop over the rays is compiled as the kernel itself and the render builds the ground's tables while it waits
-(docs/decisions/0003-cpu-kernel-code.md).
+Measured with the README's render and an empty cache: 15.1-15.4 s, with the march's loop over the rays compiled as
+the kernel itself and the ground's tables built while the render waits (docs/decisions/0003-cpu-kernel-code.md).
+Compiling the march in the render instead, after Step 1a, costs ~7 s more (23.9-24.0 s against 16.1-17.5 s where the
+helper was measured first, docs/decisions/0008-cold-start.md).
 
 The helper is only an optimisation. A kernel whose types differ from :func:`kernel_signature`'s is compiled by the
-render as before; a helper that fails, cannot start or takes longer than :data:`WAIT_S` leaves the march to the
+render itself; a helper that fails, cannot start or takes longer than :data:`WAIT_S` leaves the march to the
 render (logged as a warning). Where ``fcntl`` exists, a file lock in the cache folder lets one helper compile while
 the others wait and then load its result (two pytest-xdist workers, or several renders starting at once), and
 :func:`swim.rt.compilation_cache.serialise_numba_cache_writes` keeps two processes from writing a function's cache

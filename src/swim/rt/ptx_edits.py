@@ -19,8 +19,8 @@ twice, as nvcc's default ``--fmad=true`` does, so the results move by float32 ro
 such as a terrain crossing or a refinement, may flip for a rare ray); the kernel makes no decision on the exact equality
 of values computed apart (its roll-back's adjacency test compares a stored bound with itself). The edit cannot tell
 LLVM's protective ``.rn`` from a deliberate one (``__fmul_rn`` in an inlined libdevice function, which nvcc would
-keep); the fused kernel's inlined ``expf``/``expm1f`` have no ``mul.rn`` that feeds an add (checked in session 69),
-and a new libdevice call in the kernel should be checked again.
+keep); the fused kernel's inlined ``expf``/``expm1f`` have no ``mul.rn`` that feeds an add,
+and a libdevice call added to the kernel must be checked the same way.
 
 So both travel in the kernel's name: a Pallas kernel of swim's named ``swim_...[_fma][_rN]`` (:func:`kernel_name`)
 gets ``.maxnreg N`` inserted among its entry's directives and, with ``_fma``, its body's float32 multiplies, adds and

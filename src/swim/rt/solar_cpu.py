@@ -47,9 +47,9 @@ def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, midpoints, r
     With ``midpoints`` (one point per level), ``fields[:, k]`` already holds the mean of levels k and k + 1
     (:func:`sweep`): each point is then 4 reads instead of 8.
 
-    The sums are taken in float32, the fields' type, as the JAX sweep takes them: in float64 every term was a
-    conversion and the vectorised loop half as wide (the sweep 0.47-0.59 → 0.31-0.37 s for the 400 x 400 x 60
-    scene, the optical depths within 8e-7 relative; docs/decisions/0007-scene-set-up.md)."""
+    The sums are taken in float32, the fields' type, as the JAX sweep takes them: in float64 every term would be a
+    conversion and the vectorised loop half as wide (the sweep 0.31-0.37 s against 0.47-0.59 s for the
+    400 x 400 x 60 scene, the optical depths within 8e-7 relative; docs/decisions/0007-scene-set-up.md)."""
     c, nk = fields.shape[0], fields.shape[1]
     scale32 = np.float32(scale)
     acc = np.empty(nx, np.float32)
@@ -127,8 +127,8 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
 
     Where the species are channels of the packed volume (adjacent in memory,
     :func:`swim.rt.march.share_packed_channels`), each cell's species are one cache line's read for both sums: two
-    sums over the species (one a weighted sum) read the volume twice (the fill 0.17-0.18 → 0.12-0.14 s of a new sun's
-    Step 1a for the 400 x 400 x 60 scene; docs/decisions/0007-scene-set-up.md)."""
+    sums over the species (one a weighted sum) would read the volume twice (the fill of a new sun's Step 1a for the
+    400 x 400 x 60 scene 0.12-0.14 s against 0.17-0.18 s; docs/decisions/0007-scene-set-up.md)."""
     n, _, ny, nx = extinction.shape
     for k in range(k0, k1):
         for j in range(ny):

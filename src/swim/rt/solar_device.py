@@ -1,16 +1,15 @@
 """Step 1a for a new sun on the device: the packed volume's Step 1a channels refilled where the JAX kernel marches.
 
-On a GPU, a new sun (a time series seen by a fixed camera) used to cost ~1.3 GB of transfers between the host and
-the device for the 400 x 400 x 60 scene's 160 levels: the sweep's input (the species' sums, made on the host's cores)
-to the device, the swept optical depths back, and then the whole packed volume (0.7 GB) to the device again, because
-its Step 1a channels had changed on the host (docs/decisions/0006-gpu-kernels.md: 0.29-0.36 s of Step 1a and 0.08-0.12 s
-of the volume's copy in a 0.58 s frame on an H100). The packed volume's grid channels (the extinctions) do not depend
-on the sun, and the previous sun's device copy holds them. :func:`refill_step1a_channels` makes the sweep's input
-from them on the device, sweeps it there (:func:`swim.rt.solar._sweep`, the same program as the host's JAX path),
-computes T, the terrain's shadow and the 3-D aerosol's optical depth there (as
-:func:`swim.rt.solar_cpu.step1a_channels` does on the host, in float32) and writes them into the device copy's
-channels. Only the new channels come back, for the host's packed volume (the numba kernel, the ground's fields and a
-later render read them): ~0.2 GB, once.
+On a GPU, a new sun (a time series seen by a fixed camera) made on the host costs ~1.3 GB of transfers between the host
+and the device for the 400 x 400 x 60 scene's 160 levels: the sweep's input (the species' sums, made on the host's
+cores) to the device, the swept optical depths back, and then the whole packed volume (0.7 GB) to the device again,
+because its Step 1a channels have changed on the host (docs/decisions/0006-gpu-kernels.md: 0.29-0.36 s of Step 1a and
+0.08-0.12 s of the volume's copy in a 0.58 s frame on an H100). The packed volume's grid channels (the extinctions) do
+not depend on the sun, and the previous sun's device copy holds them. :func:`refill_step1a_channels` makes the sweep's
+input from them on the device, sweeps it there (:func:`swim.rt.solar._sweep`, the same program as the host's JAX path),
+computes T, the terrain's shadow and the 3-D aerosol's optical depth there (as :func:`swim.rt.solar_cpu.step1a_channels`
+does on the host, in float32) and writes them into the device copy's channels. Only the new channels come back, for the
+host's packed volume (the numba kernel, the ground's fields and a later render read them): ~0.2 GB, once.
 
 The same equations and the same sweep as :func:`swim.rt.solar.solar_transmittance`; the species' sums may round
 differently in float32 (the order of a reduction), so the channels agree to float32 round-off

@@ -1,4 +1,4 @@
-"""swim.surface: the ground (paper Sect. 3.7, Eq. 35; issue 4).
+"""swim.surface: the ground (paper Sect. 3.7, Eq. 35).
 
 * :mod:`~swim.surface.landuse` and :mod:`~swim.surface.albedo`: spectral albedo at 615/546/450 nm from WRF/WPS
   land-use classes, model broadband albedos, snow and user RGB images (docs/surfaces.md);

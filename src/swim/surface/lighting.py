@@ -1,4 +1,4 @@
-"""Radiance leaving the ground: Eq. 35 on sloped terrain with a BRDF (issue 4).
+"""Radiance leaving the ground: Eq. 35 on sloped terrain with a BRDF.
 
 The paper's Eq. 35 gives the solar-relative radiance of the surface, L' = 4 rho E_H / E, with rho = a ARF for the
 direct light and ARF = 1 for the diffuse light. swim evaluates it on the *tilted* terrain facet under the ray:

@@ -1,4 +1,4 @@
-"""Validation against independent reference solvers (issue 3): DISORT plane-parallel clear sky and stratus."""
+"""Validation against independent reference solvers: DISORT plane-parallel clear sky and stratus."""
 
 from .disort import (
     clear_sky_layers,

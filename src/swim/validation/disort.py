@@ -725,7 +725,7 @@ def disort_cloud_layer_radiance(sun_zenith_deg, view_zenith_deg, relative_azimut
     depth ``cloud_tau`` with a Henyey-Greenstein phase function (``g``, default
     :data:`CLOUD_HG_ASYMMETRY`), see :func:`cloud_layer_layers`. Delta-M scaling with the Nakajima-Tanaka
     intensity correction; use >= 64 streams for cloud radiances (disortpp's corrected intensities differ
-    from pydisort's by 3.5 % at 16 streams, 0.5 % at 32; issue 3).
+    from pydisort's by 3.5 % at 16 streams, 0.5 % at 32).
 
     Parameters
     ----------

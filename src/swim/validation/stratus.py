@@ -1,5 +1,5 @@
-"""swim against DISORT for a horizontally uniform stratus deck (issue 3: "overcast stratus, optical depth 5-50:
-GHI within 10 %, zenith radiance within 15 %").
+"""swim against DISORT for a horizontally uniform stratus deck (the goal for overcast stratus of optical depth 5-50:
+GHI within 10 %, zenith radiance within 15 %).
 
 The scene (:func:`stratus_scene`) is a liquid cloud layer between 1.0 and 1.5 km with effective radius 10 um
 over a sea of albedo 0.06, 600 km wide so that the all-sky camera sees cloud down to the horizon (at 89°
@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 __all__ = ["stratus_scene", "stratus_column_profile", "compare_stratus", "stratus_table_rows",
            "DEFAULT_SPACE_VIEWS", "STRATUS_TAUS", "STRATUS_SUN_ZENITHS"]
 
-#: Optical depths and sun zenith angles of the comparison (issue 3).
+#: Optical depths and sun zenith angles of the comparison.
 STRATUS_TAUS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
 STRATUS_SUN_ZENITHS = (30.0, 60.0)
 #: Views from space: (view zenith angle at the cloud [deg], look azimuth - sun azimuth [deg]).
