@@ -382,6 +382,7 @@ def _facet_normals(terrain, points, eps=1.0):
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
+@pytest.mark.full  # a 1024-wide panorama of the Colorado grid: the full tier (the skyline test stays)
 @pytest.mark.realdata
 def test_panorama_from_the_colorado_peak_sunward_slopes_are_brighter(colorado):
     """Slopes that face the sun are brighter: the same panorama from the met_em peak under a sun in the north

@@ -19,8 +19,8 @@ def scene():
 
 def _render(scene, **kwargs):  # the inputs' checks, with the paper's cloud scattering (no 3-D solve per aerosol)
     kwargs.setdefault("settings", swim.MarchSettings(cloud_scattering="albers2020"))
-    return swim.render(scene, camera="allsky", camera_options={"size": 9}, sun_zenith=40.0, sun_azimuth=150.0,
-                       **kwargs)
+    kwargs.setdefault("camera_options", {"size": 9})
+    return swim.render(scene, camera="allsky", sun_zenith=40.0, sun_azimuth=150.0, **kwargs)
 
 
 @pytest.mark.parametrize("height", ["2", True, None, -1.0, np.nan, 1j])
@@ -66,7 +66,6 @@ def test_an_image_too_big_for_the_memory_is_refused_before_any_work(scene, monke
 
     monkeypatch.setattr(swim.memory, "available_memory_bytes", lambda: 1_000_000)
     with pytest.raises(SwimInputError, match=r"an image of 10,201 pixels needs about .* GiB to render, more than"):
-        swim.render(scene, camera="allsky", camera_options={"size": 101}, sun_zenith=40.0, sun_azimuth=150.0)
-    image = swim.render(scene, camera="allsky", camera_options={"size": 101}, sun_zenith=40.0, sun_azimuth=150.0,
-                        check_memory=False)
+        _render(scene, camera_options={"size": 101})
+    image = _render(scene, camera_options={"size": 101}, check_memory=False)
     assert image["rgb"].shape == (101, 101, 3)

@@ -128,6 +128,7 @@ def test_occupancy_marks_raised_terrain_and_aerosol_edges():
     assert row.max() == 1 and row.min() == 0
 
 
+@pytest.mark.full  # the JAX kernel's step placement (its numba twin is held to it in the full tier too)
 def test_adaptive_edges_span_the_segment_and_concentrate_in_the_cloud():
     scene = _scene()
     volume = build_optical_volume(scene)
@@ -169,6 +170,7 @@ def _rays(scene, dirs, heights=None):
     return consts, (start, direction, bounds[:, 0], bounds[:, 1] - bounds[:, 0])
 
 
+@pytest.mark.full  # the JAX kernel's step placement (its numba twin is held to it in the full tier too)
 def test_empty_steps_thin_out_the_steps_in_empty_space():
     """grid_step_edges: a ray through an empty grid takes max(empty_steps, cells / EMPTY_CELLS_PER_STEP) equal steps;
     a ray through the cloud slab keeps the step length of adaptive_step_edges inside the cloud and takes that

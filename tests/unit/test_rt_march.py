@@ -113,6 +113,7 @@ def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume, settings, 
 
 
 @pytest.mark.parametrize("backend", [pytest.param("jax", marks=pytest.mark.full), "numba"])
+@pytest.mark.full  # a sweep of step counts through the whole kernel: the full tier
 def test_the_air_in_front_of_the_ground_does_not_depend_on_the_step_count(backend):
     """Rays from 14 m above the ground, just above the horizon, that meet the rising ground 280-480 m away: the
     gas and aerosol light in front of it (``radiance_clear``) and the whole radiance against the NumPy reference's
@@ -348,6 +349,7 @@ def test_the_grounds_term_of_a_chunk_with_ground_rays_matches_the_jax_kernel(mon
         np.testing.assert_allclose(out["numba"][key], out["jax"][key], rtol=2e-4, atol=1e-6, err_msg=key)
 
 
+@pytest.mark.full  # parity with the JAX kernel's set-up: the full tier, as the kernels' parity
 @pytest.mark.parametrize("plume", [True, False], ids=["five aerosol classes", "one class"])
 def test_numba_set_up_matches_the_jax_set_up(plume):
     """The per-ray set-up of the CPU kernel (swim.rt.march_cpu.prepare_rays) is swim.rt.march._prepare_rays written
@@ -758,6 +760,7 @@ def test_optimisation_barriers_only_on_cpus(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.full  # the JAX kernel's helper, its numba twin held to it here: the full tier (its JAX programs)
 @pytest.mark.parametrize("shape", [(5, 6, 7, 9), (2, 2, 2, 7), (3, 40, 2, 1)])
 def test_trilinear_reads_rows_on_cpus_and_scalars_elsewhere_with_the_same_values(monkeypatch, shape):
     import jax
@@ -1031,6 +1034,7 @@ def _kernel_constants(scene, sun):
     return volume, kernel_constants(volume, solar_transmittance(volume, sun), build_gas_tables(AerosolBackground()), sun)
 
 
+@pytest.mark.full  # the JAX kernel's helper, its numba twin held to it here: the full tier (its JAX programs)
 def test_probe_counts_are_the_cells_crossed():
     """probe_counts: a ray along the grid's x axis crosses (length / spacing) cells; with 4 probes and one per
     cell it takes that many (rounded up), a short ray keeps 4, and probe_spacing 0 always gives n_probe."""
@@ -1272,6 +1276,7 @@ def _clear_segments():
     return consts, seg, dirs
 
 
+@pytest.mark.full  # the JAX kernel's helper, its numba twin held to it here: the full tier (its JAX programs)
 @pytest.mark.parametrize("n_steps", [8, 24])
 def test_clear_air_steps_follow_the_air_and_integrate_it_better(n_steps):
     """clear_step_edges: the steps span the segment, lengthen upwards (the air thins) and integrate an
@@ -1354,6 +1359,7 @@ def test_gas_column_above_is_the_exponential_atmospheres_column(dh):
     np.testing.assert_array_equal(gas_column_above(np.zeros((3, 11)), spectra, dh), 1.0)
 
 
+@pytest.mark.full  # the JAX kernel's helper, its numba twin held to it here: the full tier (its JAX programs)
 def test_after_step_counts_follow_the_air_left_above_the_grid():
     """after_step_counts: a ray straight up from the ground takes ceil(n_after sqrt(q)) steps after the grid, q the
     column fraction above its exit (the height table's column row); the count falls as the grid top rises, never
@@ -1420,6 +1426,7 @@ def test_after_step_counts_follow_the_air_left_above_the_grid():
         assert after_steps(*origin, *direction, s_exit, n_after, p, table[:GAS_COLUMN_ROW]) == n_after
 
 
+@pytest.mark.full  # the JAX kernel's helper, its numba twin held to it here: the full tier (its JAX programs)
 def test_after_step_counts_keep_the_clear_airs_error_relative_to_the_ray():
     """The rule of after_step_counts: the midpoint rule's error over the segment above a grid top, with that ray's
     own step count placed by clear_step_edges, relative to the whole column's optical depth at 546 nm, is no larger

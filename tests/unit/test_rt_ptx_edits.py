@@ -299,6 +299,7 @@ def test_installing_twice_wraps_once(fresh_hook, monkeypatch):
     assert fresh_hook.triton._triton is original
 
 
+@pytest.mark.full  # builds the fused GPU kernels' calls through a render: the full tier
 @pytest.mark.parametrize("kernel", ["fused", "fused-march"])
 def test_the_render_s_settings_reach_the_kernel(kernel):
     """MarchSettings.fused_max_registers, fused_vector_loads and fused_fma arrive at either fused kernel's call (a

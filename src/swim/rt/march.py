@@ -2775,10 +2775,11 @@ def _trace_chunk_numba(start, direction, bounds, ends_on_ground, valid, rays, co
     # Per-chunk arrays are fresh (writable) copies and the tables read-only views of the device arrays, in
     # every call: numba compiles (and caches on disk) one version of the kernel per combination of types.
     phase = {key: rays[key][:n].astype(float) for key in ("p_rayleigh", "p_aerosol", "p_stratospheric")}
-    if tables["cloud_mode"]:
-        p_hydro, ray_ms = rays["p_hydro"][:n].astype(float), rays["ray_ms"][:n].astype(float)
+    if tables["cloud_mode"]:  # float32 as built (swim.rt.clouds.cloud_ray_inputs); the kernel sums in float64
+        p_hydro = np.ascontiguousarray(rays["p_hydro"][:n], np.float32)
+        ray_ms = np.ascontiguousarray(rays["ray_ms"][:n], np.float32)
     else:
-        p_hydro, ray_ms = np.zeros((1, 1, 6)), np.zeros((1, 1, 3))
+        p_hydro, ray_ms = np.zeros((1, 1, 6), np.float32), np.zeros((1, 1, 3), np.float32)
     state["l_cloud"] = np.zeros((padded, 3))
     samples = np.empty(n, np.int64)
     ray_class = (np.array(aerosol_class[0][:n]), aerosol_class[1][:n, 0].astype(float))  # the march's and the ground's

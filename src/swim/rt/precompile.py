@@ -102,7 +102,7 @@ def _argument_types():
         "i_gas": a(f8, 2), "i_cloud_t": a(f8, 1), "alive_out": a(b1, 1), "hit_out": a(b1, 1), "s_hit_out": a(f8, 1),
         "samples_out": a(i8, 1),
         # the 3-D cloud scattering's inputs (swim.rt.clouds; placeholders without it) and its output
-        "cloud_mode": b1, "p_hydro": a(f8, 3), "ray_ms": a(f8, 3), "hydro_scale": ro(f8, 1),
+        "cloud_mode": b1, "p_hydro": a(f4, 3), "ray_ms": a(f4, 3), "hydro_scale": ro(f8, 1),
         "hydro_narrow": ro(f8, 1), "ms_field": ro(f4, 4), "ms_coarsen": f8,
         "ms_above": ro(f4, 4), "above_heights": ro(f8, 1), "l_cloud": a(f8, 2)}
     prepare = {
