@@ -9,7 +9,7 @@ Usage::
 
 Each round runs ``swim render <arguments>`` once per variant, each in a new Python process that registers a listener
 for JAX's duration events (``jax._src.monitoring``) and then runs the CLI in place. A variant ``export=0`` sets
-``SWIM_JAX_EXPORT=0`` (every program traced, as before session 53), ``export=1`` leaves the programs' cache on. The
+``SWIM_JAX_EXPORT=0`` (every program traced anew), ``export=1`` leaves the programs' cache on. The
 caches must be warm: the first round is a warm-up and is not counted. Reported per variant (medians over the rounds):
 the process's wall time, the CLI's time, and the seconds of JAX's tracing (``jaxpr_trace_duration``), lowering
 (``jaxpr_to_mlir_module_duration``) and reads of compiled executables (``cache_retrieval_time_sec``). Results go to

@@ -18,7 +18,7 @@ it reports is the frame without its march: the host's share that a GPU frame pay
 machine's host has more and faster ones). ``--profile`` adds a wall-clock profile of one frame of each variant
 (:mod:`wall_profile`).
 
-Since session 67 a GPU frame also finishes its image on the device (``MarchSettings.device_image``: the planes and the
+A GPU frame also finishes its image on the device (``MarchSettings.device_image``: the planes and the
 colour stage there) and takes a known scene's digest by identity (docs/decisions/0006-gpu-kernels.md); on a CPU both are
 off by default, so the "with the table" variant measures the host's planes and colour stage. ``--device-image`` turns
 both on in that variant, as on a GPU: the device's part (the stand-in, the scatters, the colour stage) then runs on

@@ -26,8 +26,8 @@ largest difference of its outputs from the installed kernel's. ``--interleave`` 
 chunk instead of pass by pass and adds each one's time over the installed kernel's, with its range over the passes:
 the machine's load then falls alike on all of them, and two kernels' time ratio moves by ~1-3 % from pass to pass,
 where whole passes taken in turn differ by 5-10 % (docs/performance.md, "How to measure"). Use it to judge a change of a
-few per cent, against a plain copy of march_cpu.py replayed beside it: a copy compiled in this process ran 0.98-1.01
-times the installed kernel's time (loaded from numba's disk cache) in session 51.
+few per cent, against a plain copy of march_cpu.py replayed beside it: a copy compiled in this process runs 0.98-1.01
+times the installed kernel's time (loaded from numba's disk cache).
 
 ``--experiments`` adds three splits of the time:
 

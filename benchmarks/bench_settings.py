@@ -43,8 +43,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_suite  # noqa: E402  (benchmarks/ on the path first)
 
-#: Variants run when none is given: the defaults, fewer grid steps, and coarser cloud-face refinement (the default
-#: before session 35).
+#: Variants run when none is given: the defaults, fewer grid steps, and coarser cloud-face refinement.
 DEFAULT_VARIANTS = ("", "n_grid=96", "n_grid=64", "tau_refine=0.5", "n_grid=96,tau_refine=0.5")
 #: Settings of the reference render.
 DEFAULT_REFERENCE = "n_grid=1024,tau_refine=0.25"

@@ -1,4 +1,4 @@
-"""Benchmark suite (issue 6): wall time cold and warm, compile time, peak memory, rays/s and samples/s per case.
+"""Benchmark suite: wall time cold and warm, compile time, peak memory, rays/s and samples/s per case.
 
 Usage::
 
@@ -72,8 +72,7 @@ ORBIT_OBLIQUE_FOV_DEG = 12.0
 GEO = {"lat": 0.0, "lon": -75.2, "height": 35786e3, "look_at": [CONUS_REFERENCE[0], CONUS_REFERENCE[1], 0.0],
        "sun_zenith": 30.0, "sun_azimuth": 180.0}
 GEO_FOV_DEG = 9.0
-# swim.rt.image_sampling.AdaptiveSampling() defaults (since session 44; before: tolerance 0.01, coarse spacing 4, no
-# edge tests, docs/decisions/0005-adaptive-sampling.md)
+# swim.rt.image_sampling.AdaptiveSampling() defaults (docs/decisions/0005-adaptive-sampling.md)
 ADAPTIVE = {"tolerance": 0.0085, "coarse_spacing": 8, "edge_test_size": 8}
 
 CASES = {
@@ -353,7 +352,8 @@ def throughput(image, rays, seconds):
 
     if "march_samples" in image.attrs:
         backend = image.attrs.get("march_backend", "?")
-        # per-ray counts since session 16 (docs/performance.md, "How to measure"): older results hold lockstep counts
+        # the per-ray kernels count the samples each ray took, the JAX kernel every step of its chunk (lockstep count;
+        # docs/performance.md, "How to measure")
         counted = "lockstep count" if backend == "jax" else "per-ray count"
         samples, how = (float(image.attrs["march_samples"]),
                         f"march_samples attribute of the render output ({counted}, {backend} kernel)")

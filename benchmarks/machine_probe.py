@@ -6,7 +6,7 @@ Usage::
     python benchmarks/machine_probe.py --watch 20       # 20 probes, one every few seconds (the machine's drift)
 
 This project's shared 2-core machines run the same code at (at least) two speeds, switching between them within a
-second to tens of seconds: on the AMD EPYC of sessions 59-65 the march's replay took 0.62 s in one state and 0.85-0.95 s in the other
+second to tens of seconds: on an AMD EPYC the march's replay takes 0.62 s in one state and 0.85-0.95 s in the other
 (docs/performance.md, "How to measure"). A "fast hour" is an hour spent mostly in the first state. So a figure means
 little without the state it was taken in. The probe measures that state, independently of swim's code: the benchmark
 suite (``bench_suite.py``) takes a reference before its first case (:func:`reference`), then one probe before every warm

@@ -13,7 +13,7 @@ ptxas caps the registers at 65 536 / (threads per program), at most 255: 128 ray
 only 128 (four programs of 4 warps' worth per multiprocessor, at the price of spills), 1024 x 32 only 64.
 Pallas offers no other cap (no ``maxnreg``); swim's kernels take one through their name (``--blocks 128x4r128``:
 128 registers per thread, PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`); ``128x4s``: the tables read by a scalar
-gather per channel (``MarchSettings.fused_vector_loads`` off, the kernel before session 68); ``128x4f``: the float32
+gather per channel (``MarchSettings.fused_vector_loads`` off: one load per channel, not four); ``128x4f``: the float32
 multiplies and adds free to be contracted into fused multiply-adds (``MarchSettings.fused_fma``,
 docs/decisions/0006-gpu-kernels.md). The grid loop's instructions are also counted by kind (``loop_ops``: FFMA, FMUL,
 FADD, FSEL, LDG, ...).
