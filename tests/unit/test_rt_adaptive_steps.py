@@ -314,6 +314,7 @@ def test_step_classes_write_in_place_and_check_shapes():
         step_classes(occupancy, {**named, "terrain_shadow": named["terrain_shadow"][1:]})
 
 
+@pytest.mark.full  # the JAX kernel's step placement (its numba twin is held to it in the full tier too)
 def test_sunlit_steps_thin_out_the_steps_in_sunlit_clear_air():
     """grid_step_edges: a ray through a clear, sunlit grid takes max(sunlit_steps, cells / SUNLIT_CELLS_PER_STEP)
     equal steps (fewer than the empty cells' limit gives it); through the cloud slab it keeps its steps in the cloud
