@@ -39,6 +39,20 @@ def test_katrina_allsky_sun_where_the_ephemeris_puts_it(katrina_allsky):
     assert abs(brightest[0] - row[0]) <= 1 and abs(brightest[1] - col[0]) <= 1
 
 
+def test_katrina_allsky_has_no_crease_through_the_zenith(katrina_allsky):
+    """The rows and columns through the zenith are as smooth as the rest of the sky in the 8-bit image: no line or
+    step where the view azimuth turns over (a one-level line along a row would lift its mean |second difference|
+    from ~0.15 to ~1)."""
+    rgb = katrina_allsky["rgb"].values.astype(float).mean(axis=-1)
+    n = rgb.shape[0]
+    centre, inner = n // 2, slice(n // 8, n - n // 8)
+    for image in (rgb, rgb.T):  # across rows, then across columns
+        curvature = np.abs(image[1:-1] - 0.5 * (image[:-2] + image[2:]))[:, inner].mean(axis=1)  # row i + 1
+        typical = float(np.median(curvature[inner]))
+        through_zenith = curvature[centre - 2:centre + 1]
+        assert np.all(through_zenith < max(2.0 * typical, 0.5)), (through_zenith, typical)
+
+
 def test_katrina_allsky_physical_ranges(katrina_allsky):
     radiance = katrina_allsky["radiance"].values
     valid = np.isfinite(radiance[1])
