@@ -50,7 +50,7 @@ nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=c
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
 step1a() {  # MarchSettings.step1a_on_device (docs/decisions/0006-gpu-kernels.md), ~200 s: its tests on the GPU first (the
     # donating program runs only there; where the machine has pytest), then frames with a new sun each, taking turns
-    timeout "${TESTS_S:-150}" python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/test_rt_solar_device.py 2>&1 | tail -3 || true
+    timeout "${TESTS_S:-150}" python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/rt/test_rt_solar_device.py 2>&1 | tail -3 || true
     timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
         --sun-series 3 --repeats 4 --out "$RES/step1a-synthetic.json" 2>&1 | quiet
     # the two paths' fields and the step classes that they flip (docs/decisions/0007-scene-set-up.md), on the GPU's
@@ -67,7 +67,7 @@ readme() {  # the README's render at 1024^2 in two new processes (the second rea
 sampler() {  # MarchSettings.device_sampling (docs/decisions/0005-adaptive-sampling.md), ~300 s on a fresh machine: its tests on the GPU, then adaptive
     # frames with the sampler on the device against the host's, taking turns (the ray table on for both; the images
     # compared there, so the tests that render, which would compile the march here first, are left out)
-    timeout "${TESTS_S:-120}" python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene and not render_with" tests/unit/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
+    timeout "${TESTS_S:-120}" python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene and not render_with" tests/unit/rt/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
     timeout "${SAMPLER_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-sampling \
         --repeats 5 --out "$RES/sampler-synthetic.json" 2>&1 | quiet
 }
@@ -99,7 +99,7 @@ blocks() {  # the fused kernel's variants (docs/decisions/0006-gpu-kernels.md), 
 image() {  # MarchSettings.device_image (docs/decisions/0006-gpu-kernels.md): its tests on the GPU (the colour stage's float64
     # on the device), then warm frames with the image finished on the device against the host, taking turns, and
     # where a new process's README render (its caches warm) spends its ~11 s (docs/decisions/0006-gpu-kernels.md)
-    timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/test_color_device.py 2>&1 | tail -3 || true
+    timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/color/test_color_device.py 2>&1 | tail -3 || true
     timeout "${IMAGE_S:-260}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --device-image \
         --repeats 5 --out "$RES/image-synthetic.json" 2>&1 | quiet
     save

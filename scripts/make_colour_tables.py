@@ -4,7 +4,7 @@ The colour stage (:mod:`swim.color`) needs the CIE 1931 2-degree colour matching
 XYZ-to-RGB matrix and D65 white, and the cone-response matrices of the chromatic adaptation transforms. They are
 taken from colour-science (``colour.MSDS_CMFS``, ``colour.RGB_COLOURSPACES["sRGB"]``,
 ``colour.CHROMATIC_ADAPTATION_TRANSFORMS``) once, here, so that swim does not need colour-science at run time;
-``tests/unit/test_color.py`` holds the shipped tables to colour-science's.
+``tests/unit/color/test_color.py`` holds the shipped tables to colour-science's.
 
     python scripts/make_colour_tables.py
 """

@@ -75,7 +75,7 @@ def colour_science_data(transform: str | None = None) -> dict:
     """What the colour stage takes from colour-science, from the tables shipped with swim.
 
     ``src/swim/data/colour_tables.npz`` is made from colour-science by ``scripts/make_colour_tables.py`` and held to
-    it by ``tests/unit/test_color.py``, so that a render does not need colour-science at all.
+    it by ``tests/unit/color/test_color.py``, so that a render does not need colour-science at all.
 
     Parameters
     ----------

@@ -109,7 +109,8 @@ def _display_matrix(transform: str) -> np.ndarray:
     xyz_sun = sun_white_XYZ()
     xyz_d65 = data["srgb_whitepoint_XYZ"]  # Y = 1
     # von Kries adaptation in the transform's cone space, M^-1 diag(M XYZ_d65 / M XYZ_sun) M (what
-    # colour.adaptation.matrix_chromatic_adaptation_VonKries gives; tests/unit/test_color.py holds the two together)
+    # colour.adaptation.matrix_chromatic_adaptation_VonKries gives; tests/unit/color/test_color.py holds the two
+    # together)
     cone = data["cat"]
     cat = np.linalg.inv(cone) @ np.diag((cone @ xyz_d65) / (cone @ xyz_sun)) @ cone
     m = data["srgb_XYZ_to_RGB"] @ cat
@@ -389,7 +390,7 @@ def oetf_srgb(rgb_linear) -> np.ndarray:
         Encoded values [-]; [0, 1] maps onto [0, 1].
     """
     linear = np.asarray(rgb_linear, dtype=float)
-    # as colour.models.eotf_inverse_sRGB (tests/unit/test_color.py holds the two together), without importing
+    # as colour.models.eotf_inverse_sRGB (tests/unit/color/test_color.py holds the two together), without importing
     # colour-science in a render
     with np.errstate(invalid="ignore"):
         return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.abs(linear) ** (1 / 2.4) - 0.055)

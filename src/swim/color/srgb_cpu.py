@@ -19,7 +19,7 @@ The arithmetic is that of the NumPy functions, step by step and in their order (
    with the transfer function itself) instead of computing a ``pow`` per channel: three ``pow`` were half of a
    pixel's ~57 ns (docs/decisions/0009-work-around-the-march.md).
 
-``tests/unit/test_color.py`` holds it to the NumPy chain.
+``tests/unit/color/test_color.py`` holds it to the NumPy chain.
 """
 
 from __future__ import annotations

@@ -17,8 +17,8 @@ this program alone) and in the same order (paper, Sect. 3.8, Eqs. 33-35; docs/co
 3. The sRGB encoding by :func:`swim.color.srgb_cpu.code_tables`' steps (the linear values where a code steps up).
 
 A device may fuse a product and a sum (one rounding instead of two): a value then moves by ~1e-16 relative, which
-changes a code only where the value lies that close to a code's step. ``tests/unit/test_color_device.py`` holds the
-codes to the host's.
+changes a code only where the value lies that close to a code's step. ``tests/unit/color/test_color_device.py`` holds
+the codes to the host's.
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ distance.
    Eqs. 3-5, 3-6) -- the clear-sky diffuse of step 3 already carries them.
 5. DNI = sum_lambda E0 T(lambda) T_gas(lambda) dlambda; DHI likewise; GHI = DHI + cos(zenith) DNI.
 
-Residual error of the conversion itself (docs/irradiance.md, tests/unit/test_diagnostics_broadband.py):
+Residual error of the conversion itself (docs/irradiance.md, tests/unit/diagnostics/test_diagnostics_broadband.py):
 fed SPCTRL2's own three-channel values (a gas-free SPCTRL2 run) it reproduces SPCTRL2's broadband GHI to
 0.3 % (zenith 0-85 deg, AOD 0.02-0.3, precipitable water 0.3-4 cm, albedo 0.2-0.8), DNI to 1.2 % (0.3 % for
 zenith <= 75 deg) and DHI to 1 %. The dominant uncertainty in real use is the near-infrared aerosol

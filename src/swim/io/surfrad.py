@@ -20,7 +20,8 @@ Meteorol. 44, 1640-1651) publishes one ASCII file per station and day (e.g. ``sl
 A flag of 0 means the value passed all quality checks; 1 that it failed the physical-limits check (bad);
 2 and above that it failed a later check and is to be used with scrutiny. Missing values are -9999.9.
 
-Two properties of the files, checked against the Alamosa file of 2016-01-01 (tests/unit/test_diagnostics_ghi.py):
+Two properties of the files, checked against the Alamosa file of 2016-01-01
+(tests/unit/diagnostics/test_diagnostics_ghi.py):
 
 * The longitude of line 2 is given as degrees *west* in some files (Alamosa: ``105.92``): the reader
   picks the sign whose solar zenith matches the ``zen`` column and stores east-positive longitude.

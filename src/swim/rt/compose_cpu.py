@@ -10,7 +10,7 @@ of a 41 x 41 render's ~15, docs/decisions/0009-work-around-the-march.md). This m
 the GIL, in the worker that marched the chunk, after the ground's term (Eq. 35, its BRDFs: :mod:`swim.rt.ground_cpu`).
 
 Each function mirrors a function of :mod:`swim.optics.phase` or :mod:`swim.rt.solar` (named in its docstring) and
-reads its coefficients from there; ``tests/unit/test_compose_cpu.py`` holds this module to the JAX composition.
+reads its coefficients from there; ``tests/unit/rt/test_compose_cpu.py`` holds this module to the JAX composition.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ part.
 Each function mirrors one of :mod:`swim.surface.lighting`, :mod:`swim.surface.brdf`, :mod:`swim.surface.water` or
 :mod:`swim.rt.march` (named in its docstring) and reads its constants and normalisation tables from there
 (:func:`ground_tables`); it computes in float64 from the march's float32 tables and the float64 BRDF tables.
-``tests/unit/test_ground_cpu.py`` holds it to the JAX functions.
+``tests/unit/rt/test_ground_cpu.py`` holds it to the JAX functions.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ ray and step (~1400 cycles), far more than the step's arithmetic and ~150 table 
 ray at a time, rays in parallel over the cores, and stops a ray as soon as it meets the ground. The loop and the per-ray
 set-up before it (aerosol class, diffuse-source profiles: :func:`prepare_rays`) are duplicated here; the clouds'
 composition after it is :mod:`swim.rt.compose_cpu` (the clouds) and :mod:`swim.rt.ground_cpu` (the ground's Eq. 35). The
-JAX march remains the kernel on GPUs and for gradients. ``tests/unit/test_rt_march.py`` holds both kernels to the
+JAX march remains the kernel on GPUs and for gradients. ``tests/unit/rt/test_rt_march.py`` holds both kernels to the
 float64 reference and to each other.
 
 The same code is also the GPU's per-ray kernel: :mod:`swim.rt.march_cuda` compiles these functions' Python code

@@ -21,7 +21,7 @@ GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/decision
 time on an H100, docs/decisions/0006-gpu-kernels.md).
 Each computes what :func:`swim.rt.march._march_segment` computes for its segments, the same equations in the same
 order (Eqs. 3, 8 and 12 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020; see that function), so its state agrees
-with the XLA kernel's to float32 rounding; ``tests/unit/test_rt_march_pallas.py`` holds it to that in Pallas's
+with the XLA kernel's to float32 rounding; ``tests/unit/rt/test_rt_march_pallas.py`` holds it to that in Pallas's
 interpreter on CPUs. Each 3-vector of the XLA kernel (a quantity at the three wavelengths, a point) is three (B,)
 vectors here: Triton's blocks must be powers of two in every dimension.
 """

@@ -24,7 +24,7 @@ render (logged as a warning). Where ``fcntl`` exists, a file lock in the cache f
 the others wait and then load its result (two pytest-xdist workers, or several renders starting at once), and
 :func:`swim.rt.compilation_cache.serialise_numba_cache_writes` keeps two processes from writing a function's cache
 index at once. ``SWIM_PRECOMPILE=0`` turns the helper off; so does turning the disk caches off (``SWIM_JAX_CACHE=0``),
-since the helper hands its result over through them. ``tests/unit/test_precompile.py`` holds
+since the helper hands its result over through them. ``tests/unit/rt/test_precompile.py`` holds
 :func:`kernel_signature` to the types of a real render's calls.
 """
 

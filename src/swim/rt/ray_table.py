@@ -16,7 +16,7 @@ The phase functions' scattering-angle cosine is computed on the device in float3
 accurate near the sun as the host's float64 value rounded once), so the radiance differs from the host's by a few
 1e-6 relative, and within a few degrees of the sun, under thin cloud's forward peak, by up to ~0.2 % where the two
 round the cosine to neighbouring float32 values. Everything else is what :func:`swim.rt.march.trace_rays` computes for
-the same rays (``tests/unit/test_rt_ray_table.py``).
+the same rays (``tests/unit/rt/test_rt_ray_table.py``).
 
 On an H100 a warm 1024² all-sky with every pixel traced renders in 0.151 s with the table against 0.324 s without
 (docs/decisions/0006-gpu-kernels.md), so ``MarchSettings.ray_table`` is on by default where the JAX kernel runs on a GPU

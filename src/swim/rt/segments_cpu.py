@@ -10,7 +10,7 @@ The same operations in the same order as the NumPy function, without fast-math: 
 :func:`swim.frames.ray_sphere_intersections` summed as NumPy's ``einsum`` sums three terms, ``(x0 y0 + x2 y2) + x1
 y1``, and the grid's inverse affine map written out element by element, as :func:`swim.rt.march.ray_segments` does.
 Where NumPy's ``einsum`` sums in another order (another CPU's SIMD code), the results differ by float64 round-off,
-which near a sphere's tangent is a few centimetres of a ray's ~10^5 m (``tests/unit/test_rt_segments_cpu.py``).
+which near a sphere's tangent is a few centimetres of a ray's ~10^5 m (``tests/unit/rt/test_rt_segments_cpu.py``).
 """
 
 from __future__ import annotations

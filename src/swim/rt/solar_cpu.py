@@ -13,7 +13,7 @@ The work is split in two: the direct integrals of every level (rows independent,
 without the GIL), then, level by level from the top, the optical depth interpolated from the level ``block`` above
 (a sequential dependency, one lookup per point; one swept field per core). Both follow
 Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4 (Step 1a), as :func:`swim.rt.solar._sweep` does;
-``tests/unit/test_rt_solar.py`` holds the two to each other.
+``tests/unit/rt/test_rt_solar.py`` holds the two to each other.
 """
 
 from __future__ import annotations

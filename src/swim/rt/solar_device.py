@@ -13,7 +13,7 @@ host's packed volume (the numba kernel, the ground's fields and a later render r
 
 The same equations and the same sweep as :func:`swim.rt.solar.solar_transmittance`; the species' sums may round
 differently in float32 (the order of a reduction), so the channels agree to float32 round-off
-(``tests/unit/test_rt_solar_device.py``).
+(``tests/unit/rt/test_rt_solar_device.py``).
 
 References
 ----------

@@ -17,7 +17,7 @@ direct light and ARF = 1 for the diffuse light. swim evaluates it on the *tilted
 
 All inputs are per ray (the ground point of each ray); the function is written in ``jax.numpy`` so that the
 kernel and the float64 reference evaluate the same expressions. On CPUs the renderer evaluates the same expressions
-one ray at a time in numba (:func:`swim.rt.ground_cpu.surface_radiance`), which ``tests/unit/test_ground_cpu.py``
+one ray at a time in numba (:func:`swim.rt.ground_cpu.surface_radiance`), which ``tests/unit/rt/test_ground_cpu.py``
 holds to this function.
 """
 

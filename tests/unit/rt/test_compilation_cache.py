@@ -3,6 +3,8 @@
 import pickle
 from pathlib import Path
 
+import pytest
+
 from swim.rt.compilation_cache import cache_directory, disk_cached
 
 
@@ -45,6 +47,7 @@ def test_keys_with_object_addresses_are_not_cached(tmp_path, monkeypatch):
     assert not (tmp_path / "test").exists()
 
 
+@pytest.mark.full  # compiles a kernel in a new process: the full tier
 def test_numba_kernel_cache_follows_swim_cache_dir(tmp_path):
     """The numba kernel caches in $SWIM_CACHE_DIR/numba/<digest of the numba modules' code> (not beside the installed
     source), and not at all with SWIM_JAX_CACHE=0; a user's NUMBA_CACHE_DIR is kept. Fresh interpreters: the setting

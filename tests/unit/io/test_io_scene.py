@@ -479,7 +479,7 @@ def test_lazy_open_reads_nothing_until_render_and_renders_the_same(tmp_path):
 
 
 def test_lazy_open_rejects_what_it_cannot_open_lazily(tmp_path):
-    katrina = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "wrf_katrina" / "ci_test_file.nc"
+    katrina = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "wrf_katrina" / "ci_test_file.nc"
     if katrina.is_file():
         with pytest.raises(SwimInputError, match="lazy=True.*not a canonical scene"):
             open_scene(katrina, lazy=True)

@@ -20,11 +20,11 @@ from swim.rt import march_cpu, march_cuda
 from swim.rt.march import MarchSettings
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parents[1]
+ROOT = HERE.parents[2]
 
 
 def _run(code, tmp_path, env=None, timeout=600):
-    """Run ``code`` in a fresh interpreter (``tests/unit`` importable) and return its completed process."""
+    """Run ``code`` in a fresh interpreter (``tests/unit/rt`` importable) and return its completed process."""
     script = tmp_path / "job.py"
     script.write_text(textwrap.dedent(code))
     environ = {**os.environ, "PYTHONPATH": os.pathsep.join([str(HERE), str(ROOT / "src"),

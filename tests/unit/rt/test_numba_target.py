@@ -54,6 +54,7 @@ def test_the_kernels_compile_for_the_host_less_avx512_on_intel():
         assert state["used"] == state["host"]
 
 
+@pytest.mark.full  # two new processes: the full tier (the host's default is tested above)
 def test_swim_numba_avx512_1_keeps_numbas_choice_and_0_leaves_it_out_everywhere():
     kept = _fresh(_STATE, SWIM_NUMBA_AVX512="1")
     assert kept["used"] == kept["host"]
@@ -61,11 +62,13 @@ def test_swim_numba_avx512_1_keeps_numbas_choice_and_0_leaves_it_out_everywhere(
     assert left_out["used"] == features_without_avx512(left_out["host"])
 
 
+@pytest.mark.full  # a new process: the full tier
 def test_the_users_numba_cpu_settings_are_kept():
     state = _fresh(_STATE, NUMBA_CPU_FEATURES="+avx2,+fma,+avx512f", SWIM_NUMBA_AVX512="0")
     assert state["used"] == "+avx2,+fma,+avx512f"
 
 
+@pytest.mark.full  # a new process: the full tier
 def test_a_target_set_up_before_swims_kernels_is_left_alone():
     code = ("import numba; numba.njit(lambda x: x + 1)(1); " + _STATE)
     state = _fresh(code, SWIM_NUMBA_AVX512="0")

@@ -139,6 +139,7 @@ def test_the_kernel_is_compiled_once_per_size():
     assert ordinates_cpu.octant_sweep(1, 4, 2, (0, 1, 1, 1)) is not a
 
 
+@pytest.mark.full  # compiles the sweep once more, in memory: the full tier
 def test_without_a_disk_cache_the_kernel_is_compiled_from_memory(monkeypatch, tmp_path):
     source = ordinates_cpu.sweep_source(1, 1, 1, (0,))
     monkeypatch.setitem(ordinates_cpu._JIT_KERNEL, "cache", False)
