@@ -15,6 +15,15 @@ def pytest_configure(config):
         config.option.dist = "load"
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Inspections of compiled code (``perf``: assembly, LLVM IR, PTX) run in the full tier: before ``-m``
+    selects, each gets the ``full`` marker too."""
+    for item in items:
+        if item.get_closest_marker("perf") and not item.get_closest_marker("full"):
+            item.add_marker(pytest.mark.full)
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     """Path of ../shared/data; the test is skipped where the folder is absent."""

@@ -75,7 +75,7 @@ def test_a_target_set_up_before_swims_kernels_is_left_alone():
     assert state["used"] == state["host"]
 
 
-@pytest.mark.full  # an inspection of the compiled code: the full tier
+@pytest.mark.perf  # an inspection of the compiled code
 def test_compiled_code_has_no_avx512_instructions_where_avx512_is_left_out():
     # a vectorised loop with a condition and a gather: with AVX-512, LLVM uses its mask registers (k1-k7) and its
     # extra vector registers (16-31), which only EVEX-encoded (AVX-512) instructions address

@@ -64,6 +64,7 @@ def test_sky_lanes_hold_the_sky_table_wavelengths_innermost():
         march_cpu.sky_lanes(sky[:3])
 
 
+@pytest.mark.perf  # its assembly
 def test_corner_prefetch_reads_nothing_and_compiles_to_cache_hints():
     """Prefetching a block's corners, edges and outside of the grid included, changes nothing and leaves no
     out-of-range address; on x86-64 the hint is a prefetch instruction (else the prefetch's saving,
@@ -214,7 +215,7 @@ def _blocks_in_loops(body):
     return {b: "\n".join(blocks[b]) for b in looped}
 
 
-@pytest.mark.full  # an inspection of the compiled code: the full tier
+@pytest.mark.perf  # an inspection of the compiled code
 @pytest.mark.slow
 def test_the_kernel_changes_no_reference_count_inside_its_loops():
     """The march kernel's loops take no array views (``volume[k, j, i]``, a table's row): numba raises and lowers a
@@ -253,6 +254,7 @@ def test_probes_round_to_the_nearest_cell_as_numpy_does_halves_to_even():
     assert np.isnan(rounded(float("nan")))
 
 
+@pytest.mark.perf  # its assembly
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86 instructions")
 def test_the_probes_loop_converts_no_float_to_an_integer():
     """_probe_indices' loop rounds in floating point: x86 converts float64 to int64 in vectors only with AVX-512,

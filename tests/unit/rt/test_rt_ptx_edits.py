@@ -226,7 +226,7 @@ def fresh_hook(monkeypatch):
     return registration
 
 
-@pytest.mark.full  # compiles the fused GPU kernel for a CUDA program's text: the full tier
+@pytest.mark.perf  # compiles the fused GPU kernel for a CUDA program's text
 @pytest.mark.parametrize("cap, fma, name", [(128, False, "swim_fused_march_r128"),
                                            (None, True, "swim_fused_march_fma"),
                                            (168, True, "swim_fused_march_fma_r168")])
