@@ -8,13 +8,6 @@ import pytest
 SHARED_DATA = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data").resolve()
 
 
-def pytest_configure(config):
-    """The quick tier runs each test file in one worker (pyproject's ``--dist loadfile``: a file's kernels and JAX
-    programs compile once); the full tier (``-m full``), a few long validation files, spreads its tests one by one."""
-    if getattr(config.option, "dist", "no") == "loadfile" and (config.option.markexpr or "").strip() == "full":
-        config.option.dist = "load"
-
-
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """Inspections of compiled code (``perf``: assembly, LLVM IR, PTX) run in the full tier: before ``-m``
