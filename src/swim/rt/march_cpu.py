@@ -852,14 +852,6 @@ def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scal
     ss2 += su2 * extra
     # sum_s beta_s sum_m w_s,m F_m(x) as sum_m (sum_s beta_s w_s,m) F_m(x): the species' weights combined before the
     # trilinear interpolation, which is then done once per moment (most cloudy cells hold two species or more)
-    c000 = (1.0 - ak) * (1.0 - aj) * (1.0 - ai)
-    c001 = (1.0 - ak) * (1.0 - aj) * ai
-    c010 = (1.0 - ak) * aj * (1.0 - ai)
-    c011 = (1.0 - ak) * aj * ai
-    c100 = ak * (1.0 - aj) * (1.0 - ai)
-    c101 = ak * (1.0 - aj) * ai
-    c110 = ak * aj * (1.0 - ai)
-    c111 = ak * aj * ai
     ms0 = ms1 = ms2 = 0.0
     for m in range(3 * nm):
         r = 0.0
@@ -867,11 +859,7 @@ def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scal
             r += vol[s] * ray_ms[row, s, m]
         if r == 0.0:
             continue
-        c = 3 + m
-        f = (c000 * ms_field[k0, j0, i0, c] + c001 * ms_field[k0, j0, i1, c]
-             + c010 * ms_field[k0, j1, i0, c] + c011 * ms_field[k0, j1, i1, c]
-             + c100 * ms_field[k1, j0, i0, c] + c101 * ms_field[k1, j0, i1, c]
-             + c110 * ms_field[k1, j1, i0, c] + c111 * ms_field[k1, j1, i1, c])
+        f = _field_at(ms_field, 3 + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
         if m < nm:
             ms0 += r * f
         elif m < 2 * nm:
