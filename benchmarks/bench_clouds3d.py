@@ -38,7 +38,7 @@ def solve_case(volume, gas, sun, settings):
     from swim.optics.cloud_phase import cloud_optics
     from swim.rt.clouds import mean_effective_radii
     from swim.rt.diffuse_field import diffuse_field
-    from swim.rt.march import packed_species
+    from swim.rt.march_inputs import packed_species
 
     optics = cloud_optics("physical", settings.max_degree, mean_effective_radii(volume))
     species = tuple(packed_species(volume))
@@ -60,7 +60,7 @@ def accuracy(settings):
     """(RICO block mean |error| at 546 nm, deck GHI error, deck zenith error) with these diffuse settings."""
     from swim.optics.cloud_phase import legendre_moments, mie_liquid_phase
     from swim.rt.clouds import CloudScattering
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
     from swim.validation import clouds3d as C
     from swim.validation.stratus import compare_stratus
 
@@ -75,7 +75,7 @@ def accuracy(settings):
 def render_turns(scene, repeats, size):
     import swim
     from swim.rt.image_sampling import AdaptiveSampling
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     kw = {"camera": "allsky", "camera_options": {"size": size}, "height": 2.0,
           "sampling": AdaptiveSampling(tolerance=0.0085, coarse_spacing=8, edge_test_size=8)}

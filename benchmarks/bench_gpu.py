@@ -3,12 +3,6 @@
 Usage (on a machine where JAX's default device is a GPU; it also runs on a CPU, slowly)::
 
     python benchmarks/bench_gpu.py --scenes synthetic katrina --chunks 32768 0 --sun-series 6 --out gpu.json
-    python benchmarks/bench_gpu.py --backend cuda --scenes synthetic katrina --compare --out gpu-cuda.json
-
-``--backend jax`` (the default) renders with JAX's lockstep march; ``--backend cuda`` with the per-ray CUDA
-kernel (:mod:`swim.rt.march_cuda`, numba-cuda), for which ``trace_s`` is the time in the kernel's calls (copies to
-and from the device included) and ``kernel_s`` one launch on inputs already on the device. With
-``NUMBA_ENABLE_CUDASIM=1`` and ``--size 9`` the CUDA path runs in numba's simulator, to check the script.
 
 For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel call) it renders the suite's
 1024 x 1024 all-sky view (``bench_suite.CASES``) with the JAX kernel and reports:
@@ -87,12 +81,12 @@ class TraceProbe:
 
     def __init__(self):
         import swim.pipeline as pipeline
-        import swim.rt.march as march
+        import swim.rt.march_jax as march_jax
 
-        self.pipeline, self.march = pipeline, march
-        self.trace_rays, self.trace_chunk = pipeline.trace_rays, march._trace_chunk
+        self.pipeline, self.march = pipeline, march_jax
+        self.trace_rays, self.trace_chunk = pipeline.trace_rays, march_jax._trace_chunk
         self.trace_s, self.captured = 0.0, None
-        pipeline.trace_rays, march._trace_chunk = self._trace_rays, self._trace_chunk
+        pipeline.trace_rays, march_jax._trace_chunk = self._trace_rays, self._trace_chunk
 
     def _trace_rays(self, *args, **kwargs):
         t0 = time.perf_counter()
@@ -114,62 +108,6 @@ class TraceProbe:
         call = lambda: jax.block_until_ready(self.trace_chunk(*args, **kwargs))  # noqa: E731
         call()
         return _median_time(call, repeats)[0], int(args[0].shape[0])
-
-
-class CudaProbe:
-    """Wraps :func:`swim.rt.march_cuda.march_rays` (the CUDA kernel's calls, with their host-device copies):
-    keeps the arguments of the biggest call and the time spent in it per render."""
-
-    def __init__(self):
-        from swim.rt import march_cuda
-
-        self.module, self.march = march_cuda, march_cuda.march_rays
-        self.march_s, self.captured = 0.0, None
-        march_cuda.march_rays = self._march
-
-    def _march(self, *args, **kwargs):
-        if self.captured is None or args[0].shape[0] > self.captured[0].shape[0]:
-            self.captured = args
-        t0 = time.perf_counter()
-        try:
-            return self.march(*args, **kwargs)
-        finally:
-            self.march_s += time.perf_counter() - t0
-
-    def kernel_time(self, repeats=5):
-        """(seconds, rays) of the kernel alone on the captured call: its inputs already on the device, one launch,
-        synchronised (the copies to and from the device are left out)."""
-        from numba import cuda
-
-        m = self.module
-        names = m.kernel_arguments()
-        values = dict(zip(names, self.captured))
-        sizes = m.kernel_work_sizes(values)
-        device = [cuda.to_device(v) if hasattr(v, "shape") and not hasattr(v, "copy_to_host") else v
-                  for v in (values[k] for k in names)]
-        n = values["start"].shape[0]
-        kernel = m.cuda_march_kernel(*sizes)
-        launch = kernel[-(-n // m.THREADS_PER_BLOCK), m.THREADS_PER_BLOCK]
-
-        def call():
-            launch(*device)
-            cuda.synchronize()
-
-        call()
-        self.resources = kernel_resources(kernel)
-        print(f"CUDA kernel: {self.resources}", flush=True)
-        return _median_time(call, repeats)[0], int(n)
-
-
-def kernel_resources(kernel):
-    """A compiled numba-cuda kernel's registers and local memory [bytes] per thread (spills show as local memory),
-    for its one compiled signature; ``{"error": ...}`` where this numba-cuda cannot say (the timing matters more)."""
-    try:
-        out = {"regs_per_thread": kernel.get_regs_per_thread(),
-               "local_mem_per_thread": kernel.get_local_mem_per_thread()}
-    except Exception as exc:  # noqa: BLE001 - numba-cuda versions differ
-        return {"error": repr(exc)}
-    return {k: (list(v.values())[0] if isinstance(v, dict) else v) for k, v in out.items()}
 
 
 def compare_ray_table(name, scene, kw, args):
@@ -282,10 +220,10 @@ def run_scene(name, args, probe, out_dir):
     import numpy as np
 
     import swim
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     spec = json.loads(json.dumps(bench_suite.CASES[f"{name}_allsky"]))
-    spec.update(data=str(args.data), backend=args.backend)
+    spec.update(data=str(args.data), backend="jax")
     if args.size:
         spec["image"] = [args.size, args.size]
     if name == "synthetic":
@@ -298,25 +236,24 @@ def run_scene(name, args, probe, out_dir):
     first = None
     for chunk in args.chunks:
         # 0: the default (MarchSettings.resolved_chunk: GPU_CHUNK on a GPU)
-        kw["settings"] = replace(MarchSettings(backend=args.backend, grid_kernel=args.grid_kernel,
+        kw["settings"] = replace(MarchSettings(backend="jax", grid_kernel=args.grid_kernel,
                                                fused_vector_loads=not args.scalar_loads), chunk=chunk or None)
         chunk = kw["settings"].resolved_chunk()
         t0 = time.perf_counter()
         image = swim.render(scene, **kw)  # cold for this chunk size: compiles its kernel shapes
         cold = time.perf_counter() - t0
-        probe.trace_s = probe.march_s = 0.0  # the one its probe has
+        probe.trace_s = 0.0
         probe.captured = None
         warm, runs = _median_time(lambda: swim.render(scene, **kw), args.repeats)
-        # JAX: the time in trace_rays; CUDA: in the kernel's calls (with their copies to and from the device)
-        trace_s = (probe.march_s if args.backend == "cuda" else probe.trace_s) / args.repeats
+        trace_s = probe.trace_s / args.repeats  # the time in trace_rays
         kernel_s, kernel_rays = probe.kernel_time()
         rays = int(image.attrs["traced_pixels"]) + 1
         kernel_rays_per_s = kernel_rays / kernel_s
-        row = {"scene": name, "backend": args.backend, "grid_kernel": kw["settings"].resolved_grid_kernel(), "chunk": chunk, "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
+        row = {"scene": name, "backend": "jax", "grid_kernel": kw["settings"].resolved_grid_kernel(), "chunk": chunk,
+               "rays": rays, "cold_s": cold, "render_s": warm, "render_runs": runs,
                "render_fps": 1 / warm, "trace_s": trace_s, "kernel_chunk_s": kernel_s, "kernel_chunk_rays": kernel_rays,
                "kernel_rays_per_s": kernel_rays_per_s, "kernel_fps": kernel_rays_per_s / rays,
-               "march_samples": float(image.attrs.get("march_samples", float("nan"))), "gpu_memory_mb": gpu_memory(),
-               "kernel_resources": getattr(probe, "resources", None)}
+               "march_samples": float(image.attrs.get("march_samples", float("nan"))), "gpu_memory_mb": gpu_memory()}
         rows.append(row)
         print(f"{name} chunk {chunk}: cold {cold:.2f} s, warm {warm:.3f} s ({1 / warm:.2f} frames/s), trace "
               f"{trace_s:.3f} s, kernel {kernel_s * 1e3:.2f} ms per {kernel_rays} rays -> {row['kernel_fps']:.1f} "
@@ -326,19 +263,19 @@ def run_scene(name, args, probe, out_dir):
             from PIL import Image
 
             Image.fromarray(image["rgb"].values).save(Path(args.out).parent / f"gpu_{name}_allsky_{chunk}.png")
-    for kernel in args.against if args.backend == "jax" else ():
+    for kernel in args.against:
         rows.append(compare_kernels(name, probe, kernel))
-    if args.ray_table and args.backend == "jax":
+    if args.ray_table:
         rows.extend(compare_ray_table(name, scene, kw, args))
-    if args.step1a_on_device and args.backend == "jax":  # a new sun every frame: Step 1a on the device or the host
+    if args.step1a_on_device:  # a new sun every frame: Step 1a on the device or the host
         rows.extend(compare_setting(name, scene, kw, args, "step1a_on_device", [("new sun", {"new_sun": True})]))
-    if args.device_sampling and args.backend == "jax":  # adaptive frames: the sampler on the device or the host
+    if args.device_sampling:  # adaptive frames: the sampler on the device or the host
         from swim.rt.image_sampling import AdaptiveSampling
 
         table_kw = {**kw, "settings": replace(kw["settings"], ray_table=True)}
         rows.extend(compare_setting(name, scene, table_kw, args, "device_sampling",
                                     [("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)})]))
-    if args.device_image and args.backend == "jax":  # the image's planes and colour on the device or the host
+    if args.device_image:  # the image's planes and colour on the device or the host
         from swim.rt.image_sampling import AdaptiveSampling
 
         table_kw = {**kw, "settings": replace(kw["settings"], ray_table=True)}
@@ -365,9 +302,11 @@ def run_scene(name, args, probe, out_dir):
         a, b = adaptive["radiance"].values, first["radiance"].values
         ok = np.isfinite(a) & np.isfinite(b)
         rel = np.abs(a[ok] - b[ok]) / np.maximum(np.abs(b[ok]), 1e-3)
-        rows.append({"scene": name, "chunk": kw["settings"].resolved_chunk(), "sampling": bench_suite.ADAPTIVE, "render_s": warm,
-                     "render_runs": runs, "render_fps": 1 / warm, "traced_pixels": int(adaptive.attrs["traced_pixels"]),
-                     "vs_every_pixel_median": float(np.median(rel)), "vs_every_pixel_p99": float(np.percentile(rel, 99))})
+        rows.append({"scene": name, "chunk": kw["settings"].resolved_chunk(), "sampling": bench_suite.ADAPTIVE,
+                     "render_s": warm, "render_runs": runs, "render_fps": 1 / warm,
+                     "traced_pixels": int(adaptive.attrs["traced_pixels"]),
+                     "vs_every_pixel_median": float(np.median(rel)),
+                     "vs_every_pixel_p99": float(np.percentile(rel, 99))})
         print(f"{name} adaptive, chunk {kw['settings'].resolved_chunk()}: warm {warm:.3f} s ({1 / warm:.2f} frames/s), "
               f"{int(adaptive.attrs['traced_pixels'])} pixels traced, against every pixel: median "
               f"{rows[-1]['vs_every_pixel_median']:.2e}, p99 {rows[-1]['vs_every_pixel_p99']:.2e}", flush=True)
@@ -391,7 +330,7 @@ def run_scene(name, args, probe, out_dir):
         except Exception as exc:  # a host without a working numba must not lose the GPU figures
             rows.append({"scene": name, "compare": "numba", "error": repr(exc)})
             print(f"{name}: no comparison with numba: {exc!r}", flush=True)
-    if args.fused_blocks and args.backend == "jax":  # last: it clears JAX's caches, so a later render would reload
+    if args.fused_blocks:  # last: it clears JAX's caches, so a later render would reload
         rows.extend(sweep_fused_blocks(name, probe, args.fused_blocks))
     if out_dir:
         from PIL import Image
@@ -465,13 +404,13 @@ def profile_render(name, scene, kw, probe, out_dir):
 
 
 def compare_barriers(name, scene, kw, probe, repeats):
-    """The kernel with the optimisation barriers that it uses on CPUs (``swim.rt.march._materialise``) forced on,
+    """The kernel with the optimisation barriers that it uses on CPUs (``swim.rt.march_jax._materialise``) forced on,
     against the default of the device: warm render, device time per chunk, largest difference of the outputs."""
     import jax
     import numpy as np
 
     import swim
-    import swim.rt.march as march
+    import swim.rt.march_jax as march_jax
 
     def measure():
         swim.render(scene, **kw)  # compiles
@@ -482,13 +421,13 @@ def compare_barriers(name, scene, kw, probe, repeats):
         return warm, probe.kernel_time()[0], {key: np.asarray(value) for key, value in out.items()}
 
     default = measure()
-    plain = march._materialise
-    march._materialise = jax.lax.optimization_barrier
+    plain = march_jax._materialise
+    march_jax._materialise = jax.lax.optimization_barrier
     jax.clear_caches()
     try:
         forced = measure()
     finally:
-        march._materialise = plain
+        march_jax._materialise = plain
         jax.clear_caches()
     diff = max(float(np.nanmax(np.abs(forced[2][key].astype(float) - default[2][key].astype(float)), initial=0.0))
                for key in default[2])
@@ -556,7 +495,8 @@ def sweep_fused_blocks(name, probe, blocks):
     """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"), capped
     at N registers per thread ("RAYSxWARPSrN": ``MarchSettings.fused_max_registers``), with a scalar gather per table
     channel ("s": ``MarchSettings.fused_vector_loads`` off), with fused multiply-adds ("f":
-    ``MarchSettings.fused_fma``), and with an "m" last, the "fused-march" kernel (docs/decisions/0006-gpu-kernels.md)."""
+    ``MarchSettings.fused_fma``), and with an "m" last, the "fused-march" kernel
+    (docs/decisions/0006-gpu-kernels.md)."""
     import jax
 
     from swim.rt import march_pallas
@@ -569,7 +509,8 @@ def sweep_fused_blocks(name, probe, blocks):
     valid = np.asarray(probe.captured[0][4]).astype(bool)
     rows = []
     saved = march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS
-    # the module's constants are read when the kernel is traced: no programs from the export cache, whose key is the code
+    # the module's constants are read when the kernel is traced: no programs from the export cache, whose key is the
+    # code
     export = os.environ.get("SWIM_JAX_EXPORT")
     os.environ["SWIM_JAX_EXPORT"] = "0"
     try:
@@ -620,7 +561,8 @@ def sweep_fused_blocks(name, probe, blocks):
             capped += f", fused multiply-adds ({'' if fma_applied else 'NOT '}applied)" if fma else ""
             print(f"{name}: {kernel} kernel, {rays} rays x {warps} warps per program{capped}: "
                   f"{seconds * 1e3:.2f} ms per chunk (first call {first:.1f} s; the render's kernel "
-                  f"{base_s * 1e3:.2f} ms), radiance within {worst:.1e} (median {spread['radiance_median_rel_diff']:.1e}, p99 "
+                  f"{base_s * 1e3:.2f} ms), radiance within {worst:.1e} "
+                  f"(median {spread['radiance_median_rel_diff']:.1e}, p99 "
                   f"{spread['radiance_p99_rel_diff']:.1e}, {spread['radiance_values_off_by_1e-4']} values off by "
                   f"> 1e-4), {int(np.sum(~ok))} values not finite", flush=True)
     finally:
@@ -639,7 +581,7 @@ def compare_numba(name, scene, kw, first):
     import numpy as np
 
     import swim
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     kw_n = {**kw, "settings": MarchSettings(backend="numba")}
     t0 = time.perf_counter()
@@ -663,9 +605,6 @@ def main(argv=None):
     ap.add_argument("--scenes", nargs="+", default=["synthetic"], choices=("synthetic", "katrina", "rico", "conus"))
     ap.add_argument("--chunks", nargs="+", type=int, default=[0],
                     help="rays per kernel call to compare (0: the default, MarchSettings.resolved_chunk)")
-    ap.add_argument("--backend", choices=("jax", "cuda"), default="jax",
-                    help="the march's kernel: JAX's lockstep march, or the per-ray CUDA kernel (numba-cuda; its "
-                         "'trace' column is then the time in the kernel's calls, copies included)")
     kernels = ("auto", "lockstep", "fused", "fused-march")
     ap.add_argument("--grid-kernel", choices=kernels, default="auto",
                     help="the JAX kernel's march of the grid segment (MarchSettings.grid_kernel)")
@@ -710,7 +649,7 @@ def main(argv=None):
     machine = {"jax": jax.__version__, "backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()],
                "device_kind": jax.devices()[0].device_kind, "host_cores": len(os.sched_getaffinity(0))}
     print(machine, flush=True)
-    probe = CudaProbe() if args.backend == "cuda" else TraceProbe()
+    probe = TraceProbe()
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"machine": machine, "argv": sys.argv[1:], "scenes": {}}

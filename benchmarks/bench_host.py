@@ -9,7 +9,7 @@ On a GPU, a warm frame of the JAX kernel is mostly host work (docs/decisions/000
 segments, the phase functions, the chunks' inputs and outputs, adaptive sampling between its batches, the image's
 planes and the colour stage, while the device's march of a 1024² all-sky takes tens of milliseconds. On a CPU that host
 work hides behind the JAX kernel's march (seconds). This script measures it on any machine: it replaces the compiled
-chunk (:func:`swim.rt.march._trace_chunk`) by a stand-in that returns outputs of the right shapes, with some structure
+chunk (:func:`swim.rt.march_jax._trace_chunk`) by a stand-in that returns outputs of the right shapes, with some structure
 so that adaptive sampling refines (a smooth sky with sharp-edged "clouds" by direction), at a cost of a few
 milliseconds per chunk, and times warm renders of the suite's all-sky view with the JAX kernel in the GPU's chunks
 (``GPU_CHUNK`` rays; ``--chunk`` to change), taking turns between
@@ -86,7 +86,7 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--chunk", type=int, default=None,
-                    help="rays per chunk (default: swim.rt.march.GPU_CHUNK, the GPU's: a CPU's 4096 would make the "
+                    help="rays per chunk (default: swim.rt.march_settings.GPU_CHUNK, the GPU's: a CPU's 4096 would make the "
                          "per-chunk work of ~200 chunks weigh as it never does on a GPU)")
     ap.add_argument("--profile", action="store_true", help="a wall-clock profile of one frame of each variant")
     ap.add_argument("--device-image", action="store_true",
@@ -99,14 +99,15 @@ def main(argv=None):
     import jax
 
     import swim
-    import swim.rt.march as march
+    import swim.rt.march_jax as march_jax
+    import swim.rt.march_settings as march_settings
     from swim.rt.image_sampling import AdaptiveSampling
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     scene, kw = allsky_case(args.scene, args.size, args.data)
     base = replace(kw["settings"], backend="jax") if "settings" in kw else MarchSettings(backend="jax")
-    base = replace(base, chunk=args.chunk or march.GPU_CHUNK)
-    march._trace_chunk = stand_in_chunk()
+    base = replace(base, chunk=args.chunk or march_settings.GPU_CHUNK)
+    march_jax._trace_chunk = stand_in_chunk()
     # as on a GPU (docs/decisions/0006-gpu-kernels.md): the digest by identity in every variant, the image with the
     # table
     if args.device_image:

@@ -74,7 +74,7 @@ def capture(scene_name, size, data):
     arguments of every ``march_rays`` call (a list of lists; the tables are shared, not copied)."""
     import swim
     from swim.rt import march_cpu
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     spec = {**bench_suite.CASES[SCENE_CASES[scene_name]], "data": str(data)}
     scene = bench_suite.load_scene(spec)

@@ -8,7 +8,7 @@ Usage::
     python benchmarks/bench_settings.py --size 1024 --adaptive --variant "" --variant n_grid=96,tau_refine=0.5
     python benchmarks/bench_settings.py --variant adaptive.tolerance=0.02 --variant adaptive.tau_floor=1e9
 
-A variant is a comma-separated list of ``name=value`` overrides of :class:`swim.rt.march.MarchSettings` (``n_grid=96``)
+A variant is a comma-separated list of ``name=value`` overrides of :class:`swim.rt.march_settings.MarchSettings` (``n_grid=96``)
 or, prefixed with ``adaptive.``, of :class:`swim.rt.image_sampling.AdaptiveSampling` (``adaptive.tolerance=0.02``;
 such a variant renders adaptively); ``""`` is the defaults. ``--adaptive`` renders every variant adaptively.
 
@@ -72,7 +72,7 @@ def parse_variant(text):
         If an item is not ``name=value`` or names no field of either settings class.
     """
     from swim.rt.image_sampling import AdaptiveSampling
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     march_names = {f.name for f in fields(MarchSettings)}
     sampling_names = {f.name for f in fields(AdaptiveSampling)}
@@ -126,7 +126,7 @@ def main():
 
     import swim
     from swim.rt.image_sampling import AdaptiveSampling
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     spec = dict(bench_suite.CASES[args.case], data=str(args.data))
     if spec["scene"] == "synthetic":

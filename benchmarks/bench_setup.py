@@ -10,10 +10,10 @@ Usage::
 Each repeat builds, from the same scene as given, what :func:`swim.render` builds for a scene it has not seen:
 the validated scene (:func:`swim.io.scene.validate_scene`, a float64 copy of every field and its checks), the optical
 volume (Eq. 7 and the resampling onto regular levels, :func:`swim.optics.volume.build_optical_volume`),
-the packed volume that the kernels read (:func:`swim.rt.march.pack_volume`, its channels then shared with the
-optical volume), the occupancy grid of the empty-space skipping (:func:`swim.rt.march.occupancy_grid`) and Step 1a
+the packed volume that the kernels read (:func:`swim.rt.march_inputs.pack_volume`, its channels then shared with the
+optical volume), the occupancy grid of the empty-space skipping (:func:`swim.rt.march_inputs.occupancy_grid`) and Step 1a
 for one sun (:func:`swim.rt.solar.solar_transmittance`, the fields the kernels read, in the packed volume's
-channels: :func:`swim.rt.march.volume_constants`; its swept levels, :func:`swim.rt.solar.step1a_levels`, found
+channels: :func:`swim.rt.march_inputs.volume_constants`; its swept levels, :func:`swim.rt.solar.step1a_levels`, found
 before the packing as a render finds them). It prints the best and the
 median of each stage over the repeats after a first, warm-up one (numba's kernels loaded, NumPy's pools made). On
 this project's shared 2-core machine alternate runs of the two codes: a figure moves by 10-20 % from hour to hour
@@ -49,7 +49,7 @@ def main():
     from swim.frames import enu_from_azimuth_zenith
     from swim.io.scene import validate_scene
     from swim.optics.volume import build_optical_volume
-    from swim.rt import march, solar
+    from swim.rt import march_inputs, solar
 
     given = scenes.synthetic_scene(nx=args.grid, ny=args.grid)
     sun = np.asarray(enu_from_azimuth_zenith(args.sun_azimuth, args.sun_zenith), dtype=float)
@@ -65,18 +65,18 @@ def main():
         levels = solar.step1a_levels(volume)
         t_levels = time.perf_counter() - t1
         t1 = time.perf_counter()
-        species = march.packed_species(volume)
-        packed = march.pack_volume(volume, species)
-        march.share_packed_channels(volume, packed, species)
+        species = march_inputs.packed_species(volume)
+        packed = march_inputs.pack_volume(volume, species)
+        march_inputs.share_packed_channels(volume, packed, species)
         t2 = time.perf_counter()
-        occupancy = march.occupancy_grid(volume)
+        occupancy = march_inputs.occupancy_grid(volume)
         t3 = time.perf_counter()
         # as a render does it: the fields written into the packed channels where this code can (section 70 of
         # docs/performance.md), else made and then copied there by volume_constants
-        out = march.step1a_channel_views(packed, species) if hasattr(march, "step1a_channel_views") else None
-        transmittance = solar.solar_transmittance(volume, sun, variables=march.KERNEL_STEP1A_VARIABLES,
+        out = march_inputs.step1a_channel_views(packed, species) if hasattr(march_inputs, "step1a_channel_views") else None
+        transmittance = solar.solar_transmittance(volume, sun, variables=march_inputs.KERNEL_STEP1A_VARIABLES,
                                                   nonzero_levels=levels, **({"out": out} if out else {}))
-        march.volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
+        march_inputs.volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species)
         t4 = time.perf_counter()
         if repeat:
             for stage, seconds in zip(STAGES, (t0 - t_valid, t1 - t0 - t_levels, t2 - t1, t3 - t2, t4 - t3 + t_levels,

@@ -133,7 +133,7 @@ def march_settings(spec):
     with its default, which was that method."""
     import dataclasses
 
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     clouds = spec.get("cloud_scattering")
     if clouds is None and "cloud_scattering" in {f.name for f in dataclasses.fields(MarchSettings)}:
@@ -257,8 +257,8 @@ def machine_info():
 
 
 def march_backend(choice="auto"):
-    """The step-loop kernel a case's renders use (swim.rt.march.MarchSettings.backend, resolved)."""
-    from swim.rt.march import MarchSettings
+    """The step-loop kernel a case's renders use (swim.rt.march_settings.MarchSettings.backend, resolved)."""
+    from swim.rt.march_settings import MarchSettings
 
     if not hasattr(MarchSettings(), "resolved_backend"):
         return "jax"  # versions before the numba kernel
@@ -266,8 +266,8 @@ def march_backend(choice="auto"):
 
 
 def march_chunk(choice="auto"):
-    """Rays per kernel call of a case's renders (swim.rt.march.MarchSettings.chunk, resolved), or None."""
-    from swim.rt.march import MarchSettings
+    """Rays per kernel call of a case's renders (swim.rt.march_settings.MarchSettings.chunk, resolved), or None."""
+    from swim.rt.march_settings import MarchSettings
 
     settings = MarchSettings(backend=choice)
     return settings.resolved_chunk() if hasattr(settings, "resolved_chunk") else settings.chunk
@@ -348,7 +348,7 @@ def crop_used(kw):
 
 def throughput(image, rays, seconds):
     """rays/s and samples/s; samples are the kernel's count (``march_samples``) where the output has it."""
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     if "march_samples" in image.attrs:
         backend = image.attrs.get("march_backend", "?")

@@ -10,7 +10,7 @@ Usage::
 A GPU frame queues its programs on the device and waits for them only where the host needs a result (an adaptive
 level's wanted pixels, the final copy), so a wall-clock profile (``wall_profile.py``) shows the waits but not which
 program they wait for. Here the frame's programs are wrapped so that each call waits for its result
-(``jax.block_until_ready``): the march's chunks (:func:`swim.rt.march._trace_chunk`), the ray table's gathers
+(``jax.block_until_ready``): the march's chunks (:func:`swim.rt.march_jax._trace_chunk`), the ray table's gathers
 (:func:`swim.rt.ray_table._gather_rows`), the device sampler's programs (:mod:`swim.rt.image_sampling_device`: the
 first lattice, each level's test and split, each batch's scatter, the final fill), the planes
 (:mod:`swim.rt.image_device`) and the colour stage (:mod:`swim.color.srgb_device`). Each part's time is then the
@@ -45,7 +45,7 @@ import bench_suite  # noqa: E402  (the suite's scenes, views and render options)
 #: The frame's programs: (module, function name, label). Each is looked up in its module at every call, so that a
 #: wrapper put there is what the frame calls.
 PARTS = (
-    ("swim.rt.march", "_trace_chunk", "march (a chunk)"),
+    ("swim.rt.march_jax", "_trace_chunk", "march (a chunk)"),
     ("swim.rt.ray_table", "_gather_rows", "table rows and phase functions"),
     ("swim.rt.image_sampling_device", "_first_wanted", "sampler: first lattice"),
     ("swim.rt.image_sampling_device", "_test_level", "sampler: a level's test"),
@@ -108,18 +108,19 @@ def main(argv=None):
     import jax
 
     import swim
-    import swim.rt.march as march
+    import swim.rt.march_jax as march_jax
+    import swim.rt.march_settings as march_settings
     from swim.rt.image_sampling import AdaptiveSampling
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     import bench_host
 
     scene, kw = bench_host.allsky_case(args.scene, args.size, args.data)
     base = kw.get("settings", MarchSettings())
-    settings = replace(base, backend="jax", chunk=base.chunk or march.GPU_CHUNK, ray_table=True, device_sampling=True,
+    settings = replace(base, backend="jax", chunk=base.chunk or march_settings.GPU_CHUNK, ray_table=True, device_sampling=True,
                        device_image=True)
     if args.stand_in:
-        march._trace_chunk = bench_host.stand_in_chunk()
+        march_jax._trace_chunk = bench_host.stand_in_chunk()
         # a known scene's digest taken by identity and checked beside the march, as on a GPU
         # (docs/decisions/0006-gpu-kernels.md); on a CPU the render hashes the scene first, which would count in the
         # rest

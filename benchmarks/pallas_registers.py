@@ -85,7 +85,7 @@ def capture_kernel_call(kernel, size=32):
 
     import swim
     from swim.rt import march_pallas
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     real = {"fused": march_pallas.march_grid_fused, "fused-march": march_pallas.march_segments_fused}
     captured = {}

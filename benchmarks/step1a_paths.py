@@ -14,7 +14,7 @@ towards the sun) twice from the same optical volume:
   sweep on JAX's default device), as a render on a GPU does (``MarchSettings.step1a_on_device``).
 
 It prints, per field, the largest difference and how many cells differ, and how many cells change their step class
-(:func:`swim.rt.march.step_classes`: sunlit clear air where the direct sun's transmittance is at least
+(:func:`swim.rt.march_inputs.step_classes`: sunlit clear air where the direct sun's transmittance is at least
 ``SUNLIT_TRANSMITTANCE`` around a cell). The two paths round in another order (float32), so T differs by ~1e-5 in
 some cells; a class is a threshold on T, so a few cells near it may flip, and a ray that crosses one places its grid
 steps otherwise (docs/decisions/0007-scene-set-up.md).
@@ -46,8 +46,8 @@ def main(argv=None):
     from swim.io.scene import validate_scene
     from swim.optics.volume import build_optical_volume
     from swim.rt import solar_device
-    from swim.rt.march import (KERNEL_STEP1A_VARIABLES, occupancy_grid, pack_volume, packed_species,
-                               share_packed_channels, step_classes)
+    from swim.rt.march_inputs import (KERNEL_STEP1A_VARIABLES, occupancy_grid, pack_volume, packed_species,
+                                      share_packed_channels, step_classes)
     from swim.rt.solar import solar_transmittance, step1a_levels
 
     volume = build_optical_volume(validate_scene(synthetic_scene(nx=args.grid, ny=args.grid)))

@@ -194,7 +194,7 @@ def cloud_rows(n_streams):
     sun, albedo, method and wavelength."""
     import dataclasses
 
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
     from swim.validation.stratus import compare_stratus
     sys.path.insert(0, str(ROOT / "tests" / "validation"))
     from test_clouds_disort import ICE_DECK, LIQUID_DECK, _moments

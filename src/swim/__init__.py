@@ -27,7 +27,7 @@ _API = {
     "render_series": "swim.series",
     "series_times": "swim.series",
     "AerosolBackground": "swim.rt.gas",
-    "MarchSettings": "swim.rt.march",
+    "MarchSettings": "swim.rt.march_settings",
     "sky_irradiance": "swim.diagnostics.irradiance",
     "compare_images": "swim.diagnostics.compare",
     "reflectance_factor": "swim.diagnostics.satellite",

@@ -19,11 +19,11 @@ EARTH_RADIUS_M = 6_371_000.0
 ATMOSPHERE_TOP_M = 100_000.0
 #: Row of the kernels' clear-air height table (``beta_gas``: the Rayleigh, background and stratospheric aerosol
 #: profiles in rows 0-2) that holds the fraction of the vertical optical depth at 546 nm above each height
-#: (:func:`swim.rt.march.gas_column_above`).
+#: (:func:`swim.rt.march_inputs.gas_column_above`).
 GAS_COLUMN_ROW = 3
-#: Least clear-air steps after the grid of a ray that rises out of it (:func:`swim.rt.march.after_step_counts`).
+#: Least clear-air steps after the grid of a ray that rises out of it (:func:`swim.rt.march_jax.after_step_counts`).
 AFTER_MIN_STEPS = 4
-#: Points per ray [-] at which a grid segment's length in cells is measured (:func:`swim.rt.march.segment_cells`):
+#: Points per ray [-] at which a grid segment's length in cells is measured (:func:`swim.rt.march_jax.segment_cells`):
 #: the middles of equal intervals. A straight path in grid indices measures the same from any two; the horizon's
 #: rays, whose height index bends over the Earth's curvature, measure a little less from fewer: from 16 rather than
 #: 64 at most 0.3 % less on the synthetic 400 x 400 x 60 all-sky (0.5 % of its rays one probe fewer) and 1 % on

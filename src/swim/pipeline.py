@@ -15,7 +15,6 @@ from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 
-import jax
 import numpy as np
 import pandas as pd
 import xarray as xr
@@ -37,32 +36,18 @@ from .io.atomic import atomic_write
 from .io.scene import to_utc_datetime64, validate_scene
 from .memory import release_compiled_programs, release_free_memory
 from .optics.volume import build_optical_volume, grid_indices
-from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
+from .rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables, phase_functions
 from .rt.image_sampling import AdaptiveSampling, sample_image_adaptive, tile_order
-from .rt.ray_table import phase_functions
-from .rt.march import (
-    KERNEL_STEP1A_VARIABLES,
-    MarchSettings,
-    aerosol_column_optical_depth,
-    atmosphere_constants,
-    grid_geometry,
-    keep_device_copies,
-    kept_device_copies,
-    occupancy_grid,
-    pack_volume,
-    packed_species,
-    padded_batch_size,
-    share_packed_channels,
-    shared_packed_volume,
-    step1a_channel_views,
-    threads,
-    trace_rays,
-    volume_constants,
-)
+from .rt.device_copies import keep_device_copies, kept_device_copies
+from .rt.march import trace_rays
+from .rt.march_inputs import (KERNEL_STEP1A_VARIABLES, aerosol_column_optical_depth, atmosphere_constants,
+                              grid_geometry, occupancy_grid, pack_volume, packed_species, share_packed_channels,
+                              shared_packed_volume, step1a_channel_views, volume_constants)
+from .rt.march_settings import MarchSettings
+from .workers import threads
 from .rt.clouds import MIN_SUN_COSINE, cloud_constants, cloud_ray_inputs, direct_weights, scene_cloud_optics
 from .rt.diffuse_field import diffuse_field, solve_sun
 from .rt.solar import solar_transmittance, step1a_levels
-from .rt.solar_device import solar_transmittance_on_device
 from .workers import parallel_map
 
 log = logging.getLogger(__name__)
@@ -297,15 +282,9 @@ def _attrs_text(attrs):
 
 def _phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type):
     """Rayleigh (n,), aerosol and stratospheric aerosol (n, 3) phase functions [-] (mean 1 over the sphere;
-    :func:`swim.optics.rayleigh.rayleigh_phase_function` and the two-term DHG of paper Eq. 28, Albers et al. 2020,
-    doi:10.5194/amt-13-3235-2020) at the scattering-angle cosines ``cos_theta`` (n,), as numpy arrays: one compiled call, padded to a power of two (at least 256) so
-    that a few sizes serve every image. Dispatched operation by operation they took 8 of the 36 ms of an 11²
-    image (docs/decisions/0009-work-around-the-march.md)."""
-    n = len(cos_theta)
-    padded = padded_batch_size(n, 1 << 30)
-    cos_theta = np.concatenate([np.asarray(cos_theta, np.float32), np.zeros(padded - n, np.float32)])
-    out = _phase_functions_jit(cos_theta, np.float32(depolarization), aerosol_type, stratospheric_type)
-    return tuple(np.asarray(value)[:n] for value in out)
+    :func:`swim.rt.gas.phase_functions`) at the scattering-angle cosines ``cos_theta`` (n,), float32 numpy arrays."""
+    return phase_functions(np.asarray(cos_theta, np.float32), np.float32(depolarization), aerosol_type,
+                           stratospheric_type)
 
 
 def _scene_directions(camera, rotation):
@@ -334,11 +313,6 @@ def _compute_scene_directions(camera, rotation):
     dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-12)
     flat = np.flatnonzero(valid.reshape(-1))
     return dirs, flat[tile_order(flat, camera.shape)]
-
-
-@functools.partial(jax.jit, static_argnames=("aerosol_type", "stratospheric_type"))
-def _phase_functions_jit(cos_theta, depolarization, aerosol_type, stratospheric_type):
-    return phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type)
 
 
 class _StageCache:
@@ -570,7 +544,7 @@ _RENDERS_IN_PROGRESS = [0]
 _RENDERS_LOCK = threading.Lock()
 #: Renders in this process build their grid constants (the packed volume, Step 1a, the occupancy grid) one at a time:
 #: the build reads the cached optical volume and may point its extinctions at a new packed volume
-#: (:func:`swim.rt.march.share_packed_channels`), which deletes and re-adds its ``species`` coordinate. A render beside
+#: (:func:`swim.rt.march_inputs.share_packed_channels`), which deletes and re-adds its ``species`` coordinate. A render beside
 #: it (a dask worker's threads, each with its own sun) read the volume in between and found the coordinate gone
 #: ("'cloud_liquid' is not in list" in ``pack_volume``, or worse, names and extinctions of two layouts).
 _GRID_CONSTANTS_LOCK = threading.RLock()
@@ -670,15 +644,15 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         of :class:`MarchSettings`, 50, where a ray that does not look down stops in opaque cloud: a lower bound);
         ``radiance_clear``, ``radiance_cloud``, ``radiance_surface``;
         attributes with the sun, observer, time and camera, ``traced_pixels`` (pixels whose ray was
-        marched), ``march_samples`` (the volume samples the march took: per ray as marched by the "numba" and
-        "cuda" kernels, the lockstep count of every ray's steps for "jax"; :func:`swim.rt.march.trace_rays`) and
+        marched), ``march_samples`` (the volume samples the march took: per ray as marched by the "numba"
+        kernel, the lockstep count of every ray's steps for "jax"; :func:`swim.rt.march.trace_rays`) and
         ``march_backend`` (the kernel that marched them, :class:`MarchSettings`).
 
     Raises
     ------
     SwimInputError
         Bad scene, observer below the terrain or out of reach, bad camera options, time or ``coarsen``; a march kernel
-        (``settings.backend``) that cannot run here (numba missing, or no GPU for "cuda"); an image too big for the
+        (``settings.backend``) that cannot run here (numba missing); an image too big for the
         memory available (``check_memory``).
 
     Notes
@@ -789,7 +763,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             sun_for_crop = None  # unknown here: a margin on every side; a real error is raised below
         scene = crop_scene_to_view(scene, camera, camera_options=camera_options, lat=lat, lon=lon, height=height,
                                    sun_direction=sun_for_crop)
-    # a kernel that cannot run (no numba, no GPU for "cuda") fails before any work
+    # a kernel that cannot run (no numba) fails before any work
     backend = settings.resolved_backend()
     from .rt import precompile
 
@@ -865,10 +839,6 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         clouds = settings.cloud_scattering
     cloud_optics = cloud_key = None
     if clouds.three_d:
-        if backend == "cuda":
-            raise SwimInputError("cloud_scattering='discrete_ordinates' (the default) runs in the numba and JAX "
-                                 "kernels (backend 'numba', 'jax' or 'auto'); the 'cuda' backend has the albers2020 "
-                                 "method only (cloud_scattering='albers2020', --cloud-scattering albers2020)")
         cloud_optics = _STAGE_CACHE.get(("cloud optics", fingerprint, clouds),
                                         lambda: scene_cloud_optics(volume, clouds))
         cloud_key = clouds
@@ -908,6 +878,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
                 if settings.resolved_step1a_on_device() else None)
         if kept is not None:
             from .rt.march_pallas import forget_vector_volume
+            from .rt.solar_device import solar_transmittance_on_device
 
             forget_vector_volume()  # the fused kernel's padded copy of the old volume goes before the refill
             transmittance, device_packed = solar_transmittance_on_device(volume, sun_scene, kept["volume"], packed,
@@ -925,8 +896,10 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
                                                                 else direct_weights(volume, cloud_optics)))
         constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species,
                                      classes=classes)
-        if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.march.device_copies);
+        if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.device_copies.device_copies);
             # the step classes of this sun are sent (25.6 MB for 400 x 400 x 160)
+            import jax
+
             keep_device_copies({"volume": constants["volume"], "occupancy": constants["occupancy"]},
                                {"volume": device_packed, "occupancy": jax.device_put(constants["occupancy"])})
             del device_packed
@@ -1043,6 +1016,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             from .color.srgb_device import solar_relative_to_srgb8_device
 
             codes = solar_relative_to_srgb8_device(device_planes["radiance"], white_level)
+        import jax
+
         device_planes, codes, extra = jax.device_get((device_planes, codes, extra))
         return ({key: value if value.flags.writeable else value.copy() for key, value in device_planes.items()},
                 codes, extra)

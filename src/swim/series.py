@@ -423,7 +423,7 @@ def local_cluster(workers: int):
         from dask.distributed import LocalCluster
     except ImportError:
         raise SwimInputError('workers= needs dask.distributed: pip install "swim-imagery[scale]"') from None
-    from .rt.march import threads
+    from .workers import threads
 
     per_worker = max(1, threads() // workers)
     return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,

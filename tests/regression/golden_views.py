@@ -7,7 +7,7 @@ images.
 from __future__ import annotations
 
 import swim
-from swim.rt.march import MarchSettings
+from swim.rt.march_settings import MarchSettings
 
 #: name -> (render keywords, march settings keywords). The sun is set by angles so that no ephemeris or clock enters.
 #: One view of the default 3-D cloud scattering (its diffuse solution costs seconds), the others the paper's method.

@@ -10,8 +10,7 @@ import swim
 import swim.validation.stratus
 from swim.cli.main import app
 from swim.diagnostics.irradiance import sky_irradiance
-from swim.errors import SwimInputError
-from swim.rt.march import MarchSettings
+from swim.rt.march_settings import MarchSettings
 
 THREE_D = MarchSettings(cloud_scattering="discrete_ordinates")
 PAPER = MarchSettings(cloud_scattering="albers2020")
@@ -229,13 +228,6 @@ def test_the_jax_kernel_on_the_rico_field(shared_data, view, sun_zenith):
            for b in ("jax", "numba")]
     blocks = [C.block_means(o["image"], o["mask"]) for o in out]
     np.testing.assert_allclose(blocks[0], blocks[1], rtol=1e-3)
-
-
-def test_the_cuda_backend_refuses_the_method(default_scene, monkeypatch):
-    monkeypatch.setattr(MarchSettings, "resolved_backend", lambda self: "cuda")
-    with pytest.raises(SwimInputError, match="discrete_ordinates.*'cuda' backend"):
-        swim.render(default_scene, camera="allsky", camera_options={"size": 15}, sun_zenith=40.0,
-                    sun_azimuth=150.0, settings=THREE_D)
 
 
 def test_cli_cloud_scattering_options(tmp_path, shared_data):

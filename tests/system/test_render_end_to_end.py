@@ -11,7 +11,7 @@ from swim.cli.main import app
 from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
 from swim.geometry.cameras import AllSkyCamera
-from swim.rt.march import REFINE_BUDGET, MarchSettings
+from swim.rt.march_settings import REFINE_BUDGET, MarchSettings
 
 SMALL = {"size": 95}
 
@@ -272,7 +272,7 @@ def test_cli_coarsens_a_distant_view(tmp_path):
 def test_numba_and_jax_kernels_render_the_same_image(scene_name, request):
     """The CPU kernel (swim.rt.march_cpu) against the JAX kernel on whole images: terrain, cumulus and
     cirrus of the default scene, the hurricane's decks, the sun's disk."""
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     if scene_name == "default":
         scene, view = swim.default_scene(), {}
@@ -314,3 +314,21 @@ def test_cli_probes_option(tmp_path):
     assert result.exit_code == 2 and "MarchSettings.probe_spacing" in result.output and not bad.exists()
     result = CliRunner().invoke(app, ["render", "--size", "31", "--tau-refine", "-1", "--out", str(bad)])
     assert result.exit_code == 2 and "MarchSettings.tau_refine" in result.output and not bad.exists()
+
+
+def test_a_cpu_render_does_not_import_jax(tmp_path):
+    """On the CPU the numba kernel marches and the host computes the rest (the phase functions, the tables, the 3-D
+    diffuse solution): ``swim render --backend numba`` renders the built-in scene without loading JAX
+    (docs/decisions/0011-jax-only-where-it-runs.md)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "sky.png"
+    probe = ("import sys\nfrom swim.cli.main import run\n"
+             "sys.argv = ['swim', 'render', '--size', '17', '--backend', 'numba', '--out', sys.argv[1]]\n"
+             "try:\n    run()\nexcept SystemExit as exit:\n    assert not exit.code, exit.code\n"
+             "print('jax loaded:', 'jax' in sys.modules)\n")
+    result = subprocess.run([sys.executable, "-c", probe, str(out)], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().splitlines()[-1] == "jax loaded: False"
+    assert out.stat().st_size > 0

@@ -27,7 +27,7 @@ from swim.frames import (
 from swim.geometry.cameras import PanoramaCamera, PerspectiveCamera
 from swim.io import scene_from_arrays
 from swim.optics.volume import build_optical_volume
-from swim.rt.march import MarchSettings
+from swim.rt.march_settings import MarchSettings
 from swim.rt.solar import solar_transmittance
 
 R = EARTH_RADIUS_M

@@ -17,7 +17,7 @@ pytest.importorskip("disortpp")
 from swim.frames import enu_from_azimuth_zenith  # noqa: E402
 from swim.optics.rayleigh import rayleigh_phase_function  # noqa: E402
 from swim.rt.gas import AerosolBackground, build_gas_tables  # noqa: E402
-from swim.rt.march import MarchSettings  # noqa: E402
+from swim.rt.march_settings import MarchSettings  # noqa: E402
 from swim.optics.aerosol_types import aerosol_type  # noqa: E402
 from swim.rt.multiple_scattering import aerosol_layer_albedo  # noqa: E402
 from swim.validation.disort import (  # noqa: E402
@@ -28,9 +28,8 @@ from swim.validation.disort import (  # noqa: E402
     clear_sky_layers,
     compare_ground_sky,
     disort_clear_sky_radiance,
-    phase_function_legendre_moments,
-    rayleigh_legendre_moments,
 )
+from swim.optics.legendre import phase_function_legendre_moments, rayleigh_legendre_moments
 
 pytestmark = pytest.mark.validation
 

@@ -24,7 +24,7 @@ import pytest
 pytest.importorskip("disortpp")
 
 from swim.optics.cloud_phase import cloud_optics, legendre_moments, mie_liquid_phase  # noqa: E402
-from swim.rt.march import MarchSettings  # noqa: E402
+from swim.rt.march_settings import MarchSettings  # noqa: E402
 from swim.validation.stratus import compare_stratus  # noqa: E402
 
 pytestmark = pytest.mark.validation

@@ -89,7 +89,8 @@ def _slab_volume(tau):
 def _disort_slab(lev, beta_cloud, g, sun_zenith, albedo, mu=None, phi=None, observer="ground"):
     """DISORT (64 streams) for the slab in swim's Rayleigh atmosphere: intensities L' or fluxes."""
     from swim.rt.gas import build_gas_tables
-    from swim.validation.disort import _solve, rayleigh_legendre_moments
+    from swim.optics.legendre import rayleigh_legendre_moments
+    from swim.validation.disort import _solve
 
     gas = build_gas_tables(RAYLEIGH)
     h = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh

@@ -303,8 +303,8 @@ def render(
                                                          "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested)."),
     memory_check: bool = typer.Option(True, "--memory-check/--no-memory-check",
                                       help="Refuse an image too big for the memory available (before any work)."),
-    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax, numba, "
-                                "or cuda (numba's per-ray kernel on an NVIDIA GPU; docs/performance.md)."),
+    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax or numba "
+                                "(docs/performance.md)."),
     grid_kernel: str = typer.Option("auto", "--grid-kernel", hidden=True, help="The JAX kernel's march of the grid: auto (fused on "
                                     "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
                                     "kernel), or fused-march (the clear air in it too: ~15 % faster per frame, ~40 s "
@@ -348,7 +348,7 @@ def render(
     from ..pipeline import image_format, render as render_image, write_outputs
     from ..rt.gas import AerosolBackground
     from ..rt.image_sampling import AdaptiveSampling
-    from ..rt.march import MarchSettings
+    from ..rt.march_settings import MarchSettings
 
     modules_loaded()
     try:

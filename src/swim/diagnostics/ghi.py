@@ -212,7 +212,7 @@ def _simulate(scene, lat, lon, suns, *, height, size, aerosol, precipitable_wate
     from ..optics.atmosphere import us_standard_atmosphere_1976
     from ..pipeline import render
     from ..rt.gas import AerosolBackground
-    from ..rt.march import MarchSettings
+    from ..rt.march_settings import MarchSettings
     from .irradiance import sky_irradiance
 
     if not (isinstance(size, (int, np.integer)) and 9 <= size <= 2049):
@@ -328,7 +328,7 @@ def ghi_time_series(scene, lat, lon, times, *, height=2.0, size=DEFAULT_SIZE, ae
     band_nm : tuple of float, optional
         Spectral band of the broadband values [nm] (e.g. (285, 2800) for a PSP pyranometer); default
         280-4000 nm (:func:`swim.diagnostics.broadband.broadband_irradiance`).
-    settings : swim.rt.march.MarchSettings, optional
+    settings : swim.rt.march_settings.MarchSettings, optional
         Ray-marching settings.
     progress : callable, optional
         Called with (instants done, instants total).

@@ -4,18 +4,18 @@ Source: Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-
 3.5 (horizontally uniform aerosol, extinction varying with wavelength through an Ångström exponent); defaults
 in :data:`swim.constants.DEFAULT_AEROSOL`.
 
-Numpy input is validated (raising :class:`swim.errors.SwimInputError`); jax arrays and tracers are computed with
-``jax.numpy`` without validation so the functions can run inside ``jax.jit``.
+The functions compute in the array library of their inputs (:mod:`swim.arrays`). Numpy input is validated
+(raising :class:`swim.errors.SwimInputError`); JAX arrays and tracers are computed with ``jax.numpy`` without
+validation so the functions can run inside ``jax.jit``.
 """
 
 from __future__ import annotations
 
 import logging
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from ..arrays import array_namespace, is_jax
 from ..constants import DEFAULT_AEROSOL
 from ..errors import SwimInputError
 
@@ -23,11 +23,6 @@ _log = logging.getLogger(__name__)
 
 #: Reference wavelength of the aerosol optical depth [nm].
 REFERENCE_WAVELENGTH_NM = 550.0
-
-
-def _is_jax(*arrays):
-    """True if any argument is a jax array or tracer (then compute with jax.numpy and skip validation)."""
-    return any(isinstance(a, jax.Array) for a in arrays)
 
 
 def exponential_aerosol_extinction(
@@ -63,9 +58,10 @@ def exponential_aerosol_extinction(
     boundary-layer aerosol model, e.g. Hess, M., Koepke, P. and Schult, I. (1998), Bull. Am. Meteorol. Soc.
     79, 831-844, doi:10.1175/1520-0477(1998)079<0831:OPOAAC>2.0.CO;2.
     """
-    if _is_jax(height_m, aod_550, scale_height_m):
-        h, aod, sh = jnp.asarray(height_m), jnp.asarray(aod_550), jnp.asarray(scale_height_m)
-        return aod / sh * jnp.exp(-h / sh)
+    xp = array_namespace(height_m, aod_550, scale_height_m)
+    if is_jax(xp):  # no validation: values cannot be inspected under tracing
+        h, aod, sh = xp.asarray(height_m), xp.asarray(aod_550), xp.asarray(scale_height_m)
+        return aod / sh * xp.exp(-h / sh)
     h = np.asarray(height_m, dtype=float)
     aod = np.asarray(aod_550, dtype=float)
     sh = np.asarray(scale_height_m, dtype=float)
@@ -103,9 +99,10 @@ def angstrom_extinction(beta_550, wavelength_nm, angstrom_exponent=1.3):
     Source: Ångström, A. (1929), On the atmospheric transmission of sun radiation and on dust in the air,
     Geogr. Ann. 11, 156-166, doi:10.1080/20014422.1929.11880498; paper Sect. 3.5.1.
     """
-    if _is_jax(beta_550, wavelength_nm, angstrom_exponent):
-        ratio = jnp.asarray(wavelength_nm) / REFERENCE_WAVELENGTH_NM
-        return jnp.asarray(beta_550) * ratio ** (-jnp.asarray(angstrom_exponent))
+    xp = array_namespace(beta_550, wavelength_nm, angstrom_exponent)
+    if is_jax(xp):  # no validation: values cannot be inspected under tracing
+        ratio = xp.asarray(wavelength_nm) / REFERENCE_WAVELENGTH_NM
+        return xp.asarray(beta_550) * ratio ** (-xp.asarray(angstrom_exponent))
     beta = np.asarray(beta_550, dtype=float)
     lam = np.asarray(wavelength_nm, dtype=float)
     alpha = np.asarray(angstrom_exponent, dtype=float)

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import jax.numpy as jnp
 import numpy as np
 
+from ..arrays import array_namespace
 from .aerosol import angstrom_extinction
 from ..errors import SwimInputError
 from .phase import two_term_double_henyey_greenstein
@@ -131,24 +131,26 @@ class AerosolType:
         Parameters
         ----------
         cos_theta : array_like
-            cos θ of the scattering angle [-] (θ = 0 forward), any shape; numpy, jax array or tracer.
+            cos θ of the scattering angle [-] (θ = 0 forward), any shape; numpy, JAX array or tracer.
 
         Returns
         -------
-        jax.Array
+        numpy.ndarray or jax.Array
             P(θ) = f_c P_DHG(θ, g1, f_b) + (1 - f_c) P_DHG(θ, g2, f_b) [-], shape ``cos_theta.shape + (3,)``
             (last axis 615, 546, 450 nm); mean 1 over the sphere at each wavelength, positive for all θ.
 
         Notes
         -----
-        Runs under ``jax.jit`` (the type is a frozen, hashable dataclass and may be a static argument); no
-        validation of ``cos_theta``. Float32 unless x64 is enabled.
+        Computes in the array library of ``cos_theta`` (:mod:`swim.arrays`): numpy for numpy input; for JAX
+        input it runs under ``jax.jit`` (the type is a frozen, hashable dataclass and may be a static argument),
+        float32 unless x64 is enabled. No validation of ``cos_theta``.
 
         Source: paper Eqs. 27-28 (DHG with the 3/2 exponent, see docs/phase-functions.md, decision D1).
         """
-        mu = jnp.asarray(cos_theta)[..., None]
+        xp = array_namespace(cos_theta)
+        mu = xp.asarray(cos_theta)[..., None]
         return two_term_double_henyey_greenstein(
-            mu, jnp.asarray(self.g1), jnp.asarray(self.g2), jnp.asarray(self.fb), jnp.asarray(self.fc)
+            mu, xp.asarray(self.g1), xp.asarray(self.g2), xp.asarray(self.fb), xp.asarray(self.fc)
         )
 
     def asymmetry_parameter(self):
@@ -354,11 +356,12 @@ class TabulatedAerosolType(AerosolType):
 
     def phase_function(self, cos_theta):
         """The table's phase function, linear in cos θ between its angles (mean 1 over the sphere), shape
-        ``cos_theta.shape + (3,)``."""
-        mu = jnp.clip(jnp.asarray(cos_theta), -1.0, 1.0)
-        xp = jnp.asarray(self.table_cos_theta)
-        values = jnp.asarray(self.table_values)
-        return jnp.stack([jnp.interp(mu, xp, values[:, c]) for c in range(3)], axis=-1)
+        ``cos_theta.shape + (3,)``, in the array library of ``cos_theta`` (numpy or JAX, :mod:`swim.arrays`)."""
+        xp = array_namespace(cos_theta)
+        mu = xp.clip(xp.asarray(cos_theta), -1.0, 1.0)
+        nodes = xp.asarray(self.table_cos_theta)
+        values = xp.asarray(self.table_values)
+        return xp.stack([xp.interp(mu, nodes, values[:, c]) for c in range(3)], axis=-1)
 
     def asymmetry_parameter(self):
         """Mean cos θ of the table's phase function (3,) [-]."""

@@ -3,19 +3,19 @@
 Source: Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020, Eq. 7 and
 Sect. 3.4 ("the paper"); Stephens (1978); Martin et al. (1994).
 
-The functions work on numpy input (validated, raising :class:`swim.errors.SwimInputError`) and on jax arrays,
-including tracers inside ``jax.jit`` (computed with ``jax.numpy``, without validation), because the ray-tracing
-kernel evaluates Eq. 7 on trilinearly interpolated contents (paper Sect. 3.4).
+The functions compute in the array library of their inputs (:mod:`swim.arrays`): numpy input is validated
+(raising :class:`swim.errors.SwimInputError`) and computed with numpy; JAX arrays, including tracers inside
+``jax.jit``, are computed with ``jax.numpy`` without validation, because the ray-tracing kernel evaluates Eq. 7
+on trilinearly interpolated contents (paper Sect. 3.4).
 """
 
 from __future__ import annotations
 
 import logging
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
+from ..arrays import array_namespace, is_jax
 from ..constants import DEFAULT_EFFECTIVE_RADIUS, SPECIES
 from ..errors import SwimInputError
 
@@ -30,11 +30,6 @@ WATER_DENSITY = 1000.0
 #: Range to which the Martin et al. (1994) cloud-liquid effective radius is clipped [m]: 4-20 µm, the span of
 #: observed stratiform and cumuliform cloud means (Miles et al. 2000, J. Atmos. Sci. 57, 295-311).
 LIQUID_EFFECTIVE_RADIUS_RANGE_M = (4e-6, 20e-6)
-
-
-def _is_jax(*arrays):
-    """True if any argument is a jax array or tracer (then compute with jax.numpy and skip validation)."""
-    return any(isinstance(a, jax.Array) for a in arrays)
 
 
 def _nonnegative(name, value, units):
@@ -84,8 +79,9 @@ def extinction_coefficient_stephens1978(content, effective_radius, density):
     Source: Stephens, G. L. (1978), Radiation profiles in extended water clouds. II: Parameterization
     schemes, J. Atmos. Sci. 35, 2123-2132, doi:10.1175/1520-0469(1978)035<2123:RPIEWC>2.0.CO;2; paper Eq. 7.
     """
-    if _is_jax(content, effective_radius, density):
-        return 1.5 * jnp.asarray(content) / (jnp.asarray(effective_radius) * jnp.asarray(density))
+    xp = array_namespace(content, effective_radius, density)
+    if is_jax(xp):  # no validation: values cannot be inspected under tracing
+        return 1.5 * xp.asarray(content) / (xp.asarray(effective_radius) * xp.asarray(density))
     cwc = _nonnegative("content", content, "kg m-3")
     r_e = _positive("effective_radius", effective_radius, "m")
     rho = _positive("density", density, "kg m-3")
@@ -124,10 +120,11 @@ def effective_radius_liquid_martin1994(lwc, number_concentration=DEFAULT_DROPLET
     doi:10.1175/1520-0469(1994)051<1823:TMAPOE>2.0.CO;2.
     """
     lo, hi = LIQUID_EFFECTIVE_RADIUS_RANGE_M
-    if _is_jax(lwc, number_concentration):
-        r = jnp.cbrt(3.0 * jnp.asarray(lwc) / (4.0 * jnp.pi * WATER_DENSITY * MARTIN_K_MARITIME
-                                               * jnp.asarray(number_concentration)))
-        return jnp.clip(r, lo, hi)
+    xp = array_namespace(lwc, number_concentration)
+    if is_jax(xp):  # no validation: values cannot be inspected under tracing
+        r = xp.cbrt(3.0 * xp.asarray(lwc) / (4.0 * xp.pi * WATER_DENSITY * MARTIN_K_MARITIME
+                                             * xp.asarray(number_concentration)))
+        return xp.clip(r, lo, hi)
     q = _nonnegative("lwc", lwc, "kg m-3")
     n = _positive("number_concentration", number_concentration, "m-3")
     r = np.cbrt(3.0 * q / (4.0 * np.pi * WATER_DENSITY * MARTIN_K_MARITIME * n))
@@ -171,8 +168,8 @@ def effective_radius(species, content, scene_radius=None):
     """
     if species not in SPECIES:
         raise SwimInputError(f"species must be one of {SPECIES}; got {species!r}")
-    use_jax = _is_jax(content, scene_radius)
-    xp = jnp if use_jax else np
+    xp = array_namespace(content, scene_radius)
+    use_jax = is_jax(xp)
     if not use_jax:
         content = _nonnegative("content", content, "kg m-3")
     if species == "cloud_liquid":

@@ -11,15 +11,15 @@ Conventions
 * Every *phase function* is normalised to a mean of 1 over the sphere (integral over 4π sr equals 4π), as the
   paper states below its Eq. 9. The thick-cloud terms (Eqs. 19-21) and the reflectance factor (Eq. 25) are
   empirical radiance factors, not normalised phase functions.
-* All functions are written with ``jax.numpy``: they run inside ``jax.jit`` (float32 by default), accept numpy
-  or jax inputs of any broadcastable shapes and return ``jax.Array``. They do no input validation (values
-  cannot be inspected under tracing); callers validate user input.
+* All functions compute in the array library of their inputs (:mod:`swim.arrays`): numpy for numpy input,
+  ``jax.numpy`` where any input is a JAX array or tracer, on which they run inside ``jax.jit`` (float32 by
+  default) and are differentiable. They accept inputs of any broadcastable shapes and return an array of that
+  library. They do no input validation (values cannot be inspected under tracing); callers validate user input.
 """
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from ..arrays import array_namespace
 from ..constants import SPECIES
 
 #: Asymmetry parameters g_λ of the cloud-liquid forward peak at the SWIm reference wavelengths 615, 546 and
@@ -57,7 +57,7 @@ FORWARD_PEAK_FRACTION = 0.5
 #: Lobes of the thin-cloud phase functions of ice, rain and snow (paper Eqs. B1-B3; ice with the sign of its
 #: isotropic term fixed, docs/phase-functions.md), in the argument order of :func:`_thin_lobes`: forward weight,
 #: forward g (raised to τ'), middle weight, middle g (raised to τ'), isotropic weight, back weight, back g.
-#: Graupel takes the rain form. One table for the JAX functions here and the CPU composition
+#: Graupel takes the rain form. One table for the array functions here and the CPU composition
 #: (:mod:`swim.rt.compose_cpu`).
 THIN_LOBES = {
     "cloud_ice": (0.50, 0.999, 0.21, 0.991, 0.25, 0.04, -0.2),
@@ -84,7 +84,7 @@ def henyey_greenstein(cos_theta, g):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         p(θ, g) = (1 - g²) / (1 + g² - 2 g cos θ)^{3/2} [-], shape ``broadcast(cos_theta, g)``.
         |g| = 1 gives inf/NaN at the peak.
 
@@ -96,10 +96,11 @@ def henyey_greenstein(cos_theta, g):
     Source: Henyey, L. G. and Greenstein, J. L. (1941), Astrophys. J. 93, 70-83, doi:10.1086/144246;
     paper Eq. 9.
     """
-    mu = jnp.asarray(cos_theta)
-    g = jnp.asarray(g)
+    xp = array_namespace(cos_theta, g)
+    mu = xp.asarray(cos_theta)
+    g = xp.asarray(g)
     d = (1.0 - g) ** 2 + 2.0 * g * (1.0 - mu)
-    return (1.0 - g * g) / (d * jnp.sqrt(d))
+    return (1.0 - g * g) / (d * xp.sqrt(d))
 
 
 def double_henyey_greenstein(cos_theta, g, fb):
@@ -116,7 +117,7 @@ def double_henyey_greenstein(cos_theta, g, fb):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         P(θ) = (1 - g²) [ (1 + g² - 2 g cos θ)^{-3/2} + f_b (3 cos²θ - 1) / (2 (1 + g²)^{3/2}) ],
         broadcast shape.
 
@@ -130,10 +131,11 @@ def double_henyey_greenstein(cos_theta, g, fb):
     Source: paper Eq. 27 and Sect. 3.5.1, after Louedec et al. (2012) as cited there (the form with the 3/2
     exponent is the one whose normalisation the paper asserts).
     """
-    mu = jnp.asarray(cos_theta)
-    g = jnp.asarray(g)
+    xp = array_namespace(cos_theta, g, fb)
+    mu = xp.asarray(cos_theta)
+    g = xp.asarray(g)
     one_g2 = 1.0 + g * g
-    backlobe = jnp.asarray(fb) * (3.0 * mu * mu - 1.0) / (2.0 * one_g2 * jnp.sqrt(one_g2))
+    backlobe = xp.asarray(fb) * (3.0 * mu * mu - 1.0) / (2.0 * one_g2 * xp.sqrt(one_g2))
     return henyey_greenstein(mu, g) + (1.0 - g * g) * backlobe
 
 
@@ -153,25 +155,29 @@ def two_term_double_henyey_greenstein(cos_theta, g1, g2, fb, fc):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         f_c P(θ, g1, f_b) + (1 - f_c) P(θ, g2, f_b), mean 1 over the sphere; broadcast shape.
 
     Source: paper Eq. 28 (with the Eq. 27 decision of :func:`double_henyey_greenstein`).
     """
-    fc = jnp.asarray(fc)
-    return fc * double_henyey_greenstein(cos_theta, g1, fb) + (1.0 - fc) * double_henyey_greenstein(cos_theta, g2, fb)
+    xp = array_namespace(cos_theta, g1, g2, fb, fc)
+    mu = xp.asarray(cos_theta)
+    fc = xp.asarray(fc)
+    return fc * double_henyey_greenstein(mu, g1, fb) + (1.0 - fc) * double_henyey_greenstein(mu, g2, fb)
 
 
 def _multiple_scattering_order(tau_o):
     """Exponent τ' = max(τ_o, 1) of the effective asymmetry parameters g' = g^τ' (paper Sect. 3.4.2 text)."""
-    return jnp.maximum(jnp.asarray(tau_o), 1.0)
+    xp = array_namespace(tau_o)
+    return xp.maximum(xp.asarray(tau_o), 1.0)
 
 
 def _thin_lobes(mu, tp, forward, g_forward, middle, g_middle, isotropic, back, g_back):
     """Common form of Eqs. 18 and B1-B3: two HG lobes broadened as g^τ', an isotropic term (p(θ, 0) = 1) and a
     fixed back lobe: ``forward p(g_forward^τ') + middle p(g_middle^τ') + isotropic + back p(g_back)``."""
+    xp = array_namespace(mu, tp, forward, g_forward)
     return (
-        forward * henyey_greenstein(mu, jnp.asarray(g_forward) ** tp)
+        forward * henyey_greenstein(mu, xp.asarray(g_forward) ** tp)
         + middle * henyey_greenstein(mu, g_middle**tp)
         + isotropic
         + back * henyey_greenstein(mu, g_back)
@@ -193,7 +199,7 @@ def phase_thin_cloud_liquid(cos_theta, tau_o, g_lambda):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         P_thin = f1 p(θ, g_λ^τ') + (1.06 - f1) p(θ, 0.6^τ') + 0.02 p(θ, -0.6) - 0.08 p(θ, 0), with
         τ' = max(τ_o, 1) and f1 = 0.8^τ'; mean 1 over the sphere and ≥ 0.015 for all θ and τ_o ≥ 0.
 
@@ -208,8 +214,9 @@ def phase_thin_cloud_liquid(cos_theta, tau_o, g_lambda):
 
     Source: paper Eqs. 16-18 and Sect. 3.4.2.
     """
-    mu = jnp.asarray(cos_theta)
-    tp = _multiple_scattering_order(tau_o)
+    xp = array_namespace(cos_theta, tau_o, g_lambda)
+    mu = xp.asarray(cos_theta)
+    tp = _multiple_scattering_order(xp.asarray(tau_o))
     f1 = LIQUID_FORWARD_WEIGHT_BASE**tp
     total, g_middle, isotropic, back, g_back = LIQUID_THIN_LOBES
     return _thin_lobes(mu, tp, f1, g_lambda, total - f1, g_middle, isotropic, back, g_back)
@@ -227,7 +234,7 @@ def phase_thin_rain(cos_theta, tau_o):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         0.10 p(θ, 0.99^τ') + 1.05 p(θ, 0.75^τ') - 0.35 p(θ, 0) + 0.20 p(θ, -0.2), τ' = max(τ_o, 1); mean 1,
         ≥ 0.027 for all θ and τ_o ≥ 0.
 
@@ -237,8 +244,9 @@ def phase_thin_rain(cos_theta, tau_o):
 
     Source: paper Eq. B1.
     """
-    mu = jnp.asarray(cos_theta)
-    tp = _multiple_scattering_order(tau_o)
+    xp = array_namespace(cos_theta, tau_o)
+    mu = xp.asarray(cos_theta)
+    tp = _multiple_scattering_order(xp.asarray(tau_o))
     return _thin_lobes(mu, tp, *THIN_LOBES["rain"])
 
 
@@ -254,7 +262,7 @@ def phase_thin_cloud_ice(cos_theta, tau_o):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         0.50 p(θ, 0.999^τ') + 0.21 p(θ, 0.991^τ') + 0.25 p(θ, 0) + 0.04 p(θ, -0.2), τ' = max(τ_o, 1); mean 1,
         ≥ 0.28 for all θ and τ_o ≥ 0; asymmetry parameter 0.70 for τ_o ≤ 1.
 
@@ -270,8 +278,9 @@ def phase_thin_cloud_ice(cos_theta, tau_o):
 
     Source: paper Eq. B2 (corrected, see docs/phase-functions.md).
     """
-    mu = jnp.asarray(cos_theta)
-    tp = _multiple_scattering_order(tau_o)
+    xp = array_namespace(cos_theta, tau_o)
+    mu = xp.asarray(cos_theta)
+    tp = _multiple_scattering_order(xp.asarray(tau_o))
     return _thin_lobes(mu, tp, *THIN_LOBES["cloud_ice"])
 
 
@@ -287,14 +296,15 @@ def phase_thin_snow(cos_theta, tau_o):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         0.50 p(θ, 0.999^τ') + 0.45 p(θ, 0.991^τ') + 0.03 p(θ, 0) + 0.02 p(θ, -0.2), τ' = max(τ_o, 1); mean 1,
         ≥ 0.05 for all θ and τ_o ≥ 0.
 
     Source: paper Eq. B3.
     """
-    mu = jnp.asarray(cos_theta)
-    tp = _multiple_scattering_order(tau_o)
+    xp = array_namespace(cos_theta, tau_o)
+    mu = xp.asarray(cos_theta)
+    tp = _multiple_scattering_order(xp.asarray(tau_o))
     return _thin_lobes(mu, tp, *THIN_LOBES["snow"])
 
 
@@ -310,7 +320,7 @@ def phase_thin_graupel(cos_theta, tau_o):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         :func:`phase_thin_rain` (cos_theta, tau_o); mean 1, non-negative.
 
     Notes
@@ -336,7 +346,7 @@ def venus_magnitude_mallama2006(phase_angle_deg):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         m(α) [mag], broadcast shape: -1.044e-3 α + 3.687e-4 α² - 2.814e-6 α³ + 8.938e-9 α⁴ for α < 163.7°,
         240.44228 - 2.81914 α + 8.39034e-3 α² (that is 236.05828 - ... + 4.384) beyond.
 
@@ -350,12 +360,13 @@ def venus_magnitude_mallama2006(phase_angle_deg):
     Source: Mallama, A., Wang, D. and Howard, R. A. (2006), Venus phase function and forward scattering from
     H2SO4, Icarus 182, 10-22, doi:10.1016/j.icarus.2005.12.014.
     """
-    a = jnp.asarray(phase_angle_deg)
+    xp = array_namespace(phase_angle_deg)
+    a = xp.asarray(phase_angle_deg)
     c1, c2, c3, c4 = VENUS_NEAR_COEFFICIENTS
     f0, f1, f2 = VENUS_FAR_COEFFICIENTS
     near = a * (c1 + a * (c2 + a * (c3 + a * c4)))
     far = f0 + a * (f1 + a * f2)
-    return jnp.where(a < VENUS_BRANCH_PHASE_ANGLE_DEG, near, far)
+    return xp.where(a < VENUS_BRANCH_PHASE_ANGLE_DEG, near, far)
 
 
 def phase_thick_high(cos_theta):
@@ -368,7 +379,7 @@ def phase_thick_high(cos_theta):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         P_thick,h = 1.94 · 10^(-0.4 m(α)) / ((1 - cos θ)/2), α = 180° - θ, with the relative magnitude m of
         :func:`venus_magnitude_mallama2006`; 1.94 at θ = 180°, 1.04 at 90°, 351 at θ ≤ 1°.
 
@@ -382,10 +393,11 @@ def phase_thick_high(cos_theta):
 
     Source: paper Eq. 19; Mallama et al. (2006), doi:10.1016/j.icarus.2005.12.014.
     """
-    mu = jnp.clip(jnp.asarray(cos_theta), -1.0, 1.0)
-    theta_deg = jnp.degrees(jnp.arccos(mu))
-    alpha = jnp.clip(180.0 - theta_deg, 0.0, VENUS_MAX_PHASE_ANGLE_DEG)
-    illuminated_fraction = jnp.sin(jnp.radians(180.0 - alpha) / 2.0) ** 2
+    xp = array_namespace(cos_theta)
+    mu = xp.clip(xp.asarray(cos_theta), -1.0, 1.0)
+    theta_deg = xp.degrees(xp.arccos(mu))
+    alpha = xp.clip(180.0 - theta_deg, 0.0, VENUS_MAX_PHASE_ANGLE_DEG)
+    illuminated_fraction = xp.sin(xp.radians(180.0 - alpha) / 2.0) ** 2
     return THICK_HIGH_NUMERATOR * 10.0 ** (-0.4 * venus_magnitude_mallama2006(alpha)) / illuminated_fraction
 
 
@@ -399,7 +411,7 @@ def phase_thick_low(cos_view_zenith):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         P_thick,l = (1 + 2 max(cos z, 0)) / 3 [-]: 1 at zenith, 1/3 at and below the horizon.
 
     Notes
@@ -411,7 +423,8 @@ def phase_thick_low(cos_view_zenith):
 
     Source: paper Eq. 20.
     """
-    return (1.0 + 2.0 * jnp.maximum(jnp.asarray(cos_view_zenith), 0.0)) / 3.0
+    xp = array_namespace(cos_view_zenith)
+    return (1.0 + 2.0 * xp.maximum(xp.asarray(cos_view_zenith), 0.0)) / 3.0
 
 
 def blend_coefficient(tau_o, irradiance_ratio):
@@ -426,7 +439,7 @@ def blend_coefficient(tau_o, irradiance_ratio):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         c [-] in 0 ... 1, broadcast shape.
 
     Notes
@@ -435,8 +448,9 @@ def blend_coefficient(tau_o, irradiance_ratio):
 
     Source: paper Eqs. 14, 15, 22, 23.
     """
-    tau = jnp.asarray(tau_o)
-    return jnp.exp(-((tau / 10.0) ** 2)) * jnp.clip(jnp.asarray(irradiance_ratio), 0.0, 1.0)
+    xp = array_namespace(tau_o, irradiance_ratio)
+    tau = xp.asarray(tau_o)
+    return xp.exp(-((tau / 10.0) ** 2)) * xp.clip(xp.asarray(irradiance_ratio), 0.0, 1.0)
 
 
 def diffuse_transmission_factor(cos_sun_zenith):
@@ -449,7 +463,7 @@ def diffuse_transmission_factor(cos_sun_zenith):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         (9/7) max(mu0, :data:`DIFFUSE_TRANSMISSION_MIN_MU0`) [-]: 1.11 at z0 = 30°, 0.64 at 60°.
 
     Notes
@@ -467,7 +481,8 @@ def diffuse_transmission_factor(cos_sun_zenith):
     Source: escape function of the asymptotic theory of thick layers (e.g. van de Hulst 1980, Multiple Light
     Scattering, Vol. 2; Kokhanovsky 2006, Cloud Optics, Sect. 4); Stephens (1978), J. Atmos. Sci. 35, 2123.
     """
-    return (9.0 / 7.0) * jnp.maximum(jnp.asarray(cos_sun_zenith), DIFFUSE_TRANSMISSION_MIN_MU0)
+    xp = array_namespace(cos_sun_zenith)
+    return (9.0 / 7.0) * xp.maximum(xp.asarray(cos_sun_zenith), DIFFUSE_TRANSMISSION_MIN_MU0)
 
 
 def delta_scaled_path_factor(tau_o, forward_fraction=FORWARD_PEAK_FRACTION):
@@ -482,7 +497,7 @@ def delta_scaled_path_factor(tau_o, forward_fraction=FORWARD_PEAK_FRACTION):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         (1 - e^{-(1 - f) τ_o}) / (1 - f) [-]: τ_o for τ_o ≪ 1, 1/(1 - f) for τ_o → ∞; replaces Eq. 12's
         1 - e^{-τ_o} in the thin-cloud term (c1 P_thin) of the renderer.
 
@@ -500,9 +515,10 @@ def delta_scaled_path_factor(tau_o, forward_fraction=FORWARD_PEAK_FRACTION):
     Source: Joseph, Wiscombe and Weinman (1976), doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2;
     Wiscombe (1977), J. Atmos. Sci. 34, 1408-1422, doi:10.1175/1520-0469(1977)034<1408:TDMRYA>2.0.CO;2.
     """
-    tau = jnp.asarray(tau_o)
-    one_f = 1.0 - jnp.asarray(forward_fraction)
-    return -jnp.expm1(-one_f * tau) / one_f
+    xp = array_namespace(tau_o, forward_fraction)
+    tau = xp.asarray(tau_o)
+    one_f = 1.0 - xp.asarray(forward_fraction)
+    return -xp.expm1(-one_f * tau) / one_f
 
 
 def phase_thick(cos_theta, cos_view_zenith, c3, low_irradiance_factor=1.0):
@@ -522,14 +538,15 @@ def phase_thick(cos_theta, cos_view_zenith, c3, low_irradiance_factor=1.0):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         P_thick = 2 c3 P_thick,h(θ) + 4 (1 - c3) f P_thick,l(z), broadcast shape.
 
     Source: paper Eqs. 21-23.
     """
-    c3 = jnp.asarray(c3)
-    low = 4.0 * (1.0 - c3) * jnp.asarray(low_irradiance_factor) * phase_thick_low(cos_view_zenith)
-    return 2.0 * c3 * phase_thick_high(cos_theta) + low
+    xp = array_namespace(cos_theta, cos_view_zenith, c3, low_irradiance_factor)
+    c3 = xp.asarray(c3)
+    low = 4.0 * (1.0 - c3) * xp.asarray(low_irradiance_factor) * phase_thick_low(xp.asarray(cos_view_zenith))
+    return 2.0 * c3 * phase_thick_high(xp.asarray(cos_theta)) + low
 
 
 def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio, species_weights, g_liquid,
@@ -556,7 +573,7 @@ def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         P = c1 Σ_s w_s P_thin,s(θ, τ_o) + (1 - c1) P_thick(θ, z, c3), c1 = c3 = :func:`blend_coefficient`;
         shape S.
 
@@ -569,8 +586,10 @@ def effective_phase_function(cos_theta, cos_view_zenith, tau_o, irradiance_ratio
 
     Source: paper Eqs. 13-15, 18, 21 and B1-B3.
     """
-    mu = jnp.asarray(cos_theta)
-    tau = jnp.asarray(tau_o)
+    xp = array_namespace(cos_theta, cos_view_zenith, tau_o, irradiance_ratio, species_weights, g_liquid,
+                         low_irradiance_factor)
+    mu = xp.asarray(cos_theta)
+    tau = xp.asarray(tau_o)
     c1 = blend_coefficient(tau, irradiance_ratio)
     p_thin = phase_thin_mixture(mu, tau, species_weights, g_liquid)
     return c1 * p_thin + (1.0 - c1) * phase_thick(mu, cos_view_zenith, c1, low_irradiance_factor)
@@ -590,13 +609,14 @@ def phase_thin_mixture(cos_theta, tau_o, species_weights, g_liquid):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Σ_s w_s P_thin,s(θ, τ_o), shape S; mean 1 over the sphere where the weights sum to 1.
 
     Source: paper Eqs. 13, 18 and B1-B3 (see :func:`effective_phase_function`).
     """
-    mu = jnp.asarray(cos_theta)
-    tau = jnp.asarray(tau_o)
+    xp = array_namespace(cos_theta, tau_o, species_weights, g_liquid)
+    mu = xp.asarray(cos_theta)
+    tau = xp.asarray(tau_o)
     thin_by_species = {
         "cloud_liquid": lambda: phase_thin_cloud_liquid(mu, tau, g_liquid),
         "cloud_ice": lambda: phase_thin_cloud_ice(mu, tau),
@@ -604,8 +624,8 @@ def phase_thin_mixture(cos_theta, tau_o, species_weights, g_liquid):
         "snow": lambda: phase_thin_snow(mu, tau),
         "graupel": lambda: phase_thin_graupel(mu, tau),
     }
-    thin = jnp.stack(jnp.broadcast_arrays(*[thin_by_species[s]() for s in SPECIES]), axis=-1)
-    return jnp.sum(jnp.asarray(species_weights) * thin, axis=-1)
+    thin = xp.stack(xp.broadcast_arrays(*[thin_by_species[s]() for s in SPECIES]), axis=-1)
+    return xp.sum(xp.asarray(species_weights) * thin, axis=-1)
 
 
 def forward_peak_mixture(cos_theta, tau_o, species_weights, g_liquid):
@@ -613,20 +633,21 @@ def forward_peak_mixture(cos_theta, tau_o, species_weights, g_liquid):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Σ_s w_s f_s p(θ, g_s^τ'), shape S; its mean over the sphere is Σ_s w_s f_s.
     """
-    mu = jnp.asarray(cos_theta)
-    tp = _multiple_scattering_order(tau_o)
+    xp = array_namespace(cos_theta, tau_o, species_weights, g_liquid)
+    mu = xp.asarray(cos_theta)
+    tp = _multiple_scattering_order(xp.asarray(tau_o))
     lobes = []
     for s in SPECIES:
         if s == "cloud_liquid":
             f, g = LIQUID_FORWARD_WEIGHT_BASE**tp, g_liquid
         else:
             f, g = THIN_LOBES[s][:2]
-        lobes.append(f * henyey_greenstein(mu, jnp.asarray(g) ** tp))
-    peak = jnp.stack(jnp.broadcast_arrays(*lobes), axis=-1)
-    return jnp.sum(jnp.asarray(species_weights) * peak, axis=-1)
+        lobes.append(f * henyey_greenstein(mu, xp.asarray(g) ** tp))
+    peak = xp.stack(xp.broadcast_arrays(*lobes), axis=-1)
+    return xp.sum(xp.asarray(species_weights) * peak, axis=-1)
 
 
 def cloud_albedo_stephens1978(tau, b):
@@ -641,13 +662,14 @@ def cloud_albedo_stephens1978(tau, b):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         a [-] in 0 ... 1, broadcast shape; a ≈ bτ for τ ≪ 1/b.
 
     Source: Stephens, G. L. (1978), J. Atmos. Sci. 35, 2123-2132,
     doi:10.1175/1520-0469(1978)035<2123:RPIEWC>2.0.CO;2; paper Eq. 24.
     """
-    bt = jnp.asarray(b) * jnp.asarray(tau)
+    xp = array_namespace(tau, b)
+    bt = xp.asarray(b) * xp.asarray(tau)
     return bt / (1.0 + bt)
 
 
@@ -671,7 +693,7 @@ def anisotropic_reflectance_factor_kokhanovsky2004(
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         ARF = (b1 + b2 cos z cos z0 + P_DHG(θ; g, f_b)) / (4 (cos z + cos z0)) [-], broadcast shape; it is the
         reflection function R = π I / (μ0 F0) of the cloud (1 for a white Lambertian surface): 1.18 at
         z = z0 = 0.
@@ -690,7 +712,8 @@ def anisotropic_reflectance_factor_kokhanovsky2004(
     semi-infinite cloudy media: a simple approximation, J. Quant. Spectrosc. Radiat. Transfer 85, 25-33
     (DOI not verified here); the (A, B, C) form is the one used in Kokhanovsky's snow retrievals.
     """
-    mu = jnp.clip(jnp.asarray(cos_view_zenith), 0.0, 1.0)
-    mu0 = jnp.clip(jnp.asarray(cos_sun_zenith), 0.0, 1.0)
-    numerator = b1 + b2 * mu * mu0 + double_henyey_greenstein(cos_theta, g, fb)
-    return numerator / (4.0 * jnp.maximum(mu + mu0, ARF_MIN_MU_SUM))
+    xp = array_namespace(cos_view_zenith, cos_sun_zenith, cos_theta, b1, b2, g, fb)
+    mu = xp.clip(xp.asarray(cos_view_zenith), 0.0, 1.0)
+    mu0 = xp.clip(xp.asarray(cos_sun_zenith), 0.0, 1.0)
+    numerator = b1 + b2 * mu * mu0 + double_henyey_greenstein(xp.asarray(cos_theta), g, fb)
+    return numerator / (4.0 * xp.maximum(mu + mu0, ARF_MIN_MU_SUM))

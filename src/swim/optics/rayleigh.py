@@ -18,17 +18,18 @@ B99's own closed fits (Eq. 29 for σ, Eq. 30 for τ at 1013.25 hPa, 45°, sea le
 test references.
 
 The phase function is the Chandrasekhar (1960) form with the molecular anisotropy, normalised to a mean
-of 1 over the sphere (the SWIm convention, paper below Eq. 9); it is written with ``jax.numpy`` so the
-ray-tracing kernels can call it inside ``jax.jit``.
+of 1 over the sphere (the SWIm convention, paper below Eq. 9); it computes in the array library of its inputs
+(numpy, or ``jax.numpy`` for JAX arrays and tracers, :mod:`swim.arrays`) so the ray-tracing kernels can call it
+inside ``jax.jit`` and the CPU renderer on numpy arrays.
 """
 
 from __future__ import annotations
 
 import logging
 
-import jax.numpy as jnp
 import numpy as np
 
+from ..arrays import array_namespace
 from ..errors import SwimInputError
 
 _log = logging.getLogger(__name__)
@@ -220,23 +221,25 @@ def rayleigh_phase_function(cos_theta, depolarization=DEPOLARIZATION_546NM):
     Parameters
     ----------
     cos_theta : array_like
-        Cosine of the scattering angle θ [-] (θ = 0 forward, see :mod:`swim.frames`); numpy or jax, any shape.
+        Cosine of the scattering angle θ [-] (θ = 0 forward, see :mod:`swim.frames`); numpy or JAX, any shape.
     depolarization : array_like, optional
         Depolarisation ratio ρ [-], broadcasts with ``cos_theta``. Default 0.02834 (air at 546 nm).
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         P(θ) = 3 / (4 (1 + 2γ)) ((1 + 3γ) + (1 - γ) cos²θ) with γ = ρ / (2 - ρ), shape of the broadcast
         inputs; its integral over 4π sr is 4π. ρ = 0 gives the classical 3/4 (1 + cos²θ).
 
     Notes
     -----
-    jax-traceable (float32 inside ``jax.jit``); no input checks. Source: Chandrasekhar, S. (1960), Radiative
+    Computes in the array library of the inputs: numpy for numpy input, JAX-traceable (float32 inside
+    ``jax.jit``) for JAX input; no input checks. Source: Chandrasekhar, S. (1960), Radiative
     Transfer (Dover), Sect. 18; the γ form as in Hansen, J. E. and Travis, L. D. (1974), Space Sci. Rev. 16,
     527-610, doi:10.1007/BF00168069, Sect. 2, rescaled to the SWIm normalisation (mean 1 over the sphere).
     """
-    mu = jnp.asarray(cos_theta)
-    rho = jnp.asarray(depolarization)
+    xp = array_namespace(cos_theta, depolarization)
+    mu = xp.asarray(cos_theta)
+    rho = xp.asarray(depolarization)
     gamma = rho / (2.0 - rho)
     return 0.75 / (1.0 + 2.0 * gamma) * ((1.0 + 3.0 * gamma) + (1.0 - gamma) * mu * mu)

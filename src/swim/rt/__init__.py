@@ -1,12 +1,7 @@
-"""swim.rt: the ray-tracing kernels (JAX) and the tables they use.
+"""swim.rt: the radiative transfer: the clear atmosphere's tables, Step 1a, the diffuse fields and the ray march.
 
-Importing the package turns on the persistent compilation cache (:mod:`swim.rt.compilation_cache`), except in the
-helper process of :mod:`swim.rt.precompile`, which compiles numba kernels only and so need not import JAX.
+The march has one dispatcher (:func:`swim.rt.march.trace_rays`) and two kernels: numba's per-ray kernel on the CPU
+(:mod:`swim.rt.march_cpu`) and JAX's lockstep kernel (:mod:`swim.rt.march_jax`; GPUs, gradients). JAX is imported only
+by the modules of its kernels, which turn on its persistent compilation cache (:mod:`swim.rt.compilation_cache`,
+through :mod:`swim.rt.export_cache`), so a numba render never loads it (docs/decisions/0011-jax-only-where-it-runs.md).
 """
-
-import os
-
-from .compilation_cache import enable_compilation_cache
-
-if not os.environ.get("SWIM_PRECOMPILE_HELPER"):
-    enable_compilation_cache()

@@ -29,7 +29,20 @@ import numpy as np
 from ..errors import SwimInputError
 from .diffuse_field import MIN_SUN_COSINE, DiffuseSettings
 
-__all__ = ["CloudScattering", "CLOUD_METHODS", "MIN_SUN_COSINE", "cloud_constants", "cloud_ray_inputs",
+#: Entries of :func:`swim.rt.clouds.cloud_constants` that only the host reads (objects, tuples, the moments' degrees):
+#: the JAX kernel's constants leave them out.
+CLOUD_HOST_KEYS = ("cloud_optics", "diffuse_field", "cloud_rotation", "cloud_species", "degree")
+#: Its arrays that the march kernels read (numba and JAX), besides ``ms_coarsen``.
+CLOUD_KERNEL_KEYS = ("hydro_scale", "hydro_narrow", "hydro_aureole", "ms_field", "ms_above", "above_heights",
+                     "backscatter_scaled")
+
+
+def three_d(consts) -> bool:
+    """Whether the kernel constants carry the 3-D cloud scattering's diffuse solution (static: a dict key)."""
+    return "ms_field" in consts
+
+
+__all__ = ["CloudScattering", "CLOUD_METHODS", "CLOUD_HOST_KEYS", "CLOUD_KERNEL_KEYS", "three_d", "MIN_SUN_COSINE", "cloud_constants", "cloud_ray_inputs",
            "scene_cloud_optics", "direct_weights", "as_cloud_scattering"]
 
 #: The methods of cloud scattering.
@@ -109,7 +122,7 @@ def cloud_constants(packed, species, sun_scene, optics, solved) -> dict:
     Parameters
     ----------
     packed : dict
-        The render's grid constants (:func:`swim.rt.march.volume_constants`): ``volume`` (the packed channels,
+        The render's grid constants (:func:`swim.rt.march_inputs.volume_constants`): ``volume`` (the packed channels,
         whose Step 1a channels hold the scaled direct transmittance), ``surface``, ``surface_outside``.
     species : tuple of int
         The packed species.

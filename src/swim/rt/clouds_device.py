@@ -18,19 +18,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-__all__ = ["CLOUD_HOST_KEYS", "CLOUD_KERNEL_KEYS", "clamped_trilinear", "cloud_sources", "ratio_above_grid", "three_d"]
 
-#: Entries of :func:`swim.rt.clouds.cloud_constants` that only the host reads (objects, tuples, the moments' degrees):
-#: the JAX kernel's constants leave them out.
-CLOUD_HOST_KEYS = ("cloud_optics", "diffuse_field", "cloud_rotation", "cloud_species", "degree")
-#: Its arrays that the march kernels read (numba and JAX), besides ``ms_coarsen``.
-CLOUD_KERNEL_KEYS = ("hydro_scale", "hydro_narrow", "hydro_aureole", "ms_field", "ms_above", "above_heights",
-                     "backscatter_scaled")
-
-
-def three_d(consts) -> bool:
-    """Whether the kernel constants carry the 3-D cloud scattering's diffuse solution (static: a dict key)."""
-    return "ms_field" in consts
+__all__ = ["clamped_trilinear", "cloud_sources", "ratio_above_grid"]
 
 
 def _corner_indices(f, n):

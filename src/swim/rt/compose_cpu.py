@@ -1,6 +1,6 @@
 """The clouds' part of the pixel radiance composed one ray at a time on the CPU (numba).
 
-After the march, :func:`swim.rt.march._compose_clouds` turns each ray's accumulated state into the radiance of the
+After the march, :func:`swim.rt.march_jax._compose_clouds` turns each ray's accumulated state into the radiance of the
 hydrometeors it sees: Eq. 12 weighted by the effective phase function of Eq. 13 (thin-cloud lobes, Eqs. 16-18 and
 B1-B3; thick-cloud terms, Eqs. 19-23) seen from below, blended with the cloud-top reflection of Eqs. 24-26 seen from
 above (Albers et al. 2020, doi:10.5194/amt-13-3235-2020, with the decisions of docs/phase-functions.md and
@@ -39,7 +39,7 @@ from ..optics.phase import (
     VENUS_MAX_PHASE_ANGLE_DEG,
     VENUS_NEAR_COEFFICIENTS,
 )
-from .march import FROM_ABOVE_BLEND, TOP_MIN_MU0, TOP_MIN_SELF_TRANSMITTANCE, TOP_REFLECTANCE_MIN_MU0
+from .march_settings import FROM_ABOVE_BLEND, TOP_MIN_MU0, TOP_MIN_SELF_TRANSMITTANCE, TOP_REFLECTANCE_MIN_MU0
 from .march_cpu import _JIT_KERNEL, _helper_jit, _P_SUN
 from .solar import ONE_MINUS_G_PER_BACKSCATTER
 
@@ -144,7 +144,7 @@ def _transmittance_delta_eddington(tau_s, b_tau_s, mu0, k):
 @njit(**_JIT_KERNEL, nogil=True)
 def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clear, l_surface, valid, cos_theta,
                    cos_view_zenith, mu0, g_liquid, backscatter, coefficients, lobes, radiance_out, cloud_out):
-    """The clouds' radiance and the pixel radiance of n rays, as :func:`swim.rt.march._compose_clouds`.
+    """The clouds' radiance and the pixel radiance of n rays, as :func:`swim.rt.march_jax._compose_clouds`.
 
     Parameters
     ----------

@@ -302,7 +302,7 @@ def _sun_transmittance(gas, z, mu0):
 def _air_optics(gas, z, max_degree):
     """Scaled extinction (n, 3) and scattering moments beta* omega* chi*_l (n, 3, L + 1) of the clear air at heights
     ``z`` (molecules, background and stratospheric aerosol; delta-M with f = chi_{L+1} for the aerosols)."""
-    from ..validation.disort import phase_function_legendre_moments, rayleigh_legendre_moments
+    from ..optics.legendre import phase_function_legendre_moments, rayleigh_legendre_moments
 
     b_r, b_a, b_s = _gas_profiles(gas, z)
     n_l = max_degree + 1
@@ -555,7 +555,7 @@ def _clear_optics(grid, volume, gas, max_degree):
     aerosol3d = np.asarray(volume["aerosol_extinction"].values, np.float32)
     has_aerosol3d = bool(np.any(aerosol3d > 0))
     if has_aerosol3d:
-        from ..validation.disort import phase_function_legendre_moments
+        from ..optics.legendre import phase_function_legendre_moments
 
         kind = gas.aerosol
         ssa = np.asarray(kind.ssa, float)

@@ -2,7 +2,7 @@
 
 JAX's persistent compilation cache (:mod:`swim.rt.compilation_cache`) keeps the compiled executables, but every new
 process still traces each jitted function in Python and lowers it to StableHLO before it can look the executable up.
-For the lockstep march (:func:`swim.rt.march._trace_chunk`) that is ~1.1 s of a new process's first render on a CPU
+For the lockstep march (:func:`swim.rt.march_jax._trace_chunk`) that is ~1.1 s of a new process's first render on a CPU
 (0.8 s of tracing, 0.3 s of lowering: docs/decisions/0008-cold-start.md; ~3 s under cProfile on a GPU host, section
 66). :func:`exported_jit` wraps a function like ``jax.jit`` and, the first time a process calls it with given static
 arguments and input shapes, loads the function's serialized ``jax.export.Exported`` from
@@ -27,14 +27,17 @@ import hashlib
 import inspect
 import logging
 import threading
-from pathlib import Path
 
 import jax
 import numpy as np
 
-from .compilation_cache import cache_directory, package_sources, store_entry, switched_off
+from .compilation_cache import (cache_directory, enable_compilation_cache, package_sources, store_entry,
+                                switched_off)
 
 log = logging.getLogger(__name__)
+
+# every JAX kernel imports this module: JAX's own persistent cache is set up before their first compilation
+enable_compilation_cache()
 
 #: The cache's kind (:func:`swim.rt.compilation_cache.cache_directory`, :mod:`swim.rt.cache_budget`).
 KIND = "jax-export"

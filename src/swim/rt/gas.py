@@ -33,7 +33,6 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
-import jax
 import numpy as np
 
 from ..constants import ATMOSPHERE_TOP_M, DEFAULT_AEROSOL, EARTH_RADIUS_M, WAVELENGTHS_NM
@@ -248,15 +247,20 @@ def _slant_optical_depth(h, mu, heights, beta, top, radius, n_steps=400):
     return tau
 
 
-@functools.partial(jax.jit, static_argnums=0)
-def _aerosol_phase(aerosol_type, cos_theta):
-    """The aerosol type's Eq. 28 phase function, compiled once per type and input shape."""
-    return aerosol_type.phase_function(cos_theta)
+def phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type):
+    """The clear air's phase functions [-] (mean 1 over the sphere) at scattering-angle cosines ``cos_theta`` (n,) [-]:
+    Rayleigh (n,) (:func:`swim.optics.rayleigh.rayleigh_phase_function` with the air's ``depolarization`` [-]), and
+    the background and stratospheric aerosol's (n, 3), each :class:`swim.optics.aerosol_types.AerosolType`'s two-term
+    DHG (paper Eq. 28). In the array library of ``cos_theta`` (numpy on the host, JAX in the device's ray table,
+    :mod:`swim.arrays`).
 
-
-@jax.jit
-def _rayleigh_phase(cos_theta, depolarization):
-    return rayleigh_phase_function(cos_theta, depolarization)
+    References
+    ----------
+    Albers, S. C. et al. (2020): A fast visible-wavelength 3D radiative transfer procedure for NWP visualization and
+    forward modeling, Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020.
+    """
+    return (rayleigh_phase_function(cos_theta, depolarization), aerosol_type.phase_function(cos_theta),
+            stratospheric_type.phase_function(cos_theta))
 
 
 def _surface_albedo3(surface_albedo):
@@ -420,9 +424,9 @@ def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_al
         sources.append(diffuse_source_table(
             heights, [beta_r, beta_a + beta_3d[:, None] * factor[None, :], beta_s],
             [np.ones(3), aerosol.ssa, np.asarray(aerosol.stratospheric.ssa, float)],
-            [lambda c: _rayleigh_phase(np.asarray(c, np.float32), depolarization),
-             lambda c: _aerosol_phase(aerosol.type, np.asarray(c, np.float32)),
-             lambda c: _aerosol_phase(aerosol.stratospheric, np.asarray(c, np.float32))],
+            [lambda c: rayleigh_phase_function(np.asarray(c, np.float32), depolarization),
+             lambda c: aerosol.type.phase_function(np.asarray(c, np.float32)),
+             lambda c: aerosol.stratospheric.phase_function(np.asarray(c, np.float32))],
             surface_albedo, ATMOSPHERE_TOP_M))
     # Their downward diffuse irradiance on the transmittance grid (bilinear in u and sqrt(mu_s); 0 below the horizon).
     fu = np.interp(u, sources[0].u, np.arange(sources[0].u.size))

@@ -1,6 +1,6 @@
 """The ground's part of the pixel radiance composed one ray at a time on the CPU (numba).
 
-:func:`swim.rt.march._ground_radiance` gives the radiance of the ground where a ray ends on it: Eq. 35 of the paper
+:func:`swim.rt.march_jax._ground_radiance` gives the radiance of the ground where a ray ends on it: Eq. 35 of the paper
 (Albers et al. 2020, doi:10.5194/amt-13-3235-2020, Sect. 3.7) on the tilted terrain facet, with the land (RPV), snow
 (Kokhanovsky) and water (Fresnel, Cox-Munk glint, water-leaving light) reflectance of :mod:`swim.surface`, lit by Step
 1a's cloud transmittance and terrain shadow and seen through the clear sky and the hydrometeors on the way. In JAX it
@@ -26,7 +26,8 @@ from numba import njit
 
 from ..surface import brdf, lighting, water
 from .compose_cpu import _transmittance_delta_eddington
-from .march import FROM_ABOVE_BLEND, surface_fade_cells
+from .march_inputs import surface_fade_cells
+from .march_settings import FROM_ABOVE_BLEND
 from .march_cpu import (_JIT_KERNEL, _P_RADIUS, _P_SUN, _P_TOP, _bilinear_at, _bilinear_index, _clip, _helper_jit,
                         _point_geometry)
 
@@ -43,7 +44,7 @@ def ground_tables():
     """The constants of the ground's term as one float64 vector (layout: the ``_G_*`` indices of this module) and
     its arrays: copies of the RPV and snow normalisation tables of :mod:`swim.surface.brdf` (kept on disk between
     processes), the snow albedo and the water's subsurface reflectance at 615/546/450 nm, and the e-folding
-    distances [cells] of the ground's fields beyond the grid (:func:`swim.rt.march.surface_fade_cells`). Made once
+    distances [cells] of the ground's fields beyond the grid (:func:`swim.rt.march_inputs.surface_fade_cells`). Made once
     per process (thread-safe).
 
     Returns
@@ -265,7 +266,7 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
                     class_lower, class_weight, p, coef, sky, diffuse_classes, n_class, fields, fields_outside,
                     angstrom, backscatter, lambertian, compose_coefficients, k, rpv_q, snow_table, snow_albedo,
                     subsurface, fade_cells, cloud_mode, out):
-    """The ground's part of the pixel radiance of n rays, as :func:`swim.rt.march._ground_radiance` (Eq. 35).
+    """The ground's part of the pixel radiance of n rays, as :func:`swim.rt.march_jax._ground_radiance` (Eq. 35).
 
     Parameters
     ----------
@@ -287,8 +288,8 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
     p, coef, sky, diffuse_classes, n_class, angstrom : numpy.ndarray or int
         The march's tables (:func:`swim.rt.march._numba_tables`).
     fields : numpy.ndarray
-        Shape (11, ny, nx): :func:`swim.rt.march.surface_fields`, channel-major; ``fields_outside`` (11,): the ground
-        far beyond the grid (:func:`swim.rt.march.surface_fields_outside`).
+        Shape (11, ny, nx): :func:`swim.rt.march_inputs.surface_fields`, channel-major; ``fields_outside`` (11,): the ground
+        far beyond the grid (:func:`swim.rt.march_inputs.surface_fields_outside`).
     backscatter : numpy.ndarray
         Shape (5,): backscatter fraction of each species of SPECIES [-].
     lambertian : bool

@@ -370,7 +370,7 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
         Value of the float outputs at the pixels without a ray.
     chunk : int, optional
         Rays of the march's chunks, whose padding the batches take (:func:`bucket_size`); None: the GPU's,
-        :data:`swim.rt.march.GPU_CHUNK`.
+        :data:`swim.rt.march_settings.GPU_CHUNK`.
 
     Returns
     -------
@@ -398,7 +398,7 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
     n = ny * nx
     size = int(sampling.edge_test_size)
     if chunk is None:
-        from .march import GPU_CHUNK as chunk
+        from .march_settings import GPU_CHUNK as chunk
     valid_flat = valid.reshape(-1)
     valid_dev = jnp.asarray(valid_flat)
     traced = jnp.zeros(n, bool)

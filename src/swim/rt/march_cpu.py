@@ -10,12 +10,10 @@ composition after it is :mod:`swim.rt.compose_cpu` (the clouds) and :mod:`swim.r
 JAX march remains the kernel on GPUs and for gradients. ``tests/unit/rt/test_rt_march.py`` holds both kernels to the
 float64 reference and to each other.
 
-The same code is also the GPU's per-ray kernel: :mod:`swim.rt.march_cuda` compiles these functions' Python code
-for NVIDIA GPUs (numba-cuda), one thread per ray. Everything the loop calls must therefore stay within what
-both of numba's targets compile (no allocation inside :func:`_march_ray_range`, no slice assignment, scalar
-``math`` functions).
+The loop allocates nothing (its work arrays come from :func:`work_arrays`, once per call) and uses scalar ``math``
+functions, so that LLVM keeps a ray's state in registers.
 
-Each function mirrors its JAX counterpart in :mod:`swim.rt.march` (named in its docstring) and follows
+Each function mirrors its JAX counterpart in :mod:`swim.rt.march_jax` (named in its docstring) and follows
 the same equations (Albers et al. 2020, doi:10.5194/amt-13-3235-2020: Eq. 3 for the clear-sky source,
 Eq. 12 for the hydrometeor integral); it computes in float64 from the float32 tables.
 """
@@ -45,7 +43,7 @@ from .numba_target import choose_cpu_features
 #: The modules (relative to ``swim/rt``) whose module-level constants the compiled functions read: numba freezes
 #: such globals into the machine code (e.g. :data:`swim.constants.AFTER_MIN_STEPS`, the phase functions' constants
 #: in ``swim.rt.compose_cpu``), so a change to them must start a fresh cache too (:func:`numba_sources_digest`).
-CONSTANTS_READ_FROM = ("../constants.py", "../optics/phase.py", "march.py", "solar.py")
+CONSTANTS_READ_FROM = ("../constants.py", "../optics/phase.py", "march_settings.py", "march_inputs.py", "solar.py")
 
 
 def numba_sources_digest() -> str:
@@ -193,7 +191,7 @@ PROBE_BLOCK = 32
 
 
 def pack_parameters(consts):
-    """The scalars of :func:`swim.rt.march.kernel_constants` as one float64 vector (16,) and the index map's
+    """The scalars of :func:`swim.rt.march_inputs.kernel_constants` as one float64 vector (16,) and the index map's
     cubic coefficients (20,). Its last entry is the height [m] above which no sample can be under the terrain: the
     terrain's (``consts["terrain"]``) highest point plus :data:`TERRAIN_TOP_MARGIN`, or infinity where there is no
     terrain or it is not finite everywhere (every sample then looks it up)."""
@@ -234,9 +232,7 @@ def _index_map(u, v, du, dv, c, o):
 @intrinsic
 def _prefetch(typingctx, array, k, j, i):
     """Ask the CPU to bring the cell ``array[k, j, i]`` (its first channel; integer indices, in range) into its
-    caches ahead of a read (LLVM's ``llvm.prefetch``: a hint, which never faults and changes no result).
-
-    A CUDA device function of the same name does nothing (:mod:`swim.rt.march_cuda`)."""
+    caches ahead of a read (LLVM's ``llvm.prefetch``: a hint, which never faults and changes no result)."""
     sig = types.void(array, k, j, i)
 
     def codegen(context, builder, signature, args):
@@ -311,7 +307,7 @@ def _radius_and_height(q0, q1, q2, radius):
 def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c):
     """Distance from the Earth's centre [m], height [m] and grid indices (k, j, i) of the point q (scene frame,
     rebased) with the index map's cubic coefficients ``c`` (an array, or a tuple where a loop over points keeps them
-    in registers): :func:`swim.rt.march._point_geometry` without the sun."""
+    in registers): :func:`swim.rt.march_jax._point_geometry` without the sun."""
     r, h = _radius_and_height(q0, q1, q2, radius)
     # swim.optics.volume.grid_indices: the cubic inside the box, its tangent plane beyond
     u = (radius * q0 / r - centre_u) / scale
@@ -327,7 +323,7 @@ def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_h
 # numba-level inlining: LLVM left this call in the step loop (docs/decisions/0003-cpu-kernel-code.md)
 @_helper_jit(inline="always")
 def _point_geometry(q0, q1, q2, p, coef):
-    """:func:`swim.rt.march._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
+    """:func:`swim.rt.march_jax._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
     radius = p[_P_RADIUS]
     r, h, k, j, i = _height_and_indices(q0, q1, q2, radius, p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE], p[_P_BOUNDS],
                                         p[_P_BOUNDS + 1], p[_P_BOUNDS + 2], p[_P_BOUNDS + 3], p[_P_ZBOTTOM], p[_P_DZ],
@@ -372,7 +368,7 @@ def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count,
 
 @_helper_jit()
 def _bilinear(table, c, fu, fv):
-    """One channel c of :func:`swim.rt.march._bilinear_table` on a (C, nu, nv) table, clamped."""
+    """One channel c of :func:`swim.rt.march_jax._bilinear_table` on a (C, nu, nv) table, clamped."""
     u0, v0, a, b = _bilinear_index(table.shape[1], table.shape[2], fu, fv)
     return _bilinear_at(table, c, u0, v0, a, b)
 
@@ -401,7 +397,7 @@ def _bilinear_at(table, c, u0, v0, a, b):
 
 @_helper_jit()
 def _bilinear_clamped(field, j, i):
-    """:func:`swim.rt.march.bilinear_clamped` of the first channel of a (C, ny, nx) field at grid indices (j, i),
+    """:func:`swim.rt.march_jax.bilinear_clamped` of the first channel of a (C, ny, nx) field at grid indices (j, i),
     clamped to its edges."""
     return _bilinear(field, 0, _clip(j, 0.0, field.shape[1] - 1.0), _clip(i, 0.0, field.shape[2] - 1.0))
 
@@ -415,14 +411,14 @@ def _terrain_gap(h, j, i, terrain):
 @_helper_jit()
 def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
     """Height above the terrain [m] at distance s [m] along a ray (``gap`` of
-    :func:`swim.rt.march.refine_terrain_hit`)."""
+    :func:`swim.rt.march_jax.refine_terrain_hit`)."""
     h, _, _, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
     return _terrain_gap(h, j, i, terrain)
 
 
 @_helper_jit()
 def _terrain_crossing(hit_s, lo, hi, n_bisections, st0, st1, st2, d0, d1, d2, p, coef, terrain):
-    """:func:`swim.rt.march.refine_terrain_hit`: the ground's crossing [m] by bisection between the samples ``lo``
+    """:func:`swim.rt.march_jax.refine_terrain_hit`: the ground's crossing [m] by bisection between the samples ``lo``
     (above the ground) and ``hi`` (below it) that bracket it; ``hit_s`` where they do not."""
     if (_gap_along(lo, st0, st1, st2, d0, d1, d2, p, coef, terrain) >= 0
             and _gap_along(hi, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0):
@@ -491,7 +487,7 @@ def _prefetch_corners(volume, count, step_at):
 
 @_helper_jit()
 def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_at):
-    """:func:`swim.rt.march.segment_cells` for one ray: the length in cells of the grid segment [s0, s0 + length]
+    """:func:`swim.rt.march_jax.segment_cells` for one ray: the length in cells of the grid segment [s0, s0 + length]
     [m], from the grid indices of :data:`swim.constants.CELL_PROBES` points (one block of :func:`_probe_indices`)."""
     n = CELL_PROBES
     _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n, 0, n, p, coef, shape, probe_at)
@@ -504,7 +500,7 @@ def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_
 
 @_helper_jit()
 def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, cdf, probe_at):
-    """Probe the step classes of :func:`swim.rt.march.step_classes` (or an occupancy grid: 1 occupied, 0 empty) at
+    """Probe the step classes of :func:`swim.rt.march_inputs.step_classes` (or an occupancy grid: 1 occupied, 0 empty) at
     n_probe equal intervals of a grid segment: each interval's class into ``cdf[1:n_probe + 1]`` (1.0 occupied, 0.0
     empty, -1.0 sunlit clear air); returns the numbers of occupied and of sunlit probes. The probes' indices are
     computed in blocks of ``probe_at.shape[1]`` (:func:`_probe_indices`), then looked up one by one."""
@@ -535,8 +531,8 @@ def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, 
 def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight,
                     probe_spacing, cell_slack, empty_steps, empty_cells_per_step, sunlit_steps, sunlit_cells_per_step,
                     cdf, edges, probe_at):
-    """:func:`swim.rt.march.grid_step_edges` for one ray, written into ``edges`` (steps + 1,); returns its number
-    of steps. With the probe count of :func:`swim.rt.march.probe_counts`: a ray that crosses more than ``n_probe *
+    """:func:`swim.rt.march_jax.grid_step_edges` for one ray, written into ``edges`` (steps + 1,); returns its number
+    of steps. With the probe count of :func:`swim.rt.march_jax.probe_counts`: a ray that crosses more than ``n_probe *
     probe_spacing`` cells (:func:`_segment_cells`) is probed once per ``probe_spacing`` cells instead (at most
     ``cdf.size - 1`` probes)."""
     cells = _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy.shape, probe_at)
@@ -590,7 +586,7 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
 def _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth, max_depth, th, refine_visible, pending,
                        refine_slots, tau_refine):
     """Whether the interval [s_lo, s_lo + ds] [m] at refinement ``depth`` is halved before it is sampled (one level),
-    :func:`swim.rt.march._predicted_halving`: the accumulated interval just before it (ending at ``prev_hi``) had an
+    :func:`swim.rt.march_jax._predicted_halving`: the accumulated interval just before it (ending at ``prev_hi``) had an
     extinction ``prev_beta`` [1/m] that makes it thicker than ``tau_refine``, so its own sample would most likely
     find it too thick and be discarded for its halves. The caller checks the ray's refinement budget."""
     return (have_prev and prev_hi == s_lo and depth < max_depth and th < refine_visible
@@ -600,7 +596,7 @@ def _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth, max_depth
 @_helper_jit()
 def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, spectra, n_probe, power, floor,
                  cdf, edges):
-    """:func:`swim.rt.march.clear_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
+    """:func:`swim.rt.march_jax.clear_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
     n_gas = beta_gas.shape[1]
     cdf[0] = 0.0
     largest = 0.0
@@ -626,7 +622,7 @@ def _descending_at(st0, st1, st2, d0, d1, d2, s, radius):
 
 @_helper_jit()
 def _lowest_along(st0, st1, st2, d0, d1, d2, radius, end):
-    """:func:`swim.rt.march.lowest_point` for one ray: the distance [m] along it, within [0, end], of its point
+    """:func:`swim.rt.march_jax.lowest_point` for one ray: the distance [m] along it, within [0, end], of its point
     closest to the earth's centre (the ray's height is convex along it)."""
     return _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, end)
 
@@ -641,7 +637,7 @@ def _column_above(beta_gas, f):
 
 @_helper_jit()
 def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
-    """:func:`swim.rt.march.after_step_counts` for one ray: its clear-air steps after the grid, which it leaves at
+    """:func:`swim.rt.march_jax.after_step_counts` for one ray: its clear-air steps after the grid, which it leaves at
     ``s_exit`` [m]; ``n_after`` where ``beta_gas`` has no column row (:data:`swim.constants.GAS_COLUMN_ROW`)."""
     if beta_gas.shape[0] <= GAS_COLUMN_ROW:
         return n_after
@@ -688,7 +684,7 @@ SKY_LANE_COLUMNS = 2 * LANES
 
 
 def sky_lanes(sky):
-    """The sky table (6, nu, nmu) of :func:`swim.rt.march.atmosphere_constants` (the sun's transmittance at 3
+    """The sky table (6, nu, nmu) of :func:`swim.rt.march_inputs.atmosphere_constants` (the sun's transmittance at 3
     wavelengths, then the diffuse irradiance at 3) as the step loop reads it: (nu, nmu, 8) float64, the wavelengths
     innermost, each group of three padded with a zero lane, so that one corner's lanes are one contiguous load.
 
@@ -749,7 +745,7 @@ def _mean_transmittance(x):
     terminal step back over the ground) one Taylor polynomial (relative error < 1e-11) without a division, else one
     expm1 per lane. One test for all lanes keeps the lanes' arithmetic in one block, where LLVM vectorises it."""
     x0, x1, x2, x3 = x
-    if max(max(abs(x0), abs(x1)), max(abs(x2), abs(x3))) < 0.1:  # (two-argument max: CUDA's)
+    if max(max(abs(x0), abs(x1)), max(abs(x2), abs(x3))) < 0.1:
         m0 = 1.0 - x0 * (0.5 - x0 * (1.0 / 6 - x0 * (1.0 / 24 - x0 * (1.0 / 120 - x0 * (1.0 / 720 - x0 / 5040)))))
         m1 = 1.0 - x1 * (0.5 - x1 * (1.0 / 6 - x1 * (1.0 / 24 - x1 * (1.0 / 120 - x1 * (1.0 / 720 - x1 / 5040)))))
         m2 = 1.0 - x2 * (0.5 - x2 * (1.0 / 6 - x2 * (1.0 / 24 - x2 * (1.0 / 120 - x2 * (1.0 / 720 - x2 / 5040)))))
@@ -768,7 +764,7 @@ def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, sou
     and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-min(t0, 2) - e^-min(t1, 2);
     ``gas_ratio``: e^t0, so that ``t_obs * gas_ratio`` is the clear sky's e^-tau_clear without an exp: t_obs =
     e^-(tau_clear + t0), and t0 < 2 wherever the weight is > 0). A negative weight is a terminal step back
-    (:func:`swim.rt.march._terminal_step`), where t0 may exceed 2: it takes e^-tau_clear itself. Every argument but
+    (:func:`swim.rt.march_jax._terminal_step`), where t0 may exceed 2: it takes e^-tau_clear itself. Every argument but
     the last four is a tuple of :data:`LANES` scalars, and so is each result."""
     tc0, tc1, tc2, tc3 = tau_clear
     to0, to1, to2, to3 = t_obs
@@ -932,8 +928,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                      above_heights, l_cloud, edges, cdf,
                      stack_lo, stack_hi, stack_depth, saved, tsp, ms_lanes, vol, vol32, probe_at):
     """Rays ``range(first, stop, stride)`` of :func:`march_rays`, with the work arrays that its caller allocates
-    once (:func:`work_arrays`): one code for the CPU's loop over all rays (one call) and a GPU thread's ray
-    (:func:`swim.rt.march_cuda.cuda_march_kernel`). A call per ray made the CPU kernel 4 % slower (its ~70
+    once (:func:`work_arrays`), in one call. A call per ray made the CPU kernel 4 % slower (its ~70
     arguments were passed anew every time), and numba's inlining of it failed.
 
     This is the compiled kernel that :func:`march_rays` calls from Python, without the GIL, with LLVM's SLP
@@ -986,7 +981,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     ms_lanes[u, c] = ms_profile[c, row, u]
                     ms_lanes[u, LANES + c] = ms_profile[3 + c, row, u]
                     ms_lanes[u, 2 * LANES + c] = ms_profile[6 + c, row, u]
-        for c in range(n_species):  # element by element: a CUDA thread's local arrays take no slice assignments
+        for c in range(n_species):
             tsp[c] = 0.0
         th = 0.0
         e_th = 1.0
@@ -1007,7 +1002,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
             terminal = segment == 3
             end_step = False
             if terminal:
-                # swim.rt.march._terminal_step: from the start of the step in which the ray met the ground (whose
+                # swim.rt.march_jax._terminal_step: from the start of the step in which the ray met the ground (whose
                 # sample may lie far inside the terrain, and which added nothing) to the refined crossing, or
                 # back to it where it lies in the far half of the step before
                 if not hit:
@@ -1366,10 +1361,10 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
 @njit(**_JIT_KERNEL, nogil=True)
 def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, ms_source, use_ms, class_lower,
                  class_weight, ms_profile):
-    """:func:`swim.rt.march._prepare_rays`, the per-ray set-up before the march, for the rays of :func:`march_rays`:
-    each ray's lowest point (:func:`swim.rt.march.lowest_point`), the class of the 3-D aerosol column there
-    (:func:`swim.rt.march.aerosol_class_weights`) and the diffuse (multiple-scattering) source's height profiles
-    (:func:`swim.rt.march.diffuse_source_profiles`).
+    """:func:`swim.rt.march_jax._prepare_rays`, the per-ray set-up before the march, for the rays of :func:`march_rays`:
+    each ray's lowest point (:func:`swim.rt.march_jax.lowest_point`), the class of the 3-D aerosol column there
+    (:func:`swim.rt.march_jax.aerosol_class_weights`) and the diffuse (multiple-scattering) source's height profiles
+    (:func:`swim.rt.march_jax.diffuse_source_profiles`).
 
     Inputs: rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3) [m] of
     :func:`swim.rt.march.ray_segments`; ``p``, ``coef`` of :func:`pack_parameters`; the column optical depth field
@@ -1459,12 +1454,11 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
 
 def work_sizes(n_before, n_grid, n_after, n_probe, n_probe_max, n_clear_probe, refine_slots, n_species, n_channels,
                n_u):
-    """Sizes of one ray's work arrays (:func:`work_arrays`; a CUDA thread's local arrays,
-    :func:`swim.rt.march_cuda.cuda_march_kernel`): step edges (one more after the grid, for the zero-length step at
+    """Sizes of one ray's work arrays (:func:`work_arrays`): step edges (one more after the grid, for the zero-length step at
     the end of a ray that ends on the sea-level sphere), probe densities, refinement slots, the saved state, species
     and volume channels, and the heights of the multiple-scattering profiles (``n_u``: ``ms_profile.shape[2]``).
-    ``n_species``: the packed species (:func:`swim.rt.march.packed_species`), none in a cloudless scene, whose species
-    array keeps one element (a local array of size 0 is not a CUDA array)."""
+    ``n_species``: the packed species (:func:`swim.rt.march_inputs.packed_species`), none in a cloudless scene, whose species
+    array keeps one element."""
     return (max(n_before, n_grid, n_after + 1) + 1, max(n_probe, n_probe_max, n_clear_probe) + 1, refine_slots,
             22 + n_species, max(n_species, 1), n_channels, n_u)
 
@@ -1518,37 +1512,37 @@ def march_rays(start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratos
     was as fast and took 29 s to compile instead of 7); this function allocates its work arrays
     (:func:`work_arrays`) and calls it.
 
-    The loop of :func:`swim.rt.march._march_segment` over the clear air before the grid (``n_before`` steps placed
+    The loop of :func:`swim.rt.march_jax._march_segment` over the clear air before the grid (``n_before`` steps placed
     by :func:`_clear_edges` from ``n_clear_probe`` extinction probes, with density extinction^``clear_power`` plus
     ``clear_floor`` times its largest value), the grid (``n_grid`` steps placed by :func:`_adaptive_edges` from
     ``n_probe`` occupancy probes, or one per ``probe_spacing`` cells up to ``n_probe_max`` for rays that cross more,
     less ``cell_slack``; at most max(``empty_steps``, empty cells / ``empty_cells_per_step``) of them in its empty
     intervals, ``empty_steps`` 0: no limit; and at most max(``sunlit_steps``, sunlit cells / ``sunlit_cells_per_step``)
-    in its sunlit clear ones, where ``occupancy`` holds the step classes of :func:`swim.rt.march.step_classes`,
-    ``sunlit_steps`` 0: they count as empty; :func:`swim.rt.march.grid_step_edges`) and the clear air after it
-    (``n_after`` steps placed as ``n_before``'s), then :func:`swim.rt.march.refine_terrain_hit` and, for a ray that met
+    in its sunlit clear ones, where ``occupancy`` holds the step classes of :func:`swim.rt.march_inputs.step_classes`,
+    ``sunlit_steps`` 0: they count as empty; :func:`swim.rt.march_jax.grid_step_edges`) and the clear air after it
+    (``n_after`` steps placed as ``n_before``'s), then :func:`swim.rt.march_jax.refine_terrain_hit` and, for a ray that met
     the ground,
-    the terminal steps of :func:`swim.rt.march._terminal_step` up to that crossing. While the ray's hydrometeor optical
+    the terminal steps of :func:`swim.rt.march_jax._terminal_step` up to that crossing. While the ray's hydrometeor optical
     depth is below ``refine_visible``, a grid step whose own (or whose change of extinction from the interval before
     it, times its length) exceeds ``tau_refine`` is replaced by its two halves, and a step whose change times the
     previous interval's length exceeds it sends the ray back to its state before that interval, which is halved,
     and an interval whose length times the extinction of the accumulated interval before it exceeds it is halved
     before its sample (:func:`_predicted_halving`); recursively to ``max_depth`` levels, at most ``refine_budget``
-    times per ray, with at most ``refine_slots`` pending intervals (:func:`swim.rt.march._march_grid_refined`). A ray
+    times per ray, with at most ``refine_slots`` pending intervals (:func:`swim.rt.march_jax._march_grid_refined`). A ray
     that does not look down (``direction``'s vertical component >= 0) stops where its hydrometeor optical depth
     passes ``stop_tau`` > 0, once it was past ``refine_visible`` before the step: its optical depth is then
-    ``stop_tau`` and its species' keep their proportions (:attr:`swim.rt.march.MarchSettings.stop_tau`). A ray stops
+    ``stop_tau`` and its species' keep their proportions (:attr:`swim.rt.march_settings.MarchSettings.stop_tau`). A ray stops
     at the ground (the lockstep kernel goes on with zero-length steps that add nothing), and a segment of zero length
     takes one step (to see whether it starts under the terrain) instead of all of them.
 
     Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), ``bounds`` (n, 3)
     [m], ``valid`` (n,) bool, the phase functions ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric``
     (n, 3), the aerosol class ``class_lower`` (n,) int and ``class_weight`` (n,), and ``ms_profile`` (9, n, n_u)
-    [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march.kernel_constants` (float32), but for the sky
+    [-] (used where ``use_ms``). Tables as in :func:`swim.rt.march_inputs.kernel_constants` (float32), but for the sky
     table, which the step loop reads as :func:`sky_lanes` (nu, nmu, 8) float64; scalars packed by
     :func:`pack_parameters`. The results are written into the preallocated outputs: the optical depths
     ``tau_clear`` (n, 3), ``tau_h`` (n,), ``tau_species`` (n, p) of the volume's p packed species
-    (:func:`swim.rt.march.packed_species`), the clear-sky radiance ``l_clear`` (n, 3),
+    (:func:`swim.rt.march_inputs.packed_species`), the clear-sky radiance ``l_clear`` (n, 3),
     the Eq. 12 integrals ``i_nogas``, ``i_gas`` (n, 3) and ``i_cloud_t`` (n,), ``alive_out`` and ``hit_out``
     (n,) bool, ``s_hit_out`` (n,) [m], the refined terrain crossing or the segment's end, and ``samples_out``
     (n,) int, the medium's samples the ray took (its steps, refined halves and steps undone by a refinement

@@ -1,14 +1,14 @@
 """The ray march's segments as one fused GPU kernel (Pallas on Triton): the grid's refined march, and the clear air.
 
-The lockstep JAX march (:func:`swim.rt.march._march_grid_refined`) runs one iteration of every ray's march as ~20
+The lockstep JAX march (:func:`swim.rt.march_jax._march_grid_refined`) runs one iteration of every ray's march as ~20
 XLA kernels that pass the rays' state (~90 values a ray: the accumulators, their snapshot for roll-backs, the pending
 intervals) through device memory; on an H100 that iteration's traffic, not its arithmetic, sets the time (~270 us
-per 262 144 rays, 173 iterations a chunk: docs/decisions/0006-gpu-kernels.md). The per-ray CUDA kernel
-(:mod:`swim.rt.march_cuda`) keeps the state in registers but its threads diverge between the march's phases (5.4 of
-a warp's 32 threads active, docs/decisions/0006-gpu-kernels.md).
+per 262 144 rays, 173 iterations a chunk: docs/decisions/0006-gpu-kernels.md). A per-ray GPU kernel (numba's CPU
+code compiled with numba-cuda, measured and removed) keeps the state in registers but its threads diverge between the
+march's phases (5.4 of a warp's 32 threads active, docs/decisions/0006-gpu-kernels.md).
 
 This kernel keeps both virtues: the same lockstep iteration, written branch-free over a block of rays as
-:func:`~swim.rt.march._march_grid_refined` is, but inside one Triton program per block of :data:`BLOCK_RAYS` rays,
+:func:`~swim.rt.march_jax._march_grid_refined` is, but inside one Triton program per block of :data:`BLOCK_RAYS` rays,
 so that the state stays in registers for the whole segment and a warp's threads always run the same instructions.
 The tables (packed volume, terrain, gas and sky tables, the rays' step edges and diffuse-source profiles) are read
 by gathers from device memory (their caches); where a point has several channels, the kernel gets them with their
@@ -19,7 +19,7 @@ GPUs: 1.9-2.1x faster per chunk than the lockstep loop on an H200, docs/decision
 :func:`march_segments_fused` marches consecutive segments in one kernel, the clear air before and after the grid too
 (``"fused-march"``: the ~10 ms per chunk of XLA loops and copies left around the grid kernel; 0.85x "fused"'s chunk
 time on an H100, docs/decisions/0006-gpu-kernels.md).
-Each computes what :func:`swim.rt.march._march_segment` computes for its segments, the same equations in the same
+Each computes what :func:`swim.rt.march_jax._march_segment` computes for its segments, the same equations in the same
 order (Eqs. 3, 8 and 12 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020; see that function), so its state agrees
 with the XLA kernel's to float32 rounding; ``tests/unit/rt/test_rt_march_pallas.py`` holds it to that in Pallas's
 interpreter on CPUs. Each 3-vector of the XLA kernel (a quantity at the three wavelengths, a point) is three (B,)
@@ -49,7 +49,7 @@ log = logging.getLogger(__name__)
 BLOCK_RAYS = 128
 NUM_WARPS = 4
 
-#: The state of :func:`swim.rt.march._march_segment` that the kernel carries, one (n,) column each: the quantities at
+#: The state of :func:`swim.rt.march_jax._march_segment` that the kernel carries, one (n,) column each: the quantities at
 #: the three wavelengths (three columns each), the per-ray numbers, then (:func:`_state_columns`) the packed species'
 #: optical depths and the flags, which travel as int32.
 _VECTORS = ("tau_clear", "l_clear", "i_nogas", "i_gas")
@@ -185,11 +185,11 @@ class _Gather:
 
 
 def _trilinear_vec4(flat, shape, n_c, k, j, i, outside):
-    """:func:`swim.rt.march.trilinear_gathers` from a (nk, ny, nx, n_cp) volume whose channels are padded to a multiple
+    """:func:`swim.rt.march_jax.trilinear_gathers` from a (nk, ny, nx, n_cp) volume whose channels are padded to a multiple
     of :data:`VECTOR` (:func:`_channels_padded`): each corner's channels read by :func:`_load_groups`'s loads (for 7
     channels three a corner instead of seven), the same products and sums per channel in the same order. Returns the
     ``n_c`` channels, each ``outside[c]`` beyond the volume."""
-    from .march import _cell_weights
+    from .march_jax import _cell_weights
 
     ny, nx, n_cp = shape[1:]
     inside, k0, j0, i0, fk, fj, fi = _cell_weights(shape, k, j, i)
@@ -213,7 +213,7 @@ def _trilinear_vec4(flat, shape, n_c, k, j, i, outside):
 
 
 def _bilinear_vec4(flat, nu, nv, n_cp, n_c, fu, fv):
-    """:func:`swim.rt.march.bilinear_gathers` from a (nu, nv, n_cp) table whose channels are padded to a multiple of
+    """:func:`swim.rt.march_jax.bilinear_gathers` from a (nu, nv, n_cp) table whose channels are padded to a multiple of
     :data:`VECTOR` (:func:`_channels_padded`), each corner's channels read by :func:`_load_groups`'s loads; the same
     products and sums per channel in the same order. Returns the ``n_c`` channels."""
     fu = jnp.clip(fu, 0.0, nu - 1.001)
@@ -234,7 +234,7 @@ def _bilinear_vec4(flat, nu, nv, n_cp, n_c, fu, fv):
 
 
 def _lerp_vec4(flat, n, n_cp, n_c, f, row=0):
-    """:func:`swim.rt.march.lerp_gathers` from a (rows, n, n_cp) table whose channels are padded to a multiple of
+    """:func:`swim.rt.march_jax.lerp_gathers` from a (rows, n, n_cp) table whose channels are padded to a multiple of
     :data:`VECTOR`: row ``row`` (may be per point) at fractional indices f, clamped, both ends' channels read by
     :func:`_load_groups`'s loads. Returns the ``n_c`` channels."""
     f = jnp.clip(f, 0.0, n - 1.001)
@@ -280,28 +280,28 @@ def _params(consts, has_bounds):
 def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_profile, aerosol_class, tau_refine,
                      steps=None, stop_tau=0.0, interpret=False, block_rays=None, num_warps=None,
                      max_registers=None, vector_loads=True, fma=False):
-    """The grid segment of :func:`swim.rt.march._march_segment` with refinement (``in_grid``, ``tau_refine`` > 0), as
+    """The grid segment of :func:`swim.rt.march_jax._march_segment` with refinement (``in_grid``, ``tau_refine`` > 0), as
     one Pallas kernel (:func:`march_segments_fused` with that one segment).
 
     Parameters
     ----------
     state : dict
-        The march's state before the grid (:func:`swim.rt.march._march_rays`): (n,) and (n, 3) float32 arrays,
+        The march's state before the grid (:func:`swim.rt.march_jax._march_rays`): (n,) and (n, 3) float32 arrays,
         ``alive`` and ``hit`` (n,) bool, ``tau_species`` (n, n_species).
     start, direction : jax.Array
         Shape (n, 3): rebased ray origins [m] and unit directions.
     edges : jax.Array
-        Shape (n_steps + 1, n): the grid steps' edges along each ray [m] (:func:`swim.rt.march.grid_step_edges`).
+        Shape (n_steps + 1, n): the grid steps' edges along each ray [m] (:func:`swim.rt.march_jax.grid_step_edges`).
     n_steps : int
         Grid steps per ray (static).
     rays : dict
         ``p_rayleigh`` (n,), ``p_aerosol`` and ``p_stratospheric`` (n, 3): phase functions [-].
     consts : dict
-        The kernel constants (:func:`swim.rt.march.kernel_constants`, the volume on the device).
+        The kernel constants (:func:`swim.rt.march_inputs.kernel_constants`, the volume on the device).
     ms_profile : jax.Array or None
-        (9, n, n_u) diffuse-source profiles (:func:`swim.rt.march.diffuse_source_profiles`), or None.
+        (9, n, n_u) diffuse-source profiles (:func:`swim.rt.march_jax.diffuse_source_profiles`), or None.
     aerosol_class : tuple
-        (n,) int32 lower class and (n, 1) weight (:func:`swim.rt.march.aerosol_class_weights`).
+        (n,) int32 lower class and (n, 1) weight (:func:`swim.rt.march_jax.aerosol_class_weights`).
     tau_refine : float
         Refinement threshold [-] (> 0, static).
     steps : jax.Array, optional
@@ -315,18 +315,18 @@ def march_grid_fused(state, start, direction, edges, n_steps, rays, consts, ms_p
         :data:`NUM_WARPS`).
     max_registers : int, optional
         Registers per thread that ptxas may give the kernel on NVIDIA GPUs, in [16, 255] (None: ptxas's choice;
-        :attr:`swim.rt.march.MarchSettings.fused_max_registers`, :mod:`swim.rt.ptx_edits`).
+        :attr:`swim.rt.march_settings.MarchSettings.fused_max_registers`, :mod:`swim.rt.ptx_edits`).
     vector_loads : bool
         Read the tables' channels up to four a load, the tables channels last (:func:`_load_groups`), or by a scalar
-        gather each (:attr:`swim.rt.march.MarchSettings.fused_vector_loads`).
+        gather each (:attr:`swim.rt.march_settings.MarchSettings.fused_vector_loads`).
     fma : bool
         Let ptxas contract the kernel's float32 multiplies and adds into fused multiply-adds on NVIDIA GPUs
-        (:attr:`swim.rt.march.MarchSettings.fused_fma`, :mod:`swim.rt.ptx_edits`; no effect in the interpreter).
+        (:attr:`swim.rt.march_settings.MarchSettings.fused_fma`, :mod:`swim.rt.ptx_edits`; no effect in the interpreter).
 
     Returns
     -------
     dict
-        The state after the grid segment, as :func:`swim.rt.march._march_segment` returns it.
+        The state after the grid segment, as :func:`swim.rt.march_jax._march_segment` returns it.
 
     Raises
     ------
@@ -344,7 +344,7 @@ class Segment:
     """One segment of a ray's march for :func:`march_segments_fused`: its step ``edges`` (n_steps + 1, n) [m], the
     step count ``n_steps`` (static), each ray's own count ``steps`` (n,) <= n_steps or None, whether it lies in the
     grid (``in_grid``: the volume is sampled) and whether its steps are refined at cloud faces (``refined``: the grid
-    segment with ``tau_refine`` > 0, :func:`swim.rt.march._march_grid_refined`)."""
+    segment with ``tau_refine`` > 0, :func:`swim.rt.march_jax._march_grid_refined`)."""
 
     edges: object
     n_steps: int
@@ -356,7 +356,7 @@ class Segment:
 def march_segments_fused(state, start, direction, segments, rays, consts, ms_profile, aerosol_class, tau_refine=0.0,
                          stop_tau=0.0, interpret=False, block_rays=None, num_warps=None, max_registers=None,
                          vector_loads=True, fma=False):
-    """Consecutive segments of :func:`swim.rt.march._march_segment` (not its terminal step) in one Pallas kernel, the
+    """Consecutive segments of :func:`swim.rt.march_jax._march_segment` (not its terminal step) in one Pallas kernel, the
     rays' state in registers from the first segment's first step to the last segment's last.
 
     ``segments``: :class:`Segment` each, in the order in which the rays cross them (e.g. the clear air before the
@@ -372,8 +372,9 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
 
     from .ptx_edits import install_ptx_edits, kernel_name
 
-    from .march import (REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR,
-                        _predicted_halving, bilinear_gathers, lerp_gathers, packed_aerosol_3d, trilinear_gathers)
+    from .march_inputs import packed_aerosol_3d
+    from .march_jax import _predicted_halving, bilinear_gathers, lerp_gathers, trilinear_gathers
+    from .march_settings import REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR
 
     block_rays = BLOCK_RAYS if block_rays is None else int(block_rays)
     num_warps = NUM_WARPS if num_warps is None else int(num_warps)
@@ -475,7 +476,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
         c0, wc, step_counts = inputs[13], inputs[14], inputs[15:]
 
         def sample(st, s_lo, ds, in_grid):
-            """:func:`swim.rt.march._march_segment`'s ``sample`` (not the terminal step's)."""
+            """:func:`swim.rt.march_jax._march_segment`'s ``sample`` (not the terminal step's)."""
             s = s_lo + 0.5 * ds
             q = [q0[c] + s * direction3[c] for c in range(3)]
             # _point_geometry
@@ -669,7 +670,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             return st, m, pending, new_lo, hi0, depths, budget, saved, prev
 
         def refined(st, edges_ref, last):
-            """:func:`swim.rt.march._march_grid_refined` of the block: until each ray has taken its steps."""
+            """:func:`swim.rt.march_jax._march_grid_refined` of the block: until each ray has taken its steps."""
             def unfinished(carry):
                 st, m, pending, *_ = carry
                 return jnp.max((((pending != 0) | (m < last)) & st["alive"]).astype(jnp.int32)) > 0
@@ -682,7 +683,7 @@ def march_segments_fused(state, start, direction, segments, rays, consts, ms_pro
             return jax.lax.while_loop(unfinished, lambda c: refined_body(c, edges_ref, last), carry)[0]
 
         def plain(st, edges_ref, last, n_steps, in_grid):
-            """:func:`swim.rt.march._march_segment`'s loop of ``n_steps`` midpoint steps; a ray's steps beyond its
+            """:func:`swim.rt.march_jax._march_segment`'s loop of ``n_steps`` midpoint steps; a ray's steps beyond its
             own count ``last`` leave it as it is. The block's loop ends when no ray that has not stopped has steps
             left: a stopped ray's samples add nothing (docs/decisions/0006-gpu-kernels.md), so a block of padding or of
             rays stopped in the grid takes none of the steps after it."""

@@ -1,7 +1,7 @@
-"""The occupancy grid of the empty-space skipping (:func:`swim.rt.march.occupancy_grid`) written for CPUs (numba).
+"""The occupancy grid of the empty-space skipping (:func:`swim.rt.march_inputs.occupancy_grid`) written for CPUs (numba).
 
 A new scene's occupancy grid summed the species' extinction as one float32 matrix-vector product per cell (one
-thread), compared the sum with :data:`swim.rt.march.OCCUPIED_EXTINCTION` and the levels with the raised terrain in
+thread), compared the sum with :data:`swim.rt.march_inputs.OCCUPIED_EXTINCTION` and the levels with the raised terrain in
 further whole-grid passes: ~0.22 s of a new 400 x 400 x 60 scene's set-up. :func:`occupied_cells` decides each cell
 in one pass over the packed volume's species channels (a cell's channels are one cache line), in blocks of levels
 on every core, without the GIL (docs/decisions/0007-scene-set-up.md).
@@ -18,7 +18,7 @@ from .march_cpu import _JIT_EXACT
 @njit(**_JIT_EXACT)
 def occupied_cells(extinction, threshold, levels, terrain_top, dz, k0, k1, out):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of the cells that rays must step through finely, before the dilation of
-    :func:`swim.rt.march.occupancy_grid`: ``out[k, j, i]`` (bool, (level, y, x)) is True where the species'
+    :func:`swim.rt.march_inputs.occupancy_grid`: ``out[k, j, i]`` (bool, (level, y, x)) is True where the species'
     ``extinction`` (species, level, y, x) float32 [m-1], any strides, summed in float32 in the species' order,
     exceeds ``threshold`` (float32 [m-1]), or where ``terrain_top`` (y, x) [m] (the highest terrain around the
     column) is above 1 m and ``levels[k]`` [m] lies at most ``dz`` [m] above it; else False.
@@ -41,7 +41,7 @@ def occupied_cells(extinction, threshold, levels, terrain_top, dz, k0, k1, out):
 def unlit_nodes(cloud_transmittance, terrain_shadow, aerosol_tau_sun, has_aerosol, threshold, k0, k1,
                 out):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of the nodes that the direct sun does not reach unattenuated, before the dilation of
-    :func:`swim.rt.march.step_classes`: ``out[k, j, i]`` (bool, (level, y, x)) is True where Step 1a's
+    :func:`swim.rt.march_inputs.step_classes`: ``out[k, j, i]`` (bool, (level, y, x)) is True where Step 1a's
     ``cloud_transmittance`` times ``terrain_shadow`` times, where ``has_aerosol``, exp(-``aerosol_tau_sun``) (each
     (level, y, x) float32, any strides) is below ``threshold`` (a NaN counts as below)."""
     _, ny, nx = cloud_transmittance.shape
@@ -56,7 +56,7 @@ def unlit_nodes(cloud_transmittance, terrain_shadow, aerosol_tau_sun, has_aeroso
 
 @njit(**_JIT_EXACT)
 def classify_cells(occupancy, unlit, code, k0, k1, out):  # pragma: no cover - compiled
-    """Levels ``k0:k1`` of the step classes of :func:`swim.rt.march.step_classes`: ``out`` (int8, (level, y, x)) is 1
+    """Levels ``k0:k1`` of the step classes of :func:`swim.rt.march_inputs.step_classes`: ``out`` (int8, (level, y, x)) is 1
     where ``occupancy`` > 0, else 0 where ``unlit`` (dilated), else ``code`` (sunlit clear air)."""
     _, ny, nx = occupancy.shape
     for k in range(k0, k1):
@@ -101,7 +101,7 @@ def dilate_levels_along(across, k0, k1, out):  # pragma: no cover - compiled
 
 def dilate_cells(mask):
     """A (level, y, x) boolean array dilated by one cell: every cell next to a True cell (the 3 x 3 x 3 cube around
-    it, clipped at the grid's edges) set, as :func:`swim.rt.march.dilated_by_one_cell` gives it, in two compiled
+    it, clipped at the grid's edges) set, as :func:`swim.rt.march_inputs.dilated_by_one_cell` gives it, in two compiled
     passes over blocks of levels on every core (the 3 x 3 square of each level, then the levels below and above).
 
     Parameters

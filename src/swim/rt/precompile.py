@@ -185,7 +185,6 @@ def _helper_environment() -> dict:
     # swim's choice)
     _, cpu_name, features = march_cpu._march_ray_range.targetctx.codegen().magic_tuple()
     env["NUMBA_CPU_NAME"], env["NUMBA_CPU_FEATURES"] = cpu_name, features
-    env["SWIM_PRECOMPILE_HELPER"] = "1"  # no JAX set-up in the helper (swim.rt's import; ~0.4 s of its start)
     root = str(Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
     return env
@@ -241,7 +240,7 @@ def start_early(backend: str) -> bool:
     telling for sure would mean initialising JAX's backends first. :func:`swim.pipeline.render` starts the helper in
     any case where it was not started here. Never raises."""
     try:
-        if backend == "auto" and _jax_may_see_a_gpu():
+        if backend == "auto" and jax_may_see_a_gpu():
             return False
         return start("numba") if backend in ("auto", "numba") else False
     except Exception as error:  # only ever a head start
@@ -249,7 +248,9 @@ def start_early(backend: str) -> bool:
         return False
 
 
-def _jax_may_see_a_gpu() -> bool:
+def jax_may_see_a_gpu() -> bool:
+    """Whether JAX may see a GPU or another accelerator: a GPU platform named in ``JAX_PLATFORMS``, or (without it)
+    a JAX plugin installed. Tells without importing JAX; False means its default device is the CPU."""
     platforms = os.environ.get("JAX_PLATFORMS", "").strip().lower()
     if platforms:
         return any(name in platforms for name in ("cuda", "gpu", "rocm", "tpu", "metal"))

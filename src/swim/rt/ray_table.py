@@ -1,4 +1,4 @@
-"""A camera's rays kept on the device for the JAX kernel (:attr:`swim.rt.march.MarchSettings.ray_table`).
+"""A camera's rays kept on the device for the JAX kernel (:attr:`swim.rt.march_settings.MarchSettings.ray_table`).
 
 A GPU frame of the JAX kernel did most of its work on the host (docs/decisions/0006-gpu-kernels.md): for every
 batch of rays the host clipped the rays to the grid (:func:`swim.rt.march.ray_segments_compiled`), evaluated the
@@ -6,10 +6,10 @@ phase functions on the device and copied them back, padded and converted ten per
 them to the device again. For a camera that does not move, none of that changes between frames except the phase
 functions, which follow the sun. A :class:`RayTable` holds, on the device, what every pixel's ray needs that the sun
 does not change: its start, direction, segments (before, in and after the grid), whether it ends on the sea-level
-sphere and the occupancy probes of its grid segment (:func:`swim.rt.march.probe_counts_and_cells`). A batch of
+sphere and the occupancy probes of its grid segment (:func:`swim.rt.march_jax.probe_counts_and_cells`). A batch of
 pixels (every pixel, or a level of adaptive sampling) then sends only its rows' indices: the rows are gathered and
 the phase functions computed in one compiled call on the device (:func:`_gather_rows`), and the chunks are marched by
-the same compiled program as :func:`swim.rt.march.trace_rays` marches them (:func:`swim.rt.march._trace_chunk`),
+the same compiled program as :func:`swim.rt.march.trace_rays` marches them (:func:`swim.rt.march_jax._trace_chunk`),
 queued one after the other without waiting for the host in between.
 
 The phase functions' scattering-angle cosine is computed on the device in float32 (:func:`scattering_cosine`, as
@@ -20,7 +20,7 @@ the same rays (``tests/unit/rt/test_rt_ray_table.py``).
 
 On an H100 a warm 1024² all-sky with every pixel traced renders in 0.151 s with the table against 0.324 s without
 (docs/decisions/0006-gpu-kernels.md), so ``MarchSettings.ray_table`` is on by default where the JAX kernel runs on a GPU
-(:meth:`swim.rt.march.MarchSettings.resolved_ray_table`).
+(:meth:`swim.rt.march_settings.MarchSettings.resolved_ray_table`).
 """
 
 from __future__ import annotations
@@ -35,12 +35,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SwimInputError
-from ..optics.rayleigh import rayleigh_phase_function
-from . import march
-from .march import (GridGeometry, MarchSettings, _device_constants, _host_rows, check_rays, padded_batch_size,
-                    ray_segments_parallel, with_probes_for, without_empty_segments)
+from . import march_jax
+from .march import check_rays, padded_batch_size, ray_segments_parallel, without_empty_segments
+from .march_inputs import GridGeometry
+from .march_jax import _device_constants, _host_rows, with_probes_for
+from .march_settings import MarchSettings
 from .march_pallas import with_vector_volume
 from .export_cache import exported_jit
+from .gas import phase_functions
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +77,7 @@ class RayTable:
         Shape (n,) bool.
     probes, cells : jax.Array or None
         Shape (n,): each ray's occupancy probes (int32) and its grid segment's length in cells (float32),
-        :func:`swim.rt.march.probe_counts_and_cells` (None where ``settings.probe_spacing`` or ``n_grid`` is 0).
+        :func:`swim.rt.march_jax.probe_counts_and_cells` (None where ``settings.probe_spacing`` or ``n_grid`` is 0).
     probes_host : numpy.ndarray or None
         The probes (n,) int32 on the host, for each chunk's ``n_probe`` without a copy from the device.
     segments_host : numpy.ndarray
@@ -116,7 +118,7 @@ def build_ray_table(origins, directions, geometry: GridGeometry, consts, setting
         Shape (n, 3) or broadcastable to it: scene-frame origins [m] and unit directions, finite.
     geometry : GridGeometry
     consts : dict
-        Kernel constants (:func:`swim.rt.march.kernel_constants`): ``top`` [m] and the grid's index map.
+        Kernel constants (:func:`swim.rt.march_inputs.kernel_constants`): ``top`` [m] and the grid's index map.
     settings : MarchSettings
         ``n_probe``, ``probe_spacing`` and ``n_grid`` set the probes.
     key : tuple
@@ -152,7 +154,7 @@ def build_ray_table(origins, directions, geometry: GridGeometry, consts, setting
             hi = min(lo + TABLE_BLOCK, n)
             take = np.minimum(np.arange(lo, lo + padded_batch_size(hi - lo, TABLE_BLOCK)), hi - 1)
             # the chunks' program (exported: a new process does not trace it)
-            p, c = march._probe_counts_chunk(start[take], direction[take], bounds_d[take], device, settings.n_probe,
+            p, c = march_jax._probe_counts_chunk(start[take], direction[take], bounds_d[take], device, settings.n_probe,
                                              float(settings.probe_spacing))
             parts.append((p[:hi - lo], c[:hi - lo]))
         probes = jnp.concatenate([p for p, _ in parts])
@@ -183,7 +185,7 @@ def camera_ray_table(observer, directions, pixels, geometry: GridGeometry, const
         Shape (n,) int: the flat indices of the pixels to put in the table, in the table's order.
     geometry : GridGeometry
     consts : dict
-        Kernel constants (:func:`swim.rt.march.kernel_constants`).
+        Kernel constants (:func:`swim.rt.march_inputs.kernel_constants`).
     settings : MarchSettings
 
     Returns
@@ -245,7 +247,7 @@ def _geometry_key(geometry: GridGeometry):
 
 @exported_jit(static_argnames=("aerosol_type", "stratospheric_type"))  # a new process reads the traced program
 def _gather_rows(table_arrays, extra_arrays, rows, n_real, sun, depolarization, aerosol_type, stratospheric_type):
-    """A chunk's per-ray inputs of :func:`swim.rt.march._trace_chunk` from the table's rows ``rows`` (n,) (rows past
+    """A chunk's per-ray inputs of :func:`swim.rt.march_jax._trace_chunk` from the table's rows ``rows`` (n,) (rows past
     the table's end: the rows of ``extra_arrays``, a second table's), with the phase functions of
     :func:`swim.pipeline._phase_functions` at their scattering angles (the sun ``sun`` (3,)). The rays from position
     ``n_real`` (an int32 scalar: a traced value, so one program serves every count) on are padding: not valid."""
@@ -272,16 +274,6 @@ def _gather_rows(table_arrays, extra_arrays, rows, n_real, sun, depolarization, 
     rays = {"cos_theta": cos_theta, "cos_view_zenith": direction[:, 2], "p_rayleigh": p_rayleigh,
             "p_aerosol": p_aerosol, "p_stratospheric": p_stratospheric}
     return (start, direction, bounds, ends_on_ground, valid), rays, (probes, cells)
-
-
-def phase_functions(cos_theta, depolarization, aerosol_type, stratospheric_type):
-    """The rays' Rayleigh (n,), background aerosol and stratospheric aerosol (n, 3) phase functions [-] (mean 1 over
-    the sphere) at scattering-angle cosines ``cos_theta`` (n,) [-]: :func:`swim.optics.rayleigh.rayleigh_phase_function`
-    with the air's ``depolarization`` [-], and each :class:`swim.optics.aerosol_types.AerosolType`'s two-term DHG
-    (paper Eq. 28; Albers et al. 2020, doi:10.5194/amt-13-3235-2020). What :func:`swim.pipeline.render`'s rays take,
-    on the host (``swim.pipeline._phase_functions``) or in :func:`_gather_rows` on the device."""
-    return (rayleigh_phase_function(cos_theta, depolarization), aerosol_type.phase_function(cos_theta),
-            stratospheric_type.phase_function(cos_theta))
 
 
 def scattering_cosine(direction, sun):
@@ -319,7 +311,7 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         Shape (m,) int: rows of the table, in the order of the outputs. A ``range`` of step 1 (a frame's whole table)
         is read as slices of the table's host arrays, without gathering them.
     consts : dict
-        Kernel constants (:func:`swim.rt.march.kernel_constants`) of the render.
+        Kernel constants (:func:`swim.rt.march_inputs.kernel_constants`) of the render.
     phase : PhaseInputs
         The sun and the types whose phase functions the rays take.
     settings : MarchSettings
@@ -440,7 +432,7 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
         if pad:
             part = np.concatenate([part, np.repeat(part[-1:], pad)])
-        # n_probe as swim.rt.march._chunk_probes raises it, from the probes kept on the host
+        # n_probe as swim.rt.march_jax._chunk_probes raises it, from the probes kept on the host
         chunk_settings = with_probes_for(settings, chunk_probes(lo, hi)) if with_probes else settings
         chunk_extra = extra_arrays if hi > m else None
         n_real = np.int32(min(max(real - lo, 0), hi - lo))  # the chunk's own rays: the rest padding (not valid)
@@ -448,7 +440,7 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
                                           depolarization, phase.aerosol_type, phase.stratospheric_type)
         # queued on the device behind the chunk before: no copy to the host in between
         # (looked up in its module each time: benchmarks/bench_gpu.py wraps it)
-        pending.append((march._trace_chunk(*args, rays, device, chunk_settings, probes if with_probes else None),
+        pending.append((march_jax._trace_chunk(*args, rays, device, chunk_settings, probes if with_probes else None),
                         lo, hi))
         if len(pending) > PENDING_CHUNKS:
             collect()

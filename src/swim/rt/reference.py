@@ -23,10 +23,11 @@ from ..optics.phase import (
 )
 from ..optics.volume import grid_indices
 from ..surface.lighting import surface_radiance
-from .march import (FROM_ABOVE_BLEND, G_LIQUID, SKYLIGHT_SCALAR_FACTOR, aerosol_column_optical_depth, surface_fade_cells,
-                    grid_geometry)
-from .march import surface_fields as march_surface_fields
-from .march import surface_fields_outside as march_surface_fields_outside
+from ..optics.phase import G_LIQUID
+from .march_inputs import aerosol_column_optical_depth, surface_fade_cells, grid_geometry
+from .march_settings import FROM_ABOVE_BLEND, SKYLIGHT_SCALAR_FACTOR
+from .march_inputs import surface_fields as march_surface_fields
+from .march_inputs import surface_fields_outside as march_surface_fields_outside
 from .solar import transmittance_delta_eddington
 
 
@@ -96,7 +97,7 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
         Shape (3,): phase function of the stratospheric aerosol at this ray's scattering angle (needed when
         the atmosphere has a stratospheric layer).
     multiple_scattering : bool
-        As :class:`swim.rt.march.MarchSettings`.
+        As :class:`swim.rt.march_settings.MarchSettings`.
     surface_model : {"brdf", "lambertian"}
         ``MarchSettings.surface`` (the same :func:`swim.surface.lighting.surface_radiance`).
 

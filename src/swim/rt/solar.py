@@ -22,14 +22,12 @@ from __future__ import annotations
 
 import logging
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
 from ..constants import BACKSCATTER_FRACTION
 from ..errors import SwimInputError
-from .export_cache import exported_jit
+from ..arrays import array_namespace
 
 log = logging.getLogger(__name__)
 
@@ -71,9 +69,10 @@ def transmittance_stephens1978(b_tau, mu0):
     ----------
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Eqs. 4-6, after Stephens (1978).
     """
+    xp = array_namespace(b_tau, mu0)
     t1 = 1.0 / (1.0 + b_tau)
     t2 = 1.0 / (1.0 + b_tau * mu0)
-    return jnp.maximum(t1, t2 * mu0)
+    return xp.maximum(t1, t2 * mu0)
 
 
 def transmittance_delta_eddington(tau_s, b_tau_s, mu0):
@@ -128,31 +127,13 @@ def transmittance_delta_eddington(tau_s, b_tau_s, mu0):
     (conservative case, Eddington coefficients gamma_1 = (3/4)(1 - g), gamma_3 = (2 - 3 g mu0) / 4);
     replaces Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Eqs. 4-6.
     """
-    tau_s = jnp.asarray(tau_s)
-    x = ONE_MINUS_G_PER_BACKSCATTER * jnp.asarray(b_tau_s)  # (1 - g) tau_s
-    one_minus_g = jnp.clip(x / jnp.maximum(tau_s, 1e-30), 0.0, 1.0)
+    xp = array_namespace(tau_s, b_tau_s, mu0)
+    tau_s = xp.asarray(tau_s)
+    x = ONE_MINUS_G_PER_BACKSCATTER * xp.asarray(b_tau_s)  # (1 - g) tau_s
+    one_minus_g = xp.clip(x / xp.maximum(tau_s, 1e-30), 0.0, 1.0)
     tau_prime = x * (2.0 - one_minus_g)  # (1 - g^2) tau_s = (1 - g)(1 + g) tau_s
     k = 0.5 + 0.75 * mu0
-    return (k + (1.0 - k) * jnp.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
-
-
-#: :func:`transmittance_delta_eddington` compiled once per block shape: called op by op, its dozen array operations
-#: were each compiled (or loaded from the disk cache) on a process's first render, ~0.25 s
-#: (docs/decisions/0008-cold-start.md)
-_transmittance_delta_eddington_jit = jax.jit(transmittance_delta_eddington)
-
-
-def _bilinear_zero_outside(field, jj, ii):
-    """Bilinear sample of (C, ny, nx) fields at fractional (jj, ii) of shape (ny, nx); zero outside."""
-    ny, nx = field.shape[-2:]
-    inside = (jj >= 0) & (jj <= ny - 1) & (ii >= 0) & (ii <= nx - 1)
-    j0 = jnp.clip(jnp.floor(jj), 0, ny - 2).astype(jnp.int32)
-    i0 = jnp.clip(jnp.floor(ii), 0, nx - 2).astype(jnp.int32)
-    fj = jnp.clip(jj - j0, 0.0, 1.0)
-    fi = jnp.clip(ii - i0, 0.0, 1.0)
-    v = (field[..., j0, i0] * (1 - fj) * (1 - fi) + field[..., j0, i0 + 1] * (1 - fj) * fi
-         + field[..., j0 + 1, i0] * fj * (1 - fi) + field[..., j0 + 1, i0 + 1] * fj * fi)
-    return jnp.where(inside, v, 0.0)
+    return (k + (1.0 - k) * xp.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
 
 
 #: Levels integrated directly before the optical depth of a higher level is reused (bounds the numerical
@@ -160,47 +141,6 @@ def _bilinear_zero_outside(field, jj, ii):
 DIRECT_LEVELS = 16
 #: Levels per block of the transforms (T, the terrain shadow) of :func:`solar_transmittance`'s output.
 TRANSFORM_LEVELS = 16
-
-
-@exported_jit(static_argnames=("n_sub", "block"))
-def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
-    """Sweep (C, nk, ny, nx) extinction fields along the sun; returns optical depths (nk, C, ny, nx) (the
-    order the sweep builds them in: a transpose would copy them).
-
-    tau(k) = integral of the extinction from level k up to level min(k + block, top) along the sun ray
-    (sampled directly, n_sub points per level) + tau of that level, bilinearly interpolated where the
-    ray crosses it.
-    """
-    c, nk, ny, nx = fields.shape
-    jj, ii = jnp.meshgrid(jnp.arange(ny, dtype=jnp.float32), jnp.arange(nx, dtype=jnp.float32), indexing="ij")
-    ts = (jnp.arange(n_sub, dtype=jnp.float32) + 0.5) / n_sub
-
-    def level(k, taus):
-        def one_level(m, acc):
-            lo = jnp.minimum(k + m, nk - 2)
-            lower = jax.lax.dynamic_index_in_dim(fields, lo, axis=1, keepdims=False)
-            upper = jax.lax.dynamic_index_in_dim(fields, lo + 1, axis=1, keepdims=False)
-            active = (k + m + 1) <= (nk - 1)
-
-            def sub(a, t):
-                shift = m + t
-                lo_v = _bilinear_zero_outside(lower, jj + shift * dj, ii + shift * di)
-                up_v = _bilinear_zero_outside(upper, jj + shift * dj, ii + shift * di)
-                return a + (1 - t) * lo_v + t * up_v, None
-
-            seg, _ = jax.lax.scan(sub, jnp.zeros_like(acc), ts)
-            return acc + jnp.where(active, seg, 0.0)
-
-        direct = jax.lax.fori_loop(0, block, one_level, jnp.zeros((c, ny, nx), fields.dtype))
-        top = jnp.minimum(k + block, nk - 1)
-        above = jax.lax.dynamic_index_in_dim(taus, top, axis=0, keepdims=False)
-        n_levels = (top - k).astype(jnp.float32)
-        tau = _bilinear_zero_outside(above, jj + n_levels * dj, ii + n_levels * di) + direct * (path_per_level / n_sub)
-        return jax.lax.dynamic_update_index_in_dim(taus, tau, k, axis=0)
-
-    taus = jnp.zeros((nk, c, ny, nx), fields.dtype)
-    taus = jax.lax.fori_loop(0, nk - 1, lambda n, t: level(nk - 2 - n, t), taus)
-    return taus
 
 
 def step1a_levels(volume: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
@@ -304,7 +244,7 @@ def swept_levels(top) -> int:
 
 def backscatter_weights(volume: xr.Dataset) -> np.ndarray:
     """The backscatter fraction b [-] (species,) float32 of each species of an optical volume's ``species``
-    coordinate (after :func:`swim.rt.march.share_packed_channels` it names only the packed species): the weights of
+    coordinate (after :func:`swim.rt.march_inputs.share_packed_channels` it names only the packed species): the weights of
     the swept ``b tau_s`` (Sect. 3.4 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020)."""
     return np.array([BACKSCATTER_FRACTION[str(name)] for name in volume["species"].values], np.float32)
 
@@ -322,17 +262,16 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     variables : sequence of str, optional
         Only these of the variables below (a render needs ``cloud_transmittance``, ``terrain_shadow`` and
         ``aerosol_tau_sun``; each is a float32 field of the volume's size); default: all of them.
-    backend : {"auto", "jax", "numba", "cuda"}
-        The sweep's code: JAX (:func:`_sweep`, any device) or numba (:func:`swim.rt.solar_cpu.sweep`: the sweep
+    backend : {"auto", "jax", "numba"}
+        The sweep's code: JAX (:func:`swim.rt.solar_device._sweep`, any device) or numba (:func:`swim.rt.solar_cpu.sweep`: the sweep
         ~5x, Step 1a as a whole ~3x faster on a CPU); "auto" takes numba when JAX's default device is the CPU and
-        numba is installed, as :meth:`swim.rt.march.MarchSettings.resolved_backend` does; "cuda" (the march's GPU
-        kernel) takes JAX when JAX runs on a GPU, else numba. Both give the same optical depths to float32
+        numba is installed, as :meth:`swim.rt.march_settings.MarchSettings.resolved_backend` does. Both give the same optical depths to float32
         round-off.
     nonzero_levels : tuple of numpy.ndarray, optional
         The volume's :func:`step1a_levels`, if the caller kept them from an earlier sun; default: scanned here.
     out : dict of str to numpy.ndarray, optional
         Arrays to write some of :data:`OUT_VARIABLES` into instead of new ones (e.g. the packed volume's channels,
-        :func:`swim.rt.march.step1a_channel_views`): each (level, y, x) float32, writeable, of any strides; the
+        :func:`swim.rt.march_inputs.step1a_channel_views`): each (level, y, x) float32, writeable, of any strides; the
         result's variables are these arrays. They are written in one compiled pass
         (:func:`swim.rt.solar_cpu.step1a_channels`), T in float32 as :func:`transmittance_delta_eddington` computes
         it (the same values within float32 round-off). Default: new arrays.
@@ -359,7 +298,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     ------
     SwimInputError
         If ``variables`` names a variable that is not one of these, or ``backend`` is not one of
-        :data:`swim.rt.march.BACKENDS` (or is "numba" or "cuda" without numba installed), or ``nonzero_levels``
+        :data:`swim.rt.march_settings.BACKENDS` (or is "numba" without numba installed), or ``nonzero_levels``
         are not two arrays of the volume's levels, or ``out`` names a variable that is not both requested and one of
         :data:`OUT_VARIABLES`, or one of its arrays is not a writeable float32 array of the volume's shape.
 
@@ -369,7 +308,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
     from ..workers import in_blocks
-    from .march import BACKENDS, MarchSettings
+    from .march_settings import BACKENDS, MarchSettings
     from .solar_cpu import species_sums
 
     names = STEP1A_VARIABLES if variables is None else tuple(variables)
@@ -390,8 +329,6 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
                                  f"{expected} (level, y, x), got {type(array).__name__} "
                                  f"{getattr(array, 'dtype', '')} {getattr(array, 'shape', '')}")
     backend = MarchSettings(backend=backend).resolved_backend()  # "numba" without numba raises there
-    if backend == "cuda":  # the march's GPU kernel: the sweep where JAX runs, or on the host's cores
-        backend = "jax" if jax.default_backend() != "cpu" else "numba"
     sun = np.asarray(sun_direction_scene, dtype=float)
     di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "solar_transmittance")
     dz = float(volume.attrs["dz"])
@@ -459,6 +396,10 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
                            DIRECT_LEVELS)[:, :, :shape[0], :shape[1]]
             del padded, fields
         else:
+            import jax.numpy as jnp
+
+            from .solar_device import _sweep
+
             device = jnp.asarray(fields)
             del padded, fields  # the host copy goes before the sweep's output is made
             depths = np.asarray(_sweep(device, di, dj, path_per_level, n_sub))
@@ -486,7 +427,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     def cloud_t(k0, k1):
         if direct_beam:
             return np.exp(-taus[1][k0:k1])
-        return np.asarray(_transmittance_delta_eddington_jit(taus[0][k0:k1], taus[1][k0:k1], np.float32(mu0)))
+        return transmittance_delta_eddington(taus[0][k0:k1], taus[1][k0:k1], np.float32(mu0))
 
     dims = ("level", "y", "x")
     attrs = STEP1A_ATTRS

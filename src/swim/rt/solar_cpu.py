@@ -126,7 +126,7 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
     (species,) float32 (the backscatter fractions), each (k1 - k0, y, x) float32 (any strides), in float32.
 
     Where the species are channels of the packed volume (adjacent in memory,
-    :func:`swim.rt.march.share_packed_channels`), each cell's species are one cache line's read for both sums: two
+    :func:`swim.rt.march_inputs.share_packed_channels`), each cell's species are one cache line's read for both sums: two
     sums over the species (one a weighted sum) would read the volume twice (the fill of a new sun's Step 1a for the
     400 x 400 x 60 scene 0.12-0.14 s against 0.17-0.18 s; docs/decisions/0007-scene-set-up.md)."""
     n, _, ny, nx = extinction.shape

@@ -28,13 +28,66 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-import xarray as xr
 
 from ..errors import SwimInputError
-from ..workers import in_blocks
-from .march import KERNEL_STEP1A_VARIABLES, packed_aerosol_3d, step1a_channel_names, step1a_channel_views
-from .solar import (ABOVE_SWEPT, DIRECT_LEVELS, STEP1A_ATTRS, TERRAIN_OPACITY_PER_CELL, _sweep, backscatter_weights,
+from .export_cache import exported_jit
+from .march_inputs import KERNEL_STEP1A_VARIABLES, packed_aerosol_3d, step1a_channel_names, step1a_channel_views
+from .solar import (ABOVE_SWEPT, DIRECT_LEVELS, STEP1A_ATTRS, TERRAIN_OPACITY_PER_CELL, backscatter_weights,
                     sweep_geometry, swept_levels, transmittance_delta_eddington)
+
+
+def _bilinear_zero_outside(field, jj, ii):
+    """Bilinear sample of (C, ny, nx) fields at fractional (jj, ii) of shape (ny, nx); zero outside."""
+    ny, nx = field.shape[-2:]
+    inside = (jj >= 0) & (jj <= ny - 1) & (ii >= 0) & (ii <= nx - 1)
+    j0 = jnp.clip(jnp.floor(jj), 0, ny - 2).astype(jnp.int32)
+    i0 = jnp.clip(jnp.floor(ii), 0, nx - 2).astype(jnp.int32)
+    fj = jnp.clip(jj - j0, 0.0, 1.0)
+    fi = jnp.clip(ii - i0, 0.0, 1.0)
+    v = (field[..., j0, i0] * (1 - fj) * (1 - fi) + field[..., j0, i0 + 1] * (1 - fj) * fi
+         + field[..., j0 + 1, i0] * fj * (1 - fi) + field[..., j0 + 1, i0 + 1] * fj * fi)
+    return jnp.where(inside, v, 0.0)
+
+
+@exported_jit(static_argnames=("n_sub", "block"))
+def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
+    """Sweep (C, nk, ny, nx) extinction fields along the sun; returns optical depths (nk, C, ny, nx) (the
+    order the sweep builds them in: a transpose would copy them).
+
+    tau(k) = integral of the extinction from level k up to level min(k + block, top) along the sun ray
+    (sampled directly, n_sub points per level) + tau of that level, bilinearly interpolated where the
+    ray crosses it.
+    """
+    c, nk, ny, nx = fields.shape
+    jj, ii = jnp.meshgrid(jnp.arange(ny, dtype=jnp.float32), jnp.arange(nx, dtype=jnp.float32), indexing="ij")
+    ts = (jnp.arange(n_sub, dtype=jnp.float32) + 0.5) / n_sub
+
+    def level(k, taus):
+        def one_level(m, acc):
+            lo = jnp.minimum(k + m, nk - 2)
+            lower = jax.lax.dynamic_index_in_dim(fields, lo, axis=1, keepdims=False)
+            upper = jax.lax.dynamic_index_in_dim(fields, lo + 1, axis=1, keepdims=False)
+            active = (k + m + 1) <= (nk - 1)
+
+            def sub(a, t):
+                shift = m + t
+                lo_v = _bilinear_zero_outside(lower, jj + shift * dj, ii + shift * di)
+                up_v = _bilinear_zero_outside(upper, jj + shift * dj, ii + shift * di)
+                return a + (1 - t) * lo_v + t * up_v, None
+
+            seg, _ = jax.lax.scan(sub, jnp.zeros_like(acc), ts)
+            return acc + jnp.where(active, seg, 0.0)
+
+        direct = jax.lax.fori_loop(0, block, one_level, jnp.zeros((c, ny, nx), fields.dtype))
+        top = jnp.minimum(k + block, nk - 1)
+        above = jax.lax.dynamic_index_in_dim(taus, top, axis=0, keepdims=False)
+        n_levels = (top - k).astype(jnp.float32)
+        tau = _bilinear_zero_outside(above, jj + n_levels * dj, ii + n_levels * di) + direct * (path_per_level / n_sub)
+        return jax.lax.dynamic_update_index_in_dim(taus, tau, k, axis=0)
+
+    taus = jnp.zeros((nk, c, ny, nx), fields.dtype)
+    taus = jax.lax.fori_loop(0, nk - 1, lambda n, t: level(nk - 2 - n, t), taus)
+    return taus
 
 
 def _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species, aerosol_3d,
@@ -91,12 +144,12 @@ def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species
     ----------
     device_packed : jax.Array
         Shape (level, y, x, channel) float32: the device's copy of the packed volume
-        (:func:`swim.rt.march.pack_volume`) with an earlier sun's Step 1a channels; its grid channels (the extinctions
+        (:func:`swim.rt.march_inputs.pack_volume`) with an earlier sun's Step 1a channels; its grid channels (the extinctions
         of ``n_species`` species, then with a 3-D aerosol its extinction) are read. On a GPU its memory is reused for
         the result: do not use it afterwards.
     volume : xarray.Dataset
         The optical volume (:func:`swim.optics.volume.build_optical_volume`, its extinctions shared with the packed
-        volume: :func:`swim.rt.march.share_packed_channels`): its ``species`` coordinate (the packed species),
+        volume: :func:`swim.rt.march_inputs.share_packed_channels`): its ``species`` coordinate (the packed species),
         ``level`` [m], ``terrain_height`` (y, x) [m] and the attributes ``dz`` [m] and ``affine_matrix``.
     sun_direction_scene : array_like
         Shape (3,): unit vector towards the sun in the scene frame.
@@ -111,7 +164,7 @@ def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species
     Returns
     -------
     device_packed : jax.Array
-        The packed volume with the new sun's Step 1a channels (:data:`swim.rt.march.KERNEL_STEP1A_VARIABLES`, without
+        The packed volume with the new sun's Step 1a channels (:data:`swim.rt.march_inputs.KERNEL_STEP1A_VARIABLES`, without
         the aerosol's where it is not packed).
     swept : jax.Array
         Shape (n_levels, y, x, 2 or 3): those channels on the swept levels (above them T and the shadow are 1 and the
@@ -165,26 +218,26 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
     ----------
     volume : xarray.Dataset
         The optical volume whose extinctions are views of ``packed``'s channels
-        (:func:`swim.rt.march.share_packed_channels`).
+        (:func:`swim.rt.march_inputs.share_packed_channels`).
     sun_direction_scene : array_like
         Shape (3,): unit vector towards the sun in the scene frame.
     device_packed : jax.Array
-        The device's copy of ``packed`` with an earlier sun's channels (:func:`swim.rt.march.kept_device_copies`);
+        The device's copy of ``packed`` with an earlier sun's channels (:func:`swim.rt.device_copies.kept_device_copies`);
         on a GPU its memory is reused: do not use it afterwards.
     packed : numpy.ndarray
-        Shape (level, y, x, channel) float32: the host's packed volume (:func:`swim.rt.march.shared_packed_volume`);
+        Shape (level, y, x, channel) float32: the host's packed volume (:func:`swim.rt.march_inputs.shared_packed_volume`);
         its Step 1a channels are overwritten, and its device copies dropped
-        (:func:`swim.rt.march.step1a_channel_views`).
+        (:func:`swim.rt.march_inputs.step1a_channel_views`).
     species : tuple of int
-        The species packed (:func:`swim.rt.march.packed_species`).
+        The species packed (:func:`swim.rt.march_inputs.packed_species`).
     nonzero_levels : tuple of numpy.ndarray
         The volume's :func:`swim.rt.solar.step1a_levels`.
 
     Returns
     -------
     transmittance : xarray.Dataset
-        :data:`swim.rt.march.KERNEL_STEP1A_VARIABLES`, (level, y, x) float32 each: views of ``packed``'s channels, as
-        :func:`swim.rt.march.volume_constants` takes them (the aerosol's, where it is not packed, a read-only
+        :data:`swim.rt.march_inputs.KERNEL_STEP1A_VARIABLES`, (level, y, x) float32 each: views of ``packed``'s channels, as
+        :func:`swim.rt.march_inputs.volume_constants` takes them (the aerosol's, where it is not packed, a read-only
         broadcast of 0).
     device_packed : jax.Array
         The device's packed volume with the new sun's channels: the same values as the host's.
@@ -221,7 +274,7 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
 
     in_blocks(write, packed.shape[0])
     # a variable that is not packed (no 3-D aerosol) is a read-only broadcast of its value, as solar_transmittance
-    # gives it: the ground's fields read it too (swim.rt.march.surface_fields)
+    # gives it: the ground's fields read it too (swim.rt.march_inputs.surface_fields)
     data = {name: (("level", "y", "x"), views[name] if name in views
                    else np.broadcast_to(np.float32(ABOVE_SWEPT[name]), packed.shape[:-1]), STEP1A_ATTRS[name])
             for name in KERNEL_STEP1A_VARIABLES}

@@ -20,9 +20,11 @@ Conventions
   ``L = R mu_i E_sun / pi``; a Lambertian surface of albedo a has R = a, and the ARF of the paper is R / a.
   R = 0 where mu_i <= 0 or mu_v <= 0. In Eq. 35 the direct part uses R (this module), the diffuse part the
   albedo with ARF = 1 (:func:`surface_diffuse_albedo`).
-* ``jax.numpy`` throughout: jittable, float32-safe, numpy or jax input of any broadcastable leading shapes.
-  Model parameters (k, theta_hg, hot_spot) are static Python floats: they select a normalisation table that
-  is built once in numpy (float64) and cached.
+* Every function computes in the array library of its inputs (:mod:`swim.arrays`): numpy for numpy input,
+  ``jax.numpy`` where any input is a JAX array or tracer (jittable, differentiable, float32-safe); any
+  broadcastable leading shapes; the result is an array of that library. Model parameters (k, theta_hg,
+  hot_spot) are static Python floats: they select a normalisation table that is built once in numpy (float64)
+  and cached.
 """
 
 from __future__ import annotations
@@ -31,9 +33,9 @@ import functools
 import logging
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
+from ..arrays import array_namespace
 from .albedo import DEFAULT_SNOW_ALBEDO
 from .water import (
     DEFAULT_WIND_SPEED,
@@ -203,22 +205,24 @@ def _build_snow_table():
 
 def _lerp_mu(table, mu):
     """Linear interpolation of ``table`` (..., _N_TABLE) given on the uniform grid 0..1 at ``mu`` (clipped)."""
-    x = jnp.clip(mu, 0.0, 1.0) * (_N_TABLE - 1)
-    i0 = jnp.clip(jnp.floor(x), 0, _N_TABLE - 2).astype(jnp.int32)
+    xp = array_namespace(table, mu)
+    x = xp.clip(mu, 0.0, 1.0) * (_N_TABLE - 1)
+    i0 = xp.clip(xp.floor(x), 0, _N_TABLE - 2).astype(xp.int32)
     f = x - i0
     return table[..., i0] * (1.0 - f) + table[..., i0 + 1] * f
 
 
 def _lerp_snow(mu, albedo):
     """Bilinear interpolation of the snow table at (albedo, mu), albedo clipped to its node range."""
-    table = jnp.asarray(_snow_table(), dtype=jnp.result_type(mu))
+    xp = array_namespace(mu, albedo)
+    table = xp.asarray(_snow_table(), dtype=xp.result_type(mu))
     n_a = _SNOW_ALBEDO_NODES.size
-    y = (jnp.clip(albedo, SNOW_SHAPE_ALBEDO_MIN, 1.0) - SNOW_SHAPE_ALBEDO_MIN) / (1.0 - SNOW_SHAPE_ALBEDO_MIN)
+    y = (xp.clip(albedo, SNOW_SHAPE_ALBEDO_MIN, 1.0) - SNOW_SHAPE_ALBEDO_MIN) / (1.0 - SNOW_SHAPE_ALBEDO_MIN)
     y = y * (n_a - 1)
-    j0 = jnp.clip(jnp.floor(y), 0, n_a - 2).astype(jnp.int32)
+    j0 = xp.clip(xp.floor(y), 0, n_a - 2).astype(xp.int32)
     fy = y - j0
-    x = jnp.clip(mu, 0.0, 1.0) * (_N_TABLE - 1)
-    i0 = jnp.clip(jnp.floor(x), 0, _N_TABLE - 2).astype(jnp.int32)
+    x = xp.clip(mu, 0.0, 1.0) * (_N_TABLE - 1)
+    i0 = xp.clip(xp.floor(x), 0, _N_TABLE - 2).astype(xp.int32)
     fx = x - i0
     lo = table[j0, i0] * (1.0 - fx) + table[j0, i0 + 1] * fx
     hi = table[j0 + 1, i0] * (1.0 - fx) + table[j0 + 1, i0 + 1] * fx
@@ -230,34 +234,37 @@ def _lerp_snow(mu, albedo):
 # --------------------------------------------------------------------------------------------------------
 def _geometry(sun, view, normal):
     """Cosines (floored at MU_MIN), cos(sun, view), the RPV hot-spot distance G and the visibility mask."""
-    sun = jnp.asarray(sun)
-    view = jnp.asarray(view)
+    xp = array_namespace(sun, view, normal)
+    sun = xp.asarray(sun)
+    view = xp.asarray(view)
     n = _normal_or_up(normal, sun)
     mu_i = _dot(sun, n)
     mu_v = _dot(view, n)
     visible = (mu_i > 0.0) & (mu_v > 0.0)
-    mi = jnp.maximum(mu_i, MU_MIN)
-    mv = jnp.maximum(mu_v, MU_MIN)
+    mi = xp.maximum(mu_i, MU_MIN)
+    mv = xp.maximum(mu_v, MU_MIN)
     # G = |tan-vector of sun - tan-vector of view| along the surface (0 at the hot spot, view = sun)
     d = (sun - mu_i[..., None] * n) / mi[..., None] - (view - mu_v[..., None] * n) / mv[..., None]
-    hot_g = jnp.sqrt(_dot(d, d))
-    cos_sv = jnp.clip(_dot(sun, view), -1.0, 1.0)
+    hot_g = xp.sqrt(_dot(d, d))
+    cos_sv = xp.clip(_dot(sun, view), -1.0, 1.0)
     return mi, mv, cos_sv, hot_g, visible
 
 
 def _rpv_shape(geom, k, theta, rho_c):
     mi, mv, cos_sv, hot_g, visible = geom
-    q = jnp.asarray(_rpv_table(k, theta, rho_c), dtype=mi.dtype)
-    shape = _rpv_reduced(jnp, mi, mv, cos_sv, hot_g, k, theta, rho_c) * _lerp_mu(q, mi) * _lerp_mu(q, mv)
-    return jnp.where(visible, shape, 0.0)
+    xp = array_namespace(mi, mv, cos_sv, hot_g)
+    q = xp.asarray(_rpv_table(k, theta, rho_c), dtype=mi.dtype)
+    shape = _rpv_reduced(xp, mi, mv, cos_sv, hot_g, k, theta, rho_c) * _lerp_mu(q, mi) * _lerp_mu(q, mv)
+    return xp.where(visible, shape, 0.0)
 
 
 def _snow_shape(geom, albedo):
     """Normalised snow shape (DHR 1) for ``albedo`` broadcast against the geometry (channels last if any)."""
     mi, mv, cos_sv, _, visible = geom
-    a = jnp.clip(albedo, SNOW_SHAPE_ALBEDO_MIN, 1.0)
-    shape = _snow_raw(jnp, mi, mv, cos_sv, a) * _lerp_snow(mi, a) * _lerp_snow(mv, a)
-    return jnp.where(visible, shape, 0.0)
+    xp = array_namespace(mi, mv, cos_sv, albedo)
+    a = xp.clip(albedo, SNOW_SHAPE_ALBEDO_MIN, 1.0)
+    shape = _snow_raw(xp, mi, mv, cos_sv, a) * _lerp_snow(mi, a) * _lerp_snow(mv, a)
+    return xp.where(visible, shape, 0.0)
 
 
 def _static(value, name):
@@ -280,10 +287,11 @@ def reflectance_factor_lambertian(albedo):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         R = a [-], same shape. Directional-hemispherical reflectance a at every sun angle.
     """
-    return jnp.asarray(albedo)
+    xp = array_namespace(albedo)
+    return xp.asarray(albedo)
 
 
 def reflectance_factor_rpv1993(sun, view, normal=None, albedo=1.0, k=RPV_K, theta_hg=RPV_THETA_HG,
@@ -312,7 +320,7 @@ def reflectance_factor_rpv1993(sun, view, normal=None, albedo=1.0, k=RPV_K, thet
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape broadcast(sun, view, normal)[:-1] broadcast with ``albedo``: R [-], 0 where mu_i <= 0 or
         mu_v <= 0. With cos g = sun . view (g the phase angle, 0 at the hot spot) and
         G = |tan theta_i e_i - tan theta_v e_v| (the distance of the two directions in the tangent plane),
@@ -333,8 +341,9 @@ def reflectance_factor_rpv1993(sun, view, normal=None, albedo=1.0, k=RPV_K, thet
     (k, theta_hg, hot_spot) in ~0.1 s.
     """
     k, theta_hg, hot_spot = _static(k, "k"), _static(theta_hg, "theta_hg"), _static(hot_spot, "hot_spot")
-    geom = _geometry(sun, view, normal)
-    return jnp.asarray(albedo) * _rpv_shape(geom, k, theta_hg, hot_spot)
+    xp = array_namespace(sun, view, normal, albedo)
+    geom = _geometry(xp.asarray(sun), xp.asarray(view), normal)
+    return xp.asarray(albedo) * _rpv_shape(geom, k, theta_hg, hot_spot)
 
 
 def reflectance_factor_snow_kokhanovsky2004(sun, view, normal=None, albedo=SNOW_ALBEDO[1]):
@@ -354,7 +363,7 @@ def reflectance_factor_snow_kokhanovsky2004(sun, view, normal=None, albedo=SNOW_
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape broadcast(sun, view, normal)[:-1] broadcast with ``albedo``: R [-], 0 where mu_i <= 0 or
         mu_v <= 0. With theta the scattering angle (cos theta = -sun . view, 180 deg = backscatter),
 
@@ -375,15 +384,16 @@ def reflectance_factor_snow_kokhanovsky2004(sun, view, normal=None, albedo=SNOW_
     1529-1535.
     Cost: ~40 flops, arccos, 4 exp and four table look-ups per albedo.
     """
-    geom = _geometry(sun, view, normal)
-    a = jnp.asarray(albedo)
+    xp = array_namespace(sun, view, normal, albedo)
+    geom = _geometry(xp.asarray(sun), xp.asarray(view), normal)
+    a = xp.asarray(albedo)
     return a * _snow_shape(geom, a)
 
 
-def _pixel_field(value, lead_ndim, dtype):
-    """A per-pixel field of shape (...) as an array; a trailing length-1 axis beyond the pixel rank (the
-    channel-broadcastable form (..., 1)) is dropped, so that both forms give the same result."""
-    x = jnp.asarray(value, dtype=dtype)
+def _pixel_field(xp, value, lead_ndim, dtype):
+    """A per-pixel field of shape (...) as an array of the library ``xp``; a trailing length-1 axis beyond the
+    pixel rank (the channel-broadcastable form (..., 1)) is dropped, so that both forms give the same result."""
+    x = xp.asarray(value, dtype=dtype)
     if x.ndim == lead_ndim + 1 and x.shape[-1] == 1:
         x = x[..., 0]
     return x
@@ -425,7 +435,7 @@ def surface_reflectance_factor(sun, view, normal, albedo, snow_cover=0.0, land_m
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape broadcast of the leading shapes + (C,): R [-], 0 where mu_i <= 0 or mu_v <= 0,
 
             R = f [(1 - s) RPV(albedo) + s snow(snow_albedo)] + (1 - f) [glint + water-leaving],
@@ -442,20 +452,22 @@ def surface_reflectance_factor(sun, view, normal, albedo, snow_cover=0.0, land_m
     (no control flow under jit).
     """
     k, theta_hg, hot_spot = _static(k, "k"), _static(theta_hg, "theta_hg"), _static(hot_spot, "hot_spot")
-    sun = jnp.asarray(sun)
-    view = jnp.asarray(view)
+    xp = array_namespace(sun, view, normal, albedo, snow_cover, land_mask, wind_speed, snow_albedo,
+                         subsurface_reflectance)
+    sun = xp.asarray(sun)
+    view = xp.asarray(view)
     n = _normal_or_up(normal, sun)
     geom = _geometry(sun, view, n)
     dtype = geom[0].dtype
-    albedo = jnp.asarray(albedo, dtype=dtype)
+    albedo = xp.asarray(albedo, dtype=dtype)
     lead_ndim = max(sun.ndim, view.ndim, n.ndim, albedo.ndim) - 1
-    s = jnp.clip(_pixel_field(snow_cover, lead_ndim, dtype), 0.0, 1.0)[..., None]
-    f = jnp.clip(_pixel_field(land_mask, lead_ndim, dtype), 0.0, 1.0)[..., None]
-    wind = _pixel_field(wind_speed, lead_ndim, dtype)
+    s = xp.clip(_pixel_field(xp, snow_cover, lead_ndim, dtype), 0.0, 1.0)[..., None]
+    f = xp.clip(_pixel_field(xp, land_mask, lead_ndim, dtype), 0.0, 1.0)[..., None]
+    wind = _pixel_field(xp, wind_speed, lead_ndim, dtype)
 
     rpv = _rpv_shape(geom, k, theta_hg, hot_spot)[..., None] * albedo
     geom_c = tuple(x[..., None] for x in geom)  # channel axis last
-    a_snow = jnp.asarray(snow_albedo, dtype=dtype)
+    a_snow = xp.asarray(snow_albedo, dtype=dtype)
     snow = a_snow * _snow_shape(geom_c, a_snow)
     land = (1.0 - s) * rpv + s * snow
 
@@ -483,20 +495,21 @@ def surface_diffuse_albedo(albedo, snow_cover=0.0, land_mask=1.0, *, snow_albedo
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape (..., C) [-]: f [(1 - s) a + s a_snow] + (1 - f) a_water, with the water albedo the Fresnel
         reflectance for a uniform sky (:func:`swim.surface.water.water_diffuse_albedo`, 0.067) plus the
         water-leaving part R_sub (1 - 0.067)^2 / (n^2 (1 - r_int R_sub)) (~0.49 R_sub). Over land this is the
         directional-hemispherical reflectance of :func:`surface_reflectance_factor` at every sun angle.
     """
-    albedo = jnp.asarray(albedo)
+    xp = array_namespace(albedo, snow_cover, land_mask, snow_albedo, subsurface_reflectance)
+    albedo = xp.asarray(albedo)
     lead_ndim = albedo.ndim - 1
-    s = jnp.clip(_pixel_field(snow_cover, lead_ndim, albedo.dtype), 0.0, 1.0)[..., None]
-    f = jnp.clip(_pixel_field(land_mask, lead_ndim, albedo.dtype), 0.0, 1.0)[..., None]
-    land = (1.0 - s) * albedo + s * jnp.asarray(snow_albedo, dtype=albedo.dtype)
+    s = xp.clip(_pixel_field(xp, snow_cover, lead_ndim, albedo.dtype), 0.0, 1.0)[..., None]
+    f = xp.clip(_pixel_field(xp, land_mask, lead_ndim, albedo.dtype), 0.0, 1.0)[..., None]
+    land = (1.0 - s) * albedo + s * xp.asarray(snow_albedo, dtype=albedo.dtype)
     n_w = float(refractive_index)
     rho_bar = water_diffuse_albedo(n_w)
     r_int = 1.0 - (1.0 - rho_bar) / n_w**2
-    r_sub = jnp.asarray(subsurface_reflectance, dtype=albedo.dtype)
+    r_sub = xp.asarray(subsurface_reflectance, dtype=albedo.dtype)
     water = rho_bar + r_sub * (1.0 - rho_bar) ** 2 / (n_w**2 * (1.0 - r_int * r_sub))
     return f * land + (1.0 - f) * water

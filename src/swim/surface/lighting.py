@@ -15,7 +15,8 @@ direct light and ARF = 1 for the diffuse light. swim evaluates it on the *tilted
   the sky with the Fresnel reflectance of the view angle (bright towards the horizon); ``model="lambertian"`` gives
   R = a everywhere (the plane-parallel references of the validation suite assume it).
 
-All inputs are per ray (the ground point of each ray); the function is written in ``jax.numpy`` so that the
+All inputs are per ray (the ground point of each ray); the functions compute in the array library of their
+inputs (numpy, or ``jax.numpy`` for JAX arrays and tracers inside ``jax.jit``; :mod:`swim.arrays`) so that the
 kernel and the float64 reference evaluate the same expressions. On CPUs the renderer evaluates the same expressions
 one ray at a time in numba (:func:`swim.rt.ground_cpu.surface_radiance`), which ``tests/unit/rt/test_ground_cpu.py``
 holds to this function.
@@ -23,8 +24,7 @@ holds to this function.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
-
+from ..arrays import array_namespace
 from .brdf import surface_diffuse_albedo, surface_reflectance_factor
 from .water import fresnel_reflectance, water_diffuse_albedo
 
@@ -44,11 +44,15 @@ def facet_normal(up, slope):
 
     The scene frame's x and y axes stand in for local east and north (their difference is the earth's
     curvature across the domain, < 1 degree per 100 km); the gradient is projected onto the local horizontal.
+    The result is an array of the library of the inputs (numpy or JAX, :mod:`swim.arrays`).
     """
-    g = jnp.concatenate([slope, jnp.zeros_like(slope[:, :1])], axis=1)
-    g = g - jnp.sum(g * up, axis=1, keepdims=True) * up
+    xp = array_namespace(up, slope)
+    up = xp.asarray(up)
+    slope = xp.asarray(slope)
+    g = xp.concatenate([slope, xp.zeros_like(slope[:, :1])], axis=1)
+    g = g - xp.sum(g * up, axis=1, keepdims=True) * up
     n = up - g
-    return n / jnp.linalg.norm(n, axis=1, keepdims=True)
+    return n / xp.linalg.norm(n, axis=1, keepdims=True)
 
 
 def surface_radiance(up, view, sun, slope, albedo, land_fraction, snow_cover, wind_speed, direct, diffuse,
@@ -80,23 +84,27 @@ def surface_radiance(up, view, sun, slope, albedo, land_fraction, snow_cover, wi
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape (n, 3): L' [-] at the surface (before the attenuation towards the observer).
 
     References
     ----------
     Albers et al. (2020), Sect. 3.7, Eq. 35, doi:10.5194/amt-13-3235-2020; docs/surfaces.md.
     """
-    up = jnp.asarray(up)
-    view = jnp.asarray(view)
-    sun = jnp.broadcast_to(jnp.asarray(sun), up.shape)
+    xp = array_namespace(up, view, sun, slope, albedo, land_fraction, snow_cover, wind_speed, direct, diffuse)
+    up = xp.asarray(up)
+    view = xp.asarray(view)
+    sun = xp.broadcast_to(xp.asarray(sun), up.shape)
+    albedo = xp.asarray(albedo)
+    direct = xp.asarray(direct)
+    diffuse = xp.asarray(diffuse)
     # Water is flat whatever the terrain gradient of a coastal cell says (a glint on a tilted sea is wrong).
-    land_fraction = jnp.asarray(land_fraction)
-    normal = facet_normal(up, jnp.where((land_fraction >= 0.5)[:, None], jnp.asarray(slope), 0.0))
-    cos_i = jnp.maximum(jnp.sum(normal * sun, axis=1), 0.0)
-    cos_slope = jnp.sum(normal * up, axis=1)
+    land_fraction = xp.asarray(land_fraction)
+    normal = facet_normal(up, xp.where((land_fraction >= 0.5)[:, None], xp.asarray(slope), 0.0))
+    cos_i = xp.maximum(xp.sum(normal * sun, axis=1), 0.0)
+    cos_slope = xp.sum(normal * up, axis=1)
     sky_view = 0.5 * (1.0 + cos_slope)
-    mu_s = jnp.maximum(jnp.sum(up * sun, axis=1), 0.0)
+    mu_s = xp.maximum(xp.sum(up * sun, axis=1), 0.0)
     global_horizontal = mu_s[:, None] * direct + diffuse
     # Diffuse light on the facet: the sky it sees plus the ground around it (Lambertian, same albedo).
     diffuse_facet = sky_view[:, None] * diffuse + (1.0 - sky_view)[:, None] * albedo * global_horizontal
@@ -104,8 +112,8 @@ def surface_radiance(up, view, sun, slope, albedo, land_fraction, snow_cover, wi
         return 4.0 * albedo * (cos_i[:, None] * direct + diffuse_facet)
     if model != "brdf":
         raise ValueError(f"surface model must be one of {SURFACE_MODELS}, got {model!r}")
-    facing = jnp.sum(normal * view, axis=1) > MIN_VIEW_COSINE
-    brdf_normal = jnp.where(facing[:, None], normal, up)
+    facing = xp.sum(normal * view, axis=1) > MIN_VIEW_COSINE
+    brdf_normal = xp.where(facing[:, None], normal, up)
     # The scene's albedo is that of the snow-free surface (docs/surfaces.md); the snow-covered part of the
     # land has the snow's own albedo and BRDF shape (forward peak).
     r_direct = surface_reflectance_factor(sun, view, brdf_normal, albedo, snow_cover, land_fraction, wind_speed)
@@ -113,7 +121,7 @@ def surface_radiance(up, view, sun, slope, albedo, land_fraction, snow_cover, wi
     # Water mirrors the (here isotropic) sky: its diffuse reflectance at the view angle is the Fresnel
     # reflectance there (0.02 looking down, ~0.35 near the horizon), whose cosine-weighted hemispheric mean
     # is the 0.067 of surface_diffuse_albedo (docs/surfaces.md §5).
-    mu_water = jnp.clip(jnp.sum(view * up, axis=1), MIN_WATER_VIEW_COSINE, 1.0)
+    mu_water = xp.clip(xp.sum(view * up, axis=1), MIN_WATER_VIEW_COSINE, 1.0)
     specular_sky = fresnel_reflectance(mu_water) - water_diffuse_albedo()
-    a_diffuse = a_diffuse + ((1.0 - jnp.clip(land_fraction, 0.0, 1.0)) * specular_sky)[:, None]
+    a_diffuse = a_diffuse + ((1.0 - xp.clip(land_fraction, 0.0, 1.0)) * specular_sky)[:, None]
     return 4.0 * (r_direct * cos_i[:, None] * direct + a_diffuse * diffuse_facet)

@@ -13,8 +13,10 @@ Conventions
   mu_v = view . normal.
 * Every reflectance is a bidirectional reflectance factor R [-]: the reflected radiance is
   ``L = R mu_i E_sun / pi``; a Lambertian surface of albedo a has R = a. R = 0 where mu_i <= 0 or mu_v <= 0.
-* ``jax.numpy`` throughout: jittable, float32-safe, numpy or jax input, any broadcastable leading shapes.
-  No input validation (values cannot be inspected under tracing).
+* Every function computes in the array library of its inputs (:mod:`swim.arrays`): numpy for numpy input,
+  ``jax.numpy`` where any input is a JAX array or tracer (jittable, differentiable, float32-safe); any
+  broadcastable leading shapes; the result is an array of that library. No input validation (values cannot be
+  inspected under tracing).
 """
 
 from __future__ import annotations
@@ -22,9 +24,9 @@ from __future__ import annotations
 import functools
 import logging
 
-import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import erfc
+
+from ..arrays import array_namespace, erfc
 
 _log = logging.getLogger(__name__)
 
@@ -50,14 +52,17 @@ _UP = (0.0, 0.0, 1.0)
 
 
 def _dot(a, b):
-    return jnp.sum(a * b, axis=-1)
+    xp = array_namespace(a, b)
+    return xp.sum(a * b, axis=-1)
 
 
 def _normal_or_up(normal, like):
-    """``normal`` as an array, or the vertical (0, 0, 1) in the dtype of ``like``."""
+    """``normal`` as an array of the library of ``normal`` and ``like``, or the vertical (0, 0, 1) in the dtype
+    of ``like``."""
+    xp = array_namespace(normal, like)
     if normal is None:
-        return jnp.asarray(_UP, dtype=jnp.result_type(like))
-    return jnp.asarray(normal)
+        return xp.asarray(_UP, dtype=xp.result_type(like))
+    return xp.asarray(normal)
 
 
 def specular_direction(sun, normal=None):
@@ -72,11 +77,12 @@ def specular_direction(sun, normal=None):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape broadcast(sun, normal): ``2 (sun . n) n - sun``, a unit vector towards the observer that sees
         the mirror image of the sun [-]. It has the same cosine to the normal as ``sun``.
     """
-    sun = jnp.asarray(sun)
+    xp = array_namespace(sun, normal)
+    sun = xp.asarray(sun)
     n = _normal_or_up(normal, sun)
     return 2.0 * _dot(sun, n)[..., None] * n - sun
 
@@ -93,7 +99,7 @@ def fresnel_reflectance(cos_incidence, refractive_index=WATER_REFRACTIVE_INDEX):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         rho = (r_s^2 + r_p^2) / 2 [-], with r_s = (c - n c_t) / (c + n c_t), r_p = (n c - c_t) / (n c + c_t),
         c_t = sqrt(1 - (1 - c^2) / n^2). rho = ((n - 1) / (n + 1))^2 at normal incidence (0.0204 for
         n = 1.334) and 1 at grazing incidence (c = 0); it decreases monotonically with c. Also valid for
@@ -103,12 +109,13 @@ def fresnel_reflectance(cos_incidence, refractive_index=WATER_REFRACTIVE_INDEX):
     -----
     Born, M. and Wolf, E., Principles of Optics, 7th ed., Sect. 1.5.2, doi:10.1017/CBO9781139644181.
     """
-    c = jnp.asarray(cos_incidence)
-    return _fresnel(jnp, c, jnp.asarray(refractive_index, dtype=jnp.result_type(c)))
+    xp = array_namespace(cos_incidence, refractive_index)
+    c = xp.asarray(cos_incidence)
+    return _fresnel(xp, c, xp.asarray(refractive_index, dtype=xp.result_type(c)))
 
 
 def _fresnel(xp, cos_incidence, n):
-    """Fresnel formula for numpy (float64 tables) or jax.numpy."""
+    """Fresnel formula in the array library ``xp`` (numpy or jax.numpy)."""
     c = xp.clip(cos_incidence, 0.0, 1.0)
     ct = xp.sqrt(1.0 - (1.0 - c * c) / (n * n))
     rs = (c - n * ct) / (c + n * ct)
@@ -127,7 +134,7 @@ def slope_variance_cox_munk1954(wind_speed):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         sigma^2 = 0.003 + 0.00512 U [-], the total mean-square slope (sum over both axes; each axis has
         sigma^2 / 2), same shape as ``wind_speed``.
 
@@ -136,7 +143,8 @@ def slope_variance_cox_munk1954(wind_speed):
     Cox, C. and Munk, W. (1954), J. Opt. Soc. Am. 44, 838-850, doi:10.1364/JOSA.44.000838, their
     sigma_u^2 + sigma_c^2 fit (r.m.s. error 0.004), used for waves of random orientation.
     """
-    u = jnp.maximum(jnp.asarray(wind_speed), 0.0)
+    xp = array_namespace(wind_speed)
+    u = xp.maximum(xp.asarray(wind_speed), 0.0)
     return COX_MUNK_MSS_OFFSET + COX_MUNK_MSS_PER_WIND * u
 
 
@@ -152,11 +160,12 @@ def slope_pdf_isotropic_gaussian(tan2_tilt, slope_variance):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         p = exp(-tan^2 beta / sigma^2) / (pi sigma^2) [-]; its integral over the slope plane dz_x dz_y is 1.
     """
-    s2 = jnp.asarray(slope_variance)
-    return jnp.exp(-jnp.asarray(tan2_tilt) / s2) / (jnp.pi * s2)
+    xp = array_namespace(tan2_tilt, slope_variance)
+    s2 = xp.asarray(slope_variance)
+    return xp.exp(-xp.asarray(tan2_tilt) / s2) / (xp.pi * s2)
 
 
 def _mu_times_smith_lambda(mu, sigma):
@@ -165,9 +174,11 @@ def _mu_times_smith_lambda(mu, sigma):
     Lambda(mu) = 1/2 [exp(-a^2) / (a sqrt(pi)) - erfc(a)], a = mu / (sigma sqrt(1 - mu^2)); multiplied by mu
     it stays finite at mu = 0 (sigma / (2 sqrt(pi))) and is 0 at mu = 1.
     """
-    s = jnp.sqrt(jnp.maximum(1.0 - mu * mu, 1e-12))
+    xp = array_namespace(mu, sigma)
+    mu = xp.asarray(mu)
+    s = xp.sqrt(xp.maximum(1.0 - mu * mu, 1e-12))
     a = mu / (sigma * s)
-    return 0.5 * (s * sigma / jnp.sqrt(jnp.pi) * jnp.exp(-a * a) - mu * erfc(a))
+    return 0.5 * (s * sigma / xp.sqrt(xp.pi) * xp.exp(-a * a) - mu * erfc(a))
 
 
 def shadowing_smith1967(mu_i, mu_v, slope_variance):
@@ -182,7 +193,7 @@ def shadowing_smith1967(mu_i, mu_v, slope_variance):
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         S [-] in (0, 1]; 1 at mu = 1, -> 0 at grazing angles.
 
     Notes
@@ -192,9 +203,10 @@ def shadowing_smith1967(mu_i, mu_v, slope_variance):
     Lambda satisfies mu (1 + Lambda(mu)) = integral of p(z) max(0, mu - z . v_h) dz (projected facet area),
     which the tests check.
     """
-    mu_i = jnp.asarray(mu_i)
-    mu_v = jnp.asarray(mu_v)
-    sigma = jnp.sqrt(jnp.asarray(slope_variance))
+    xp = array_namespace(mu_i, mu_v, slope_variance)
+    mu_i = xp.asarray(mu_i)
+    mu_v = xp.asarray(mu_v)
+    sigma = xp.sqrt(xp.asarray(slope_variance))
     num = mu_i * mu_v
     return num / (num + mu_v * _mu_times_smith_lambda(mu_i, sigma) + mu_i * _mu_times_smith_lambda(mu_v, sigma))
 
@@ -221,7 +233,7 @@ def sun_glint_reflectance_factor_cox_munk1954(sun, view, normal=None, wind_speed
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape broadcast(sun, view, normal)[:-1]: R [-], 0 where mu_i <= 0 or mu_v <= 0. With the facet
         normal h = (sun + view) / |sun + view|, its tilt beta from the mean normal and the angle of incidence
         omega on the facet (cos omega = sun . h),
@@ -241,31 +253,32 @@ def sun_glint_reflectance_factor_cox_munk1954(sun, view, normal=None, wind_speed
     and Travis (1997), doi:10.1029/96JD02425. Single reflection only; no whitecaps.
     Cost: ~40 flops, one exp and one erfc per call (x2 for the shadowing).
     """
-    sun = jnp.asarray(sun)
-    view = jnp.asarray(view)
+    xp = array_namespace(sun, view, normal, wind_speed, refractive_index)
+    sun = xp.asarray(sun)
+    view = xp.asarray(view)
     n = _normal_or_up(normal, sun)
     mu_i = _dot(sun, n)
     mu_v = _dot(view, n)
     visible = (mu_i > 0.0) & (mu_v > 0.0)
-    s2 = slope_variance_cox_munk1954(wind_speed)
+    s2 = slope_variance_cox_munk1954(xp.asarray(wind_speed))
 
     w = sun + view
-    mu_sum = jnp.maximum(mu_i + mu_v, 1e-6)
+    mu_sum = xp.maximum(mu_i + mu_v, 1e-6)
     w_t = w - (mu_i + mu_v)[..., None] * n  # component of sun + view along the mean surface
     tan2 = _dot(w_t, w_t) / (mu_sum * mu_sum)
-    cos_omega = jnp.sqrt(jnp.clip(0.5 * (1.0 + _dot(sun, view)), 0.0, 1.0))
+    cos_omega = xp.sqrt(xp.clip(0.5 * (1.0 + _dot(sun, view)), 0.0, 1.0))
     rho = fresnel_reflectance(cos_omega, refractive_index)
     # 1 / cos^4 beta = (1 + tan^2 beta)^2; the exp(-tan^2/sigma^2) of p wins for large tilts
     facet = slope_pdf_isotropic_gaussian(tan2, s2) * (1.0 + tan2) ** 2
 
-    mi = jnp.maximum(mu_i, GLINT_MU_FLOOR)
-    mv = jnp.maximum(mu_v, GLINT_MU_FLOOR)
+    mi = xp.maximum(mu_i, GLINT_MU_FLOOR)
+    mv = xp.maximum(mu_v, GLINT_MU_FLOOR)
     denom = mi * mv
     if shadowing:
-        sigma = jnp.sqrt(s2)
+        sigma = xp.sqrt(s2)
         denom = denom + mv * _mu_times_smith_lambda(mi, sigma) + mi * _mu_times_smith_lambda(mv, sigma)
-    r = jnp.pi * rho * facet / (4.0 * denom)
-    return jnp.where(visible, r, 0.0)
+    r = xp.pi * rho * facet / (4.0 * denom)
+    return xp.where(visible, r, 0.0)
 
 
 @functools.cache
@@ -317,7 +330,7 @@ def water_leaving_reflectance(sun, view, normal=None, subsurface_reflectance=WAT
 
     Returns
     -------
-    jax.Array
+    numpy.ndarray or jax.Array
         Shape broadcast(sun, view, normal)[:-1] + (C,): R [-], 0 where mu_i <= 0 or mu_v <= 0. The
         subsurface light field is taken as Lambertian:
 
@@ -333,15 +346,16 @@ def water_leaving_reflectance(sun, view, normal=None, subsurface_reflectance=WAT
     / n^2 transfer across the surface); Morel, A. and Gentili, B. (1996), Appl. Opt. 35, 4850-4862,
     doi:10.1364/AO.35.004850; values of R_sub: see docs/surface-reflectance.md.
     """
-    sun = jnp.asarray(sun)
-    view = jnp.asarray(view)
+    xp = array_namespace(sun, view, normal, subsurface_reflectance)
+    sun = xp.asarray(sun)
+    view = xp.asarray(view)
     n = _normal_or_up(normal, sun)
     mu_i = _dot(sun, n)
     mu_v = _dot(view, n)
     visible = (mu_i > 0.0) & (mu_v > 0.0)
-    r_sub = jnp.asarray(subsurface_reflectance, dtype=jnp.result_type(mu_i))
+    r_sub = xp.asarray(subsurface_reflectance, dtype=xp.result_type(mu_i))
     n_w = float(refractive_index)
     r_int = 1.0 - (1.0 - water_diffuse_albedo(n_w)) / n_w**2
     t = (1.0 - fresnel_reflectance(mu_i, n_w)) * (1.0 - fresnel_reflectance(mu_v, n_w)) / n_w**2
     r = t[..., None] * (r_sub / (1.0 - r_int * r_sub))
-    return jnp.where(visible[..., None], r, 0.0)
+    return xp.where(visible[..., None], r, 0.0)

@@ -7,8 +7,6 @@ from .disort import (
     disort_cloud_layer_irradiance,
     disort_cloud_layer_radiance,
     disort_clear_sky_radiance,
-    phase_function_legendre_moments,
-    rayleigh_legendre_moments,
 )
 
 __all__ = [
@@ -18,6 +16,4 @@ __all__ = [
     "disort_cloud_layer_radiance",
     "disort_clear_sky_irradiance",
     "disort_clear_sky_radiance",
-    "phase_function_legendre_moments",
-    "rayleigh_legendre_moments",
 ]

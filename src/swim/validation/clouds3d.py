@@ -216,7 +216,7 @@ def block_means(image, mask, stderr=None, block=BLOCK, min_fraction=0.5):
 def settings_3d():
     """swim's settings of the comparison: the 3-D cloud scattering with the references' phase function."""
     from ..rt.clouds import CloudScattering
-    from ..rt.march import MarchSettings
+    from ..rt.march_settings import MarchSettings
 
     return MarchSettings(cloud_scattering=CloudScattering("discrete_ordinates", PHASE))
 

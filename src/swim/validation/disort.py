@@ -31,19 +31,16 @@ Conventions (verified in ``tests/validation/test_clear_sky_disort.py``)
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from ..constants import ATMOSPHERE_TOP_M, WAVELENGTHS_NM
 from ..diagnostics.irradiance import radiance_without_sun_disk, sky_irradiance
 from ..errors import SwimInputError
 from ..frames import enu_from_azimuth_zenith
+from ..optics.legendre import phase_function_legendre_moments, rayleigh_legendre_moments
 from ..rt.gas import AerosolBackground, build_gas_tables
 
 __all__ = [
-    "rayleigh_legendre_moments",
-    "phase_function_legendre_moments",
     "clear_sky_layers",
     "disort_clear_sky_radiance",
     "disort_clear_sky_irradiance",
@@ -54,76 +51,6 @@ __all__ = [
     "disort_cloud_layer_radiance",
     "disort_cloud_layer_irradiance",
 ]
-
-
-def rayleigh_legendre_moments(depolarization, n_moments):
-    """Legendre moments chi_l of the depolarised Rayleigh phase function (DISORT normalisation).
-
-    P(mu) = 3 / (4 (1 + 2 gamma)) ((1 + 3 gamma) + (1 - gamma) mu^2) with gamma = rho / (2 - rho)
-    (:func:`swim.optics.rayleigh.rayleigh_phase_function`). Writing mu^2 = (1 + 2 P_2(mu)) / 3 gives
-    P = 1 + (1 - gamma) / (2 (1 + 2 gamma)) P_2, i.e. with P = sum (2l + 1) chi_l P_l:
-    chi_0 = 1, chi_1 = 0, chi_2 = (1 - gamma) / (10 (1 + 2 gamma)) = (1 - rho) / (5 (2 + rho)), chi_l>2 = 0
-    (0.1 for rho = 0, the classical value).
-
-    Parameters
-    ----------
-    depolarization : float
-        Depolarisation ratio rho [-].
-    n_moments : int
-        Highest moment index (the array has n_moments + 1 entries), >= 2.
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape (n_moments + 1,).
-    """
-    rho = float(depolarization)
-    chi = np.zeros(int(n_moments) + 1)
-    chi[0] = 1.0
-    chi[2] = (1.0 - rho) / (5.0 * (2.0 + rho))
-    return chi
-
-
-def phase_function_legendre_moments(phase_function, n_moments, n_quad=None):
-    """Legendre moments chi_l = 1/2 int_{-1}^{1} P(mu) P_l(mu) dmu by Gauss-Legendre quadrature.
-
-    Parameters
-    ----------
-    phase_function : callable
-        cos(theta) array (n,) -> P, shape (n,) or (n, k), normalised to mean 1 over the sphere.
-    n_moments : int
-        Highest moment index.
-    n_quad : int, optional
-        Quadrature points; default max(4 n_moments, 2048).
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape (n_moments + 1,) or (n_moments + 1, k); chi_0 is 1 for a normalised P.
-    """
-    n_quad = int(n_quad or max(4 * n_moments, 2048))
-    x, w = _gauss_legendre(n_quad)
-    p = np.asarray(phase_function(x), dtype=float)
-    # Legendre polynomials by the three-term recurrence, P_l(x) for l = 0..n_moments
-    pl = np.empty((n_moments + 1, n_quad))
-    pl[0] = 1.0
-    if n_moments >= 1:
-        pl[1] = x
-    for l in range(1, n_moments):
-        pl[l + 1] = ((2 * l + 1) * x * pl[l] - l * pl[l - 1]) / (l + 1)
-    wp = p * w[:, None] if p.ndim == 2 else p * w
-    return 0.5 * (pl @ wp)
-
-
-@functools.lru_cache(maxsize=4)
-def _gauss_legendre(n):
-    """Gauss-Legendre nodes and weights on [-1, 1] (SciPy's O(n) algorithm; numpy's leggauss is O(n^3))."""
-    from scipy.special import roots_legendre
-
-    x, w = roots_legendre(int(n))
-    x.flags.writeable = False
-    w.flags.writeable = False
-    return x, w
 
 
 def _layer_edges(n_layers, top=ATMOSPHERE_TOP_M):
@@ -396,7 +323,7 @@ def reference_settings(settings=None):
     ``MarchSettings()``) with a Lambertian ground, which is what DISORT and the Mitsuba scenes assume."""
     import dataclasses
 
-    from ..rt.march import MarchSettings
+    from ..rt.march_settings import MarchSettings
 
     return dataclasses.replace(MarchSettings() if settings is None else settings, surface="lambertian")
 
@@ -404,17 +331,17 @@ def reference_settings(settings=None):
 def paper_method_settings():
     """``MarchSettings(cloud_scattering="albers2020")``: the paper's cloud scattering (Eqs. 12-26), which the
     comparisons of its own phase functions (an HG cloud against DISORT, the RICO references) default to."""
-    from ..rt.march import MarchSettings
+    from ..rt.march_settings import MarchSettings
 
     return MarchSettings(cloud_scattering="albers2020")
 
 
 def render_settings_variants():
     """Renderer settings to compare: ``{"default": MarchSettings()}``, plus ``"single scattering"`` (the
-    renderer with ``multiple_scattering=False``) where :class:`swim.rt.march.MarchSettings` has that field."""
+    renderer with ``multiple_scattering=False``) where :class:`swim.rt.march_settings.MarchSettings` has that field."""
     import dataclasses
 
-    from ..rt.march import MarchSettings
+    from ..rt.march_settings import MarchSettings
 
     variants = {"default": reference_settings()}
     if "multiple_scattering" in {f.name for f in dataclasses.fields(MarchSettings)}:

@@ -629,7 +629,7 @@ def swim_view(scene, view, sun_zenith_deg, settings=None, march_settings=None):
         Sun zenith angle [deg].
     settings : dict, optional
         Overrides of :data:`RICO_SETTINGS`.
-    march_settings : swim.rt.march.MarchSettings, optional
+    march_settings : swim.rt.march_settings.MarchSettings, optional
         Renderer settings (default: the renderer's with ``cloud_scattering="albers2020"``, the paper's method, whose
         own phase functions these references compare; the 3-D method against references with its phase
         function: :mod:`swim.validation.clouds3d`).
@@ -876,7 +876,7 @@ def rico_table_rows(les_dir=None, ref_dir=None, cases=None, render=True, march_s
         Keys of :data:`RICO_CASES` (default: all whose reference file exists).
     render : bool
         Render swim now (default); otherwise use the swim image stored with the reference.
-    march_settings : swim.rt.march.MarchSettings, optional
+    march_settings : swim.rt.march_settings.MarchSettings, optional
         Renderer settings (default: those of :func:`swim_view`).
     images : bool
         Include the image pair (``swim``, ``mitsuba`` (3, ny, nx)) in each row.

@@ -187,7 +187,7 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
         The sun [deg].
     camera_size : int
         All-sky image size [pixels] (odd: the centre pixel looks at the zenith).
-    settings : swim.rt.march.MarchSettings, optional
+    settings : swim.rt.march_settings.MarchSettings, optional
         Renderer settings (default: ``cloud_scattering="albers2020"``, the paper's method, with its own phase
         functions; the 3-D method's comparisons pass its settings and its phase function's moments as ``g``).
     aerosol : AerosolBackground, optional

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from swim.cli.main import app
 from swim.rt.image_sampling import AdaptiveSampling
-from swim.rt.march import MarchSettings
+from swim.rt.march_settings import MarchSettings
 
 SETTINGS = {"MarchSettings": MarchSettings, "AdaptiveSampling": AdaptiveSampling}
 QUOTED = re.compile(r"(MarchSettings|AdaptiveSampling)\(\)\.(\w+), ([0-9.e+-]+)")

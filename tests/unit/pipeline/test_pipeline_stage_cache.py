@@ -303,7 +303,7 @@ def test_a_new_sun_beside_another_render_packs_the_grid_anew():
 def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
     """The C heap's trims (swim.memory) follow a big image's march and a new sun's Step 1a on the host's cores, not
     those on a GPU (docs/decisions/0006-gpu-kernels.md)."""
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     calls = []
     monkeypatch.setattr(pipeline, "release_free_memory", lambda: calls.append(1) or True)

@@ -133,7 +133,7 @@ def test_jax_evicts_entries_written_without_access_times(tmp_path):
     """An entry without JAX's access-time file (written while eviction was off, e.g. by an older swim beside this
     one) made JAX's eviction raise FileNotFoundError at every new compilation; swim's eviction gives it one first."""
     legacy = _file(tmp_path / "jax" / "jit_old-0123-cache", 4000, age_s=3600)
-    code = ("import jax, swim.rt; from jax._src.lru_cache import LRUCache\n"
+    code = ("import jax, swim.rt.export_cache; from jax._src.lru_cache import LRUCache\n"
             "print(jax.config.jax_compilation_cache_max_size)\n"
             "cache = LRUCache(jax.config.jax_compilation_cache_dir, max_size=5000)\n"
             "cache.put('jit_new-4567', b'y' * 1000)\n"

@@ -1,5 +1,5 @@
 """The numba composition of the clouds' radiance (:mod:`swim.rt.compose_cpu`) against the JAX one
-(:func:`swim.rt.march._compose_clouds`), which the physics tests hold to the paper's equations.
+(:func:`swim.rt.march_jax._compose_clouds`), which the physics tests hold to the paper's equations.
 
 Both are evaluated in float64 (JAX with ``jax.enable_x64``) on random ray states that cover every branch: no cloud,
 thin and thick clouds, each packed set of species, views from below, across the horizon and from above, a low, a
@@ -14,7 +14,8 @@ import pytest
 from swim.constants import BACKSCATTER_FRACTION, SPECIES
 from swim.optics.phase import G_LIQUID
 from swim.rt import compose_cpu
-from swim.rt.march import FROM_ABOVE_BLEND, _compose_clouds
+from swim.rt.march_jax import _compose_clouds
+from swim.rt.march_settings import FROM_ABOVE_BLEND
 
 
 def random_states(rng, n, species):
@@ -41,7 +42,7 @@ def random_states(rng, n, species):
 
 
 def jax_composition(st, species, mu0):
-    """:func:`swim.rt.march._compose_clouds` in float64: (radiance, clouds' radiance), (n, 3) each."""
+    """:func:`swim.rt.march_jax._compose_clouds` in float64: (radiance, clouds' radiance), (n, 3) each."""
     n = st["tau_h"].size
     tau_species = np.zeros((n, len(SPECIES)))
     tau_species[:, species] = st["tau_packed"]

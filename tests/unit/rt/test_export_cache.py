@@ -171,11 +171,11 @@ def test_the_jax_march_and_step_1a_are_read_by_a_new_process_with_the_same_image
     render whose programs are read from the cache gives the bits of one traced by jax.jit."""
     from swim.io.default_scene import default_scene
     from swim.pipeline import _STAGE_CACHE, render
-    from swim.rt import march, solar
-    from swim.rt.march import MarchSettings
+    from swim.rt import march_jax, solar_device
+    from swim.rt.march_settings import MarchSettings
 
     scene = default_scene()
-    kernels = (march._trace_chunk, march._probe_counts_chunk, solar._sweep)
+    kernels = (march_jax._trace_chunk, march_jax._probe_counts_chunk, solar_device._sweep)
 
     def image():
         _STAGE_CACHE.clear()  # Step 1a runs again

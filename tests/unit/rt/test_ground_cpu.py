@@ -1,5 +1,5 @@
 """The numba ground term (:mod:`swim.rt.ground_cpu`) against the JAX one (:func:`swim.surface.lighting.surface_radiance`
-and :func:`swim.rt.march._ground_radiance`), which the surface tests hold to the BRDFs' published forms and to
+and :func:`swim.rt.march_jax._ground_radiance`), which the surface tests hold to the BRDFs' published forms and to
 normalisation and reciprocity.
 
 The point function is compared in float64 (JAX with ``jax.enable_x64``) on random geometries that cover every branch:
@@ -19,13 +19,10 @@ from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
 from swim.rt import compose_cpu, ground_cpu, march_cpu
 from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
-from swim.rt.march import (
-    MarchSettings,
-    _ground_radiance,
-    _numba_tables,
-    aerosol_column_optical_depth,
-    kernel_constants,
-)
+from swim.rt.march import _numba_tables
+from swim.rt.march_inputs import aerosol_column_optical_depth, kernel_constants
+from swim.rt.march_jax import _ground_radiance
+from swim.rt.march_settings import MarchSettings
 from swim.rt.solar import solar_transmittance
 from swim.surface.lighting import MIN_VIEW_COSINE, facet_normal, surface_radiance
 

@@ -8,21 +8,11 @@ from swim.constants import EARTH_RADIUS_M
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
 from swim.rt.gas import AerosolBackground, build_gas_tables
-from swim.rt.march import (
-    EMPTY_CELLS_PER_STEP,
-    EMPTY_STEP_WEIGHT,
-    SUNLIT_CELLS_PER_STEP,
-    SUNLIT_CLEAR,
-    MarchSettings,
-    adaptive_step_edges,
-    grid_geometry,
-    grid_step_edges,
-    kernel_constants,
-    occupancy_grid,
-    probe_counts_and_cells,
-    ray_segments,
-    step_classes,
-)
+from swim.rt.march import ray_segments
+from swim.rt.march_inputs import grid_geometry, kernel_constants, occupancy_grid, step_classes
+from swim.rt.march_jax import adaptive_step_edges, grid_step_edges, probe_counts_and_cells
+from swim.rt.march_settings import (EMPTY_CELLS_PER_STEP, EMPTY_STEP_WEIGHT, SUNLIT_CELLS_PER_STEP, SUNLIT_CLEAR,
+                                    MarchSettings)
 from swim.rt.solar import solar_transmittance
 
 
@@ -47,11 +37,11 @@ def test_dilation_by_one_cell_is_scipys_maximum_filter(shape, numba, monkeypatch
     3 x 3 x ... maximum filter, at the grid's edges and along axes of one or two cells too."""
     from scipy.ndimage import maximum_filter
 
-    import swim.rt.march as march
-    from swim.rt.march import dilated_by_one_cell
+    import swim.rt.march_inputs as march_inputs
+    from swim.rt.march_inputs import dilated_by_one_cell
 
     if not numba:
-        monkeypatch.setattr(march, "_numba_available", lambda: False)
+        monkeypatch.setattr(march_inputs, "_numba_available", lambda: False)
     rng = np.random.default_rng(len(shape) * 10 + shape[0])
     for density in (0.0, 0.03, 0.3, 1.0):
         mask = rng.random(shape) < density
@@ -86,8 +76,8 @@ def test_occupancy_is_the_float32_species_sum_and_the_raised_terrain_dilated(sha
     a factor of 2 of the threshold, so that a wrong sum or a wrong species is seen."""
     from scipy.ndimage import maximum_filter
 
-    from swim.rt.march import (OCCUPIED_EXTINCTION, dilated_by_one_cell, pack_volume, packed_species,
-                               share_packed_channels)
+    from swim.rt.march_inputs import (OCCUPIED_EXTINCTION, dilated_by_one_cell, pack_volume, packed_species,
+                                      share_packed_channels)
 
     scene = _scene(terrain_peak=1200.0)
     rng = np.random.default_rng(5)
@@ -223,7 +213,7 @@ def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
     and without a limit of their own on the steps in sunlit clear air (the step classes of kernel_constants: the
     clear grid is all sunlit, the cloudy one sunlit above the slab and in its shadow below)."""
     from swim.rt import march_cpu
-    from swim.rt.march import CELL_SLACK, MAX_PROBES
+    from swim.rt.march_settings import CELL_SLACK, MAX_PROBES
 
     dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.8, 0.3, 0.52], [0.0, 0.0, -1.0], [0.1, 0.0, -0.995]]
     heights = [10.0, 10.0, 10.0, 9000.0, 9000.0]

@@ -9,7 +9,7 @@ import pytest
 from swim.errors import SwimInputError
 from swim.rt.clouds import CLOUD_METHODS, CloudScattering, as_cloud_scattering
 from swim.rt.diffuse_field import MAX_NODE_COSINE_CHANGE, DiffuseField, DiffuseSettings, solve_sun, solver_levels
-from swim.rt.march import MarchSettings
+from swim.rt.march_settings import MarchSettings
 
 
 def test_settings_take_a_method_name_and_hash():

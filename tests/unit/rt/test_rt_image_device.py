@@ -12,7 +12,7 @@ from swim.errors import SwimInputError
 from swim.rt import ray_table
 from swim.rt.image_device import planes_on_device
 from swim.rt.image_sampling import AdaptiveSampling
-from swim.rt.march import MarchSettings as _MarchSettings
+from swim.rt.march_settings import MarchSettings as _MarchSettings
 
 
 def MarchSettings(**kw):  # noqa: N802 - a stand-in for the class in this module's tests
@@ -93,6 +93,9 @@ def test_device_image_resolves_on_accelerators_beside_the_table(monkeypatch):
     assert MarchSettings(backend="jax", ray_table=True, device_image=True).resolved_device_image() is True
     assert MarchSettings(backend="jax", device_image=True).resolved_device_image() is False
     assert MarchSettings(backend="numba", ray_table=True, device_image=True).resolved_device_image() is False
+    from swim.rt import precompile
+
+    monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)  # JAX is asked only where it may see one
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert MarchSettings(backend="jax").resolved_device_image() is True
     assert MarchSettings(backend="jax", device_image=False).resolved_device_image() is False

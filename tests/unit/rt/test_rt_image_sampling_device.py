@@ -259,7 +259,7 @@ def test_a_render_with_device_sampling_gives_the_host_samplers_image():
     transmittance."""
     import swim
     from swim.rt import ray_table
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     scene = swim.default_scene()
     ray_table.forget_ray_tables()
@@ -290,7 +290,7 @@ def test_a_render_with_device_sampling_gives_the_host_samplers_image():
 
 def test_device_sampling_is_not_a_kernel_setting():
     """The switch is the sampler's, not the kernel's: a compiled kernel serves either value."""
-    from swim.rt.march import MarchSettings
+    from swim.rt.march_settings import MarchSettings
 
     assert MarchSettings(device_sampling=True).kernel_settings() == MarchSettings().kernel_settings()
     with pytest.raises(SwimInputError, match="device_sampling"):

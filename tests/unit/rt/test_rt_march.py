@@ -13,15 +13,9 @@ from swim.io.scene import scene_from_arrays
 from swim.optics.rayleigh import rayleigh_phase_function
 from swim.optics.volume import build_optical_volume
 from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
-from swim.rt.march import (
-    MarchSettings,
-    aerosol_column_optical_depth,
-    grid_geometry,
-    kernel_constants,
-    ray_segments,
-    ray_segments_compiled,
-    trace_rays,
-)
+from swim.rt.march import ray_segments, ray_segments_compiled, trace_rays
+from swim.rt.march_inputs import aerosol_column_optical_depth, grid_geometry, kernel_constants
+from swim.rt.march_settings import MarchSettings
 from swim.rt.reference import reference_trace_ray
 from swim.rt.solar import solar_transmittance
 
@@ -120,7 +114,7 @@ def test_the_air_in_front_of_the_ground_does_not_depend_on_the_step_count(backen
     2 m steps, with 1 to 400 grid steps. Were the step in which a ray meets the ground to count up to where its
     middle sample has gone below the ground, that light would be 10-410 % too bright with 1-32 grid steps (the whole
     radiance up to 2.6 %). It ends at the refined crossing, and where the crossing lies in the far half of
-    the step before, that step is taken back and taken again up to it (swim.rt.march._terminal_step;
+    the step before, that step is taken back and taken again up to it (swim.rt.march_jax._terminal_step;
     docs/decisions/0004-step-placement.md)."""
     scene = _tiny_scene().copy()
     for name in ("cloud_liquid_content", "cloud_ice_content"):
@@ -352,13 +346,14 @@ def test_the_grounds_term_of_a_chunk_with_ground_rays_matches_the_jax_kernel(mon
 @pytest.mark.full  # parity with the JAX kernel's set-up: the full tier, as the kernels' parity
 @pytest.mark.parametrize("plume", [True, False], ids=["five aerosol classes", "one class"])
 def test_numba_set_up_matches_the_jax_set_up(plume):
-    """The per-ray set-up of the CPU kernel (swim.rt.march_cpu.prepare_rays) is swim.rt.march._prepare_rays written
+    """The per-ray set-up of the CPU kernel (swim.rt.march_cpu.prepare_rays) is swim.rt.march_jax._prepare_rays written
     again: the same aerosol column class and the same diffuse-source profiles at each ray's lowest point, to
     float32 round-off (the JAX function computes in float32), for rays from the ground, inside the grid and above."""
     import jax
 
     from swim.rt import march_cpu
-    from swim.rt.march import _numba_tables, _prepare_rays
+    from swim.rt.march import _numba_tables
+    from swim.rt.march_jax import _prepare_rays
 
     scene = _tiny_scene(plume)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
@@ -436,7 +431,7 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     here (``stop_tau=0``)."""
     import jax.numpy as jnp
 
-    from swim.rt.march import after_step_counts
+    from swim.rt.march_jax import after_step_counts
 
     origins, dirs = _random_rays(300)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
@@ -461,7 +456,7 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     assert 30 < ground.sum() < 270, "rays must both meet the ground and miss it"
     np.testing.assert_array_equal(numba_out["steps"][~ground], full[~ground])
     # a ray whose segments end at the ground meets it in its last step or its end step; one that meets the terrain
-    # stops early; both then take one or two terminal steps, up to the crossing (swim.rt.march._terminal_step)
+    # stops early; both then take one or two terminal steps, up to the crossing (swim.rt.march_jax._terminal_step)
     assert np.all((numba_out["steps"][ground] >= 1) & (numba_out["steps"][ground] <= full[ground] + 3))
     assert (numba_out["steps"][ground] < full[ground]).sum() > 10
 
@@ -478,14 +473,14 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
 def test_backend_setting_is_checked_and_resolved(monkeypatch):
     import jax
 
-    from swim.rt import march
+    from swim.rt import march_settings
 
     with pytest.raises(SwimInputError, match="MarchSettings.backend"):
         MarchSettings(backend="opencl")
     assert MarchSettings(backend="jax").resolved_backend() == "jax"
     expected = "numba" if jax.default_backend() == "cpu" else "jax"
     assert MarchSettings().resolved_backend() == expected
-    monkeypatch.setattr(march, "_numba_available", lambda: False)
+    monkeypatch.setattr(march_settings, "_numba_available", lambda: False)
     assert MarchSettings().resolved_backend() == "jax"
     origins, dirs = _random_rays(3)
     with pytest.raises(SwimInputError, match="needs the numba package"):
@@ -495,19 +490,25 @@ def test_backend_setting_is_checked_and_resolved(monkeypatch):
 def test_chunk_follows_the_device_unless_given(monkeypatch):
     import jax
 
-    from swim.rt import march
+    from swim.rt import march_settings
 
     assert MarchSettings(chunk=1000).resolved_chunk() == 1000
     on_cpu = jax.default_backend() == "cpu"
-    assert MarchSettings().resolved_chunk() == (march.CPU_CHUNK if on_cpu else march.GPU_CHUNK)
+    assert MarchSettings().resolved_chunk() == (march_settings.CPU_CHUNK if on_cpu else march_settings.GPU_CHUNK)
+    from swim.rt import precompile
+
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert MarchSettings().resolved_chunk() == march.GPU_CHUNK  # the JAX kernel on a GPU: big chunks
+    # JAX is asked for its device only where it may see one (a GPU plugin installed)
+    monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: False)
+    assert MarchSettings().resolved_chunk() == march_settings.CPU_CHUNK
+    monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)
+    assert MarchSettings().resolved_chunk() == march_settings.GPU_CHUNK  # the JAX kernel on a GPU: big chunks
     assert MarchSettings().on_accelerator() and MarchSettings(backend="jax").on_accelerator()
-    assert MarchSettings(backend="numba").resolved_chunk() == march.CPU_CHUNK  # numba runs on the host's cores
+    assert MarchSettings(backend="numba").resolved_chunk() == march_settings.CPU_CHUNK  # numba runs on the host's cores
     assert not MarchSettings(backend="numba").on_accelerator()
     assert MarchSettings(chunk=8192).resolved_chunk() == 8192
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
-    assert MarchSettings(backend="jax").resolved_chunk() == march.CPU_CHUNK
+    assert MarchSettings(backend="jax").resolved_chunk() == march_settings.CPU_CHUNK
     assert not MarchSettings(backend="jax").on_accelerator()
 
 
@@ -519,7 +520,7 @@ def test_the_grid_loop_unrolled_gives_the_same_state(monkeypatch):
     import jax
     import jax.numpy as jnp
 
-    from swim.rt import march
+    from swim.rt import march_jax, march_settings
 
     n, n_steps, length, beta = 64, 16, 16.0, 0.6
     rng = np.random.default_rng(4)
@@ -536,7 +537,7 @@ def test_the_grid_loop_unrolled_gives_the_same_state(monkeypatch):
     state = {"tau_h": jnp.zeros(n, jnp.float32), "alive": jnp.ones(n, bool), "calls": jnp.zeros(n, jnp.int32)}
 
     def march_with(unroll):
-        run = jax.jit(lambda st, e, k: march._march_grid_refined(st, sample, e, n_steps, 0.25, k, unroll=unroll))
+        run = jax.jit(lambda st, e, k: march_jax._march_grid_refined(st, sample, e, n_steps, 0.25, k, unroll=unroll))
         return {key: np.asarray(value) for key, value in run(state, edges, steps).items()}
 
     one, two, three = march_with(1), march_with(2), march_with(3)
@@ -552,14 +553,14 @@ def test_the_grid_loop_unrolled_gives_the_same_state(monkeypatch):
     assert one["calls"].max() > n_steps and np.all(one["calls"] >= np.asarray(steps))  # refinements were taken
     assert np.abs(one["tau_h"] - exact).mean() < 0.5 * np.abs(plain - exact).mean()
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert march.grid_loop_unroll() == march.GRID_LOOP_UNROLL_ACCELERATOR
+    assert march_jax.grid_loop_unroll() == march_settings.GRID_LOOP_UNROLL_ACCELERATOR
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
-    assert march.grid_loop_unroll() == 1
+    assert march_jax.grid_loop_unroll() == 1
 
 
 @pytest.mark.parametrize("thickness", [0.3, 0.4, 0.45])
 def test_a_step_after_a_thick_one_is_halved_before_it_is_sampled(monkeypatch, thickness):
-    """Predicted halving (``march._predicted_halving``): inside a uniform cloud whose grid steps are each ``thickness``
+    """Predicted halving (``march_jax._predicted_halving``): inside a uniform cloud whose grid steps are each ``thickness``
     (> tau_refine 0.25, < twice it) thick, the first step is sampled, found too thick and halved (3 samples: the
     discarded one and its two halves); every later step follows an accumulated interval whose extinction predicts it
     too thick, so it is halved before any sample (2 samples), where without the prediction it takes 3. Where a ray
@@ -570,7 +571,7 @@ def test_a_step_after_a_thick_one_is_halved_before_it_is_sampled(monkeypatch, th
     import jax
     import jax.numpy as jnp
 
-    from swim.rt import march
+    from swim.rt import march_jax
 
     n_steps, ds = 8, 10.0
     beta = thickness / ds
@@ -594,12 +595,12 @@ def test_a_step_after_a_thick_one_is_halved_before_it_is_sampled(monkeypatch, th
 
     def run():
         samples[:] = 0
-        out = march._march_grid_refined(state, sample, edges, n_steps, 0.25, unroll=1)
+        out = march_jax._march_grid_refined(state, sample, edges, n_steps, 0.25, unroll=1)
         jax.effects_barrier()
         return {key: np.asarray(value) for key, value in out.items()}, samples.copy()
 
     predicted, with_prediction = run()
-    monkeypatch.setattr(march, "_predicted_halving", lambda adjacent, *args: jnp.zeros_like(adjacent))
+    monkeypatch.setattr(march_jax, "_predicted_halving", lambda adjacent, *args: jnp.zeros_like(adjacent))
     tested, without = run()
     # ray 1: 3 clear steps, the roll-back (1 discarded, 2 clear halves), the first cloud step (1 + 2), 4 cloud steps;
     # ray 2: 4 cloud steps, the clear step after them halved (1 + 2 or 2), 3 clear steps
@@ -618,7 +619,7 @@ def _grid_samples_of_both_kernels(monkeypatch, scene, largest_zenith, **settings
     both kernels (numba's ``steps`` is then its grid's count, with a terminal step at the ground)."""
     import jax
 
-    from swim.rt import march
+    from swim.rt import march_jax
 
     rng = np.random.default_rng(11)
     n = 240
@@ -633,7 +634,7 @@ def _grid_samples_of_both_kernels(monkeypatch, scene, largest_zenith, **settings
     def count(ds):
         counts[:ds.shape[0]] += np.asarray(ds) > 0
 
-    refined = march._march_grid_refined
+    refined = march_jax._march_grid_refined
 
     def counting(state, sample, *args, **kwargs):
         def counted(st, lo, ds):
@@ -641,8 +642,8 @@ def _grid_samples_of_both_kernels(monkeypatch, scene, largest_zenith, **settings
             return sample(st, lo, ds)
         return refined(state, counted, *args, **kwargs)
 
-    monkeypatch.setattr(march, "_march_grid_refined", counting)
-    monkeypatch.setattr(march, "_trace_chunk", jax.jit(march._trace_chunk.function, static_argnames=("settings",)))
+    monkeypatch.setattr(march_jax, "_march_grid_refined", counting)
+    monkeypatch.setattr(march_jax, "_trace_chunk", jax.jit(march_jax._trace_chunk.function, static_argnames=("settings",)))
     jax_out = _trace(scene, origins, dirs, sun, settings=MarchSettings(backend="jax", **settings))[0]
     jax.effects_barrier()
     numba_out = _trace(scene, origins, dirs, sun, settings=MarchSettings(backend="numba", **settings))[0]
@@ -699,12 +700,12 @@ def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
 def test_a_jax_chunk_s_error_reaches_the_caller_and_the_next_call_works(monkeypatch):
     """The JAX kernel's chunks run on a worker thread: an error in one of them is raised by trace_rays itself (not
     lost in the thread, no partial output), and the next call, on the same worker, traces every ray."""
-    from swim.rt import march
+    from swim.rt import march_jax
 
     origins, dirs = _random_rays(300, seed=5)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     settings = MarchSettings(backend="jax", chunk=64)
-    plain, calls = march._trace_chunk, []
+    plain, calls = march_jax._trace_chunk, []
 
     def failing(*args, **kwargs):
         calls.append(threading.current_thread().name)
@@ -712,11 +713,11 @@ def test_a_jax_chunk_s_error_reaches_the_caller_and_the_next_call_works(monkeypa
             raise FloatingPointError("chunk 2 failed")
         return plain(*args, **kwargs)
 
-    monkeypatch.setattr(march, "_trace_chunk", failing)
+    monkeypatch.setattr(march_jax, "_trace_chunk", failing)
     with pytest.raises(FloatingPointError, match="chunk 2 failed"):
         _trace(_tiny_scene(), origins, dirs, sun, settings=settings)
     assert all(name.startswith("swim-worker") for name in calls)
-    monkeypatch.setattr(march, "_trace_chunk", plain)
+    monkeypatch.setattr(march_jax, "_trace_chunk", plain)
     out = _trace(_tiny_scene(), origins, dirs, sun, settings=settings)[0]
     assert out["radiance"].shape == (300, 3) and np.all(np.isfinite(out["radiance"]))
 
@@ -748,15 +749,15 @@ def test_optimisation_barriers_only_on_cpus(monkeypatch):
     import jax
     import jax.numpy as jnp
 
-    from swim.rt import march
+    from swim.rt import march_jax
 
     x = (jnp.arange(4.0), jnp.ones(3))
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert march._materialise(x) is x
+    assert march_jax._materialise(x) is x
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
-    barrier = jax.make_jaxpr(march._materialise)(x)
+    barrier = jax.make_jaxpr(march_jax._materialise)(x)
     assert "optimization_barrier" in str(barrier)
-    for a, b in zip(march._materialise(x), x):
+    for a, b in zip(march_jax._materialise(x), x):
         np.testing.assert_array_equal(a, b)
 
 
@@ -766,7 +767,7 @@ def test_trilinear_reads_rows_on_cpus_and_scalars_elsewhere_with_the_same_values
     import jax
     import jax.numpy as jnp
 
-    from swim.rt.march import trilinear
+    from swim.rt.march_jax import trilinear
 
     rng = np.random.default_rng(sum(shape))
     volume = rng.random(shape).astype(np.float32)
@@ -810,7 +811,8 @@ def test_packed_volume_is_one_host_array_without_empty_channels(aerosol_plume):
     """The packed volume is held once, as a read-only numpy array (the numba kernel reads it in place), and
     without a 3-D aerosol its two all-zero channels are left out (docs/performance.md, "Memory"), as are the species
     that are zero everywhere (the tiny scene has cloud liquid and ice only; docs/decisions/0007-scene-set-up.md)."""
-    from swim.rt.march import HOST_CONSTANTS, _device_constants, packed_species
+    from swim.rt.march_inputs import HOST_CONSTANTS, packed_species
+    from swim.rt.march_jax import _device_constants
 
     scene = _tiny_scene(aerosol_plume)
     volume = build_optical_volume(scene)
@@ -829,7 +831,7 @@ def test_packed_volume_is_one_host_array_without_empty_channels(aerosol_plume):
         np.testing.assert_array_equal(packed[..., 2], volume["aerosol_extinction"].values)
     # the kernels' per-species optical depths of the packed channels go back to their species' columns
     np.testing.assert_array_equal(np.asarray(consts["species_matrix"]), np.eye(5, dtype=np.float32)[:2])
-    from swim.rt import march
+    from swim.rt import device_copies
 
     device = _device_constants(consts)
     assert _device_constants(consts)["volume"] is device["volume"], "the device copy is made once per host array"
@@ -842,13 +844,13 @@ def test_packed_volume_is_one_host_array_without_empty_channels(aerosol_plume):
     import gc
 
     gc.collect()
-    assert march._DEVICE_COPIES == {}, "the device copies must go with their host volume"
+    assert device_copies._DEVICE_COPIES == {}, "the device copies must go with their host volume"
 
 
 def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():
     """render() points the optical volume's extinctions at the packed channels (one copy of the grid); the
     constants built again from that volume (another sun) must be those built from the original volume."""
-    from swim.rt.march import share_packed_channels
+    from swim.rt.march_inputs import share_packed_channels
 
     volume = build_optical_volume(_tiny_scene(aerosol_plume=True))
     original = {name: volume[name].values.copy() for name in ("extinction", "aerosol_extinction")}
@@ -874,7 +876,7 @@ def test_volume_shares_the_packed_channels_and_still_serves_a_new_sun():
 def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
     """render() packs the grid and shares its channels before Step 1a (memory): Step 1a on the shared volume and
     the constants filled into that packed volume must equal those of the volume as built, packed after Step 1a."""
-    from swim.rt.march import occupancy_grid, pack_volume, share_packed_channels, volume_constants
+    from swim.rt.march_inputs import occupancy_grid, pack_volume, share_packed_channels, volume_constants
 
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     volume = build_optical_volume(_tiny_scene(aerosol_plume))
@@ -897,7 +899,7 @@ def test_packing_before_step_1a_gives_the_same_constants(aerosol_plume):
     got = volume_constants(shared, again, occupancy=occupancy_grid(shared), packed=packed)
     assert got["volume"] is packed and not packed.flags.writeable
     np.testing.assert_allclose(got["volume"], expected["volume"], rtol=1e-6, atol=1e-7)
-    # the step classes of this sun (march.step_classes): occupied where the occupancy grid is, the same sunlit air
+    # the step classes of this sun (march_inputs.step_classes): occupied where the occupancy grid is, the same sunlit air
     np.testing.assert_array_equal(got["occupancy"] > 0, occupancy > 0)
     np.testing.assert_array_equal(got["occupancy"], expected["occupancy"])
 
@@ -909,9 +911,9 @@ def test_step_1a_written_into_the_packed_channels_gives_the_same_constants(aeros
     refilled volume holds an earlier sun's values), volume_constants copies nothing, the JAX kernel's device copy of
     the earlier values is dropped, and the constants equal those of fields made and then copied (T to float32
     round-off: numba's float32 arithmetic against XLA's)."""
-    from swim.rt import march
-    from swim.rt.march import (KERNEL_STEP1A_VARIABLES, pack_volume, packed_species, share_packed_channels,
-                               step1a_channel_views, volume_constants)
+    from swim.rt import march_inputs, march_jax
+    from swim.rt.march_inputs import (KERNEL_STEP1A_VARIABLES, pack_volume, packed_species, share_packed_channels,
+                                      step1a_channel_views, volume_constants)
 
     sun_1, sun_2 = enu_from_azimuth_zenith(135.0, 40.0), enu_from_azimuth_zenith(250.0, 70.0)
     fresh_volume = build_optical_volume(_tiny_scene(aerosol_plume))
@@ -922,16 +924,16 @@ def test_step_1a_written_into_the_packed_channels_gives_the_same_constants(aeros
     packed = pack_volume(volume, species)
     share_packed_channels(volume, packed, species)
     first = volume_constants(volume, solar_transmittance(volume, sun_1), packed=packed, species=species)
-    on_device = march._device_constants(first)["volume"]
+    on_device = march_jax._device_constants(first)["volume"]
     views = step1a_channel_views(packed, species)
     assert set(views) == set(KERNEL_STEP1A_VARIABLES if aerosol_plume else KERNEL_STEP1A_VARIABLES[1:])
-    assert march._device_constants(first)["volume"] is not on_device, "the old device copy must be dropped"
+    assert march_jax._device_constants(first)["volume"] is not on_device, "the old device copy must be dropped"
     for view in views.values():
         assert np.shares_memory(view, packed) and view.flags.writeable
         view[...] = np.nan  # whatever an earlier sun left there: every cell must be written again
 
     copies = []
-    monkeypatch.setattr(march, "_fill_channels", lambda *args: copies.append(args))
+    monkeypatch.setattr(march_inputs, "_fill_channels", lambda *args: copies.append(args))
     transmittance = solar_transmittance(volume, sun_2, variables=KERNEL_STEP1A_VARIABLES, out=views)
     for name, view in views.items():
         assert transmittance[name].values is view, name
@@ -948,9 +950,9 @@ def test_a_new_sun_refills_the_shared_packed_volume(aerosol_plume):
     """shared_packed_volume finds the packed volume that a shared volume's extinctions view (None before sharing or
     for another layout); refilled with a second sun's Step 1a, it equals a volume packed anew for that sun, and the
     JAX kernel's device copy of the first sun's channels is dropped."""
-    from swim.rt import march
-    from swim.rt.march import (pack_volume, packed_species, share_packed_channels, shared_packed_volume,
-                               volume_constants)
+    from swim.rt import march_jax
+    from swim.rt.march_inputs import (pack_volume, packed_species, share_packed_channels, shared_packed_volume,
+                                      volume_constants)
     from swim.rt.solar import step1a_levels
 
     sun_1, sun_2 = enu_from_azimuth_zenith(135.0, 40.0), enu_from_azimuth_zenith(250.0, 70.0)
@@ -962,7 +964,7 @@ def test_a_new_sun_refills_the_shared_packed_volume(aerosol_plume):
     assert shared_packed_volume(volume, species) is packed
     assert shared_packed_volume(volume, species[:-1]) is None  # not the layout of these species
     first = volume_constants(volume, solar_transmittance(volume, sun_1), packed=packed, species=species)
-    on_device = march._device_constants(first)["volume"]
+    on_device = march_jax._device_constants(first)["volume"]
     np.testing.assert_array_equal(np.asarray(on_device), packed)
 
     levels = step1a_levels(volume)
@@ -975,7 +977,7 @@ def test_a_new_sun_refills_the_shared_packed_volume(aerosol_plume):
     np.testing.assert_allclose(again["volume"], fresh["volume"], rtol=1e-6, atol=1e-7)
     # the second sun's T and terrain shadow differ from the first's device copy, which must not be served again
     assert not np.array_equal(np.asarray(on_device)[..., -2:], packed[..., -2:])
-    np.testing.assert_array_equal(np.asarray(march._device_constants(again)["volume"]), packed)
+    np.testing.assert_array_equal(np.asarray(march_jax._device_constants(again)["volume"]), packed)
     with pytest.raises(SwimInputError, match="nonzero_levels"):
         solar_transmittance(volume, sun_2, nonzero_levels=(levels[0][:-1], levels[1]))
 
@@ -987,7 +989,7 @@ def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(back
     back in their species' columns (the composition's phase-function mixture reads them). The same to float32
     round-off: the numba march's vectorised code sums a volume of 9 channels in another order than one of 6 (its
     step counts exactly the same)."""
-    from swim.rt.march import atmosphere_constants, volume_constants
+    from swim.rt.march_inputs import atmosphere_constants, volume_constants
 
     origins, dirs = _random_rays(400)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
@@ -1006,7 +1008,7 @@ def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(back
 def test_a_cloudless_volume_packs_no_species():
     """A scene without hydrometeors packs Step 1a's two channels alone, and the volume that shares them (no species
     left) is packed again the same way (a second sun of a clear sky)."""
-    from swim.rt.march import pack_volume, packed_species, share_packed_channels
+    from swim.rt.march_inputs import pack_volume, packed_species, share_packed_channels
 
     scene = _tiny_scene()
     for name in ("cloud_liquid_content", "cloud_ice_content"):
@@ -1040,7 +1042,8 @@ def test_probe_counts_are_the_cells_crossed():
     cell it takes that many (rounded up), a short ray keeps 4, and probe_spacing 0 always gives n_probe."""
     import jax.numpy as jnp
 
-    from swim.rt.march import MAX_PROBES, probe_counts
+    from swim.rt.march_jax import probe_counts
+    from swim.rt.march_settings import MAX_PROBES
 
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     volume, consts = _kernel_constants(_tiny_scene(), sun)
@@ -1158,7 +1161,7 @@ def test_any_cut_of_the_rays_into_chunks_gives_the_same_pixels(monkeypatch):
 @BACKENDS_JAX_FULL
 def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean(backend):
     """Beyond the grid the ground fades from the nearest edge cell's surface to the mean of the edge cells
-    (swim.rt.march.surface_beyond_edge): seen from above it must be continuous across the edge (it jumped to the
+    (swim.rt.march_jax.surface_beyond_edge): seen from above it must be continuous across the edge (it jumped to the
     mean, drawing the domain's outline in views from space), and a few cells away the same along the edge (no
     streaks of edge values)."""
     n, spacing = 12, 400.0
@@ -1283,7 +1286,7 @@ def test_clear_air_steps_follow_the_air_and_integrate_it_better(n_steps):
     exponential atmosphere (scale height 8 km) by the midpoint rule better than equal steps."""
     import jax.numpy as jnp
 
-    from swim.rt.march import clear_step_edges
+    from swim.rt.march_jax import clear_step_edges
 
     consts, seg, dirs = _clear_segments()
     start, bounds = (jnp.asarray(seg[k], jnp.float32) for k in ("start", "bounds"))
@@ -1317,7 +1320,8 @@ def test_numba_clear_air_steps_match_the_jax_ones():
     import jax.numpy as jnp
 
     from swim.rt import march_cpu
-    from swim.rt.march import CLEAR_PROBES, CLEAR_STEP_FLOOR, CLEAR_STEP_POWER, clear_step_edges
+    from swim.rt.march_jax import clear_step_edges
+    from swim.rt.march_settings import CLEAR_PROBES, CLEAR_STEP_FLOOR, CLEAR_STEP_POWER
 
     consts, seg, dirs = _clear_segments()
     start, bounds = np.asarray(seg["start"], float), np.asarray(seg["bounds"], float)
@@ -1339,7 +1343,7 @@ def test_gas_column_above_is_the_exponential_atmospheres_column(dh):
     """gas_column_above: for an exponential atmosphere (scale height 8 km, to 100 km) the fraction of the vertical
     optical depth above height h is (e^(-h/H) - e^(-top/H)) / (1 - e^(-top/H)), to the trapezoidal rule's
     accuracy; the components count with their 546-nm spectral factors; an empty atmosphere gives ones."""
-    from swim.rt.march import gas_column_above
+    from swim.rt.march_inputs import gas_column_above
 
     heights = np.arange(0.0, 100e3 + dh / 2, dh)
     scale, top = 8e3, heights[-1]
@@ -1371,7 +1375,7 @@ def test_after_step_counts_follow_the_air_left_above_the_grid():
 
     from swim.constants import AFTER_MIN_STEPS, GAS_COLUMN_ROW
     from swim.rt import march_cpu
-    from swim.rt.march import after_step_counts
+    from swim.rt.march_jax import after_step_counts
 
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     _, consts = _kernel_constants(_tiny_scene(), sun)
@@ -1435,7 +1439,7 @@ def test_after_step_counts_keep_the_clear_airs_error_relative_to_the_ray():
     import jax.numpy as jnp
 
     from swim.constants import GAS_COLUMN_ROW
-    from swim.rt.march import after_step_counts, clear_step_edges
+    from swim.rt.march_jax import after_step_counts, clear_step_edges
 
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     _, consts = _kernel_constants(_tiny_scene(), sun)

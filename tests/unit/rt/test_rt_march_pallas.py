@@ -14,7 +14,7 @@ from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
 from swim.rt import march_pallas
 from swim.rt.gas import AerosolBackground
-from swim.rt.march import MarchSettings as _MarchSettings
+from swim.rt.march_settings import MarchSettings as _MarchSettings
 
 from test_rt_march import _random_rays, _tiny_scene, _trace
 
@@ -75,7 +75,7 @@ def captured_kernel_call(kernel="fused", values=False, plume=False, **settings):
     march of 128 rays through the tests' tiny scene (on the CPU; ``plume``: with the smoke plume and terrain), with
     these MarchSettings, as (args, kwargs): traced values, or with ``values`` the arrays themselves (the chunk then
     runs without jit up to the kernel's call)."""
-    from swim.rt import march
+    from swim.rt import march_jax
 
     got = {}
 
@@ -91,10 +91,10 @@ def captured_kernel_call(kernel="fused", values=False, plume=False, **settings):
             return chunk.function(*args, **kwargs)
 
     name = "march_grid_fused" if kernel == "fused" else "march_segments_fused"
-    real, chunk = getattr(march_pallas, name), march._trace_chunk
+    real, chunk = getattr(march_pallas, name), march_jax._trace_chunk
     setattr(march_pallas, name, grab)
     if values:
-        march._trace_chunk = eager_chunk
+        march_jax._trace_chunk = eager_chunk
     try:
         origins, dirs = _random_rays(128, seed=1)
         _trace(_tiny_scene(plume), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
@@ -103,7 +103,7 @@ def captured_kernel_call(kernel="fused", values=False, plume=False, **settings):
         pass
     finally:
         setattr(march_pallas, name, real)
-        march._trace_chunk = chunk
+        march_jax._trace_chunk = chunk
     assert got, "the march did not call the fused grid kernel"
     return got["args"], got["kwargs"]
 
@@ -146,7 +146,8 @@ def test_grid_kernel_setting_is_checked_and_resolved(monkeypatch):
 
 def test_rays_that_fill_no_whole_block_are_refused():
     """The kernel refuses them; the JAX march then takes the lockstep loop (a chunk set by hand to such a size)."""
-    from swim.rt.march import fused_fits, padded_batch_size
+    from swim.rt.march import padded_batch_size
+    from swim.rt.march_jax import fused_fits
 
     assert not fused_fits(100) and fused_fits(256)
     assert all(fused_fits(padded_batch_size(n, 262144)) for n in (1, 200, 5000, 262144, 10**6))

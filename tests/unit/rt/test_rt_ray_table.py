@@ -11,8 +11,8 @@ from swim.frames import enu_from_azimuth_zenith
 from swim.rt import ray_table
 from swim.rt.gas import AerosolBackground
 from swim.rt.image_sampling import AdaptiveSampling
-from swim.rt.march import MarchSettings as _MarchSettings
-from swim.rt.march import grid_geometry
+from swim.rt.march_settings import MarchSettings as _MarchSettings
+from swim.rt.march_inputs import grid_geometry
 
 from test_rt_march import _random_rays, _tiny_scene, _trace
 
@@ -42,7 +42,7 @@ def test_table_rows_give_trace_rays_outputs():
     reference, (volume, _, gas, _) = _trace(scene, origins[order], dirs[order], sun, aerosol=aerosol, settings=settings)
     assert reference["surface"].sum() > 40 and (reference["tau_hydrometeor"] > 1.0).sum() > 10, \
         "rays must hit ground and cloud"
-    from swim.rt.march import kernel_constants
+    from swim.rt.march_inputs import kernel_constants
     from swim.rt.solar import solar_transmittance
 
     consts = kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
@@ -74,7 +74,7 @@ def test_a_range_of_rows_is_marched_as_the_same_rows_listed(monkeypatch):
     aerosol = AerosolBackground()
     settings = MarchSettings(backend="jax", chunk=256, n_probe=8, probe_spacing=0.5)  # probe counts that vary
     _, (volume, _, gas, _) = _trace(scene, origins[:1], dirs[:1], sun, aerosol=aerosol, settings=settings)
-    from swim.rt.march import kernel_constants
+    from swim.rt.march_inputs import kernel_constants
     from swim.rt.solar import solar_transmittance
 
     consts = kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
@@ -85,8 +85,8 @@ def test_a_range_of_rows_is_marched_as_the_same_rows_listed(monkeypatch):
     assert probes.max() > settings.n_probe, "some chunk must take more probes than n_probe"
     phase = ray_table.PhaseInputs(tuple(sun), gas.depolarization, aerosol.type, aerosol.stratospheric)
     chunks = []  # each chunk's kernel settings (its n_probe: the largest probe count of its rays)
-    march_chunk = ray_table.march._trace_chunk
-    monkeypatch.setattr(ray_table.march, "_trace_chunk", lambda *args, **kwargs: chunks.append(args[7]) or
+    march_chunk = ray_table.march_jax._trace_chunk
+    monkeypatch.setattr(ray_table.march_jax, "_trace_chunk", lambda *args, **kwargs: chunks.append(args[7]) or
                         march_chunk(*args, **kwargs))
     for rows in (range(5, 295), range(44, 300)):  # the extra ray in the second chunk with others, then alone
         seen = []
@@ -97,7 +97,7 @@ def test_a_range_of_rows_is_marched_as_the_same_rows_listed(monkeypatch):
                                             progress=lambda done, n: seen.append((done, n)))
         assert seen == [(256, len(rows) + 1), (len(rows) + 1, len(rows) + 1)]
         assert chunks == listed_chunks and len(chunks) == 2, "the same chunks with the same settings"
-        # raised to the power of two above the chunk's largest count (swim.rt.march.with_probes_for)
+        # raised to the power of two above the chunk's largest count (swim.rt.march_jax.with_probes_for)
         assert chunks[0].n_probe == 1 << int(np.ceil(np.log2(probes[rows.start:rows.start + 256].max())))
         chunks[:] = []
         assert set(ranged) == set(listed)
@@ -122,7 +122,7 @@ def test_padding_rows_are_marched_as_rays_outside_the_camera(kernel):
     aerosol = AerosolBackground()
     settings = MarchSettings(backend="jax", chunk=256, grid_kernel=kernel)
     _, (volume, _, gas, _) = _trace(scene, origins[:1], dirs[:1], sun, aerosol=aerosol, settings=settings)
-    from swim.rt.march import kernel_constants
+    from swim.rt.march_inputs import kernel_constants
     from swim.rt.solar import solar_transmittance
 
     consts = kernel_constants(volume, solar_transmittance(volume, sun), gas, sun)
@@ -170,7 +170,7 @@ def test_scattering_cosine_is_accurate_near_the_sun():
 def _volume_and_constants():
     from swim.optics.volume import build_optical_volume
     from swim.rt.gas import build_gas_tables
-    from swim.rt.march import kernel_constants
+    from swim.rt.march_inputs import kernel_constants
     from swim.rt.solar import solar_transmittance
 
     sun = enu_from_azimuth_zenith(135.0, 40.0)
@@ -240,6 +240,9 @@ def test_ray_table_default_is_on_only_for_the_jax_kernel_on_an_accelerator(monke
     assert MarchSettings(backend="jax", ray_table=False).resolved_ray_table() is False
     on_gpu = jax.default_backend() != "cpu"
     assert MarchSettings(backend="jax").resolved_ray_table() is on_gpu
+    from swim.rt import precompile
+
+    monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)  # JAX is asked only where it may see one
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert MarchSettings(backend="jax").resolved_ray_table() is True
     assert MarchSettings(backend="jax", ray_table=False).resolved_ray_table() is False
@@ -266,6 +269,9 @@ def test_step1a_and_sampler_on_the_device_by_default_only_on_an_accelerator(monk
     assert MarchSettings(backend="jax", ray_table=True, device_sampling=False).resolved_device_sampling() is False
     assert MarchSettings(backend="numba", step1a_on_device=True).resolved_step1a_on_device() is False
     assert MarchSettings(backend="numba", ray_table=True, device_sampling=True).resolved_device_sampling() is False
+    from swim.rt import precompile
+
+    monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)  # JAX is asked only where it may see one
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert MarchSettings(backend="jax").resolved_step1a_on_device() is True
     assert MarchSettings(backend="jax").resolved_device_sampling() is True

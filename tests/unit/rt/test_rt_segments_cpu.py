@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from swim.constants import EARTH_RADIUS_M
-from swim.rt.march import GridGeometry, ray_segments, ray_segments_compiled
+from swim.rt.march import ray_segments, ray_segments_compiled
+from swim.rt.march_inputs import GridGeometry
 
 R = EARTH_RADIUS_M
 

@@ -11,10 +11,9 @@ from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
-from swim.rt import march, solar_device
-from swim.rt.march import (KERNEL_STEP1A_VARIABLES, pack_volume, packed_species,
-                           share_packed_channels)
-from swim.rt.march import MarchSettings as _MarchSettings
+from swim.rt import device_copies, march_jax, solar_device
+from swim.rt.march_inputs import KERNEL_STEP1A_VARIABLES, pack_volume, packed_species, share_packed_channels
+from swim.rt.march_settings import MarchSettings as _MarchSettings
 from swim.rt.solar import solar_transmittance, step1a_levels
 
 from test_rt_solar import RADIUS, _full_and_empty_scenes
@@ -100,7 +99,7 @@ def test_the_kernel_is_compiled_once_whatever_the_switches_it_does_not_read():
     kwargs = dict(camera_options={"size": 24}, sun_zenith=35.0, sun_azimuth=140.0)
 
     def programs():
-        return len(march._trace_chunk._calls) + march._trace_chunk.jitted._cache_size()
+        return len(march_jax._trace_chunk._calls) + march_jax._trace_chunk.jitted._cache_size()
 
     swim.render(scene, settings=MarchSettings(backend="jax"), **kwargs)
     before = programs()
@@ -132,7 +131,7 @@ def test_a_new_sun_in_a_render_refills_the_device_copy(monkeypatch):
     scene = swim.default_scene()
     calls = []
     real = solar_device.solar_transmittance_on_device
-    monkeypatch.setattr(pipeline, "solar_transmittance_on_device",
+    monkeypatch.setattr(solar_device, "solar_transmittance_on_device",
                         lambda *args: calls.append(1) or real(*args))
     images = {}
     for on_device in (False, True):
@@ -144,20 +143,20 @@ def test_a_new_sun_in_a_render_refills_the_device_copy(monkeypatch):
         images[on_device] = swim.render(scene, sun_zenith=55.0, **kwargs)["radiance"].values
         assert len(calls) == (1 if on_device else 0)
         packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
-        # the step classes of this sun (march.step_classes), written over the last sun's in place
+        # the step classes of this sun (march_inputs.step_classes), written over the last sun's in place
         classes = pipeline._STAGE_CACHE._entries["grid constants"][1]["occupancy"]
         assert classes is pipeline._STAGE_CACHE._entries["step classes"][1]
-        copies = march.kept_device_copies({"volume": packed, "occupancy": classes})
+        copies = device_copies.kept_device_copies({"volume": packed, "occupancy": classes})
         assert copies is not None, "the kernel's device copy of this sun's volume"
         np.testing.assert_array_equal(np.asarray(copies["volume"]), packed)
         # the kernel's constants take that copy: nothing is sent again
-        assert march._device_constants(pipeline._STAGE_CACHE._entries["grid constants"][1])["volume"] is \
+        assert march_jax._device_constants(pipeline._STAGE_CACHE._entries["grid constants"][1])["volume"] is \
             copies["volume"]
     np.testing.assert_allclose(images[True], images[False], rtol=1e-4, atol=1e-6)
 
 
 def test_a_render_alone_after_one_beside_others_reuses_its_step_classes(monkeypatch):
-    """A render beside others packs its own volume and step classes (march.step_classes); the next render alone
+    """A render beside others packs its own volume and step classes (march_inputs.step_classes); the next render alone
     refills that packed volume in place, and must refill those classes too (not an older render's), so that the
     device copies the render beside others made still match them (kept_device_copies)."""
     scene = swim.default_scene()
