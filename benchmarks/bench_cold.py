@@ -1,5 +1,5 @@
 """A new process's render: wall time, and JAX's tracing, lowering and cache reads in it, with the traced programs read
-from disk (``swim.rt.export_cache``) and without, the two taking turns (prints a table, writes JSON).
+from disk (``swim.compilation.jax_export``) and without, the two taking turns (prints a table, writes JSON).
 
 Usage::
 

@@ -105,9 +105,11 @@ def capture(scene_name, size, data):
 
 def load_variant(path):
     """``march_rays`` of a copy of march_cpu.py at ``path`` (relative imports made absolute, no disk cache)."""
-    source = re.sub(r"^from \.\.(\w+) import", r"from swim.\1 import", Path(path).read_text(), flags=re.MULTILINE)
+    source = re.sub(r"^from \.\.([\w.]+) import", r"from swim.\1 import", Path(path).read_text(), flags=re.MULTILINE)
     source = re.sub(r"^from \.(\w+) import", r"from swim.rt.\1 import", source, flags=re.MULTILINE)
-    source = source.replace('"cache": _CACHE', '"cache": False')  # the kernels' and the helpers' options
+    # the kernels' and the helpers' options without the disk cache
+    source = source.replace("@helper_jit(", "@helper_jit(cache=False, ").replace(
+        "**JIT_KERNEL", '**{**JIT_KERNEL, "cache": False}')
     folder = Path(tempfile.mkdtemp(prefix="swim-march-variant-"))
     copy = folder / f"variant_{Path(path).stem}.py"
     copy.write_text(source)

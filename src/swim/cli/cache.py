@@ -1,4 +1,4 @@
-"""``swim cache``: list swim's disk caches, or clear them (a thin layer over :mod:`swim.rt.cache_budget`).
+"""``swim cache``: list swim's disk caches, or clear them (a thin layer over :mod:`swim.compilation.cache_budget`).
 
 Register it on the main app with ``app.command()(cache)`` (``swim/cli/main.py``).
 """
@@ -29,7 +29,7 @@ def cache(
     least recently used entries removed first; numba keeps the machine code of the last three versions of swim's
     kernels.
     """
-    from ..rt.cache_budget import CODE_VERSIONS, KINDS, cache_usage, clear_caches
+    from ..compilation.cache_budget import CODE_VERSIONS, KINDS, cache_usage, clear_caches
 
     kinds = tuple(kind) if kind else KINDS
     try:

@@ -32,7 +32,7 @@ from numba import njit
 
 # no fast-math: the same IEEE arithmetic as the NumPy chain, so that the codes agree (a pixel near a code's edge
 # may still round the other way where NumPy's matrix products sum in another order)
-from ..rt.march_cpu import _JIT_EXACT as _JIT
+from ..compilation.numba_jit import JIT_EXACT as _JIT
 
 
 @njit(**_JIT)

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SwimInputError
-from ..rt.export_cache import exported_jit
+from ..compilation.jax_export import exported_jit
 from .display import (
     CHROMATIC_ADAPTATION_TRANSFORM,
     FILMIC_KNEE,

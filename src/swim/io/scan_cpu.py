@@ -11,14 +11,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..rt.march_cpu import _JIT_EXACT  # also puts numba's disk cache where swim keeps it
+from ..compilation.numba_jit import JIT_EXACT  # also puts numba's disk cache where swim keeps it
 
 #: Columns of :func:`copy_and_scan`'s statistics: the count of values that are not finite (NaN, inf), the count of
 #: negative values, the least and the greatest finite value.
 STATS = ("not finite", "negative", "min", "max")
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def copy_and_scan(source, copy, k0, k1, stats):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of a 3-D field (level, y, x), any real dtype and strides, copied into ``copy`` (float64, of
     its shape), and their statistics (:data:`STATS`) written into ``stats`` (4,) float64: min and max over the
@@ -45,7 +45,7 @@ def copy_and_scan(source, copy, k0, k1, stats):  # pragma: no cover - compiled
     stats[3] = greatest
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def flag_non_increasing(height, j0, j1, flags):  # pragma: no cover - compiled
     """Rows ``j0:j1`` of ``flags`` (y, x) bool set where the column of ``height`` (z, y, x) does not increase
     strictly with z (a level at or below the one under it); the other flags are left as they are."""

@@ -19,10 +19,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..rt.march_cpu import _JIT_EXACT  # also puts numba's disk cache where swim keeps it
+from ..compilation.numba_jit import JIT_EXACT  # also puts numba's disk cache where swim keeps it
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def column_weights(height, levels, top, terrain, k0, w, zero):  # pragma: no cover - compiled
     """The weights of :class:`swim.optics.volume.ColumnInterpolation` for a block of columns.
 
@@ -64,7 +64,7 @@ def column_weights(height, levels, top, terrain, k0, w, zero):  # pragma: no cov
             zero[k, c] = level > top[c] or level < terrain[c]
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def scan_content(content, where, values):  # pragma: no cover - compiled
     """The cloudy cells of a block of a species' content, in one pass.
 
@@ -106,7 +106,7 @@ def scan_content(content, where, values):  # pragma: no cover - compiled
     return bad, present
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def gather_cells(field, where, out):  # pragma: no cover - compiled
     """``out[m] = field.ravel()[where[m]]`` for a field (nz, ny, nx) of any strides (no copy of the field)."""
     _, ny, nx = field.shape
@@ -117,7 +117,7 @@ def gather_cells(field, where, out):  # pragma: no cover - compiled
         out[m] = field[z, j, i]
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def resample_cells(where, beta, nz, k0, w, zero, first, stop, out):  # pragma: no cover - compiled
     """A block of columns of a sparse field on the regular levels, as :meth:`ColumnInterpolation.columns` gives it.
 

@@ -40,7 +40,8 @@ from ..optics.phase import (
     VENUS_NEAR_COEFFICIENTS,
 )
 from .march_settings import FROM_ABOVE_BLEND, TOP_MIN_MU0, TOP_MIN_SELF_TRANSMITTANCE, TOP_REFLECTANCE_MIN_MU0
-from .march_cpu import _JIT_KERNEL, _helper_jit, _P_SUN
+from ..compilation.numba_jit import JIT_KERNEL, helper_jit
+from .march_cpu import _P_SUN
 from .solar import ONE_MINUS_G_PER_BACKSCATTER
 
 #: Index of cloud liquid in :data:`swim.constants.SPECIES`: its forward lobe depends on the wavelength.
@@ -92,14 +93,14 @@ BACKSCATTER_ARRAY = np.array([BACKSCATTER_FRACTION[s] for s in SPECIES], dtype=n
 _LN10 = math.log(10.0)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _henyey_greenstein(mu, g):
     """:func:`swim.optics.phase.henyey_greenstein` (paper Eq. 9), the cancellation-free denominator."""
     d = (1.0 - g) ** 2 + 2.0 * g * (1.0 - mu)
     return (1.0 - g * g) / (d * math.sqrt(d))
 
 
-@_helper_jit()
+@helper_jit()
 def _phase_thick_high(mu, k):
     """:func:`swim.optics.phase.phase_thick_high` (paper Eq. 19, Mallama et al. 2006's Venus phase law)."""
     mu = min(max(mu, -1.0), 1.0)
@@ -118,7 +119,7 @@ def _phase_thick_high(mu, k):
     return k[_K_THICK] * math.exp(-0.4 * _LN10 * m) / illuminated_fraction
 
 
-@_helper_jit()
+@helper_jit()
 def _reflectance_factor(mu_view, mu0, mu, k):
     """:func:`swim.optics.phase.anisotropic_reflectance_factor_kokhanovsky2004` (paper Eq. 25 corrected, with the
     double Henyey-Greenstein function of Eq. 27)."""
@@ -131,7 +132,7 @@ def _reflectance_factor(mu_view, mu0, mu, k):
     return (k[_K_B1] + k[_K_B2] * mu_view * mu0 + dhg) / (4.0 * max(mu_view + mu0, k[_K_MIN_MU_SUM]))
 
 
-@_helper_jit()
+@helper_jit()
 def _transmittance_delta_eddington(tau_s, b_tau_s, mu0, k):
     """:func:`swim.rt.solar.transmittance_delta_eddington` (replaces paper Eqs. 4-6)."""
     x = k[_K_ONE_MINUS_G] * b_tau_s
@@ -141,7 +142,7 @@ def _transmittance_delta_eddington(tau_s, b_tau_s, mu0, k):
     return (kk + (1.0 - kk) * math.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
 
 
-@njit(**_JIT_KERNEL, nogil=True)
+@njit(**JIT_KERNEL, nogil=True)
 def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clear, l_surface, valid, cos_theta,
                    cos_view_zenith, mu0, g_liquid, backscatter, coefficients, lobes, radiance_out, cloud_out):
     """The clouds' radiance and the pixel radiance of n rays, as :func:`swim.rt.march_jax._compose_clouds`.

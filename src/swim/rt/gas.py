@@ -41,7 +41,7 @@ from ..errors import SwimInputError
 from ..optics.aerosol_types import AerosolType, aerosol_type
 from ..optics.atmosphere import us_standard_atmosphere_1976
 from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio, rayleigh_phase_function
-from .compilation_cache import disk_cached, package_sources
+from ..compilation.disk_cache import disk_cached, package_sources
 from .multiple_scattering import DiffuseSourceTable, diffuse_source_table
 
 
@@ -383,7 +383,7 @@ def _profile_key(profile):
 @functools.lru_cache(maxsize=8)
 def _build_gas_tables_cached(*args) -> GasTables:
     """Cached worker of :func:`build_gas_tables`: in memory, and on disk across processes
-    (:func:`swim.rt.compilation_cache.disk_cached`), because the successive-orders tables take seconds."""
+    (:func:`swim.compilation.disk_cache.disk_cached`), because the successive-orders tables take seconds."""
     return disk_cached("gas", args, lambda: _build_gas_tables(*args), sources=package_sources())
 
 

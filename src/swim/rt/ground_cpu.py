@@ -28,8 +28,8 @@ from ..surface import brdf, lighting, water
 from .compose_cpu import _transmittance_delta_eddington
 from .march_inputs import surface_fade_cells
 from .march_settings import FROM_ABOVE_BLEND
-from .march_cpu import (_JIT_KERNEL, _P_RADIUS, _P_SUN, _P_TOP, _bilinear_at, _bilinear_index, _clip, _helper_jit,
-                        _point_geometry)
+from ..compilation.numba_jit import JIT_KERNEL, helper_jit
+from .march_cpu import _P_RADIUS, _P_SUN, _P_TOP, _bilinear_at, _bilinear_index, _clip, _point_geometry
 
 # The constants reach the compiled functions as arguments (numba bakes globals into its cached machine code and
 # checks only this file's time stamp): the layout of ground_tables()'s vector.
@@ -76,12 +76,12 @@ def _ground_tables():
     return out
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _dot(a0, a1, a2, b0, b1, b2):
     return a0 * b0 + a1 * b1 + a2 * b2
 
 
-@_helper_jit()
+@helper_jit()
 def _lerp_mu(table, mu):
     """:func:`swim.surface.brdf._lerp_mu` on a 1-D table given on the uniform grid 0...1."""
     n = table.shape[0]
@@ -91,7 +91,7 @@ def _lerp_mu(table, mu):
     return table[i0] * (1.0 - f) + table[i0 + 1] * f
 
 
-@_helper_jit()
+@helper_jit()
 def _lerp_snow(table, mu, albedo, albedo_min):
     """:func:`swim.surface.brdf._lerp_snow`: the snow table (albedo nodes, uniform mu grid) at (albedo, mu)."""
     n_a, n_mu = table.shape
@@ -106,7 +106,7 @@ def _lerp_snow(table, mu, albedo, albedo_min):
     return lo * (1.0 - fy) + hi * fy
 
 
-@_helper_jit()
+@helper_jit()
 def _fresnel(c, n):
     """:func:`swim.surface.water.fresnel_reflectance` (Born and Wolf, Sect. 1.5.2)."""
     c = _clip(c, 0.0, 1.0)
@@ -116,7 +116,7 @@ def _fresnel(c, n):
     return 0.5 * (rs * rs + rp * rp)
 
 
-@_helper_jit()
+@helper_jit()
 def _mu_times_smith_lambda(mu, sigma):
     """:func:`swim.surface.water._mu_times_smith_lambda` (Smith 1967 shadowing, isotropic Gaussian slopes)."""
     s = math.sqrt(max(1.0 - mu * mu, 1e-12))
@@ -124,7 +124,7 @@ def _mu_times_smith_lambda(mu, sigma):
     return 0.5 * (s * sigma / math.sqrt(math.pi) * math.exp(-a * a) - mu * math.erfc(a))
 
 
-@_helper_jit()
+@helper_jit()
 def _sun_glint(mu_i, mu_v, cos_sv, tan2, wind_speed, k):
     """:func:`swim.surface.water.sun_glint_reflectance_factor_cox_munk1954` with the Smith shadowing, given the
     cosines of sun and view to the normal, their mutual cosine and tan^2 of the tilt of the mirroring facet."""
@@ -139,7 +139,7 @@ def _sun_glint(mu_i, mu_v, cos_sv, tan2, wind_speed, k):
     return math.pi * rho * facet / (4.0 * denom)
 
 
-@_helper_jit()
+@helper_jit()
 def _rpv_shape(mi, mv, cos_sv, hot_g, k, rpv_q):
     """:func:`swim.surface.brdf._rpv_shape` of a visible geometry (RPV 1993, normalised)."""
     kk, theta, rho_c = k[_G_RPV_K], k[_G_RPV_THETA], k[_G_RPV_HOT_SPOT]
@@ -149,7 +149,7 @@ def _rpv_shape(mi, mv, cos_sv, hot_g, k, rpv_q):
     return minnaert * hg * hot * _lerp_mu(rpv_q, mi) * _lerp_mu(rpv_q, mv)
 
 
-@_helper_jit()
+@helper_jit()
 def _snow_shape(mi, mv, phase_sv, albedo, k, snow_table):
     """:func:`swim.surface.brdf._snow_shape` of a visible geometry (Kokhanovsky and Breon 2012, normalised), with
     the snow grains' phase function at the scattering angle already evaluated (``phase_sv``)."""
@@ -162,14 +162,14 @@ def _snow_shape(mi, mv, phase_sv, albedo, k, snow_table):
     return raw * _lerp_snow(snow_table, mi, a, albedo_min) * _lerp_snow(snow_table, mv, a, albedo_min)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _diffuse_on_facet(sky_view, mu_s, albedo, direct, diffuse, c):
     """Diffuse irradiance on the facet / E_TOA at wavelength c: the sky it sees and the Lambertian ground around it
     (same albedo) lit by the global horizontal irradiance (:func:`swim.surface.lighting.surface_radiance`)."""
     return sky_view * diffuse[c] + (1.0 - sky_view) * albedo[c] * (mu_s * direct[c] + diffuse[c])
 
 
-@_helper_jit()
+@helper_jit()
 def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, snow_cover, wind_speed, direct, diffuse,
                      lambertian, k, rpv_q, snow_table, snow_albedo, subsurface, out):
     """:func:`swim.surface.lighting.surface_radiance` at one point (Eq. 35 on a tilted facet), written to ``out``.
@@ -261,7 +261,7 @@ def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, sno
                         + a_diffuse * _diffuse_on_facet(sky_view, mu_s, albedo, direct, diffuse, c))
 
 
-@njit(**_JIT_KERNEL, nogil=True)
+@njit(**JIT_KERNEL, nogil=True)
 def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, tau_clear, tau_packed, species,
                     class_lower, class_weight, p, coef, sky, diffuse_classes, n_class, fields, fields_outside,
                     angstrom, backscatter, lambertian, compose_coefficients, k, rpv_q, snow_table, snow_albedo,

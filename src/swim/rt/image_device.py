@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .export_cache import exported_jit
+from ..compilation.jax_export import exported_jit
 
 
 @functools.partial(jax.jit, static_argnames=("ny", "nx"))

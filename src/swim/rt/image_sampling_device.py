@@ -10,7 +10,7 @@ next level's are the last one's with every interval of two or more pixels split 
 as :func:`swim.rt.smooth_cpu.split_cells` splits a cell). A cell of a level exists where its parent split (or, on the
 first level, everywhere) and it has a pixel between its corners. So a level's test, its split, the pixels it wants
 traced and the final interpolation are a few gathers and comparisons over fixed shapes, compiled once per image size
-(and kept on disk for new processes, :mod:`swim.rt.export_cache`). Per batch only the wanted pixels' mask comes to
+(and kept on disk for new processes, :mod:`swim.compilation.jax_export`). Per batch only the wanted pixels' mask comes to
 the host, which lists them for the march (the ray table keeps the rays' segment flags and probe counts there,
 :func:`swim.rt.ray_table.trace_table_rows`); the march's outputs are scattered on the device.
 
@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SwimInputError
-from .export_cache import exported_jit
+from ..compilation.jax_export import exported_jit
 from .image_sampling import AdaptiveSampling, _lattice
 
 

@@ -20,161 +20,17 @@ Eq. 12 for the hydrometeor integral); it computes in float64 from the float32 ta
 
 from __future__ import annotations
 
-import hashlib
-import inspect
 import math
-from pathlib import Path
 
 import numpy as np
 
-import numba
 from llvmlite import ir
 from numba import njit, types
 from numba.core import cgutils
-from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
 from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW
-from .cache_budget import hold_code_version, prune_code_versions
-from .compilation_cache import _disabled, cache_directory, serialise_numba_cache_writes
-from .numba_target import choose_cpu_features
-
-
-#: The modules (relative to ``swim/rt``) whose module-level constants the compiled functions read: numba freezes
-#: such globals into the machine code (e.g. :data:`swim.constants.AFTER_MIN_STEPS`, the phase functions' constants
-#: in ``swim.rt.compose_cpu``), so a change to them must start a fresh cache too (:func:`numba_sources_digest`).
-CONSTANTS_READ_FROM = ("../constants.py", "../optics/phase.py", "march_settings.py", "march_inputs.py", "solar.py")
-
-
-def numba_sources_digest() -> str:
-    """A digest (16 hex digits) of the code of every module with numba-compiled functions (``swim/rt/*_cpu.py``) and
-    of those whose constants they read (:data:`CONSTANTS_READ_FROM`).
-
-    numba decides whether a cached compilation is stale from the time stamp of the function's own file only, and bakes
-    the compiled functions it calls from other files (``swim.rt.ground_cpu`` calls this module's point geometry and
-    lookups, and ``swim.rt.compose_cpu``'s transmittance) into the caller's machine code, and the other modules'
-    constants as well: after a change to this file a cached ``ground_radiance`` would keep running the old geometry.
-    The cache therefore lives in a folder named by this digest, so that any change to any of these modules starts a
-    fresh one (docs/decisions/0009-work-around-the-march.md and docs/decisions/0004-step-placement.md)."""
-    digest = hashlib.sha256()
-    rt = Path(__file__).parent
-    for path in [*sorted(rt.glob("*_cpu.py")), *(rt / name for name in CONSTANTS_READ_FROM)]:
-        if path.is_file():
-            digest.update(path.name.encode() + path.read_bytes())
-    return digest.hexdigest()[:16]
-
-
-# before numba sets up its CPU target (the first compilation or cache load): AVX-512 left out on Intel CPUs,
-# where the replayed march ran ~10 % slower with it (swim.rt.numba_target)
-choose_cpu_features()
-_CACHE = not _disabled()
-if _CACHE and not numba.config.CACHE_DIR:
-    # numba caches compiled functions beside the source by default, which an installed package may not allow;
-    # the setting is read when each function below is decorated (a user's NUMBA_CACHE_DIR is kept, and with it
-    # numba's own staleness check by file time stamps)
-    _digest, _versions = numba_sources_digest(), cache_directory("numba")
-    numba.config.CACHE_DIR = str(_versions / _digest)
-    # each code version has its own folder: this process holds its own, and the oldest of the others go, so that
-    # upgrades do not pile up machine code
-    hold_code_version(_versions, _digest)
-    prune_code_versions(_versions, _digest)
-if _CACHE:
-    serialise_numba_cache_writes()  # a helper process may compile beside this one (swim.rt.precompile)
-
-#: LLVM fast-math flags that keep NaN and infinity semantics (the index map's box may be infinite): contraction
-#: into FMAs, reassociation, reciprocals and approximate functions; 14 % faster, differences ~1e-7 relative.
-_FASTMATH = {"contract", "arcp", "nsz", "reassoc", "afn"}
-#: The kernels that Python calls (march_rays, prepare_rays, compose_clouds, ground_radiance, Step 1a's sweep).
-_JIT_KERNEL = {"cache": _CACHE, "fastmath": _FASTMATH, "error_model": "numpy"}
-#: The functions that only compiled code calls (:func:`_helper_jit`): without the CPython and C wrappers that numba
-#: would otherwise compile (and cache) for each of them, an empty cache compiles the march and its set-up ~2.5 s
-#: (17 %) faster (docs/decisions/0008-cold-start.md).
-_JIT_HELPER = {**_JIT_KERNEL, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
-#: Kernels that must give the bits of the NumPy code they replace (the colour stage, adaptive sampling's fill and
-#: cells' test): no fast-math (no contraction into FMAs, no reassociation), without the GIL.
-_JIT_EXACT = {"cache": _CACHE, "error_model": "numpy", "nogil": True}
-
-
-class _CompiledOnlyDispatcher(CPUDispatcher):
-    """A function compiled without numba's Python wrapper (:func:`_helper_jit`). Called from Python, numba would
-    enter the wrapper that was never compiled and crash the interpreter; this raises instead."""
-
-    def __call__(self, *args, **kwargs):
-        raise TypeError(f"swim.rt: {self.py_func.__name__} is compiled for compiled callers only (no Python wrapper); "
-                        "call it through swim.rt.march_cpu.callable_from_python")
-
-
-def _helper_jit(**options):
-    """``numba.njit`` for the kernels' helpers, which only compiled code calls.
-
-    Parameters
-    ----------
-    **options
-        numba options beside :data:`_JIT_HELPER`'s (disk cache, fast-math, no Python or C wrapper), e.g.
-        ``inline="always"``, or in place of one of them (``fastmath=False``).
-
-    Returns
-    -------
-    callable
-        A decorator: the function's numba dispatcher, which raises TypeError when called from Python (use
-        :func:`callable_from_python`); under ``NUMBA_DISABLE_JIT=1`` the plain function.
-    """
-
-    def decorate(function):
-        dispatcher = njit(**{**_JIT_HELPER, **options})(function)
-        if isinstance(dispatcher, CPUDispatcher):  # not so under NUMBA_DISABLE_JIT=1: the plain function
-            dispatcher.__class__ = _CompiledOnlyDispatcher
-        return dispatcher
-
-    return decorate
-
-
-class _VectorisingDispatcher(CPUDispatcher):
-    """The march kernel's dispatcher: compiles with LLVM's SLP (straight-line code) vectoriser on, which numba leaves
-    off by default (``NUMBA_SLP_VECTORIZE``). It vectorises the step's four wavelength lanes (:data:`LANES`): the
-    replayed march ~4-6 % faster (docs/decisions/0003-cpu-kernel-code.md). The setting is numba's global one, switched
-    on
-    for this compilation (and the helpers it compiles and links) only."""
-
-    def compile(self, sig):
-        previous = numba.config.SLP_VECTORIZE
-        numba.config.SLP_VECTORIZE = 1
-        try:
-            return super().compile(sig)
-        finally:
-            numba.config.SLP_VECTORIZE = previous
-
-
-def _vectorising(dispatcher):
-    """``dispatcher`` compiling as :class:`_VectorisingDispatcher` (under ``NUMBA_DISABLE_JIT=1`` the plain
-    function, as it is)."""
-    if isinstance(dispatcher, CPUDispatcher):
-        dispatcher.__class__ = _VectorisingDispatcher
-    return dispatcher
-
-
-def callable_from_python(function):
-    """A helper of the kernels compiled without a Python wrapper (:func:`_helper_jit`), made callable from Python
-    (tests, debugging): a jitted shim that calls it (each call of this function makes and compiles a new shim: keep
-    the shim for repeated calls).
-
-    Parameters
-    ----------
-    function : numba dispatcher
-        E.g. ``march_cpu._adaptive_edges``.
-
-    Returns
-    -------
-    callable
-        Takes ``function``'s arguments, returns its result.
-    """
-    if not isinstance(function, CPUDispatcher):  # NUMBA_DISABLE_JIT=1: a plain function
-        return function
-    # parameters by name: numba inlines ``inline="always"`` functions into the shim and refuses ``*args`` there
-    names = ", ".join(inspect.signature(function.py_func).parameters)
-    namespace = {"__swim_helper": function}  # a name that no helper's parameter shadows
-    exec(f"def call({names}):\n    return __swim_helper({names})\n", namespace)
-    return njit(cache=False)(namespace["call"])
+from ..compilation.numba_jit import JIT_KERNEL, helper_jit, vectorising
 
 
 #: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
@@ -216,7 +72,7 @@ def pack_parameters(consts):
     return p, coef
 
 
-@_helper_jit()
+@helper_jit()
 def _index_map(u, v, du, dv, c, o):
     """One index of :func:`swim.optics.volume.grid_indices`: the cubic of :func:`swim.optics.volume._cubic` (its
     coefficients c[o:o + 10]) at the point (u, v), clipped to the fit's box, plus its tangent plane over the distance
@@ -262,14 +118,14 @@ ROUNDING_SHIFT = 6755399441055744.0
 ROUNDING_LIMIT = 2251799813685248.0
 
 
-@_helper_jit(fastmath=False)  # fast-math's reassociation would fold (x + shift) - shift into x
+@helper_jit(fastmath=False)  # fast-math's reassociation would fold (x + shift) - shift into x
 def _round_half_even(x):
     """``jnp.round``: to the nearest integer, halves to the even one (a probe on a grid-aligned ray lands on
     exact halves, and rounding them otherwise would place the steps differently from the JAX kernel).
 
     By adding and subtracting :data:`ROUNDING_SHIFT`: float arithmetic alone, which LLVM vectorises in
     :func:`_probe_indices`' loop. ``math.floor`` returns an integer in numba, and without AVX-512 (the kernels'
-    target on Intel CPUs, :mod:`swim.rt.numba_target`) x86 has no vector conversion of float64 to int64: a round's
+    target on Intel CPUs, :mod:`swim.compilation.numba_target`) x86 has no vector conversion of float64 to int64: a round's
     two floors became four scalar conversions, and the probes' loop took 8.2 % of the march's time instead of 4.0 %
     (docs/decisions/0003-cpu-kernel-code.md). Magnitudes from 2^51 on (whole numbers from 2^52 on; a probe far beyond
     the grid, clipped to it after) and NaN are returned as they are."""
@@ -278,7 +134,7 @@ def _round_half_even(x):
     return (x + ROUNDING_SHIFT) - ROUNDING_SHIFT
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _ix(i):
     """An array index that is never negative, as an unsigned integer: numba then emits no wraparound of negative
     indices for it (a compare, a select and often a reload of the axis' length per index). The step loop's lookups
@@ -288,12 +144,12 @@ def _ix(i):
     return np.uint64(i)
 
 
-@_helper_jit()
+@helper_jit()
 def _clip(x, lo, hi):
     return min(max(x, lo), hi)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _radius_and_height(q0, q1, q2, radius):
     """Distance from the Earth's centre [m] and height [m] of the point q (scene frame, rebased): for the callers
     that need the height alone (the clear-air steps), without the grid indices of :func:`_point_geometry`, which
@@ -303,7 +159,7 @@ def _radius_and_height(q0, q1, q2, radius):
     return r, (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c):
     """Distance from the Earth's centre [m], height [m] and grid indices (k, j, i) of the point q (scene frame,
     rebased) with the index map's cubic coefficients ``c`` (an array, or a tuple where a loop over points keeps them
@@ -321,7 +177,7 @@ def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_h
 
 
 # numba-level inlining: LLVM left this call in the step loop (docs/decisions/0003-cpu-kernel-code.md)
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _point_geometry(q0, q1, q2, p, coef):
     """:func:`swim.rt.march_jax._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
     radius = p[_P_RADIUS]
@@ -332,7 +188,7 @@ def _point_geometry(q0, q1, q2, p, coef):
     return h, mu_s, k, j, i
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _geometry_constants(p, coef):
     """The scalars that :func:`_height_and_indices` takes after the point (from :func:`pack_parameters`'s ``p``) and
     the index map's 20 cubic coefficients as a tuple: a loop over points then keeps them in registers, sees no table
@@ -344,7 +200,7 @@ def _geometry_constants(p, coef):
     return scalars, c
 
 
-@_helper_jit()
+@helper_jit()
 def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count, p, coef, shape, probe_at):
     """Grid indices of probes ``first`` ... ``first + count - 1`` of ``n_probe`` at the middles of equal intervals
     of the segment [s0, s0 + length] [m] of a ray, into ``probe_at[0:3, :count]`` (k, j, i), and the nearest
@@ -366,14 +222,14 @@ def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count,
         probe_at[5, b] = _clip(_round_half_even(i), 0.0, shape[2] - 1.0)
 
 
-@_helper_jit()
+@helper_jit()
 def _bilinear(table, c, fu, fv):
     """One channel c of :func:`swim.rt.march_jax._bilinear_table` on a (C, nu, nv) table, clamped."""
     u0, v0, a, b = _bilinear_index(table.shape[1], table.shape[2], fu, fv)
     return _bilinear_at(table, c, u0, v0, a, b)
 
 
-@_helper_jit()
+@helper_jit()
 def _bilinear_index(nu, nv, fu, fv):
     """Corner (u0, v0) and weights (a, b) of a clamped bilinear lookup, shared by all channels of a table."""
     u0, a = _lerp_index(fu, nu)
@@ -381,7 +237,7 @@ def _bilinear_index(nu, nv, fu, fv):
     return u0, v0, a, b
 
 
-@_helper_jit()
+@helper_jit()
 def _lerp_index(f, n):
     """Lower index and weight of a clamped linear lookup at fractional index f in a table axis of n entries."""
     f = _clip(f, 0.0, n - 1.001)
@@ -389,26 +245,26 @@ def _lerp_index(f, n):
     return i0, f - i0
 
 
-@_helper_jit()
+@helper_jit()
 def _bilinear_at(table, c, u0, v0, a, b):
     return ((table[_ix(c), _ix(u0), _ix(v0)] * (1 - b) + table[_ix(c), _ix(u0), _ix(v0 + 1)] * b) * (1 - a)
             + (table[_ix(c), _ix(u0 + 1), _ix(v0)] * (1 - b) + table[_ix(c), _ix(u0 + 1), _ix(v0 + 1)] * b) * a)
 
 
-@_helper_jit()
+@helper_jit()
 def _bilinear_clamped(field, j, i):
     """:func:`swim.rt.march_jax.bilinear_clamped` of the first channel of a (C, ny, nx) field at grid indices (j, i),
     clamped to its edges."""
     return _bilinear(field, 0, _clip(j, 0.0, field.shape[1] - 1.0), _clip(i, 0.0, field.shape[2] - 1.0))
 
 
-@_helper_jit()
+@helper_jit()
 def _terrain_gap(h, j, i, terrain):
     """Height above the terrain (the (1, ny, nx) field, :func:`_bilinear_clamped`) [m]."""
     return h - _bilinear_clamped(terrain, j, i)
 
 
-@_helper_jit()
+@helper_jit()
 def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
     """Height above the terrain [m] at distance s [m] along a ray (``gap`` of
     :func:`swim.rt.march_jax.refine_terrain_hit`)."""
@@ -416,7 +272,7 @@ def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
     return _terrain_gap(h, j, i, terrain)
 
 
-@_helper_jit()
+@helper_jit()
 def _terrain_crossing(hit_s, lo, hi, n_bisections, st0, st1, st2, d0, d1, d2, p, coef, terrain):
     """:func:`swim.rt.march_jax.refine_terrain_hit`: the ground's crossing [m] by bisection between the samples ``lo``
     (above the ground) and ``hi`` (below it) that bracket it; ``hit_s`` where they do not."""
@@ -432,7 +288,7 @@ def _terrain_crossing(hit_s, lo, hi, n_bisections, st0, st1, st2, d0, d1, d2, p,
     return hit_s
 
 
-@_helper_jit()
+@helper_jit()
 def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step_at):
     """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
     ``edges`` [m]) into ``step_at[0:6, :count]`` (height [m], local solar-zenith cosine, k, j, i, and the sky
@@ -455,7 +311,7 @@ def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step
         step_at[5, b] = math.sqrt(_clip(h / top, 0.0, 1.0))  # the sky table's height coordinate
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _lower_corner(k, j, i, nk, ny, nx):
     """Whether the fractional grid indices (k, j, i) lie within a grid of nk x ny x nx cells, and if so the lower
     corner (k0, j0, i0) of the cell whose eight corners a trilinear sample there reads (clamped so that k0 + 1 etc.
@@ -467,7 +323,7 @@ def _lower_corner(k, j, i, nk, ny, nx):
     return False, 0, 0, 0
 
 
-@_helper_jit()
+@helper_jit()
 def _prefetch_corners(volume, count, step_at):
     """Prefetch the eight corner cells of the trilinear volume samples of steps 0 ... count - 1 of a block (their
     grid indices (k, j, i) in ``step_at[2:5]``, from :func:`_step_geometry`), before the step loop reads them.
@@ -485,7 +341,7 @@ def _prefetch_corners(volume, count, step_at):
                     _prefetch(volume, k0 + dk, j0 + dj, i0 + 1)  # the cell after, often on the next cache line
 
 
-@_helper_jit()
+@helper_jit()
 def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_at):
     """:func:`swim.rt.march_jax.segment_cells` for one ray: the length in cells of the grid segment [s0, s0 + length]
     [m], from the grid indices of :data:`swim.constants.CELL_PROBES` points (one block of :func:`_probe_indices`)."""
@@ -498,7 +354,7 @@ def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_
     return cells * (n / (n - 1.0))
 
 
-@_helper_jit()
+@helper_jit()
 def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, cdf, probe_at):
     """Probe the step classes of :func:`swim.rt.march_inputs.step_classes` (or an occupancy grid: 1 occupied, 0 empty) at
     n_probe equal intervals of a grid segment: each interval's class into ``cdf[1:n_probe + 1]`` (1.0 occupied, 0.0
@@ -527,7 +383,7 @@ def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, 
     return occupied, sunlit
 
 
-@_helper_jit()
+@helper_jit()
 def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occupancy, n_probe, empty_weight,
                     probe_spacing, cell_slack, empty_steps, empty_cells_per_step, sunlit_steps, sunlit_cells_per_step,
                     cdf, edges, probe_at):
@@ -582,7 +438,7 @@ def _adaptive_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, coef, occ
     return n_steps
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth, max_depth, th, refine_visible, pending,
                        refine_slots, tau_refine):
     """Whether the interval [s_lo, s_lo + ds] [m] at refinement ``depth`` is halved before it is sampled (one level),
@@ -593,7 +449,7 @@ def _predicted_halving(have_prev, prev_hi, prev_beta, s_lo, ds, depth, max_depth
             and pending + 2 <= refine_slots and prev_beta * ds > tau_refine)
 
 
-@_helper_jit()
+@helper_jit()
 def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, spectra, n_probe, power, floor,
                  cdf, edges):
     """:func:`swim.rt.march_jax.clear_step_edges` for one ray, written into ``edges`` (n_steps + 1,)."""
@@ -614,20 +470,20 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, sp
     _invert_cdf(s0, length, n_steps, n_probe, cdf, edges)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _descending_at(st0, st1, st2, d0, d1, d2, s, radius):
     """Whether a ray comes closer to the earth's centre at distance s [m] along it."""
     return (st0 + s * d0) * d0 + (st1 + s * d1) * d1 + (st2 + s * d2 + radius) * d2 < 0
 
 
-@_helper_jit()
+@helper_jit()
 def _lowest_along(st0, st1, st2, d0, d1, d2, radius, end):
     """:func:`swim.rt.march_jax.lowest_point` for one ray: the distance [m] along it, within [0, end], of its point
     closest to the earth's centre (the ray's height is convex along it)."""
     return _clip(-(st0 * d0 + st1 * d1 + (st2 + radius) * d2), 0.0, end)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _column_above(beta_gas, f):
     """The fraction of the vertical optical depth above fractional height index ``f`` of the clear-air height table
     (its row :data:`swim.constants.GAS_COLUMN_ROW`, clamped linear lookup)."""
@@ -635,7 +491,7 @@ def _column_above(beta_gas, f):
     return beta_gas[GAS_COLUMN_ROW, g0] * (1 - w) + beta_gas[GAS_COLUMN_ROW, g0 + 1] * w
 
 
-@_helper_jit()
+@helper_jit()
 def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
     """:func:`swim.rt.march_jax.after_step_counts` for one ray: its clear-air steps after the grid, which it leaves at
     ``s_exit`` [m]; ``n_after`` where ``beta_gas`` has no column row (:data:`swim.constants.GAS_COLUMN_ROW`)."""
@@ -653,7 +509,7 @@ def _after_steps(st0, st1, st2, d0, d1, d2, s_exit, n_after, p, beta_gas):
     return min(max(int(math.ceil(n_after * math.sqrt(q))), min(AFTER_MIN_STEPS, n_after)), n_after)
 
 
-@_helper_jit()
+@helper_jit()
 def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
     """Edges (n_steps + 1,) [m] that cut the cumulative step density ``cdf[:n_probe + 1]`` (unnormalised, over
     n_probe equal intervals of [s0, s0 + length]) into n_steps equal parts (``_edges_from_density`` of
@@ -713,7 +569,7 @@ def sky_lanes(sky):
     return lanes
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _corner_lane(lanes, u0, v0, u1, v1, o, a, b):
     """Lane o of a bilinear lookup between the four corner rows (u0, v0) ... (u1, v1) of a lane table
     (:func:`sky_lanes`): ``(r00 (1 - b) + r01 b) (1 - a) + (r10 (1 - b) + r11 b) a``, as :func:`_bilinear_at`."""
@@ -721,7 +577,7 @@ def _corner_lane(lanes, u0, v0, u1, v1, o, a, b):
             + (lanes[u1, v0, o] * (1 - b) + lanes[u1, v1, o] * b) * a)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _corner_lanes(lanes, u0, v0, u1, v1, o, a, b):
     """Lanes o ... o + 3 of :func:`_corner_lane`. The table is indexed element by element: a row taken as a view
     (``lanes[u0, v0]``) is a new array whose reference count numba raises and lowers with atomic instructions,
@@ -730,7 +586,7 @@ def _corner_lanes(lanes, u0, v0, u1, v1, o, a, b):
             _corner_lane(lanes, u0, v0, u1, v1, o + 2, a, b), _corner_lane(lanes, u0, v0, u1, v1, o + 3, a, b))
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _profile_lanes(lanes, u0, u1, o, w):
     """Lanes o ... o + 3 of the multiple-scattering profiles between two heights (rows u0, u1 of the ray's
     ``ms_lanes``): ``m0 (1 - w) + m1 w``, element by element (no row views: :func:`_corner_lanes`)."""
@@ -738,7 +594,7 @@ def _profile_lanes(lanes, u0, u1, o, w):
             lanes[u0, o + 2] * (1 - w) + lanes[u1, o + 2] * w, lanes[u0, o + 3] * (1 - w) + lanes[u1, o + 3] * w)
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _mean_transmittance(x):
     """The step's mean transmittance (1 - e^-x) / x and e^-x - 1 (which carries e^-tau to the observer to the next
     step), per lane of optical depths x: for |x| < 0.1 in every lane (a step in clear air has x ~ 1e-3; x < 0 for the
@@ -756,7 +612,7 @@ def _mean_transmittance(x):
              -e3 / x3 if x3 != 0.0 else 1.0), (e0, e1, e2, e3))
 
 
-@_helper_jit(inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
+@helper_jit(inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
 def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff,
                       weight, gas_ratio):
     """Each lane's (wavelength's) accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth,
@@ -793,7 +649,7 @@ def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, sou
             (in0, in1, in2, in3), (ig0, ig1, ig2, ig3))
 
 
-@_helper_jit()
+@helper_jit()
 def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scale, hydro_narrow, ms_field, ms_coarsen,
                    beta_h, t_cloud, e0, e1, e2):
     """The hydrometeors' sources at a step of ``cloud_scattering="discrete_ordinates"``, per wavelength [m-1]:
@@ -865,7 +721,7 @@ def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scal
     return d0, d1, d2, ss0 * e0 + ms0, ss1 * e1 + ms1, ss2 * e2 + ms2, beta_eff
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _field_at(field, c, k0, k1, j0, j1, i0, i1, ak, aj, ai):
     """Channel ``c`` of ``field`` (nk, ny, nx, C) interpolated trilinearly between the corners (k0|k1, j0|j1,
     i0|i1) with the upper corners' weights ``ak``, ``aj``, ``ai``."""
@@ -876,7 +732,7 @@ def _field_at(field, c, k0, k1, j0, j1, i0, i1, ak, aj, ai):
     return (1 - ak) * lo + ak * hi
 
 
-@_helper_jit()
+@helper_jit()
 def _ratio_above(h, j, i, above, heights, coarsen):
     """The diffuse radiance's ratio to the clear sky's (3 wavelengths) at height ``h`` [m] over the grid's column
     (``j``, ``i``): ``above`` (n, ny_c, nx_c, 3) at ``heights`` (n,) [m], the grid's top level first, linear in
@@ -900,7 +756,7 @@ def _ratio_above(h, j, i, above, heights, coarsen):
             _field_at(above, 2, a, a + 1, j0, j1, i0, i1, w, fj - j0, fi - i0))
 
 
-@_helper_jit(inline="always")
+@helper_jit(inline="always")
 def _accumulate_cloud(l_cloud, t_obs, source, beta_clear, beta_h, ds_eff):
     """The hydrometeors' radiance lanes after a step: ``source`` (3 lanes) times the step's mean transmittance
     (its extinction: the clear air's ``beta_clear`` lanes and the scaled hydrometeors' ``beta_h``) and the
@@ -914,8 +770,8 @@ def _accumulate_cloud(l_cloud, t_obs, source, beta_clear, beta_h, ds_eff):
             l2 + t_obs[2] * s2 * (ds_eff * m2), l3)
 
 
-@_vectorising
-@njit(**_JIT_KERNEL, nogil=True)
+@vectorising
+@njit(**JIT_KERNEL, nogil=True)
 def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_rayleigh, p_aerosol, p_stratospheric,
                      class_lower, class_weight, ms_profile, use_ms, n_before, n_grid, n_after, p, coef, beta_gas,
                      spectra, sky_lanes, diffuse_classes, n_class, volume, terrain, occupancy, angstrom, aerosol_ssa,
@@ -932,7 +788,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     arguments were passed anew every time), and numba's inlining of it failed.
 
     This is the compiled kernel that :func:`march_rays` calls from Python, without the GIL, with LLVM's SLP
-    vectoriser on (:func:`_vectorising`). A compiled ``march_rays`` that allocated the work arrays and called this
+    vectoriser on (:func:`vectorising`). A compiled ``march_rays`` that allocated the work arrays and called this
     took 1.5-2 s longer to compile on an empty cache (numba optimised and emitted the whole loop a second time
     for it), for no gain at run time (docs/decisions/0003-cpu-kernel-code.md).
 
@@ -1358,7 +1214,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         samples_out[r] = samples
 
 
-@njit(**_JIT_KERNEL, nogil=True)
+@njit(**JIT_KERNEL, nogil=True)
 def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, ms_source, use_ms, class_lower,
                  class_weight, ms_profile):
     """:func:`swim.rt.march_jax._prepare_rays`, the per-ray set-up before the march, for the rays of :func:`march_rays`:

@@ -31,7 +31,7 @@ from ..optics.phase import (
 from ..surface.lighting import surface_radiance
 from .clouds import CLOUD_HOST_KEYS, CLOUD_KERNEL_KEYS, three_d
 from .clouds_device import cloud_sources, ratio_above_grid
-from .export_cache import exported_jit
+from ..compilation.jax_export import exported_jit
 from .solar import transmittance_delta_eddington
 from .device_copies import _DEVICE_COPIES, device_copies
 from .march_inputs import HOST_CONSTANTS, _ends_on_surface, packed_aerosol_3d, surface_fade_cells

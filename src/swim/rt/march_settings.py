@@ -285,7 +285,7 @@ class MarchSettings:
     def kernel_settings(self) -> MarchSettings:
         """These settings with those that the march's kernels do not read (:attr:`ray_table`,
         :attr:`step1a_on_device`, :attr:`device_sampling`, :attr:`device_image`) pinned to False, so that a compiled
-        kernel (keyed by its settings, also on disk: :mod:`swim.rt.export_cache`) serves whatever they are: a
+        kernel (keyed by its settings, also on disk: :mod:`swim.compilation.jax_export`) serves whatever they are: a
         recompilation of the JAX kernel takes tens of seconds on a GPU."""
         return replace(self, ray_table=False, step1a_on_device=False, device_sampling=False, device_image=False)
 

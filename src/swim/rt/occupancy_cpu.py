@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .march_cpu import _JIT_EXACT
+from ..compilation.numba_jit import JIT_EXACT
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def occupied_cells(extinction, threshold, levels, terrain_top, dz, k0, k1, out):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of the cells that rays must step through finely, before the dilation of
     :func:`swim.rt.march_inputs.occupancy_grid`: ``out[k, j, i]`` (bool, (level, y, x)) is True where the species'
@@ -37,7 +37,7 @@ def occupied_cells(extinction, threshold, levels, terrain_top, dz, k0, k1, out):
                 out[k, j, i] = total > threshold or (top > 1.0 and level <= top + dz)
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def unlit_nodes(cloud_transmittance, terrain_shadow, aerosol_tau_sun, has_aerosol, threshold, k0, k1,
                 out):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of the nodes that the direct sun does not reach unattenuated, before the dilation of
@@ -54,7 +54,7 @@ def unlit_nodes(cloud_transmittance, terrain_shadow, aerosol_tau_sun, has_aeroso
                 out[k, j, i] = not t >= threshold
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def classify_cells(occupancy, unlit, code, k0, k1, out):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of the step classes of :func:`swim.rt.march_inputs.step_classes`: ``out`` (int8, (level, y, x)) is 1
     where ``occupancy`` > 0, else 0 where ``unlit`` (dilated), else ``code`` (sunlit clear air)."""
@@ -65,7 +65,7 @@ def classify_cells(occupancy, unlit, code, k0, k1, out):  # pragma: no cover - c
                 out[k, j, i] = 1 if occupancy[k, j, i] > 0 else (0 if unlit[k, j, i] else code)
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def dilate_levels_across(mask, k0, k1, out):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of a (level, y, x) ``mask`` of 0 and 1 (uint8) dilated by one cell across each level:
     ``out[k, j, i]`` is 1 where ``mask[k]`` is 1 in the 3 x 3 square around (j, i) (clipped at the edges). The
@@ -87,7 +87,7 @@ def dilate_levels_across(mask, k0, k1, out):  # pragma: no cover - compiled
             out[k, j, nx - 1] = row[nx - 2] | row[nx - 1]
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def dilate_levels_along(across, k0, k1, out):  # pragma: no cover - compiled
     """Levels ``k0:k1`` of ``across`` (:func:`dilate_levels_across`'s result) or-ed with the levels below and above
     it: the second half of :func:`dilate_cells`."""

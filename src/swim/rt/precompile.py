@@ -22,7 +22,7 @@ The helper is only an optimisation. A kernel whose types differ from :func:`kern
 render itself; a helper that fails, cannot start or takes longer than :data:`WAIT_S` leaves the march to the
 render (logged as a warning). Where ``fcntl`` exists, a file lock in the cache folder lets one helper compile while
 the others wait and then load its result (two pytest-xdist workers, or several renders starting at once), and
-:func:`swim.rt.compilation_cache.serialise_numba_cache_writes` keeps two processes from writing a function's cache
+:func:`swim.compilation.disk_cache.serialise_numba_cache_writes` keeps two processes from writing a function's cache
 index at once. ``SWIM_PRECOMPILE=0`` turns the helper off; so does turning the disk caches off (``SWIM_JAX_CACHE=0``),
 since the helper hands its result over through them. ``tests/unit/rt/test_precompile.py`` holds
 :func:`kernel_signature` to the types of a real render's calls.
@@ -41,7 +41,8 @@ import threading
 import time
 from pathlib import Path
 
-from .compilation_cache import switched_off
+from ..compilation import numba_jit
+from ..compilation.disk_cache import switched_off
 
 log = logging.getLogger(__name__)
 
@@ -176,13 +177,15 @@ def _helper_command(names) -> list[str]:
 def _helper_environment() -> dict:
     """This process's environment with numba's cache folder and the folder that holds this swim package named
     explicitly, so that the helper compiles this code into the cache this process reads."""
+    import numba
+
     from . import march_cpu
 
     env = dict(os.environ)
-    env["NUMBA_CACHE_DIR"] = str(march_cpu.numba.config.CACHE_DIR)
-    # the CPU and the features this process compiles for (swim.rt.numba_target): numba's cache keys its entries by
-    # them, and the helper, a fresh process, could choose others (this one's target may have been set up before
-    # swim's choice)
+    env["NUMBA_CACHE_DIR"] = str(numba.config.CACHE_DIR)
+    # the CPU and the features this process compiles for (swim.compilation.numba_target): numba's cache keys its
+    # entries by them, and the helper, a fresh process, could choose others (this one's target may have been set up
+    # before swim's choice)
     _, cpu_name, features = march_cpu._march_ray_range.targetctx.codegen().magic_tuple()
     env["NUMBA_CPU_NAME"], env["NUMBA_CPU_FEATURES"] = cpu_name, features
     root = str(Path(__file__).resolve().parents[2])
@@ -196,7 +199,7 @@ def _helper_needed() -> bool:
     from . import march_cpu
 
     try:
-        return (march_cpu._CACHE and not march_cpu._march_ray_range.signatures
+        return (numba_jit.CACHE_ON and not march_cpu._march_ray_range.signatures
                 and not all(map(is_cached, HELPER_KERNELS)))
     except Exception:  # e.g. NUMBA_DISABLE_JIT=1: plain Python functions, nothing to compile
         return False
@@ -295,10 +298,10 @@ def wait(meanwhile=()) -> None:
         if code == 0 and all(map(is_cached, HELPER_KERNELS)):
             log.info("the helper process compiled the march kernel in %.1f s", time.perf_counter() - started)
         elif code == 0:
-            from . import march_cpu
+            import numba
 
             log.warning("the helper process finished, but the march kernel is not in this process's numba cache "
-                        "(%s); compiling it here", march_cpu.numba.config.CACHE_DIR)
+                        "(%s); compiling it here", numba.config.CACHE_DIR)
         else:
             errors.seek(0)
             tail = errors.read().decode(errors="replace")[-2000:]
@@ -312,9 +315,9 @@ def main(argv=None) -> int:
     """``python -m swim.rt.precompile KERNEL ...``: compile the named kernels of :data:`KERNELS` for
     :func:`kernel_signature` into numba's disk cache, one helper at a time per cache folder."""
     names = list(sys.argv[1:] if argv is None else argv)
-    from . import march_cpu
+    import numba  # its disk cache points at swim's folder (swim.compilation.numba_jit, imported above)
 
-    folder = march_cpu.numba.config.CACHE_DIR
+    folder = numba.config.CACHE_DIR
     lock = None
     if folder:
         os.makedirs(folder, exist_ok=True)

@@ -29,7 +29,7 @@ subtracts without ``.rn`` (:func:`edit_ptx`), by a wrapper around the Triton com
 an exported one) is the edited one. The name is made while the kernel is traced, so it cannot tell JAX's caches
 apart: the settings that ask for the edits (:attr:`swim.rt.march_settings.MarchSettings.fused_max_registers` and
 :attr:`~swim.rt.march_settings.MarchSettings.fused_fma`) are among the compiled programs' static arguments and keys (JAX's and
-:mod:`swim.rt.export_cache`'s). :func:`capped_entries` and :func:`contracted_entries` list the entries edited so far
+:mod:`swim.compilation.jax_export`'s). :func:`capped_entries` and :func:`contracted_entries` list the entries edited so far
 in the process.
 
 This reaches into a private module of JAX (``jax._src.pallas.triton.pallas_call_registration``), so it is checked

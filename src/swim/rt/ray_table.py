@@ -41,7 +41,7 @@ from .march_inputs import GridGeometry
 from .march_jax import _device_constants, _host_rows, with_probes_for
 from .march_settings import MarchSettings
 from .march_pallas import with_vector_volume
-from .export_cache import exported_jit
+from ..compilation.jax_export import exported_jit
 from .gas import phase_functions
 
 log = logging.getLogger(__name__)

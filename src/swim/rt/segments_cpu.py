@@ -19,7 +19,7 @@ import math
 
 from numba import njit
 
-from .march_cpu import _JIT_EXACT as _JIT
+from ..compilation.numba_jit import JIT_EXACT as _JIT
 
 
 @njit(**_JIT, inline="always")

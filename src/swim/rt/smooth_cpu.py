@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .march_cpu import _JIT_EXACT as _JIT
+from ..compilation.numba_jit import JIT_EXACT as _JIT
 
 
 @njit(**_JIT)

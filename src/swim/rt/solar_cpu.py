@@ -25,10 +25,10 @@ from numba import njit
 
 from ..workers import in_blocks
 from .solar import ONE_MINUS_G_PER_BACKSCATTER
-from .march_cpu import _JIT_EXACT, _JIT_KERNEL, _helper_jit
+from ..compilation.numba_jit import JIT_EXACT, JIT_KERNEL, helper_jit
 
 
-@_helper_jit()
+@helper_jit()
 def _span(shift, n):
     """Points q of range(n) whose shifted position q + shift lies in [0, n - 1], as (first, end), and the
     position's integer offset and fraction."""
@@ -38,7 +38,7 @@ def _span(shift, n):
     return first, end, int(floor), shift - floor
 
 
-@njit(**_JIT_KERNEL, nogil=True)
+@njit(**JIT_KERNEL, nogil=True)
 def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, midpoints, row_first, row_end):
     """``taus[k, :, j, :nx]`` = ``scale`` x the extinction ``fields`` (C, nk, ny + 1, nx + 1; zero last row and
     column) summed along the sun ray over the ``block`` levels above level k (``n_sub`` points per level, linear
@@ -92,7 +92,7 @@ def _direct_rows(fields, taus, ny, nx, di, dj, scale, n_sub, block, midpoints, r
                     taus[k, ch, j, i] = acc[i] * scale32
 
 
-@njit(**_JIT_KERNEL, nogil=True)
+@njit(**JIT_KERNEL, nogil=True)
 def _add_above(taus, ny, nx, di, dj, block, ch_first, ch_end):
     """Level by level from the top: add to ``taus[k]`` the optical depth of level min(k + block, top), bilinearly
     interpolated where the sun ray from level k crosses it (zero outside the grid), for the fields (channels)
@@ -119,7 +119,7 @@ def _add_above(taus, ny, nx, di, dj, block, ch_first, ch_end):
                     out[i] += (a0[i] * (1 - fi) + a1[i] * fi) * (1 - fj) + (b0[i] * (1 - fi) + b1[i] * fi) * fj
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no cover - compiled
     """The sweep's first two fields for levels ``k0:k1``, in one pass over the species: ``total`` = the sum over the
     species of ``extinction`` (species, level, y, x) [m-1] and ``weighted`` = its sum weighted by ``weights``
@@ -143,7 +143,7 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
                 weighted[k - k0, j, i] = b
 
 
-@njit(**_JIT_EXACT)
+@njit(**JIT_EXACT)
 def step1a_channels(k0, k1, mu0, n_hydro, tau, b_tau, n_terrain, terrain_tau, n_aerosol, aerosol_tau, cloud_t,
                     shadow, aerosol, write_cloud, write_shadow, write_aerosol,
                     direct_beam):  # pragma: no cover - compiled

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SwimInputError
-from .export_cache import exported_jit
+from ..compilation.jax_export import exported_jit
 from .march_inputs import KERNEL_STEP1A_VARIABLES, packed_aerosol_3d, step1a_channel_names, step1a_channel_views
 from .solar import (ABOVE_SWEPT, DIRECT_LEVELS, STEP1A_ATTRS, TERRAIN_OPACITY_PER_CELL, backscatter_weights,
                     sweep_geometry, swept_levels, transmittance_delta_eddington)

@@ -902,16 +902,14 @@ def scene_with_albedo_from_image(scene, image, bounds=(-180.0, 180.0, -90.0, 90.
     Returns
     -------
     xarray.Dataset
-        The validated scene with ``surface_albedo`` (wavelength, y, x) [-] replaced.
+        A copy of the scene with ``surface_albedo`` (wavelength, y, x) [-] replaced, clipped to [0, 1] (the render
+        validates the scene as a whole).
 
     Raises
     ------
     SwimInputError
-        A missing or unreadable image, scene points outside ``bounds``, or what
-        :func:`swim.io.scene.validate_scene` rejects.
+        A missing or unreadable image, or scene points outside ``bounds``.
     """
-    from ..io.scene import validate_scene
-
     try:
         albedo = spectral_albedo_from_image(image, scene["lat"].values, scene["lon"].values, bounds=tuple(bounds),
                                             method=method, scale=scale)
@@ -920,5 +918,4 @@ def scene_with_albedo_from_image(scene, image, bounds=(-180.0, 180.0, -90.0, 90.
     out = scene.drop_vars("surface_albedo", errors="ignore").copy()
     out["surface_albedo"] = (("wavelength", "y", "x"), np.clip(albedo, 0.0, 1.0),
                              {"units": "1", "long_name": "surface spectral albedo", "source": "RGB image"})
-    out = out.assign_coords(wavelength=("wavelength", np.asarray(WAVELENGTHS_NM, dtype=float), {"units": "nm"}))
-    return validate_scene(out)
+    return out.assign_coords(wavelength=("wavelength", np.asarray(WAVELENGTHS_NM, dtype=float), {"units": "nm"}))

@@ -148,11 +148,11 @@ def _symmetric_scaling(kernel, w_mu):
 
 
 def _disk_cached(name, build, *args):
-    """``build(*args)``, kept on disk between processes (:func:`swim.rt.compilation_cache.disk_cached`, keyed by
+    """``build(*args)``, kept on disk between processes (:func:`swim.compilation.disk_cache.disk_cached`, keyed by
     the arguments and the code of every module of :mod:`swim.surface`, where all that the tables are built from
     lives): the two tables take ~0.45 s together, most of the ground's share of a new process's first render
     (docs/decisions/0009-work-around-the-march.md)."""
-    from ..rt.compilation_cache import disk_cached  # here: swim.rt imports this module
+    from ..compilation.disk_cache import disk_cached  # here: swim.rt imports this module
 
     sources = sorted(Path(__file__).resolve().parent.glob("*.py"))
     return disk_cached("surface", (name, *args), lambda: build(*args), sources=sources)

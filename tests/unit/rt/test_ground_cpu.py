@@ -13,11 +13,12 @@ import jax
 import numpy as np
 import pytest
 
+from swim.compilation import numba_jit
 from swim.constants import EARTH_RADIUS_M, SPECIES
 from swim.frames import enu_from_azimuth_zenith
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
-from swim.rt import compose_cpu, ground_cpu, march_cpu
+from swim.rt import compose_cpu, ground_cpu
 from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
 from swim.rt.march import _numba_tables
 from swim.rt.march_inputs import aerosol_column_optical_depth, kernel_constants
@@ -61,7 +62,7 @@ def numba_radiance(pts, model):
     g = ground_cpu.ground_tables()
     n = len(pts["up"])
     out = np.empty((n, 3))
-    surface_radiance = march_cpu.callable_from_python(ground_cpu.surface_radiance)
+    surface_radiance = numba_jit.callable_from_python(ground_cpu.surface_radiance)
     for r in range(n):
         surface_radiance(
             pts["up"][r], pts["view"][r], pts["sun"][r], pts["slope"][r, 0], pts["slope"][r, 1], pts["albedo"][r],

@@ -168,14 +168,14 @@ def test_a_helper_that_outlives_the_wait_is_stopped(monkeypatch, caplog):
 
 def test_numba_cache_saves_wait_for_another_process_lock(tmp_path):
     """Two processes saving entries of one function at once could number both data files alike; the saves are
-    serialised by a lock in the cache folder (swim.rt.compilation_cache.serialise_numba_cache_writes)."""
+    serialised by a lock in the cache folder (swim.compilation.disk_cache.serialise_numba_cache_writes)."""
     fcntl = pytest.importorskip("fcntl")
     import threading
 
     from numba.core import caching
 
     import swim.rt.march_cpu  # noqa: F401  (installs the lock where numba's cache is on)
-    from swim.rt.compilation_cache import serialise_numba_cache_writes
+    from swim.compilation.disk_cache import serialise_numba_cache_writes
 
     serialise_numba_cache_writes()
     assert getattr(caching.IndexDataCacheFile.save, "_swim_locked", False)

@@ -4,6 +4,7 @@ import numpy as np
 import jax.numpy as jnp
 import pytest
 
+from swim.compilation import numba_jit
 from swim.constants import EARTH_RADIUS_M
 from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
@@ -217,7 +218,7 @@ def test_numba_kernel_places_the_same_steps_as_grid_step_edges():
 
     dirs = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.8, 0.3, 0.52], [0.0, 0.0, -1.0], [0.1, 0.0, -0.995]]
     heights = [10.0, 10.0, 10.0, 9000.0, 9000.0]
-    adaptive_edges = march_cpu.callable_from_python(march_cpu._adaptive_edges)
+    adaptive_edges = numba_jit.callable_from_python(march_cpu._adaptive_edges)
     for cloud in (False, True):
         consts, args = _rays(_scene(cloud=cloud), dirs, heights)
         start, direction, s0, length = (np.asarray(a, float) for a in args)

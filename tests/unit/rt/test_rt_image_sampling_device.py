@@ -298,7 +298,7 @@ def test_device_sampling_is_not_a_kernel_setting():
 
 
 def test_a_new_process_reads_the_exported_programs_and_samples_alike(tmp_path, monkeypatch):
-    """The level programs kept on disk (swim.rt.export_cache): a new process (the programs forgotten) reads them
+    """The level programs kept on disk (swim.compilation.jax_export): a new process (the programs forgotten) reads them
     instead of tracing them, and samples as before. (Its name holds "exports": the fixture above leaves them on.)"""
     pytest.importorskip("flatbuffers")
     from swim.rt import image_sampling_device as device

@@ -6,6 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from swim.compilation import numba_jit
 from swim.errors import SwimInputError
 from swim.constants import EARTH_RADIUS_M
 from swim.frames import enu_from_azimuth_zenith
@@ -1329,7 +1330,7 @@ def test_numba_clear_air_steps_match_the_jax_ones():
                                            jnp.asarray(bounds[:, 1], jnp.float32),
                                            jnp.asarray(bounds[:, 2] - bounds[:, 1], jnp.float32), 24, consts))
     p, _ = march_cpu.pack_parameters(consts)
-    clear_edges = march_cpu.callable_from_python(march_cpu._clear_edges)
+    clear_edges = numba_jit.callable_from_python(march_cpu._clear_edges)
     for r in range(len(dirs)):
         cdf, edges = np.empty(CLEAR_PROBES + 1), np.empty(25)
         clear_edges(*start[r], *dirs[r], bounds[r, 1], bounds[r, 2] - bounds[r, 1], 24, p,
@@ -1420,7 +1421,7 @@ def test_after_step_counts_follow_the_air_left_above_the_grid():
                              n_after)
     # the numba helper, per ray
     p, _ = march_cpu.pack_parameters(consts)
-    after_steps = march_cpu.callable_from_python(march_cpu._after_steps)
+    after_steps = numba_jit.callable_from_python(march_cpu._after_steps)
     table = np.asarray(consts["beta_gas"])
     rays = [(start[r], up[r], bounds[r, 1], counts[r]) for r in range(n)]
     rays += [(flat_start[r], dirs[r], flat_bounds[r, 1], got[r]) for r in range(2)]

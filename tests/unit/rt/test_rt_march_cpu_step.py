@@ -11,6 +11,7 @@ import numba
 import numpy as np
 import pytest
 
+from swim.compilation import numba_jit
 from swim.rt import march_cpu, precompile
 
 
@@ -30,7 +31,7 @@ def test_step_accumulates_the_exact_mean_transmittance(lanes, weight):
     t_obs = tuple(math.exp(-(tau + t0)) for tau in tau_clear)
     source, irradiance = (2.0, 1.0, 0.5, 3.0), (3.0, 2.0, 1.5, 0.5)
     zeros = (0.0, 0.0, 0.0, 0.0)
-    accumulate = march_cpu.callable_from_python(march_cpu._accumulate_lanes)
+    accumulate = numba_jit.callable_from_python(march_cpu._accumulate_lanes)
     out = accumulate(tau_clear, t_obs, zeros, zeros, zeros, beta_clear, source, irradiance, beta_h, ds, weight,
                      math.exp(t0))
     for c, x in enumerate(lanes):
@@ -52,8 +53,8 @@ def test_sky_lanes_hold_the_sky_table_wavelengths_innermost():
     for c in range(3):
         assert np.array_equal(lanes[..., c], sky[c]) and np.array_equal(lanes[..., 4 + c], sky[3 + c])
     assert not lanes[..., 3].any() and not lanes[..., 7].any()
-    corner = march_cpu.callable_from_python(march_cpu._corner_lanes)
-    at = march_cpu.callable_from_python(march_cpu._bilinear_at)
+    corner = numba_jit.callable_from_python(march_cpu._corner_lanes)
+    at = numba_jit.callable_from_python(march_cpu._bilinear_at)
     u0, v0, a, b = 2, 6, 0.3, 0.8
     for o in (0, 4):
         got = corner(lanes, u0, v0, u0 + 1, v0 + 1, o, a, b)
@@ -75,7 +76,7 @@ def test_corner_prefetch_reads_nothing_and_compiles_to_cache_hints():
                                  [0.0, 3.0, 2.2, 1.0, 4.5, 1.0],
                                  [0.0, 4.0, 0.7, 1.0, 1.0, 1.0]])
     before = volume.copy()
-    march_cpu.callable_from_python(march_cpu._prefetch_corners)(volume, 6, step_at)
+    numba_jit.callable_from_python(march_cpu._prefetch_corners)(volume, 6, step_at)
     assert np.array_equal(volume, before)
     if platform.machine().lower() in ("x86_64", "amd64"):
         # compiled here (a function loaded from numba's disk cache keeps no assembly to inspect)
@@ -104,7 +105,7 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
             assert wrapped == (name in kernels), (module.__name__, name)
     assert kernels <= seen
     assert len(seen) > 40
-    assert march_cpu.callable_from_python(march_cpu._clip)(3.0, 0.0, 1.0) == 1.0
+    assert numba_jit.callable_from_python(march_cpu._clip)(3.0, 0.0, 1.0) == 1.0
     with pytest.raises(TypeError, match="callable_from_python"):  # not a crash of the interpreter
         march_cpu._clip(3.0, 0.0, 1.0)
 
@@ -112,13 +113,13 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
 def test_the_march_compiles_with_the_slp_vectoriser_and_leaves_numbas_setting_as_it_was():
     """The march (_march_ray_range) compiles with LLVM's SLP vectoriser on (docs/decisions/0003-cpu-kernel-code.md) and
     restores numba's global setting afterwards, also when the compilation fails."""
-    assert isinstance(march_cpu._march_ray_range, march_cpu._VectorisingDispatcher)
+    assert isinstance(march_cpu._march_ray_range, numba_jit.VectorisingDispatcher)
     seen = []
 
     def probe(x):
         return x + 1.0
 
-    dispatcher = march_cpu._vectorising(numba.njit(cache=False)(probe))
+    dispatcher = numba_jit.vectorising(numba.njit(cache=False)(probe))
     original = numba.core.registry.CPUDispatcher.compile
 
     def spy(self, sig):
@@ -225,7 +226,7 @@ def test_the_kernel_changes_no_reference_count_inside_its_loops():
     import re
 
     # compiled here, the render's signature, with the kernel's options but the disk cache (which keeps no IR)
-    fresh = numba.njit(**{**march_cpu._JIT_KERNEL, "cache": False}, nogil=True)(march_cpu._march_ray_range.py_func)
+    fresh = numba.njit(**{**numba_jit.JIT_KERNEL, "cache": False}, nogil=True)(march_cpu._march_ray_range.py_func)
     signature = precompile.kernel_signature("_march_ray_range")
     fresh.compile(signature)
     ir = fresh.inspect_llvm(signature)
@@ -243,7 +244,7 @@ def test_probes_round_to_the_nearest_cell_as_numpy_does_halves_to_even():
     """The probes' nearest cell (_round_half_even) is NumPy's (and jnp.round's) rounding: halves to the even
     integer, negative values, magnitudes at and beyond 2^51 and NaN included; compiled as the kernel compiles it
     (fast-math's reassociation must not fold its shift away)."""
-    rounded = march_cpu.callable_from_python(march_cpu._round_half_even)
+    rounded = numba_jit.callable_from_python(march_cpu._round_half_even)
     rng = np.random.default_rng(3)
     halves = np.arange(-8.5, 8.6, 0.5)
     edges = [0.49999999999999994, -0.49999999999999994, 1e-300, -0.0]
@@ -258,9 +259,9 @@ def test_probes_round_to_the_nearest_cell_as_numpy_does_halves_to_even():
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86 instructions")
 def test_the_probes_loop_converts_no_float_to_an_integer():
     """_probe_indices' loop rounds in floating point: x86 converts float64 to int64 in vectors only with AVX-512,
-    which the kernels leave out on Intel CPUs (swim.rt.numba_target), and scalar conversions there made the loop
+    which the kernels leave out on Intel CPUs (swim.compilation.numba_target), and scalar conversions there made the loop
     take 8.2 % of the march's time instead of 4.0 % (docs/decisions/0003-cpu-kernel-code.md)."""
-    fresh = numba.njit(cache=False, fastmath=march_cpu._FASTMATH, error_model="numpy")(
+    fresh = numba.njit(cache=False, fastmath=numba_jit.FASTMATH, error_model="numpy")(
         march_cpu._probe_indices.py_func)
     probe_at = np.zeros((6, march_cpu.PROBE_BLOCK))
     p = np.zeros(32)

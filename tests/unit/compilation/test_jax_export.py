@@ -1,4 +1,4 @@
-"""The traced programs kept on disk (swim.rt.export_cache): a later process reads them instead of tracing, and gets the
+"""The traced programs kept on disk (swim.compilation.jax_export): a later process reads them instead of tracing, and gets the
 same bits as jax.jit."""
 
 from dataclasses import dataclass
@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from swim.rt import cache_budget
-from swim.rt.export_cache import KIND, SUFFIX, ExportedJit, exported_jit
+from swim.compilation import cache_budget
+from swim.compilation.jax_export import KIND, SUFFIX, ExportedJit, exported_jit
 
 pytest.importorskip("flatbuffers")  # jax.export's serialization needs it (a dependency of swim)
 

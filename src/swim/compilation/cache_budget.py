@@ -1,6 +1,6 @@
 """Bounded disk caches: what swim keeps in ``$SWIM_CACHE_DIR`` stays below a budget, and can be listed and cleared.
 
-swim keeps five caches on disk (:func:`swim.rt.compilation_cache.cache_directory`):
+swim keeps five caches on disk (:func:`swim.compilation.disk_cache.cache_directory`):
 
 ========  ===========================================================  =============================================
 kind      what                                                         bound
@@ -11,9 +11,9 @@ surface   the BRDF tables (:mod:`swim.surface.brdf`)                   :func:`ma
 jax       JAX's compiled executables                                   :func:`max_bytes`, JAX's own LRU eviction
                                                                        (``jax_compilation_cache_max_size``)
 jax-      the JAX kernels' traced programs                             :func:`max_bytes`, least recently used first
-export    (:mod:`swim.rt.export_cache`, ~0.3 MB each)
+export    (:mod:`swim.compilation.jax_export`, ~0.3 MB each)
 numba     numba's machine code, one folder per version of the code     the :data:`CODE_VERSIONS` most recently used
-          (:func:`swim.rt.march_cpu.numba_sources_digest`, ~13 MB)     folders
+          (:func:`swim.compilation.numba_jit.numba_sources_digest`, ~13 MB)     folders
 ========  ===========================================================  =============================================
 
 Without bounds they only grow: every new scene aerosol profile or albedo adds a table of up to 42 MB, and every
@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import SwimInputError
-from .compilation_cache import cache_directory
+from .disk_cache import cache_directory
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +136,7 @@ def mark_used(path: Path) -> None:
         pass
 
 
-#: Names of the numba cache's code-version folders (:func:`swim.rt.march_cpu.numba_sources_digest`): nothing else in
+#: Names of the numba cache's code-version folders (:func:`swim.compilation.numba_jit.numba_sources_digest`): nothing else in
 #: that folder is ever removed.
 _CODE_VERSION = re.compile(r"[0-9a-f]{16}")
 #: Endings of the files that swim's (and JAX's) caches write: nothing else in their folders is ever removed.
@@ -202,7 +202,7 @@ def prune_code_versions(root: Path, current: str, keep: int = CODE_VERSIONS) -> 
     them, and any folder that a live process holds (:func:`hold_code_version`).
 
     Each folder holds the machine code of one version of swim's numba modules
-    (:func:`swim.rt.march_cpu.numba_sources_digest`, 16 hex digits; other folders are left alone); ``current`` is
+    (:func:`swim.compilation.numba_jit.numba_sources_digest`, 16 hex digits; other folders are left alone); ``current`` is
     marked used first. Returns the removed folders' names."""
     mark_used(root / current)
     folders = _own_entries("numba", root)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from swim.rt.compilation_cache import cache_directory, disk_cached
+from swim.compilation.disk_cache import cache_directory, disk_cached
 
 
 def test_disk_cache_hits_across_calls_and_rebuilds_when_the_code_changes(tmp_path, monkeypatch):
@@ -56,8 +56,10 @@ def test_numba_kernel_cache_follows_swim_cache_dir(tmp_path):
     import subprocess
     import sys
 
-    probe = "import numba, swim.rt.march_cpu as m; print(repr(numba.config.CACHE_DIR), m._CACHE)"
-    from swim.rt.march_cpu import numba_sources_digest
+    from swim.compilation.numba_jit import numba_sources_digest
+
+    probe = ("import numba, swim.rt.march_cpu, swim.compilation.numba_jit as m; "
+             "print(repr(numba.config.CACHE_DIR), m.CACHE_ON)")
     base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "SWIM_JAX_CACHE", "SWIM_CACHE_DIR")}
 
     def run(**env):
@@ -75,9 +77,9 @@ def test_the_numba_cache_folder_changes_with_the_code_of_any_numba_module(tmp_pa
     that names the cache folder must change when any *_cpu.py module or any of those modules changes."""
     import shutil
 
-    import swim.rt.march_cpu as m
+    import swim.compilation.numba_jit as m
 
-    rt = Path(m.__file__).parent
+    rt = Path(m.__file__).resolve().parents[1] / "rt"
     copy = tmp_path / "swim" / "rt"
     copy.mkdir(parents=True)
     for path in rt.glob("*_cpu.py"):
@@ -85,7 +87,7 @@ def test_the_numba_cache_folder_changes_with_the_code_of_any_numba_module(tmp_pa
     for name in m.CONSTANTS_READ_FROM:  # the modules whose constants numba freezes into the machine code
         (copy / name).resolve().parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(rt / name, (copy / name).resolve())
-    monkeypatch.setattr(m, "__file__", str(copy / "march_cpu.py"))
+    monkeypatch.setattr(m, "__file__", str(tmp_path / "swim" / "compilation" / "numba_jit.py"))
     before = m.numba_sources_digest()
     assert before == m.numba_sources_digest() and len(before) == 16
     for name in ("march_cpu.py", "compose_cpu.py", "ground_cpu.py", "solar_cpu.py", *m.CONSTANTS_READ_FROM):

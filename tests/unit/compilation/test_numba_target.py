@@ -1,4 +1,4 @@
-"""The instruction set of swim's numba kernels (swim.rt.numba_target): AVX-512 left out on Intel CPUs that have it,
+"""The instruction set of swim's numba kernels (swim.compilation.numba_target): AVX-512 left out on Intel CPUs that have it,
 the user's settings kept, and a target that numba set up before swim left alone."""
 
 import json
@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("numba")
 
-from swim.rt.numba_target import features_without_avx512, has_avx512, is_avx512_feature  # noqa: E402
+from swim.compilation.numba_target import features_without_avx512, has_avx512, is_avx512_feature  # noqa: E402
 
 
 def test_every_avx512_feature_is_switched_off_and_the_others_kept_in_order():

@@ -11,9 +11,9 @@ from typer.testing import CliRunner
 
 from swim.cli.main import app
 from swim.errors import SwimInputError
-from swim.rt.cache_budget import (KINDS, STALE_TMP_S, cache_usage, clear_caches, max_bytes, prune_code_versions,
+from swim.compilation.cache_budget import (KINDS, STALE_TMP_S, cache_usage, clear_caches, max_bytes, prune_code_versions,
                                   prune_least_recently_used)
-from swim.rt.compilation_cache import disk_cached
+from swim.compilation.disk_cache import disk_cached
 
 
 def _file(path, size, age_s):
@@ -74,7 +74,7 @@ def test_the_budget_defaults_to_a_gigabyte_and_reads_megabytes(monkeypatch):
 
 
 def _version(n):
-    """A code version's folder name (16 hex digits, as swim.rt.march_cpu.numba_sources_digest gives)."""
+    """A code version's folder name (16 hex digits, as swim.compilation.numba_jit.numba_sources_digest gives)."""
     return f"{n:016x}"
 
 
@@ -98,7 +98,7 @@ def test_a_code_version_that_a_live_process_holds_is_neither_pruned_nor_cleared(
     """A long-running process (a dask worker, a notebook) keeps its machine code while newer versions come and go."""
     _versions(tmp_path / "numba", 5)
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from pathlib import Path; from swim.rt.cache_budget import "
+        [sys.executable, "-c", "import sys; from pathlib import Path; from swim.compilation.cache_budget import "
          f"hold_code_version as h; print(h(Path(sys.argv[1]), '{_version(0)}'), flush=True); sys.stdin.read()",
          str(tmp_path / "numba")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
@@ -118,7 +118,7 @@ def test_a_code_version_that_a_live_process_holds_is_neither_pruned_nor_cleared(
 
 def test_importing_the_numba_kernels_holds_its_version_and_prunes_old_ones(tmp_path):
     """In a fresh interpreter, as a new installation's first render would."""
-    from swim.rt.march_cpu import numba_sources_digest
+    from swim.compilation.numba_jit import numba_sources_digest
 
     _versions(tmp_path / "numba", 4)
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "SWIM_JAX_CACHE")}
@@ -133,7 +133,7 @@ def test_jax_evicts_entries_written_without_access_times(tmp_path):
     """An entry without JAX's access-time file (written while eviction was off, e.g. by an older swim beside this
     one) made JAX's eviction raise FileNotFoundError at every new compilation; swim's eviction gives it one first."""
     legacy = _file(tmp_path / "jax" / "jit_old-0123-cache", 4000, age_s=3600)
-    code = ("import jax, swim.rt.export_cache; from jax._src.lru_cache import LRUCache\n"
+    code = ("import jax, swim.compilation.jax_export; from jax._src.lru_cache import LRUCache\n"
             "print(jax.config.jax_compilation_cache_max_size)\n"
             "cache = LRUCache(jax.config.jax_compilation_cache_dir, max_size=5000)\n"
             "cache.put('jit_new-4567', b'y' * 1000)\n"

@@ -7,7 +7,7 @@ The cache lives in ``$SWIM_CACHE_DIR/jax`` (default ``$XDG_CACHE_HOME/swim/jax``
 ever saves time. :func:`disk_cached` keeps other slow, deterministic results (the successive-orders tables of
 :mod:`swim.rt.gas`) in ``$SWIM_CACHE_DIR/<kind>``, keyed by their arguments and the code that builds them.
 Every cache stays within a budget (``SWIM_CACHE_MAX_MB``, least recently used entries removed first;
-:mod:`swim.rt.cache_budget`), and ``swim cache`` lists or clears them.
+:mod:`swim.compilation.cache_budget`), and ``swim cache`` lists or clears them.
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def store_entry(path: Path, write, limit_bytes: int, suffix: str = ".pkl") -> No
     """Write one entry of a disk cache: ``write(f)`` fills an open binary ``*.tmp`` file beside ``path``, which is then
     renamed to ``path`` (so that a concurrent reader never sees half a file; a killed writer's ``*.tmp`` is removed
     later), and the folder's least recently used entries (ending in ``suffix``) go until it fits in ``limit_bytes``
-    (:func:`swim.rt.cache_budget.prune_least_recently_used`). Raises OSError where the folder cannot be written."""
+    (:func:`swim.compilation.cache_budget.prune_least_recently_used`). Raises OSError where the folder cannot be written."""
     from .cache_budget import prune_least_recently_used
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -159,7 +159,7 @@ def enable_compilation_cache() -> Path | None:
 
 
 def _bound_jax_cache(jax) -> None:
-    """JAX's own least-recently-used eviction at :func:`swim.rt.cache_budget.max_bytes` (it needs ``filelock``).
+    """JAX's own least-recently-used eviction at :func:`swim.compilation.cache_budget.max_bytes` (it needs ``filelock``).
 
     A size the user has set (``JAX_COMPILATION_CACHE_MAX_SIZE`` or the config) is kept, and a bad
     ``SWIM_CACHE_MAX_MB`` leaves the cache unbounded with a warning (this runs at import, where an exception would

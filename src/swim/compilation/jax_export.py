@@ -1,6 +1,6 @@
 """Traced JAX kernels kept on disk (``jax.export``), so that a new process does not trace them again.
 
-JAX's persistent compilation cache (:mod:`swim.rt.compilation_cache`) keeps the compiled executables, but every new
+JAX's persistent compilation cache (:mod:`swim.compilation.disk_cache`) keeps the compiled executables, but every new
 process still traces each jitted function in Python and lowers it to StableHLO before it can look the executable up.
 For the lockstep march (:func:`swim.rt.march_jax._trace_chunk`) that is ~1.1 s of a new process's first render on a CPU
 (0.8 s of tracing, 0.3 s of lowering: docs/decisions/0008-cold-start.md; ~3 s under cProfile on a GPU host, section
@@ -10,13 +10,13 @@ arguments and input shapes, loads the function's serialized ``jax.export.Exporte
 and calls the export. The export's StableHLO is the traced function's, so the results are the same bit for bit, and
 its compilation is then found in JAX's persistent cache by the later processes.
 
-An entry's key holds the whole swim package's code (:func:`swim.rt.compilation_cache.package_sources`), the JAX and
+An entry's key holds the whole swim package's code (:func:`swim.compilation.disk_cache.package_sources`), the JAX and
 jaxlib versions, the platform, the x64 switch, the function's name, its static arguments' ``repr`` and its inputs'
 tree, shapes and dtypes, so a changed code or another platform writes a new entry. ``SWIM_JAX_EXPORT=0`` turns this
 off alone, ``SWIM_JAX_CACHE=0`` with the compilation cache. Where an export cannot be made (a JAX without
 ``jax.export``, no ``flatbuffers``, an operation that JAX does not export) or read, the function is jitted as usual
 and the failure logged: the cache only ever saves time. The folder stays within
-:func:`swim.rt.cache_budget.max_bytes` (least recently used entries removed first; ``swim cache`` lists and clears
+:func:`swim.compilation.cache_budget.max_bytes` (least recently used entries removed first; ``swim cache`` lists and clears
 it).
 """
 
@@ -31,7 +31,7 @@ import threading
 import jax
 import numpy as np
 
-from .compilation_cache import (cache_directory, enable_compilation_cache, package_sources, store_entry,
+from .disk_cache import (cache_directory, enable_compilation_cache, package_sources, store_entry,
                                 switched_off)
 
 log = logging.getLogger(__name__)
@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 # every JAX kernel imports this module: JAX's own persistent cache is set up before their first compilation
 enable_compilation_cache()
 
-#: The cache's kind (:func:`swim.rt.compilation_cache.cache_directory`, :mod:`swim.rt.cache_budget`).
+#: The cache's kind (:func:`swim.compilation.disk_cache.cache_directory`, :mod:`swim.compilation.cache_budget`).
 KIND = "jax-export"
 #: Ending of the cache's entries.
 SUFFIX = ".jaxexport"
