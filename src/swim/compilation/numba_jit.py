@@ -27,7 +27,7 @@ from .numba_target import choose_cpu_features
 #: such globals into the machine code (e.g. :data:`swim.constants.AFTER_MIN_STEPS`, the phase functions' constants
 #: in ``swim.rt.compose_cpu``), so a change to them must start a fresh cache too (:func:`numba_sources_digest`).
 CONSTANTS_READ_FROM = ("../constants.py", "../optics/phase.py", "../compilation/numba_jit.py", "march_settings.py",
-                       "march_inputs.py", "solar.py")
+                       "march_inputs.py", "surface_margin.py", "solar.py")
 
 
 def numba_sources_digest() -> str:

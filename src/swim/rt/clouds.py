@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import SwimInputError
 from .diffuse_field import MIN_SUN_COSINE, DiffuseSettings
+from .surface_margin import extend_beyond_grid
 
 #: Entries of :func:`swim.rt.clouds.cloud_constants` that only the host reads (objects, tuples, the moments' degrees):
 #: the JAX kernel's constants leave them out.
@@ -150,9 +151,12 @@ def cloud_constants(packed, species, sun_scene, optics, solved) -> dict:
     idx = list(species)
     f = optics.truncation
     hydro_chi = (optics.moments[idx, :optics.max_degree + 1, :] - f[idx, None, None]).transpose(0, 2, 1)
-    surface = np.asarray(packed["surface"])
-    ny, nx = surface.shape[1:]
-    ratio = _upsample(field_.ground, field_.coarsen, ny, nx)  # (3, ny, nx)
+    surface = np.asarray(packed["surface"])  # with its margin beyond the grid (swim.rt.march_inputs.extended_surface)
+    margin = int(np.asarray(packed["surface_margin"]))
+    ny, nx = surface.shape[1] - 2 * margin, surface.shape[2] - 2 * margin
+    # the ground's diffuse ratios, lighting like T: beyond the grid they fade to 1 within a cell or two
+    ratio = extend_beyond_grid(_upsample(field_.ground, field_.coarsen, ny, nx), np.ones(3), margin, np.ones(3),
+                               smoothed=False)  # (3, ny + 2 margin, nx + 2 margin)
     readonly = lambda a: _readonly(np.ascontiguousarray(a))  # noqa: E731
     return {
         "cloud_optics": optics, "diffuse_field": field_,

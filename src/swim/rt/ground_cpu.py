@@ -26,10 +26,11 @@ from numba import njit
 
 from ..surface import brdf, lighting, water
 from .compose_cpu import _transmittance_delta_eddington
-from .march_inputs import surface_fade_cells
+from .surface_margin import surface_fade_cells
 from .march_settings import FROM_ABOVE_BLEND
 from ..compilation.numba_jit import JIT_KERNEL, helper_jit
-from .march_cpu import _P_RADIUS, _P_SUN, _P_TOP, _bilinear_at, _bilinear_index, _clip, _point_geometry
+from .march_cpu import (_P_RADIUS, _P_SUN, _P_SURFACE_MARGIN, _P_TOP, _bilinear_at, _bilinear_index, _clip,
+                        _point_geometry)
 
 # The constants reach the compiled functions as arguments (numba bakes globals into its cached machine code and
 # checks only this file's time stamp): the layout of ground_tables()'s vector.
@@ -288,8 +289,9 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
     p, coef, sky, diffuse_classes, n_class, angstrom : numpy.ndarray or int
         The march's tables (:func:`swim.rt.march._numba_tables`).
     fields : numpy.ndarray
-        Shape (11, ny, nx): :func:`swim.rt.march_inputs.surface_fields`, channel-major; ``fields_outside`` (11,): the ground
-        far beyond the grid (:func:`swim.rt.march_inputs.surface_fields_outside`).
+        Shape (11, ny + 2 m, nx + 2 m): :func:`swim.rt.march_inputs.surface_fields`, channel-major, with a margin of m
+        cells (``p``'s surface margin) beyond the grid (:func:`swim.rt.march_inputs.extended_surface`);
+        ``fields_outside`` (11,): the ground far beyond it (:func:`swim.rt.march_inputs.surface_fields_outside`).
     backscatter : numpy.ndarray
         Shape (5,): backscatter fraction of each species of SPECIES [-].
     lambertian : bool
@@ -313,6 +315,7 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
     n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
     nu_class = n_rows // n_class
     n_fields, ny, nx = fields.shape
+    margin = p[_P_SURFACE_MARGIN]
     sun = p[_P_SUN:_P_SUN + 3]
     up = np.empty(3)
     view = np.empty(3)
@@ -345,8 +348,10 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
             for c in range(3):
                 diffuse[c] = (_bilinear_at(diffuse_classes, c, cu0, cv0, ca, cb) * (1 - wc)
                               + _bilinear_at(diffuse_classes, c, cu1, cv1, ca1, cb1) * wc)
-        # the ground's fields (surface_beyond_edge of bilinear_clamped): beyond the grid a fade from the nearest edge
-        # cell's values to the edge's mean
+        # the ground's fields (surface_beyond_edge of bilinear_clamped) in the extended fields' indices: beyond their
+        # margin a fade from the margin's edge to the far ground
+        j += margin
+        i += margin
         dj = max(max(-j, j - (ny - 1)), 0.0)
         di = max(max(-i, i - (nx - 1)), 0.0)
         d = math.sqrt(dj * dj + di * di)

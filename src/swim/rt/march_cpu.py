@@ -36,7 +36,8 @@ from ..compilation.numba_jit import JIT_KERNEL, helper_jit, vectorising
 #: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
 _P_RADIUS, _P_SUN, _P_ZBOTTOM, _P_DZ, _P_CENTRE, _P_SCALE, _P_BOUNDS, _P_DH, _P_TOP = 0, 1, 4, 5, 6, 8, 9, 13, 14
 _P_TERRAIN_TOP = 15
-_N_PARAMETERS = 16
+_P_SURFACE_MARGIN = 16
+_N_PARAMETERS = 17
 #: Height above the terrain's highest point [m] from which the step loop looks the terrain up no more: a bilinear
 #: lookup of the terrain (a weighted mean of four of its heights) never exceeds that point, so a sample higher up
 #: is above the ground (:func:`pack_parameters`); the metre covers the lookup's round-off many times over.
@@ -47,10 +48,11 @@ PROBE_BLOCK = 32
 
 
 def pack_parameters(consts):
-    """The scalars of :func:`swim.rt.march_inputs.kernel_constants` as one float64 vector (16,) and the index map's
-    cubic coefficients (20,). Its last entry is the height [m] above which no sample can be under the terrain: the
-    terrain's (``consts["terrain"]``) highest point plus :data:`TERRAIN_TOP_MARGIN`, or infinity where there is no
-    terrain or it is not finite everywhere (every sample then looks it up)."""
+    """The scalars of :func:`swim.rt.march_inputs.kernel_constants` as one float64 vector (17,) and the index map's
+    cubic coefficients (20,). Entry :data:`_P_TERRAIN_TOP` is the height [m] above which no sample can be under the
+    terrain: the terrain's (``consts["terrain"]``) highest point plus :data:`TERRAIN_TOP_MARGIN`, or infinity where
+    there is no terrain or it is not finite everywhere (every sample then looks it up); the last, the margin [cells]
+    by which the ground's fields extend beyond the grid (``consts["surface_margin"]``)."""
     p = np.zeros(_N_PARAMETERS)
     index_map = consts["index_map"]
     p[_P_RADIUS] = float(consts["radius"])
@@ -68,6 +70,8 @@ def pack_parameters(consts):
     terrain = consts.get("terrain")
     highest = float(np.max(np.asarray(terrain))) if terrain is not None and np.size(terrain) else math.inf
     p[_P_TERRAIN_TOP] = highest + TERRAIN_TOP_MARGIN if math.isfinite(highest) else math.inf
+    # the ground's fields extend this many cells beyond the grid (swim.rt.march_inputs.extended_surface)
+    p[_P_SURFACE_MARGIN] = float(np.asarray(consts.get("surface_margin", 0.0)))
     coef = np.asarray(index_map["index_map_coefficients"], dtype=float).reshape(20)
     return p, coef
 

@@ -17,6 +17,7 @@ from ..optics.phase import G_LIQUID
 from ..workers import in_blocks
 from .device_copies import _buffer_identity, _owner, forget_device_copies_of
 from .gas import GasTables
+from .surface_margin import LIGHTING_EDGE_FADE_CELLS, extend_beyond_grid, surface_margin_cells
 from .march_settings import SUNLIT_CLEAR, SUNLIT_TRANSMITTANCE, _numba_available
 
 
@@ -112,20 +113,29 @@ def surface_fields(volume, transmittance):
     ], axis=-1)
 
 
-#: e-folding distances [grid cells] over which the ground's fields fade beyond the grid's edge from the nearest
-#: edge cell's values to :func:`surface_fields_outside` (:func:`surface_beyond_edge`): the surface's properties
-#: (albedo, land, snow, wind, slope) over 2 cells, its lighting by Step 1a (cloud T, terrain shadow, 3-D aerosol
-#: towards the sun) over one, since no cloud beyond the grid casts a shadow. A longer fade carries an edge's
-#: features far out: over 6 cells a hurricane's edge winds show as streaks of glint tens of cells beyond the grid.
-SURFACE_EDGE_FADE_CELLS = 2.0
-LIGHTING_EDGE_FADE_CELLS = 1.0
+#: The last volume's surface properties extended beyond its grid (:func:`extended_surface`): they do not depend on
+#: the sun, so a time series' frames extend them once.
+_EXTENDED_PROPERTIES = {}
 
 
-def surface_fade_cells(n_fields=11):
-    """The e-folding distance [cells] of each of the 11 fields of :func:`surface_fields` beyond the grid (11,), or
-    with ``n_fields`` 14 also of the 3-D cloud scattering's diffuse ratios at the ground (lighting, like T)
-    (:func:`swim.rt.clouds.cloud_constants`)."""
-    return np.array([SURFACE_EDGE_FADE_CELLS] * 8 + [LIGHTING_EDGE_FADE_CELLS] * (n_fields - 8), np.float32)
+def extended_surface(volume, fields, outside):
+    """The ground's fields (C, ny, nx) of ``volume`` (:func:`surface_fields`, channel-major, C = 11) extended beyond the
+    grid (:func:`extend_beyond_grid`): the surface's properties (the first 8) smoothed along the edge and tapering to
+    ``outside`` (C,) over the margin, kept for the volume; its lighting by Step 1a fading within
+    :data:`LIGHTING_EDGE_FADE_CELLS`. Returns the extended fields (C, ny + 2 m, nx + 2 m) and the margin m [cells]."""
+    import weakref
+
+    fields = np.asarray(fields, np.float32)
+    margin = surface_margin_cells(*fields.shape[1:])
+    entry = _EXTENDED_PROPERTIES.get("entry")
+    if entry is None or entry[0]() is not volume or entry[1] != margin:
+        _EXTENDED_PROPERTIES.clear()
+        properties = extend_beyond_grid(fields[:8], outside[:8], margin)
+        properties.flags.writeable = False
+        _EXTENDED_PROPERTIES["entry"] = entry = (weakref.ref(volume), margin, properties)
+    lighting = extend_beyond_grid(fields[8:], outside[8:], margin, np.full(fields.shape[0] - 8, LIGHTING_EDGE_FADE_CELLS),
+                                  smoothed=False)
+    return np.concatenate([entry[2], lighting]), margin
 
 
 def surface_fields_outside(fields):
@@ -506,14 +516,18 @@ def volume_constants(volume, transmittance, occupancy=None, packed=None, species
         occupancy = occupancy_grid(volume)
     classes = step_classes(occupancy, dict(zip(names, values)), out=classes)
     surface = surface_fields(volume, transmittance)
+    outside = surface_fields_outside(surface)
+    extended, margin = extended_surface(volume, np.moveaxis(surface, -1, 0), outside)
     f32 = _constant
     return {
         # host arrays (HOST_CONSTANTS): the numba kernel reads them in place; the JAX kernel gets one device copy
         "volume": packed,
         "occupancy": classes,
         "terrain": f32(volume["terrain_height"].values[None]),
-        "surface": f32(np.moveaxis(surface, -1, 0)),
-        "surface_outside": f32(surface_fields_outside(surface)),
+        # the ground's fields with a margin beyond the grid (extended_surface), and the ground far beyond it
+        "surface": f32(extended),
+        "surface_margin": f32(margin),
+        "surface_outside": f32(outside),
         "index_map": {key: f32(volume.attrs[key]) for key in ("index_map_centre", "index_map_scale", "index_map_coefficients",
                                                              "index_map_bounds") if key in volume.attrs},
         "z_bottom": f32(geometry.z_bottom),

@@ -34,7 +34,8 @@ from .clouds_device import cloud_sources, ratio_above_grid
 from ..compilation.jax_export import exported_jit
 from .solar import transmittance_delta_eddington
 from .device_copies import _DEVICE_COPIES, device_copies
-from .march_inputs import HOST_CONSTANTS, _ends_on_surface, packed_aerosol_3d, surface_fade_cells
+from .march_inputs import HOST_CONSTANTS, _ends_on_surface, packed_aerosol_3d
+from .surface_margin import surface_fade_cells
 from .march_settings import (CELL_SLACK, CLEAR_PROBES, CLEAR_STEP_FLOOR, CLEAR_STEP_POWER, EMPTY_CELLS_PER_STEP,
                              EMPTY_STEP_WEIGHT, FROM_ABOVE_BLEND, GRID_LOOP_UNROLL_ACCELERATOR, MAX_PROBES,
                              MarchSettings, N_OCCUPANCY_PROBES, REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS,
@@ -1005,9 +1006,11 @@ def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_cl
         diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
     # albedo (3), land, snow, wind, slope (2), and Step 1a at the ground: cloud T, terrain shadow, 3-D aerosol
     # tau to the sun (2-D fields, so a steep slope does not sample its neighbours' underground values);
-    # beyond the grid they fade from the nearest edge cell's to the edge's mean of a flat, unshaded ground
-    fields = surface_beyond_edge(bilinear_clamped(consts["surface"], j, i), consts["surface_outside"],
-                                 *consts["terrain"].shape[1:], j, i)
+    # beyond the grid they continue over a margin (swim.rt.march_inputs.extended_surface), and beyond that they fade
+    # from its edge to the far ground, flat and unshaded
+    jm, im = j + consts["surface_margin"], i + consts["surface_margin"]
+    fields = surface_beyond_edge(bilinear_clamped(consts["surface"], jm, im), consts["surface_outside"],
+                                 *consts["surface"].shape[1:], jm, im)
     slope = fields[:, 6:8]
     t_cloud = fields[:, 8]
     shadow = fields[:, 9]
@@ -1165,15 +1168,13 @@ _compose_chunk = exported_jit(_compose, static_argnames=("settings", "ground"))
 
 
 def surface_beyond_edge(clamped, outside, ny, nx, j, i):
-    """The ground's fields at grid indices (j, i) (n,), anywhere: inside the grid ``clamped`` (n, C), its bilinear
-    lookup; beyond it a fade, with the distance d [cells] from the grid, from the nearest edge cell's values
+    """The ground's fields at indices (j, i) (n,) of the extended fields (the grid with its margin,
+    :func:`swim.rt.march_inputs.extended_surface`, ny x nx), anywhere: inside them ``clamped`` (n, C), their bilinear
+    lookup; beyond them a fade, with the distance d [cells] from their edge, from the nearest edge cell's values
     (``clamped``, the lookup at the clamped indices) to ``outside`` (C,) (:func:`surface_fields_outside`), weight
-    e^(-d / L) with L of :func:`surface_fade_cells`.
-
-    A ground that is ``outside`` at once beyond the grid shows the domain's outline from space wherever
-    the edge cells differ from their mean (a hurricane's wind, a coast), 19-30 % in the surface radiance of the
-    Katrina scene; clamping every field to its edge value instead draws streaks of edge values across the whole
-    view. The fade keeps the ground continuous at the edge and the mean some cells beyond it."""
+    e^(-d / L) with L of :func:`surface_fade_cells`. The margin has already faded most of the way to ``outside``
+    (smoothed along the grid's edge, so that no edge feature runs on as a streak); the fade keeps the ground
+    continuous at the margin's edge."""
     dj = jnp.maximum(jnp.maximum(-j, j - (ny - 1)), 0.0)
     di = jnp.maximum(jnp.maximum(-i, i - (nx - 1)), 0.0)
     w = jnp.exp(-jnp.sqrt(dj * dj + di * di)[:, None] / surface_fade_cells(clamped.shape[-1])[None, :])

@@ -24,7 +24,8 @@ from ..optics.phase import (
 from ..optics.volume import grid_indices
 from ..surface.lighting import surface_radiance
 from ..optics.phase import G_LIQUID
-from .march_inputs import aerosol_column_optical_depth, surface_fade_cells, grid_geometry
+from .march_inputs import aerosol_column_optical_depth, extended_surface, grid_geometry
+from .surface_margin import surface_fade_cells
 from .march_settings import FROM_ABOVE_BLEND, SKYLIGHT_SCALAR_FACTOR
 from .march_inputs import surface_fields as march_surface_fields
 from .march_inputs import surface_fields_outside as march_surface_fields_outside
@@ -123,7 +124,11 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
                                              fill_value=0.0)
     interp_terrain = RegularGridInterpolator(axes[1:], volume["terrain_height"].values.astype(float), bounds_error=False, fill_value=None)
     packed_surface = march_surface_fields(volume, transmittance)
-    surface_fields = [np.asarray(f, dtype=float) for f in np.moveaxis(packed_surface, -1, 0)]
+    outside = march_surface_fields_outside(packed_surface)
+    # the ground's fields with their margin beyond the grid, as the kernels read them
+    extended, margin = extended_surface(volume, np.moveaxis(packed_surface, -1, 0), outside)
+    surface_fields = [np.asarray(f, dtype=float) for f in extended]
+    surface_axes = (np.arange(extended.shape[1]), np.arange(extended.shape[2]))
     heights = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
     u_axis = np.linspace(0, 1, gas.n_u)
     mu_axis = np.linspace(-1, 1, gas.n_mu)
@@ -221,11 +226,12 @@ def reference_trace_ray(origin, direction, volume, transmittance, gas, sun, p_ra
     if surface:
         h, mu_s, k, j, i = at(s_end)
         _, _, _, t_sun, diffuse = gas_at(h, mu_s)
-        # beyond the grid: from the nearest edge cell's fields to the edge's mean, e^(-distance / fade)
-        jc, ic = np.clip(j[0], 0, ny - 1), np.clip(i[0], 0, nx - 1)
-        edge = np.array([RegularGridInterpolator(axes[1:], f)([[jc, ic]])[0] for f in surface_fields])
-        w = np.exp(-np.hypot(j[0] - jc, i[0] - ic) / surface_fade_cells())
-        outside = march_surface_fields_outside(packed_surface)
+        # beyond the grid and its margin: from the margin's nearest edge cell's fields to the far ground,
+        # e^(-distance / fade)
+        jm, im = j[0] + margin, i[0] + margin
+        jc, ic = np.clip(jm, 0, extended.shape[1] - 1), np.clip(im, 0, extended.shape[2] - 1)
+        edge = np.array([RegularGridInterpolator(surface_axes, f)([[jc, ic]])[0] for f in surface_fields])
+        w = np.exp(-np.hypot(jm - jc, im - ic) / surface_fade_cells())
         fields = outside + (edge - outside) * w
         # Step 1a at the ground: cloud T, terrain shadow and 3-D aerosol tau of the column's ground level
         t_cloud, shadow = fields[8], fields[9]

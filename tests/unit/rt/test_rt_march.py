@@ -1161,10 +1161,10 @@ def test_any_cut_of_the_rays_into_chunks_gives_the_same_pixels(monkeypatch):
 
 @BACKENDS_JAX_FULL
 def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean(backend):
-    """Beyond the grid the ground fades from the nearest edge cell's surface to the mean of the edge cells
-    (swim.rt.march_jax.surface_beyond_edge): seen from above it must be continuous across the edge (it jumped to the
-    mean, drawing the domain's outline in views from space), and a few cells away the same along the edge (no
-    streaks of edge values)."""
+    """Beyond the grid the ground continues from its edge over a margin, smoothed along the edge and fading to the
+    mean of the edge cells (swim.rt.surface_margin.extend_beyond_grid, swim.rt.march_jax.surface_beyond_edge): seen
+    from above it must be continuous across the edge (a ground that jumped to the mean drew the domain's outline in
+    views from space), and some cells away the same along the edge (no streaks of edge values)."""
     n, spacing = 12, 400.0
     x = (np.arange(n) - n / 2 + 0.5) * spacing
     z = np.arange(0.0, 5000.0, 250.0) + 125.0
