@@ -142,9 +142,9 @@ def test_the_kernel_is_compiled_once_per_size():
 @pytest.mark.full  # compiles the sweep once more, in memory: the full tier
 def test_without_a_disk_cache_the_kernel_is_compiled_from_memory(monkeypatch, tmp_path):
     source = ordinates_cpu.sweep_source(1, 1, 1, (0,))
-    monkeypatch.setitem(ordinates_cpu._JIT_KERNEL, "cache", False)
+    monkeypatch.setitem(ordinates_cpu.JIT_KERNEL, "cache", False)
     in_memory = ordinates_cpu._compile_sweep(source, "sweep_test_memory")
-    monkeypatch.setitem(ordinates_cpu._JIT_KERNEL, "cache", True)
+    monkeypatch.setitem(ordinates_cpu.JIT_KERNEL, "cache", True)
     monkeypatch.setattr(ordinates_cpu.numba.config, "CACHE_DIR", str(tmp_path))
     on_disk = ordinates_cpu._compile_sweep(source, "sweep_test_disk")
     assert (tmp_path / "generated" / "sweep_test_disk.py").read_text().endswith(source)
