@@ -41,8 +41,8 @@ def device_copies(hosts, transfer, cache):
     ``cache`` while the arrays that own the hosts' memory live: a render's chunks, and the renders of one scene and
     sun, share them (a render may hand over new views of the same arrays). Only the last set is kept: the previous
     copies go before new ones are made, and they are dropped with their host arrays, so a new sun or a cleared
-    stage cache never keeps an old volume on the device. Serves the JAX kernel (:func:`_device_constants`) and the
-    CUDA one (:func:`swim.rt.march_cuda.device_tables`)."""
+    stage cache never keeps an old volume on the device. Serves the JAX kernel
+    (:func:`swim.rt.march_jax._device_constants`), with one cache for the volume and one for the small constants."""
     entry = cache.get("entry")
     if not _copies_of(entry, hosts):
         cache.clear()  # the previous copies go before the new ones are made
