@@ -20,15 +20,18 @@ air's steps dense where the air is: :func:`clear_step_edges`). Along the way the
 After the march the cloud radiance follows Eq. 12 with the effective phase function of Eq. 13
 (:func:`swim.optics.phase.effective_phase_function`), blended with the cloud-top reflection of Eqs. 24-26
 for rays that look down on clouds; the ground reflects direct and diffuse light on its tilted terrain facet
-(Eq. 35; BRDFs, sun glint and slopes in :mod:`swim.surface.lighting`). Step 3 (Eqs. 32-34) is realised by the compositing itself: gas in front of a cloud adds
-unattenuated, the cloud is seen through the gas in front of it (the e^{-tau_1} of Eq. 33), and the sky
+(Eq. 35; BRDFs, sun glint and slopes in :mod:`swim.surface.lighting`). Step 3 (Eqs. 32-34) is realised by the
+compositing itself: gas in front of a cloud adds unattenuated, the cloud is seen through the gas in front of it (the e^{-tau_1} of Eq. 33), and the sky
 and ground behind it are attenuated by its optical depth. docs/rendering.md states the interpretation.
 
-The kernels are JAX (float32, jit-compiled once per batch size, chunked over pixels). On a CPU the step
-loop runs by default in :mod:`swim.rt.march_cpu` instead (numba, one loop per ray, ~5x faster there), with its
-per-ray set-up (:func:`swim.rt.march_cpu.prepare_rays`) and the clouds' composition (:mod:`swim.rt.compose_cpu`)
-and the ground's (:mod:`swim.rt.ground_cpu`) in numba too (:attr:`MarchSettings.backend`;
-docs/decisions/0002-per-ray-cpu-kernel.md and docs/decisions/0009-work-around-the-march.md).
+This module is the march's dispatcher: :func:`trace_rays` cuts the rays' segments, splits the rays into chunks and
+hands each chunk to a kernel (:attr:`swim.rt.march_settings.MarchSettings.backend`). On a CPU that is the numba
+kernel (:mod:`swim.rt.march_cpu`: one loop per ray, ~5x faster there than the JAX kernel), with its per-ray set-up
+(:func:`swim.rt.march_cpu.prepare_rays`) and the clouds' and the ground's composition (:mod:`swim.rt.compose_cpu`,
+:mod:`swim.rt.ground_cpu`) in numba too; on a GPU the JAX kernel (:mod:`swim.rt.march_jax`: float32, jit-compiled
+once per batch size, chunks marched in lockstep), imported only then (docs/decisions/0002-per-ray-cpu-kernel.md,
+docs/decisions/0009-work-around-the-march.md, docs/decisions/0011-jax-only-where-it-runs.md). The kernels' inputs
+come from :mod:`swim.rt.march_inputs`, their settings and constants from :mod:`swim.rt.march_settings`.
 """
 
 from __future__ import annotations
