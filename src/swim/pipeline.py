@@ -665,10 +665,13 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     place since, the render finds it before it returns and renders the scene again (a warning says so, and
     ``progress`` counts the rays twice; docs/decisions/0006-gpu-kernels.md).
     """
-    call = dict(locals())
+    call = dict(time=time, lat=lat, lon=lon, height=height, camera=camera, camera_options=camera_options,
+                sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=look_at, aerosol=aerosol, settings=settings,
+                white_level=white_level, exposure=exposure, progress=progress, crop=crop, sampling=sampling,
+                coarsen=coarsen, check_memory=check_memory)
     guess = _DigestGuess()
     try:
-        image = _render(**call, guess=guess)
+        image = _render(scene, **call, guess=guess)
         if guess.held():
             return image
         del image
@@ -683,7 +686,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     _LAST_DIGEST.forget()
     _STAGE_CACHE.clear()
     # a new guess: with the record forgotten none is taken, the scene is hashed first and remembered for the next
-    return _render(**call, guess=_DigestGuess())
+    return _render(scene, **call, guess=_DigestGuess())
 
 
 def _check_exposure(white_level, exposure) -> bool:
@@ -713,16 +716,21 @@ def settings_attributes(settings: MarchSettings) -> dict:
     return out
 
 
-def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
-            settings, white_level, exposure, progress, crop, sampling, coarsen, check_memory,
-            guess: _DigestGuess | None) -> xr.Dataset:
-    """:func:`render`'s work. ``guess``: where the scene's digest may be taken by its arrays' identity
-    (:func:`_fingerprint_by_identity`; None: hashed first)."""
+def _checked_arguments(scene, camera, camera_options, height, look_at, aerosol, lat, white_level, exposure, coarsen,
+                       check_memory):
+    """:func:`render`'s arguments checked before the scene is read (a whole CONUS grid: ~40 s and ~11 GB): the scene's
+    type, the exposure, the camera's kind and options (a perspective camera's view is filled in from the grid later,
+    :func:`_default_perspective_view`), the image's memory, the observer and the coarsening. Returns the observer's
+    height [m above the ground] as a float and whether the exposure is automatic.
+
+    Raises
+    ------
+    SwimInputError
+        Naming the argument and what it should be.
+    """
     if not isinstance(scene, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
     auto_exposure = _check_exposure(white_level, exposure)
-    # the camera's kind and options checked before the scene is read (a whole CONUS grid: ~40 s and ~11 GB); a
-    # perspective camera's view is filled in from the grid later (_default_perspective_view)
     if camera_options is not None and not isinstance(camera_options, Mapping):
         raise SwimInputError(f"camera_options must be a mapping of option names to values, got "
                              f"{type(camera_options).__name__}")
@@ -745,15 +753,174 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         raise SwimInputError(f"observer lat must be in [-90, 90] deg, got {lat}")
     if height_m is None or not np.isfinite(height_m) or height_m < 0:
         raise SwimInputError(f"observer height must be a number >= 0 [m above the ground], got {height!r}")
-    height = height_m
     check_coarsening(coarsen)
+    return height_m, auto_exposure
+
+
+def _background_aerosol(aerosol, scene_vars) -> AerosolBackground:
+    """The render's background aerosol (:func:`render`'s ``aerosol``): None gives the default background, or none
+    where the scene has a 3-D ``aerosol_extinction`` (``scene_vars``: the scene's variable names); ``"none"`` no
+    background (a scene's 3-D aerosol stays); a type name that type with the default profile."""
+    if aerosol is None:
+        return AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene_vars else AerosolBackground()
+    if isinstance(aerosol, str) and aerosol.strip().lower() == "none":
+        return AerosolBackground(aod_550=0.0)
+    if isinstance(aerosol, str):
+        return AerosolBackground(type_name=aerosol)
+    return aerosol
+
+
+def _settings_for_sun(settings: MarchSettings, sun: SunPosition, sun_scene) -> MarchSettings:
+    """``settings``, with the 3-D cloud scattering replaced by the paper's method where the sun (``sun_scene``, its
+    unit direction in the scene frame) is too low for the 3-D diffuse solution: twilight and night skies, lit by the
+    clear sky's tables (the image's ``cloud_scattering`` attribute says which ran)."""
+    clouds = settings.cloud_scattering
+    if not (clouds.three_d and sun_scene[2] <= MIN_SUN_COSINE):
+        return settings
+    log.info("sun elevation %.2f deg: clouds scattered by the albers2020 method (the 3-D diffuse solution needs "
+             "the sun above %.1f deg)", 90.0 - sun.zenith_deg, np.degrees(np.arcsin(MIN_SUN_COSINE)))
+    return dataclasses.replace(settings, cloud_scattering=dataclasses.replace(clouds, method="albers2020"))
+
+
+def _with_the_sun(planes, sun_out, cam, dirs_enu, valid, sun_enu_observer, aureole):
+    """The image's radiance (3, ny, nx) with the sun's disk added, and with ``aureole`` (the 3-D cloud scattering)
+    the circumsolar aureole of the clouds' forward peak, added to ``planes["radiance_cloud"]`` too (in place).
+    ``planes``' ``radiance`` is taken out of it; ``sun_out`` holds the sun's ray's outputs. Returns the radiance, the
+    flat indices of the pixels that changed, and the direct and circumsolar transmittances (3,) [-]."""
+    t_direct = np.exp(-(sun_out["tau_clear"] + sun_out["tau_hydrometeor"]))
+    if sun_out["surface"]:
+        t_direct = np.zeros(3)
+    disk_pixels, disk_radiance = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
+    radiance = planes.pop("radiance")  # (3, ny, nx) float32
+    t_aureole = np.zeros(3)
+    recoloured = disk_pixels
+    if aureole and not sun_out["surface"]:
+        # the forward peak's narrow part, delivered about the sun (swim.optics.cloud_phase.split_phase_function)
+        t_aureole = np.maximum(np.exp(-(sun_out["tau_clear"] + sun_out["tau_narrow"])) - t_direct, 0.0)
+        aureole_pixels, aureole_radiance = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_aureole,
+                                                     radius=AUREOLE_HALF_ANGLE_RAD)
+        if aureole_pixels.size:
+            for plane in (radiance, planes["radiance_cloud"]):
+                flat = plane.reshape(3, -1)
+                flat[:, aureole_pixels] = flat[:, aureole_pixels] + aureole_radiance[:, None]
+            recoloured = np.union1d(disk_pixels, aureole_pixels)
+    if disk_pixels.size:  # the disk added in float64, rounded once to the output's float32
+        flat = radiance.reshape(3, -1)
+        flat[:, disk_pixels] = flat[:, disk_pixels] + disk_radiance[:, None]
+        radiance = flat.reshape(radiance.shape)
+    return radiance, recoloured, t_direct, t_aureole
+
+
+def _image_dataset(radiance, rgb, planes, cam, *, camera, settings, sampling, sun, sun_enu_observer, scene, observer,
+                   reference, exposure, aerosol, march, transmittances) -> xr.Dataset:
+    """:func:`render`'s image: the radiance planes (``radiance`` (3, ny, nx) and the other ``planes``), the sRGB codes
+    ``rgb`` (ny, nx, 3) and the view angles of the camera ``cam`` (kind ``camera``) as CF variables, with the render's
+    attributes: the sun (``sun``, and ``sun_enu_observer`` its direction at the observer), the ``scene``'s title,
+    source and time, the ``observer`` (lat, lon [deg], height above the ground and above sea level [m]), the scene's
+    ``reference`` point (lat, lon [deg]), the ``exposure`` (white level, whether automatic, shift [EV]), the
+    ``aerosol``, the ``march`` (samples, traced pixels, the scene's coarsening), the sun's direct and circumsolar
+    ``transmittances`` (3,) and the ``settings`` and ``sampling``; and the time as a scalar coordinate (CF 4.4)."""
+    lat, lon, height, height_asl = observer
+    lat0, lon0 = reference
+    white_level, auto_exposure, exposure = exposure
+    march_samples, traced_pixels, coarsened_by = march
+    t_direct, t_aureole = transmittances
+    # float32 copies (the output is the caller's; the cached angles are read-only): no second copy below
+    view_az, view_zen = (np.array(a, dtype=np.float32) for a in cam.cached_view_angles())
+    sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
+
+    dims3 = ("wavelength", "y", "x")
+    data = {
+        "radiance": (dims3, radiance.astype(np.float32, copy=False), {
+            "units": "1", "long_name": "solar-relative spectral radiance L' = 4 pi L / E_TOA (Albers et al. 2020, Eq. 2)"}),
+        "radiance_clear": (dims3, planes.pop("radiance_clear").astype(np.float32, copy=False), {"units": "1", "long_name": "gas and aerosol part of L'"}),
+        "radiance_cloud": (dims3, planes.pop("radiance_cloud").astype(np.float32, copy=False), {"units": "1", "long_name": "hydrometeor part of L'"}),
+        "radiance_surface": (dims3, planes.pop("radiance_surface").astype(np.float32, copy=False), {"units": "1", "long_name": "ground part of L'"}),
+        "tau_hydrometeor": (("y", "x"), planes.pop("tau_hydrometeor")[0].astype(np.float32, copy=False), {
+            "units": "1", "long_name": "hydrometeor optical depth along the line of sight",
+            "comment": (f"rays that do not look down stop where it passes {settings.stop_tau:g} (opaque): there it "
+                        f"is {settings.stop_tau:g}, a lower bound") if settings.stop_tau
+                       else "the whole line of sight"}),
+        "rgb": (("y", "x", "channel"), rgb, {"units": "1", "long_name": "true-colour image, 8-bit sRGB codes",
+                                             "comment": "display transform: see the display_transform, white_level "
+                                                        "and exposure attributes; the radiance does not depend on it"}),
+        "view_azimuth": (("y", "x"), view_az, {"units": "degree", "standard_name": "sensor_azimuth_angle",
+                                               "long_name": "view azimuth, clockwise from north"}),
+        "view_zenith": (("y", "x"), view_zen, {"units": "degree", "standard_name": "sensor_zenith_angle",
+                                              "long_name": "view zenith angle"}),
+    }
+    attrs = {
+        "title": f"SWIm {camera} image",
+        "institution": "swim-imagery",
+        "source": f"swim {__version__}",
+        "references": "Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020",
+        "history": f"{datetime.now(timezone.utc).isoformat(timespec='seconds')} rendered by swim {__version__}",
+        "scene_title": str(scene.attrs.get("title", "")),
+        "scene_source": str(scene.attrs.get("source", "")),
+        # the model time whose fields were rendered (a series' frame may lie up to 90 min from it)
+        "scene_time": pd.Timestamp(scene["time"].values).isoformat() if "time" in scene.coords else "",
+        "time": "" if sun.time is None else pd.Timestamp(sun.time).isoformat(),
+        "sun_zenith_deg": float(sun_zen_obs),
+        "sun_azimuth_deg": float(sun_az_obs),
+        "sun_zenith_reference_deg": float(sun.zenith_deg),
+        "sun_azimuth_reference_deg": float(sun.azimuth_deg),
+        "sun_source": sun.source,
+        "earth_sun_distance_au": float(sun.earth_sun_distance_au),
+        "direct_transmittance": np.asarray(t_direct, dtype=float),
+        "circumsolar_transmittance": np.asarray(t_aureole, dtype=float),
+        "cloud_scattering": settings.cloud_scattering.method,
+        "observer_lat": lat,
+        "observer_lon": lon,
+        "observer_height_above_ground_m": float(height),
+        "observer_height_asl_m": float(height_asl),
+        "reference_lat": lat0,
+        "reference_lon": lon0,
+        "white_level": float(white_level),
+        "exposure": "auto" if auto_exposure else "fixed",
+        "exposure_ev": float(exposure),
+        "display_transform": "filmic",
+        "aerosol_type": aerosol.type_name,
+        "aerosol_optical_depth_550": float(aerosol.aod_550),
+        "aerosol_scale_height_m": float(aerosol.scale_height_m),
+        "aerosol_single_scattering_albedo": np.asarray(aerosol.type.ssa, dtype=float),
+        "aerosol_asymmetry_parameter": np.asarray(aerosol.type.asymmetry_parameter(), dtype=float),
+        "aerosol_angstrom_exponent": float(aerosol.type.angstrom_exponent),
+        "camera": camera,
+        "march_samples": march_samples,
+        "traced_pixels": traced_pixels,
+        "march_backend": settings.resolved_backend(),
+        "scene_coarsened_by": coarsened_by,
+        "sampling": "every pixel" if sampling is None else (
+            f"adaptive (tolerance {sampling.tolerance:g}, coarse spacing {sampling.coarse_spacing}, "
+            f"radiance floor {sampling.radiance_floor:g}, tau tolerance {sampling.tau_tolerance:g}, "
+            f"tau floor {sampling.tau_floor:g}, clear tolerance {sampling.clear_tolerance:g}, "
+            f"edge tests in cells of {sampling.edge_test_size} pixels)"),
+        "Conventions": "CF-1.8",
+    }
+    attrs.update(cam.to_attrs())  # keys start with "camera_"
+    attrs.update(settings_attributes(settings))  # keys start with "settings_"
+    image = xr.Dataset(data, coords=_image_coordinates(), attrs=attrs)
+    when = sun.time if sun.time is not None else (scene["time"].values if "time" in scene.coords else None)
+    if when is not None:  # a scalar time coordinate (CF 4.4): the sun's time, else the scene's
+        image = image.assign_coords(time=xr.Variable((), to_utc_datetime64(when),
+                                                     {"standard_name": "time", "long_name": "time of the image (UTC)"}))
+    return image
+
+
+def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
+            settings, white_level, exposure, progress, crop, sampling, coarsen, check_memory,
+            guess: _DigestGuess | None) -> xr.Dataset:
+    """:func:`render`'s work. ``guess``: where the scene's digest may be taken by its arrays' identity
+    (:func:`_fingerprint_by_identity`; None: hashed first)."""
+    height, auto_exposure = _checked_arguments(scene, camera, camera_options, height, look_at, aerosol, lat,
+                                               white_level, exposure, coarsen, check_memory)
     if crop or coarsen is not None:
         # Before anything is loaded in full; the scene frame stays that of the whole grid.
         scene = with_reference_point(scene)
     if coarsen is not None:
         # one column per block of the whole grid's columns, lazily, before the crop: the columns kept are then the
         # same whatever window the crop takes (a camera or a sun that moves keeps them)
-        scene = coarsen_scene(scene, resolve_coarsening(coarsen, scene, camera, camera_options, lat, lon, height_m,
+        scene = coarsen_scene(scene, resolve_coarsening(coarsen, scene, camera, camera_options, lat, lon, height,
                                                         look_at))
     coarsened_by = int(scene.attrs.get("coarsened_by", 1))
     if crop:
@@ -819,24 +986,13 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     sun_enu_observer = sun_scene @ rotation.T
 
     sun_key = tuple(np.round(sun_scene, 12))
-    if aerosol is None:
-        aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene_vars else AerosolBackground()
-    elif isinstance(aerosol, str) and aerosol.strip().lower() == "none":
-        aerosol = AerosolBackground(aod_550=0.0)  # no background aerosol (a scene's 3-D aerosol field stays)
-    elif isinstance(aerosol, str):
-        aerosol = AerosolBackground(type_name=aerosol)
+    aerosol = _background_aerosol(aerosol, scene_vars)
     mean_albedo, aerosol_profile, classes = _STAGE_CACHE.get(("atmosphere inputs", fingerprint),
                                                               lambda: _atmosphere_inputs(volume))
     gas = build_gas_tables(aerosol, surface_albedo=mean_albedo, scene_aerosol_profile=aerosol_profile,
                            aerosol_class_aod=classes)
+    settings = _settings_for_sun(settings, sun, sun_scene)
     clouds = settings.cloud_scattering
-    if clouds.three_d and sun_scene[2] <= MIN_SUN_COSINE:
-        # the 3-D diffuse solution needs the sun above the horizon; twilight and night skies, lit by the clear sky's
-        # tables, keep the paper's method (the image's cloud_scattering attribute says which ran)
-        log.info("sun elevation %.2f deg: clouds scattered by the albers2020 method (the 3-D diffuse solution needs "
-                 "the sun above %.1f deg)", 90.0 - sun.zenith_deg, np.degrees(np.arcsin(MIN_SUN_COSINE)))
-        settings = dataclasses.replace(settings, cloud_scattering=dataclasses.replace(clouds, method="albers2020"))
-        clouds = settings.cloud_scattering
     cloud_optics = cloud_key = None
     if clouds.three_d:
         cloud_optics = _STAGE_CACHE.get(("cloud optics", fingerprint, clouds),
@@ -1147,28 +1303,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
     trim = ny * nx >= TRIM_MIN_PIXELS and not settings.on_accelerator()
     if trim:
         release_free_memory()  # the march's freed chunks, before the image is assembled
-    t_direct = np.exp(-(sun_out["tau_clear"] + sun_out["tau_hydrometeor"]))
-    if sun_out["surface"]:
-        t_direct = np.zeros(3)
-
-    disk_pixels, disk_radiance = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_direct)
-    radiance = planes.pop("radiance")  # (3, ny, nx) float32
-    t_aureole = np.zeros(3)
-    recoloured = disk_pixels
-    if cloud_optics is not None and not sun_out["surface"]:
-        # the forward peak's narrow part, delivered about the sun (swim.optics.cloud_phase.split_phase_function)
-        t_aureole = np.maximum(np.exp(-(sun_out["tau_clear"] + sun_out["tau_narrow"])) - t_direct, 0.0)
-        aureole_pixels, aureole_radiance = _sun_disk(cam, dirs_enu, valid, sun_enu_observer, t_aureole,
-                                                     radius=AUREOLE_HALF_ANGLE_RAD)
-        if aureole_pixels.size:
-            for plane in (radiance, planes["radiance_cloud"]):
-                flat = plane.reshape(3, -1)
-                flat[:, aureole_pixels] = flat[:, aureole_pixels] + aureole_radiance[:, None]
-            recoloured = np.union1d(disk_pixels, aureole_pixels)
-    if disk_pixels.size:  # the disk added in float64, rounded once to the output's float32
-        flat = radiance.reshape(3, -1)
-        flat[:, disk_pixels] = flat[:, disk_pixels] + disk_radiance[:, None]
-        radiance = flat.reshape(radiance.shape)
+    radiance, recoloured, t_direct, t_aureole = _with_the_sun(planes, sun_out, cam, dirs_enu, valid, sun_enu_observer,
+                                                              aureole=cloud_optics is not None)
     if auto_exposure:
         white_level = exposure_white_level(auto_white_level(radiance), exposure)
     # the colour stage is per pixel: in blocks of rows (float64 copies of a block) on up to 8 cores, its compiled
@@ -1189,91 +1325,18 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             return solar_relative_to_srgb8(radiance[:, r0:r0 + COLOUR_BLOCK_ROWS], white_level=white_level)
 
         rgb = np.concatenate(parallel_map(colour, starts, min(threads(), 8)), axis=0)
-    # float32 copies (the output is the caller's; the cached angles are read-only): no second copy below
-    view_az, view_zen = (np.array(a, dtype=np.float32) for a in cam.cached_view_angles())
-    sun_az_obs, sun_zen_obs = azimuth_zenith_from_enu(sun_enu_observer)
-
-    dims3 = ("wavelength", "y", "x")
-    data = {
-        "radiance": (dims3, radiance.astype(np.float32, copy=False), {
-            "units": "1", "long_name": "solar-relative spectral radiance L' = 4 pi L / E_TOA (Albers et al. 2020, Eq. 2)"}),
-        "radiance_clear": (dims3, planes.pop("radiance_clear").astype(np.float32, copy=False), {"units": "1", "long_name": "gas and aerosol part of L'"}),
-        "radiance_cloud": (dims3, planes.pop("radiance_cloud").astype(np.float32, copy=False), {"units": "1", "long_name": "hydrometeor part of L'"}),
-        "radiance_surface": (dims3, planes.pop("radiance_surface").astype(np.float32, copy=False), {"units": "1", "long_name": "ground part of L'"}),
-        "tau_hydrometeor": (("y", "x"), planes.pop("tau_hydrometeor")[0].astype(np.float32, copy=False), {
-            "units": "1", "long_name": "hydrometeor optical depth along the line of sight",
-            "comment": (f"rays that do not look down stop where it passes {settings.stop_tau:g} (opaque): there it "
-                        f"is {settings.stop_tau:g}, a lower bound") if settings.stop_tau
-                       else "the whole line of sight"}),
-        "rgb": (("y", "x", "channel"), rgb, {"units": "1", "long_name": "true-colour image, 8-bit sRGB codes",
-                                             "comment": "display transform: see the display_transform, white_level "
-                                                        "and exposure attributes; the radiance does not depend on it"}),
-        "view_azimuth": (("y", "x"), view_az, {"units": "degree", "standard_name": "sensor_azimuth_angle",
-                                               "long_name": "view azimuth, clockwise from north"}),
-        "view_zenith": (("y", "x"), view_zen, {"units": "degree", "standard_name": "sensor_zenith_angle",
-                                              "long_name": "view zenith angle"}),
-    }
-    attrs = {
-        "title": f"SWIm {camera} image",
-        "institution": "swim-imagery",
-        "source": f"swim {__version__}",
-        "references": "Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.5194/amt-13-3235-2020",
-        "history": f"{datetime.now(timezone.utc).isoformat(timespec='seconds')} rendered by swim {__version__}",
-        "scene_title": str(scene.attrs.get("title", "")),
-        "scene_source": str(scene.attrs.get("source", "")),
-        # the model time whose fields were rendered (a series' frame may lie up to 90 min from it)
-        "scene_time": pd.Timestamp(scene["time"].values).isoformat() if "time" in scene.coords else "",
-        "time": "" if sun.time is None else pd.Timestamp(sun.time).isoformat(),
-        "sun_zenith_deg": float(sun_zen_obs),
-        "sun_azimuth_deg": float(sun_az_obs),
-        "sun_zenith_reference_deg": float(sun.zenith_deg),
-        "sun_azimuth_reference_deg": float(sun.azimuth_deg),
-        "sun_source": sun.source,
-        "earth_sun_distance_au": float(sun.earth_sun_distance_au),
-        "direct_transmittance": np.asarray(t_direct, dtype=float),
-        "circumsolar_transmittance": np.asarray(t_aureole, dtype=float),
-        "cloud_scattering": settings.cloud_scattering.method,
-        "observer_lat": lat,
-        "observer_lon": lon,
-        "observer_height_above_ground_m": float(height),
-        "observer_height_asl_m": float(height_asl),
-        "reference_lat": lat0,
-        "reference_lon": lon0,
-        "white_level": float(white_level),
-        "exposure": "auto" if auto_exposure else "fixed",
-        "exposure_ev": float(exposure),
-        "display_transform": "filmic",
-        "aerosol_type": aerosol.type_name,
-        "aerosol_optical_depth_550": float(aerosol.aod_550),
-        "aerosol_scale_height_m": float(aerosol.scale_height_m),
-        "aerosol_single_scattering_albedo": np.asarray(aerosol.type.ssa, dtype=float),
-        "aerosol_asymmetry_parameter": np.asarray(aerosol.type.asymmetry_parameter(), dtype=float),
-        "aerosol_angstrom_exponent": float(aerosol.type.angstrom_exponent),
-        "camera": camera,
-        "march_samples": march_samples + int(sun_out["steps"]),
-        "traced_pixels": int(np.count_nonzero(traced)),
-        "march_backend": settings.resolved_backend(),
-        "scene_coarsened_by": coarsened_by,
-        "sampling": "every pixel" if sampling is None else (
-            f"adaptive (tolerance {sampling.tolerance:g}, coarse spacing {sampling.coarse_spacing}, "
-            f"radiance floor {sampling.radiance_floor:g}, tau tolerance {sampling.tau_tolerance:g}, "
-            f"tau floor {sampling.tau_floor:g}, clear tolerance {sampling.clear_tolerance:g}, "
-            f"edge tests in cells of {sampling.edge_test_size} pixels)"),
-        "Conventions": "CF-1.8",
-    }
-    attrs.update(cam.to_attrs())  # keys start with "camera_"
-    attrs.update(settings_attributes(settings))  # keys start with "settings_"
+    image = _image_dataset(
+        radiance, rgb, planes, cam, camera=camera, settings=settings, sampling=sampling, sun=sun,
+        sun_enu_observer=sun_enu_observer, scene=scene, observer=(lat, lon, height, height_asl), reference=(lat0, lon0),
+        exposure=(white_level, auto_exposure, exposure), aerosol=aerosol,
+        march=(march_samples + int(sun_out["steps"]), int(np.count_nonzero(traced)), coarsened_by),
+        transmittances=(t_direct, t_aureole))
     del radiance, rgb
     if trim:
         release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
     # A long-lived process that renders many grids keeps every program JAX compiled; near the process's limit of
     # memory mappings XLA's next executable would fail to map and leave the process to crash (swim.memory).
     release_compiled_programs(min_interval_s=COMPILED_PROGRAMS_CHECK_S)
-    image = xr.Dataset(data, coords=_image_coordinates(), attrs=attrs)
-    when = sun.time if sun.time is not None else (scene["time"].values if "time" in scene.coords else None)
-    if when is not None:  # a scalar time coordinate (CF 4.4): the sun's time, else the scene's
-        image = image.assign_coords(time=xr.Variable((), to_utc_datetime64(when),
-                                                     {"standard_name": "time", "long_name": "time of the image (UTC)"}))
     return image
 
 
