@@ -907,6 +907,52 @@ def _image_dataset(radiance, rgb, planes, cam, *, camera, settings, sampling, su
     return image
 
 
+def _scattered_planes(outputs, pixels, ny, nx):
+    """The image's planes (C, ny, nx) of the traced rays' ``outputs`` (name -> (n,) or (n, C)): NaN, then each ray's
+    value at its flat pixel index ``pixels`` (n,). Every channel at once on the pools' threads (NumPy's scatter
+    without the GIL): the 13 channels' scatters of a 1024^2 all-sky took 77 ms one after the other on a GPU machine's
+    host while the device idled (docs/decisions/0006-gpu-kernels.md). Empties ``outputs``."""
+    planes = {key: np.empty((value.shape[1] if value.ndim == 2 else 1, ny * nx), value.dtype)
+              for key, value in outputs.items()}
+
+    def scatter(row):  # one channel of one output
+        key, channel = row
+        value, plane = outputs[key], planes[key][channel]
+        np.copyto(plane, np.nan)
+        plane[pixels] = value[:, channel] if value.ndim == 2 else value
+
+    parallel_map(scatter, [(key, c) for key, plane in planes.items() for c in range(plane.shape[0])],
+                 min(threads(), 8) if pixels.size >= PLANES_THREADED_PIXELS else 1)
+    outputs.clear()
+    return {key: plane.reshape(-1, ny, nx) for key, plane in planes.items()}
+
+
+def _planes_of_samples(out, ny, nx):
+    """The image's planes (C, ny, nx) of the adaptive sampler's image ``out`` (name -> (ny * nx,) or (ny * nx, C)),
+    taking the outputs of :data:`IMAGE_OUTPUTS` out of it. One output at a time, its rows in blocks on several threads
+    (NumPy's copy without the GIL), each output dropped once copied: with all of them copied at once, every output and
+    its copy were alive together, the render's peak for big images (docs/decisions/0010-memory.md). The arrays travel
+    in the blocks' items, so that no function outlives the loop holding the last output."""
+    planes = {}
+
+    def copy_rows(block):
+        source, target, r0 = block
+        np.copyto(target[:, r0:r0 + PLANE_BLOCK_ROWS], source[:, r0:r0 + PLANE_BLOCK_ROWS])
+
+    for key in IMAGE_OUTPUTS:
+        a = out.pop(key)
+        if a.ndim == 1:
+            planes[key] = a.reshape(1, ny, nx)
+            continue
+        source = a.reshape(ny, nx, -1).transpose(2, 0, 1)
+        planes[key] = target = np.empty(source.shape, a.dtype)
+        del a
+        parallel_map(copy_rows, [(source, target, r0) for r0 in range(0, ny, PLANE_BLOCK_ROWS)],
+                     min(threads(), 8) if ny * nx >= PLANES_THREADED_PIXELS else 1)
+        del source, target
+    return planes
+
+
 def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
             settings, white_level, exposure, progress, crop, sampling, coarsen, check_memory,
             guess: _DigestGuess | None) -> xr.Dataset:
@@ -1202,22 +1248,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         traced = valid.reshape(-1)
         pixels = valid_pixels  # every valid pixel, in tile order
         _, rays = trace_tiled(pixels, progress, tiled=True)
-        outputs = {key: rays.pop(key) for key in IMAGE_OUTPUTS}
-        planes = {key: np.empty((value.shape[1] if value.ndim == 2 else 1, ny * nx), value.dtype)
-                  for key, value in outputs.items()}
-
-        def scatter(row):  # one channel of one output: NaN, then its pixels (NumPy's scatter without the GIL)
-            key, channel = row
-            value, plane = outputs[key], planes[key][channel]
-            np.copyto(plane, np.nan)
-            plane[pixels] = value[:, channel] if value.ndim == 2 else value
-
-        # every channel at once on the pools' threads: the 13 channels' scatters of a 1024^2 all-sky took 77 ms
-        # one after the other on a GPU machine's host while the device idled (docs/decisions/0006-gpu-kernels.md)
-        parallel_map(scatter, [(key, c) for key, plane in planes.items() for c in range(plane.shape[0])],
-                     min(threads(), 8) if pixels.size >= PLANES_THREADED_PIXELS else 1)
-        planes = {key: plane.reshape(-1, ny, nx) for key, plane in planes.items()}
-        del outputs
+        planes = _scattered_planes({key: rays.pop(key) for key in IMAGE_OUTPUTS}, pixels, ny, nx)
         march_samples = int(rays["steps"].sum())
         del rays
     else:
@@ -1272,26 +1303,7 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
         else:
             out, traced = sample_image_adaptive(trace_pixels, valid, sampling, progress,
                                                 max_threads=min(threads(), 8), outside=np.nan)
-
-            # (ny * nx, C) -> (C, ny, nx), one output at a time, its rows in blocks on several threads (NumPy's copy
-            # without the GIL), each output dropped once copied: with all of them copied at once, every output and
-            # its copy were alive together, the render's peak for big images (docs/decisions/0010-memory.md). The
-            # arrays travel in the blocks' items, so that no function outlives the loop holding the last output
-            def copy_rows(block):
-                source, target, r0 = block
-                np.copyto(target[:, r0:r0 + PLANE_BLOCK_ROWS], source[:, r0:r0 + PLANE_BLOCK_ROWS])
-
-            for key in IMAGE_OUTPUTS:
-                a = out.pop(key)
-                if a.ndim == 1:
-                    planes[key] = a.reshape(1, ny, nx)
-                    continue
-                source = a.reshape(ny, nx, -1).transpose(2, 0, 1)
-                planes[key] = target = np.empty(source.shape, a.dtype)
-                del a
-                parallel_map(copy_rows, [(source, target, r0) for r0 in range(0, ny, PLANE_BLOCK_ROWS)],
-                             min(threads(), 8) if ny * nx >= PLANES_THREADED_PIXELS else 1)
-                del source, target
+            planes.update(_planes_of_samples(out, ny, nx))
         log.info("traced %d of %d valid pixels (%.1f %%)", int(traced.sum()), int(valid.sum()),
                  100.0 * traced.sum() / max(int(valid.sum()), 1))
         march_samples = int(out["steps"].sum())
