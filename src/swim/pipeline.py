@@ -953,6 +953,81 @@ def _planes_of_samples(out, ny, nx):
     return planes
 
 
+def _grid_constants(volume, fingerprint, settings: MarchSettings, sun_scene, cloud_optics) -> dict:
+    """The kernel constants of the scene's grid for one sun (:func:`swim.rt.march_inputs.volume_constants`): the
+    packed volume with Step 1a's channels for the sun ``sun_scene`` (3,), the step classes, the ground's fields. The
+    packing, the species packed, Step 1a's levels and the occupancy depend on the volume alone and are kept in the
+    stage cache under ``fingerprint``; a new sun refills the packed volume in place where this render is the only one
+    (on the device's copy with ``MarchSettings.step1a_on_device``). ``cloud_optics``: the 3-D cloud scattering's, or
+    None."""
+    # The grid is packed first and the volume's extinctions become views of the packed channels, so the
+    # grid is held once before Step 1a's fields are made (docs/performance.md, "Memory"); species that are zero
+    # everywhere are not packed (a march through fewer channels reads fewer cache lines,
+    # docs/decisions/0007-scene-set-up.md) the species packed and Step 1a's levels with extinction depend on the
+    # volume alone: a new sun (a time series' frame) reuses them (their scans read every species' extinction: ~0.1
+    # and ~0.2 s for the 400 x 400 x 60 scene on this project's 2 cores, docs/decisions/0006-gpu-kernels.md)
+    species = _STAGE_CACHE.get(("packed species", fingerprint), lambda: packed_species(volume))
+    # before the packing, which makes the extinctions strided views: the scan of a new scene's contiguous
+    # arrays took 84-90 ms against 440-490 ms through the views (400 x 400 x 60, docs/decisions/0006-gpu-kernels.md)
+    nonzero_levels = _STAGE_CACHE.get(("step 1a levels", fingerprint), lambda: step1a_levels(volume))
+    # A new sun refills the packed volume's Step 1a channels in place (the grid's channels are the same), where
+    # this render is the only one in the process: beside others (a dask worker's threads) one of them may still
+    # march through that volume with its own sun, and this one packs the grid anew
+    packed = shared_packed_volume(volume, species) if _rendering_alone() else None
+    # the step classes (march.step_classes) of a new sun are written over the last sun's where the packed volume
+    # is refilled in place too (the same arrays then keep their device copies' places)
+    classes = None
+    if packed is None:
+        packed = pack_volume(volume, species)
+        share_packed_channels(volume, packed, species)
+    else:
+        classes = _STAGE_CACHE.peek(("step classes", fingerprint))
+    # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
+    occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
+    if classes is None:
+        # kept also beside other renders: the next render alone reuses this render's packed volume, and with its
+        # classes it finds the device copies that this render made (only a render alone writes them in place)
+        classes = _STAGE_CACHE.put(("step classes", fingerprint), np.zeros(occupancy.shape, np.int8))
+    # MarchSettings.step1a_on_device: a new sun on the device's copy of this packed volume, which an earlier
+    # sun's render of the JAX kernel left there (swim.rt.solar_device): no sums, sweep input or volume sent
+    kept = (kept_device_copies({"volume": packed, "occupancy": classes})
+            if settings.resolved_step1a_on_device() else None)
+    if kept is not None:
+        from .rt.march_pallas import forget_vector_volume
+        from .rt.solar_device import solar_transmittance_on_device
+
+        forget_vector_volume()  # the fused kernel's padded copy of the old volume goes before the refill
+        transmittance, device_packed = solar_transmittance_on_device(volume, sun_scene, kept["volume"], packed,
+                                                                     species, nonzero_levels)
+        del kept["volume"]  # (donated to the new copy on a GPU)
+    else:
+        # Step 1a, only the fields that the kernel constants read, written straight into the packed volume's
+        # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy
+        # (docs/decisions/0007-scene-set-up.md) (the 3-D cloud scattering: the direct beam's delta-M scaled
+        # transmittance in place of T)
+        transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
+                                            backend=settings.backend, nonzero_levels=nonzero_levels,
+                                            out=step1a_channel_views(packed, species),
+                                            direct_weights=(None if cloud_optics is None
+                                                            else direct_weights(volume, cloud_optics)))
+    constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species,
+                                 classes=classes)
+    if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.device_copies.device_copies);
+        # the step classes of this sun are sent (25.6 MB for 400 x 400 x 160)
+        import jax
+
+        keep_device_copies({"volume": constants["volume"], "occupancy": constants["occupancy"]},
+                           {"volume": device_packed, "occupancy": jax.device_put(constants["occupancy"])})
+        del device_packed
+    del transmittance
+    if not settings.on_accelerator():
+        # Step 1a's freed levels, before the ray march; not where the march runs on a GPU, whose host has the
+        # memory to spare: there the trim took 0.06 s of a new sun's 0.58 s frame on an H100 machine's 16
+        # cores (docs/decisions/0006-gpu-kernels.md)
+        release_free_memory()
+    return constants
+
+
 def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith, sun_azimuth, look_at, aerosol,
             settings, white_level, exposure, progress, crop, sampling, coarsen, check_memory,
             guess: _DigestGuess | None) -> xr.Dataset:
@@ -1045,73 +1120,6 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
                                         lambda: scene_cloud_optics(volume, clouds))
         cloud_key = clouds
 
-    def grid_constants():
-        # The grid is packed first and the volume's extinctions become views of the packed channels, so the
-        # grid is held once before Step 1a's fields are made (docs/performance.md, "Memory"); species that are zero
-        # everywhere are not packed (a march through fewer channels reads fewer cache lines,
-        # docs/decisions/0007-scene-set-up.md) the species packed and Step 1a's levels with extinction depend on the
-        # volume alone: a new sun (a time series' frame) reuses them (their scans read every species' extinction: ~0.1
-        # and ~0.2 s for the 400 x 400 x 60 scene on this project's 2 cores, docs/decisions/0006-gpu-kernels.md)
-        species = _STAGE_CACHE.get(("packed species", fingerprint), lambda: packed_species(volume))
-        # before the packing, which makes the extinctions strided views: the scan of a new scene's contiguous
-        # arrays took 84-90 ms against 440-490 ms through the views (400 x 400 x 60, docs/decisions/0006-gpu-kernels.md)
-        nonzero_levels = _STAGE_CACHE.get(("step 1a levels", fingerprint), lambda: step1a_levels(volume))
-        # A new sun refills the packed volume's Step 1a channels in place (the grid's channels are the same), where
-        # this render is the only one in the process: beside others (a dask worker's threads) one of them may still
-        # march through that volume with its own sun, and this one packs the grid anew
-        packed = shared_packed_volume(volume, species) if _rendering_alone() else None
-        # the step classes (march.step_classes) of a new sun are written over the last sun's where the packed volume
-        # is refilled in place too (the same arrays then keep their device copies' places)
-        classes = None
-        if packed is None:
-            packed = pack_volume(volume, species)
-            share_packed_channels(volume, packed, species)
-        else:
-            classes = _STAGE_CACHE.peek(("step classes", fingerprint))
-        # the occupancy grid depends on the volume alone: a new sun (a time series' frame) reuses it
-        occupancy = _STAGE_CACHE.get(("occupancy", fingerprint), lambda: occupancy_grid(volume))
-        if classes is None:
-            # kept also beside other renders: the next render alone reuses this render's packed volume, and with its
-            # classes it finds the device copies that this render made (only a render alone writes them in place)
-            classes = _STAGE_CACHE.put(("step classes", fingerprint), np.zeros(occupancy.shape, np.int8))
-        # MarchSettings.step1a_on_device: a new sun on the device's copy of this packed volume, which an earlier
-        # sun's render of the JAX kernel left there (swim.rt.solar_device): no sums, sweep input or volume sent
-        kept = (kept_device_copies({"volume": packed, "occupancy": classes})
-                if settings.resolved_step1a_on_device() else None)
-        if kept is not None:
-            from .rt.march_pallas import forget_vector_volume
-            from .rt.solar_device import solar_transmittance_on_device
-
-            forget_vector_volume()  # the fused kernel's padded copy of the old volume goes before the refill
-            transmittance, device_packed = solar_transmittance_on_device(volume, sun_scene, kept["volume"], packed,
-                                                                         species, nonzero_levels)
-            del kept["volume"]  # (donated to the new copy on a GPU)
-        else:
-            # Step 1a, only the fields that the kernel constants read, written straight into the packed volume's
-            # channels: no field of its own (~100 MB each at 400 x 400 x 160) and no copy
-            # (docs/decisions/0007-scene-set-up.md) (the 3-D cloud scattering: the direct beam's delta-M scaled
-            # transmittance in place of T)
-            transmittance = solar_transmittance(volume, sun_scene, variables=KERNEL_STEP1A_VARIABLES,
-                                                backend=settings.backend, nonzero_levels=nonzero_levels,
-                                                out=step1a_channel_views(packed, species),
-                                                direct_weights=(None if cloud_optics is None
-                                                                else direct_weights(volume, cloud_optics)))
-        constants = volume_constants(volume, transmittance, occupancy=occupancy, packed=packed, species=species,
-                                     classes=classes)
-        if kept is not None:  # the device's new copy is the one the JAX kernel takes (swim.rt.device_copies.device_copies);
-            # the step classes of this sun are sent (25.6 MB for 400 x 400 x 160)
-            import jax
-
-            keep_device_copies({"volume": constants["volume"], "occupancy": constants["occupancy"]},
-                               {"volume": device_packed, "occupancy": jax.device_put(constants["occupancy"])})
-            del device_packed
-        del transmittance
-        if not settings.on_accelerator():
-            # Step 1a's freed levels, before the ray march; not where the march runs on a GPU, whose host has the
-            # memory to spare: there the trim took 0.06 s of a new sun's 0.58 s frame on an H100 machine's 16
-            # cores (docs/decisions/0006-gpu-kernels.md)
-            release_free_memory()
-        return constants
 
     # The entry holds the gas tables, so their id cannot be reused by other tables while it lives. The grid's
     # constants are looked up inside its build, after the old entry has gone: a new sun never holds two volumes.
@@ -1129,7 +1137,8 @@ def _render(scene, *, time, lat, lon, height, camera, camera_options, sun_zenith
             return cloud_constants(grid, species, sun_scene, cloud_optics, solved)
 
         def build_constants():
-            grid = _STAGE_CACHE.get(("grid constants", fingerprint, sun_key, cloud_key), grid_constants)
+            grid = _STAGE_CACHE.get(("grid constants", fingerprint, sun_key, cloud_key),
+                                    lambda: _grid_constants(volume, fingerprint, settings, sun_scene, cloud_optics))
             return {**grid, **atmosphere_constants(gas, sun_scene), **with_clouds(grid)}, gas
 
         consts, _ = _STAGE_CACHE.get(("constants", fingerprint, sun_key, id(gas), cloud_key), build_constants)
