@@ -30,6 +30,7 @@ since the helper hands its result over through them. ``tests/unit/rt/test_precom
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import logging
@@ -257,6 +258,13 @@ def jax_may_see_a_gpu() -> bool:
     platforms = os.environ.get("JAX_PLATFORMS", "").strip().lower()
     if platforms:
         return any(name in platforms for name in ("cuda", "gpu", "rocm", "tpu", "metal"))
+    return _jax_plugin_installed()
+
+
+@functools.lru_cache(maxsize=1)
+def _jax_plugin_installed() -> bool:
+    """Whether a JAX plugin is installed: looked up once per process (the scan of the installed distributions' entry
+    points took ~4 ms, and a render resolves its backend a dozen times)."""
     from importlib import metadata, util
 
     return bool(metadata.entry_points(group="jax_plugins")) or util.find_spec("jax_plugins") is not None

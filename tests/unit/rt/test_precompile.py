@@ -103,7 +103,11 @@ def test_the_command_starts_the_helper_early_only_for_the_numba_kernel(monkeypat
     monkeypatch.setenv("JAX_PLATFORMS", platforms)
     if plugin:
         monkeypatch.setattr(metadata, "entry_points", lambda group: ["jax_cuda12_plugin"])
-    precompile.start_early(backend)
+    precompile._jax_plugin_installed.cache_clear()  # looked up once per process: here per case
+    try:
+        precompile.start_early(backend)
+    finally:
+        precompile._jax_plugin_installed.cache_clear()
     assert started == expected
 
 
