@@ -7,6 +7,7 @@ them (:mod:`swim.rt.device_copies`).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,8 +124,6 @@ def extended_surface(volume, fields, outside):
     grid (:func:`extend_beyond_grid`): the surface's properties (the first 8) smoothed along the edge and tapering to
     ``outside`` (C,) over the margin, kept for the volume; its lighting by Step 1a fading within
     :data:`LIGHTING_EDGE_FADE_CELLS`. Returns the extended fields (C, ny + 2 m, nx + 2 m) and the margin m [cells]."""
-    import weakref
-
     fields = np.asarray(fields, np.float32)
     margin = surface_margin_cells(*fields.shape[1:])
     entry = _EXTENDED_PROPERTIES.get("entry")
@@ -133,8 +132,8 @@ def extended_surface(volume, fields, outside):
         properties = extend_beyond_grid(fields[:8], outside[:8], margin)
         properties.flags.writeable = False
         _EXTENDED_PROPERTIES["entry"] = entry = (weakref.ref(volume), margin, properties)
-    lighting = extend_beyond_grid(fields[8:], outside[8:], margin, np.full(fields.shape[0] - 8, LIGHTING_EDGE_FADE_CELLS),
-                                  smoothed=False)
+    lighting = extend_beyond_grid(fields[8:], outside[8:], margin,
+                                  np.full(fields.shape[0] - 8, LIGHTING_EDGE_FADE_CELLS), smoothed=False)
     return np.concatenate([entry[2], lighting]), margin
 
 

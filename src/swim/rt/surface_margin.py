@@ -82,26 +82,25 @@ def extend_beyond_grid(fields, outside, margin, fade_cells=None, smoothed=True):
     di = np.maximum(np.maximum(m - ii, ii - (nx - 1 + m)), 0.0)
     d = np.hypot(dj, di)
     beyond = d > 0
+    distance = d[beyond]
     # box widths 1, 2, 4, ... up to the margin; a cell at distance d takes the width ~d (interpolated in log2)
     widths = [1]
     while smoothed and widths[-1] < m:
         widths.append(2 * widths[-1])
-    level = np.clip(np.log2(np.maximum(d[beyond], 1.0)), 0.0, len(widths) - 1.0)
-    lower = np.minimum(level.astype(np.int64), len(widths) - 2) if len(widths) > 1 else np.zeros_like(level, int)
-    upper_weight = (level - lower).astype(np.float32) if len(widths) > 1 else np.zeros_like(level, np.float32)
+    if len(widths) > 1:
+        level = np.clip(np.log2(np.maximum(distance, 1.0)), 0.0, len(widths) - 1.0)
+        lower = np.minimum(level.astype(np.int64), len(widths) - 2)
+        upper_weight = (level - lower).astype(np.float32)
+        rows = np.arange(lower.size)
+    outside = np.asarray(outside, np.float32)
+    taper = 0.5 * (1.0 + np.cos(np.pi * np.minimum(distance / max(m, 1), 1.0))) if fade_cells is None else None
     out = extruded.copy()
     for channel in range(c):
-        boxes = np.stack([uniform_filter(extruded[channel], size=w, mode="nearest")[beyond] if w > 1
-                          else extruded[channel][beyond] for w in widths])
         if len(widths) > 1:
-            rows = np.arange(lower.size)
+            boxes = np.stack([uniform_filter(extruded[channel], size=w, mode="nearest")[beyond] for w in widths])
             continued = boxes[lower, rows] * (1.0 - upper_weight) + boxes[lower + 1, rows] * upper_weight
         else:
-            continued = boxes[0]
-        far = np.float32(np.asarray(outside, np.float32)[channel])
-        if fade_cells is None:
-            weight = 0.5 * (1.0 + np.cos(np.pi * np.minimum(d[beyond] / max(m, 1), 1.0)))
-        else:
-            weight = np.exp(-d[beyond] / np.float32(np.asarray(fade_cells, np.float32)[channel]))
-        out[channel][beyond] = far + (continued - far) * weight
+            continued = extruded[channel][beyond]
+        weight = taper if taper is not None else np.exp(-distance / np.float32(np.asarray(fade_cells)[channel]))
+        out[channel][beyond] = outside[channel] + (continued - outside[channel]) * weight
     return out
