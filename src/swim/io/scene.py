@@ -2,7 +2,8 @@
 
 The canonical scene is an :class:`xarray.Dataset` on a (possibly terrain-following) grid with dimensions
 ``z, y, x``; every variable is in SI units. The format, the validation rules and the readers are documented
-in ``docs/scene-format.md``; this module is the one place that enforces them.
+in ``docs/scene-format.md``; this module and :mod:`swim.io.scene_checks` (the checks of each group of variables)
+are the one place that enforces them.
 
 Decisions (see ``docs/scene-format.md``):
 
@@ -24,10 +25,37 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from ..constants import DEFAULT_EFFECTIVE_RADIUS, EARTH_RADIUS_M, SPECIES, WAVELENGTHS_NM
+from ..constants import EARTH_RADIUS_M, WAVELENGTHS_NM
 from ..errors import SwimInputError
-from ..frames import orthographic_xy, scene_to_geodetic
-from ..workers import in_blocks
+from ..frames import scene_to_geodetic
+from .scene_checks import (
+    _2D,
+    _3D,
+    _LONG_NAMES,
+    _UNITS,
+    CONTENT_VARIABLES,
+    DEFAULT_WIND_SPEED_M_S,
+    MAX_AEROSOL_EXTINCTION_M1 as MAX_AEROSOL_EXTINCTION_M1,
+    MAX_CONTENT_KG_M3,
+    NEGATIVE_NOISE_KG_M3,
+    RADIUS_RANGE_M as RADIUS_RANGE_M,
+    RADIUS_VARIABLES,
+    TERRAIN_RANGE_M as TERRAIN_RANGE_M,
+    WIND_SPEED_RANGE_M_S,
+    _check_aerosol,
+    _check_contents,
+    _check_dataset,
+    _check_height,
+    _check_lat_lon,
+    _check_radii,
+    _check_surface,
+    _check_terrain,
+    _check_xy,
+    _copied_and_scanned as _copied_and_scanned,
+    _finite_or_raise,
+    _warn_wet_below_terrain,
+    require_real_numbers,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -45,141 +73,6 @@ __all__ = [
     "domain_centre",
     "to_utc_datetime64",
 ]
-
-#: Names of the mass-content variables [kg m-3], in the order of :data:`swim.constants.SPECIES`.
-CONTENT_VARIABLES = tuple(f"{s}_content" for s in SPECIES)
-#: Names of the optional effective-radius variables [m].
-RADIUS_VARIABLES = tuple(f"{s}_effective_radius" for s in SPECIES)
-#: Largest plausible hydrometeor mass content [kg m-3] (50 g m-3); larger values mean wrong units.
-MAX_CONTENT_KG_M3 = 0.05
-#: Negative contents down to minus this value [kg m-3] are numerical noise and are clipped to 0.
-NEGATIVE_NOISE_KG_M3 = 1e-12
-#: Plausible range of an effective radius where there is content [m].
-RADIUS_RANGE_M = (1e-7, 0.1)
-#: Largest plausible aerosol extinction at 550 nm [m-1] (visibility ~ 80 m); larger values mean wrong units.
-MAX_AEROSOL_EXTINCTION_M1 = 0.05
-#: Plausible range of terrain height [m].
-TERRAIN_RANGE_M = (-500.0, 9000.0)
-#: Plausible range of the 10 m wind speed [m s-1] (the strongest measured gusts are about 113 m s-1, but a
-#: grid-cell mean 10 m wind above 75 m s-1 means wrong units).
-WIND_SPEED_RANGE_M_S = (0.0, 75.0)
-#: 10 m wind speed [m s-1] the renderer assumes where the scene has no ``wind_speed_10m``.
-DEFAULT_WIND_SPEED_M_S = 5.0
-
-_LONG_NAMES = {
-    "height": "height above sea level of the mass points",
-    "lat": "latitude",
-    "lon": "longitude",
-    "terrain_height": "terrain height above sea level",
-    "cloud_liquid_content": "cloud liquid water mass content",
-    "cloud_ice_content": "cloud ice mass content",
-    "rain_content": "rain mass content",
-    "snow_content": "snow mass content",
-    "graupel_content": "graupel mass content",
-    "cloud_liquid_effective_radius": "cloud liquid effective radius",
-    "cloud_ice_effective_radius": "cloud ice effective radius",
-    "rain_effective_radius": "rain effective radius",
-    "snow_effective_radius": "snow effective radius",
-    "graupel_effective_radius": "graupel effective radius",
-    "aerosol_extinction": "aerosol extinction coefficient at 550 nm",
-    "surface_albedo": "surface spectral albedo",
-    "land_mask": "land mask (1 land, 0 water)",
-    "snow_cover": "fraction of the surface covered by snow or ice",
-    "wind_speed_10m": "wind speed at 10 m above the surface",
-    "x": "grid x (east) of the column in the scene frame",
-    "y": "grid y (north) of the column in the scene frame",
-    "wavelength": "wavelength",
-    "time": "valid time (UTC)",
-}
-
-_UNITS = {
-    "height": "m",
-    "lat": "degrees_north",
-    "lon": "degrees_east",
-    "terrain_height": "m",
-    "aerosol_extinction": "m-1",
-    "surface_albedo": "1",
-    "land_mask": "1",
-    "snow_cover": "1",
-    "wind_speed_10m": "m s-1",
-    "x": "m",
-    "y": "m",
-    "wavelength": "nm",
-    **{name: "kg m-3" for name in CONTENT_VARIABLES},
-    **{name: "m" for name in RADIUS_VARIABLES},
-}
-
-_3D = ("z", "y", "x")
-_2D = ("y", "x")
-_CANONICAL_VARIABLES = (
-    ("height", "lat", "lon", "terrain_height")
-    + CONTENT_VARIABLES
-    + RADIUS_VARIABLES
-    + ("aerosol_extinction", "surface_albedo", "land_mask", "snow_cover", "wind_speed_10m")
-)
-
-# ---------------------------------------------------------------------------------------------------------------
-# units
-
-
-def _normalise_units(units) -> str:
-    s = str(units).strip().lower()
-    for old, new in (("**", ""), ("^", ""), (" ", ""), (".", ""), ("·", ""), ("*", ""), ("μ", "u"), ("µ", "u")):
-        s = s.replace(old, new)
-    return s
-
-
-_ACCEPTED_UNITS = {
-    "kg m-3": {"kgm-3", "kg/m3"},
-    "m": {"m", "meter", "meters", "metre", "metres"},
-    "m-1": {"m-1", "1/m", "/m"},
-    "degrees_north": {"degrees_north", "degree_north", "degrees_n", "degree_n", "degreesnorth", "degrees", "degree", "deg", "°n", "°"},
-    "degrees_east": {"degrees_east", "degree_east", "degrees_e", "degree_e", "degreeseast", "degrees", "degree", "deg", "°e", "°"},
-    "1": {"1", "", "-", "fraction", "dimensionless", "none", "0-1"},
-    "nm": {"nm", "nanometer", "nanometers", "nanometre", "nanometres"},
-    "m s-1": {"ms-1", "m/s", "mps"},
-}
-
-_UNIT_HINTS = {
-    "gm-3": "g m-3: multiply by 1e-3",
-    "g/m3": "g m-3: multiply by 1e-3",
-    "kgkg-1": "a mixing ratio: multiply by the air density",
-    "kg/kg": "a mixing ratio: multiply by the air density",
-    "gkg-1": "a mixing ratio in g kg-1: multiply by 1e-3 and by the air density",
-    "g/kg": "a mixing ratio in g kg-1: multiply by 1e-3 and by the air density",
-    "um": "micrometres: multiply by 1e-6",
-    "micron": "micrometres: multiply by 1e-6",
-    "microns": "micrometres: multiply by 1e-6",
-    "micrometer": "micrometres: multiply by 1e-6",
-    "micrometre": "micrometres: multiply by 1e-6",
-    "km": "kilometres: multiply by 1e3",
-    "km-1": "per kilometre: multiply by 1e-3",
-    "1/km": "per kilometre: multiply by 1e-3",
-    "%": "percent: divide by 100",
-    "percent": "percent: divide by 100",
-    "kmh-1": "km h-1: divide by 3.6",
-    "km/h": "km h-1: divide by 3.6",
-    "kt": "knots: multiply by 0.514444",
-    "kts": "knots: multiply by 0.514444",
-    "knot": "knots: multiply by 0.514444",
-    "knots": "knots: multiply by 0.514444",
-}
-
-
-def _check_units(name: str, da: xr.DataArray) -> None:
-    """Raise if ``da.attrs['units']`` is present and not a spelling of the canonical unit of ``name``."""
-    expected = _UNITS[name]
-    if "units" not in da.attrs:
-        return
-    got = _normalise_units(da.attrs["units"])
-    if got in _ACCEPTED_UNITS[expected]:
-        return
-    hint = _UNIT_HINTS.get(got)
-    hint = f" ('{da.attrs['units']}' looks like {hint})" if hint else ""
-    raise SwimInputError(
-        f"scene variable '{name}' has units '{da.attrs['units']}' but must be in {expected}{hint}; convert it and set "
-        f"units='{expected}'"
-    )
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -297,91 +190,6 @@ def _check_horizontal_metres(xv, yv, height):
         raise SwimInputError(f"x/y spacing {dx:g} m under levels {dz:.4g} m apart: expected x and y in metres, not km")
 
 
-def require_real_numbers(label: str, dtype) -> None:
-    """Refuse a field ``label`` of values that are not real numbers (float, integer or bool ``dtype``): a complex
-    field would lose its imaginary part, text or objects would fail deep inside.
-
-    Raises
-    ------
-    SwimInputError
-        Naming ``label`` and the dtype.
-    """
-    if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.bool_)):
-        raise SwimInputError(f"{label} holds {dtype} values; expected real numbers")
-
-
-def _as_dataarray(name: str, ds: xr.Dataset) -> xr.DataArray:
-    da = ds[name].reset_coords(drop=True)
-    require_real_numbers(f"scene variable '{name}'", da.dtype)
-    return da
-
-
-def _check_dims(name: str, da: xr.DataArray, dims: tuple[str, ...]) -> xr.DataArray:
-    if set(da.dims) != set(dims) or len(da.dims) != len(dims):
-        raise SwimInputError(f"scene variable '{name}' has dims {tuple(da.dims)}; expected {dims}")
-    return da.transpose(*dims)
-
-
-def _finite_or_raise(name: str, values: np.ndarray, not_finite: int | None = None) -> None:
-    """Raise if ``values`` holds NaN or inf (``not_finite``: their count, where a scan has counted them)."""
-    if not_finite is None:
-        not_finite = int(np.count_nonzero(~np.isfinite(values)))
-    if not_finite:
-        raise SwimInputError(
-            f"scene variable '{name}' has {int(not_finite)} non-finite value(s) (NaN or inf) out of {values.size}; "
-            f"every value must be finite ({_UNITS.get(name, '')})"
-        )
-
-
-def _copied_and_scanned(values) -> tuple[np.ndarray, dict]:
-    """A float64 copy of a 3-D array (level, y, x) and its statistics: ``not finite`` and ``negative`` (counts),
-    ``min`` and ``max`` (of the finite values), from one compiled pass in blocks of levels on every core
-    (:func:`swim.io.scan_cpu.copy_and_scan`; numba is imported at the first scan, not with :mod:`swim`)."""
-    from .scan_cpu import STATS, copy_and_scan
-
-    source = np.asarray(values)
-    if source.dtype not in (np.float32, np.float64):  # one compiled version per dtype: the others converted first
-        source = source.astype(np.float64)
-    copy = np.empty(source.shape, np.float64)
-    blocks = []
-
-    def scan(k0, k1):
-        stats = np.zeros(len(STATS))
-        copy_and_scan(source, copy, k0, k1, stats)
-        blocks.append(stats)
-
-    in_blocks(scan, source.shape[0])
-    stats = np.array(blocks).reshape(-1, len(STATS))
-    return copy, {"not finite": int(stats[:, 0].sum()), "negative": int(stats[:, 1].sum()),
-                  "min": float(stats[:, 2].min(initial=np.inf)), "max": float(stats[:, 3].max(initial=-np.inf))}
-
-
-def _new_attrs(name: str, old: dict) -> dict:
-    attrs = {k: v for k, v in old.items() if k not in ("units", "long_name", "_FillValue", "missing_value", "coordinates")}
-    attrs["units"] = _UNITS[name]
-    attrs["long_name"] = str(old.get("long_name", _LONG_NAMES[name]))
-    return attrs
-
-
-def _clip_noise(name: str, values: np.ndarray, negative: int | None = None) -> np.ndarray:
-    """Raise on negative values below -1e-12, clip the numerical noise in [-1e-12, 0) to 0 (logged). ``negative``:
-    the count of negative values, where a scan has counted them."""
-    if negative == 0:
-        return values
-    neg = values < 0
-    if not neg.any():
-        return values
-    vmin = float(values.min())
-    if vmin < -NEGATIVE_NOISE_KG_M3:
-        raise SwimInputError(
-            f"scene variable '{name}' has {int((values < -NEGATIVE_NOISE_KG_M3).sum())} negative value(s) (min "
-            f"{vmin:.3g}); it must be >= 0 ({_UNITS[name]}); values down to -{NEGATIVE_NOISE_KG_M3:g} are clipped as "
-            "numerical noise"
-        )
-    logger.info("%s: clipped %d negative value(s) >= %.1e (min %.3g) to 0", name, int(neg.sum()), -NEGATIVE_NOISE_KG_M3, vmin)
-    return np.where(neg, 0.0, values)
-
-
 # ---------------------------------------------------------------------------------------------------------------
 # validation
 
@@ -425,179 +233,32 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
         terrain outside [-500, 9000] m; on aerosol extinction < 0 or > 0.05 m-1; on a ``time`` that is not a
         single time.
     """
-    if not isinstance(ds, xr.Dataset):
-        raise SwimInputError(f"scene must be an xarray.Dataset; got {type(ds).__name__}")
-    if "time" in ds.dims and ds.sizes["time"] == 1:
-        ds = ds.squeeze("time")
-    missing = [name for name in ("height", "lat", "lon", "terrain_height") if name not in ds.variables]
-    if missing:
-        raise SwimInputError(
-            f"scene lacks required variable(s) {missing}: needs height(z,y,x) [m above sea level], lat(y,x) "
-            "[degrees_north], lon(y,x) [degrees_east] and terrain_height(y,x) [m]"
-        )
-    unknown = [str(n) for n in ds.data_vars if n not in _CANONICAL_VARIABLES]
-    unknown += [str(n) for n in ds.coords if n not in _CANONICAL_VARIABLES + ("x", "y", "z", "wavelength", "time")]
-    if unknown:
-        logger.warning("validate_scene: dropping variable(s) that are not part of the canonical scene: %s", unknown)
-
-    out: dict[str, xr.DataArray] = {}
-
-    # ---- geometry
-    height_da = _check_dims("height", _as_dataarray("height", ds), _3D)
-    _check_units("height", height_da)
-    nz, ny, nx = height_da.shape
-    if min(nz, ny, nx) < 1:
-        raise SwimInputError(f"scene grid is empty: (z, y, x) = {(nz, ny, nx)}")
-    height, stats = _copied_and_scanned(height_da.values)
-    _finite_or_raise("height", height, stats["not finite"])
-    if stats["max"] > 100_000.0:
-        raise SwimInputError(f"height: max {stats['max']:.4g} m is above 100 km; expected metres above sea level")
-    if stats["max"] <= 25.0:
-        raise SwimInputError(
-            f"height: max {stats['max']:.4g} m; a scene only 25 m deep is implausible: expected metres above sea "
-            "level, not km"
-        )
-    if nz > 1:
-        from .scan_cpu import flag_non_increasing
-
-        bad_cols = np.zeros((ny, nx), bool)
-        in_blocks(lambda j0, j1: flag_non_increasing(height, j0, j1, bad_cols), ny)
-        if bad_cols.any():
-            raise SwimInputError(
-                f"height must increase strictly with z in every column; {int(bad_cols.sum())} of {ny * nx} column(s) "
-                "do not (is the z axis upside down, or is it pressure?)"
-            )
-    out["height"] = xr.DataArray(height, dims=_3D, attrs=_new_attrs("height", height_da.attrs))
-
-    def _horizontal(name):
-        da = _check_dims(name, _as_dataarray(name, ds), _2D)
-        if da.shape != (ny, nx):
-            raise SwimInputError(f"scene variable '{name}' has shape {da.shape}; expected (y, x) = {(ny, nx)}")
-        _check_units(name, da)
-        values = np.array(da.values, dtype=float)
-        _finite_or_raise(name, values)
-        return da, values
-
-    lat_da, lat = _horizontal("lat")
-    lon_da, lon = _horizontal("lon")
-    if lat.min() < -90.0 or lat.max() > 90.0:
-        raise SwimInputError(f"lat: range [{lat.min():.4g}, {lat.max():.4g}] is outside [-90, 90] degrees_north")
-    if lon.min() < -360.0 or lon.max() > 360.0:
-        raise SwimInputError(f"lon: range [{lon.min():.4g}, {lon.max():.4g}] is outside [-360, 360] degrees_east")
-    lon = (lon + 180.0) % 360.0 - 180.0
-    out["lat"] = xr.DataArray(lat, dims=_2D, attrs=_new_attrs("lat", lat_da.attrs))
-    out["lon"] = xr.DataArray(lon, dims=_2D, attrs=_new_attrs("lon", lon_da.attrs))
-
-    terrain_da, terrain = _horizontal("terrain_height")
-    if terrain.min() < TERRAIN_RANGE_M[0] or terrain.max() > TERRAIN_RANGE_M[1]:
-        raise SwimInputError(
-            f"terrain_height: range [{terrain.min():.4g}, {terrain.max():.4g}] m is outside "
-            f"[{TERRAIN_RANGE_M[0]:g}, {TERRAIN_RANGE_M[1]:g}] m above sea level"
-        )
-    out["terrain_height"] = xr.DataArray(terrain, dims=_2D, attrs=_new_attrs("terrain_height", terrain_da.attrs))
-
-    def _volume(name):
-        da = _check_dims(name, _as_dataarray(name, ds), _3D)
-        if da.shape != (nz, ny, nx):
-            raise SwimInputError(f"scene variable '{name}' has shape {da.shape}; expected (z, y, x) = {(nz, ny, nx)}")
-        _check_units(name, da)
-        return (da,) + _copied_and_scanned(da.values)
-
-    # ---- hydrometeor contents
-    contents: dict[str, np.ndarray] = {}
-    for species, name in zip(SPECIES, CONTENT_VARIABLES):
-        if name not in ds.variables:
-            continue
-        da, values, stats = _volume(name)
-        _finite_or_raise(name, values, stats["not finite"])
-        values = _clip_noise(name, values, stats["negative"])
-        vmax = max(stats["max"], 0.0) if stats["negative"] else stats["max"]  # the noise clipped to 0
-        if vmax > MAX_CONTENT_KG_M3:
-            raise SwimInputError(
-                f"{name}: max {vmax:.4g} kg m-3 exceeds {MAX_CONTENT_KG_M3:g} kg m-3 ({MAX_CONTENT_KG_M3 * 1e3:g} g m-3), "
-                "which is impossible for a cloud; the values are most likely in g m-3 or g kg-1 (or a mixing ratio) "
-                "given as kg m-3. Expected kg m-3"
-            )
-        contents[species] = values
-        out[name] = xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))
-
-    below = height < terrain[None]
-    if below.any():
-        wet_below = sum(int(np.count_nonzero(c[below] > 0)) for c in contents.values())
-        if wet_below:
-            logger.warning("validate_scene: %d cell(s) below the terrain hold hydrometeors (they are hidden)", wet_below)
-
-    # ---- effective radii
-    for species, name in zip(SPECIES, RADIUS_VARIABLES):
-        if name not in ds.variables:
-            continue
-        if species not in contents:
-            raise SwimInputError(f"scene has '{name}' but no '{species}_content'; give both or drop the radius")
-        da, values, _ = _volume(name)
-        cloudy = contents[species] > 0
-        r = values[cloudy]
-        bad = ~np.isfinite(r) | (r < RADIUS_RANGE_M[0]) | (r > RADIUS_RANGE_M[1])
-        if bad.any():
-            finite = r[np.isfinite(r)]
-            rng = f"[{finite.min():.3g}, {finite.max():.3g}]" if finite.size else "[no finite value]"
-            raise SwimInputError(
-                f"{name}: {int(bad.sum())} value(s) where {species}_content > 0 are non-finite or outside "
-                f"[{RADIUS_RANGE_M[0]:g}, {RADIUS_RANGE_M[1]:g}] m (range {rng}); expected metres (micrometres "
-                "must be multiplied by 1e-6)"
-            )
-        values = np.where(cloudy, values, DEFAULT_EFFECTIVE_RADIUS[species])
-        out[name] = xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))
-
-    # ---- aerosol
+    ds = _check_dataset(ds)
+    height_da, height = _check_height(ds)
+    shape = height.shape
+    out: dict[str, xr.DataArray] = {"height": height_da}
+    out["lat"], out["lon"] = _check_lat_lon(ds, shape[1:])
+    out["terrain_height"] = _check_terrain(ds, shape[1:])
+    variables, contents = _check_contents(ds, shape)
+    out.update(variables)
+    _warn_wet_below_terrain(height, out["terrain_height"].values, contents)
+    out.update(_check_radii(ds, shape, contents))
     if "aerosol_extinction" in ds.variables:
-        name = "aerosol_extinction"
-        da, values, stats = _volume(name)
-        _finite_or_raise(name, values, stats["not finite"])
-        values = _clip_noise(name, values, stats["negative"])
-        if stats["max"] > MAX_AEROSOL_EXTINCTION_M1:
-            raise SwimInputError(
-                f"{name}: max {stats['max']:.4g} m-1 exceeds {MAX_AEROSOL_EXTINCTION_M1:g} m-1 (visibility < 80 m); "
-                "expected m-1 at 550 nm (km-1 must be multiplied by 1e-3)"
-            )
-        out[name] = xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))
+        out["aerosol_extinction"] = _check_aerosol(ds, shape)
+    variables, coords = _check_surface(ds, shape[1:])
+    out.update(variables)
+    lat, lon = out["lat"].values, out["lon"].values
+    attrs = _check_attributes(ds.attrs, lat, lon)
+    coords.update(_check_xy(ds, lat, lon, attrs["reference_lat"], attrs["reference_lon"]))
+    if "time" in ds.variables:
+        coords["time"] = _validate_time(ds["time"])
+    return xr.Dataset(out, attrs=attrs).assign_coords(coords)
 
-    # ---- surface
-    coords: dict[str, xr.DataArray] = {}
-    if "surface_albedo" in ds.variables:
-        out["surface_albedo"], coords["wavelength"] = _validate_albedo(_as_dataarray("surface_albedo", ds), ds, ny, nx)
-    if "land_mask" in ds.variables:
-        da, values = _horizontal("land_mask")
-        if not np.all((values == 0) | (values == 1)):
-            raise SwimInputError(
-                f"land_mask: values must be 1 (land) or 0 (water); got values in [{values.min():.3g}, {values.max():.3g}]"
-            )
-        out["land_mask"] = xr.DataArray(values.astype(np.int8), dims=_2D, attrs=_new_attrs("land_mask", da.attrs))
-    if "snow_cover" in ds.variables:
-        da, values = _horizontal("snow_cover")
-        if values.min() < 0.0 or values.max() > 1.0:
-            hint = " (percent must be divided by 100)" if values.max() <= 100.0 and values.min() >= 0.0 else ""
-            raise SwimInputError(
-                f"snow_cover: range [{values.min():.4g}, {values.max():.4g}] is outside [0, 1]; expected the fraction "
-                f"of the surface covered by snow or ice (units 1){hint}"
-            )
-        out["snow_cover"] = xr.DataArray(values, dims=_2D, attrs=_new_attrs("snow_cover", da.attrs))
-    if "wind_speed_10m" in ds.variables:
-        da, values = _horizontal("wind_speed_10m")
-        lo, hi = WIND_SPEED_RANGE_M_S
-        if values.min() < lo:
-            raise SwimInputError(
-                f"wind_speed_10m: {int((values < lo).sum())} negative value(s) (min {values.min():.4g}); expected the "
-                f"10 m wind speed in [{lo:g}, {hi:g}] m s-1 (a speed sqrt(u10^2 + v10^2), not a wind component)"
-            )
-        if values.max() > hi:
-            raise SwimInputError(
-                f"wind_speed_10m: max {values.max():.4g} exceeds {hi:g} m s-1; expected m s-1 in [{lo:g}, {hi:g}] "
-                "(km h-1 must be divided by 3.6, knots multiplied by 0.514444)"
-            )
-        out["wind_speed_10m"] = xr.DataArray(values, dims=_2D, attrs=_new_attrs("wind_speed_10m", da.attrs))
 
-    # ---- attributes
-    attrs = {k: v for k, v in ds.attrs.items()}
+def _check_attributes(ds_attrs: dict, lat: np.ndarray, lon: np.ndarray) -> dict:
+    """The scene's attributes with a finite reference point in range (the domain centre of ``lat``/``lon`` where
+    it is missing; ``reference_lon`` wrapped to [-180, 180)) and a ``title`` and ``source``."""
+    attrs = {k: v for k, v in ds_attrs.items()}
     for key in ("reference_lat", "reference_lon"):
         if key in attrs:
             try:
@@ -618,75 +279,11 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
     attrs["reference_lon"] = float((attrs["reference_lon"] + 180.0) % 360.0 - 180.0)
     attrs["title"] = str(attrs.get("title", "swim scene"))
     attrs["source"] = str(attrs.get("source", "unknown"))
-
-    # ---- coordinates x, y (optional; must agree with lat/lon) and time
-    gx = gy = None
-    for axis in ("x", "y"):
-        if axis in ds.coords:
-            c = ds.coords[axis]
-            if c.dims != (axis,):
-                logger.warning("validate_scene: dropping coordinate '%s' with dims %s (expected (%s,))", axis, c.dims, axis)
-                continue
-            _check_units(axis, c)
-            if gx is None:
-                gx, gy = orthographic_xy(lat, lon, attrs["reference_lat"], attrs["reference_lon"])
-            values = np.array(c.values, dtype=float)
-            spacing = float(np.median(np.abs(np.diff(values)))) if values.size > 1 else 1000.0
-            tol = max(1.0, 0.01 * spacing)
-            grid = gx if axis == "x" else gy
-            along = values[None, :] if axis == "x" else values[:, None]
-            err = float(np.max(np.abs(grid - along)))
-            if err > tol:
-                raise SwimInputError(
-                    f"coordinate '{axis}' [m] disagrees with lat/lon by up to {err:.4g} m (orthographic projection about "
-                    f"reference_lat/lon = {attrs['reference_lat']:.4f}, {attrs['reference_lon']:.4f}); expected "
-                    f"{axis} = orthographic_xy(lat, lon) within {tol:.3g} m"
-                )
-            coords[axis] = xr.DataArray(values, dims=(axis,), attrs=_new_attrs(axis, c.attrs))
-    if "time" in ds.variables:
-        coords["time"] = _validate_time(ds["time"])
-
-    return xr.Dataset(out, attrs=attrs).assign_coords(coords)
-
-
-def _validate_albedo(da: xr.DataArray, ds: xr.Dataset, ny: int, nx: int):
-    name = "surface_albedo"
-    _check_units(name, da)
-    wl = xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs=_new_attrs("wavelength", {}))
-    if set(da.dims) == set(_2D) and da.ndim == 2:
-        da = da.transpose(*_2D)
-        values = np.broadcast_to(np.array(da.values, dtype=float), (WAVELENGTHS_NM.size, ny, nx)).copy()
-        logger.debug("surface_albedo: broadcast a (y, x) albedo to the %d wavelengths", WAVELENGTHS_NM.size)
-    else:
-        da = _check_dims(name, da, ("wavelength",) + _2D)
-        if "wavelength" in da.coords:
-            given = np.asarray(da["wavelength"].values, dtype=float)
-            if "wavelength" in ds.coords and "units" in ds["wavelength"].attrs:
-                _check_units("wavelength", ds["wavelength"])
-            try:
-                da = da.sel(wavelength=WAVELENGTHS_NM, method="nearest", tolerance=0.5)
-            except KeyError as exc:
-                raise SwimInputError(
-                    f"surface_albedo: wavelength coordinate {given.tolist()} must hold {WAVELENGTHS_NM.tolist()} nm"
-                ) from exc
-        elif da.sizes["wavelength"] != WAVELENGTHS_NM.size:
-            raise SwimInputError(
-                f"surface_albedo: {da.sizes['wavelength']} wavelengths without a coordinate; expected "
-                f"{WAVELENGTHS_NM.size} in the order {WAVELENGTHS_NM.tolist()} nm"
-            )
-        values = np.array(da.values, dtype=float)
-    if values.shape[1:] != (ny, nx):
-        raise SwimInputError(f"surface_albedo has (y, x) shape {values.shape[1:]}; expected {(ny, nx)}")
-    _finite_or_raise(name, values)
-    if values.min() < 0.0 or values.max() > 1.0:
-        raise SwimInputError(
-            f"surface_albedo: range [{values.min():.4g}, {values.max():.4g}] is outside [0, 1] (a fraction; percent "
-            "must be divided by 100)"
-        )
-    return xr.DataArray(values, dims=("wavelength",) + _2D, attrs=_new_attrs(name, da.attrs)), wl
+    return attrs
 
 
 def _validate_time(t: xr.DataArray) -> xr.DataArray:
+    """The scalar ``time`` coordinate as UTC ``datetime64[ns]``; refused unless it is a single time."""
     values = np.asarray(t.values)
     if values.size != 1:
         raise SwimInputError(f"scene 'time' must be a single (scalar) time; got {values.size} values: select one")
@@ -699,6 +296,7 @@ def _validate_time(t: xr.DataArray) -> xr.DataArray:
 
 
 def _regular_axis(name: str, values) -> np.ndarray:
+    """Grid coordinates [m] along ``name``: 1-D, finite, strictly increasing, regularly spaced, within reach."""
     require_real_numbers(name, np.asarray(values).dtype)
     v = np.asarray(values, dtype=float)
     if v.ndim != 1 or v.size < 1:
@@ -713,6 +311,84 @@ def _regular_axis(name: str, values) -> np.ndarray:
     if np.max(np.abs(v)) > 0.5 * EARTH_RADIUS_M:
         raise SwimInputError(f"{name}: |{name}| up to {np.max(np.abs(v)):.4g} m is too far from the reference point; expected metres")
     return v
+
+
+def _heights(z, ny: int, nx: int) -> np.ndarray:
+    """Heights [m] of the mass points, shape (nz, ny, nx), from ``z`` of shape (nz,) or (nz, ny, nx)."""
+    require_real_numbers("z", np.asarray(z).dtype)
+    zv = np.asarray(z, dtype=float)
+    if zv.ndim == 1:
+        return np.broadcast_to(zv[:, None, None], (zv.size, ny, nx)).copy()
+    if zv.ndim == 3 and zv.shape[1:] == (ny, nx):
+        return zv.copy()
+    raise SwimInputError(
+        f"z must have shape (nz,) or (nz, ny, nx) = (nz, {ny}, {nx}) [m above sea level]; got {zv.shape}"
+    )
+
+
+def _columns_lat_lon(xv: np.ndarray, yv: np.ndarray, reference_lat: float, reference_lon: float):
+    """Latitude and longitude [deg], shape (ny, nx), of the columns at grid ``x``, ``y`` [m]: the inverse of
+    :func:`swim.frames.orthographic_xy` about the reference point."""
+    gx, gy = np.meshgrid(xv, yv)
+    r2 = gx**2 + gy**2
+    if np.any(r2 >= EARTH_RADIUS_M**2):
+        raise SwimInputError("x, y reach beyond the earth's limb seen from the reference point; expected metres")
+    p = np.stack([gx, gy, np.sqrt(EARTH_RADIUS_M**2 - r2)], axis=-1)
+    lat, lon, _ = scene_to_geodetic(p, reference_lat, reference_lon)
+    return lat, lon
+
+
+def _array_field(name: str, value, shape: tuple[int, ...], dims: tuple[str, ...]) -> xr.DataArray:
+    """``value`` broadcast to ``shape`` as a float64 variable on ``dims`` with the units and long name of ``name``."""
+    raw = np.asarray(value)
+    require_real_numbers(f"scene_from_arrays: {name}", raw.dtype)  # then the cast to float cannot fail
+    a = raw.astype(float)
+    try:
+        a = np.broadcast_to(a, shape).copy()
+    except ValueError as exc:
+        raise SwimInputError(f"{name} must have shape {shape} {dims}; got {np.shape(value)}") from exc
+    return xr.DataArray(a, dims=dims, attrs={"units": _UNITS[name], "long_name": _LONG_NAMES[name]})
+
+
+def _grid_fields(xv, yv, height, reference_lat, reference_lon, terrain_height) -> tuple[dict, dict]:
+    """The geometry of a scene on the regular grid ``xv``, ``yv`` [m]: the variables ``height``, ``lat``, ``lon``
+    and ``terrain_height`` (default 0, sea level), and the coordinates ``x`` and ``y``."""
+    ny, nx = yv.size, xv.size
+    lat, lon = _columns_lat_lon(xv, yv, reference_lat, reference_lon)
+    data = {
+        "height": xr.DataArray(height, dims=_3D, attrs={"units": "m", "long_name": _LONG_NAMES["height"]}),
+        "lat": xr.DataArray(lat, dims=_2D, attrs={"units": "degrees_north", "long_name": "latitude"}),
+        "lon": xr.DataArray(lon, dims=_2D, attrs={"units": "degrees_east", "long_name": "longitude"}),
+        "terrain_height": _array_field("terrain_height", 0.0 if terrain_height is None else terrain_height, (ny, nx),
+                                       _2D),
+    }
+    coords = {
+        "x": xr.DataArray(xv, dims=("x",), attrs={"units": "m", "long_name": _LONG_NAMES["x"]}),
+        "y": xr.DataArray(yv, dims=("y",), attrs={"units": "m", "long_name": _LONG_NAMES["y"]}),
+    }
+    return data, coords
+
+
+def _volume_fields(shape: tuple[int, int, int], given: dict) -> dict:
+    """The (z, y, x) variables of ``given`` (name: value) that are not None, broadcast to ``shape``: contents and
+    aerosol extinction must be 3-D, effective radii may also be scalars."""
+    data = {}
+    for name, value in given.items():
+        if value is not None:
+            if name in CONTENT_VARIABLES + ("aerosol_extinction",) and np.ndim(value) != 3:
+                raise SwimInputError(f"{name} must have shape (nz, ny, nx) = {shape}; got {np.shape(value)}")
+            data[name] = _array_field(name, value, shape, _3D)
+    return data
+
+
+def _albedo_field(surface_albedo, ny: int, nx: int) -> tuple[xr.DataArray, xr.DataArray]:
+    """``surface_albedo`` of shape (3, ny, nx), (ny, nx), (3,) or scalar broadcast to (wavelength, y, x), and the
+    ``wavelength`` coordinate."""
+    a = np.asarray(surface_albedo, dtype=float)
+    if a.ndim == 1:
+        a = a[:, None, None]
+    return (_array_field("surface_albedo", a, (WAVELENGTHS_NM.size, ny, nx), ("wavelength",) + _2D),
+            xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs={"units": "nm"}))
 
 
 def scene_from_arrays(
@@ -794,75 +470,23 @@ graupel_effective_radius : array_like, optional
     """
     xv = _regular_axis("x", x)
     yv = _regular_axis("y", y)
-    nx, ny = xv.size, yv.size
-    require_real_numbers("z", np.asarray(z).dtype)
-    zv = np.asarray(z, dtype=float)
-    if zv.ndim == 1:
-        height = np.broadcast_to(zv[:, None, None], (zv.size, ny, nx)).copy()
-    elif zv.ndim == 3 and zv.shape[1:] == (ny, nx):
-        height = zv.copy()
-    else:
-        raise SwimInputError(f"z must have shape (nz,) or (nz, ny, nx) = (nz, {ny}, {nx}) [m above sea level]; got {zv.shape}")
-    nz = height.shape[0]
+    ny, nx = yv.size, xv.size
+    height = _heights(z, ny, nx)
     _check_horizontal_metres(xv, yv, height)
-
-    gx, gy = np.meshgrid(xv, yv)
-    r2 = gx**2 + gy**2
-    if np.any(r2 >= EARTH_RADIUS_M**2):
-        raise SwimInputError("x, y reach beyond the earth's limb seen from the reference point; expected metres")
-    p = np.stack([gx, gy, np.sqrt(EARTH_RADIUS_M**2 - r2)], axis=-1)
-    lat, lon, _ = scene_to_geodetic(p, reference_lat, reference_lon)
-
-    def _field(name, value, shape, dims):
-        raw = np.asarray(value)
-        require_real_numbers(f"scene_from_arrays: {name}", raw.dtype)  # then the cast to float cannot fail
-        a = raw.astype(float)
-        try:
-            a = np.broadcast_to(a, shape).copy()
-        except ValueError as exc:
-            raise SwimInputError(f"{name} must have shape {shape} {dims}; got {np.shape(value)}") from exc
-        return xr.DataArray(a, dims=dims, attrs={"units": _UNITS[name], "long_name": _LONG_NAMES[name]})
-
-    data = {
-        "height": xr.DataArray(height, dims=_3D, attrs={"units": "m", "long_name": _LONG_NAMES["height"]}),
-        "lat": xr.DataArray(lat, dims=_2D, attrs={"units": "degrees_north", "long_name": "latitude"}),
-        "lon": xr.DataArray(lon, dims=_2D, attrs={"units": "degrees_east", "long_name": "longitude"}),
-        "terrain_height": _field("terrain_height", 0.0 if terrain_height is None else terrain_height, (ny, nx), _2D),
-    }
-    given = {
-        "cloud_liquid_content": cloud_liquid_content,
-        "cloud_ice_content": cloud_ice_content,
-        "rain_content": rain_content,
-        "snow_content": snow_content,
-        "graupel_content": graupel_content,
+    data, coords = _grid_fields(xv, yv, height, reference_lat, reference_lon, terrain_height)
+    data.update(_volume_fields(height.shape, {
+        "cloud_liquid_content": cloud_liquid_content, "cloud_ice_content": cloud_ice_content,
+        "rain_content": rain_content, "snow_content": snow_content, "graupel_content": graupel_content,
         "cloud_liquid_effective_radius": cloud_liquid_effective_radius,
-        "cloud_ice_effective_radius": cloud_ice_effective_radius,
-        "rain_effective_radius": rain_effective_radius,
-        "snow_effective_radius": snow_effective_radius,
-        "graupel_effective_radius": graupel_effective_radius,
+        "cloud_ice_effective_radius": cloud_ice_effective_radius, "rain_effective_radius": rain_effective_radius,
+        "snow_effective_radius": snow_effective_radius, "graupel_effective_radius": graupel_effective_radius,
         "aerosol_extinction": aerosol_extinction,
-    }
-    for name, value in given.items():
-        if value is not None:
-            if name in CONTENT_VARIABLES + ("aerosol_extinction",) and np.ndim(value) != 3:
-                raise SwimInputError(f"{name} must have shape (nz, ny, nx) = {(nz, ny, nx)}; got {np.shape(value)}")
-            data[name] = _field(name, value, (nz, ny, nx), _3D)
-    coords = {
-        "x": xr.DataArray(xv, dims=("x",), attrs={"units": "m", "long_name": _LONG_NAMES["x"]}),
-        "y": xr.DataArray(yv, dims=("y",), attrs={"units": "m", "long_name": _LONG_NAMES["y"]}),
-    }
+    }))
     if surface_albedo is not None:
-        a = np.asarray(surface_albedo, dtype=float)
-        if a.ndim == 1:
-            a = a[:, None, None]
-        data["surface_albedo"] = _field("surface_albedo", a, (WAVELENGTHS_NM.size, ny, nx), ("wavelength",) + _2D)
-        coords["wavelength"] = xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs={"units": "nm"})
-    if land_mask is not None:
-        data["land_mask"] = _field("land_mask", land_mask, (ny, nx), _2D)
-    if snow_cover is not None:
-        data["snow_cover"] = _field("snow_cover", snow_cover, (ny, nx), _2D)
-    if wind_speed_10m is not None:
-        data["wind_speed_10m"] = _field("wind_speed_10m", wind_speed_10m, (ny, nx), _2D)
+        data["surface_albedo"], coords["wavelength"] = _albedo_field(surface_albedo, ny, nx)
+    for name, value in (("land_mask", land_mask), ("snow_cover", snow_cover), ("wind_speed_10m", wind_speed_10m)):
+        if value is not None:
+            data[name] = _array_field(name, value, (ny, nx), _2D)
     if time is not None:
         coords["time"] = xr.DataArray(to_utc_datetime64(time))
     attrs = {"reference_lat": float(reference_lat), "reference_lon": float(reference_lon), "title": title, "source": source}

@@ -195,15 +195,56 @@ def read_wps_geogrid(path_or_dataset, month: int | None = None, time=None, albed
 
 
 def _read_wps_dataset(ds: xr.Dataset, month, time, albedo_band: str, snow_above_m, label: str, source: str) -> xr.Dataset:
-    from ..surface.albedo import snow_cover_from_swe, surface_from_model_fields
-    from ..surface.landuse import scheme_from_attrs
-
+    """Read the WPS dataset ``ds`` into the validated clear-sky canonical scene (:func:`read_wps_geogrid`);
+    ``label`` names the file in messages, ``source`` is recorded in the attributes."""
     missing = [v for v in _REQUIRED if v not in ds.variables]
     if missing:
         raise SwimInputError(f"{label} lacks WPS variable(s) {missing}; needs HGT_M [m], XLAT_M, XLONG_M [deg]")
     if month is not None and (isinstance(month, bool) or int(month) != month or not 1 <= int(month) <= 12):
         raise SwimInputError(f"month={month!r}: expected an integer 1-12 (the month of ALBEDO12M)")
+    valid_time = _valid_time(ds, time, label)
+    if month is None and valid_time is not None:
+        month = int(pd.Timestamp(valid_time).month)
 
+    terrain, lat, lon = _wps_grid(ds, label)
+    dims2 = ("y", "x")
+    data: dict[str, xr.DataArray] = {
+        "height": xr.DataArray(clear_sky_levels(terrain), dims=("z", "y", "x"), attrs={"units": "m"}),
+        "lat": xr.DataArray(lat, dims=dims2, attrs={"units": "degrees_north"}),
+        "lon": xr.DataArray(lon, dims=dims2, attrs={"units": "degrees_east"}),
+        "terrain_height": xr.DataArray(terrain, dims=dims2, attrs={"units": "m"}),
+        "land_mask": xr.DataArray(_land_mask(ds, terrain, label), dims=dims2),
+    }
+    albedo, snow, albedo_source, scheme = _albedo_and_snow(ds, month, albedo_band, label)
+    coords = {}
+    if snow_above_m is not None:
+        high = (terrain > float(snow_above_m)).astype(float)
+        logger.info("%s: snow_cover = 1 above %g m (%d cells; snow_above_m)", label, float(snow_above_m), int(high.sum()))
+        snow = high if snow is None else np.maximum(snow, high)
+    if snow is not None:
+        data["snow_cover"] = xr.DataArray(snow, dims=dims2)
+    if albedo is not None:
+        data["surface_albedo"] = xr.DataArray(albedo, dims=("wavelength",) + dims2)
+        coords["wavelength"] = xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs={"units": "nm"})
+    else:
+        logger.info("%s has neither ALBEDO12M nor land use: surface_albedo left out (the renderer's default)", label)
+
+    wind = _surface_wind(ds, label)
+    if wind is not None:
+        data["wind_speed_10m"] = xr.DataArray(wind, dims=dims2)
+    if valid_time is not None:
+        coords["time"] = xr.DataArray(valid_time)
+    attrs = _scene_attrs(ds, lat, lon, valid_time, source, albedo_source, scheme)
+    scene = xr.Dataset(data, coords=coords, attrs=attrs)
+    try:
+        return validate_scene(scene)
+    except SwimInputError as exc:
+        raise SwimInputError(f"{label}: {exc}") from exc
+
+
+def _valid_time(ds: xr.Dataset, time, label: str) -> np.datetime64 | None:
+    """Valid time of the scene: the file's time, which a requested ``time`` must match within
+    :data:`~swim.io.wrf.TIME_TOLERANCE`, else the requested time; None without either."""
     file_time = _file_time(ds)
     valid_time = file_time
     if time is not None:
@@ -214,40 +255,41 @@ def _read_wps_dataset(ds: xr.Dataset, month, time, albedo_band: str, snow_above_
                 f"time {pd.Timestamp(file_time).strftime('%Y-%m-%dT%H:%MZ')}"
             )
         valid_time = file_time if file_time is not None else want
-    if month is None and valid_time is not None:
-        month = int(pd.Timestamp(valid_time).month)
+    return valid_time
 
+
+def _wps_grid(ds: xr.Dataset, label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Terrain height [m], latitude and longitude [deg] of the mass grid (``HGT_M``, ``XLAT_M``, ``XLONG_M``),
+    refused unless they are finite and of one (south_north, west_east) shape."""
     terrain = _field(ds, "HGT_M", 0)
     lat = _field(ds, "XLAT_M", 0)
     lon = _field(ds, "XLONG_M", 0)
     if terrain.ndim != 2 or lat.shape != terrain.shape or lon.shape != terrain.shape:
         raise SwimInputError(
-            f"{label}: HGT_M {terrain.shape}, XLAT_M {lat.shape}, XLONG_M {lon.shape} must be equal (south_north, west_east)"
+            f"{label}: HGT_M {terrain.shape}, XLAT_M {lat.shape}, XLONG_M {lon.shape} must be equal (south_north, "
+            "west_east)"
         )
     for name, values in (("HGT_M", terrain), ("XLAT_M", lat), ("XLONG_M", lon)):
         if not np.all(np.isfinite(values)):
             raise SwimInputError(f"{label}: {name} has {int(np.sum(~np.isfinite(values)))} non-finite value(s)")
-    dims2 = ("y", "x")
-    data: dict[str, xr.DataArray] = {
-        "height": xr.DataArray(clear_sky_levels(terrain), dims=("z", "y", "x"), attrs={"units": "m"}),
-        "lat": xr.DataArray(lat, dims=dims2, attrs={"units": "degrees_north"}),
-        "lon": xr.DataArray(lon, dims=dims2, attrs={"units": "degrees_east"}),
-        "terrain_height": xr.DataArray(terrain, dims=dims2, attrs={"units": "m"}),
-    }
+    return terrain, lat, lon
 
+
+def _land_mask(ds: xr.Dataset, terrain: np.ndarray, label: str) -> np.ndarray:
+    """Land mask (int8, 1 land, 0 water) from ``LANDMASK``; without it, land where the terrain is above 0 m
+    (logged)."""
     if "LANDMASK" in ds.variables:
-        land = (_field(ds, "LANDMASK", 0) > 0.5).astype(np.int8)
-    else:
-        land = (terrain > 0.0).astype(np.int8)
-        logger.info("%s has no LANDMASK: land where HGT_M > 0 m (%d of %d cells)", label, int(land.sum()), land.size)
-    data["land_mask"] = xr.DataArray(land, dims=dims2)
+        return (_field(ds, "LANDMASK", 0) > 0.5).astype(np.int8)
+    land = (terrain > 0.0).astype(np.int8)
+    logger.info("%s has no LANDMASK: land where HGT_M > 0 m (%d of %d cells)", label, int(land.sum()), land.size)
+    return land
 
-    # snow (the terrain rule is applied after the albedo, so that SNOALB does not reduce it)
-    snow = None
-    if "SNOW" in ds.variables:
-        snow = snow_cover_from_swe(np.clip(_field(ds, "SNOW", 0), 0.0, None))
 
-    # albedo
+def _land_use(ds: xr.Dataset, label: str) -> tuple[str | None, np.ndarray | None, np.ndarray | None]:
+    """Land-use scheme of the file (``MMINLU``) with its class fractions ``LANDUSEF`` (class, y, x) or, without
+    them, the dominant class ``LU_INDEX`` (y, x): ``(scheme, lu_index, landusef)``, all None without land use."""
+    from ..surface.landuse import scheme_from_attrs
+
     scheme = scheme_from_attrs(ds.attrs, label) if ("LU_INDEX" in ds.variables or "LANDUSEF" in ds.variables) else None
     lu = landusef = None
     if scheme is not None:
@@ -259,6 +301,31 @@ def _read_wps_dataset(ds: xr.Dataset, month, time, albedo_band: str, snow_above_
             landusef = np.asarray(f.transpose(*class_dims, "south_north", "west_east").values, dtype=float)
         else:
             lu = _field(ds, "LU_INDEX", 0)
+    return scheme, lu, landusef
+
+
+def _albedo_and_snow(ds: xr.Dataset, month, albedo_band: str, label: str):
+    """Snow-free spectral surface albedo and snow cover from ``ALBEDO12M`` of ``month``, the land use, ``SNOW`` and
+    ``SNOALB`` (:func:`swim.surface.albedo.surface_from_model_fields`).
+
+    Returns
+    -------
+    albedo : numpy.ndarray or None
+        Shape (wavelength, y, x); None without ``ALBEDO12M`` and land use.
+    snow : numpy.ndarray or None
+        Snow cover (y, x) [0-1]; None without ``SNOW``.
+    albedo_source : str or None
+        What the albedo was made from, for the ``albedo_source`` attribute.
+    scheme : str or None
+        The land-use scheme.
+    """
+    from ..surface.albedo import snow_cover_from_swe, surface_from_model_fields
+
+    # the snow_above_m terrain rule is applied to the result, so that SNOALB does not reduce it
+    snow = None
+    if "SNOW" in ds.variables:
+        snow = snow_cover_from_swe(np.clip(_field(ds, "SNOW", 0), 0.0, None))
+    scheme, lu, landusef = _land_use(ds, label)
     broadband, albedo_source = None, None
     if "ALBEDO12M" in ds.variables:
         broadband, which = _monthly_albedo(ds, month, label)
@@ -281,29 +348,17 @@ def _read_wps_dataset(ds: xr.Dataset, month, time, albedo_band: str, snow_above_
         )
     except SwimInputError as exc:
         raise SwimInputError(f"{label}: {exc}") from exc
-    coords = {}
-    if snow_above_m is not None:
-        high = (terrain > float(snow_above_m)).astype(float)
-        logger.info("%s: snow_cover = 1 above %g m (%d cells; snow_above_m)", label, float(snow_above_m), int(high.sum()))
-        snow = high if snow is None else np.maximum(snow, high)
-    if snow is not None:
-        data["snow_cover"] = xr.DataArray(snow, dims=dims2)
     if albedo is not None:
         if albedo_source is None:
             albedo_source = "land-use class albedo"
         if scheme is not None:
             albedo_source += f", spectral shape of {'LANDUSEF' if landusef is not None else 'LU_INDEX'} ({scheme})"
-        data["surface_albedo"] = xr.DataArray(albedo, dims=("wavelength",) + dims2)
-        coords["wavelength"] = xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs={"units": "nm"})
-    else:
-        logger.info("%s has neither ALBEDO12M nor land use: surface_albedo left out (the renderer's default)", label)
+    return albedo, snow, albedo_source, scheme
 
-    wind = _surface_wind(ds, label)
-    if wind is not None:
-        data["wind_speed_10m"] = xr.DataArray(wind, dims=dims2)
-    if valid_time is not None:
-        coords["time"] = xr.DataArray(valid_time)
 
+def _scene_attrs(ds: xr.Dataset, lat, lon, valid_time, source: str, albedo_source, scheme) -> dict:
+    """Attributes of the scene: the grid centre as reference point, a title with the valid time, the source, what
+    the albedo was made from, the land-use scheme and the grid spacing and map projection of the file."""
     lat0, lon0 = domain_centre(lat, lon)
     title = str(ds.attrs.get("TITLE", "WPS output")).strip()
     attrs = {
@@ -319,8 +374,4 @@ def _read_wps_dataset(ds: xr.Dataset, month, time, albedo_band: str, snow_above_
     for key, out in (("DX", "wrf_dx"), ("DY", "wrf_dy"), ("MAP_PROJ", "wrf_map_proj")):
         if key in ds.attrs:
             attrs[out] = ds.attrs[key].item() if hasattr(ds.attrs[key], "item") else ds.attrs[key]
-    scene = xr.Dataset(data, coords=coords, attrs=attrs)
-    try:
-        return validate_scene(scene)
-    except SwimInputError as exc:
-        raise SwimInputError(f"{label}: {exc}") from exc
+    return attrs

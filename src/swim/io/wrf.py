@@ -347,6 +347,8 @@ def _split_simple_ice(ds: xr.Dataset, contents: dict, temperature: np.ndarray, l
 
 
 def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str, albedo_band: str = "shortwave") -> xr.Dataset:
+    """Read one time of the WRF dataset ``ds`` into the validated canonical scene (:func:`read_wrf`); ``label``
+    names the file in messages, ``source`` is recorded in the attributes."""
     missing = [v for v in _REQUIRED if v not in ds.variables]
     if missing:
         raise SwimInputError(
@@ -354,11 +356,41 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str, albedo_band
             "HGT [m], XLAT, XLONG [deg]"
         )
     itime, valid_time = _select_time(ds, time, label)
+    height, temperature, rho = _air_state(ds, itime, label)
+    dims3 = ("z", "y", "x")
+    data: dict[str, xr.DataArray] = {"height": xr.DataArray(height, dims=dims3, attrs={"units": "m"})}
+    contents = _mass_contents(ds, itime, rho, height.shape, label)
+    _split_simple_ice(ds, contents, temperature, label)
+    # the species read from the file, then the ice a simple-ice scheme split off from them
+    for species, values in contents.items():
+        data[f"{species}_content"] = xr.DataArray(values, dims=dims3, attrs={"units": "kg m-3"})
+    data.update(_effective_radii(ds, itime, contents))
 
+    lat = _field(ds, "XLAT", itime)
+    lon = _field(ds, "XLONG", itime)
+    data["lat"] = xr.DataArray(lat, dims=("y", "x"), attrs={"units": "degrees_north"})
+    data["lon"] = xr.DataArray(lon, dims=("y", "x"), attrs={"units": "degrees_east"})
+    data["terrain_height"] = xr.DataArray(_field(ds, "HGT", itime), dims=("y", "x"), attrs={"units": "m"})
+    surface, coords = _surface_variables(ds, itime, label, albedo_band)
+    data.update(surface)
+    if valid_time is not None:
+        coords["time"] = xr.DataArray(valid_time)
+    scene = xr.Dataset(data, coords=coords, attrs=_scene_attrs(ds, lat, lon, valid_time, itime, source))
+    try:
+        return validate_scene(scene)
+    except SwimInputError as exc:
+        raise SwimInputError(f"{label}: {exc}") from exc
+
+
+def _air_state(ds: xr.Dataset, itime: int, label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Height of the mass levels [m], temperature [K] and air density [kg m-3] at time index ``itime``, each of
+    shape (bottom_top, south_north, west_east), from PH, PHB, P, PB, T and (if present) QVAPOR."""
     ph = _field(ds, "PH", itime) + _field(ds, "PHB", itime)
     z_w = ph / STANDARD_GRAVITY
     if z_w.ndim != 3:
-        raise SwimInputError(f"{label}: PH must be (Time, bottom_top_stag, south_north, west_east); got dims {ds['PH'].dims}")
+        raise SwimInputError(
+            f"{label}: PH must be (Time, bottom_top_stag, south_north, west_east); got dims {ds['PH'].dims}"
+        )
     height = 0.5 * (z_w[1:] + z_w[:-1])
 
     p = _field(ds, "P", itime) + _field(ds, "PB", itime)
@@ -377,13 +409,13 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str, albedo_band
     else:
         logger.info("read_wrf: %s has no QVAPOR; using T for the virtual temperature", label)
         t_virtual = temperature
-    rho = p / (R_DRY_AIR * t_virtual)
+    return height, temperature, p / (R_DRY_AIR * t_virtual)
 
-    data: dict[str, xr.DataArray] = {}
-    dims3 = ("z", "y", "x")
-    dims2 = ("y", "x")
-    data["height"] = xr.DataArray(height, dims=dims3, attrs={"units": "m"})
 
+def _mass_contents(ds: xr.Dataset, itime: int, rho: np.ndarray, shape: tuple, label: str) -> dict[str, np.ndarray]:
+    """Mass content [kg m-3] of each species whose mixing ratio is in ``ds``: the mixing ratio [kg kg-1], its
+    negative numerical noise clipped to 0 (logged), times the air density ``rho``; ``shape`` is that of the
+    mass grid."""
     contents: dict[str, np.ndarray] = {}
     missing = [var for var in WRF_SPECIES.values() if var not in ds.variables]
     if len(missing) == len(WRF_SPECIES):
@@ -396,25 +428,24 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str, albedo_band
             logger.debug("read_wrf: %s has no %s: %s content is zero", label, var, species)
             continue
         q = _field(ds, var, itime)
-        if q.shape != height.shape:
-            raise SwimInputError(f"{label}: {var} has shape {q.shape}; expected {height.shape}")
+        if q.shape != shape:
+            raise SwimInputError(f"{label}: {var} has shape {q.shape}; expected {shape}")
         if not np.all(np.isfinite(q)):
             raise SwimInputError(f"{label}: {var} has {int(np.sum(~np.isfinite(q)))} non-finite value(s) [kg kg-1]")
         neg = q < 0
         if neg.any():
-            logger.info("read_wrf: clipped %d negative %s value(s) (min %.3g kg kg-1) to 0", int(neg.sum()), var, q.min())
+            logger.info("read_wrf: clipped %d negative %s value(s) (min %.3g kg kg-1) to 0", int(neg.sum()), var,
+                        q.min())
             q = np.where(neg, 0.0, q)
         contents[species] = q * rho
-        data[f"{species}_content"] = xr.DataArray(contents[species], dims=dims3, attrs={"units": "kg m-3"})
+    return contents
 
-    _split_simple_ice(ds, contents, temperature, label)
-    for species in ("cloud_ice", "snow"):
-        if species in contents and f"{species}_content" not in data:
-            data[f"{species}_content"] = xr.DataArray(contents[species], dims=dims3, attrs={"units": "kg m-3"})
-    for species in ("cloud_liquid", "rain"):
-        if species in contents:
-            data[f"{species}_content"] = xr.DataArray(contents[species], dims=dims3, attrs={"units": "kg m-3"})
 
+def _effective_radii(ds: xr.Dataset, itime: int, contents: dict[str, np.ndarray]) -> dict[str, xr.DataArray]:
+    """The ``<species>_effective_radius`` variables [m] from the ``RE_*`` of the species in ``contents``; where the
+    content is positive and the radius is not in :data:`~swim.io.scene.RADIUS_RANGE_M`, the species default
+    (logged)."""
+    radii: dict[str, xr.DataArray] = {}
     for species, var in WRF_RADII.items():
         if var not in ds.variables or species not in contents:
             continue
@@ -428,41 +459,42 @@ def _read_wrf_dataset(ds: xr.Dataset, time, label: str, source: str, albedo_band
                 DEFAULT_EFFECTIVE_RADIUS[species],
             )
             r = np.where(bad, DEFAULT_EFFECTIVE_RADIUS[species], r)
-        data[f"{species}_effective_radius"] = xr.DataArray(r, dims=dims3, attrs={"units": "m"})
+        radii[f"{species}_effective_radius"] = xr.DataArray(r, dims=("z", "y", "x"), attrs={"units": "m"})
+    return radii
 
-    lat = _field(ds, "XLAT", itime)
-    lon = _field(ds, "XLONG", itime)
-    data["lat"] = xr.DataArray(lat, dims=dims2, attrs={"units": "degrees_north"})
-    data["lon"] = xr.DataArray(lon, dims=dims2, attrs={"units": "degrees_east"})
-    data["terrain_height"] = xr.DataArray(_field(ds, "HGT", itime), dims=dims2, attrs={"units": "m"})
 
+def _surface_variables(ds: xr.Dataset, itime: int, label: str, albedo_band: str) -> tuple[dict, dict]:
+    """The land mask (``LANDMASK``, else ``XLAND``) and the fields of :func:`wrf_surface_fields` as scene variables,
+    and the ``wavelength`` coordinate where there is an albedo."""
+    dims2 = ("y", "x")
+    data: dict[str, xr.DataArray] = {}
     if "LANDMASK" in ds.variables:
         data["land_mask"] = xr.DataArray((_field(ds, "LANDMASK", itime) > 0.5).astype(np.int8), dims=dims2)
     elif "XLAND" in ds.variables:
         data["land_mask"] = xr.DataArray((np.rint(_field(ds, "XLAND", itime)) == 1).astype(np.int8), dims=dims2)
-
     coords = {}
     surface = wrf_surface_fields(ds, itime, label, albedo_band=albedo_band)
     for name, values in surface.items():
         data[name] = xr.DataArray(values, dims=(("wavelength",) + dims2) if values.ndim == 3 else dims2)
     if "surface_albedo" in surface:
         coords["wavelength"] = xr.DataArray(WAVELENGTHS_NM.copy(), dims=("wavelength",), attrs={"units": "nm"})
-    if valid_time is not None:
-        coords["time"] = xr.DataArray(valid_time)
+    return data, coords
 
+
+def _scene_attrs(ds: xr.Dataset, lat: np.ndarray, lon: np.ndarray, valid_time, itime: int, source: str) -> dict:
+    """Attributes of the scene: the grid centre as reference point, a title with the valid time, the source and
+    the grid spacing, map projection and microphysics scheme of the file."""
     lat0, lon0 = domain_centre(lat, lon)
     title = str(ds.attrs.get("TITLE", "WRF output")).strip()
+    when = f", {pd.Timestamp(valid_time).strftime('%Y-%m-%d %H:%M UTC')}" if valid_time is not None else ""
     attrs = {
         "reference_lat": lat0,
         "reference_lon": lon0,
-        "title": f"{title}" + (f", {pd.Timestamp(valid_time).strftime('%Y-%m-%d %H:%M UTC')}" if valid_time is not None else ""),
+        "title": f"{title}" + when,
         "source": f"{source} read by swim.io.wrf.read_wrf (Time index {itime})",
     }
-    for key, out in (("DX", "wrf_dx"), ("DY", "wrf_dy"), ("MAP_PROJ", "wrf_map_proj"), ("MP_PHYSICS", "wrf_mp_physics")):
+    for key, out in (("DX", "wrf_dx"), ("DY", "wrf_dy"), ("MAP_PROJ", "wrf_map_proj"),
+                     ("MP_PHYSICS", "wrf_mp_physics")):
         if key in ds.attrs:
             attrs[out] = ds.attrs[key].item() if hasattr(ds.attrs[key], "item") else ds.attrs[key]
-    scene = xr.Dataset(data, coords=coords, attrs=attrs)
-    try:
-        return validate_scene(scene)
-    except SwimInputError as exc:
-        raise SwimInputError(f"{label}: {exc}") from exc
+    return attrs
