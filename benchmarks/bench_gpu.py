@@ -4,7 +4,7 @@ Usage (on a machine where JAX's default device is a GPU; it also runs on a CPU, 
 
     python benchmarks/bench_gpu.py --scenes synthetic katrina --chunks 32768 0 --sun-series 6 --out gpu.json
 
-For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel call) it renders the suite's
+For each scene and kernel chunk size (``ExecutionSettings.chunk``: rays per kernel call) it renders the suite's
 1024 x 1024 all-sky view (``bench_suite.CASES``) with the JAX kernel and reports:
 
 * ``render_s``: wall time of a warm render (median of ``--repeats``), and its frames/s;
@@ -19,20 +19,20 @@ For each scene and kernel chunk size (``MarchSettings.chunk``: rays per kernel c
   traced and its radiance's error against the same device's image with every pixel traced (median and 99th
   percentile of the relative difference); with ``--profile`` too, the main thread's wall clock in a warm adaptive
   frame (``profile_<scene>_adaptive_wall.txt``);
-* with ``--grid-kernel``: the march of the grid segment (``MarchSettings.grid_kernel``: ``fused``, the Pallas kernel of
+* with ``--grid-kernel``: the march of the grid segment (``ExecutionSettings.grid_kernel``: ``fused``, the Pallas kernel of
   :mod:`swim.rt.march_pallas`; ``fused-march``, the clear-air segments in it too; ``lockstep``, XLA's loops; ``auto`` by
   default); with ``--against lockstep fused-march`` the captured chunk is also marched by those (device time and outputs
   against the render's kernel), and ``--fused-blocks 64x2 256x4 128x4r128`` times the render's fused kernel on it with
   other rays per program and warps, and capped at N registers per thread (``rN``, :mod:`swim.rt.ptx_edits`);
-* with ``--ray-table``: warm renders with the camera's rays kept on the device (``MarchSettings.ray_table``,
+* with ``--ray-table``: warm renders with the camera's rays kept on the device (``ExecutionSettings.ray_table``,
   :mod:`swim.rt.ray_table`) and without, taking turns: every pixel, adaptive (with ``--sampling``) and a new sun
   every frame (with ``--sun-series N``), each one's median and the largest radiance difference between the two;
 * with ``--step1a-on-device``: frames with a new sun each, a new sun's Step 1a on the device's copy of the packed
-  volume (``MarchSettings.step1a_on_device``, :mod:`swim.rt.solar_device`) against the host's, taking turns;
-* with ``--device-sampling``: adaptive frames with the sampler's image on the device (``MarchSettings.device_sampling``,
+  volume (``ExecutionSettings.step1a_on_device``, :mod:`swim.rt.solar_device`) against the host's, taking turns;
+* with ``--device-sampling``: adaptive frames with the sampler's image on the device (``ExecutionSettings.device_sampling``,
   :mod:`swim.rt.image_sampling_device`) against the host's sampler, taking turns, both with the camera's rays on the
   device (the ray table);
-* with ``--device-image``: frames with the image's planes and colour made on the device (``MarchSettings.device_image``,
+* with ``--device-image``: frames with the image's planes and colour made on the device (``ExecutionSettings.device_image``,
   :mod:`swim.rt.image_device`, :mod:`swim.color.srgb_device`) against the host's, taking turns, every pixel and
   adaptive (the sampler on the device), both with the ray table; with ``--out`` also the main thread's wall clock
   in a warm frame of each with it on and of an every-pixel frame with a new sun
@@ -81,12 +81,13 @@ class TraceProbe:
 
     def __init__(self):
         import swim.pipeline as pipeline
+        import swim.rt.backends.host
         import swim.rt.march_jax as march_jax
 
         self.pipeline, self.march = pipeline, march_jax
-        self.trace_rays, self.trace_chunk = pipeline.trace_rays, march_jax._trace_chunk
+        self.trace_rays, self.trace_chunk = swim.rt.backends.host.trace_rays, march_jax._trace_chunk
         self.trace_s, self.captured = 0.0, None
-        pipeline.trace_rays, march_jax._trace_chunk = self._trace_rays, self._trace_chunk
+        swim.rt.backends.host.trace_rays, march_jax._trace_chunk = self._trace_rays, self._trace_chunk
 
     def _trace_rays(self, *args, **kwargs):
         t0 = time.perf_counter()
@@ -111,7 +112,7 @@ class TraceProbe:
 
 
 def compare_ray_table(name, scene, kw, args):
-    """Warm renders with and without ``MarchSettings.ray_table``, taking turns (``args.repeats`` each): every pixel,
+    """Warm renders with and without ``ExecutionSettings.ray_table``, taking turns (``args.repeats`` each): every pixel,
     adaptive with ``args.sampling``, and a new sun every frame with ``args.sun_series``; each variant's median and
     runs, and the largest relative radiance difference between the two images (docs/decisions/0006-gpu-kernels.md)."""
     variants = [("every pixel", {})]
@@ -185,23 +186,24 @@ def compare_setting(name, scene, kw, args, field, variants):
 
 def compare_digest_by_identity(name, scene, kw, args):
     """Warm every-pixel frames with the scene's digest taken by its arrays' identity and checked while the device
-    marches (``swim.pipeline._fingerprint_by_identity``, on by default on GPUs) against hashing it before the march,
+    marches (``swim.pipeline.caches.fingerprint_by_identity``,
+             on by default on GPUs) against hashing it before the march,
     taking turns (``args.repeats`` each, after a first round)."""
     import swim
     import swim.pipeline as pipeline
 
-    default = pipeline._speculate_digest
+    default = pipeline.scene_stage.speculate_digest
     runs = {False: [], True: []}
     try:
         for k in range(1 + args.repeats):
             for on in (False, True):
-                pipeline._speculate_digest = default if on else (lambda settings: False)
+                pipeline.scene_stage.speculate_digest = default if on else (lambda settings: False)
                 t0 = time.perf_counter()
                 swim.render(scene, **kw)
                 if k:
                     runs[on].append(time.perf_counter() - t0)
     finally:
-        pipeline._speculate_digest = default
+        pipeline.scene_stage.speculate_digest = default
     row = {"scene": name, "digest_by_identity": "every pixel", "without_s": statistics.median(runs[False]),
            "with_s": statistics.median(runs[True]), "without_runs": runs[False], "with_runs": runs[True]}
     print(f"{name} digest by identity, every pixel: without {row['without_s']:.3f} s, with {row['with_s']:.3f} s "
@@ -220,7 +222,7 @@ def run_scene(name, args, probe, out_dir):
     import numpy as np
 
     import swim
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
     spec = json.loads(json.dumps(bench_suite.CASES[f"{name}_allsky"]))
     spec.update(data=str(args.data), backend="jax")
@@ -236,8 +238,8 @@ def run_scene(name, args, probe, out_dir):
     first = None
     for chunk in args.chunks:
         # 0: the default (MarchSettings.resolved_chunk: GPU_CHUNK on a GPU)
-        kw["settings"] = replace(MarchSettings(backend="jax", grid_kernel=args.grid_kernel,
-                                               fused_vector_loads=not args.scalar_loads), chunk=chunk or None)
+        kw["settings"] = MarchSettings(execution=ExecutionSettings(
+            backend="jax", grid_kernel=args.grid_kernel, fused_vector_loads=not args.scalar_loads, chunk=chunk or None))
         chunk = kw["settings"].resolved_chunk()
         t0 = time.perf_counter()
         image = swim.render(scene, **kw)  # cold for this chunk size: compiles its kernel shapes
@@ -272,18 +274,18 @@ def run_scene(name, args, probe, out_dir):
     if args.device_sampling:  # adaptive frames: the sampler on the device or the host
         from swim.rt.image_sampling import AdaptiveSampling
 
-        table_kw = {**kw, "settings": replace(kw["settings"], ray_table=True)}
+        table_kw = {**kw, "settings": kw["settings"].with_execution(ray_table=True)}
         rows.extend(compare_setting(name, scene, table_kw, args, "device_sampling",
                                     [("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)})]))
     if args.device_image:  # the image's planes and colour on the device or the host
         from swim.rt.image_sampling import AdaptiveSampling
 
-        table_kw = {**kw, "settings": replace(kw["settings"], ray_table=True)}
+        table_kw = {**kw, "settings": kw["settings"].with_execution(ray_table=True)}
         variants = [("every pixel", {}), ("adaptive", {"sampling": AdaptiveSampling(**bench_suite.ADAPTIVE)})]
         rows.extend(compare_setting(name, scene, table_kw, args, "device_image", [(a, dict(b)) for a, b in variants]))
         rows.append(compare_digest_by_identity(name, scene, table_kw, args))
         if out_dir:
-            on = {**table_kw, "settings": replace(table_kw["settings"], device_image=True)}
+            on = {**table_kw, "settings": table_kw["settings"].with_execution(device_image=True)}
             # with a new sun too (Step 1a on the device, the step classes and the constants: a time series' frame)
             for label, extra in variants + [("new sun", {"sun_zenith": 43.0, "sun_azimuth": 190.0})]:
                 wall_profile_render(name, f"device_image_{label.replace(' ', '_')}_wall", scene, {**on, **extra},
@@ -466,13 +468,13 @@ def _captured_settings(probe):
 
 
 def compare_kernels(name, probe, kernel):
-    """The captured chunk marched with ``kernel`` (``MarchSettings.grid_kernel``): its device time and outputs against
+    """The captured chunk marched with ``kernel`` (``ExecutionSettings.grid_kernel``): its device time and outputs against
     the render's."""
     import numpy as np
 
     settings = _captured_settings(probe)
     base_s, _, base = _chunk_outputs(probe, settings)
-    other_s, compile_s, other = _chunk_outputs(probe, replace(settings, grid_kernel=kernel))
+    other_s, compile_s, other = _chunk_outputs(probe, settings.with_execution(grid_kernel=kernel))
     valid = np.asarray(probe.captured[0][4]).astype(bool)
     a, b = base["radiance"][valid].astype(float), other["radiance"][valid].astype(float)
     ok = np.isfinite(a) & np.isfinite(b)
@@ -493,9 +495,9 @@ def compare_kernels(name, probe, kernel):
 
 def sweep_fused_blocks(name, probe, blocks):
     """The fused grid kernel on the captured chunk with other rays per Triton program and warps ("RAYSxWARPS"), capped
-    at N registers per thread ("RAYSxWARPSrN": ``MarchSettings.fused_max_registers``), with a scalar gather per table
-    channel ("s": ``MarchSettings.fused_vector_loads`` off), with fused multiply-adds ("f":
-    ``MarchSettings.fused_fma``), and with an "m" last, the "fused-march" kernel
+    at N registers per thread ("RAYSxWARPSrN": ``ExecutionSettings.fused_max_registers``), with a scalar gather per table
+    channel ("s": ``ExecutionSettings.fused_vector_loads`` off), with fused multiply-adds ("f":
+    ``ExecutionSettings.fused_fma``), and with an "m" last, the "fused-march" kernel
     (docs/decisions/0006-gpu-kernels.md)."""
     import jax
 
@@ -524,8 +526,8 @@ def sweep_fused_blocks(name, probe, blocks):
             rays, warps = int(spec.group(1)), int(spec.group(2))
             cap = int(spec.group(3)) if spec.group(3) else None
             vector, fma = not spec.group(4), bool(spec.group(5))
-            settings = replace(captured, grid_kernel=kernel, fused_max_registers=cap, fused_vector_loads=vector,
-                               fused_fma=fma)
+            settings = captured.with_execution(grid_kernel=kernel, fused_max_registers=cap, fused_vector_loads=vector,
+                                               fused_fma=fma)
             entry = kernel_name("swim_fused_march", cap, fma)
             march_pallas.BLOCK_RAYS, march_pallas.NUM_WARPS = rays, warps
             jax.clear_caches()
@@ -581,9 +583,9 @@ def compare_numba(name, scene, kw, first):
     import numpy as np
 
     import swim
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
-    kw_n = {**kw, "settings": MarchSettings(backend="numba")}
+    kw_n = {**kw, "settings": MarchSettings(execution=ExecutionSettings(backend="numba"))}
     t0 = time.perf_counter()
     swim.render(scene, **kw_n)
     ref = swim.render(scene, **kw_n)
@@ -607,7 +609,7 @@ def main(argv=None):
                     help="rays per kernel call to compare (0: the default, MarchSettings.resolved_chunk)")
     kernels = ("auto", "lockstep", "fused", "fused-march")
     ap.add_argument("--grid-kernel", choices=kernels, default="auto",
-                    help="the JAX kernel's march of the grid segment (MarchSettings.grid_kernel)")
+                    help="the JAX kernel's march of the grid segment (ExecutionSettings.grid_kernel)")
     ap.add_argument("--against", nargs="*", choices=kernels[1:], default=[],
                     help="also march the captured chunk with these grid kernels: time and outputs against the render's")
     ap.add_argument("--fused-blocks", nargs="*", default=[],
@@ -617,7 +619,7 @@ def main(argv=None):
                          "render's kernel")
     ap.add_argument("--scalar-loads", action="store_true",
                     help="the render's fused kernel with a scalar gather per table channel "
-                         "(MarchSettings.fused_vector_loads=False: one load per channel, not four)")
+                         "(ExecutionSettings.fused_vector_loads=False: one load per channel, not four)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--size", type=int, default=None, help="image width and height (default: the suite's 1024)")
     ap.add_argument("--sampling", action="store_true",
@@ -626,16 +628,16 @@ def main(argv=None):
                     help="also N frames with a new sun each (a fixed camera's time series; median of frames 2..N)")
     ap.add_argument("--profile", action="store_true", help="also profile a warm render (host) and a chunk (device)")
     ap.add_argument("--ray-table", action="store_true",
-                    help="also time warm renders with MarchSettings.ray_table against without, taking turns")
+                    help="also time warm renders with ExecutionSettings.ray_table against without, taking turns")
     ap.add_argument("--step1a-on-device", action="store_true",
-                    help="also time frames with a new sun each, MarchSettings.step1a_on_device on against off, taking "
+                    help="also time frames with a new sun each, ExecutionSettings.step1a_on_device on against off, taking "
                          "turns (docs/decisions/0006-gpu-kernels.md)")
     ap.add_argument("--device-sampling", action="store_true",
-                    help="also time adaptive frames with the sampler on the device (MarchSettings.device_sampling) "
+                    help="also time adaptive frames with the sampler on the device (ExecutionSettings.device_sampling) "
                          "against the host's, taking turns, the ray table on")
     ap.add_argument("--device-image", action="store_true",
                     help="also time frames with the image's planes and colour made on the device "
-                         "(MarchSettings.device_image) against the host's, taking turns, every pixel and adaptive, "
+                         "(ExecutionSettings.device_image) against the host's, taking turns, every pixel and adaptive, "
                          "the ray table on (docs/decisions/0006-gpu-kernels.md)")
     ap.add_argument("--barriers", action="store_true",
                     help="also the kernel with its CPU optimisation barriers forced on "

@@ -13,12 +13,12 @@ chunk (:func:`swim.rt.march_jax._trace_chunk`) by a stand-in that returns output
 so that adaptive sampling refines (a smooth sky with sharp-edged "clouds" by direction), at a cost of a few
 milliseconds per chunk, and times warm renders of the suite's all-sky view with the JAX kernel in the GPU's chunks
 (``GPU_CHUNK`` rays; ``--chunk`` to change), taking turns between
-``MarchSettings.ray_table`` off and on (the camera's rays kept on the device, docs/decisions/0006-gpu-kernels.md). What
+``ExecutionSettings.ray_table`` off and on (the camera's rays kept on the device, docs/decisions/0006-gpu-kernels.md). What
 it reports is the frame without its march: the host's share that a GPU frame pays, on this machine's cores (a GPU
 machine's host has more and faster ones). ``--profile`` adds a wall-clock profile of one frame of each variant
 (:mod:`wall_profile`).
 
-A GPU frame also finishes its image on the device (``MarchSettings.device_image``: the planes and the
+A GPU frame also finishes its image on the device (``ExecutionSettings.device_image``: the planes and the
 colour stage there) and takes a known scene's digest by identity (docs/decisions/0006-gpu-kernels.md); on a CPU both are
 off by default, so the "with the table" variant measures the host's planes and colour stage. ``--device-image`` turns
 both on in that variant, as on a GPU: the device's part (the stand-in, the scatters, the colour stage) then runs on
@@ -35,7 +35,6 @@ import json
 import statistics
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -102,19 +101,19 @@ def main(argv=None):
     import swim.rt.march_jax as march_jax
     import swim.rt.march_settings as march_settings
     from swim.rt.image_sampling import AdaptiveSampling
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
     scene, kw = allsky_case(args.scene, args.size, args.data)
-    base = replace(kw["settings"], backend="jax") if "settings" in kw else MarchSettings(backend="jax")
-    base = replace(base, chunk=args.chunk or march_settings.GPU_CHUNK)
+    base = kw.get("settings", MarchSettings()).with_execution(backend="jax")
+    base = base.with_execution(chunk=args.chunk or march_settings.GPU_CHUNK)
     march_jax._trace_chunk = stand_in_chunk()
     # as on a GPU (docs/decisions/0006-gpu-kernels.md): the digest by identity in every variant, the image with the
     # table
     if args.device_image:
         import swim.pipeline as pipeline
 
-        pipeline._speculate_digest = lambda settings: True
-        base = replace(base, device_image=True)  # (resolved off without the table)
+        pipeline.scene_stage.speculate_digest = lambda settings: True
+        base = base.with_execution(device_image=True)  # (resolved off without the table)
     samplings = {"every pixel": None, "adaptive": AdaptiveSampling(**bench_suite.ADAPTIVE)}
     rows = []
     for label, sampling in samplings.items():
@@ -123,7 +122,8 @@ def main(argv=None):
         for k in range(1 + args.repeats):  # the first round compiles (and builds the table): not counted
             for kept in (False, True):
                 t0 = time.perf_counter()
-                image = swim.render(scene, **{**kw, "settings": replace(base, ray_table=kept), "sampling": sampling})
+                image = swim.render(scene, **{**kw, "settings": base.with_execution(ray_table=kept),
+                                    "sampling": sampling})
                 if k:
                     runs[kept].append(time.perf_counter() - t0)
                 traced[kept] = int(image.attrs["traced_pixels"])
@@ -139,13 +139,13 @@ def main(argv=None):
 
             for kept in (False, True):
                 with WallSampler() as sampler:
-                    swim.render(scene, **{**kw, "settings": replace(base, ray_table=kept), "sampling": sampling})
+                    swim.render(scene, **{**kw, "settings": base.with_execution(ray_table=kept), "sampling": sampling})
                 text = sampler.report()
                 row[f"profile_{'with' if kept else 'without'}"] = text
                 print(f"\n### {label}, ray table {'on' if kept else 'off'}\n{text[:3000]}", flush=True)
     out = args.out or ROOT / "results" / "host-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    doc = {"scene": args.scene, "size": args.size, "repeats": args.repeats, "chunk": base.chunk,
+    doc = {"scene": args.scene, "size": args.size, "repeats": args.repeats, "chunk": base.execution.chunk,
            "device_image": bool(args.device_image), "machine": bench_suite.machine_info(),
            "jax_backend": jax.default_backend(), "rows": rows}
     out.write_text(json.dumps(doc, indent=1))

@@ -74,7 +74,7 @@ def capture(scene_name, size, data):
     arguments of every ``march_rays`` call (a list of lists; the tables are shared, not copied)."""
     import swim
     from swim.rt import march_cpu
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
     spec = {**bench_suite.CASES[SCENE_CASES[scene_name]], "data": str(data)}
     scene = bench_suite.load_scene(spec)
@@ -91,10 +91,10 @@ def capture(scene_name, size, data):
 
             case = RICO_CASES[spec["mc_case"]]
             swim_view(scene, case["view"], case["sun_zenith"], settings={"allsky_size": size},
-                      march_settings=MarchSettings(backend="numba"))
+                      march_settings=MarchSettings(execution=ExecutionSettings(backend="numba")))
         else:
             kw = bench_suite.render_kwargs(spec, image=(size, size))
-            kw["settings"] = MarchSettings(backend="numba")
+            kw["settings"] = MarchSettings(execution=ExecutionSettings(backend="numba"))
             swim.render(scene, **kw)
     finally:
         march_cpu.march_rays = original

@@ -147,7 +147,20 @@ def march_settings(spec):
         kw["cloud_scattering"] = CloudScattering(clouds["method"], clouds.get("phase_function", "physical"))
     elif clouds:
         kw["cloud_scattering"] = clouds
-    return MarchSettings(**kw) if kw else None
+    if not kw:
+        return None
+    backend = kw.pop("backend", None)
+    return MarchSettings(**kw) if backend is None else settings_with_backend(backend, **kw)
+
+
+def settings_with_backend(backend, **kw):
+    """``MarchSettings(**kw)`` with the march's ``backend``: in its ``ExecutionSettings`` where the code under test has
+    them, else as older code's own field (the suite also measures older versions, taking turns)."""
+    from swim.rt import march_settings
+
+    if hasattr(march_settings, "ExecutionSettings"):
+        return march_settings.MarchSettings(execution=march_settings.ExecutionSettings(backend=backend), **kw)
+    return march_settings.MarchSettings(backend=backend, **kw)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -257,19 +270,17 @@ def machine_info():
 
 
 def march_backend(choice="auto"):
-    """The step-loop kernel a case's renders use (swim.rt.march_settings.MarchSettings.backend, resolved)."""
+    """The step-loop kernel a case's renders use (swim.rt.march_settings.ExecutionSettings.backend, resolved)."""
     from swim.rt.march_settings import MarchSettings
 
     if not hasattr(MarchSettings(), "resolved_backend"):
         return "jax"  # versions before the numba kernel
-    return MarchSettings(backend=choice).resolved_backend()
+    return settings_with_backend(choice).resolved_backend()
 
 
 def march_chunk(choice="auto"):
-    """Rays per kernel call of a case's renders (swim.rt.march_settings.MarchSettings.chunk, resolved), or None."""
-    from swim.rt.march_settings import MarchSettings
-
-    settings = MarchSettings(backend=choice)
+    """Rays per kernel call of a case's renders (swim.rt.march_settings.ExecutionSettings.chunk, resolved), or None."""
+    settings = settings_with_backend(choice)
     return settings.resolved_chunk() if hasattr(settings, "resolved_chunk") else settings.chunk
 
 
@@ -479,7 +490,7 @@ def run_series(spec, probe):
 
 
 class _ReuseCounter:
-    """Counts the stage cache's "reusing the volume" log records (swim.pipeline._StageCache.get)."""
+    """Counts the stage cache's "reusing the volume" log records (swim.pipeline.caches.StageCache.get)."""
 
     def __init__(self):
         import logging
@@ -937,7 +948,7 @@ def main(argv=None):
     ap.add_argument("--mc-ref-spp", type=int, default=None, help="MC reference paths per pixel (default 4096, quick 1024)")
     ap.add_argument("--mc-max-spp", type=int, default=None, help="largest spp of the MC sweep (default reference spp / 4)")
     ap.add_argument("--backend", choices=("auto", "jax", "numba"), default="auto",
-                    help="step-loop kernel (MarchSettings.backend; default: numba on CPUs, JAX on GPUs)")
+                    help="step-loop kernel (ExecutionSettings.backend; default: numba on CPUs, JAX on GPUs)")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
     ap.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)

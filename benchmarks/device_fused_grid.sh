@@ -8,7 +8,7 @@
 # with its Triton call); STAGE=table (docs/decisions/0006-gpu-kernels.md; ~340 s on a fresh H100, of which ~140 s
 # compilations, so the adaptive and new-sun rows need SYNTHETIC_S=420): the synthetic 1024^2 all-sky's captured chunk
 # with "fused" against "fused-march", and warm frames with the camera's rays kept on the device
-# (MarchSettings.ray_table, swim.rt.ray_table) against without, taking turns: every pixel, adaptive and a new sun
+# (ExecutionSettings.ray_table, swim.rt.ray_table) against without, taking turns: every pixel, adaptive and a new sun
 # every frame; STAGE=step1a (docs/decisions/0006-gpu-kernels.md; ~200 s): the tests of a new sun's Step 1a on the
 # device, then frames with a new sun each with and without it; STAGE=sampler (docs/decisions/0005-adaptive-sampling.md;
 # ~300 s on a fresh machine): the device sampler's tests, then adaptive frames with the sampler on the device against
@@ -21,9 +21,9 @@
 # alone and with the register caps; 128 x 4 capped at 168 and 128 registers (the same occupancy as 512 x 16 with
 # 128-ray lockstep; benchmarks/pallas_registers.py: 512 rays x 16 warps caps ptxas at 128 registers, twice the
 # occupancy of 128 x 4's 255, with 88 bytes of spills; 512 x 16 left out: 128 x 4 at 128 registers has its occupancy
-# with less lockstep); and a scalar gather per table channel (MarchSettings.fused_vector_loads off).
+# with less lockstep); and a scalar gather per table channel (ExecutionSettings.fused_vector_loads off).
 # STAGE=image (docs/decisions/0006-gpu-kernels.md; ~200 s on the warm machine after STAGE=blocks): the tests of the
-# image finished on the device (MarchSettings.device_image: its planes and colour there), then warm frames with it
+# image finished on the device (ExecutionSettings.device_image: its planes and colour there), then warm frames with it
 # against without, taking turns, every pixel and adaptive, and a wall-clock profile of each with it. STAGE=parts
 # (docs/decisions/0005-adaptive-sampling.md; ~240 s): benchmarks/frame_parts.py, each of a warm frame's programs
 # waited for, every pixel and adaptive. STAGE=first (a fresh machine's first run, ~560 s): STAGE=blocks, then
@@ -48,7 +48,7 @@ trap 'save; ls -la "$RES"' EXIT
 quiet() { grep -v "^WARNING\|^I0000\|absl"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
 python3 -c "import jax, numpy, numba; print('jax', jax.__version__, jax.devices(), 'numpy', numpy.__version__, 'numba', numba.__version__)"
-step1a() {  # MarchSettings.step1a_on_device (docs/decisions/0006-gpu-kernels.md), ~200 s: its tests on the GPU first (the
+step1a() {  # ExecutionSettings.step1a_on_device (docs/decisions/0006-gpu-kernels.md), ~200 s: its tests on the GPU first (the
     # donating program runs only there; where the machine has pytest), then frames with a new sun each, taking turns
     timeout "${TESTS_S:-150}" python3 -m pytest -q -p no:cacheprovider -k "not numba" tests/unit/rt/test_rt_solar_device.py 2>&1 | tail -3 || true
     timeout "${SYNTHETIC_S:-300}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --step1a-on-device \
@@ -64,7 +64,7 @@ readme() {  # the README's render at 1024^2 in two new processes (the second rea
         echo "README render at 1024^2, new process $k: $(python3 -c "import sys, time; print(f'{time.time() - float(sys.argv[1]):.2f}')" "$t0") s"
     done
 }
-sampler() {  # MarchSettings.device_sampling (docs/decisions/0005-adaptive-sampling.md), ~300 s on a fresh machine: its tests on the GPU, then adaptive
+sampler() {  # ExecutionSettings.device_sampling (docs/decisions/0005-adaptive-sampling.md), ~300 s on a fresh machine: its tests on the GPU, then adaptive
     # frames with the sampler on the device against the host's, taking turns (the ray table on for both; the images
     # compared there, so the tests that render, which would compile the march here first, are left out)
     timeout "${TESTS_S:-120}" python3 -m pytest -q -p no:cacheprovider -k "not rendered_scene and not render_with" tests/unit/rt/test_rt_image_sampling_device.py 2>&1 | tail -3 || true
@@ -83,9 +83,9 @@ kernel_counters() {  # Nsight Compute's counters of the fused kernel ("swim_fuse
     grep -v "^WARNING\|^I0000\|absl" "$RES/ncu-synthetic.txt" | grep -i "swim_fused\|Registers\|Occupancy\|Throughput\|Stall\|Duration\|Eligible\|Issued\|Block Size\|Grid Size\|Warp Cycles\|Hit Rate\|Local" | head -80
 }
 blocks() {  # the fused kernel's variants (docs/decisions/0006-gpu-kernels.md), each against the render's kernel (its
-    # tables read four channels a load): "f" fused multiply-adds (MarchSettings.fused_fma), "rN" at most N
+    # tables read four channels a load): "f" fused multiply-adds (ExecutionSettings.fused_fma), "rN" at most N
     # registers per thread (PTX's .maxnreg: 168 fits three 128-ray programs per SM, 128 four, against two), "s" a
-    # scalar gather per channel (MarchSettings.fused_vector_loads off); most telling first, each line printed as it
+    # scalar gather per channel (ExecutionSettings.fused_vector_loads off); most telling first, each line printed as it
     # is timed (the JSON is written at the end)
     timeout "${BLOCKS_S:-330}" python3 benchmarks/bench_gpu.py --scenes synthetic --data .devdata --repeats 3 \
         --fused-blocks ${BLOCKS:-128x4f 128x4r168 128x4r168f 128x4s 128x4r128 128x4r128f} \
@@ -96,7 +96,7 @@ blocks() {  # the fused kernel's variants (docs/decisions/0006-gpu-kernels.md), 
         --data .devdata --repeats 3 --scalar-loads --fused-blocks 128x4sf 128x4r168s 128x4r168sf \
         --out "$RES/blocks-synthetic-scalar.json" 2>&1 | quiet
 }
-image() {  # MarchSettings.device_image (docs/decisions/0006-gpu-kernels.md): its tests on the GPU (the colour stage's float64
+image() {  # ExecutionSettings.device_image (docs/decisions/0006-gpu-kernels.md): its tests on the GPU (the colour stage's float64
     # on the device), then warm frames with the image finished on the device against the host, taking turns, and
     # where a new process's README render (its caches warm) spends its ~11 s (docs/decisions/0006-gpu-kernels.md)
     timeout "${TESTS_S:-60}" python3 -m pytest -q -p no:cacheprovider tests/unit/color/test_color_device.py 2>&1 | tail -3 || true

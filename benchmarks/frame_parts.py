@@ -34,7 +34,6 @@ import json
 import statistics
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
@@ -117,8 +116,8 @@ def main(argv=None):
 
     scene, kw = bench_host.allsky_case(args.scene, args.size, args.data)
     base = kw.get("settings", MarchSettings())
-    settings = replace(base, backend="jax", chunk=base.chunk or march_settings.GPU_CHUNK, ray_table=True, device_sampling=True,
-                       device_image=True)
+    settings = base.with_execution(backend="jax", chunk=base.execution.chunk or march_settings.GPU_CHUNK, ray_table=True,
+                                   device_sampling=True, device_image=True)
     if args.stand_in:
         march_jax._trace_chunk = bench_host.stand_in_chunk()
         # a known scene's digest taken by identity and checked beside the march, as on a GPU
@@ -126,7 +125,7 @@ def main(argv=None):
         # rest
         import swim.pipeline as pipeline
 
-        pipeline._speculate_digest = lambda settings: True
+        pipeline.scene_stage.speculate_digest = lambda settings: True
     samplings = {"every pixel": None, "adaptive": AdaptiveSampling(**bench_suite.ADAPTIVE)}
     rows = []
     for label, sampling in samplings.items():
@@ -178,7 +177,7 @@ def main(argv=None):
     out = args.out or ROOT / "results" / "frame-parts-latest.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"scene": args.scene, "size": args.size, "repeats": args.repeats, "stand_in": bool(args.stand_in),
-           "chunk": settings.chunk, "machine": bench_suite.machine_info(), "jax_backend": jax.default_backend(),
+           "chunk": settings.execution.chunk, "machine": bench_suite.machine_info(), "jax_backend": jax.default_backend(),
            "rows": rows}
     out.write_text(json.dumps(doc, indent=1))
     import history

@@ -13,8 +13,8 @@ ptxas caps the registers at 65 536 / (threads per program), at most 255: 128 ray
 only 128 (four programs of 4 warps' worth per multiprocessor, at the price of spills), 1024 x 32 only 64.
 Pallas offers no other cap (no ``maxnreg``); swim's kernels take one through their name (``--blocks 128x4r128``:
 128 registers per thread, PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`); ``128x4s``: the tables read by a scalar
-gather per channel (``MarchSettings.fused_vector_loads`` off: one load per channel, not four); ``128x4f``: the float32
-multiplies and adds free to be contracted into fused multiply-adds (``MarchSettings.fused_fma``,
+gather per channel (``ExecutionSettings.fused_vector_loads`` off: one load per channel, not four); ``128x4f``: the float32
+multiplies and adds free to be contracted into fused multiply-adds (``ExecutionSettings.fused_fma``,
 docs/decisions/0006-gpu-kernels.md). The grid loop's instructions are also counted by kind (``loop_ops``: FFMA, FMUL,
 FADD, FSEL, LDG, ...).
 
@@ -85,7 +85,7 @@ def capture_kernel_call(kernel, size=32):
 
     import swim
     from swim.rt import march_pallas
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
     real = {"fused": march_pallas.march_grid_fused, "fused-march": march_pallas.march_segments_fused}
     captured = {}
@@ -102,7 +102,7 @@ def capture_kernel_call(kernel, size=32):
     setattr(march_pallas, name, grab)
     try:
         swim.render(_scene(), camera_options={"size": size}, sun_zenith=35.0, sun_azimuth=140.0,
-                    settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=1024))
+                    settings=MarchSettings(execution=ExecutionSettings(backend="jax", grid_kernel=kernel, chunk=1024)))
     except _Captured:
         pass
     finally:
@@ -252,8 +252,8 @@ def main(argv=None):
     ap.add_argument("--kernels", nargs="+", default=["fused"], choices=("fused", "fused-march"))
     ap.add_argument("--blocks", nargs="+", default=["128x4", "512x16"],
                     help="RAYSxWARPS per Triton program, then rN: capped at N registers per thread, then s: a scalar "
-                         "gather per table channel (MarchSettings.fused_vector_loads off), then f: fused "
-                         "multiply-adds (MarchSettings.fused_fma)")
+                         "gather per table channel (ExecutionSettings.fused_vector_loads off), then f: fused "
+                         "multiply-adds (ExecutionSettings.fused_fma)")
     ap.add_argument("--ptxas", default=None, help="ptxas to assemble with (default: Triton's, else PATH's)")
     ap.add_argument("--out", default=None, help="JSON file")
     args = ap.parse_args(argv)

@@ -11,7 +11,7 @@ towards the sun) twice from the same optical volume:
 
 * on the host, as a render on a CPU does (:func:`swim.rt.solar.solar_transmittance`, numba's sweep by default);
 * from the device's copy of the packed volume (:func:`swim.rt.solar_device.solar_transmittance_on_device`, JAX's
-  sweep on JAX's default device), as a render on a GPU does (``MarchSettings.step1a_on_device``).
+  sweep on JAX's default device), as a render on a GPU does (``ExecutionSettings.step1a_on_device``).
 
 It prints, per field, the largest difference and how many cells differ, and how many cells change their step class
 (:func:`swim.rt.march_inputs.step_classes`: sunlit clear air where the direct sun's transmittance is at least

@@ -31,7 +31,7 @@ def _no_drops_inside_a_render_of_a_test():
     of the same test sees (e.g. a jitted function's cache size)."""
     import swim.pipeline as pipeline
 
-    pipeline.COMPILED_PROGRAMS_CHECK_S = float("inf")
+    pipeline.chain.COMPILED_PROGRAMS_CHECK_S = float("inf")
     yield
 
 

@@ -4,7 +4,7 @@ Physics after Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.519
 
 Public API: :func:`open_scene`, :func:`default_scene`, :func:`scene_from_arrays`, :func:`render`,
 :func:`write_image`, :func:`write_png`, :func:`write_netcdf`, :class:`AerosolBackground` (1-D and stratospheric aerosol),
-:class:`MarchSettings`, :func:`sky_irradiance` (GHI/DHI/DNI from an all-sky image).
+:class:`MarchSettings` with its :class:`ExecutionSettings`, :func:`sky_irradiance` (GHI/DHI/DNI from an all-sky image).
 """
 
 import logging
@@ -21,13 +21,14 @@ _API = {
     "read_wrf": "swim.io.wrf",
     "read_shdom_les": "swim.io.les",
     "render": "swim.pipeline",
-    "write_image": "swim.pipeline",
-    "write_png": "swim.pipeline",
-    "write_netcdf": "swim.pipeline",
+    "write_image": "swim.io.outputs",
+    "write_png": "swim.io.outputs",
+    "write_netcdf": "swim.io.outputs",
     "render_series": "swim.series",
     "series_times": "swim.series",
     "AerosolBackground": "swim.rt.gas",
     "MarchSettings": "swim.rt.march_settings",
+    "ExecutionSettings": "swim.rt.march_settings",
     "sky_irradiance": "swim.diagnostics.irradiance",
     "compare_images": "swim.diagnostics.compare",
     "reflectance_factor": "swim.diagnostics.satellite",

@@ -7,7 +7,7 @@ images.
 from __future__ import annotations
 
 import swim
-from swim.rt.march_settings import MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
 #: name -> (render keywords, march settings keywords). The sun is set by angles so that no ephemeris or clock enters.
 #: One view of the default 3-D cloud scattering (its diffuse solution costs seconds), the others the paper's method.
@@ -28,4 +28,5 @@ def render_view(name):
     from swim.io.default_scene import default_scene
 
     kwargs, settings = VIEWS[name]
-    return swim.render(default_scene(), settings=MarchSettings(backend="numba", **settings), **kwargs)
+    return swim.render(default_scene(), settings=MarchSettings(**settings,
+                                                               execution=ExecutionSettings(backend="numba")), **kwargs)

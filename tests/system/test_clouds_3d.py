@@ -10,7 +10,7 @@ import swim
 import swim.validation.stratus
 from swim.cli.main import app
 from swim.diagnostics.irradiance import sky_irradiance
-from swim.rt.march_settings import MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
 THREE_D = MarchSettings(cloud_scattering="discrete_ordinates")
 PAPER = MarchSettings(cloud_scattering="albers2020")
@@ -190,7 +190,8 @@ def test_the_jax_kernel_matches_the_numba_kernel(default_scene):
     the clouds' integrated sources, the air's diffuse source scaled by the diffuse solution and the ground lit by it
     agree to float32 precision."""
     images = [swim.render(default_scene, camera="allsky", camera_options={"size": 31}, sun_zenith=40.0,
-                          sun_azimuth=150.0, settings=MarchSettings(cloud_scattering="discrete_ordinates", backend=b))
+                          sun_azimuth=150.0, settings=MarchSettings(cloud_scattering="discrete_ordinates",
+                                                                    execution=ExecutionSettings(backend=b)))
               for b in ("jax", "numba")]
     for key in ("radiance", "radiance_cloud", "radiance_clear", "radiance_surface"):
         _agree(images[0][key].values, images[1][key].values)
@@ -206,7 +207,8 @@ def test_the_jax_kernel_delivers_the_aureole():
     scene = stratus_scene(1.0, species="cloud_ice", cloud_base_m=8000.0, cloud_top_m=10000.0, dz_m=250.0,
                           effective_radius_m=34e-6, n_columns=5)
     images = [swim.render(scene, camera="allsky", camera_options={"size": 21}, sun_zenith=35.0, sun_azimuth=160.0,
-                          height=0.0, settings=MarchSettings(cloud_scattering="discrete_ordinates", backend=b))
+                          height=0.0, settings=MarchSettings(cloud_scattering="discrete_ordinates",
+                                                             execution=ExecutionSettings(backend=b)))
               for b in ("jax", "numba")]
     aureole = [np.asarray(image.attrs["circumsolar_transmittance"]) for image in images]
     assert np.all(aureole[1] > 0.1)
@@ -219,12 +221,11 @@ def test_the_jax_kernel_delivers_the_aureole():
 def test_the_jax_kernel_on_the_rico_field(shared_data, view, sun_zenith):
     """The Monte Carlo comparison's views of the RICO cumulus (swim.validation.clouds3d) in both kernels: their 8 x 8
     block means agree within 1e-3."""
-    import dataclasses
 
     from swim.validation import clouds3d as C
 
     scene = C.case_scene("rico", shared_data)
-    out = [C.render_case(scene, view, sun_zenith, dataclasses.replace(C.settings_3d(), backend=b))
+    out = [C.render_case(scene, view, sun_zenith, C.settings_3d().with_execution(backend=b))
            for b in ("jax", "numba")]
     blocks = [C.block_means(o["image"], o["mask"]) for o in out]
     np.testing.assert_allclose(blocks[0], blocks[1], rtol=1e-3)

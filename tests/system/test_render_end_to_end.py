@@ -11,7 +11,7 @@ from swim.cli.main import app
 from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
 from swim.geometry.cameras import AllSkyCamera
-from swim.rt.march_settings import REFINE_BUDGET, MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings, REFINE_BUDGET
 
 SMALL = {"size": 95}
 
@@ -158,8 +158,8 @@ def test_bad_camera_options_are_rejected_before_the_scene_is_read(monkeypatch, c
     def read(*args, **kwargs):
         raise AssertionError("the scene was read before the camera's options were checked")
 
-    monkeypatch.setattr(pipeline, "crop_scene_to_view", read)
-    monkeypatch.setattr(pipeline, "validate_scene", read)
+    monkeypatch.setattr(pipeline.scene_stage, "crop_scene_to_view", read)
+    monkeypatch.setattr(pipeline.scene_stage, "validate_scene", read)
     with pytest.raises(SwimInputError, match=match):
         swim.render(swim.default_scene(), camera=camera, camera_options=options, crop=True)
     with pytest.raises(SwimInputError, match=match):
@@ -279,7 +279,9 @@ def test_numba_and_jax_kernels_render_the_same_image(scene_name, request):
     else:
         scene, view = request.getfixturevalue("katrina"), {"time": "2005-08-28T18:00", "lat": 24.7, "lon": -88.6}
     images = {backend: swim.render(scene, height=2.0, camera="allsky", camera_options={"size": 63},
-                                   settings=MarchSettings(backend=backend), **view) for backend in ("jax", "numba")}
+                                   settings=MarchSettings(execution=ExecutionSettings(backend=backend)),
+                                                                                      **view) for backend in ("jax",
+                                                                                                              "numba")}
     a, b = images["jax"]["radiance"].values, images["numba"]["radiance"].values
     np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
     valid = np.isfinite(a)
@@ -298,7 +300,7 @@ def test_cli_backend_option(tmp_path):
     assert out.exists()
     bad = tmp_path / "bad.png"
     result = CliRunner().invoke(app, ["render", "--size", "31", "--backend", "opencl", "--out", str(bad)])
-    assert result.exit_code == 2 and "MarchSettings.backend" in result.output and not bad.exists()
+    assert result.exit_code == 2 and "ExecutionSettings.backend" in result.output and not bad.exists()
 
 
 def test_cli_probes_option(tmp_path):

@@ -104,7 +104,7 @@ def _peak_vantage(scene, inset=0.05):
     the domain's edge.
 
     On the edge the renderer's (cubic) index map puts the column a hair outside the grid (i = -0.0104 for the
-    met_em peak), where ``swim.pipeline._terrain_at`` takes the ground as sea level (0 m), although the
+    met_em peak), where ``swim.pipeline.terrain_at`` takes the ground as sea level (0 m), although the
     kernel's terrain continues there at the edge heights: the observer would stand 5 m above sea level inside
     the 3267 m mountain and every ray would hit the ground within 11 m. The inset keeps it on the terrain.
     """

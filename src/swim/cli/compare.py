@@ -76,9 +76,10 @@ def compare(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the scores (JSON) here."),
 ):
     """Compare a simulated image with a camera image: Pearson r per channel and r-bar (Eq. 37), RMSE, cloud masks."""
-    import xarray as xr
+    # xarray and the cloud masks load here, before modules_loaded(), though the helpers use them
+    import xarray  # noqa: F401
 
-    from ..diagnostics.cloud_mask import compare_cloud_masks
+    from ..diagnostics.cloud_mask import compare_cloud_masks  # noqa: F401
     from ..diagnostics.compare import (
         block_mean_codes,
         compare_images,
@@ -98,11 +99,7 @@ def compare(
         if (sun_zenith is None) != (sun_azimuth is None):
             raise SwimInputError("give both --sun-zenith and --sun-azimuth [deg], or neither")
         model = FisheyeCameraModel.from_toml(Path(camera_model))
-        try:
-            with xr.open_dataset(simulated) as ds:
-                sim = ds.load()
-        except (OSError, ValueError) as exc:
-            raise SwimInputError(f"simulated image {str(simulated)!r} cannot be read as netCDF: {exc}") from None
+        sim = _read_simulated(simulated)
         obs = read_camera_image(camera_image, model)
         projected = reproject(sim, model.downsampled(downsample))
         result = compare_images(projected, obs, model, sun_azimuth_deg=sun_azimuth, sun_zenith_deg=sun_zenith,
@@ -112,15 +109,9 @@ def compare(
         obs = block_mean_codes(obs, downsample)
         mask = result["mask"].values
         weights = projected["solid_angle"].values if weighting is WeightingKind.solid_angle else None
-        clouds = compare_cloud_masks(projected["rgb"].values, obs, mask, method=cloud_method.value,
-                                     threshold=cloud_threshold, weights=weights)
+        clouds = _cloud_scores(projected["rgb"].values, obs, mask, cloud_method, cloud_threshold, weights)
         scores = scores_dict(result)
-        scores["clouds"] = {
-            "method": clouds["method"], "threshold": clouds["threshold"], **clouds["table"], **clouds["scores"],
-            "simulated_cloud_fraction": clouds["simulated_cloud_fraction"],
-            "observed_cloud_fraction": clouds["observed_cloud_fraction"],
-        }
-        scores["clouds"] = {k: (None if isinstance(v, float) and v != v else v) for k, v in scores["clouds"].items()}
+        scores["clouds"] = clouds
         scores["simulated"] = str(simulated)
         scores["camera_image"] = str(camera_image)
         scores["camera_model"] = str(camera_model)
@@ -131,7 +122,40 @@ def compare(
     except SwimInputError as exc:
         err.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
+    _print_scores(out, scores, quantity, fit, weighting, sun_exclusion, min_elevation)
+    written = [str(p) for p in (diff, json_out) if p is not None]
+    if written:
+        out.print("wrote " + " and ".join(written))
 
+
+def _read_simulated(simulated):
+    """The simulated image's netCDF file, loaded."""
+    import xarray as xr
+
+    try:
+        with xr.open_dataset(simulated) as ds:
+            return ds.load()
+    except (OSError, ValueError) as exc:
+        raise SwimInputError(f"simulated image {str(simulated)!r} cannot be read as netCDF: {exc}") from None
+
+
+def _cloud_scores(simulated_rgb, obs, mask, cloud_method, cloud_threshold, weights):
+    """The cloud masks' contingency table and scores (:func:`swim.diagnostics.cloud_mask.compare_cloud_masks`), NaN
+    as None (JSON null)."""
+    from ..diagnostics.cloud_mask import compare_cloud_masks
+
+    clouds = compare_cloud_masks(simulated_rgb, obs, mask, method=cloud_method.value,
+                                 threshold=cloud_threshold, weights=weights)
+    scores = {
+        "method": clouds["method"], "threshold": clouds["threshold"], **clouds["table"], **clouds["scores"],
+        "simulated_cloud_fraction": clouds["simulated_cloud_fraction"],
+        "observed_cloud_fraction": clouds["observed_cloud_fraction"],
+    }
+    return {k: (None if isinstance(v, float) and v != v else v) for k, v in scores.items()}
+
+
+def _print_scores(out, scores, quantity, fit, weighting, sun_exclusion, min_elevation):
+    """The scores per channel as a table, then r-bar and the cloud masks' scores."""
     table = Table(title=f"simulated vs camera ({quantity.value}, fit {fit.value}, {weighting.value} weights)")
     table.add_column("channel")
     for name in ("r", "gain", "offset", "rmse", "bias"):
@@ -146,6 +170,3 @@ def compare(
               f"{min_elevation:g} deg)")
     out.print(f"cloud masks ({c['method']}, threshold {c['threshold']:g}): POD {_fmt(c['pod'])}, FAR {_fmt(c['far'])}, "
               f"CSI {_fmt(c['csi'])}, frequency bias {_fmt(c['frequency_bias'])}, accuracy {_fmt(c['accuracy'])}")
-    written = [str(p) for p in (diff, json_out) if p is not None]
-    if written:
-        out.print("wrote " + " and ".join(written))

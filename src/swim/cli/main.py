@@ -176,259 +176,243 @@ GPU_TUNING_OPTIONS = ("--grid-kernel", "--ray-table", "--step1a-on-device", "--d
                       "--fused-max-registers", "--fused-vector-loads", "--fused-fma")
 
 
+class _RenderOptions:
+    """The argument and options of :func:`render`: each is the default of the parameter of the same name, where
+    Typer reads it, and is declared here so that the command's signature stays short."""
+
+    scene = typer.Argument(None, help="Scene file (WRF wrfout netCDF, WPS geo_em/met_em netCDF, canonical "
+                           "netCDF, SHDOM LES .txt); "
+                           "default: the built-in scene.")
+    time = typer.Option(None, help="UTC time, ISO 8601 (default: the scene's time).")
+    lat = typer.Option(None, help="Observer latitude [deg] (default: domain centre).")
+    lon = typer.Option(None, help="Observer longitude [deg] (default: domain centre).")
+    height = typer.Option(2.0, help="Observer height above the ground [m].")
+    site = typer.Option(False, "--site", help="No scene file: a cloud-free site at --lat/--lon (flat ground at "
+                        "--elevation, albedo --site-albedo) in the clear atmosphere of --aerosol/--aod.")
+    elevation = typer.Option(0.0, help="--site: ground elevation [m above sea level].")
+    site_albedo = typer.Option(0.2, "--site-albedo", help="--site: ground albedo [-].")
+    camera = typer.Option(CameraKind.allsky, help="Camera kind.")
+    size = typer.Option(511, help="All-sky image size [pixels].")
+    width = typer.Option(1024, help="Panorama / perspective width [pixels].")
+    image_height = typer.Option(512, "--image-height", help="Panorama / perspective height [pixels].")
+    fov = typer.Option(None, help="Perspective horizontal field of view [deg].")
+    view_azimuth = typer.Option(None, help="Perspective view azimuth [deg from north].")
+    view_zenith = typer.Option(None, help="Perspective view zenith angle [deg].")
+    look_at = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'.")
+    sun_zenith = typer.Option(None, help="Override the sun zenith angle [deg].")
+    sun_azimuth = typer.Option(None, help="Override the sun azimuth [deg].")
+    aerosol = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
+                                               "sea_salt, stratospheric_sulfate (docs/aerosols.md); none: no "
+                                               "background aerosol.")
+    aod = typer.Option(None, help="Background aerosol optical depth at 550 nm (default 0.05; 0 "
+                                  "where the scene has a 3-D aerosol field).")
+    aerosol_ssa = typer.Option(None, "--aerosol-ssa", help="The aerosol's own single-scattering "
+                               "albedo: one value or 'w615,w546,w450' (replaces the type's).")
+    aerosol_g = typer.Option(None, "--aerosol-g", help="The aerosol's own asymmetry parameter "
+                             "(Henyey-Greenstein): one value or three (615, 546, 450 nm).")
+    aerosol_angstrom = typer.Option(None, "--aerosol-angstrom", help="The aerosol's own "
+                                    "Angstrom exponent [-].")
+    aerosol_phase = typer.Option(None, "--aerosol-phase", help="The aerosol's own phase function: a "
+                                 "text table of scattering angle [deg] and P (or P at 615, 546, "
+                                 "450 nm), 0-180 deg.")
+    aerosol_scale_height = typer.Option(None, "--aerosol-scale-height", help="Scale height of the "
+                                        "background aerosol [km] (default 1.5).")
+    strat_aod = typer.Option(0.0, "--strat-aod", help="Optical depth at 550 nm of a stratospheric "
+                                                      "(volcanic sulfate) aerosol layer at 20 km.")
+    strat_height = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km].")
+    white_level = typer.Option(None, help="Exposure: the L' mapped to display white before the "
+                               "highlights roll off (default 1.5, 4 above 100 km), or 'auto' (from "
+                               "the image's luminance).")
+    exposure = typer.Option(0.0, help="Exposure shift in stops [EV] on top of --white-level: +1 is twice "
+                                      "as bright.")
+    albedo_image = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
+                                "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md).")
+    albedo_image_bounds = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
+                                       help="'west,east,south,north' [deg] covered by --albedo-image.")
+    albedo_image_scale = typer.Option(1.0, "--albedo-image-scale", help="Albedo of a white pixel of "
+                                      "--albedo-image [-].")
+    surface = typer.Option("brdf", help="Ground reflectance: brdf (land hot spot, snow, sun glint on water) "
+                           "or lambertian (docs/surfaces.md).")
+    cloud_scattering = typer.Option("discrete_ordinates", "--cloud-scattering",
+                                    help="How clouds scatter light: discrete_ordinates (a 3-D solution of the "
+                                    "diffuse light for the scene and sun, with Mie and ice phase functions and "
+                                    "cloud-ground interreflection; numba and JAX kernels; seconds per new scene "
+                                    "and sun; docs/rendering.md, '3-D cloud scattering') or albers2020 (the "
+                                    "paper's Eqs. 12-26: a new sun at once, every kernel).")
+    cloud_phase = typer.Option(None, "--cloud-phase",
+                               help="Phase functions of --cloud-scattering discrete_ordinates: "
+                               "physical (default: Mie droplets, roughened-aggregate ice) or "
+                               "Henyey-Greenstein per phase, e.g. 'liquid=0.85,ice=0.75'.")
+    scene_lat = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg].")
+    scene_lon = typer.Option(None, help="Place an LES scene: centre longitude [deg].")
+    out = typer.Option(None, help="Image output path, PNG, JPEG or TIFF by its suffix (default swim.png); with --end "
+                       "a pattern such as "
+                       "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height).")
+    netcdf = typer.Option(None, help="Also write the radiance as CF netCDF here (a pattern with "
+                          "--end).")
+    end = typer.Option(None, help="Render a time series from --time (default: the scene's time) to "
+                       "this UTC time, ISO 8601: each frame from the scene file's nearest model time "
+                       "(within 90 min), the sun moving.")
+    every = typer.Option(10.0, help="Time step of a series [min].")
+    freeze_fields = typer.Option(False, "--freeze-fields", help="A series from a scene file: render every frame "
+                                 "from the model time nearest to --time (frozen clouds, a moving sun) "
+                                 "instead of each frame's nearest model time within 90 min.")
+    workers = typer.Option(0, help="Render a series' frames on a local dask cluster of this many processes "
+                           "(0: one after the other in this process; needs dask.distributed).")
+    scheduler = typer.Option(None, help="Address of a running dask.distributed scheduler for a "
+                             "series' frames (e.g. tcp://10.0.0.5:8786).")
+    steps = typer.Option(None, help="Ray-marching steps through the model grid (default: "
+                                     "MarchSettings().n_grid, 128 adaptive steps).")
+    empty_steps = typer.Option(None, "--empty-steps",
+                               help="Most grid steps a ray puts into empty grid cells, or one per 2 "
+                                    "empty cells where it crosses more (default: a quarter of "
+                                    "--steps, 32; 0: every ray takes --steps steps).")
+    probes = typer.Option(None, help="Occupancy probes per ray, at least, that place the grid steps "
+                                      "(default: MarchSettings().n_probe, 64; 256 with --steps 256 for "
+                                      "views that graze a big grid near the horizon).")
+    probe_spacing = typer.Option(None, "--probe-spacing",
+                                 help="Most grid cells between a ray's occupancy probes: rays that "
+                                      "cross more cells take more probes (default: "
+                                      "MarchSettings().probe_spacing, 2; 0 for --probes on every "
+                                      "ray).")
+    tau_refine = typer.Option(None, "--tau-refine",
+                              help="Largest hydrometeor optical depth of a grid step, and "
+                                   "change of it at a cloud face, near the observer: thicker "
+                                   "steps and faces are halved (default: "
+                                   "MarchSettings().tau_refine, 0.25; 0 turns it off).")
+    stop_tau = typer.Option(None, "--stop-tau",
+                            help="Hydrometeor optical depth at which rays that do not look down "
+                                 "stop: opaque, the radiance unchanged (default: "
+                                 "MarchSettings().stop_tau, 50; 0 marches every ray to its end).")
+    lazy = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
+                                              "columns the camera can see (big grids; docs/rendering.md).")
+    coarsen = typer.Option(None, help="Keep one column of each block of N x N of the grid's columns, "
+                           "for a distant view of a big grid: an integer N, or 'auto' (the largest "
+                           "blocks no wider than a pixel's footprint on the grid; perspective cameras "
+                           "only). docs/rendering.md, 'Distant views of big grids'.")
+    adaptive = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
+                            "the image is not smooth, interpolating the rest (big images 3-6x faster; "
+                            "docs/rendering.md).")
+    tolerance = typer.Option(None, help="Relative radiance error allowed where --adaptive "
+                             "interpolates [-] (default: AdaptiveSampling().tolerance, 0.0085).")
+    tau_tolerance = typer.Option(None, "--tau-tolerance",
+                                 help="Relative error of the line-of-sight hydrometeor optical depth "
+                                      "allowed where --adaptive interpolates [-] (default: "
+                                      "AdaptiveSampling().tau_tolerance, 0.05).")
+    clear_tolerance = typer.Option(None, "--clear-tolerance",
+                                   help="Relative error of the radiance of the air in front of the "
+                                        "clouds allowed where --adaptive interpolates [-] (default: "
+                                        "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested).")
+    memory_check = typer.Option(True, "--memory-check/--no-memory-check",
+                                help="Refuse an image too big for the memory available (before any work).")
+    backend = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax or numba "
+                           "(docs/performance.md).")
+    grid_kernel = typer.Option("auto", "--grid-kernel", hidden=True, help="The JAX kernel's march of the grid: auto "
+                               "(fused on "
+                               "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
+                               "kernel), or fused-march (the clear air in it too: ~15 % faster per frame, ~40 s "
+                               "more compilation, for long series; docs/performance.md).")
+    ray_table = typer.Option(None, "--ray-table/--no-ray-table", hidden=True, help="Keep the camera's rays on "
+                             "the device between the frames of a series (the JAX kernel: "
+                             "ExecutionSettings.ray_table; default: on a GPU, docs/performance.md).")
+    step1a_on_device = typer.Option(None, "--step1a-on-device/--no-step1a-on-device", hidden=True, help="A "
+                                    "series' new suns: Step 1a on the device's copy of the packed "
+                                    "volume (the JAX kernel: ExecutionSettings.step1a_on_device; "
+                                    "default: on a GPU, docs/performance.md).")
+    device_sampling = typer.Option(None, "--device-sampling/--no-device-sampling", hidden=True, help="With "
+                                   "--adaptive and the camera's rays on the device (--ray-table): the "
+                                   "sampler's image, tests and interpolation on the device "
+                                   "(ExecutionSettings.device_sampling; default: wherever the ray table "
+                                   "is, docs/performance.md).")
+    device_image = typer.Option(None, "--device-image/--no-device-image", hidden=True, help="With the camera's "
+                                "rays on the device (--ray-table): the image's planes and its colour "
+                                "made on the device, then copied to the host at once "
+                                "(ExecutionSettings.device_image; default: on a GPU, "
+                                "docs/performance.md).")
+    fused_max_registers = typer.Option(None, "--fused-max-registers", hidden=True, help="Registers per thread "
+                                       "that the fused GPU kernel may take, 16-255 (PTX's .maxnreg; "
+                                       "ExecutionSettings.fused_max_registers; default: ptxas's choice, "
+                                       "docs/performance.md).")
+    fused_vector_loads = typer.Option(True, "--fused-vector-loads/--no-fused-vector-loads", hidden=True,
+                                      help="The fused GPU kernel reads its tables' channels up to four a load "
+                                      "(default) or "
+                                      "one scalar gather each (ExecutionSettings.fused_vector_loads; "
+                                      "docs/performance.md).")
+    fused_fma = typer.Option(False, "--fused-fma/--no-fused-fma", hidden=True, help="Let ptxas contract the fused GPU "
+                             "kernel's float32 multiplies and adds into fused multiply-adds (NVIDIA GPUs, "
+                             "jaxlib > 0.10.2; ExecutionSettings.fused_fma; docs/performance.md).")
+
+
 @app.command(epilog="GPU kernel tuning, not shown above: " + ", ".join(GPU_TUNING_OPTIONS)
              + " (MarchSettings; docs/performance.md).")
 def render(
-    scene: Optional[Path] = typer.Argument(None, help="Scene file (WRF wrfout netCDF, WPS geo_em/met_em netCDF, canonical "
-                                           "netCDF, SHDOM LES .txt); "
-                                                      "default: the built-in scene."),
-    time: Optional[str] = typer.Option(None, help="UTC time, ISO 8601 (default: the scene's time)."),
-    lat: Optional[float] = typer.Option(None, help="Observer latitude [deg] (default: domain centre)."),
-    lon: Optional[float] = typer.Option(None, help="Observer longitude [deg] (default: domain centre)."),
-    height: float = typer.Option(2.0, help="Observer height above the ground [m]."),
-    site: bool = typer.Option(False, "--site", help="No scene file: a cloud-free site at --lat/--lon (flat ground at "
-                              "--elevation, albedo --site-albedo) in the clear atmosphere of --aerosol/--aod."),
-    elevation: float = typer.Option(0.0, help="--site: ground elevation [m above sea level]."),
-    site_albedo: float = typer.Option(0.2, "--site-albedo", help="--site: ground albedo [-]."),
-    camera: CameraKind = typer.Option(CameraKind.allsky, help="Camera kind."),
-    size: int = typer.Option(511, help="All-sky image size [pixels]."),
-    width: int = typer.Option(1024, help="Panorama / perspective width [pixels]."),
-    image_height: int = typer.Option(512, "--image-height", help="Panorama / perspective height [pixels]."),
-    fov: Optional[float] = typer.Option(None, help="Perspective horizontal field of view [deg]."),
-    view_azimuth: Optional[float] = typer.Option(None, help="Perspective view azimuth [deg from north]."),
-    view_zenith: Optional[float] = typer.Option(None, help="Perspective view zenith angle [deg]."),
-    look_at: Optional[str] = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'."),
-    sun_zenith: Optional[float] = typer.Option(None, help="Override the sun zenith angle [deg]."),
-    sun_azimuth: Optional[float] = typer.Option(None, help="Override the sun azimuth [deg]."),
-    aerosol: str = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
-                                                    "sea_salt, stratospheric_sulfate (docs/aerosols.md); none: no "
-                                                    "background aerosol."),
-    aod: Optional[float] = typer.Option(None, help="Background aerosol optical depth at 550 nm (default 0.05; 0 "
-                                                   "where the scene has a 3-D aerosol field)."),
-    aerosol_ssa: Optional[str] = typer.Option(None, "--aerosol-ssa", help="The aerosol's own single-scattering "
-                                              "albedo: one value or 'w615,w546,w450' (replaces the type's)."),
-    aerosol_g: Optional[str] = typer.Option(None, "--aerosol-g", help="The aerosol's own asymmetry parameter "
-                                            "(Henyey-Greenstein): one value or three (615, 546, 450 nm)."),
-    aerosol_angstrom: Optional[float] = typer.Option(None, "--aerosol-angstrom", help="The aerosol's own "
-                                                     "Angstrom exponent [-]."),
-    aerosol_phase: Optional[Path] = typer.Option(None, "--aerosol-phase", help="The aerosol's own phase function: a "
-                                                 "text table of scattering angle [deg] and P (or P at 615, 546, "
-                                                 "450 nm), 0-180 deg."),
-    aerosol_scale_height: Optional[float] = typer.Option(None, "--aerosol-scale-height", help="Scale height of the "
-                                                         "background aerosol [km] (default 1.5)."),
-    strat_aod: float = typer.Option(0.0, "--strat-aod", help="Optical depth at 550 nm of a stratospheric "
-                                                             "(volcanic sulfate) aerosol layer at 20 km."),
-    strat_height: float = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km]."),
-    white_level: Optional[str] = typer.Option(None, help="Exposure: the L' mapped to display white before the "
-                                              "highlights roll off (default 1.5, 4 above 100 km), or 'auto' (from "
-                                              "the image's luminance)."),
-    exposure: float = typer.Option(0.0, help="Exposure shift in stops [EV] on top of --white-level: +1 is twice "
-                                             "as bright."),
-    albedo_image: Optional[Path] = typer.Option(None, "--albedo-image", help="Land albedo from an RGB image "
-                                                "(equirectangular, north up, e.g. Blue Marble; docs/surfaces.md)."),
-    albedo_image_bounds: str = typer.Option("-180,180,-90,90", "--albedo-image-bounds",
-                                            help="'west,east,south,north' [deg] covered by --albedo-image."),
-    albedo_image_scale: float = typer.Option(1.0, "--albedo-image-scale", help="Albedo of a white pixel of "
-                                             "--albedo-image [-]."),
-    surface: str = typer.Option("brdf", help="Ground reflectance: brdf (land hot spot, snow, sun glint on water) "
-                                "or lambertian (docs/surfaces.md)."),
-    cloud_scattering: str = typer.Option("discrete_ordinates", "--cloud-scattering",
-                                         help="How clouds scatter light: discrete_ordinates (a 3-D solution of the "
-                                         "diffuse light for the scene and sun, with Mie and ice phase functions and "
-                                         "cloud-ground interreflection; numba and JAX kernels; seconds per new scene "
-                                         "and sun; docs/rendering.md, '3-D cloud scattering') or albers2020 (the "
-                                         "paper's Eqs. 12-26: a new sun at once, every kernel)."),
-    cloud_phase: Optional[str] = typer.Option(None, "--cloud-phase",
-                                              help="Phase functions of --cloud-scattering discrete_ordinates: "
-                                              "physical (default: Mie droplets, roughened-aggregate ice) or "
-                                              "Henyey-Greenstein per phase, e.g. 'liquid=0.85,ice=0.75'."),
-    scene_lat: Optional[float] = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg]."),
-    scene_lon: Optional[float] = typer.Option(None, help="Place an LES scene: centre longitude [deg]."),
-    out: Optional[Path] = typer.Option(None, help="Image output path, PNG, JPEG or TIFF by its suffix (default swim.png); with --end a pattern such as "
-                                       "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height)."),
-    netcdf: Optional[Path] = typer.Option(None, help="Also write the radiance as CF netCDF here (a pattern with "
-                                          "--end)."),
-    end: Optional[str] = typer.Option(None, help="Render a time series from --time (default: the scene's time) to "
-                                      "this UTC time, ISO 8601: each frame from the scene file's nearest model time "
-                                      "(within 90 min), the sun moving."),
-    every: float = typer.Option(10.0, help="Time step of a series [min]."),
-    freeze_fields: bool = typer.Option(False, "--freeze-fields", help="A series from a scene file: render every frame "
-                                       "from the model time nearest to --time (frozen clouds, a moving sun) "
-                                       "instead of each frame's nearest model time within 90 min."),
-    workers: int = typer.Option(0, help="Render a series' frames on a local dask cluster of this many processes "
-                                "(0: one after the other in this process; needs dask.distributed)."),
-    scheduler: Optional[str] = typer.Option(None, help="Address of a running dask.distributed scheduler for a "
-                                            "series' frames (e.g. tcp://10.0.0.5:8786)."),
-    steps: Optional[int] = typer.Option(None, help="Ray-marching steps through the model grid (default: "
-                                                    "MarchSettings().n_grid, 128 adaptive steps)."),
-    empty_steps: Optional[int] = typer.Option(None, "--empty-steps",
-                                              help="Most grid steps a ray puts into empty grid cells, or one per 2 "
-                                                   "empty cells where it crosses more (default: a quarter of "
-                                                   "--steps, 32; 0: every ray takes --steps steps)."),
-    probes: Optional[int] = typer.Option(None, help="Occupancy probes per ray, at least, that place the grid steps "
-                                                     "(default: MarchSettings().n_probe, 64; 256 with --steps 256 for "
-                                                     "views that graze a big grid near the horizon)."),
-    probe_spacing: Optional[float] = typer.Option(None, "--probe-spacing",
-                                                  help="Most grid cells between a ray's occupancy probes: rays that "
-                                                       "cross more cells take more probes (default: "
-                                                       "MarchSettings().probe_spacing, 2; 0 for --probes on every "
-                                                       "ray)."),
-    tau_refine: Optional[float] = typer.Option(None, "--tau-refine",
-                                               help="Largest hydrometeor optical depth of a grid step, and "
-                                                    "change of it at a cloud face, near the observer: thicker "
-                                                    "steps and faces are halved (default: "
-                                                    "MarchSettings().tau_refine, 0.25; 0 turns it off)."),
-    stop_tau: Optional[float] = typer.Option(None, "--stop-tau",
-                                             help="Hydrometeor optical depth at which rays that do not look down "
-                                                  "stop: opaque, the radiance unchanged (default: "
-                                                  "MarchSettings().stop_tau, 50; 0 marches every ray to its end)."),
-    lazy: bool = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
-                                                    "columns the camera can see (big grids; docs/rendering.md)."),
-    coarsen: Optional[str] = typer.Option(None, help="Keep one column of each block of N x N of the grid's columns, "
-                                          "for a distant view of a big grid: an integer N, or 'auto' (the largest "
-                                          "blocks no wider than a pixel's footprint on the grid; perspective cameras "
-                                          "only). docs/rendering.md, 'Distant views of big grids'."),
-    adaptive: bool = typer.Option(False, "--adaptive", help="Trace a coarse lattice of pixels and refine only where "
-                                  "the image is not smooth, interpolating the rest (big images 3-6x faster; "
-                                  "docs/rendering.md)."),
-    tolerance: Optional[float] = typer.Option(None, help="Relative radiance error allowed where --adaptive "
-                                              "interpolates [-] (default: AdaptiveSampling().tolerance, 0.0085)."),
-    tau_tolerance: Optional[float] = typer.Option(None, "--tau-tolerance",
-                                                  help="Relative error of the line-of-sight hydrometeor optical depth "
-                                                       "allowed where --adaptive interpolates [-] (default: "
-                                                       "AdaptiveSampling().tau_tolerance, 0.05)."),
-    clear_tolerance: Optional[float] = typer.Option(None, "--clear-tolerance",
-                                                    help="Relative error of the radiance of the air in front of the "
-                                                         "clouds allowed where --adaptive interpolates [-] (default: "
-                                                         "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested)."),
-    memory_check: bool = typer.Option(True, "--memory-check/--no-memory-check",
-                                      help="Refuse an image too big for the memory available (before any work)."),
-    backend: str = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax or numba "
-                                "(docs/performance.md)."),
-    grid_kernel: str = typer.Option("auto", "--grid-kernel", hidden=True, help="The JAX kernel's march of the grid: auto (fused on "
-                                    "a GPU, else lockstep), lockstep (XLA's loops; gradients), fused (one Pallas "
-                                    "kernel), or fused-march (the clear air in it too: ~15 % faster per frame, ~40 s "
-                                    "more compilation, for long series; docs/performance.md)."),
-    ray_table: Optional[bool] = typer.Option(None, "--ray-table/--no-ray-table", hidden=True, help="Keep the camera's rays on "
-                                             "the device between the frames of a series (the JAX kernel: "
-                                             "MarchSettings.ray_table; default: on a GPU, docs/performance.md)."),
-    step1a_on_device: Optional[bool] = typer.Option(None, "--step1a-on-device/--no-step1a-on-device", hidden=True, help="A "
-                                                    "series' new suns: Step 1a on the device's copy of the packed "
-                                                    "volume (the JAX kernel: MarchSettings.step1a_on_device; "
-                                                    "default: on a GPU, docs/performance.md)."),
-    device_sampling: Optional[bool] = typer.Option(None, "--device-sampling/--no-device-sampling", hidden=True, help="With "
-                                                   "--adaptive and the camera's rays on the device (--ray-table): the "
-                                                   "sampler's image, tests and interpolation on the device "
-                                                   "(MarchSettings.device_sampling; default: wherever the ray table "
-                                                   "is, docs/performance.md)."),
-    device_image: Optional[bool] = typer.Option(None, "--device-image/--no-device-image", hidden=True, help="With the camera's "
-                                                "rays on the device (--ray-table): the image's planes and its colour "
-                                                "made on the device, then copied to the host at once "
-                                                "(MarchSettings.device_image; default: on a GPU, "
-                                                "docs/performance.md)."),
-    fused_max_registers: Optional[int] = typer.Option(None, "--fused-max-registers", hidden=True, help="Registers per thread "
-                                                      "that the fused GPU kernel may take, 16-255 (PTX's .maxnreg; "
-                                                      "MarchSettings.fused_max_registers; default: ptxas's choice, "
-                                                      "docs/performance.md)."),
-    fused_vector_loads: bool = typer.Option(True, "--fused-vector-loads/--no-fused-vector-loads", hidden=True, help="The fused "
-                                            "GPU kernel reads its tables' channels up to four a load (default) or "
-                                            "one scalar gather each (MarchSettings.fused_vector_loads; "
-                                            "docs/performance.md)."),
-    fused_fma: bool = typer.Option(False, "--fused-fma/--no-fused-fma", hidden=True, help="Let ptxas contract the fused GPU "
-                                   "kernel's float32 multiplies and adds into fused multiply-adds (NVIDIA GPUs, "
-                                   "jaxlib > 0.10.2; MarchSettings.fused_fma; docs/performance.md)."),
+    scene: Optional[Path] = _RenderOptions.scene, time: Optional[str] = _RenderOptions.time,
+    lat: Optional[float] = _RenderOptions.lat, lon: Optional[float] = _RenderOptions.lon,
+    height: float = _RenderOptions.height, site: bool = _RenderOptions.site,
+    elevation: float = _RenderOptions.elevation, site_albedo: float = _RenderOptions.site_albedo,
+    camera: CameraKind = _RenderOptions.camera, size: int = _RenderOptions.size, width: int = _RenderOptions.width,
+    image_height: int = _RenderOptions.image_height, fov: Optional[float] = _RenderOptions.fov,
+    view_azimuth: Optional[float] = _RenderOptions.view_azimuth,
+    view_zenith: Optional[float] = _RenderOptions.view_zenith, look_at: Optional[str] = _RenderOptions.look_at,
+    sun_zenith: Optional[float] = _RenderOptions.sun_zenith, sun_azimuth: Optional[float] = _RenderOptions.sun_azimuth,
+    aerosol: str = _RenderOptions.aerosol, aod: Optional[float] = _RenderOptions.aod,
+    aerosol_ssa: Optional[str] = _RenderOptions.aerosol_ssa, aerosol_g: Optional[str] = _RenderOptions.aerosol_g,
+    aerosol_angstrom: Optional[float] = _RenderOptions.aerosol_angstrom,
+    aerosol_phase: Optional[Path] = _RenderOptions.aerosol_phase,
+    aerosol_scale_height: Optional[float] = _RenderOptions.aerosol_scale_height,
+    strat_aod: float = _RenderOptions.strat_aod, strat_height: float = _RenderOptions.strat_height,
+    white_level: Optional[str] = _RenderOptions.white_level, exposure: float = _RenderOptions.exposure,
+    albedo_image: Optional[Path] = _RenderOptions.albedo_image,
+    albedo_image_bounds: str = _RenderOptions.albedo_image_bounds,
+    albedo_image_scale: float = _RenderOptions.albedo_image_scale, surface: str = _RenderOptions.surface,
+    cloud_scattering: str = _RenderOptions.cloud_scattering, cloud_phase: Optional[str] = _RenderOptions.cloud_phase,
+    scene_lat: Optional[float] = _RenderOptions.scene_lat, scene_lon: Optional[float] = _RenderOptions.scene_lon,
+    out: Optional[Path] = _RenderOptions.out, netcdf: Optional[Path] = _RenderOptions.netcdf,
+    end: Optional[str] = _RenderOptions.end, every: float = _RenderOptions.every,
+    freeze_fields: bool = _RenderOptions.freeze_fields, workers: int = _RenderOptions.workers,
+    scheduler: Optional[str] = _RenderOptions.scheduler, steps: Optional[int] = _RenderOptions.steps,
+    empty_steps: Optional[int] = _RenderOptions.empty_steps, probes: Optional[int] = _RenderOptions.probes,
+    probe_spacing: Optional[float] = _RenderOptions.probe_spacing,
+    tau_refine: Optional[float] = _RenderOptions.tau_refine, stop_tau: Optional[float] = _RenderOptions.stop_tau,
+    lazy: bool = _RenderOptions.lazy, coarsen: Optional[str] = _RenderOptions.coarsen,
+    adaptive: bool = _RenderOptions.adaptive, tolerance: Optional[float] = _RenderOptions.tolerance,
+    tau_tolerance: Optional[float] = _RenderOptions.tau_tolerance,
+    clear_tolerance: Optional[float] = _RenderOptions.clear_tolerance, memory_check: bool = _RenderOptions.memory_check,
+    backend: str = _RenderOptions.backend, grid_kernel: str = _RenderOptions.grid_kernel,
+    ray_table: Optional[bool] = _RenderOptions.ray_table,
+    step1a_on_device: Optional[bool] = _RenderOptions.step1a_on_device,
+    device_sampling: Optional[bool] = _RenderOptions.device_sampling,
+    device_image: Optional[bool] = _RenderOptions.device_image,
+    fused_max_registers: Optional[int] = _RenderOptions.fused_max_registers,
+    fused_vector_loads: bool = _RenderOptions.fused_vector_loads, fused_fma: bool = _RenderOptions.fused_fma,
 ):
     """Render an all-sky, panorama or perspective image of a scene, or a time series of them (--end)."""
     from ..rt import precompile
 
     precompile.start_early(backend)  # on a cold numba cache: the march compiles in a helper while the rest loads
-    from .. import default_scene, open_scene
-    from ..geometry.level_of_detail import check_coarsening
-    from ..io.atomic import check_output_path
-    from ..pipeline import image_format, render as render_image, write_outputs
-    from ..rt.gas import AerosolBackground
-    from ..rt.image_sampling import AdaptiveSampling
-    from ..rt.march_settings import MarchSettings
-
-    modules_loaded()
+    _load_render_modules()
     try:
         if end is None and not workers and not scheduler:  # a series checks each frame's files (render_series)
-            # the outputs before any work: a render that cannot be written is not started
-            image_format(Path("swim.png") if out is None else out, "--out")
-            check_output_path(Path("swim.png") if out is None else out, "--out")
-            if netcdf is not None:
-                check_output_path(netcdf, "--netcdf")
-        place = {}
-        if scene_lat is not None or scene_lon is not None:
-            if scene is None or scene.suffix.lower() not in (".txt", ".lwc", ".dat"):
-                raise SwimInputError("--scene-lat/--scene-lon place LES text scenes only; other scenes carry coordinates")
-            place = {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
+            _check_outputs(out, netcdf)
+        place = _les_placement(scene, scene_lat, scene_lon)
         if lazy and scene is None:
             raise SwimInputError("--lazy needs a scene file (a canonical scene netCDF file)")
-        level_of_detail = None if coarsen is None else coarsen.strip().lower()  # checked before the scene is opened
-        if level_of_detail not in (None, "auto"):
-            try:
-                level_of_detail = int(level_of_detail)
-            except ValueError:
-                raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
-        check_coarsening(level_of_detail)
+        level_of_detail = _level_of_detail(coarsen)  # checked before the scene is opened
         if site:
             ds = _site_scene(scene, lat, lon, elevation, site_albedo, time, sun_zenith)
-        elif scene is None:
-            ds = default_scene()
         else:
-            ds = open_scene(scene, lazy=lazy, time=time, **place)
+            ds = _scene_file(scene, lazy, time, place)
         if albedo_image is not None:
-            from ..surface.albedo import scene_with_albedo_from_image
-
-            try:
-                bounds = tuple(float(v) for v in albedo_image_bounds.split(","))
-                assert len(bounds) == 4
-            except (ValueError, AssertionError):
-                raise SwimInputError("--albedo-image-bounds must be 'west,east,south,north' [deg], got "
-                                     f"{albedo_image_bounds!r}") from None
-            ds = scene_with_albedo_from_image(ds, albedo_image, bounds=bounds, scale=albedo_image_scale)
-        options = {"allsky": {"size": size},
-                   "panorama": {"width": width, "height": image_height},
-                   "perspective": {"width": width, "height": image_height}}[camera.value]
-        if view_zenith is not None and view_azimuth is None:
-            raise SwimInputError("--view-zenith needs --view-azimuth (the view's direction is both angles)")
-        if camera is CameraKind.perspective:
-            if fov is not None:
-                options["fov_deg"] = fov
-            elif view_azimuth is not None or look_at is not None:
-                options["fov_deg"] = 60.0
-            if view_azimuth is not None:
-                options.update(view_azimuth_deg=view_azimuth, view_zenith_deg=90.0 if view_zenith is None else view_zenith)
-        strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height,
-                 **_aerosol_optics(aerosol, aerosol_ssa, aerosol_g, aerosol_angstrom, aerosol_phase,
-                                   aerosol_scale_height)}
-        if aerosol.strip().lower() == "none":  # no background aerosol (a scene's 3-D aerosol field stays)
-            if aod is not None and aod != 0:
-                raise SwimInputError(f"--aerosol none has no optical depth; got --aod {aod}")
-            aerosol, aod = "continental", 0.0
-        if aod is not None:
-            background = AerosolBackground(aod_550=aod, type_name=aerosol, **strat)
-        elif "aerosol_extinction" in ds:
-            background = AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
-        else:
-            background = AerosolBackground(type_name=aerosol, **strat)
-        sampling = AdaptiveSampling(**_given(tolerance=tolerance, tau_tolerance=tau_tolerance,
-                                             clear_tolerance=clear_tolerance)) if adaptive else None
-        target = None
-        if look_at is not None:
-            try:
-                target = tuple(float(v) for v in look_at.split(","))
-                assert len(target) == 3
-            except (ValueError, AssertionError):
-                raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
-        settings = MarchSettings(surface=surface, cloud_scattering=_cloud_scattering(cloud_scattering, cloud_phase),
-                                 backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
-                                 step1a_on_device=step1a_on_device, device_sampling=device_sampling,
-                                 device_image=device_image, fused_max_registers=fused_max_registers,
-                                 fused_vector_loads=fused_vector_loads, fused_fma=fused_fma,
-                                 **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
-                                          probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
+            ds = _with_albedo_image(ds, albedo_image, albedo_image_bounds, albedo_image_scale)
+        options = _camera_options(camera, size, width, image_height, fov, view_azimuth, view_zenith, look_at)
+        background = _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, aerosol_ssa, aerosol_g,
+                                         aerosol_angstrom, aerosol_phase, aerosol_scale_height)
+        sampling = _adaptive_sampling(tolerance, tau_tolerance, clear_tolerance) if adaptive else None
+        target = None if look_at is None else _look_at_target(look_at)
+        settings = _march_settings(surface, cloud_scattering, cloud_phase, backend, grid_kernel, ray_table,
+                                   step1a_on_device, device_sampling, device_image, fused_max_registers,
+                                   fused_vector_loads, fused_fma, steps, probes, empty_steps, probe_spacing,
+                                   tau_refine, stop_tau)
         common = dict(lat=lat, lon=lon, height=height, camera=camera.value, camera_options=options,
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                       settings=settings, white_level=_white_level(white_level), exposure=exposure,
@@ -444,18 +428,165 @@ def render(
             _render_series(ds, source, time, end, every, workers, scheduler, out, netcdf, common, freeze_fields)
             return
         out = Path("swim.png") if out is None else out
-        with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                      TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
-                      disable=QUIET["on"]) as bar:
-            task = bar.add_task("render", total=1.0)
-            image = render_image(ds, time=time, progress=lambda done, total: bar.update(task, completed=done / total),
-                                 **common)
-        write_outputs(image, out, netcdf)
+        image = _render_image(ds, time, out, netcdf, common)
     except SwimInputError as exc:
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
     _report(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
                   + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
+
+
+def _load_render_modules():
+    """Import the modules a render runs, then :func:`modules_loaded`, which freezes what these imports created too."""
+    # the helpers import these names again where they use them; here they load before the freeze
+    from .. import default_scene, open_scene  # noqa: F401
+    from ..geometry.level_of_detail import check_coarsening  # noqa: F401
+    from ..io.atomic import check_output_path  # noqa: F401
+    from ..pipeline import image_format, render as render_image, write_outputs  # noqa: F401
+    from ..rt.gas import AerosolBackground  # noqa: F401
+    from ..rt.image_sampling import AdaptiveSampling  # noqa: F401
+    from ..rt.march_settings import MarchSettings  # noqa: F401
+
+    modules_loaded()
+
+
+def _check_outputs(out, netcdf):
+    """--out and --netcdf before any work: a render that cannot be written is not started."""
+    from ..io.atomic import check_output_path
+    from ..pipeline import image_format
+
+    image_format(Path("swim.png") if out is None else out, "--out")
+    check_output_path(Path("swim.png") if out is None else out, "--out")
+    if netcdf is not None:
+        check_output_path(netcdf, "--netcdf")
+
+
+def _les_placement(scene, scene_lat, scene_lon):
+    """The reader options of --scene-lat/--scene-lon, which place an LES text scene (none where not given)."""
+    if scene_lat is None and scene_lon is None:
+        return {}
+    if scene is None or scene.suffix.lower() not in (".txt", ".lwc", ".dat"):
+        raise SwimInputError("--scene-lat/--scene-lon place LES text scenes only; other scenes carry coordinates")
+    return {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
+
+
+def _level_of_detail(coarsen):
+    """--coarsen as :func:`swim.geometry.level_of_detail.check_coarsening` takes it: None, 'auto' or a block size."""
+    from ..geometry.level_of_detail import check_coarsening
+
+    level_of_detail = None if coarsen is None else coarsen.strip().lower()
+    if level_of_detail not in (None, "auto"):
+        try:
+            level_of_detail = int(level_of_detail)
+        except ValueError:
+            raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
+    check_coarsening(level_of_detail)
+    return level_of_detail
+
+
+def _scene_file(scene, lazy, time, place):
+    """The scene of the SCENE argument, or the built-in scene where none is given."""
+    from .. import default_scene, open_scene
+
+    if scene is None:
+        return default_scene()
+    return open_scene(scene, lazy=lazy, time=time, **place)
+
+
+def _with_albedo_image(ds, albedo_image, bounds_text, scale):
+    """The scene with the land albedo of --albedo-image over --albedo-image-bounds."""
+    from ..surface.albedo import scene_with_albedo_from_image
+
+    try:
+        bounds = tuple(float(v) for v in bounds_text.split(","))
+        assert len(bounds) == 4
+    except (ValueError, AssertionError):
+        raise SwimInputError("--albedo-image-bounds must be 'west,east,south,north' [deg], got "
+                             f"{bounds_text!r}") from None
+    return scene_with_albedo_from_image(ds, albedo_image, bounds=bounds, scale=scale)
+
+
+def _camera_options(camera, size, width, image_height, fov, view_azimuth, view_zenith, look_at):
+    """The camera's options of :func:`swim.render`: its image size and, for a perspective camera, its view."""
+    options = {"allsky": {"size": size},
+               "panorama": {"width": width, "height": image_height},
+               "perspective": {"width": width, "height": image_height}}[camera.value]
+    if view_zenith is not None and view_azimuth is None:
+        raise SwimInputError("--view-zenith needs --view-azimuth (the view's direction is both angles)")
+    if camera is CameraKind.perspective:
+        if fov is not None:
+            options["fov_deg"] = fov
+        elif view_azimuth is not None or look_at is not None:
+            options["fov_deg"] = 60.0
+        if view_azimuth is not None:
+            options.update(view_azimuth_deg=view_azimuth, view_zenith_deg=90.0 if view_zenith is None else view_zenith)
+    return options
+
+
+def _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, ssa, g, angstrom, phase, scale_height_km):
+    """The :class:`swim.rt.gas.AerosolBackground` of the --aerosol, --aod and --strat-* options."""
+    from ..rt.gas import AerosolBackground
+
+    strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height,
+             **_aerosol_optics(aerosol, ssa, g, angstrom, phase, scale_height_km)}
+    if aerosol.strip().lower() == "none":  # no background aerosol (a scene's 3-D aerosol field stays)
+        if aod is not None and aod != 0:
+            raise SwimInputError(f"--aerosol none has no optical depth; got --aod {aod}")
+        aerosol, aod = "continental", 0.0
+    if aod is not None:
+        return AerosolBackground(aod_550=aod, type_name=aerosol, **strat)
+    if "aerosol_extinction" in ds:
+        return AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
+    return AerosolBackground(type_name=aerosol, **strat)
+
+
+def _adaptive_sampling(tolerance, tau_tolerance, clear_tolerance):
+    """The :class:`swim.rt.image_sampling.AdaptiveSampling` of --adaptive and its tolerances."""
+    from ..rt.image_sampling import AdaptiveSampling
+
+    return AdaptiveSampling(**_given(tolerance=tolerance, tau_tolerance=tau_tolerance,
+                                     clear_tolerance=clear_tolerance))
+
+
+def _look_at_target(look_at):
+    """--look-at as (lat, lon, height_m_asl)."""
+    try:
+        target = tuple(float(v) for v in look_at.split(","))
+        assert len(target) == 3
+    except (ValueError, AssertionError):
+        raise SwimInputError(f"--look-at must be 'lat,lon,height_m_asl', got {look_at!r}") from None
+    return target
+
+
+def _march_settings(surface, cloud_scattering, cloud_phase, backend, grid_kernel, ray_table, step1a_on_device,
+                    device_sampling, device_image, fused_max_registers, fused_vector_loads, fused_fma, steps, probes,
+                    empty_steps, probe_spacing, tau_refine, stop_tau):
+    """The :class:`swim.rt.march_settings.MarchSettings` of the render's options, with their
+    :class:`swim.rt.march_settings.ExecutionSettings`."""
+    from ..rt.march_settings import ExecutionSettings, MarchSettings
+
+    execution = ExecutionSettings(backend=backend, grid_kernel=grid_kernel, ray_table=ray_table,
+                                  step1a_on_device=step1a_on_device, device_sampling=device_sampling,
+                                  device_image=device_image, fused_max_registers=fused_max_registers,
+                                  fused_vector_loads=fused_vector_loads, fused_fma=fused_fma)
+    return MarchSettings(surface=surface, cloud_scattering=_cloud_scattering(cloud_scattering, cloud_phase),
+                         execution=execution,
+                         **_given(n_grid=steps, n_probe=probes, empty_steps=empty_steps,
+                                  probe_spacing=probe_spacing, tau_refine=tau_refine, stop_tau=stop_tau))
+
+
+def _render_image(ds, time, out, netcdf, common):
+    """One image, with a progress bar, written to ``out`` (and ``netcdf``); returns the image."""
+    from ..pipeline import render as render_image, write_outputs
+
+    with Progress(TextColumn("[bold]rendering"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True,
+                  disable=QUIET["on"]) as bar:
+        task = bar.add_task("render", total=1.0)
+        image = render_image(ds, time=time, progress=lambda done, total: bar.update(task, completed=done / total),
+                             **common)
+    write_outputs(image, out, netcdf)
+    return image
 
 
 def _render_series(scene, source, start, end, every, workers, scheduler, out, netcdf, common, freeze_fields=False):

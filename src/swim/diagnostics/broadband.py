@@ -462,37 +462,80 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
     A sample with the sun below the horizon (zenith >= 90 deg) has DNI = direct_horizontal = 0; its diffuse
     light is converted with the shape at zenith 89.5 deg (twilight; a few W m-2 at most).
     """
-    from scipy.optimize import nnls
-    from pvlib.spectrum import spectrl2
+    channels = _checked_channels(wavelengths_nm)
+    scalar = np.ndim(dni_relative) == 1 and np.ndim(sun_zenith_deg) == 0
+    t_dir, d_rel = _relative_arrays(dni_relative, dhi_relative, channels)
+    n = t_dir.shape[0]
+    zen, p, pw, o3, r, albedo = _sample_parameters(n, sun_zenith_deg, pressure_pa, precipitable_water_cm,
+                                                   ozone_atm_cm, earth_sun_distance_au, surface_albedo)
+    _check_ranges(t_dir, d_rel, aerosol_ssa_400nm, aerosol_asymmetry, clear_sky_aod_550)
+    wl, e0, weight = _extraterrestrial(spectrum, solar_constant_w_m2, r, band_nm)
+    zs, am, tau_r_grid, tau_r_chan, t_gas = _a_priori_atmosphere(zen, p, pw, o3, wl, channels, latitude_deg,
+                                                                 elevation_m)
 
+    # Step 2: direct beam.
+    t_model, beta, alpha, hidden = _direct_beam(t_dir, zen, channels, wl, tau_r_grid, tau_r_chan)
+    dni_spectral = e0 * t_model * t_gas
+
+    # Step 3: diffuse light, shaped by SPCTRL2 for the fitted (or fallback) aerosol.
+    shape_free, shape_gas = _diffuse_shapes(zs, am, p, pw, o3, albedo, beta, alpha, hidden, clear_sky_aod_550,
+                                            aerosol_ssa_400nm, aerosol_asymmetry)
+    scale, grey, dhi_rel_grid = _fit_diffuse(d_rel, _channel_values(shape_free, wl, channels), shape_gas, t_gas,
+                                             channels, wl)
+    dhi_spectral = e0 * dhi_rel_grid
+
+    out = _integrated(weight, dni_spectral, dhi_spectral, zen, am, beta, alpha, hidden, scale, grey)
+    if scalar:
+        out = {k: v[0] for k, v in out.items()}
+    if return_spectra:
+        out.update(wavelength_nm=wl, dni_spectral=dni_spectral, dhi_spectral=dhi_spectral)
+    return out
+
+
+def _checked_channels(wavelengths_nm):
+    """The channels' wavelengths (C,) [nm]: at least two, distinct, within 300-1000 nm."""
     channels = np.asarray(wavelengths_nm, dtype=float).ravel()
     if channels.size < 2 or np.any(~np.isfinite(channels)) or np.any(channels < 300) or np.any(channels > 1000):
         raise SwimInputError(f"wavelengths_nm must hold >= 2 wavelengths within 300-1000 nm, got {wavelengths_nm!r}")
     if np.unique(channels).size != channels.size:
         raise SwimInputError(f"wavelengths_nm must be distinct, got {wavelengths_nm!r}")
-    scalar = np.ndim(dni_relative) == 1 and np.ndim(sun_zenith_deg) == 0
+    return channels
+
+
+def _relative_arrays(dni_relative, dhi_relative, channels):
+    """The relative direct and diffuse irradiances as arrays (N, C); raises where their shapes differ."""
     t_dir = np.atleast_2d(np.asarray(dni_relative, dtype=float))
     d_rel = np.atleast_2d(np.asarray(dhi_relative, dtype=float))
     if t_dir.shape != d_rel.shape or t_dir.shape[1] != channels.size:
         raise SwimInputError(f"dni_relative and dhi_relative must both have shape (N, {channels.size}); got "
                              f"{np.shape(dni_relative)} and {np.shape(dhi_relative)}")
-    n = t_dir.shape[0]
+    return t_dir, d_rel
 
-    def per_sample(name, value, lo, hi, unit):
-        a = np.asarray(value, dtype=float)
-        if a.ndim > 1 or (a.ndim == 1 and a.size != n):
-            raise SwimInputError(f"{name} must be a scalar or have shape ({n},); got {a.shape}")
-        a = np.broadcast_to(a, (n,)).astype(float)
-        if np.any(~np.isfinite(a)) or np.any(a < lo) or np.any(a > hi):
-            raise SwimInputError(f"{name} must be finite and within [{lo}, {hi}] [{unit}]; got {value!r}")
-        return a
 
-    zen = per_sample("sun_zenith_deg", sun_zenith_deg, 0.0, 180.0, "deg")
-    p = per_sample("pressure_pa", pressure_pa, 0.0, 110_000.0, "Pa")
-    pw = per_sample("precipitable_water_cm", precipitable_water_cm, 0.0, 10.0, "cm")
-    o3 = per_sample("ozone_atm_cm", ozone_atm_cm, 0.0, 1.0, "atm-cm")
-    r = per_sample("earth_sun_distance_au", earth_sun_distance_au, 0.9, 1.1, "AU")
-    albedo = per_sample("surface_albedo", surface_albedo, 0.0, 1.0, "1")
+def _per_sample(name, value, lo, hi, unit, n):
+    """A scalar or (n,) parameter as an array (n,), checked to be finite and within [lo, hi]."""
+    a = np.asarray(value, dtype=float)
+    if a.ndim > 1 or (a.ndim == 1 and a.size != n):
+        raise SwimInputError(f"{name} must be a scalar or have shape ({n},); got {a.shape}")
+    a = np.broadcast_to(a, (n,)).astype(float)
+    if np.any(~np.isfinite(a)) or np.any(a < lo) or np.any(a > hi):
+        raise SwimInputError(f"{name} must be finite and within [{lo}, {hi}] [{unit}]; got {value!r}")
+    return a
+
+
+def _sample_parameters(n, sun_zenith_deg, pressure_pa, precipitable_water_cm, ozone_atm_cm, earth_sun_distance_au,
+                       surface_albedo):
+    """The per-sample parameters as arrays (n,), each checked (:func:`_per_sample`)."""
+    return (_per_sample("sun_zenith_deg", sun_zenith_deg, 0.0, 180.0, "deg", n),
+            _per_sample("pressure_pa", pressure_pa, 0.0, 110_000.0, "Pa", n),
+            _per_sample("precipitable_water_cm", precipitable_water_cm, 0.0, 10.0, "cm", n),
+            _per_sample("ozone_atm_cm", ozone_atm_cm, 0.0, 1.0, "atm-cm", n),
+            _per_sample("earth_sun_distance_au", earth_sun_distance_au, 0.9, 1.1, "AU", n),
+            _per_sample("surface_albedo", surface_albedo, 0.0, 1.0, "1", n))
+
+
+def _check_ranges(t_dir, d_rel, aerosol_ssa_400nm, aerosol_asymmetry, clear_sky_aod_550):
+    """Raise where the aerosol's shape parameters or the relative irradiances are out of range."""
     for name, value, lo, hi in (("aerosol_ssa_400nm", aerosol_ssa_400nm, 0.3, 1.0),
                                 ("aerosol_asymmetry", aerosol_asymmetry, 0.0, 0.95),
                                 ("clear_sky_aod_550", clear_sky_aod_550, 0.0, 5.0)):
@@ -503,21 +546,34 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
     if np.any(~np.isfinite(d_rel)) or np.any(d_rel < 0):
         raise SwimInputError("dhi_relative must be finite and >= 0")
 
+
+def _extraterrestrial(spectrum, solar_constant_w_m2, earth_sun_distance_au, band_nm):
+    """Step 1: the SPCTRL2 grid (n_wl,) [nm], E0 on it (n_wl, N) [W m-2 nm-1] and the band's weights (n_wl, 1)."""
     spec = reference_spectrum() if spectrum is None else spectrum
     wl = spectrl2_wavelengths()
     if spec.wavelength_nm.shape != wl.shape or np.max(np.abs(spec.wavelength_nm - wl)) > 1e-6:
         raise SwimInputError("the reference spectrum must be on the SPCTRL2 wavelengths (spectrl2_wavelengths())")
-    e0 = spec.scaled(solar_constant_w_m2, r)  # (n_wl, N)
+    e0 = spec.scaled(solar_constant_w_m2, earth_sun_distance_au)  # (n_wl, N)
     weight = spec.band_weights(band_nm)[:, None]
+    return wl, e0, weight
 
+
+def _a_priori_atmosphere(zen, p, pw, o3, wl, channels, latitude_deg, elevation_m):
+    """What is known without the renders: the zenith of the spectral shapes (N,) [deg], the relative air mass (N,),
+    the slant Rayleigh optical depths on the grid (n_wl, N) and at the channels (C, N), and the gases'
+    transmittance (n_wl, N)."""
     zs = np.minimum(zen, MAX_SHAPE_ZENITH_DEG)
-    mu0 = np.maximum(np.cos(np.radians(zen)), 0.0)
     am = relative_airmass(zs)
     tau_r_grid = rayleigh_optical_depth(wl, p, latitude_deg, elevation_m) * am[None, :]  # slant (n_wl, N)
     tau_r_chan = rayleigh_optical_depth(channels, p, latitude_deg, elevation_m) * am[None, :]  # (C, N)
     t_gas = gas_transmittance(zs, p, pw, o3)  # (n_wl, N)
+    return zs, am, tau_r_grid, tau_r_chan, t_gas
 
-    # Step 2: direct beam.
+
+def _direct_beam(t_dir, zen, channels, wl, tau_r_grid, tau_r_chan):
+    """Step 2: the direct beam's transmittance on the grid (n_wl, N), the Angstrom fit (beta, alpha) (N,) and
+    whether the sun is hidden (N,)."""
+    n = t_dir.shape[0]
     t_model = np.zeros((wl.size, n))
     beta = np.zeros(n)
     alpha = np.zeros(n)
@@ -534,9 +590,16 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
         fitted = np.exp(-tau_r_chan[:, k] - beta[k] * (channels / 550.0) ** (-alpha[k]))
         ratio = np.where(fitted > 0, t_dir[k] / np.maximum(fitted, 1e-300), 1.0)
         t_model[:, k] = np.exp(-tau_r_grid[:, k] - tau_rest_grid) * _channel_ratio_on_grid(ratio, channels, wl)
-    dni_spectral = e0 * t_model * t_gas
+    return t_model, beta, alpha, hidden
 
-    # Step 3: diffuse light, shaped by SPCTRL2 for the fitted (or fallback) aerosol.
+
+def _diffuse_shapes(zs, am, p, pw, o3, albedo, beta, alpha, hidden, clear_sky_aod_550, aerosol_ssa_400nm,
+                    aerosol_asymmetry):
+    """Step 3: SPCTRL2's clear-sky diffuse / E0 on the grid (n_wl, N) [-], without gases and with them, for the
+    fitted aerosol (``clear_sky_aod_550`` where the sun is hidden)."""
+    from pvlib.spectrum import spectrl2
+
+    n = zs.shape[0]
     aod500 = np.where(hidden, clear_sky_aod_550 * (500.0 / 550.0) ** -1.3,
                       np.where(np.isfinite(beta), beta, 0.0) * (500.0 / 550.0) ** (-alpha) / am)
     alpha_shape = np.where(hidden, 1.3, alpha)
@@ -549,7 +612,17 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
         gassy = spectrl2(precipitable_water=pw, ozone=o3, **common)
     shape_free = np.nan_to_num(np.asarray(free["dhi"]) / np.asarray(free["dni_extra"]))  # (n_wl, N) [-]
     shape_gas = np.nan_to_num(np.asarray(gassy["dhi"]) / np.asarray(gassy["dni_extra"]))
-    shape_chan = _channel_values(shape_free, wl, channels)  # (C, N)
+    return shape_free, shape_gas
+
+
+def _fit_diffuse(d_rel, shape_chan, shape_gas, t_gas, channels, wl):
+    """Step 3: swim's diffuse light fitted as a x SPCTRL2 + g at the channels, and its reconstruction on the grid.
+
+    Returns the scale a (N,), the grey part g (N,) and the relative diffuse on the grid (n_wl, N) [-].
+    """
+    from scipy.optimize import nnls
+
+    n = d_rel.shape[0]
     scale = np.zeros(n)
     grey = np.zeros(n)
     dhi_rel_grid = np.zeros((wl.size, n))
@@ -562,12 +635,17 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
         (scale[k], grey[k]), _ = nnls(design, target * w_rows)
         fitted = scale[k] * shape_chan[:, k] + grey[k]
         ratio = np.where(fitted > 0, target / np.maximum(fitted, 1e-300), 1.0)
-        dhi_rel_grid[:, k] = (scale[k] * shape_gas[:, k] + grey[k] * t_gas[:, k]) * _channel_ratio_on_grid(ratio, channels, wl)
-    dhi_spectral = e0 * dhi_rel_grid
+        dhi_rel_grid[:, k] = ((scale[k] * shape_gas[:, k] + grey[k] * t_gas[:, k])
+                              * _channel_ratio_on_grid(ratio, channels, wl))
+    return scale, grey, dhi_rel_grid
 
+
+def _integrated(weight, dni_spectral, dhi_spectral, zen, am, beta, alpha, hidden, scale, grey):
+    """Step 5: the band's DNI, DHI and GHI [W m-2] (N,) and the fits' diagnostics (N,)."""
+    mu0 = np.maximum(np.cos(np.radians(zen)), 0.0)
     dni = np.sum(weight * dni_spectral, axis=0)
     dhi = np.sum(weight * dhi_spectral, axis=0)
-    out = {
+    return {
         "ghi": dhi + mu0 * dni,
         "dni": dni,
         "dhi": dhi,
@@ -577,11 +655,6 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
         "diffuse_scale": scale,
         "diffuse_grey": grey,
     }
-    if scalar:
-        out = {k: v[0] for k, v in out.items()}
-    if return_spectra:
-        out.update(wavelength_nm=wl, dni_spectral=dni_spectral, dhi_spectral=dhi_spectral)
-    return out
 
 
 def broadband_from_sky(relative: xr.Dataset, **kwargs) -> xr.Dataset:

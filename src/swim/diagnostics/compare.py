@@ -565,6 +565,41 @@ def compare_images(simulated, observed, camera: FisheyeCameraModel, *, sun_azimu
         For unknown options, out-of-range angles, shape mismatches, a missing sun position, or no valid
         pixels.
     """
+    sun_excl, min_el = _checked_options(camera, quantity, fit, weighting, sun_exclusion_deg, min_elevation_deg)
+    full_camera, factor = camera, _downsample_factor(downsample)
+    camera = camera.downsampled(factor)
+    dirs, valid = camera.directions()
+    sim, attrs_src = _simulated_on_grid(simulated, camera, quantity)
+    obs = reduce_blocks(_observed_channels(observed, quantity, full_camera.shape), factor, np.mean)
+
+    if sun_azimuth_deg is None and sun_zenith_deg is None and attrs_src:
+        sun_azimuth_deg = attrs_src.get("sun_azimuth_deg")
+        sun_zenith_deg = attrs_src.get("sun_zenith_deg")
+    mask = _compared_pixels(valid, dirs, sim, obs, min_el, sun_excl, sun_azimuth_deg, sun_zenith_deg,
+                            observed if exclude_saturated else None, factor)
+    n = int(mask.sum())
+    if n < 2:
+        raise SwimInputError(f"only {n} pixels remain after masking (image circle, horizon, min_elevation_deg="
+                             f"{min_el}, sun_exclusion_deg={sun_excl}): nothing to compare")
+    omega = camera.pixel_solid_angles()
+    weights = omega if weighting == "solid_angle" else np.ones(camera.shape)
+    scores = _channel_scores(sim, obs, mask, np.where(mask, weights, 0.0), fit)
+    r_mean = float(np.mean(scores["r"]))
+    log.info("compare: r = %s, r_mean = %.4f over %d px (%s, fit %s)", np.round(scores["r"], 4), r_mean, n, quantity,
+             fit)
+
+    attrs = {
+        "quantity": quantity, "fit": fit, "weighting": weighting, "sun_exclusion_deg": sun_excl,
+        "min_elevation_deg": min_el, "exclude_saturated": int(bool(exclude_saturated)), "downsample": factor,
+        "sun_azimuth_deg": float("nan") if sun_azimuth_deg is None else float(sun_azimuth_deg),
+        "sun_zenith_deg": float("nan") if sun_zenith_deg is None else float(sun_zenith_deg),
+        "references": _REFERENCE,
+    }
+    return _comparison_dataset(scores, r_mean, n, float(omega[mask].sum()), obs, mask, quantity, attrs)
+
+
+def _checked_options(camera, quantity, fit, weighting, sun_exclusion_deg, min_elevation_deg):
+    """Raise for an unknown option or an angle out of range; returns (sun exclusion, min elevation) [deg]."""
     if not isinstance(camera, FisheyeCameraModel):
         raise SwimInputError(f"camera must be a FisheyeCameraModel, got {type(camera).__name__}")
     if quantity not in QUANTITIES:
@@ -582,29 +617,28 @@ def compare_images(simulated, observed, camera: FisheyeCameraModel, *, sun_azimu
         raise SwimInputError(f"sun_exclusion_deg must be in [0, 180] deg, got {sun_exclusion_deg}")
     if not -90.0 <= min_el <= 90.0:
         raise SwimInputError(f"min_elevation_deg must be in [-90, 90] deg, got {min_elevation_deg}")
+    return sun_excl, min_el
 
-    full_camera, factor = camera, _downsample_factor(downsample)
-    camera = camera.downsampled(factor)
-    dirs, valid = camera.directions()
-    attrs_src: dict = {}
-    if isinstance(simulated, xr.Dataset):
-        attrs_src = dict(simulated.attrs)
-        sim_ds = simulated if simulated.attrs.get("swim_reprojected") == "fisheye" else reproject(simulated, camera)
-        if (sim_ds.sizes["y"], sim_ds.sizes["x"]) != camera.shape:
-            raise SwimInputError(f"reprojected simulation has shape {(sim_ds.sizes['y'], sim_ds.sizes['x'])}, the "
-                                 f"camera {camera.shape}")
-        sim = _simulated_channels(sim_ds, quantity)
-    else:
+
+def _simulated_on_grid(simulated, camera: FisheyeCameraModel, quantity: str):
+    """The simulation on the camera's grid, (3, ny, nx) in the compared units, and its attributes (a dict; empty
+    for an array)."""
+    if not isinstance(simulated, xr.Dataset):
         arr = np.asarray(simulated, dtype=float)
         if arr.shape != camera.shape + (3,):
             raise SwimInputError(f"simulated array must have shape {camera.shape + (3,)}, got {arr.shape}")
-        sim = np.moveaxis(arr, -1, 0)
-    obs_raw = observed
-    obs = reduce_blocks(_observed_channels(observed, quantity, full_camera.shape), factor, np.mean)
+        return np.moveaxis(arr, -1, 0), {}
+    sim_ds = simulated if simulated.attrs.get("swim_reprojected") == "fisheye" else reproject(simulated, camera)
+    if (sim_ds.sizes["y"], sim_ds.sizes["x"]) != camera.shape:
+        raise SwimInputError(f"reprojected simulation has shape {(sim_ds.sizes['y'], sim_ds.sizes['x'])}, the "
+                             f"camera {camera.shape}")
+    return _simulated_channels(sim_ds, quantity), dict(simulated.attrs)
 
-    if sun_azimuth_deg is None and sun_zenith_deg is None and attrs_src:
-        sun_azimuth_deg = attrs_src.get("sun_azimuth_deg")
-        sun_zenith_deg = attrs_src.get("sun_zenith_deg")
+
+def _compared_pixels(valid, dirs, sim, obs, min_el, sun_excl, sun_azimuth_deg, sun_zenith_deg, saturated_from,
+                     factor) -> np.ndarray:
+    """The mask (ny, nx) of the pixels compared: in the image circle, finite in both images, above ``min_el``, away
+    from the sun, and (where ``saturated_from``, the observed image, is given) not saturated."""
     mask = valid & np.all(np.isfinite(sim), axis=0) & np.all(np.isfinite(obs), axis=0)
     _, zen = frames.azimuth_zenith_from_enu(_finite_dirs(dirs))
     mask &= (90.0 - zen) >= min_el
@@ -614,25 +648,19 @@ def compare_images(simulated, observed, camera: FisheyeCameraModel, *, sun_azimu
                                  "(or set sun_exclusion_deg=0)")
         angle = sun_angle_deg(_finite_dirs(dirs), sun_azimuth_deg, sun_zenith_deg)
         mask &= angle > sun_excl
-    if exclude_saturated:
-        raw = read_camera_image(obs_raw) if isinstance(obs_raw, (str, Path)) else np.asarray(obs_raw)
+    if saturated_from is not None:
+        from_file = isinstance(saturated_from, (str, Path))
+        raw = read_camera_image(saturated_from) if from_file else np.asarray(saturated_from)
         if np.issubdtype(raw.dtype, np.integer):
             mask &= ~reduce_blocks(np.any(raw[..., :3] >= _full_scale(raw), axis=-1), factor, np.any)
-    n = int(mask.sum())
-    if n < 2:
-        raise SwimInputError(f"only {n} pixels remain after masking (image circle, horizon, min_elevation_deg="
-                             f"{min_el}, sun_exclusion_deg={sun_excl}): nothing to compare")
-    omega = camera.pixel_solid_angles()
-    weights = omega if weighting == "solid_angle" else np.ones(camera.shape)
-    w = np.where(mask, weights, 0.0)
+    return mask
 
-    r = np.empty(3)
-    gain = np.empty(3)
-    offset = np.empty(3)
-    rmse = np.empty(3)
-    bias = np.empty(3)
-    rmse_raw = np.empty(3)
-    bias_raw = np.empty(3)
+
+def _channel_scores(sim, obs, mask, w, fit: str) -> dict[str, np.ndarray]:
+    """Per channel (3,): r, the fit's gain and offset, RMSE and bias after the fit and without it; and the images
+    (3, ny, nx) after the fit (``fitted``) and their difference (``diff``), NaN outside the mask."""
+    out = {name: np.empty(3) for name in ("r", "gain", "offset", "rmse", "bias", "rmse_raw", "bias_raw")}
+    r, gain, offset, rmse, bias, rmse_raw, bias_raw = out.values()
     fitted = np.full_like(sim, np.nan)
     diff = np.full_like(sim, np.nan)
     sw = w[mask].sum()
@@ -650,34 +678,29 @@ def compare_images(simulated, observed, camera: FisheyeCameraModel, *, sun_azimu
         rmse_raw[c] = math.sqrt(np.sum(wc * d0 * d0) / sw)
         fitted[c][mask] = gain[c] * x + offset[c]
         diff[c][mask] = d
-    r_mean = float(np.mean(r))
-    log.info("compare: r = %s, r_mean = %.4f over %d px (%s, fit %s)", np.round(r, 4), r_mean, n, quantity, fit)
+    return {**out, "fitted": fitted, "diff": diff}
 
+
+def _comparison_dataset(s, r_mean, n, solid_angle_sr, obs, mask, quantity, attrs) -> xr.Dataset:
+    """The result of :func:`compare_images` from the channels' scores ``s`` (:func:`_channel_scores`)."""
     unit = {"quantity": quantity}
     chan = ("channel",)
     img = ("y", "x", "channel")
-    attrs = {
-        "quantity": quantity, "fit": fit, "weighting": weighting, "sun_exclusion_deg": sun_excl,
-        "min_elevation_deg": min_el, "exclude_saturated": int(bool(exclude_saturated)), "downsample": factor,
-        "sun_azimuth_deg": float("nan") if sun_azimuth_deg is None else float(sun_azimuth_deg),
-        "sun_zenith_deg": float("nan") if sun_zenith_deg is None else float(sun_zenith_deg),
-        "references": _REFERENCE,
-    }
     return xr.Dataset(
         {
-            "r": (chan, r, {"long_name": "Pearson correlation coefficient (Eq. 37)", "units": "1"}),
+            "r": (chan, s["r"], {"long_name": "Pearson correlation coefficient (Eq. 37)", "units": "1"}),
             "r_mean": ((), r_mean, {"long_name": "mean of r over R, G, B (r-bar)", "units": "1"}),
-            "gain": (chan, gain, {"long_name": "fitted gain a of observed ~ a simulated + b", "units": "1"}),
-            "offset": (chan, offset, {"long_name": "fitted offset b", **unit}),
-            "rmse": (chan, rmse, {"long_name": "RMSE of a simulated + b - observed", **unit}),
-            "bias": (chan, bias, {"long_name": "mean of a simulated + b - observed", **unit}),
-            "rmse_raw": (chan, rmse_raw, {"long_name": "RMSE of simulated - observed (no fit)", **unit}),
-            "bias_raw": (chan, bias_raw, {"long_name": "mean of simulated - observed (no fit)", **unit}),
+            "gain": (chan, s["gain"], {"long_name": "fitted gain a of observed ~ a simulated + b", "units": "1"}),
+            "offset": (chan, s["offset"], {"long_name": "fitted offset b", **unit}),
+            "rmse": (chan, s["rmse"], {"long_name": "RMSE of a simulated + b - observed", **unit}),
+            "bias": (chan, s["bias"], {"long_name": "mean of a simulated + b - observed", **unit}),
+            "rmse_raw": (chan, s["rmse_raw"], {"long_name": "RMSE of simulated - observed (no fit)", **unit}),
+            "bias_raw": (chan, s["bias_raw"], {"long_name": "mean of simulated - observed (no fit)", **unit}),
             "n_pixels": ((), n, {"long_name": "number of compared pixel pairs"}),
-            "solid_angle_sr": ((), float(omega[mask].sum()), {"units": "sr", "long_name": "solid angle compared"}),
-            "simulated": (img, np.moveaxis(fitted, 0, -1), {"long_name": "simulated after the fit", **unit}),
+            "solid_angle_sr": ((), solid_angle_sr, {"units": "sr", "long_name": "solid angle compared"}),
+            "simulated": (img, np.moveaxis(s["fitted"], 0, -1), {"long_name": "simulated after the fit", **unit}),
             "observed": (img, np.moveaxis(np.where(mask, obs, np.nan), 0, -1), {"long_name": "observed", **unit}),
-            "difference": (img, np.moveaxis(diff, 0, -1), {"long_name": "simulated after fit - observed", **unit}),
+            "difference": (img, np.moveaxis(s["diff"], 0, -1), {"long_name": "simulated after fit - observed", **unit}),
             "mask": (("y", "x"), mask, {"long_name": "compared pixels"}),
         },
         coords={"channel": _CHANNELS},

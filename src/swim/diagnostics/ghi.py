@@ -257,10 +257,10 @@ def _simulate(scene, lat, lon, suns, *, height, size, aerosol, precipitable_wate
     if progress is not None:
         progress(n, n)
     if not np.isfinite(height_asl):
-        from ..pipeline import _terrain_at
+        from ..pipeline import terrain_at
         from ..optics.volume import build_optical_volume
 
-        height_asl = _terrain_at(build_optical_volume(scene), lat, lon)[0] + float(height)
+        height_asl = terrain_at(build_optical_volume(scene), lat, lon)[0] + float(height)
     if pressure_pa is None:
         pressure_pa = float(us_standard_atmosphere_1976(np.array([height_asl]))[1][0])
     aod_site = site_aod_550(aerosol, height_asl)

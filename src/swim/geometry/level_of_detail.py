@@ -288,7 +288,7 @@ def coarsening_factor(scene: xr.Dataset, camera: str, camera_options: dict, lat:
         fov = float(camera_options["fov_deg"])
     elif look_at is None and float(height) > ATMOSPHERE_TOP_M and {"reference_lat", "reference_lon"} <= set(
             scene.attrs):
-        # as swim.pipeline._default_perspective_view: the grid's half diagonal seen from the camera
+        # as swim.pipeline.scene_stage.default_perspective_view: the grid's half diagonal seen from the camera
         centre = geodetic_to_scene(float(scene.attrs["reference_lat"]), float(scene.attrs["reference_lon"]), 0.0,
                                    lat0, lon0)
         half_diagonal = 0.5 * float(np.linalg.norm(columns[-1, -1] - columns[0, 0]))

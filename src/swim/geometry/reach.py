@@ -507,7 +507,7 @@ def _window(columns: _Columns, directions, *, lat, lon, height, valid, sun_direc
     samples = max(int(samples_per_ray), 2)
     top = columns.grid_top()
 
-    # The observer's column, found as the renderer finds it (swim.pipeline._terrain_at: clamped to the grid).
+    # The observer's column, found as the renderer finds it (swim.pipeline.scene_stage.terrain_at: clamped to the grid).
     p_ground = geodetic_to_scene(lat, lon, 0.0, lat0, lon0)
     io, jo = (float(v) for v in columns.indices(p_ground[0], p_ground[1]))
     ic, jc = min(max(io, 0.0), nx - 1.0), min(max(jo, 0.0), ny - 1.0)

@@ -3,7 +3,7 @@
 Validation copied each 3-D field to float64 and then tested the copy in separate NumPy passes (finite, negative,
 maximum; the heights' differences along z): ~0.35 s of a new 400 x 400 x 60 scene with five species. Here one pass
 per field copies it and gathers what the checks need, in blocks of levels (or of rows) on every core, without the
-GIL (docs/decisions/0007-scene-set-up.md). The checks and their messages stay in :mod:`swim.io.scene`.
+GIL (docs/decisions/0007-scene-set-up.md). The checks and their messages stay in :mod:`swim.io.scene_checks`.
 """
 
 from __future__ import annotations

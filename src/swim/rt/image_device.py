@@ -1,5 +1,5 @@
 """An image's planes made on the device from the march's outputs, where the camera's rays are kept there
-(:mod:`swim.rt.ray_table`; ``MarchSettings.device_image``).
+(:mod:`swim.rt.ray_table`; ``ExecutionSettings.device_image``).
 
 With every pixel traced, copying each chunk's outputs back to the host and scattering each output's channels into the
 image's planes (C, ny, nx) on its cores takes ~53 MB of rows and 13 channel scatters for a 1024^2 all-sky while the

@@ -25,7 +25,7 @@ compositing itself: gas in front of a cloud adds unattenuated, the cloud is seen
 and ground behind it are attenuated by its optical depth. docs/rendering.md states the interpretation.
 
 This module is the march's dispatcher: :func:`trace_rays` cuts the rays' segments, splits the rays into chunks and
-hands each chunk to a kernel (:attr:`swim.rt.march_settings.MarchSettings.backend`). On a CPU that is the numba
+hands each chunk to a kernel (:attr:`swim.rt.march_settings.ExecutionSettings.backend`). On a CPU that is the numba
 kernel (:mod:`swim.rt.march_cpu`: one loop per ray, ~5x faster there than the JAX kernel), with its per-ray set-up
 (:func:`swim.rt.march_cpu.prepare_rays`) and the clouds' and the ground's composition (:mod:`swim.rt.compose_cpu`,
 :mod:`swim.rt.ground_cpu`) in numba too; on a GPU the JAX kernel (:mod:`swim.rt.march_jax`: float32, jit-compiled
@@ -292,7 +292,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
     ------
     SwimInputError
         If there are no rays, if ``origins`` or ``directions`` are not finite (n, 3) arrays, or if
-        ``settings.backend`` is "numba" and numba is not installed.
+        ``settings.execution.backend`` is "numba" and numba is not installed.
     """
     # the numba kernel reads its tables unchecked: a NaN ray must not get that far
     check_rays("trace_rays", origins, directions)

@@ -8,7 +8,8 @@ Pallas kernel (:mod:`swim.rt.march_pallas`) read them from here, so they cannot 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, replace
+import warnings
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -35,9 +36,189 @@ TOP_REFLECTANCE_MIN_MU0 = 1e-3
 MIN_PROBE_SPACING = 0.1
 
 
+#: Kernels of the step loop (:attr:`ExecutionSettings.backend`).
+BACKENDS = ("auto", "jax", "numba")
+#: Marches of the grid segment in the JAX kernel (:attr:`ExecutionSettings.grid_kernel`).
+GRID_KERNELS = ("auto", "lockstep", "fused", "fused-march")
+
+
+def _integer(least, optional=False):
+    """A rule: an integer >= ``least`` (None too where ``optional``)."""
+    def check(value):
+        if optional and value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+            return f"an integer >= {least}"
+        return None
+    return check
+
+
+def _zero_or_at_least(least, what):
+    """A rule: 0 or a finite number >= ``least``, described as ``what``."""
+    def check(value):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(value) or value < 0 or 0 < value < least:
+            return what
+        return None
+    return check
+
+
+def _one_of(choices):
+    """A rule: one of ``choices``."""
+    return lambda value: None if value in choices else f"one of {choices}"
+
+
+def _switch(optional=True):
+    """A rule: True or False (or None where ``optional``)."""
+    def check(value):
+        if optional and value is None:
+            return None
+        if not isinstance(value, (bool, np.bool_)):
+            return "True, False or None" if optional else "True or False"
+        return None
+    return check
+
+
+def _registers(value):
+    """The rule of :attr:`ExecutionSettings.fused_max_registers`: ptxas's bounds, kept in :mod:`swim.rt.ptx_edits`."""
+    from .ptx_edits import MAX_REGISTERS, MIN_REGISTERS
+
+    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))
+                              or not MIN_REGISTERS <= value <= MAX_REGISTERS):
+        return f"None or an integer in [{MIN_REGISTERS}, {MAX_REGISTERS}] (registers per thread)"
+    return None
+
+
+def _check_fields(settings, rules):
+    """Raise :class:`SwimInputError` for the first field of ``settings`` that breaks its rule in ``rules``."""
+    for name, rule in rules.items():
+        value = getattr(settings, name)
+        expected = rule(value)
+        if expected is not None:
+            raise SwimInputError(f"{type(settings).__name__}.{name} must be {expected}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class ExecutionSettings:
+    """How and where the march runs: the kernel, its chunks and the device's switches. They change the speed and
+    the memory of a render, not its physics: every choice gives the same radiance to float32 rounding (the tests in
+    tests/unit/rt hold the kernels to one another and to a float64 reference). What to compute, and how accurately,
+    is :class:`MarchSettings`.
+
+    "auto" and None are resolved for the hardware once per render (:meth:`MarchSettings.resolved`).
+
+    Attributes
+    ----------
+    chunk : int or None
+        Rays per kernel call; None (the default): :data:`CPU_CHUNK` on a CPU, :data:`GPU_CHUNK` when the JAX
+        kernel runs on a GPU (:meth:`resolved_chunk`). Small chunks keep the kernel's working set in the CPU
+        caches: on a 2-core machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096
+        or 8192, 4.2 s with 2048 and 6.1 s with 1024 (benchmarks/, docs/rendering.md). A GPU needs big ones to
+        fill it: on an H100 the JAX kernel marches 1.9 million rays/s in chunks of 32768 and 4.0 million in
+        chunks of 262144 (docs/performance.md, "The GPU kernels").
+    backend : {"auto", "jax", "numba"}
+        Kernel of the step loop: "jax" marches a chunk of rays in lockstep (:mod:`swim.rt.march_jax`; GPUs,
+        gradients); "numba" runs the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, ~5x
+        faster on a CPU: the default scene's 255^2 all-sky in 1.0 s against 4.6-5.1 s;
+        docs/decisions/0002-per-ray-cpu-kernel.md and docs/decisions/0006-gpu-kernels.md); "auto" takes numba when
+        JAX's default device is the CPU, else jax. A numba render never imports JAX
+        (docs/decisions/0011-jax-only-where-it-runs.md).
+    grid_kernel : {"auto", "lockstep", "fused", "fused-march"}
+        How the JAX kernel marches the grid segment with refinement (``tau_refine`` > 0): "lockstep", one XLA
+        program per iteration of every ray's march (:func:`_march_grid_refined`); "fused", one Pallas kernel whose
+        Triton programs keep a block of rays' state in registers for the whole segment
+        (:func:`swim.rt.march_pallas.march_grid_fused`; same equations, same results to float32 rounding; on a
+        CPU it runs in Pallas's interpreter, slowly: for checks only); "fused-march", the clear air before and after
+        the grid and the zero-length step at each ray's end in the same kernel too
+        (:func:`swim.rt.march_pallas.march_segments_fused`; on an H100 a 262 144-ray chunk in 22.6 ms against 26.5 ms
+        for "fused", but its first compilation takes ~40 s longer: for long series). "auto" takes "fused" where JAX's
+        default device is a GPU that Pallas can compile for, else "lockstep" (docs/decisions/0006-gpu-kernels.md). The
+        numba backend ignores it.
+    ray_table : bool or None
+        Keep the camera's rays on the device between frames (:mod:`swim.rt.ray_table`, the JAX kernel only): the
+        rays' segments, starts, directions and occupancy probes are computed once per camera, observer and grid, and
+        a batch of pixels sends only its rows' indices; the phase functions are computed on the device. The same
+        kernel and results to float32 rounding of the scattering angle's cosine. None (the default): on where the
+        JAX kernel runs on a GPU (:meth:`resolved_ray_table`; on an H100 a warm 1024^2 all-sky with every pixel
+        traced renders in 0.151 s with it against 0.324 s without, adaptive 0.161 against 0.227 s, a new sun every
+        frame 0.659 against 0.834 s; docs/decisions/0006-gpu-kernels.md), off on a CPU, where the march dominates and
+        the table only holds memory. The numba backend ignores it.
+    step1a_on_device : bool or None
+        A new sun's Step 1a where the JAX kernel marches (:mod:`swim.rt.solar_device`): the previous sun's device copy
+        of the packed volume is refilled there, instead of sweeping from the host's sums and copying the whole packed
+        volume to the device again (~1.3 GB of transfers for the 400 x 400 x 60 scene). The same equations and sweep;
+        the channels agree to float32 round-off. None (the default): on where the JAX kernel runs on a GPU
+        (:meth:`resolved_step1a_on_device`; on an H200 a 1024^2 all-sky with a new sun every frame renders in 0.392 s
+        with it against 0.614 s without, docs/decisions/0006-gpu-kernels.md), off on a CPU, where numba's sweep on the
+        host is faster than JAX's. Used only by the JAX kernel, for a scene rendered before with another sun in the
+        same process.
+    device_sampling : bool or None
+        Adaptive sampling with the image on the device (:mod:`swim.rt.image_sampling_device`), where the camera's
+        rays are kept there (:meth:`resolved_ray_table`): the march's outputs are scattered, the cells tested and the
+        smooth ones interpolated on the device, and only each batch's mask of wanted pixels and the finished image
+        come to the host. The same traced pixels and image as the host's sampler (to float32 rounding). None (the
+        default): on wherever the ray table is (:meth:`resolved_device_sampling`; on an H200 an adaptive 1024^2
+        all-sky in 0.136 s with it against 0.152 s without, docs/decisions/0006-gpu-kernels.md). Ignored without a ray
+        table or without adaptive sampling.
+    fused_max_registers : int or None
+        Registers per thread that the fused GPU kernel ("fused", "fused-march") may take on NVIDIA GPUs, in [16, 255]
+        (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`; it needs jaxlib > 0.10.2, else it is logged and ignored).
+        None (the default): ptxas's choice, 255 at 128 rays a program, which fits two programs per Hopper
+        multiprocessor (12.5 % occupancy); 168 fits three and 128 four, at the price of spills
+        (docs/decisions/0006-gpu-kernels.md: which is fastest is to be timed). The other kernels ignore it.
+    fused_vector_loads : bool
+        Whether the fused GPU kernel reads its tables (the volume, gas, sky, diffuse and multiple-scattering tables)
+        with their channels last, up to four channels a load (:func:`swim.rt.march_pallas._load_groups`): on sm_90a
+        its grid loop then issues 48 global loads an iteration instead of 110 and 1 617 instructions instead of
+        1 893 (docs/decisions/0006-gpu-kernels.md). False: a scalar gather per channel and corner. The same results
+        to float32 rounding; the other kernels ignore it.
+    fused_fma : bool
+        Whether ptxas may contract the fused GPU kernel's float32 multiplies and adds into fused multiply-adds on
+        NVIDIA GPUs (:mod:`swim.rt.ptx_edits`: Triton writes them with an explicit rounding mode, which forbids it;
+        it needs jaxlib > 0.10.2, else it is logged and ignored). On sm_90a the grid loop then issues 1 440
+        instructions an iteration instead of 1 617 at the same registers (docs/decisions/0006-gpu-kernels.md). A
+        contracted pair rounds once instead of twice, so the results move by float32 rounding. False (the default)
+        until timed on a GPU; the other kernels, and the fused kernel in Pallas's interpreter, ignore it.
+    device_image : bool or None
+        The image finished on the device, where the camera's rays are kept there (:meth:`resolved_ray_table`): with
+        every pixel traced, the chunks' outputs stay on the device and are scattered into the image's planes there
+        (:mod:`swim.rt.image_device`), and the colour stage runs there too (:mod:`swim.color.srgb_device`, with every
+        pixel and, where :meth:`resolved_device_sampling`, adaptively), so that a frame's planes and RGB come to the
+        host in one copy. The same planes, and the same 8-bit codes but where the device rounds a fused
+        multiply-add once (a code apart at most, at a value within ~1e-16 of a code's step); the rare pixels whose
+        spectrum needs clipping, and the sun's disk, are coloured on the host. None (the default): on where the JAX
+        kernel runs on a GPU (:meth:`resolved_device_image`; docs/decisions/0006-gpu-kernels.md), off elsewhere, where
+        the host's cores are the device's and its compiled colour stage is faster than XLA's.
+    """
+
+    backend: str = "auto"
+    grid_kernel: str = "auto"
+    chunk: int | None = None
+    ray_table: bool | None = None
+    step1a_on_device: bool | None = None
+    device_sampling: bool | None = None
+    device_image: bool | None = None
+    fused_max_registers: int | None = None
+    fused_vector_loads: bool = True
+    fused_fma: bool = False
+
+    def __post_init__(self):
+        _check_fields(self, _EXECUTION_RULES)
+
+
+_EXECUTION_RULES = {
+    "backend": _one_of(BACKENDS), "grid_kernel": _one_of(GRID_KERNELS),
+    "chunk": _integer(1, optional=True), "ray_table": _switch(), "step1a_on_device": _switch(),
+    "device_sampling": _switch(), "device_image": _switch(), "fused_max_registers": _registers,
+    "fused_vector_loads": _switch(optional=False), "fused_fma": _switch(optional=False)}
+#: The fields of :class:`ExecutionSettings`, which :class:`MarchSettings` also takes as deprecated keywords.
+EXECUTION_FIELDS = tuple(f.name for f in fields(ExecutionSettings))
+
+
 @dataclass(frozen=True)
 class MarchSettings:
-    """Step counts of the three ray segments (static for the compiled kernel).
+    """What the march computes and how accurately: the step counts of the three ray segments, the scattering and the
+    ground (static for the compiled kernel); how and where it runs is :attr:`execution`.
 
     Attributes
     ----------
@@ -97,97 +278,21 @@ class MarchSettings:
         (the cloud-top reflection of Eqs. 24-26 depends on the whole optical depth). 0 turns it off; otherwise at
         least :data:`STOP_TAU_MIN`. Default 50 (docs/rendering.md, "Opaque rays";
         docs/decisions/0004-step-placement.md).
-    chunk : int or None
-        Rays per kernel call; None (the default): :data:`CPU_CHUNK` on a CPU, :data:`GPU_CHUNK` when the JAX
-        kernel runs on a GPU (:meth:`resolved_chunk`). Small chunks keep the kernel's working set in the CPU
-        caches: on a 2-core machine a 255 x 255 all-sky renders in 7.1 s with 65536-ray chunks, 4.1 s with 4096
-        or 8192, 4.2 s with 2048 and 6.1 s with 1024 (benchmarks/, docs/rendering.md). A GPU needs big ones to
-        fill it: on an H100 the JAX kernel marches 1.9 million rays/s in chunks of 32768 and 4.0 million in
-        chunks of 262144 (docs/performance.md, "The GPU kernels").
     multiple_scattering : bool
         Add the directional source of the higher scattering orders (:mod:`swim.rt.multiple_scattering`)
         to the clear-sky source (docs/rendering.md); False gives pure single scattering (Eq. 3).
     surface : {"brdf", "lambertian"}
         Reflectance of the ground (:func:`swim.surface.lighting.surface_radiance`): land, snow and water
         BRDFs with sun glint, or Lambertian (what plane-parallel reference solvers assume).
-    backend : {"auto", "jax", "numba"}
-        Kernel of the step loop: "jax" marches a chunk of rays in lockstep (:mod:`swim.rt.march_jax`; GPUs,
-        gradients); "numba" runs the same steps one ray at a time on the CPU's cores (:mod:`swim.rt.march_cpu`, ~5x
-        faster on a CPU: the default scene's 255^2 all-sky in 1.0 s against 4.6-5.1 s;
-        docs/decisions/0002-per-ray-cpu-kernel.md and docs/decisions/0006-gpu-kernels.md); "auto" takes numba when
-        JAX's default device is the CPU, else jax. A numba render never imports JAX
-        (docs/decisions/0011-jax-only-where-it-runs.md).
-    grid_kernel : {"auto", "lockstep", "fused", "fused-march"}
-        How the JAX kernel marches the grid segment with refinement (``tau_refine`` > 0): "lockstep", one XLA
-        program per iteration of every ray's march (:func:`_march_grid_refined`); "fused", one Pallas kernel whose
-        Triton programs keep a block of rays' state in registers for the whole segment
-        (:func:`swim.rt.march_pallas.march_grid_fused`; same equations, same results to float32 rounding; on a
-        CPU it runs in Pallas's interpreter, slowly: for checks only); "fused-march", the clear air before and after
-        the grid and the zero-length step at each ray's end in the same kernel too
-        (:func:`swim.rt.march_pallas.march_segments_fused`; on an H100 a 262 144-ray chunk in 22.6 ms against 26.5 ms
-        for "fused", but its first compilation takes ~40 s longer: for long series). "auto" takes "fused" where JAX's
-        default device is a GPU that Pallas can compile for, else "lockstep" (docs/decisions/0006-gpu-kernels.md). The
-        numba backend ignores it.
-    ray_table : bool or None
-        Keep the camera's rays on the device between frames (:mod:`swim.rt.ray_table`, the JAX kernel only): the
-        rays' segments, starts, directions and occupancy probes are computed once per camera, observer and grid, and
-        a batch of pixels sends only its rows' indices; the phase functions are computed on the device. The same
-        kernel and results to float32 rounding of the scattering angle's cosine. None (the default): on where the
-        JAX kernel runs on a GPU (:meth:`resolved_ray_table`; on an H100 a warm 1024^2 all-sky with every pixel
-        traced renders in 0.151 s with it against 0.324 s without, adaptive 0.161 against 0.227 s, a new sun every
-        frame 0.659 against 0.834 s; docs/decisions/0006-gpu-kernels.md), off on a CPU, where the march dominates and
-        the table only holds memory. The numba backend ignores it.
-    step1a_on_device : bool or None
-        A new sun's Step 1a where the JAX kernel marches (:mod:`swim.rt.solar_device`): the previous sun's device copy
-        of the packed volume is refilled there, instead of sweeping from the host's sums and copying the whole packed
-        volume to the device again (~1.3 GB of transfers for the 400 x 400 x 60 scene). The same equations and sweep;
-        the channels agree to float32 round-off. None (the default): on where the JAX kernel runs on a GPU
-        (:meth:`resolved_step1a_on_device`; on an H200 a 1024^2 all-sky with a new sun every frame renders in 0.392 s
-        with it against 0.614 s without, docs/decisions/0006-gpu-kernels.md), off on a CPU, where numba's sweep on the
-        host is faster than JAX's. Used only by the JAX kernel, for a scene rendered before with another sun in the
-        same process.
-    device_sampling : bool or None
-        Adaptive sampling with the image on the device (:mod:`swim.rt.image_sampling_device`), where the camera's
-        rays are kept there (:meth:`resolved_ray_table`): the march's outputs are scattered, the cells tested and the
-        smooth ones interpolated on the device, and only each batch's mask of wanted pixels and the finished image
-        come to the host. The same traced pixels and image as the host's sampler (to float32 rounding). None (the
-        default): on wherever the ray table is (:meth:`resolved_device_sampling`; on an H200 an adaptive 1024^2
-        all-sky in 0.136 s with it against 0.152 s without, docs/decisions/0006-gpu-kernels.md). Ignored without a ray
-        table or without adaptive sampling.
-    fused_max_registers : int or None
-        Registers per thread that the fused GPU kernel ("fused", "fused-march") may take on NVIDIA GPUs, in [16, 255]
-        (PTX's ``.maxnreg``, :mod:`swim.rt.ptx_edits`; it needs jaxlib > 0.10.2, else it is logged and ignored).
-        None (the default): ptxas's choice, 255 at 128 rays a program, which fits two programs per Hopper
-        multiprocessor (12.5 % occupancy); 168 fits three and 128 four, at the price of spills
-        (docs/decisions/0006-gpu-kernels.md: which is fastest is to be timed). The other kernels ignore it.
-    fused_vector_loads : bool
-        Whether the fused GPU kernel reads its tables (the volume, gas, sky, diffuse and multiple-scattering tables)
-        with their channels last, up to four channels a load (:func:`swim.rt.march_pallas._load_groups`): on sm_90a
-        its grid loop then issues 48 global loads an iteration instead of 110 and 1 617 instructions instead of
-        1 893 (docs/decisions/0006-gpu-kernels.md). False: a scalar gather per channel and corner. The same results
-        to float32 rounding; the other kernels ignore it.
     cloud_scattering : str or CloudScattering
         How clouds scatter light (:mod:`swim.rt.clouds`): "discrete_ordinates" (the 3-D diffuse solution, the
         default; a sun below 0.6 deg of elevation falls back to
         "albers2020") or "albers2020" (the paper's Eqs. 12-26), or a :class:`swim.rt.clouds.CloudScattering` with
         its phase functions and accuracy settings; kept as the latter.
-    fused_fma : bool
-        Whether ptxas may contract the fused GPU kernel's float32 multiplies and adds into fused multiply-adds on
-        NVIDIA GPUs (:mod:`swim.rt.ptx_edits`: Triton writes them with an explicit rounding mode, which forbids it;
-        it needs jaxlib > 0.10.2, else it is logged and ignored). On sm_90a the grid loop then issues 1 440
-        instructions an iteration instead of 1 617 at the same registers (docs/decisions/0006-gpu-kernels.md). A
-        contracted pair rounds once instead of twice, so the results move by float32 rounding. False (the default)
-        until timed on a GPU; the other kernels, and the fused kernel in Pallas's interpreter, ignore it.
-    device_image : bool or None
-        The image finished on the device, where the camera's rays are kept there (:meth:`resolved_ray_table`): with
-        every pixel traced, the chunks' outputs stay on the device and are scattered into the image's planes there
-        (:mod:`swim.rt.image_device`), and the colour stage runs there too (:mod:`swim.color.srgb_device`, with every
-        pixel and, where :meth:`resolved_device_sampling`, adaptively), so that a frame's planes and RGB come to the
-        host in one copy. The same planes, and the same 8-bit codes but where the device rounds a fused
-        multiply-add once (a code apart at most, at a value within ~1e-16 of a code's step); the rare pixels whose
-        spectrum needs clipping, and the sun's disk, are coloured on the host. None (the default): on where the JAX
-        kernel runs on a GPU (:meth:`resolved_device_image`; docs/decisions/0006-gpu-kernels.md), off elsewhere, where
-        the host's cores are the device's and its compiled colour stage is faster than XLA's.
+    execution : ExecutionSettings
+        The kernel, its chunks and the device's switches (:class:`ExecutionSettings`). Its fields were
+        :class:`MarchSettings`'s and are still taken as keywords (``MarchSettings(backend="jax")``) and read as
+        attributes (``settings.backend``), with a :class:`DeprecationWarning`.
     """
 
     n_before: int = 12
@@ -199,107 +304,99 @@ class MarchSettings:
     probe_spacing: float = 2.0
     tau_refine: float = 0.25
     stop_tau: float = 50.0
-    chunk: int | None = None
     multiple_scattering: bool = True
     surface: str = "brdf"
-    backend: str = "auto"
-    grid_kernel: str = "auto"
-    ray_table: bool | None = None
-    step1a_on_device: bool | None = None
-    device_sampling: bool | None = None
-    device_image: bool | None = None
-    fused_max_registers: int | None = None
-    fused_vector_loads: bool = True
-    fused_fma: bool = False
     cloud_scattering: object = "discrete_ordinates"
+    execution: ExecutionSettings = ExecutionSettings()
 
     def __post_init__(self):
         from .clouds import as_cloud_scattering
 
         object.__setattr__(self, "cloud_scattering", as_cloud_scattering(self.cloud_scattering))
-        for name in ("n_before", "n_grid", "n_after", "empty_steps", "sunlit_steps", "n_probe", "chunk"):
-            value, least = getattr(self, name), 1 if name in ("chunk", "n_probe") else 0
-            if name in ("chunk", "empty_steps") and value is None:
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-                raise SwimInputError(f"MarchSettings.{name} must be an integer >= {least}, got {value!r}")
-        # each 0 or a finite number >= its least value
-        for name, what, least in (("probe_spacing", f"0 or a finite number of cells >= {MIN_PROBE_SPACING}",
-                                    MIN_PROBE_SPACING), ("tau_refine", "a finite optical depth >= 0", 0.0),
-                                  ("stop_tau", f"0 (off) or a finite optical depth >= {STOP_TAU_MIN:g} [-]",
-                                   STOP_TAU_MIN)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or not np.isfinite(value) or value < 0 or 0 < value < least:
-                raise SwimInputError(f"MarchSettings.{name} must be {what}, got {value!r}")
-        if self.surface not in SURFACE_MODELS:
-            raise SwimInputError(f"MarchSettings.surface must be one of {SURFACE_MODELS}, got {self.surface!r}")
-        if self.backend not in BACKENDS:
-            raise SwimInputError(f"MarchSettings.backend must be one of {BACKENDS}, got {self.backend!r}")
-        if self.grid_kernel not in GRID_KERNELS:
-            raise SwimInputError(f"MarchSettings.grid_kernel must be one of {GRID_KERNELS}, got {self.grid_kernel!r}")
-        for name in ("ray_table", "step1a_on_device", "device_sampling", "device_image"):
-            value = getattr(self, name)
-            if value is not None and not isinstance(value, (bool, np.bool_)):
-                raise SwimInputError(f"MarchSettings.{name} must be True, False or None, got {value!r}")
-        from .ptx_edits import MAX_REGISTERS, MIN_REGISTERS  # ptxas's bounds, kept in one place
+        _check_fields(self, _PHYSICS_RULES)
+        if not isinstance(self.execution, ExecutionSettings):
+            raise SwimInputError(f"MarchSettings.execution must be an ExecutionSettings, got {self.execution!r}")
 
-        registers = self.fused_max_registers
-        if registers is not None and (isinstance(registers, bool) or not isinstance(registers, (int, np.integer))
-                                      or not MIN_REGISTERS <= registers <= MAX_REGISTERS):
-            raise SwimInputError(f"MarchSettings.fused_max_registers must be None or an integer in "
-                                 f"[{MIN_REGISTERS}, {MAX_REGISTERS}] (registers per thread), got {registers!r}")
-        for name in ("fused_vector_loads", "fused_fma"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise SwimInputError(f"MarchSettings.{name} must be True or False, got {getattr(self, name)!r}")
+    def __getattr__(self, name):
+        # only for names that are not attributes: the execution fields' old home
+        if name in EXECUTION_FIELDS and "execution" in self.__dict__:
+            warnings.warn(f"MarchSettings.{name} is deprecated: read MarchSettings.execution.{name}",
+                          DeprecationWarning, stacklevel=2)
+            return getattr(self.execution, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def with_execution(self, **changes) -> MarchSettings:
+        """These settings with the :class:`ExecutionSettings` fields in ``changes`` changed."""
+        return replace(self, execution=replace(self.execution, **changes))
+
+    def resolved(self) -> MarchSettings:
+        """These settings with :attr:`execution` resolved for this machine: the backend, the grid kernel, the chunk
+        and the device's switches as they will run ("auto" and None replaced), so that a render asks the hardware
+        once. Resolving resolved settings changes nothing.
+
+        Raises
+        ------
+        SwimInputError
+            If ``execution.backend`` is "numba" and numba is not installed.
+        """
+        backend = self.resolved_backend()
+        ray_table = self.resolved_ray_table()
+        execution = replace(self.execution, backend=backend, grid_kernel=self.resolved_grid_kernel()
+                            if backend == "jax" else self.execution.grid_kernel, chunk=self.resolved_chunk(),
+                            ray_table=ray_table, step1a_on_device=self.resolved_step1a_on_device(),
+                            device_sampling=self.resolved_device_sampling(),
+                            device_image=self.resolved_device_image())
+        return replace(self, execution=execution)
 
     def resolved_backend(self) -> str:
-        """The kernel that runs: ``backend``, with "auto" resolved to "numba" when JAX's default device is the
-        CPU and numba is installed, else "jax". JAX is asked only where it may see an accelerator (a GPU platform in
-        ``JAX_PLATFORMS`` or a JAX plugin installed, :func:`swim.rt.precompile.jax_may_see_a_gpu`): elsewhere its
+        """The kernel that runs: ``execution.backend``, with "auto" resolved to "numba" when JAX's default device is
+        the CPU and numba is installed, else "jax". JAX is asked only where it may see an accelerator (a GPU platform
+        in ``JAX_PLATFORMS`` or a JAX plugin installed, :func:`swim.rt.precompile.jax_may_see_a_gpu`): elsewhere its
         default device is the CPU, and "auto" resolves without importing it.
 
         Raises
         ------
         SwimInputError
-            If ``backend`` is "numba" and numba is not installed.
+            If ``execution.backend`` is "numba" and numba is not installed.
         """
-        if self.backend == "numba" and not _numba_available():
-            raise SwimInputError(f"MarchSettings.backend={self.backend!r} needs the numba package (pip install numba)")
-        if self.backend != "auto":
-            return self.backend
+        backend = self.execution.backend
+        if backend == "numba" and not _numba_available():
+            raise SwimInputError(f"MarchSettings.backend={backend!r} needs the numba package (pip install numba)")
+        if backend != "auto":
+            return backend
         return "numba" if _numba_available() and not _jax_on_accelerator() else "jax"
 
     def resolved_grid_kernel(self) -> str:
-        """The JAX kernel's march of the grid segment (:attr:`grid_kernel`): "auto" resolved to "fused" where JAX's
-        default device is a GPU and Pallas can lower to Triton there, else "lockstep"; always "lockstep" with the 3-D
-        cloud scattering, whose sources the fused kernel does not carry."""
+        """The JAX kernel's march of the grid segment (:attr:`ExecutionSettings.grid_kernel`): "auto" resolved to
+        "fused" where JAX's default device is a GPU and Pallas can lower to Triton there, else "lockstep"; always
+        "lockstep" with the 3-D cloud scattering, whose sources the fused kernel does not carry."""
         if self.cloud_scattering.three_d:
             return "lockstep"
-        if self.grid_kernel != "auto":
-            return self.grid_kernel
+        if self.execution.grid_kernel != "auto":
+            return self.execution.grid_kernel
         from .march_pallas import pallas_triton_available
 
         return "fused" if pallas_triton_available() else "lockstep"
 
     def kernel_settings(self) -> MarchSettings:
-        """These settings with those that the march's kernels do not read (:attr:`ray_table`,
-        :attr:`step1a_on_device`, :attr:`device_sampling`, :attr:`device_image`) pinned to False, so that a compiled
-        kernel (keyed by its settings, also on disk: :mod:`swim.compilation.jax_export`) serves whatever they are: a
-        recompilation of the JAX kernel takes tens of seconds on a GPU."""
-        return replace(self, ray_table=False, step1a_on_device=False, device_sampling=False, device_image=False)
+        """These settings with those that the march's kernels do not read (:attr:`ExecutionSettings.ray_table`,
+        ``step1a_on_device``, ``device_sampling``, ``device_image``) pinned to False, so that a compiled kernel (keyed
+        by its settings, also on disk: :mod:`swim.compilation.jax_export`) serves whatever they are: a recompilation
+        of the JAX kernel takes tens of seconds on a GPU."""
+        return self.with_execution(ray_table=False, step1a_on_device=False, device_sampling=False,
+                                   device_image=False)
 
     def resolved_ray_table(self) -> bool:
-        """Whether the camera's rays are kept on the device (:attr:`ray_table`): None resolved to True where the
-        JAX kernel runs on a GPU (or another accelerator), else False; always False for the numba
+        """Whether the camera's rays are kept on the device (:attr:`ExecutionSettings.ray_table`): None resolved to
+        True where the JAX kernel runs on a GPU (or another accelerator), else False; always False for the numba
         kernel, which does not use it."""
-        return self._jax_device_switch(self.ray_table)
+        return self._jax_device_switch(self.execution.ray_table)
 
     def resolved_step1a_on_device(self) -> bool:
-        """Whether a new sun's Step 1a runs on the device's copy of the packed volume (:attr:`step1a_on_device`): None
-        resolved to True where the JAX kernel runs on a GPU (or another accelerator), else False; always False for
-        the numba kernel, which keeps no such copy."""
-        return self._jax_device_switch(self.step1a_on_device)
+        """Whether a new sun's Step 1a runs on the device's copy of the packed volume
+        (:attr:`ExecutionSettings.step1a_on_device`): None resolved to True where the JAX kernel runs on a GPU (or
+        another accelerator), else False; always False for the numba kernel, which keeps no such copy."""
+        return self._jax_device_switch(self.execution.step1a_on_device)
 
     def _jax_device_switch(self, value) -> bool:
         """A switch of the JAX kernel's device copies (``value``: True, False or None): False for the other kernels
@@ -310,16 +407,17 @@ class MarchSettings:
         return self.on_accelerator() if value is None else bool(value)
 
     def resolved_device_sampling(self) -> bool:
-        """Whether adaptive sampling keeps its image on the device (:attr:`device_sampling`): only with the camera's
-        rays there (:meth:`resolved_ray_table`), and then None resolved to True."""
+        """Whether adaptive sampling keeps its image on the device (:attr:`ExecutionSettings.device_sampling`): only
+        with the camera's rays there (:meth:`resolved_ray_table`), and then None resolved to True."""
         if not self.resolved_ray_table():
             return False
-        return True if self.device_sampling is None else bool(self.device_sampling)
+        return True if self.execution.device_sampling is None else bool(self.execution.device_sampling)
 
     def resolved_device_image(self) -> bool:
-        """Whether the image is finished on the device (:attr:`device_image`): only with the camera's rays there
-        (:meth:`resolved_ray_table`), and then None resolved to whether the march runs on an accelerator."""
-        return self.resolved_ray_table() and self._jax_device_switch(self.device_image)
+        """Whether the image is finished on the device (:attr:`ExecutionSettings.device_image`): only with the
+        camera's rays there (:meth:`resolved_ray_table`), and then None resolved to whether the march runs on an
+        accelerator."""
+        return self.resolved_ray_table() and self._jax_device_switch(self.execution.device_image)
 
     def resolved_empty_steps(self) -> int:
         """Most grid steps in a ray's empty space (:attr:`empty_steps`, None resolved to ``n_grid // 4``); 0: no
@@ -327,16 +425,44 @@ class MarchSettings:
         return self.n_grid // 4 if self.empty_steps is None else int(self.empty_steps)
 
     def resolved_chunk(self) -> int:
-        """Rays per kernel call: ``chunk``, or for None :data:`GPU_CHUNK` where the JAX kernel runs on a GPU (or
-        another accelerator) and :data:`CPU_CHUNK` elsewhere."""
-        if self.chunk is not None:
-            return int(self.chunk)
+        """Rays per kernel call: :attr:`ExecutionSettings.chunk`, or for None :data:`GPU_CHUNK` where the JAX kernel
+        runs on a GPU (or another accelerator) and :data:`CPU_CHUNK` elsewhere."""
+        if self.execution.chunk is not None:
+            return int(self.execution.chunk)
         return GPU_CHUNK if self.on_accelerator() else CPU_CHUNK
 
     def on_accelerator(self) -> bool:
         """Whether the march runs on a GPU (or another accelerator): the JAX kernel where JAX's default device is not
         the CPU."""
         return self.resolved_backend() == "jax" and _jax_on_accelerator()
+
+
+_PHYSICS_RULES = {
+    **{name: _integer(0) for name in ("n_before", "n_grid", "n_after", "sunlit_steps")},
+    "empty_steps": _integer(0, optional=True), "n_probe": _integer(1),
+    "probe_spacing": _zero_or_at_least(MIN_PROBE_SPACING, f"0 or a finite number of cells >= {MIN_PROBE_SPACING}"),
+    "tau_refine": _zero_or_at_least(0.0, "a finite optical depth >= 0"),
+    "stop_tau": lambda value: _zero_or_at_least(STOP_TAU_MIN, f"0 (off) or a finite optical depth >= "
+                                                              f"{STOP_TAU_MIN:g} [-]")(value),
+    "surface": _one_of(SURFACE_MODELS)}
+
+
+def _march_settings_init(init):
+    """``MarchSettings``'s dataclass ``__init__`` that also takes :class:`ExecutionSettings`' fields as deprecated
+    keywords, moved into ``execution``."""
+    @functools.wraps(init)
+    def __init__(self, *args, **kwargs):
+        moved = {name: kwargs.pop(name) for name in EXECUTION_FIELDS if name in kwargs}
+        if moved:
+            warnings.warn(f"MarchSettings({', '.join(f'{name}=' for name in moved)}) is deprecated: these are "
+                          f"ExecutionSettings' fields, given as MarchSettings(execution=ExecutionSettings(...))",
+                          DeprecationWarning, stacklevel=2)
+            kwargs["execution"] = replace(kwargs.get("execution", ExecutionSettings()), **moved)
+        init(self, *args, **kwargs)
+    return __init__
+
+
+MarchSettings.__init__ = _march_settings_init(MarchSettings.__init__)
 
 
 #: Rays per kernel call on a CPU (:meth:`MarchSettings.resolved_chunk`): small enough for its caches.
@@ -346,10 +472,6 @@ CPU_CHUNK = 4096
 #: 1048576: no faster); 1.6 GB of device memory at the peak (docs/performance.md, "The GPU kernels").
 GPU_CHUNK = 262144
 
-#: Kernels of the step loop (:attr:`MarchSettings.backend`).
-BACKENDS = ("auto", "jax", "numba")
-#: Marches of the grid segment in the JAX kernel (:attr:`MarchSettings.grid_kernel`).
-GRID_KERNELS = ("auto", "lockstep", "fused", "fused-march")
 
 
 def _jax_on_accelerator() -> bool:

@@ -27,8 +27,8 @@ gets ``.maxnreg N`` inserted among its entry's directives and, with ``_fma``, it
 subtracts without ``.rn`` (:func:`edit_ptx`), by a wrapper around the Triton compilation that Pallas's lowering calls
 (:func:`install_ptx_edits`); other kernels' PTX is left alone. The PTX that goes into the lowered program (and into
 an exported one) is the edited one. The name is made while the kernel is traced, so it cannot tell JAX's caches
-apart: the settings that ask for the edits (:attr:`swim.rt.march_settings.MarchSettings.fused_max_registers` and
-:attr:`~swim.rt.march_settings.MarchSettings.fused_fma`) are among the compiled programs' static arguments and keys (JAX's and
+apart: the settings that ask for the edits (:attr:`swim.rt.march_settings.ExecutionSettings.fused_max_registers` and
+:attr:`~swim.rt.march_settings.ExecutionSettings.fused_fma`) are among the compiled programs' static arguments and keys (JAX's and
 :mod:`swim.compilation.jax_export`'s). :func:`capped_entries` and :func:`contracted_entries` list the entries edited so far
 in the process.
 

@@ -171,7 +171,7 @@ _LAST_TABLE = {}
 def camera_ray_table(observer, directions, pixels, geometry: GridGeometry, consts, settings: MarchSettings):
     """The :class:`RayTable` of a camera's pixels ``pixels`` seen from ``observer``, and each pixel's row in it;
     the last one is kept and reused while the same arrays ``directions`` and ``pixels`` (a camera's cached ones,
-    :func:`swim.pipeline._scene_directions`, which are read-only), observer, grid geometry, atmosphere top and probe
+    :func:`swim.pipeline.scene_stage.scene_directions`, which are read-only), observer, grid geometry, atmosphere top and probe
     settings come again. Arrays are recognised by identity, not by their values (hashing a 1024^2 camera's would take
     milliseconds every frame): pass arrays that are not changed in place.
 
@@ -249,7 +249,7 @@ def _geometry_key(geometry: GridGeometry):
 def _gather_rows(table_arrays, extra_arrays, rows, n_real, sun, depolarization, aerosol_type, stratospheric_type):
     """A chunk's per-ray inputs of :func:`swim.rt.march_jax._trace_chunk` from the table's rows ``rows`` (n,) (rows past
     the table's end: the rows of ``extra_arrays``, a second table's), with the phase functions of
-    :func:`swim.pipeline._phase_functions` at their scattering angles (the sun ``sun`` (3,)). The rays from position
+    :func:`swim.rt.kernel_tables.ray_phase_functions` at their scattering angles (the sun ``sun`` (3,)). The rays from position
     ``n_real`` (an int32 scalar: a traced value, so one program serves every count) on are padding: not valid."""
     size = table_arrays[0].shape[0]
 
@@ -347,59 +347,99 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
         If there are no rows, a row is outside the table, ``settings`` does not resolve to the JAX kernel, or
         ``padding_from`` is given with ``extra`` or outside [1, len(rows)].
     """
-    if isinstance(rows, range) and rows.step == 1:  # consecutive rows: slices of the host's arrays, no gathers
-        first = rows.start
-        if len(rows) == 0 or first < 0 or rows.stop > table.size:
-            raise SwimInputError(f"trace_table_rows: rows must be a non-empty range in [0, {table.size}), got {rows}")
-
-        def own_rows(lo, hi):
-            return slice(first + lo, first + hi)
-    else:
-        rows = np.asarray(rows)
-        if rows.ndim != 1 or rows.size == 0 or not np.issubdtype(rows.dtype, np.integer):
-            raise SwimInputError(f"trace_table_rows: rows must be a non-empty (m,) integer array, got shape "
-                                 f"{rows.shape} of {rows.dtype}")
-        if rows.min() < 0 or rows.max() >= table.size:
-            raise SwimInputError(f"trace_table_rows: rows must be in [0, {table.size}), got "
-                                 f"{rows.min()}..{rows.max()}")
-
-        def own_rows(lo, hi):
-            return rows[lo:hi]
-    m = len(rows)
+    positions = _Positions(table, rows, extra)
+    m = positions.m
     real = m if padding_from is None else int(padding_from)
     if padding_from is not None and (extra is not None or not 1 <= real <= m):
         raise SwimInputError(f"trace_table_rows: padding_from must be in [1, {m}] and not given with extra, "
                              f"got {padding_from!r}{' with extra' if extra is not None else ''}")
     if settings.resolved_backend() != "jax":
         raise SwimInputError(f"trace_table_rows marches with the JAX kernel; MarchSettings.backend="
-                             f"{settings.backend!r} resolves to {settings.resolved_backend()!r}")
-    # the extra rays follow the table's as rows past its end; the host's arrays are read in place, not joined (a
-    # 1024^2 frame's ~5 MB copied and gathered again every frame)
-    n = m + (0 if extra is None else extra.size)
+                             f"{settings.execution.backend!r} resolves to {settings.resolved_backend()!r}")
+    n = positions.n
     if extra is not None:
         real = n
+    settings = _batch_settings(positions, settings)
+    steps = settings.n_before + settings.n_grid + settings.n_after + 1
+    outputs, kept = _march_chunks(positions, real, consts, phase, settings, progress, on_device)
+    if on_device:
+        outputs = {key: kept[0][key] if len(kept) == 1 else jnp.concatenate([out[key] for out in kept])
+                   for key in kept[0]}
+        outputs["steps"] = jnp.full(next(iter(outputs.values())).shape[0], steps, jnp.int32)
+        return outputs
+    outputs["steps"] = np.full(n, steps, np.int32)
+    return outputs
 
-    def chunk_rows(lo, hi):
+
+class _Positions:
+    """The rays of a batch by position: the table's ``rows``, then the ``extra`` rays' (rows past the table's end).
+
+    The host's arrays are read in place, not joined (a 1024^2 frame's ~5 MB copied and gathered again every frame).
+
+    Raises
+    ------
+    SwimInputError
+        If there are no rows or a row is outside the table.
+    """
+
+    def __init__(self, table: RayTable, rows, extra: RayTable | None):
+        if isinstance(rows, range) and rows.step == 1:  # consecutive rows: slices of the host's arrays, no gathers
+            if len(rows) == 0 or rows.start < 0 or rows.stop > table.size:
+                raise SwimInputError(f"trace_table_rows: rows must be a non-empty range in [0, {table.size}), "
+                                     f"got {rows}")
+        else:
+            rows = np.asarray(rows)
+            if rows.ndim != 1 or rows.size == 0 or not np.issubdtype(rows.dtype, np.integer):
+                raise SwimInputError(f"trace_table_rows: rows must be a non-empty (m,) integer array, got shape "
+                                     f"{rows.shape} of {rows.dtype}")
+            if rows.min() < 0 or rows.max() >= table.size:
+                raise SwimInputError(f"trace_table_rows: rows must be in [0, {table.size}), got "
+                                     f"{rows.min()}..{rows.max()}")
+        self.table, self.rows, self.extra = table, rows, extra
+        self.m = len(rows)
+        self.n = self.m + (0 if extra is None else extra.size)
+
+    def own_rows(self, lo, hi):
+        """The table's rows of positions lo..hi (< m): a slice for a range, else an array."""
+        if isinstance(self.rows, range):
+            return slice(self.rows.start + lo, self.rows.start + hi)
+        return self.rows[lo:hi]
+
+    def chunk_rows(self, lo, hi):
         """The rows of positions lo..hi: the table's, then the extra rays' (table.size on)."""
-        own = own_rows(lo, min(hi, m))
+        m = self.m
+        own = self.own_rows(lo, min(hi, m))
         own = np.arange(own.start, own.stop) if isinstance(own, slice) else own
-        return own if hi <= m else np.concatenate([own, table.size + np.arange(max(lo, m) - m, hi - m)])
+        return own if hi <= m else np.concatenate([own, self.table.size + np.arange(max(lo, m) - m, hi - m)])
 
-    def chunk_probes(lo, hi):
+    def chunk_probes(self, lo, hi):
         """The largest probe count of positions lo..hi (the extra rays' where they have probes)."""
-        largest = int(table.probes_host[own_rows(lo, min(hi, m))].max()) if lo < m else 0
-        if hi > m and extra.probes_host is not None:
-            largest = max(largest, int(extra.probes_host[max(lo, m) - m:hi - m].max()))
+        m = self.m
+        largest = int(self.table.probes_host[self.own_rows(lo, min(hi, m))].max()) if lo < m else 0
+        if hi > m and self.extra.probes_host is not None:
+            largest = max(largest, int(self.extra.probes_host[max(lo, m) - m:hi - m].max()))
         return largest
 
+
+def _batch_settings(positions: _Positions, settings: MarchSettings) -> MarchSettings:
+    """The kernel's settings for the batch: trace_rays's chunk program, without segments empty for every ray."""
     # the same program as trace_rays's chunks: the table's switch is not the kernel's
     settings = settings.kernel_settings()
     # segments of zero length for every ray of the batch need no steps (trace_rays)
-    bits = int(np.bitwise_or.reduce(table.segments_host[own_rows(0, m)]))
-    if extra is not None:
-        bits |= int(np.bitwise_or.reduce(extra.segments_host))
-    settings = without_empty_segments(settings, [bits >> c & 1 for c in range(3)])
-    steps = settings.n_before + settings.n_grid + settings.n_after + 1
+    bits = int(np.bitwise_or.reduce(positions.table.segments_host[positions.own_rows(0, positions.m)]))
+    if positions.extra is not None:
+        bits |= int(np.bitwise_or.reduce(positions.extra.segments_host))
+    return without_empty_segments(settings, [bits >> c & 1 for c in range(3)])
+
+
+def _march_chunks(positions: _Positions, real, consts, phase: PhaseInputs, settings: MarchSettings, progress,
+                  on_device):
+    """March the batch chunk by chunk, queued on the device; (host outputs by key, each chunk's device outputs).
+
+    Positions from ``real`` on are marched as padding (rays outside the camera). Without ``on_device`` the outputs
+    are copied into the host's (n, ...) arrays as the chunks finish, at most :data:`PENDING_CHUNKS` behind.
+    """
+    table, extra, m, n = positions.table, positions.extra, positions.m, positions.n
     chunk = settings.resolved_chunk()
     device = with_vector_volume(_device_constants(consts), settings)
     table_arrays = _arrays(table)
@@ -428,12 +468,12 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
 
     for lo in range(0, n, chunk):
         hi = min(lo + chunk, n)
-        part = chunk_rows(lo, hi)
+        part = positions.chunk_rows(lo, hi)
         pad = padded_batch_size(hi - lo, chunk) - (hi - lo)
         if pad:
             part = np.concatenate([part, np.repeat(part[-1:], pad)])
         # n_probe as swim.rt.march_jax._chunk_probes raises it, from the probes kept on the host
-        chunk_settings = with_probes_for(settings, chunk_probes(lo, hi)) if with_probes else settings
+        chunk_settings = with_probes_for(settings, positions.chunk_probes(lo, hi)) if with_probes else settings
         chunk_extra = extra_arrays if hi > m else None
         n_real = np.int32(min(max(real - lo, 0), hi - lo))  # the chunk's own rays: the rest padding (not valid)
         args, rays, probes = _gather_rows(table_arrays, chunk_extra, jnp.asarray(part.astype(np.int32)), n_real, sun,
@@ -446,10 +486,4 @@ def trace_table_rows(table: RayTable, rows, consts, phase: PhaseInputs, settings
             collect()
     while pending:
         collect()
-    if on_device:
-        outputs = {key: kept[0][key] if len(kept) == 1 else jnp.concatenate([out[key] for out in kept])
-                   for key in kept[0]}
-        outputs["steps"] = jnp.full(next(iter(outputs.values())).shape[0], steps, jnp.int32)
-        return outputs
-    outputs["steps"] = np.full(n, steps, np.int32)
-    return outputs
+    return outputs, kept

@@ -307,9 +307,52 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4, Eqs. 4-8; Joseph et al. (1976),
     doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T).
     """
-    from ..workers import in_blocks
-    from .march_settings import BACKENDS, MarchSettings
-    from .solar_cpu import species_sums
+    from .march_settings import ExecutionSettings, MarchSettings
+
+    names, out = _checked_request(volume, variables, backend, out)
+    # "numba" without numba raises there
+    backend = MarchSettings(execution=ExecutionSettings(backend=backend)).resolved_backend()
+    sun = np.asarray(sun_direction_scene, dtype=float)
+    di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "solar_transmittance")
+    dz = float(volume.attrs["dz"])
+
+    beta = volume["extinction"].values
+    aerosol = volume["aerosol_extinction"].values
+    levels = volume["level"].values
+    terrain = volume["terrain_height"].values
+    nk = levels.size
+    b = _species_weights(volume, direct_weights)
+    direct_beam = direct_weights is not None
+    # The swept fields: 0 hydrometeor extinction, 1 its backscatter-weighted sum, 2 the terrain (zero at and
+    # above the surface, so a sunlit slope does not shade itself; opaque a full level below it), 3 the 3-D
+    # aerosol. The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D
+    # aerosol is swept apart: its diffuse light is in the multiple-scattering table of Step 2, so it dims the
+    # direct beam only (docs/rendering.md).
+    # Only fields that are not zero everywhere, and only up to their highest non-zero level (plus the clear
+    # level above it), are swept: above it the optical depth towards the sun is 0. This is what makes a flat
+    # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing; and only
+    # those levels are ever held as sweep input and output (memory: docs/performance.md).
+    hydro_levels, aerosol_levels = (step1a_levels(volume) if nonzero_levels is None
+                                    else (np.asarray(a, bool) for a in nonzero_levels))
+    if hydro_levels.shape != (nk,) or aerosol_levels.shape != (nk,):
+        raise SwimInputError(f"solar_transmittance: nonzero_levels must be two boolean arrays of shape ({nk},) (the "
+                             f"volume's step1a_levels), got shapes {hydro_levels.shape} and {aerosol_levels.shape}")
+    tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol_levels}
+    taus = _swept_depths((beta, aerosol, levels, terrain, dz), tops, b, backend, (di, dj, n_sub, path_per_level))
+    log.info("Step 1a sweep (%s): %d sub-steps per level, max tau_sun %.1f", backend, n_sub,
+             float(taus[0].max()) if 0 in taus else 0.0)
+    return _step1a_dataset(volume, names, out, taus, mu0, direct_beam)
+
+
+def _checked_request(volume: xr.Dataset, variables, backend, out):
+    """The variables asked of :func:`solar_transmittance` and its ``out`` arrays (a dict), checked.
+
+    Raises
+    ------
+    SwimInputError
+        As :func:`solar_transmittance` for ``variables``, ``backend`` and ``out``.
+    """
+    from .march_settings import BACKENDS
 
     names = STEP1A_VARIABLES if variables is None else tuple(variables)
     unknown = sorted(set(names) - set(STEP1A_VARIABLES))
@@ -328,40 +371,42 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
             raise SwimInputError(f"solar_transmittance: out[{name!r}] must be a writeable float32 array of shape "
                                  f"{expected} (level, y, x), got {type(array).__name__} "
                                  f"{getattr(array, 'dtype', '')} {getattr(array, 'shape', '')}")
-    backend = MarchSettings(backend=backend).resolved_backend()  # "numba" without numba raises there
-    sun = np.asarray(sun_direction_scene, dtype=float)
-    di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "solar_transmittance")
-    dz = float(volume.attrs["dz"])
+    return names, out
 
-    beta = volume["extinction"].values
-    aerosol = volume["aerosol_extinction"].values
-    levels = volume["level"].values
-    terrain = volume["terrain_height"].values
-    nk = levels.size
-    shape = beta.shape[2:]  # (ny, nx)
+
+def _species_weights(volume: xr.Dataset, direct_weights):
+    """The weights (species,) float32 of the swept ``b_tau_sun``: ``direct_weights`` if given, else the backscatter
+    fractions of the volume's species.
+
+    Raises
+    ------
+    SwimInputError
+        If ``direct_weights`` are not one finite weight >= 0 per species.
+    """
     # by the volume's own species coordinate: after share_packed_channels it names only the packed species
     b = backscatter_weights(volume)
-    direct_beam = direct_weights is not None
-    if direct_beam:
+    if direct_weights is not None:
         b = np.asarray(direct_weights, np.float32).reshape(-1)
         if b.shape != (volume["extinction"].shape[0],) or not np.all(np.isfinite(b)) or np.any(b < 0):
             raise SwimInputError(f"solar_transmittance: direct_weights must be {volume['extinction'].shape[0]} "
                                  f"finite weights >= 0 (one per species), got {direct_weights!r}")
-    # The swept fields: 0 hydrometeor extinction, 1 its backscatter-weighted sum, 2 the terrain (zero at and
-    # above the surface, so a sunlit slope does not shade itself; opaque a full level below it), 3 the 3-D
-    # aerosol. The hydrometeors make T (a flux transmittance, forward-scattered light included); the 3-D
-    # aerosol is swept apart: its diffuse light is in the multiple-scattering table of Step 2, so it dims the
-    # direct beam only (docs/rendering.md).
-    # Only fields that are not zero everywhere, and only up to their highest non-zero level (plus the clear
-    # level above it), are swept: above it the optical depth towards the sun is 0. This is what makes a flat
-    # sea or a scene without 3-D aerosol, and the clear air above the highest cloud, cost nothing; and only
-    # those levels are ever held as sweep input and output (memory: docs/performance.md).
-    hydro_levels, aerosol_levels = (step1a_levels(volume) if nonzero_levels is None
-                                    else (np.asarray(a, bool) for a in nonzero_levels))
-    if hydro_levels.shape != (nk,) or aerosol_levels.shape != (nk,):
-        raise SwimInputError(f"solar_transmittance: nonzero_levels must be two boolean arrays of shape ({nk},) (the "
-                             f"volume's step1a_levels), got shapes {hydro_levels.shape} and {aerosol_levels.shape}")
-    tops = {0: hydro_levels, 1: hydro_levels, 2: levels < terrain.max(), 3: aerosol_levels}
+    return b
+
+
+def _swept_depths(arrays, tops, b, backend, geometry):
+    """Optical depths towards the sun (swept levels, y, x) float32 of each swept field, by field (0-3).
+
+    ``arrays``: the volume's extinction (species, level, y, x) and aerosol extinction (level, y, x) [m-1], levels
+    and terrain height [m] and dz [m]; ``tops`` (level,) bool per field marks its non-zero levels (a field with none
+    is not swept); ``b`` (species,) the weights of field 1; ``geometry``: :func:`sweep_geometry`'s (di, dj, n_sub,
+    path_per_level).
+    """
+    from ..workers import in_blocks
+    from .solar_cpu import species_sums
+
+    beta, aerosol, levels, terrain, dz = arrays
+    di, dj, n_sub, path_per_level = geometry
+    shape = beta.shape[2:]  # (ny, nx)
     swept = [c for c in range(4) if tops[c].any()]
     taus = {}
     # Each field is swept up to its own top: the terrain's few levels apart from the clouds' many, so neither the
@@ -406,23 +451,29 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
             del device
         taus.update({c: depths[:, row] for row, c in enumerate(group)})
         del depths
-    log.info("Step 1a sweep (%s): %d sub-steps per level, max tau_sun %.1f", backend, n_sub,
-             float(taus[0].max()) if 0 in taus else 0.0)
+    return taus
 
-    def full(c, transform=None, above=0.0):
-        """Field c on all levels (the swept levels, then ``above``), through ``transform``. A field that was not
-        swept (zero everywhere) is a read-only broadcast of ``above``: it takes no memory."""
-        if c not in taus:
-            return np.broadcast_to(np.float32(above), (nk,) + shape)
-        swept_levels = taus[c].shape[0]
-        a = np.empty((nk,) + shape, np.float32)
-        a[swept_levels:] = above  # each level written once: the swept ones below
-        # in blocks of levels, so the transform's temporaries stay small (a whole field of each took ~0.5 GB
-        # of a render's peak memory at 400 x 400 x 160: docs/performance.md, "Memory")
-        for k0 in range(0, swept_levels, TRANSFORM_LEVELS):
-            k1 = min(k0 + TRANSFORM_LEVELS, swept_levels)
-            a[k0:k1] = taus[c][k0:k1] if transform is None else transform(k0, k1)
-        return a
+
+def _full_field(taus, nk, shape, c, transform=None, above=0.0):
+    """Swept field c on all levels (the swept levels, then ``above``), through ``transform``. A field that was not
+    swept (zero everywhere) is a read-only broadcast of ``above``: it takes no memory."""
+    if c not in taus:
+        return np.broadcast_to(np.float32(above), (nk,) + shape)
+    swept_levels = taus[c].shape[0]
+    a = np.empty((nk,) + shape, np.float32)
+    a[swept_levels:] = above  # each level written once: the swept ones below
+    # in blocks of levels, so the transform's temporaries stay small (a whole field of each took ~0.5 GB
+    # of a render's peak memory at 400 x 400 x 160: docs/performance.md, "Memory")
+    for k0 in range(0, swept_levels, TRANSFORM_LEVELS):
+        k1 = min(k0 + TRANSFORM_LEVELS, swept_levels)
+        a[k0:k1] = taus[c][k0:k1] if transform is None else transform(k0, k1)
+    return a
+
+
+def _step1a_dataset(volume: xr.Dataset, names, out, taus, mu0, direct_beam):
+    """:func:`solar_transmittance`'s variables ``names`` from the swept optical depths ``taus`` (by field)."""
+    nk = volume["level"].size
+    shape = tuple(volume["extinction"].shape[2:])  # (ny, nx)
 
     def cloud_t(k0, k1):
         if direct_beam:
@@ -448,11 +499,11 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         if name in data:
             continue
         if name == "transmittance":  # T times the terrain shadow, each made once if it is asked for too
-            parts = [data[part][1] if part in data else full(*recipes[part])
+            parts = [data[part][1] if part in data else _full_field(taus, nk, shape, *recipes[part])
                      for part in ("cloud_transmittance", "terrain_shadow")]
             value = parts[0] * parts[1]
         else:
-            value = full(*recipes[name])
+            value = _full_field(taus, nk, shape, *recipes[name])
         data[name] = (dims, value, attrs[name])
     return xr.Dataset({name: data[name] for name in names}, coords={"level": volume["level"]})
 

@@ -227,7 +227,8 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
     packed : numpy.ndarray
         Shape (level, y, x, channel) float32: the host's packed volume (:func:`swim.rt.march_inputs.shared_packed_volume`);
         its Step 1a channels are overwritten, and its device copies dropped
-        (:func:`swim.rt.march_inputs.step1a_channel_views`).
+        (:func:`swim.rt.march_inputs.step1a_channel_views`), and so is the fused kernel's padded copy of it
+        (:func:`swim.rt.march_pallas.forget_vector_volume`).
     species : tuple of int
         The species packed (:func:`swim.rt.march_inputs.packed_species`).
     nonzero_levels : tuple of numpy.ndarray
@@ -255,6 +256,9 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
     import xarray as xr
 
     from ..workers import in_blocks
+    from .march_pallas import forget_vector_volume
+
+    forget_vector_volume()  # the fused kernel's padded copy of the old volume goes before the refill
     n_species = len(species)
     aerosol_3d = packed_aerosol_3d(packed.shape[-1], n_species)
     views = step1a_channel_views(packed, species)  # the old device copies dropped; the host's channels writeable

@@ -78,6 +78,7 @@ Stamnes, K. et al. (1988), Appl. Opt. 27, 2502, doi:10.1364/AO.27.002502 (DISORT
 
 from __future__ import annotations
 
+import functools
 import glob
 import logging
 import os
@@ -301,21 +302,58 @@ def build_mitsuba_scene(volume, sun_zenith_deg, sun_azimuth_deg, aerosol: Aeroso
     asymmetry = dict(HYDROMETEOR_ASYMMETRY if asymmetry is None else asymmetry)
     sel = (lambda a: np.repeat(np.asarray(a)[..., channel:channel + 1], 3, axis=-1)) if channel is not None else (lambda a: np.asarray(a))
     ssa_a = np.asarray(aerosol.ssa, dtype=float)
+    albedo = _ground_albedo(volume, surface_albedo, sel)
 
-    # ---- surface
+    w = float(atmosphere_half_width_m)
+    off, gas_lo, gas_hi = _gas_box(gas, w)
+    wc = 1 if channel is None else channel
+    has_aerosol = bool(np.any(np.asarray(gas.beta_aerosol, dtype=float) > 0)
+                       or (volume is not None and np.any(volume["aerosol_extinction"].values > 0)))
+    if has_aerosol and channel is None:
+        log.warning("aerosol with an RGB pass: the aerosol/Rayleigh phase mixture is taken at 546 nm for all channels")
+    p_rayleigh = _tabphase(lambda m: np.asarray(rayleigh_phase_function(m, gas.depolarization), dtype=float), n=401)
+    p_aerosol = _tabphase(lambda m: np.asarray(aerosol.type.phase_function(m), dtype=float)) if has_aerosol else None
+    gas_phase = functools.partial(_gas_phase, p_rayleigh, p_aerosol)
+    gas_medium = _gas_medium(mi, gas, ssa_a, sel, wc, gas_lo, gas_hi, gas_phase)
+    scene_dict = _scene_dict(mi, sun_zenith_deg, sun_azimuth_deg, albedo, off, w)
+    cloud_box, cloud_g = None, None
+    if volume is None:
+        scene_dict["gas"] = _box_shape(mi, gas_lo, gas_hi, gas_medium)
+    else:
+        gas_ref = {"type": "ref", "id": "gas_medium"}
+        scene_dict["gas_medium"] = gas_medium
+        scene_dict["gas"] = _box_shape(mi, gas_lo, gas_hi, gas_ref)
+        lo, hi, cloud_medium, cloud_g = _cloud_medium(mi, volume, gas, ssa_a, sel, wc, asymmetry, cloud_phase,
+                                                      gas_phase)
+        scene_dict["cloud_medium"] = cloud_medium
+        scene_dict["cloud"] = _box_shape(mi, lo, hi, {"type": "ref", "id": "cloud_medium"}, gas_ref)
+        cloud_box = (lo, hi)
+    scene = mi.load_dict(scene_dict)
+    return {"scene": scene, "media": _media_of(scene), "cloud_box": cloud_box, "gas_box": (gas_lo, gas_hi),
+            "cloud_g": cloud_g, "channel": channel, "variant": mi.variant()}
+
+
+def _ground_albedo(volume, surface_albedo, sel):
+    """The Lambertian ground's albedo (3,): ``surface_albedo``, or the volume's mean (0.06 without a volume)."""
     if surface_albedo is None:
         surface_albedo = (np.asarray(volume["surface_albedo"].values, dtype=float).reshape(3, -1).mean(axis=1)
                           if volume is not None else 0.06)
     albedo = sel(np.broadcast_to(np.asarray(surface_albedo, dtype=float), (3,)).copy())
     if np.any(~np.isfinite(albedo)) or np.any((albedo < 0) | (albedo > 1)):
         raise SwimInputError(f"surface_albedo must be in [0, 1]; got {surface_albedo!r}")
+    return albedo
 
-    # ---- gas box: 1 x 1 x n_z profiles on the tables' heights (voxel centres)
-    beta_r = np.asarray(gas.beta_rayleigh, dtype=float)
-    beta_a = np.asarray(gas.beta_aerosol, dtype=float)
-    h = np.arange(beta_r.shape[0]) * gas.dh
+
+def _gas_heights(gas):
+    """Heights (nh,) [m] of the gas tables' levels."""
+    return np.arange(np.asarray(gas.beta_rayleigh, dtype=float).shape[0]) * gas.dh
+
+
+def _gas_box(gas, w):
+    """The offset (3,) [m] of the gas box and the ground from the model domain, and the gas box (lo, hi) [m]:
+    ``w`` to either side, 1 x 1 x nh voxels centred on the gas tables' heights."""
+    h = _gas_heights(gas)
     dh = float(gas.dh)
-    w = float(atmosphere_half_width_m)
     # Mitsuba's triangle intersection is not watertight: a ray that meets a face exactly on the diagonal
     # of its two triangles can miss it (measured: a view whose entry point into the gas box lay on the top
     # face's diagonal saw no Rayleigh sky). Camera rays through the centre of a symmetric scene do exactly
@@ -324,30 +362,36 @@ def build_mitsuba_scene(volume, sun_zenith_deg, sun_azimuth_deg, aerosol: Aeroso
     off = np.array([_GAS_BOX_OFFSET_M[0], _GAS_BOX_OFFSET_M[1], 0.0])
     gas_lo = np.array([-w, -w, -0.5 * dh]) + off
     gas_hi = np.array([w, w, h[-1] + 0.5 * dh]) + off
+    return off, gas_lo, gas_hi
+
+
+def _gas_phase(p_rayleigh, p_aerosol, weight_volume):
+    """The gas's phase function: Rayleigh, blended with the aerosol's by ``weight_volume`` where there is aerosol."""
+    if p_aerosol is None:
+        return dict(p_rayleigh)
+    return {"type": "blendphase", "weight": weight_volume, "phase1": dict(p_rayleigh), "phase2": dict(p_aerosol)}
+
+
+def _gas_medium(mi, gas, ssa_a, sel, wc, gas_lo, gas_hi, gas_phase):
+    """The gas box's heterogeneous medium: Rayleigh and background aerosol profiles, the phase weight at ``wc``."""
+    beta_r = np.asarray(gas.beta_rayleigh, dtype=float)
+    beta_a = np.asarray(gas.beta_aerosol, dtype=float)
     sig_t = beta_r + beta_a
     sca_r, sca_a = beta_r, beta_a * ssa_a
     gas_ssa = np.clip(_safe_ratio(sca_r + sca_a, sig_t), 0.0, 1.0)
     gas_waer = _safe_ratio(sca_a, sca_r + sca_a)  # (nh, 3)
-    wc = 1 if channel is None else channel
-    has_aerosol = bool(np.any(beta_a > 0) or (volume is not None and np.any(volume["aerosol_extinction"].values > 0)))
-    if has_aerosol and channel is None:
-        log.warning("aerosol with an RGB pass: the aerosol/Rayleigh phase mixture is taken at 546 nm for all channels")
-    p_rayleigh = _tabphase(lambda m: np.asarray(rayleigh_phase_function(m, gas.depolarization), dtype=float), n=401)
-    p_aerosol = _tabphase(lambda m: np.asarray(aerosol.type.phase_function(m), dtype=float)) if has_aerosol else None
-
-    def gas_phase(weight_volume):
-        if p_aerosol is None:
-            return dict(p_rayleigh)
-        return {"type": "blendphase", "weight": weight_volume, "phase1": dict(p_rayleigh), "phase2": dict(p_aerosol)}
-
-    gas_medium = {
+    return {
         "type": "heterogeneous",
         "sigma_t": _grid_volume(mi, sel(sig_t)[:, None, None, :], gas_lo, gas_hi, channels=3),
         "albedo": _grid_volume(mi, sel(gas_ssa)[:, None, None, :], gas_lo, gas_hi, channels=3),
         "scale": 1.0,
         "phase": gas_phase(_grid_volume(mi, gas_waer[:, wc][:, None, None], gas_lo, gas_hi)),
     }
-    scene_dict = {
+
+
+def _scene_dict(mi, sun_zenith_deg, sun_azimuth_deg, albedo, off, w):
+    """The scene's integrator, sun and ground (a square of half-width ``w`` [m] centred at ``off``)."""
+    return {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 1 << 30},
         "sun": {"type": "directional", "direction": mi.ScalarVector3f(*(-enu_from_azimuth_zenith(sun_azimuth_deg, sun_zenith_deg))),
@@ -355,87 +399,104 @@ def build_mitsuba_scene(volume, sun_zenith_deg, sun_azimuth_deg, aerosol: Aeroso
         "ground": {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo.tolist()}},
                    "to_world": mi.ScalarTransform4f().translate(mi.ScalarPoint3f(*off)) @ mi.ScalarTransform4f().scale(mi.ScalarPoint3f(w, w, 1.0))},
     }
-    cloud_box, cloud_g = None, None
-    if volume is None:
-        scene_dict["gas"] = _box_shape(mi, gas_lo, gas_hi, gas_medium)
-    else:
-        gas_ref = {"type": "ref", "id": "gas_medium"}
-        scene_dict["gas_medium"] = gas_medium
-        scene_dict["gas"] = _box_shape(mi, gas_lo, gas_hi, gas_ref)
-        x, y = _regular_axes(volume)
-        if np.any(np.asarray(volume["terrain_height"].values) > 1.0):
-            log.warning("the Mitsuba scene has a flat ground at 0 m; the volume's terrain is ignored")
-        levels = np.asarray(volume["level"].values, dtype=float)
-        dz = float(volume.attrs["dz"])
-        dx = float(x[1] - x[0]) if x.size > 1 else 1.0
-        dy = float(y[1] - y[0]) if y.size > 1 else 1.0
-        ext = np.asarray(volume["extinction"].values, dtype=float)  # (species, nz, ny, nx)
-        beta_c = ext.sum(axis=0)
-        aer3 = np.asarray(volume["aerosol_extinction"].values, dtype=float)[..., None] * np.asarray(gas.angstrom_factor, dtype=float)
-        def pad(a):
-            # one empty cell on the x and y sides and on top; the bottom level lies half a cell below ground
-            # (two on the +x side: see the note on watertightness above)
-            return np.pad(a, [(0, 1), (1, 1), (1, 2)] + [(0, 0)] * (a.ndim - 3), mode="constant")
 
-        # Zero-pad cloud and 3-D aerosol (one cell on the sides and on top), then keep only the cells that
-        # hold any (plus one empty cell around them): a smaller box has fewer null collisions. The gas is
-        # recomputed on the kept levels; the bottom level lies half a cell below the ground.
-        s_c_p = pad(np.broadcast_to(beta_c[..., None], aer3.shape))
-        aer_p = pad(aer3)
-        active = np.any((s_c_p > 0) | (aer_p > 0), axis=-1)
-        if not active.any():
-            active[0, 1:-1, 1:-1] = True
-        ks, js, is_ = (np.nonzero(active.any(axis=axes))[0] for axes in ((1, 2), (0, 2), (0, 1)))
-        k0, k1 = max(ks[0] - 1, 0), ks[-1] + 1
-        j0, j1 = js[0] - 1, js[-1] + 1
-        i0, i1 = is_[0] - 1, is_[-1] + 2
-        s_c_p = s_c_p[k0:k1 + 1, j0:j1 + 1, i0:i1 + 1]
-        aer_p = aer_p[k0:k1 + 1, j0:j1 + 1, i0:i1 + 1]
-        lev_p = np.append(levels, levels[-1] + dz)[k0:k1 + 1]
-        br_p = np.stack([np.interp(lev_p, h, beta_r[:, c]) for c in range(3)], axis=-1)[:, None, None, :]
-        ba_p = np.stack([np.interp(lev_p, h, beta_a[:, c]) for c in range(3)], axis=-1)[:, None, None, :]
-        s_r_p = np.broadcast_to(br_p, s_c_p.shape)
-        s_a_p = (ba_p + aer_p) * ssa_a
-        e_t_p = s_r_p + ba_p + aer_p + s_c_p
-        ssa = np.clip(_safe_ratio(s_r_p + s_a_p + s_c_p, e_t_p), 0.0, 1.0)
-        # The blend weight is interpolated trilinearly, but the true weight is the ratio of the interpolated
-        # coefficients: across a cloud edge (cloud voxel next to a clear one) interpolating the ratio would
-        # give the cloud's own scattering a ~50 % Rayleigh phase function (measured: -13 % transmission and
-        # +13 % reflection of a tau = 10 slab whose base and top ramp over one level). The weight is
-        # therefore dilated by one voxel: exact wherever cloud scattering dominates, and it only gives the
-        # (negligible, tau ~ 1e-4 per cell) gas scattering next to cloud the cloud's phase function.
-        from scipy.ndimage import maximum_filter
 
-        w_cloud = maximum_filter(_safe_ratio(s_c_p, s_r_p + s_a_p + s_c_p)[..., wc], size=3, mode="nearest")
-        w_aer = _safe_ratio(s_a_p, s_r_p + s_a_p)[..., wc]
-        nz, ny, nx = e_t_p.shape[:3]
-        lo = np.array([x[0] + (i0 - 1.5) * dx, y[0] + (j0 - 1.5) * dy, lev_p[0] - 0.5 * dz])
-        hi = lo + np.array([nx * dx, ny * dy, nz * dz])
-        if levels[0] > 0.5 * dz:
-            raise SwimInputError("the optical volume must start at the ground (flat terrain at 0 m)")
-        cloud_g = _cloud_asymmetry(volume, asymmetry)
-        cloud_medium = {
-            "type": "heterogeneous",
-            "sigma_t": _grid_volume(mi, sel(e_t_p), lo, hi, channels=3),
-            "albedo": _grid_volume(mi, sel(ssa), lo, hi, channels=3),
-            "scale": 1.0,
-            "phase": {"type": "blendphase", "weight": _grid_volume(mi, w_cloud, lo, hi),
-                      "phase1": gas_phase(_grid_volume(mi, w_aer, lo, hi)),
-                      "phase2": ({"type": "hg", "g": float(cloud_g)} if cloud_phase is None
-                                 else _tabphase(cloud_phase, n=CLOUD_TABPHASE_POINTS))},
-        }
-        scene_dict["cloud_medium"] = cloud_medium
-        scene_dict["cloud"] = _box_shape(mi, lo, hi, {"type": "ref", "id": "cloud_medium"}, gas_ref)
-        cloud_box = (lo, hi)
-    scene = mi.load_dict(scene_dict)
+def _cloud_medium(mi, volume, gas, ssa_a, sel, wc, asymmetry, cloud_phase, gas_phase):
+    """The cloud box's medium: hydrometeors, 3-D aerosol and the gas on the cells that hold any.
+
+    Returns the box (lo, hi) [m], the medium dict and the hydrometeors' HG asymmetry parameter.
+    """
+    x, y = _regular_axes(volume)
+    if np.any(np.asarray(volume["terrain_height"].values) > 1.0):
+        log.warning("the Mitsuba scene has a flat ground at 0 m; the volume's terrain is ignored")
+    levels = np.asarray(volume["level"].values, dtype=float)
+    dz = float(volume.attrs["dz"])
+    dx = float(x[1] - x[0]) if x.size > 1 else 1.0
+    dy = float(y[1] - y[0]) if y.size > 1 else 1.0
+    s_c_p, aer_p, lev_p, (i0, j0) = _active_cells(volume, gas, levels, dz)
+    e_t_p, ssa, w_cloud, w_aer = _cloud_optics(gas, ssa_a, s_c_p, aer_p, lev_p, wc)
+    nz, ny, nx = e_t_p.shape[:3]
+    lo = np.array([x[0] + (i0 - 1.5) * dx, y[0] + (j0 - 1.5) * dy, lev_p[0] - 0.5 * dz])
+    hi = lo + np.array([nx * dx, ny * dy, nz * dz])
+    if levels[0] > 0.5 * dz:
+        raise SwimInputError("the optical volume must start at the ground (flat terrain at 0 m)")
+    cloud_g = _cloud_asymmetry(volume, asymmetry)
+    cloud_medium = {
+        "type": "heterogeneous",
+        "sigma_t": _grid_volume(mi, sel(e_t_p), lo, hi, channels=3),
+        "albedo": _grid_volume(mi, sel(ssa), lo, hi, channels=3),
+        "scale": 1.0,
+        "phase": {"type": "blendphase", "weight": _grid_volume(mi, w_cloud, lo, hi),
+                  "phase1": gas_phase(_grid_volume(mi, w_aer, lo, hi)),
+                  "phase2": ({"type": "hg", "g": float(cloud_g)} if cloud_phase is None
+                             else _tabphase(cloud_phase, n=CLOUD_TABPHASE_POINTS))},
+    }
+    return lo, hi, cloud_medium, cloud_g
+
+
+def _active_cells(volume, gas, levels, dz):
+    """The hydrometeor (nz, ny, nx, 3) and 3-D aerosol extinction [m-1] on the cells that hold any, with one empty
+    cell around them; their levels (nz,) [m]; and the first kept cell's (i, j) on the padded grid."""
+    ext = np.asarray(volume["extinction"].values, dtype=float)  # (species, nz, ny, nx)
+    beta_c = ext.sum(axis=0)
+    aer3 = np.asarray(volume["aerosol_extinction"].values, dtype=float)[..., None] * np.asarray(gas.angstrom_factor, dtype=float)
+    def pad(a):
+        # one empty cell on the x and y sides and on top; the bottom level lies half a cell below ground
+        # (two on the +x side: see the note on watertightness in _gas_box)
+        return np.pad(a, [(0, 1), (1, 1), (1, 2)] + [(0, 0)] * (a.ndim - 3), mode="constant")
+
+    # Zero-pad cloud and 3-D aerosol (one cell on the sides and on top), then keep only the cells that
+    # hold any (plus one empty cell around them): a smaller box has fewer null collisions. The gas is
+    # recomputed on the kept levels; the bottom level lies half a cell below the ground.
+    s_c_p = pad(np.broadcast_to(beta_c[..., None], aer3.shape))
+    aer_p = pad(aer3)
+    active = np.any((s_c_p > 0) | (aer_p > 0), axis=-1)
+    if not active.any():
+        active[0, 1:-1, 1:-1] = True
+    ks, js, is_ = (np.nonzero(active.any(axis=axes))[0] for axes in ((1, 2), (0, 2), (0, 1)))
+    k0, k1 = max(ks[0] - 1, 0), ks[-1] + 1
+    j0, j1 = js[0] - 1, js[-1] + 1
+    i0, i1 = is_[0] - 1, is_[-1] + 2
+    s_c_p = s_c_p[k0:k1 + 1, j0:j1 + 1, i0:i1 + 1]
+    aer_p = aer_p[k0:k1 + 1, j0:j1 + 1, i0:i1 + 1]
+    lev_p = np.append(levels, levels[-1] + dz)[k0:k1 + 1]
+    return s_c_p, aer_p, lev_p, (i0, j0)
+
+
+def _cloud_optics(gas, ssa_a, s_c_p, aer_p, lev_p, wc):
+    """The cloud box's extinction and single-scattering albedo (nz, ny, nx, 3), and its phase weights (nz, ny, nx)
+    at channel ``wc``: of the hydrometeors against the rest, and of the aerosol against the gas."""
+    h = _gas_heights(gas)
+    beta_r = np.asarray(gas.beta_rayleigh, dtype=float)
+    beta_a = np.asarray(gas.beta_aerosol, dtype=float)
+    br_p = np.stack([np.interp(lev_p, h, beta_r[:, c]) for c in range(3)], axis=-1)[:, None, None, :]
+    ba_p = np.stack([np.interp(lev_p, h, beta_a[:, c]) for c in range(3)], axis=-1)[:, None, None, :]
+    s_r_p = np.broadcast_to(br_p, s_c_p.shape)
+    s_a_p = (ba_p + aer_p) * ssa_a
+    e_t_p = s_r_p + ba_p + aer_p + s_c_p
+    ssa = np.clip(_safe_ratio(s_r_p + s_a_p + s_c_p, e_t_p), 0.0, 1.0)
+    # The blend weight is interpolated trilinearly, but the true weight is the ratio of the interpolated
+    # coefficients: across a cloud edge (cloud voxel next to a clear one) interpolating the ratio would
+    # give the cloud's own scattering a ~50 % Rayleigh phase function (measured: -13 % transmission and
+    # +13 % reflection of a tau = 10 slab whose base and top ramp over one level). The weight is
+    # therefore dilated by one voxel: exact wherever cloud scattering dominates, and it only gives the
+    # (negligible, tau ~ 1e-4 per cell) gas scattering next to cloud the cloud's phase function.
+    from scipy.ndimage import maximum_filter
+
+    w_cloud = maximum_filter(_safe_ratio(s_c_p, s_r_p + s_a_p + s_c_p)[..., wc], size=3, mode="nearest")
+    w_aer = _safe_ratio(s_a_p, s_r_p + s_a_p)[..., wc]
+    return e_t_p, ssa, w_cloud, w_aer
+
+
+def _media_of(scene):
+    """The scene's media by name: ``gas`` (the box that reaches the top of the atmosphere) and ``cloud``."""
     media = {}
     for shape in scene.shapes():
         if shape.is_medium_transition():
             bbox = shape.bbox()
             key = "gas" if float(bbox.max[2]) > 0.5 * ATMOSPHERE_TOP_M else "cloud"
             media[key] = shape.interior_medium()
-    return {"scene": scene, "media": media, "cloud_box": cloud_box, "gas_box": (gas_lo, gas_hi),
-            "cloud_g": cloud_g, "channel": channel, "variant": mi.variant()}
+    return media
 
 
 def directions_from_angles(view_zenith_deg, view_azimuth_deg):

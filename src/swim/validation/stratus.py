@@ -226,7 +226,6 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
     from ..geometry.cameras import AllSkyCamera
     from ..pipeline import render
 
-
     settings = reference_settings(paper_method_settings() if settings is None else settings)
     aerosol = AerosolBackground() if aerosol is None else aerosol
     deck = dict(deck or {})
@@ -236,17 +235,8 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
                 sun_azimuth=float(sun_azimuth_deg), aerosol=aerosol, settings=settings, height=0.0)
     cam = AllSkyCamera(size=int(camera_size))
     sz, sa = float(ds.attrs["sun_zenith_deg"]), float(ds.attrs["sun_azimuth_deg"])
-
-    # sky-dome views: nearest pixels of the dome directions, DISORT at their exact directions
-    zen, az = sky_dome_directions(zenith_step_deg, azimuth_step_deg, max_zenith_deg)
-    row, col = cam.pixel_of_direction(enu_from_azimuth_zenith(az, zen))
-    rc = np.unique(np.stack([np.rint(row), np.rint(col)], axis=-1).astype(int), axis=0)
-    r, c = rc[:, 0], rc[:, 1]
-    vz = ds["view_zenith"].values[r, c].astype(float)
-    va = ds["view_azimuth"].values[r, c].astype(float)
-    scat = np.degrees(np.arccos(np.clip(enu_from_azimuth_zenith(va, vz) @ enu_from_azimuth_zenith(sa, sz), -1.0, 1.0)))
-    keep = (scat > sun_exclusion_deg) & (vz <= max_zenith_deg + 1.0)
-    r, c, vz, va = r[keep], c[keep], vz[keep], va[keep]
+    r, c, vz, va = _sky_dome_pixels(ds, cam, sz, sa, zenith_step_deg, azimuth_step_deg, max_zenith_deg,
+                                    sun_exclusion_deg)
     centre = (int(camera_size) - 1) // 2
     sky = _sky(ds).astype(float)
     l_dome = sky[:, r, c].T
@@ -262,10 +252,38 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
                                               (180.0 - space_views[:, 0], space_views[:, 1]), surface_albedo,
                                               n_streams)
     flux = disort_layers_irradiance(layers, sz, surface_albedo, n_streams)
-    irr = sky_irradiance(ds)
+    out = _stratus_scores(layers, sz, sky_irradiance(ds), flux, l_zenith, l_dome, ref_ground, vz, va)
+    out.update(space_views=space_views, toa_disort=ref_space, toa_up=flux["toa_up"])
+    out["ghi_err"] = out["ghi_swim"] / out["ghi_disort"] - 1.0
+    out["dhi_err"] = out["dhi_swim"] / out["dhi_disort"] - 1.0
+    out["zenith_err"] = out["zenith_swim"] / out["zenith_disort"] - 1.0
+    if len(space_views):
+        middle = 0.5 * (deck.get("cloud_base_m", 1000.0) + deck.get("cloud_top_m", 1500.0))
+        out["toa_swim"] = render_space_views(scene, sz, sa, space_views, settings, target_height_m=middle)
+        out["toa_err"] = out["toa_swim"] / ref_space - 1.0
+    if return_images:
+        out["image"] = ds
+    return out
 
+
+def _sky_dome_pixels(ds, cam, sz, sa, zenith_step_deg, azimuth_step_deg, max_zenith_deg, sun_exclusion_deg):
+    """The all-sky image's pixels nearest the sky-dome directions, away from the sun: rows, columns (n,) and their
+    view zenith and azimuth (n,) [deg] (DISORT is solved at these exact directions)."""
+    zen, az = sky_dome_directions(zenith_step_deg, azimuth_step_deg, max_zenith_deg)
+    row, col = cam.pixel_of_direction(enu_from_azimuth_zenith(az, zen))
+    rc = np.unique(np.stack([np.rint(row), np.rint(col)], axis=-1).astype(int), axis=0)
+    r, c = rc[:, 0], rc[:, 1]
+    vz = ds["view_zenith"].values[r, c].astype(float)
+    va = ds["view_azimuth"].values[r, c].astype(float)
+    scat = np.degrees(np.arccos(np.clip(enu_from_azimuth_zenith(va, vz) @ enu_from_azimuth_zenith(sa, sz), -1.0, 1.0)))
+    keep = (scat > sun_exclusion_deg) & (vz <= max_zenith_deg + 1.0)
+    return r[keep], c[keep], vz[keep], va[keep]
+
+
+def _stratus_scores(layers, sz, irr, flux, l_zenith, l_dome, ref_ground, vz, va):
+    """The ground's comparison of :func:`compare_stratus`: irradiances, zenith radiance and sky-dome statistics."""
     rel = l_dome / ref_ground[1:] - 1.0
-    out = {
+    return {
         "tau": layers["tau_cloud"],
         "sun_zenith": sz,
         "ghi_swim": irr["ghi"].values, "ghi_disort": flux["global"],
@@ -278,20 +296,7 @@ def compare_stratus(tau, sun_zenith_deg, sun_azimuth_deg=135.0, camera_size=61, 
         "p90_abs": np.percentile(np.abs(rel), 90, axis=0),
         "bias": np.median(rel, axis=0),
         "pearson_r": np.array([np.corrcoef(l_dome[:, i], ref_ground[1:, i])[0, 1] for i in range(3)]),
-        "space_views": space_views,
-        "toa_disort": ref_space,
-        "toa_up": flux["toa_up"],
     }
-    out["ghi_err"] = out["ghi_swim"] / out["ghi_disort"] - 1.0
-    out["dhi_err"] = out["dhi_swim"] / out["dhi_disort"] - 1.0
-    out["zenith_err"] = out["zenith_swim"] / out["zenith_disort"] - 1.0
-    if len(space_views):
-        middle = 0.5 * (deck.get("cloud_base_m", 1000.0) + deck.get("cloud_top_m", 1500.0))
-        out["toa_swim"] = render_space_views(scene, sz, sa, space_views, settings, target_height_m=middle)
-        out["toa_err"] = out["toa_swim"] / ref_space - 1.0
-    if return_images:
-        out["image"] = ds
-    return out
 
 
 def stratus_table_rows(taus=STRATUS_TAUS, sun_zeniths=STRATUS_SUN_ZENITHS, camera_size=61, settings=None,

@@ -170,17 +170,17 @@ def test_the_jax_march_and_step_1a_are_read_by_a_new_process_with_the_same_image
     """The real kernels export (an operation that JAX cannot export would fall back to plain jit silently), and a
     render whose programs are read from the cache gives the bits of one traced by jax.jit."""
     from swim.io.default_scene import default_scene
-    from swim.pipeline import _STAGE_CACHE, render
+    from swim.pipeline import STATE, render
     from swim.rt import march_jax, solar_device
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
     scene = default_scene()
     kernels = (march_jax._trace_chunk, march_jax._probe_counts_chunk, solar_device._sweep)
 
     def image():
-        _STAGE_CACHE.clear()  # Step 1a runs again
+        STATE.stages.clear()  # Step 1a runs again
         out = render(scene, sun_zenith=35.0, sun_azimuth=120.0, camera_options={"size": 24},
-                     settings=MarchSettings(backend="jax", chunk=256))
+                     settings=MarchSettings(execution=ExecutionSettings(backend="jax", chunk=256)))
         return out["radiance"].values
 
     monkeypatch.setenv("SWIM_JAX_EXPORT", "0")

@@ -250,7 +250,7 @@ def test_the_whole_grid_is_coarsened_before_the_crop(monkeypatch):
         seen.append(scene)
         raise Stop
 
-    monkeypatch.setattr(pipeline, "crop_scene_to_view", crop)
+    monkeypatch.setattr(pipeline.scene_stage, "crop_scene_to_view", crop)
     view = dict(lat=38.0, lon=-97.0, height=2.0, camera="perspective",
                 camera_options={"width": 12, "height": 8, "fov_deg": 20.0, "view_azimuth_deg": 60.0,
                                 "view_zenith_deg": 80.0})

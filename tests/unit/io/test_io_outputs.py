@@ -11,6 +11,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 import swim
+import swim.io.outputs
 from swim.cli.main import app
 from swim.errors import SwimInputError
 from swim.io.atomic import atomic_write, check_output_path
@@ -83,12 +84,11 @@ def test_an_image_and_its_netcdf_are_written_both_or_neither(tmp_path, image, mo
     assert (tmp_path / "a.png").is_file() and (tmp_path / "a.nc").is_file()
     with pytest.raises(SwimInputError, match="unknown image format"):
         write_outputs(image, tmp_path / "b.bmp", tmp_path / "b.nc")
-    from swim import pipeline
 
     def broken(image, tmp):
         raise OSError("disk full")
 
-    monkeypatch.setattr(pipeline, "_netcdf_to", broken)
+    monkeypatch.setattr(swim.io.outputs, "_netcdf_to", broken)
     with pytest.raises(OSError):
         write_outputs(image, tmp_path / "c.png", tmp_path / "c.nc")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.nc", "a.png"]

@@ -37,10 +37,11 @@ def test_a_render_trims_the_heap_only_for_images_of_many_pixels(monkeypatch):
                   settings=swim.MarchSettings(cloud_scattering="albers2020"))
     swim.render(scene, **kwargs)  # builds the scene's stages (and trims after them)
     calls = []
-    monkeypatch.setattr(pipeline, "release_free_memory", lambda: calls.append(1) or False)
+    for stage in (pipeline.chain, pipeline.scene_stage, pipeline.tables):  # every stage's trims
+        monkeypatch.setattr(stage, "release_free_memory", lambda: calls.append(1) or False)
     swim.render(scene, **kwargs)
     assert calls == []
-    monkeypatch.setattr(pipeline, "TRIM_MIN_PIXELS", 16 * 16)
+    monkeypatch.setattr(pipeline.chain, "TRIM_MIN_PIXELS", 16 * 16)
     image = swim.render(scene, **kwargs)
     assert len(calls) == 2 and image["rgb"].shape == (16, 16, 3)
 
@@ -123,7 +124,7 @@ def test_a_render_checks_the_process_s_memory_mappings(monkeypatch):
     import swim.pipeline as pipeline
 
     calls = []
-    monkeypatch.setattr(pipeline, "release_compiled_programs", lambda **kw: calls.append(kw) or False)
+    monkeypatch.setattr(pipeline.chain, "release_compiled_programs", lambda **kw: calls.append(kw) or False)
     swim.render(swim.default_scene(), camera="allsky", camera_options={"size": 16}, sun_zenith=30.0,
                 sun_azimuth=120.0)
-    assert calls == [{"min_interval_s": pipeline.COMPILED_PROGRAMS_CHECK_S}]
+    assert calls == [{"min_interval_s": pipeline.chain.COMPILED_PROGRAMS_CHECK_S}]

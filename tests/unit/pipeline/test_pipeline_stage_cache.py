@@ -30,7 +30,7 @@ def test_the_3d_solution_is_kept_for_the_suns_near_its_node(caplog):
 
     deck = stratus_scene(10.0, n_columns=5)
     kw = {"settings": swim.MarchSettings()}
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     first = _render(deck, sun_zenith=40.0, **kw)
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         near = _render(deck, sun_zenith=40.3, **kw)
@@ -39,7 +39,7 @@ def test_the_3d_solution_is_kept_for_the_suns_near_its_node(caplog):
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         _render(deck, sun_zenith=45.0, **kw)
     assert "reusing the diffuse field" not in caplog.text
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     np.testing.assert_array_equal(near["radiance"].values, _render(deck, sun_zenith=40.3, **kw)["radiance"].values)
     assert not np.array_equal(near["radiance"].values, first["radiance"].values)
 
@@ -51,13 +51,13 @@ def test_3d_solutions_are_kept_across_scenes_a_few_at_a_time(caplog):
 
     decks = [stratus_scene(tau, n_columns=5) for tau in (5.0, 10.0)]
     kw = {"settings": swim.MarchSettings()}
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     images = [_render(deck, **kw)["radiance"].values for deck in decks]
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         again = _render(decks[0], **kw)["radiance"].values
     assert "reusing the diffuse field of an earlier render" in caplog.text
     np.testing.assert_array_equal(again, images[0])
-    for zenith in range(20, 20 + 5 * pipeline.SMALL_ENTRIES, 5):  # other sun nodes push the first deck's out
+    for zenith in range(20, 20 + 5 * pipeline.caches.SMALL_ENTRIES, 5):  # other sun nodes push the first deck's out
         _render(decks[1], sun_zenith=float(zenith), **kw)
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
@@ -66,7 +66,7 @@ def test_3d_solutions_are_kept_across_scenes_a_few_at_a_time(caplog):
 
 
 def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     scene = swim.default_scene()
     with caplog.at_level(logging.INFO, logger="swim.pipeline"):
         first = _render(scene)
@@ -81,7 +81,7 @@ def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
         new_sun = _render(scene, sun_zenith=60.0)
     assert "reusing the volume" in caplog.text and "reusing the grid constants" not in caplog.text
     assert "reusing the occupancy" in caplog.text
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     np.testing.assert_array_equal(new_sun["radiance"].values, _render(scene, sun_zenith=60.0)["radiance"].values)
 
     # another aerosol: the grid's constants (Step 1a, the packed volume) are reused, the atmosphere's are not
@@ -108,7 +108,7 @@ def test_same_scene_reuses_stages_and_a_changed_scene_does_not(caplog):
 
 
 def test_a_new_scene_drops_the_old_scenes_entries_before_building():
-    cache = pipeline._StageCache()
+    cache = pipeline.caches.StageCache()
     cache.get(("volume", "scene A"), lambda: "volume A")
     cache.get(("grid constants", "scene A", (0, 0, 1)), lambda: "T A")
     cache.get(("constants", "scene A", (0, 0, 1), 7), lambda: "constants A")
@@ -128,7 +128,7 @@ def test_a_new_scene_drops_the_old_scenes_entries_before_building():
 def test_a_new_sun_holds_one_set_of_grid_constants_at_a_time():
     """render() looks the grid's constants up inside the build of the constants: when the sun changes, the old
     entries (each holding the packed volume) are gone before the new packed volume is built."""
-    cache = pipeline._StageCache()
+    cache = pipeline.caches.StageCache()
     cache.get(("volume", "B"), lambda: "volume B")
     cache.get(("constants", "B", "sun 1", 7), lambda: cache.get(("grid constants", "B", "sun 1"), lambda: "G1"))
 
@@ -164,7 +164,7 @@ def test_a_lazy_scene_is_not_read_again_but_its_changes_are_seen(tmp_path, caplo
         def _posttask(self, *args):
             self.count += 1
 
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     scene = swim.default_scene()
     path = tmp_path / "scene.nc"
     scene.to_netcdf(path)
@@ -206,30 +206,30 @@ def test_scene_digest_sees_every_value_and_attribute(monkeypatch, threaded):
 
     monkeypatch.setattr(swim.digest, "BLOCK_BYTES", 256)  # a non-contiguous 3-D field spans many blocks
     scene = swim.default_scene()
-    serial = pipeline._fingerprint(scene)
+    serial = pipeline.caches.fingerprint(scene)
     if threaded:  # every scene counts as big, on 3 threads
-        monkeypatch.setattr(pipeline, "FINGERPRINT_THREADED_BYTES", 0)
+        monkeypatch.setattr(pipeline.caches, "FINGERPRINT_THREADED_BYTES", 0)
         monkeypatch.setenv("SWIM_NUM_THREADS", "3")
-    digest = pipeline._fingerprint(scene)
+    digest = pipeline.caches.fingerprint(scene)
     assert digest == serial
-    assert pipeline._fingerprint(scene.copy(deep=True)) == digest
+    assert pipeline.caches.fingerprint(scene.copy(deep=True)) == digest
     name = next(n for n in scene.data_vars if scene[n].ndim == 3)
     changed = scene.copy(deep=True)
     changed[name].values.reshape(-1)[-1] += 1e-6  # the last value
-    assert pipeline._fingerprint(changed) != digest
+    assert pipeline.caches.fingerprint(changed) != digest
     strided = scene.copy(deep=True)
     strided[name] = strided[name].copy(data=np.asfortranarray(strided[name].values))
     assert not strided[name].values.flags.c_contiguous
-    assert pipeline._fingerprint(strided) == digest  # the same values, laid out otherwise
+    assert pipeline.caches.fingerprint(strided) == digest  # the same values, laid out otherwise
     for index in ((0, 0, 0), (-1, -1, -1)):  # the first block, and the last
         changed = strided.copy(deep=True)
         changed[name] = changed[name].copy(data=np.asfortranarray(changed[name].values))
         changed[name].values[index] += 1e-6
         assert not changed[name].values.flags.c_contiguous
-        assert pipeline._fingerprint(changed) != digest
+        assert pipeline.caches.fingerprint(changed) != digest
     attrs = scene.copy(deep=True)
     attrs[name].attrs["units"] = "g m-3"
-    assert pipeline._fingerprint(attrs) != digest
+    assert pipeline.caches.fingerprint(attrs) != digest
 
 
 def test_scene_directions_are_the_camera_s_rotated_and_shared_by_equal_views():
@@ -245,15 +245,15 @@ def test_scene_directions_are_the_camera_s_rotated_and_shared_by_equal_views():
     flat = np.flatnonzero(valid.reshape(-1))
     for lat, lon in ((40.0, -105.0), (41.0, -104.0)):
         rotation = enu_to_scene_rotation(lat, lon, 40.0, -105.0)
-        dirs, pixels = pipeline._scene_directions(camera, rotation)
+        dirs, pixels = pipeline.scene_stage.scene_directions(camera, rotation)
         assert dirs.shape == (33 * 33, 3) and not dirs.flags.writeable and not pixels.flags.writeable
         np.testing.assert_allclose(dirs[flat], dirs_enu.reshape(-1, 3)[flat] @ rotation, atol=1e-12)
         np.testing.assert_allclose(np.linalg.norm(dirs[flat], axis=1), 1.0, atol=1e-12)
         assert not dirs[~valid.reshape(-1)].any()
         np.testing.assert_array_equal(pixels, flat[tile_order(flat, camera.shape)])
-        again = pipeline._scene_directions(make_camera("allsky", size=33), rotation.copy())
+        again = pipeline.scene_stage.scene_directions(make_camera("allsky", size=33), rotation.copy())
         assert again[0] is dirs and again[1] is pixels
-    other = pipeline._scene_directions(camera, enu_to_scene_rotation(40.0, -105.0, 40.0, -105.0))
+    other = pipeline.scene_stage.scene_directions(camera, enu_to_scene_rotation(40.0, -105.0, 40.0, -105.0))
     assert not np.allclose(other[0][flat], dirs[flat])
 
 
@@ -261,42 +261,37 @@ def test_scene_directions_are_the_camera_s_rotated_and_shared_by_equal_views():
 def test_a_new_sun_refills_the_packed_volume_in_place(backend):
     """A new sun reuses the packed grid (its Step 1a channels filled again, no second copy of the grid) and the
     kernel's device copies of it are made again: every image equals a render from an empty cache."""
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     scene = swim.default_scene()
-    settings = swim.MarchSettings(backend=backend, cloud_scattering="albers2020")
+    settings = swim.MarchSettings(cloud_scattering="albers2020", execution=swim.ExecutionSettings(backend=backend))
     packed = []
     suns = (40.0, 65.0, 40.0)
     images = []
     for zenith in suns:
         images.append(_render(scene, sun_zenith=zenith, settings=settings)["radiance"].values)
-        packed.append(pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"])
+        packed.append(pipeline.STATE.stages._entries["grid constants"][1]["volume"])
     assert packed[1] is packed[0] and packed[2] is packed[0]
     assert not packed[0].flags.writeable
     assert not np.array_equal(images[0], images[1])  # the suns differ enough to tell a stale Step 1a apart
     for zenith, image in zip(suns, images):
-        pipeline._STAGE_CACHE.clear()
+        pipeline.STATE.stages.clear()
         np.testing.assert_array_equal(image, _render(scene, sun_zenith=zenith, settings=settings)["radiance"].values)
 
 
 def test_a_new_sun_beside_another_render_packs_the_grid_anew():
     """Where another render runs in the process (a dask worker's threads), it may still march through the shared
     packed volume with its own sun: a new sun then packs the grid anew instead of refilling that volume."""
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     scene = swim.default_scene()
     first = _render(scene, sun_zenith=40.0)
-    packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
+    packed = pipeline.STATE.stages._entries["grid constants"][1]["volume"]
     before = packed.copy()
-    with pipeline._RENDERS_LOCK:
-        pipeline._RENDERS_IN_PROGRESS[0] += 1  # another render, still marching with the first sun
-    try:
+    with pipeline.STATE.rendering():  # another render, still marching with the first sun
         _render(scene, sun_zenith=65.0)
-    finally:
-        with pipeline._RENDERS_LOCK:
-            pipeline._RENDERS_IN_PROGRESS[0] -= 1
-    assert pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"] is not packed
+    assert pipeline.STATE.stages._entries["grid constants"][1]["volume"] is not packed
     np.testing.assert_array_equal(packed, before)  # the first sun's volume untouched
-    assert pipeline._RENDERS_IN_PROGRESS[0] == 0
-    pipeline._STAGE_CACHE.clear()
+    assert pipeline.STATE.running() == 0
+    pipeline.STATE.stages.clear()
     np.testing.assert_array_equal(first["radiance"].values, _render(scene, sun_zenith=40.0)["radiance"].values)
 
 
@@ -306,10 +301,11 @@ def test_the_heap_is_trimmed_after_big_renders_on_the_host_only(monkeypatch):
     from swim.rt.march_settings import MarchSettings
 
     calls = []
-    monkeypatch.setattr(pipeline, "release_free_memory", lambda: calls.append(1) or True)
+    for stage in (pipeline.chain, pipeline.scene_stage, pipeline.tables):  # every stage's trims
+        monkeypatch.setattr(stage, "release_free_memory", lambda: calls.append(1) or True)
     scene = swim.default_scene()
     size = {"size": 257}  # 51 900 valid pixels of 66 049: past TRIM_MIN_PIXELS
-    assert 257 * 257 >= pipeline.TRIM_MIN_PIXELS
+    assert 257 * 257 >= pipeline.chain.TRIM_MIN_PIXELS
     swim.render(scene, camera_options=size, sun_zenith=40.0, sun_azimuth=150.0, settings=PAPER)
     assert len(calls) >= 2
     calls.clear()
@@ -335,16 +331,16 @@ def test_a_new_sun_refills_the_packed_volume_of_a_clear_or_smoky_scene(variant):
         extinction = np.zeros(scene["cloud_liquid_content"].shape)
         extinction[: extinction.shape[0] // 3, 20:50, 20:50] = 2e-4
         scene["aerosol_extinction"] = (scene["cloud_liquid_content"].dims, extinction, {"units": "m-1"})
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     first = _render(scene, sun_zenith=30.0)["radiance"].values
-    packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
-    species = pipeline._STAGE_CACHE._entries["packed species"][1]
+    packed = pipeline.STATE.stages._entries["grid constants"][1]["volume"]
+    species = pipeline.STATE.stages._entries["packed species"][1]
     assert (len(species) == 0) == (variant == "clear sky")
     assert packed.shape[-1] == len(species) + (2 if variant == "clear sky" else 4)  # + the aerosol's two channels
     second = _render(scene, sun_zenith=60.0)["radiance"].values
-    assert pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"] is packed
+    assert pipeline.STATE.stages._entries["grid constants"][1]["volume"] is packed
     assert not np.array_equal(first, second)
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     np.testing.assert_array_equal(second, _render(scene, sun_zenith=60.0)["radiance"].values)
 
 
@@ -356,12 +352,12 @@ def test_renders_beside_each_other_build_their_grid_constants_one_at_a_time(monk
     other must only start after it has left."""
     import threading
 
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     scene = swim.default_scene()
     _render(scene, sun_zenith=40.0)  # the volume cached and shared
     inside, a_inside, b_packing = [None], threading.Event(), threading.Event()
     overlaps, errors, images = [], [], {}
-    share, pack = pipeline.share_packed_channels, pipeline.pack_volume
+    share, pack = pipeline.tables.share_packed_channels, pipeline.tables.pack_volume
 
     def sharing(volume, packed, species=None):
         if threading.current_thread().name == "render-a":
@@ -379,8 +375,8 @@ def test_renders_beside_each_other_build_their_grid_constants_one_at_a_time(monk
             b_packing.set()
         return pack(volume, species)
 
-    monkeypatch.setattr(pipeline, "share_packed_channels", sharing)
-    monkeypatch.setattr(pipeline, "pack_volume", packing)
+    monkeypatch.setattr(pipeline.tables, "share_packed_channels", sharing)
+    monkeypatch.setattr(pipeline.tables, "pack_volume", packing)
 
     def run(name, zenith, wait=None):
         try:
@@ -392,19 +388,14 @@ def test_renders_beside_each_other_build_their_grid_constants_one_at_a_time(monk
 
     threads = [threading.Thread(target=run, args=("a", 50.0), name="render-a"),
                threading.Thread(target=run, args=("b", 60.0, a_inside), name="render-b")]
-    with pipeline._RENDERS_LOCK:
-        pipeline._RENDERS_IN_PROGRESS[0] += 1  # a third render: neither refills the volume in place, both pack anew
-    try:
+    with pipeline.STATE.rendering():  # a third render: neither refills the volume in place, both pack anew
         for thread in threads:
             thread.start()
         for thread in threads:
             thread.join(60.0)
-    finally:
-        with pipeline._RENDERS_LOCK:
-            pipeline._RENDERS_IN_PROGRESS[0] -= 1
     assert not errors, errors
     assert a_inside.is_set() and overlaps == [None]  # the other render packed, and not while the volume changed
     monkeypatch.undo()
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     for name, zenith in (("a", 50.0), ("b", 60.0)):
         np.testing.assert_array_equal(images[name], _render(scene, sun_zenith=zenith)["radiance"].values)

@@ -9,13 +9,14 @@ from swim import pipeline
 from swim.constants import SUN_ANGULAR_RADIUS_RAD
 from swim.frames import enu_from_azimuth_zenith
 from swim.geometry.cameras import make_camera
-from swim.pipeline import _disk_window, _sun_disk
+from swim.pipeline.sun_disk import _disk_window, sun_disk as _sun_disk
 
 
 def whole_image_disk(camera, dirs_enu, valid, sun_enu, transmittance, monkeypatch):
     """The disk searched over every pixel (_sun_disk without its window): the reference."""
     with monkeypatch.context() as patch:
-        patch.setattr(pipeline, "_disk_window", lambda camera, sun, radius, row, col, ny, nx: ((0, ny), (0, nx)))
+        patch.setattr(pipeline.sun_disk, "_disk_window", lambda camera, sun, radius, row, col, ny, nx: ((0, ny), (0,
+                                                                                                                  nx)))
         return _sun_disk(camera, dirs_enu, valid, sun_enu, transmittance)
 
 

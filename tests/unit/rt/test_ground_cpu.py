@@ -23,7 +23,7 @@ from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tab
 from swim.rt.march import _numba_tables
 from swim.rt.march_inputs import aerosol_column_optical_depth, kernel_constants
 from swim.rt.march_jax import _ground_radiance
-from swim.rt.march_settings import MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings
 from swim.rt.solar import solar_transmittance
 from swim.surface.lighting import MIN_VIEW_COSINE, facet_normal, surface_radiance
 
@@ -123,7 +123,7 @@ def test_the_numba_kernels_ground_is_the_jax_kernels(monkeypatch, surface, plume
     origins = np.repeat(np.array([[0.0, 0.0, EARTH_RADIUS_M + 3000.0]]), n, axis=0)
     sun = enu_from_azimuth_zenith(250.0, 50.0)
     out = {backend: _trace(_surface_scene(plume), origins, dirs, sun,
-                           settings=MarchSettings(backend=backend, surface=surface))[0]
+                           settings=MarchSettings(surface=surface, execution=ExecutionSettings(backend=backend)))[0]
            for backend in ("jax", "numba")}
     on_ground = out["numba"]["surface"]
     np.testing.assert_array_equal(on_ground, out["jax"]["surface"])

@@ -11,7 +11,7 @@ import pytest
 
 import swim
 from swim.rt import precompile
-from swim.rt.march_settings import MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
 
 @pytest.fixture(autouse=True)
@@ -49,7 +49,8 @@ def test_the_signatures_are_those_a_render_calls_the_kernels_with(monkeypatch):
     for method in ("discrete_ordinates", "albers2020"):
         image = swim.render(swim.default_scene(), camera="panorama", camera_options={"width": 32, "height": 16},
                             time="2024-06-21T18:00:00Z",
-                            settings=MarchSettings(backend="numba", cloud_scattering=method))
+                            settings=MarchSettings(cloud_scattering=method,
+                                                   execution=ExecutionSettings(backend="numba")))
         assert np.isfinite(image["radiance"].values).all()
         assert float(image["radiance_surface"].max()) > 0, "the view must include the ground (ground_radiance)"
         if method == "discrete_ordinates":

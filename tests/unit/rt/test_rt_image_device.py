@@ -12,7 +12,7 @@ from swim.errors import SwimInputError
 from swim.rt import ray_table
 from swim.rt.image_device import planes_on_device
 from swim.rt.image_sampling import AdaptiveSampling
-from swim.rt.march_settings import MarchSettings as _MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings as _MarchSettings
 
 
 def MarchSettings(**kw):  # noqa: N802 - a stand-in for the class in this module's tests
@@ -34,7 +34,9 @@ def render_pair(sampling, sun_zenith=40.0, size=48, **extra):
     scene = swim.default_scene()
     return [swim.render(scene, camera="allsky", camera_options={"size": size}, sun_zenith=sun_zenith,
                         sun_azimuth=120.0, sampling=sampling,
-                        settings=MarchSettings(backend="jax", chunk=1024, ray_table=True, device_image=on, **extra))
+                        settings=MarchSettings(**extra,
+                                               execution=ExecutionSettings(backend="jax", chunk=1024, ray_table=True,
+                                                                           device_image=on)))
             for on in (False, True)]
 
 
@@ -86,20 +88,24 @@ def test_device_image_resolves_on_accelerators_beside_the_table(monkeypatch):
 
     assert MarchSettings().device_image is None
     with pytest.raises(SwimInputError, match="device_image must be True, False or None"):
-        MarchSettings(device_image="yes")
-    assert MarchSettings(device_image=True).kernel_settings() == MarchSettings().kernel_settings()
+        MarchSettings(execution=ExecutionSettings(device_image="yes"))
+    on = MarchSettings(execution=ExecutionSettings(device_image=True))
+    assert on.kernel_settings() == MarchSettings().kernel_settings()
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
-    assert MarchSettings(backend="jax", ray_table=True).resolved_device_image() is False
-    assert MarchSettings(backend="jax", ray_table=True, device_image=True).resolved_device_image() is True
-    assert MarchSettings(backend="jax", device_image=True).resolved_device_image() is False
-    assert MarchSettings(backend="numba", ray_table=True, device_image=True).resolved_device_image() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=True)).resolved_device_image() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=True,
+                                                     device_image=True)).resolved_device_image() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", device_image=True)).resolved_device_image() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="numba", ray_table=True,
+                                                     device_image=True)).resolved_device_image() is False
     from swim.rt import precompile
 
     monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)  # JAX is asked only where it may see one
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert MarchSettings(backend="jax").resolved_device_image() is True
-    assert MarchSettings(backend="jax", device_image=False).resolved_device_image() is False
-    assert MarchSettings(backend="jax", ray_table=False).resolved_device_image() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_device_image() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                     device_image=False)).resolved_device_image() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=False)).resolved_device_image() is False
 
 
 def test_planes_on_device_scatters_the_pixels_rows():
@@ -131,16 +137,16 @@ def speculating(monkeypatch):
     """swim.pipeline with digests taken by identity (as on a GPU), empty caches, and a record of the guesses."""
     import swim.pipeline as pipeline
 
-    pipeline._STAGE_CACHE.clear()
-    pipeline._LAST_DIGEST.forget()
-    monkeypatch.setattr(pipeline, "_speculate_digest", lambda settings: True)
+    pipeline.STATE.stages.clear()
+    pipeline.STATE.last_digest.forget()
+    monkeypatch.setattr(pipeline.scene_stage, "speculate_digest", lambda settings: True)
     guesses = []
-    real = pipeline._DigestGuess.start
-    monkeypatch.setattr(pipeline._DigestGuess, "start", lambda self, guess, scene: guesses.append(guess) or
+    real = pipeline.caches.DigestGuess.start
+    monkeypatch.setattr(pipeline.caches.DigestGuess, "start", lambda self, guess, scene: guesses.append(guess) or
                         real(self, guess, scene))
     yield pipeline, guesses
-    pipeline._STAGE_CACHE.clear()
-    pipeline._LAST_DIGEST.forget()
+    pipeline.STATE.stages.clear()
+    pipeline.STATE.last_digest.forget()
 
 
 def test_a_digest_taken_by_identity_is_checked(speculating, caplog):
@@ -156,13 +162,13 @@ def test_a_digest_taken_by_identity_is_checked(speculating, caplog):
     assert len(guesses) == 1  # the second render's
     np.testing.assert_array_equal(second["radiance"].values, first["radiance"].values)
     cloud = scene["cloud_liquid_content"]
-    assert cloud.nbytes >= pipeline.IDENTITY_MIN_BYTES and float(cloud.values.max()) > 0
+    assert cloud.nbytes >= pipeline.caches.IDENTITY_MIN_BYTES and float(cloud.values.max()) > 0
     cloud.values[...] = 0.0  # no liquid cloud left: the same arrays, new values
     with caplog.at_level(logging.WARNING, logger="swim.pipeline"):
         changed = swim.render(scene, **KW)
     assert len(guesses) == 2 and "changed in place" in caplog.text
-    pipeline._STAGE_CACHE.clear()
-    pipeline._LAST_DIGEST.forget()
+    pipeline.STATE.stages.clear()
+    pipeline.STATE.last_digest.forget()
     fresh = swim.render(scene, **KW)
     np.testing.assert_array_equal(changed["radiance"].values, fresh["radiance"].values)
     assert not np.array_equal(changed["radiance"].values, first["radiance"].values, equal_nan=True)
@@ -174,7 +180,7 @@ def test_an_error_from_stale_stages_renders_again(speculating, monkeypatch):
     pipeline, guesses = speculating
     scene = swim.default_scene().copy(deep=True)
     swim.render(scene, **KW)
-    real = pipeline._terrain_at
+    real = pipeline.terrain_at
     failures = []
 
     def fail_once(*args):
@@ -183,7 +189,7 @@ def test_an_error_from_stale_stages_renders_again(speculating, monkeypatch):
             raise SwimInputError("an error of the stages of the old values")
         return real(*args)
 
-    monkeypatch.setattr(pipeline, "_terrain_at", fail_once)
+    monkeypatch.setattr(pipeline.scene_stage, "terrain_at", fail_once)
     with pytest.raises(SwimInputError, match="old values"):  # the guess held: the error is the scene's
         swim.render(scene, **KW)
     assert len(guesses) == 1
@@ -191,7 +197,7 @@ def test_an_error_from_stale_stages_renders_again(speculating, monkeypatch):
     scene["cloud_liquid_content"].values[...] = 0.0
     image = swim.render(scene, **KW)  # the guess did not hold: rendered again, without the error
     assert len(guesses) == 2 and len(failures) == 1
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     np.testing.assert_array_equal(image["radiance"].values, swim.render(scene, **KW)["radiance"].values)
 
 
@@ -204,18 +210,18 @@ def test_nothing_is_built_under_a_guessed_digest_that_does_not_hold(speculating,
     original = scene.copy(deep=True)
     before = swim.render(scene, **KW)
     scene["cloud_liquid_content"].values[...] = 0.0
-    real_get = pipeline._STAGE_CACHE.get
+    real_get = pipeline.STATE.stages.get
     meanwhile = []
 
     def evicted(key, build):
         if key[0] == "volume" and not meanwhile:  # the stages gone when the render asks for its volume
-            pipeline._STAGE_CACHE.clear()
+            pipeline.STATE.stages.clear()
         if key[0] == "atmosphere inputs" and not meanwhile:  # after this render's volume: a render of the old values
             meanwhile.append(None)
             meanwhile[0] = swim.render(original, **KW)
         return real_get(key, build)
 
-    monkeypatch.setattr(pipeline._STAGE_CACHE, "get", evicted)
+    monkeypatch.setattr(pipeline.STATE.stages, "get", evicted)
     swim.render(scene, **KW)
     assert len(guesses) == 1 and meanwhile
     np.testing.assert_array_equal(meanwhile[0]["radiance"].values, before["radiance"].values)
@@ -227,17 +233,17 @@ def test_scene_identity_holds_for_the_same_arrays_only():
     import swim.pipeline as pipeline
 
     scene = swim.default_scene()
-    same = pipeline._same_identity
-    identity = pipeline._scene_identity(scene)
-    assert identity is not None and same(identity, pipeline._scene_identity(scene))
-    assert same(identity, pipeline._scene_identity(scene.copy(deep=False)))
-    assert not same(identity, pipeline._scene_identity(scene.copy(deep=True)))
-    assert not same(identity, pipeline._scene_identity(scene.assign_attrs(title="another")))
+    same = pipeline.caches.same_identity
+    identity = pipeline.caches.scene_identity(scene)
+    assert identity is not None and same(identity, pipeline.caches.scene_identity(scene))
+    assert same(identity, pipeline.caches.scene_identity(scene.copy(deep=False)))
+    assert not same(identity, pipeline.caches.scene_identity(scene.copy(deep=True)))
+    assert not same(identity, pipeline.caches.scene_identity(scene.assign_attrs(title="another")))
     x = scene["x"].values.copy()
     x[0] -= 1.0
-    assert not same(identity, pipeline._scene_identity(scene.assign_coords(x=x)))
+    assert not same(identity, pipeline.caches.scene_identity(scene.assign_coords(x=x)))
     lazy = scene.chunk()
-    assert pipeline._scene_identity(lazy) is None or not same(identity, pipeline._scene_identity(lazy))
+    assert pipeline.caches.scene_identity(lazy) is None or not same(identity, pipeline.caches.scene_identity(lazy))
 
 
 def test_progress_of_an_image_made_on_the_device():
@@ -248,7 +254,8 @@ def test_progress_of_an_image_made_on_the_device():
     ray_table.forget_ray_tables()
     try:
         swim.render(scene, camera="allsky", camera_options={"size": 40}, sun_zenith=40.0, sun_azimuth=120.0,
-                    settings=MarchSettings(backend="jax", chunk=256, ray_table=True, device_image=True),
+                    settings=MarchSettings(execution=ExecutionSettings(backend="jax", chunk=256, ray_table=True,
+                                                                       device_image=True)),
                     progress=lambda done, total: calls.append((done, total)))
     finally:
         ray_table.forget_ray_tables()

@@ -110,7 +110,6 @@ def test_the_device_sampler_traces_the_host_samplers_pixels_and_gives_its_image(
 def test_a_rendered_scene_is_sampled_alike():
     """Real input: every pixel of the built-in scene's all-sky image traced by swim.render, then both samplers."""
     import swim
-    import swim.pipeline as pipeline
     from swim.io.default_scene import default_scene
 
     kept = {}
@@ -121,12 +120,12 @@ def test_a_rendered_scene_is_sampled_alike():
                                            ("radiance", "radiance_clear", "tau_hydrometeor", "surface", "steps")})
         return values, traced
 
-    original = pipeline.sample_image_adaptive
-    pipeline.sample_image_adaptive = keep
+    original = swim.rt.backends.host.sample_image_adaptive
+    swim.rt.backends.host.sample_image_adaptive = keep
     try:
         swim.render(default_scene(), sampling=AdaptiveSampling(coarse_spacing=10**6), camera_options={"size": 97})
     finally:
-        pipeline.sample_image_adaptive = original
+        swim.rt.backends.host.sample_image_adaptive = original
     valid = kept.pop("valid")
     assert np.isfinite(kept["radiance"][valid.reshape(-1)]).all()
     traced = assert_same_sampling(kept, valid, AdaptiveSampling())
@@ -259,7 +258,7 @@ def test_a_render_with_device_sampling_gives_the_host_samplers_image():
     transmittance."""
     import swim
     from swim.rt import ray_table
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
     scene = swim.default_scene()
     ray_table.forget_ray_tables()
@@ -267,9 +266,9 @@ def test_a_render_with_device_sampling_gives_the_host_samplers_image():
         for sun_zenith in (70.0,):
             images = [swim.render(scene, camera="allsky", camera_options={"size": 64}, sun_zenith=sun_zenith,
                                   sun_azimuth=120.0, sampling=AdaptiveSampling(),
-                                  settings=MarchSettings(backend="jax", chunk=1024, ray_table=True,
-                                                         device_sampling=on_device,
-                                                         cloud_scattering="albers2020"))  # its device path
+                                  settings=MarchSettings(cloud_scattering="albers2020",
+                                                         execution=ExecutionSettings(backend="jax", chunk=1024,
+                                                                                     ray_table=True, device_sampling=on_device)))  # its device path
                       for on_device in (False, True)]
             host, device = images
             # (at 64 pixels across the scene's cumulus leave few cells smooth: the test is that some are)
@@ -290,11 +289,12 @@ def test_a_render_with_device_sampling_gives_the_host_samplers_image():
 
 def test_device_sampling_is_not_a_kernel_setting():
     """The switch is the sampler's, not the kernel's: a compiled kernel serves either value."""
-    from swim.rt.march_settings import MarchSettings
+    from swim.rt.march_settings import ExecutionSettings, MarchSettings
 
-    assert MarchSettings(device_sampling=True).kernel_settings() == MarchSettings().kernel_settings()
+    on = MarchSettings(execution=ExecutionSettings(device_sampling=True))
+    assert on.kernel_settings() == MarchSettings().kernel_settings()
     with pytest.raises(SwimInputError, match="device_sampling"):
-        MarchSettings(device_sampling="yes")
+        MarchSettings(execution=ExecutionSettings(device_sampling="yes"))
 
 
 def test_a_new_process_reads_the_exported_programs_and_samples_alike(tmp_path, monkeypatch):

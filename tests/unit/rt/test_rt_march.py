@@ -16,7 +16,7 @@ from swim.optics.volume import build_optical_volume
 from swim.rt.gas import AerosolBackground, aerosol_column_classes, build_gas_tables
 from swim.rt.march import ray_segments, ray_segments_compiled, trace_rays
 from swim.rt.march_inputs import aerosol_column_optical_depth, grid_geometry, kernel_constants
-from swim.rt.march_settings import MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings
 from swim.rt.reference import reference_trace_ray
 from swim.rt.solar import solar_transmittance
 
@@ -69,7 +69,7 @@ def _trace(scene, origins, directions, sun, aerosol=AerosolBackground(), setting
                          ids=["fine steps", "default adaptive steps"])
 @pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
 def test_kernel_matches_numpy_reference_on_a_tiny_grid(aerosol_plume, settings, backend):
-    settings = replace(settings, backend=backend)
+    settings = settings.with_execution(backend=backend)
     scene = _tiny_scene(aerosol_plume)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     ground = np.array([0.0, 0.0, EARTH_RADIUS_M + 20.0])  # terrain here is ~6 m
@@ -127,7 +127,7 @@ def test_the_air_in_front_of_the_ground_does_not_depend_on_the_step_count(backen
     origins = np.repeat(origin[None], len(dirs), axis=0)
     refs = None
     for n_grid in (1, 2, 3, 5, 8, 32, 400):
-        settings = MarchSettings(n_grid=n_grid, n_after=200, backend=backend)
+        settings = MarchSettings(n_grid=n_grid, n_after=200, execution=ExecutionSettings(backend=backend))
         out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun, settings=settings)
         if refs is None:
             refs = [reference_trace_ray(origins[n], dirs[n], volume, transmittance, gas, sun, phase["p_rayleigh"][n],
@@ -230,14 +230,17 @@ def test_stratospheric_layer_adds_its_optical_depth_and_light():
     assert np.all(layer["radiance_clear"][0] > base["radiance_clear"][0] * 1.1)
 
 
-@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("chunk", True), ("chunk", 4096.0), ("n_before", -3), ("n_after", 2.5), ("n_probe", 0), ("empty_steps", -1), ("empty_steps", 2.5),
+@pytest.mark.parametrize("field, value", [("n_grid", -1), ("chunk", 0), ("chunk", True), ("chunk", 4096.0),
+                                          ("n_before", -3), ("n_after", 2.5), ("n_probe", 0), ("empty_steps", -1),
+                                          ("empty_steps", 2.5),
                                           ("probe_spacing", -1.0), ("probe_spacing", float("nan")), ("probe_spacing", "2"),
                                           ("probe_spacing", 1e-20), ("tau_refine", -0.5), ("tau_refine", float("inf")),
                                           ("stop_tau", 10.0), ("stop_tau", -50.0), ("stop_tau", float("inf")),
                                           ("stop_tau", True), ("stop_tau", "50")])
 def test_march_settings_reject_bad_counts(field, value):
-    with pytest.raises(SwimInputError, match=f"MarchSettings.{field}"):
-        MarchSettings(**{field: value})
+    kind = ExecutionSettings if field == "chunk" else MarchSettings
+    with pytest.raises(SwimInputError, match=f"{kind.__name__}.{field}"):
+        kind(**{field: value})
 
 
 def _random_rays(n, seed=0):
@@ -285,7 +288,8 @@ def test_numba_march_matches_the_jax_march(case):
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
     out = {backend: _trace(scene, origins, dirs, sun, aerosol=aerosol,
-                           settings=MarchSettings(backend=backend, **extra))[0] for backend in ("jax", "numba")}
+                           settings=MarchSettings(**extra, execution=ExecutionSettings(backend=backend)))[0]
+           for backend in ("jax", "numba")}
     jax_out, numba_out = out["jax"], out["numba"]
     assert jax_out["surface"].sum() > 100 and (jax_out["tau_hydrometeor"] > 1.0).sum() > 30, "rays must hit ground and cloud"
     np.testing.assert_array_equal(numba_out["surface"], jax_out["surface"])
@@ -310,7 +314,8 @@ def test_chunks_without_ground_compose_without_its_term():
     origins = np.concatenate([np.repeat(below_cloud[None], n_up, axis=0), others[0]])
     dirs = np.concatenate([up, others[1]])
     sun = enu_from_azimuth_zenith(135.0, 40.0)
-    out = {backend: _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend=backend, chunk=64))[0]
+    out = {backend: _trace(_tiny_scene(), origins, dirs, sun,
+                           settings=MarchSettings(execution=ExecutionSettings(backend=backend, chunk=64)))[0]
            for backend in ("jax", "numba")}
     assert not out["numba"]["surface"][:n_up].any() and out["numba"]["surface"][n_up:].sum() > 100
     assert (out["numba"]["tau_hydrometeor"][:n_up] > 1.0).sum() > 10, "upward rays must cross cloud"
@@ -334,7 +339,8 @@ def test_the_grounds_term_of_a_chunk_with_ground_rays_matches_the_jax_kernel(mon
     dirs = dirs[order]
     origins = np.repeat(np.array([[0.0, 0.0, EARTH_RADIUS_M + 3000.0]]), n, axis=0)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
-    out = {backend: _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend=backend))[0]
+    out = {backend: _trace(_tiny_scene(), origins, dirs, sun,
+                           settings=MarchSettings(execution=ExecutionSettings(backend=backend)))[0]
            for backend in ("jax", "numba")}
     on_ground = out["numba"]["surface"]
     assert looking_down * 0.9 <= on_ground.sum() <= looking_down
@@ -403,7 +409,8 @@ def test_rays_that_do_not_look_down_stop_in_opaque_cloud_with_the_same_radiance(
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     scene = _tiny_scene()
     scene["cloud_liquid_content"] = scene["cloud_liquid_content"] * 8.0  # more rays through opaque cloud
-    stop, full = (_trace(scene, origins, dirs, sun, settings=MarchSettings(stop_tau=tau, backend=backend))[0]
+    stop, full = (_trace(scene, origins, dirs, sun,
+                         settings=MarchSettings(stop_tau=tau, execution=ExecutionSettings(backend=backend)))[0]
                   for tau in (50.0, 0.0))
     up = dirs[:, 2] >= 0
     opaque = up & (full["tau_hydrometeor"] > 50.0 * 1.05)
@@ -438,7 +445,7 @@ def test_per_ray_kernel_counts_the_samples_each_ray_takes():
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     scene = _tiny_scene()
     plain = MarchSettings(tau_refine=0.0, empty_steps=0, stop_tau=0)
-    out = {backend: _trace(scene, origins, dirs, sun, settings=replace(plain, backend=backend))
+    out = {backend: _trace(scene, origins, dirs, sun, settings=plain.with_execution(backend=backend))
            for backend in ("jax", "numba")}
     (jax_out, _), (numba_out, (volume, transmittance, gas, _)) = out["jax"], out["numba"]
     nominal = plain.n_before + plain.n_grid + plain.n_after + 1  # the end step
@@ -476,16 +483,17 @@ def test_backend_setting_is_checked_and_resolved(monkeypatch):
 
     from swim.rt import march_settings
 
-    with pytest.raises(SwimInputError, match="MarchSettings.backend"):
-        MarchSettings(backend="opencl")
-    assert MarchSettings(backend="jax").resolved_backend() == "jax"
+    with pytest.raises(SwimInputError, match="ExecutionSettings.backend"):
+        MarchSettings(execution=ExecutionSettings(backend="opencl"))
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_backend() == "jax"
     expected = "numba" if jax.default_backend() == "cpu" else "jax"
     assert MarchSettings().resolved_backend() == expected
     monkeypatch.setattr(march_settings, "_numba_available", lambda: False)
     assert MarchSettings().resolved_backend() == "jax"
     origins, dirs = _random_rays(3)
     with pytest.raises(SwimInputError, match="needs the numba package"):
-        _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0), settings=MarchSettings(backend="numba"))
+        _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
+               settings=MarchSettings(execution=ExecutionSettings(backend="numba")))
 
 
 def test_chunk_follows_the_device_unless_given(monkeypatch):
@@ -493,7 +501,7 @@ def test_chunk_follows_the_device_unless_given(monkeypatch):
 
     from swim.rt import march_settings
 
-    assert MarchSettings(chunk=1000).resolved_chunk() == 1000
+    assert MarchSettings(execution=ExecutionSettings(chunk=1000)).resolved_chunk() == 1000
     on_cpu = jax.default_backend() == "cpu"
     assert MarchSettings().resolved_chunk() == (march_settings.CPU_CHUNK if on_cpu else march_settings.GPU_CHUNK)
     from swim.rt import precompile
@@ -504,13 +512,15 @@ def test_chunk_follows_the_device_unless_given(monkeypatch):
     assert MarchSettings().resolved_chunk() == march_settings.CPU_CHUNK
     monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)
     assert MarchSettings().resolved_chunk() == march_settings.GPU_CHUNK  # the JAX kernel on a GPU: big chunks
-    assert MarchSettings().on_accelerator() and MarchSettings(backend="jax").on_accelerator()
-    assert MarchSettings(backend="numba").resolved_chunk() == march_settings.CPU_CHUNK  # numba runs on the host's cores
-    assert not MarchSettings(backend="numba").on_accelerator()
-    assert MarchSettings(chunk=8192).resolved_chunk() == 8192
+    assert MarchSettings().on_accelerator()
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).on_accelerator()
+    # numba runs on the host's cores
+    assert MarchSettings(execution=ExecutionSettings(backend="numba")).resolved_chunk() == march_settings.CPU_CHUNK
+    assert not MarchSettings(execution=ExecutionSettings(backend="numba")).on_accelerator()
+    assert MarchSettings(execution=ExecutionSettings(chunk=8192)).resolved_chunk() == 8192
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
-    assert MarchSettings(backend="jax").resolved_chunk() == march_settings.CPU_CHUNK
-    assert not MarchSettings(backend="jax").on_accelerator()
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_chunk() == march_settings.CPU_CHUNK
+    assert not MarchSettings(execution=ExecutionSettings(backend="jax")).on_accelerator()
 
 
 def test_the_grid_loop_unrolled_gives_the_same_state(monkeypatch):
@@ -645,9 +655,11 @@ def _grid_samples_of_both_kernels(monkeypatch, scene, largest_zenith, **settings
 
     monkeypatch.setattr(march_jax, "_march_grid_refined", counting)
     monkeypatch.setattr(march_jax, "_trace_chunk", jax.jit(march_jax._trace_chunk.function, static_argnames=("settings",)))
-    jax_out = _trace(scene, origins, dirs, sun, settings=MarchSettings(backend="jax", **settings))[0]
+    jax_out = _trace(scene, origins, dirs, sun, settings=MarchSettings(**settings,
+                                                                       execution=ExecutionSettings(backend="jax")))[0]
     jax.effects_barrier()
-    numba_out = _trace(scene, origins, dirs, sun, settings=MarchSettings(backend="numba", **settings))[0]
+    numba_out = _trace(scene, origins, dirs, sun,
+                       settings=MarchSettings(**settings, execution=ExecutionSettings(backend="numba")))[0]
     return counts[:n].copy(), jax_out, numba_out
 
 
@@ -691,8 +703,10 @@ def test_jax_chunks_dispatched_ahead_give_the_rays_of_one_call(chunk):
     behind): several chunks, a short last one among them, give the same rays in the same order as one big call."""
     origins, dirs = _random_rays(600, seed=3)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
-    one = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="jax", chunk=1024))[0]
-    many = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="jax", chunk=chunk))[0]
+    one = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                                                                       chunk=1024)))[0]
+    many = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                                                                        chunk=chunk)))[0]
     for key in ("radiance", "tau_hydrometeor", "surface"):
         np.testing.assert_allclose(many[key], one[key], rtol=1e-5, atol=1e-7, err_msg=key)
 
@@ -705,7 +719,7 @@ def test_a_jax_chunk_s_error_reaches_the_caller_and_the_next_call_works(monkeypa
 
     origins, dirs = _random_rays(300, seed=5)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
-    settings = MarchSettings(backend="jax", chunk=64)
+    settings = MarchSettings(execution=ExecutionSettings(backend="jax", chunk=64))
     plain, calls = march_jax._trace_chunk, []
 
     def failing(*args, **kwargs):
@@ -799,12 +813,13 @@ def test_non_finite_rays_are_rejected_before_the_kernel(backend):
     origins, dirs = _random_rays(4)
     dirs[2, 0] = np.nan
     with pytest.raises(SwimInputError, match="directions must be a finite"):
-        _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0), settings=MarchSettings(backend=backend))
+        _trace(_tiny_scene(), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
+               settings=MarchSettings(execution=ExecutionSettings(backend=backend)))
     origins = origins.copy()
     origins[0, 2] = np.inf
     with pytest.raises(SwimInputError, match="origins must be a finite"):
         _trace(_tiny_scene(), origins, np.nan_to_num(dirs), enu_from_azimuth_zenith(135.0, 40.0),
-               settings=MarchSettings(backend=backend))
+               settings=MarchSettings(execution=ExecutionSettings(backend=backend)))
 
 
 @pytest.mark.parametrize("aerosol_plume", [False, True], ids=["no 3-D aerosol", "smoke plume"])
@@ -994,7 +1009,7 @@ def test_species_that_are_zero_everywhere_are_left_out_of_the_packed_volume(back
 
     origins, dirs = _random_rays(400)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
-    settings = MarchSettings(backend=backend)
+    settings = MarchSettings(execution=ExecutionSettings(backend=backend))
     out, (volume, transmittance, gas, phase) = _trace(_tiny_scene(aerosol_plume=True), origins, dirs, sun,
                                                       settings=settings)
     every = {**volume_constants(volume, transmittance, species=tuple(range(5))), **atmosphere_constants(gas, sun)}
@@ -1096,8 +1111,9 @@ def test_probe_spacing_follows_the_cells_crossed(backend):
     assert through.sum() > 60, "the rays must cross the wall"
     err = {}
     for probe_spacing in (0.0, 1.0):
-        out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, n_probe=3, backend=backend,
-                                                                       probe_spacing=probe_spacing))[0]
+        out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, n_probe=3,
+                                                                       probe_spacing=probe_spacing,
+                                                                       execution=ExecutionSettings(backend=backend)))[0]
         err[probe_spacing] = np.median(np.abs(out["tau_hydrometeor"] / fine["tau_hydrometeor"] - 1)[through])
     assert err[1.0] < 0.3 * err[0.0] and err[1.0] < 0.1, (backend, err)
 
@@ -1115,8 +1131,8 @@ def test_thick_steps_are_refined(backend):
     assert through.sum() > 60, "the rays must cross the wall"
     err = {}
     for tau_refine in (0.0, 0.5):
-        out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, backend=backend,
-                                                                       tau_refine=tau_refine))[0]
+        out = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, tau_refine=tau_refine,
+                                                                       execution=ExecutionSettings(backend=backend)))[0]
         err[tau_refine] = np.median(np.abs(out["radiance"] / fine["radiance"] - 1)[through])
     assert err[0.5] < 0.3 * err[0.0] and err[0.5] < 0.02, (backend, err)
 
@@ -1134,7 +1150,8 @@ def test_cloud_face_inside_a_clear_step_is_found(sun_azimuth):
     fine = _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=4000, tau_refine=0.0))[0]
     through = fine["tau_hydrometeor"] > 0.5
     assert through.sum() > 60, "the rays must cross the wall"
-    out = {backend: _trace(scene, origins, dirs, sun, settings=MarchSettings(n_grid=12, backend=backend))[0]
+    out = {backend: _trace(scene, origins, dirs, sun,
+                           settings=MarchSettings(n_grid=12, execution=ExecutionSettings(backend=backend)))[0]
            for backend in ("jax", "numba")}
     for backend, result in out.items():
         err = np.abs(result["radiance"] / fine["radiance"] - 1)[through]
@@ -1150,11 +1167,13 @@ def test_any_cut_of_the_rays_into_chunks_gives_the_same_pixels(monkeypatch):
     origins, dirs = _random_rays(700)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     monkeypatch.setenv("SWIM_NUM_THREADS", "1")
-    ref = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="numba"))[0]
+    ref = _trace(_tiny_scene(), origins, dirs, sun,
+                 settings=MarchSettings(execution=ExecutionSettings(backend="numba")))[0]
     assert np.isfinite(ref["radiance"]).all() and np.ptp(ref["radiance"][:, 0]) > 0.01
     for threads, chunk in ((3, 4096), (2, 128), (1, 300)):
         monkeypatch.setenv("SWIM_NUM_THREADS", str(threads))
-        out = _trace(_tiny_scene(), origins, dirs, sun, settings=MarchSettings(backend="numba", chunk=chunk))[0]
+        out = _trace(_tiny_scene(), origins, dirs, sun,
+                     settings=MarchSettings(execution=ExecutionSettings(backend="numba", chunk=chunk)))[0]
         for key in ("radiance", "tau_hydrometeor", "surface"):
             np.testing.assert_allclose(out[key], ref[key], rtol=1e-5, atol=1e-7, err_msg=f"{key}, {threads} threads, chunk {chunk}")
 
@@ -1179,7 +1198,8 @@ def test_ground_beyond_the_grid_continues_its_edge_and_fades_to_the_edge_mean(ba
     origins = np.column_stack([ground, np.full(len(ground), EARTH_RADIUS_M + 3000.0)])
     down = np.tile([0.0, 0.0, -1.0], (len(ground), 1))
     sun = enu_from_azimuth_zenith(200.0, 30.0)
-    out = _trace(scene, origins, down, sun, settings=MarchSettings(surface="lambertian", backend=backend))[0]
+    out = _trace(scene, origins, down, sun, settings=MarchSettings(surface="lambertian",
+                                                                   execution=ExecutionSettings(backend=backend)))[0]
     surface = out["radiance_surface"][:, 1]
     assert out["surface"].all()
     assert abs(surface[1] / surface[0] - 1) < 0.02, (backend, surface)  # across the edge: continuous
@@ -1209,8 +1229,8 @@ def test_a_ray_leaving_the_grid_downwards_meets_the_terrain_beyond_it(backend):
     dirs = np.array([enu_from_azimuth_zenith(90.0, zenith) for zenith in np.linspace(92.0, 120.0, 57)])
     origins = np.tile([0.0, 0.0, EARTH_RADIUS_M + 3000.0], (len(dirs), 1))
     sun = enu_from_azimuth_zenith(200.0, 40.0)
-    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun,
-                                                      settings=MarchSettings(backend=backend))
+    settings = MarchSettings(execution=ExecutionSettings(backend=backend))
+    out, (volume, transmittance, gas, phase) = _trace(scene, origins, dirs, sun, settings=settings)
     b = np.sum(origins * dirs, axis=1)
     crossing = -b - np.sqrt(b * b - np.sum(origins ** 2, axis=1) + (EARTH_RADIUS_M + terrain) ** 2)
     seg = ray_segments(origins, dirs, grid_geometry(volume))
@@ -1243,7 +1263,7 @@ def test_samples_above_the_terrains_top_skip_its_lookup_and_meet_the_ground_alik
                 dirs.append(enu_from_azimuth_zenith(az, zen))
                 origins.append([1500.0, -1500.0, EARTH_RADIUS_M + height])
     dirs, origins = np.array(dirs), np.array(origins)
-    settings = MarchSettings(backend="numba")
+    settings = MarchSettings(execution=ExecutionSettings(backend="numba"))
     skipping = _trace(scene, origins, dirs, sun, settings=settings)[0]
     monkeypatch.setattr(march_cpu, "TERRAIN_TOP_MARGIN", np.inf)
     looking_up = _trace(scene, origins, dirs, sun, settings=settings)[0]

@@ -4,7 +4,6 @@ No GPU is needed: on a CPU the Pallas kernel runs in Pallas's interpreter, the s
 on a GPU (its lowering is checked on the H100/H200 machines, docs/decisions/0006-gpu-kernels.md).
 """
 
-from dataclasses import replace
 
 import jax
 import numpy as np
@@ -14,7 +13,7 @@ from swim.errors import SwimInputError
 from swim.frames import enu_from_azimuth_zenith
 from swim.rt import march_pallas
 from swim.rt.gas import AerosolBackground
-from swim.rt.march_settings import MarchSettings as _MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings as _MarchSettings
 
 from test_rt_march import _random_rays, _tiny_scene, _trace
 
@@ -56,8 +55,9 @@ def test_fused_kernels_give_the_lockstep_march_s_pixels(case):
     out = {}
     for kernel in ("lockstep",) + kernels:
         out[kernel] = _trace(scene, origins, dirs, sun, aerosol=aerosol,
-                             settings=MarchSettings(backend="jax", grid_kernel=kernel.split()[0], chunk=256,
-                                                    fused_vector_loads=not kernel.endswith("scalar"), **extra))[0]
+                             settings=MarchSettings(**extra,
+                                                    execution=ExecutionSettings(backend="jax",
+                                                                                grid_kernel=kernel.split()[0], chunk=256, fused_vector_loads=not kernel.endswith("scalar"))))[0]
     lockstep = out["lockstep"]
     assert lockstep["surface"].sum() > 40 and (lockstep["tau_hydrometeor"] > 1.0).sum() > 10, \
         "rays must hit ground and cloud"
@@ -98,7 +98,8 @@ def captured_kernel_call(kernel="fused", values=False, plume=False, **settings):
     try:
         origins, dirs = _random_rays(128, seed=1)
         _trace(_tiny_scene(plume), origins, dirs, enu_from_azimuth_zenith(135.0, 40.0),
-               settings=MarchSettings(backend="jax", grid_kernel=kernel, chunk=128, **settings))
+               settings=MarchSettings(**settings,
+                                      execution=ExecutionSettings(backend="jax", grid_kernel=kernel, chunk=128)))
     except Captured:
         pass
     finally:
@@ -129,10 +130,10 @@ def test_a_block_whose_rays_have_stopped_takes_no_steps():
 
 def test_grid_kernel_setting_is_checked_and_resolved(monkeypatch):
     with pytest.raises(SwimInputError, match="grid_kernel must be one of"):
-        MarchSettings(grid_kernel="triton")
-    assert MarchSettings(grid_kernel="fused").resolved_grid_kernel() == "fused"
-    assert MarchSettings(grid_kernel="lockstep").resolved_grid_kernel() == "lockstep"
-    assert MarchSettings(grid_kernel="fused-march").resolved_grid_kernel() == "fused-march"
+        MarchSettings(execution=ExecutionSettings(grid_kernel="triton"))
+    assert MarchSettings(execution=ExecutionSettings(grid_kernel="fused")).resolved_grid_kernel() == "fused"
+    assert MarchSettings(execution=ExecutionSettings(grid_kernel="lockstep")).resolved_grid_kernel() == "lockstep"
+    assert MarchSettings(execution=ExecutionSettings(grid_kernel="fused-march")).resolved_grid_kernel() == "fused-march"
     march_pallas.pallas_triton_available.cache_clear()
     try:
         assert MarchSettings().resolved_grid_kernel() == "lockstep"  # this CPU: the XLA loop
@@ -176,16 +177,16 @@ def test_fused_kernel_settings_are_checked_and_keep_programs_apart(tmp_path):
 
     for bad in (8, 256, 12.5, True, "128"):
         with pytest.raises(SwimInputError, match=r"fused_max_registers must be None or an integer in \[16, 255\]"):
-            MarchSettings(fused_max_registers=bad)
+            MarchSettings(execution=ExecutionSettings(fused_max_registers=bad))
     with pytest.raises(SwimInputError, match="fused_vector_loads must be True or False"):
-        MarchSettings(fused_vector_loads=None)
+        MarchSettings(execution=ExecutionSettings(fused_vector_loads=None))
     for bad in (None, 1, "yes"):
         with pytest.raises(SwimInputError, match="fused_fma must be True or False"):
-            MarchSettings(fused_fma=bad)
+            MarchSettings(execution=ExecutionSettings(fused_fma=bad))
     base = MarchSettings().kernel_settings()
-    assert MarchSettings(fused_max_registers=128).kernel_settings() != base
-    assert MarchSettings(fused_vector_loads=False).kernel_settings() != base
-    assert MarchSettings(fused_fma=True).kernel_settings() != base
+    assert MarchSettings(execution=ExecutionSettings(fused_max_registers=128)).kernel_settings() != base
+    assert MarchSettings(execution=ExecutionSettings(fused_vector_loads=False)).kernel_settings() != base
+    assert MarchSettings(execution=ExecutionSettings(fused_fma=True)).kernel_settings() != base
     out = tmp_path / "sky.png"
     result = CliRunner().invoke(app, ["render", "--fused-max-registers", "300", "--size", "9", "--out", str(out)])
     assert result.exit_code == 2 and "fused_max_registers must be None or an integer" in result.output
@@ -215,15 +216,15 @@ def test_the_padded_volume_is_made_once_per_device_volume_and_dropped_with_it():
 
     import jax.numpy as jnp
 
-    fused = MarchSettings(backend="jax", grid_kernel="fused")
+    fused = MarchSettings(execution=ExecutionSettings(backend="jax", grid_kernel="fused"))
     volume = jnp.asarray(np.arange(2 * 3 * 4 * 7, dtype=np.float32).reshape(2, 3, 4, 7))
     first = march_pallas.with_vector_volume({"volume": volume}, fused)
     padded = np.asarray(first["volume_vector"]).reshape(2, 3, 4, 8)
     np.testing.assert_array_equal(padded[..., :7], np.asarray(volume))
     assert not padded[..., 7].any()
-    again = march_pallas.with_vector_volume({"volume": volume}, replace(fused, grid_kernel="fused-march"))
+    again = march_pallas.with_vector_volume({"volume": volume}, fused.with_execution(grid_kernel="fused-march"))
     assert again["volume_vector"] is first["volume_vector"]
-    for settings in (replace(fused, grid_kernel="lockstep"), replace(fused, fused_vector_loads=False)):
+    for settings in (fused.with_execution(grid_kernel="lockstep"), fused.with_execution(fused_vector_loads=False)):
         assert "volume_vector" not in march_pallas.with_vector_volume({"volume": volume}, settings)
     four = jnp.zeros((2, 3, 4, 8), jnp.float32)
     assert "volume_vector" not in march_pallas.with_vector_volume({"volume": four}, fused)
@@ -244,7 +245,7 @@ def test_the_padded_volume_s_weak_reference_cannot_deadlock_and_can_be_dropped()
 
     import jax.numpy as jnp
 
-    fused = MarchSettings(backend="jax", grid_kernel="fused")
+    fused = MarchSettings(execution=ExecutionSettings(backend="jax", grid_kernel="fused"))
     held = [jnp.ones((2, 3, 4, 5), jnp.float32)]
     march_pallas.with_vector_volume({"volume": held[0]}, fused)
     assert march_pallas._VECTOR_VOLUME

@@ -11,7 +11,7 @@ from swim.frames import enu_from_azimuth_zenith
 from swim.rt import ray_table
 from swim.rt.gas import AerosolBackground
 from swim.rt.image_sampling import AdaptiveSampling
-from swim.rt.march_settings import MarchSettings as _MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings as _MarchSettings
 from swim.rt.march_inputs import grid_geometry
 
 from test_rt_march import _random_rays, _tiny_scene, _trace
@@ -35,7 +35,7 @@ def test_table_rows_give_trace_rays_outputs():
     origins, dirs = _random_rays(300, seed=4)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground(stratospheric_aod_550=0.2)
-    settings = MarchSettings(backend="jax", chunk=256)
+    settings = MarchSettings(execution=ExecutionSettings(backend="jax", chunk=256))
     rows = np.random.default_rng(5).permutation(len(dirs))[:290]  # not every row, not in order
     extra_index = np.setdiff1d(np.arange(len(dirs)), rows)[0]
     order = np.concatenate([rows, [extra_index]])
@@ -72,7 +72,8 @@ def test_a_range_of_rows_is_marched_as_the_same_rows_listed(monkeypatch):
     origins, dirs = _random_rays(300, seed=7)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground()
-    settings = MarchSettings(backend="jax", chunk=256, n_probe=8, probe_spacing=0.5)  # probe counts that vary
+    settings = MarchSettings(n_probe=8, probe_spacing=0.5,
+                             execution=ExecutionSettings(backend="jax", chunk=256))  # probe counts that vary
     _, (volume, _, gas, _) = _trace(scene, origins[:1], dirs[:1], sun, aerosol=aerosol, settings=settings)
     from swim.rt.march_inputs import kernel_constants
     from swim.rt.solar import solar_transmittance
@@ -120,7 +121,7 @@ def test_padding_rows_are_marched_as_rays_outside_the_camera(kernel):
     origins, dirs = _random_rays(200, seed=7)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
     aerosol = AerosolBackground()
-    settings = MarchSettings(backend="jax", chunk=256, grid_kernel=kernel)
+    settings = MarchSettings(execution=ExecutionSettings(backend="jax", chunk=256, grid_kernel=kernel))
     _, (volume, _, gas, _) = _trace(scene, origins[:1], dirs[:1], sun, aerosol=aerosol, settings=settings)
     from swim.rt.march_inputs import kernel_constants
     from swim.rt.solar import solar_transmittance
@@ -184,7 +185,7 @@ def test_camera_table_is_kept_for_the_same_arrays_only():
     observer again, and is rebuilt for a copy of the directions; each pixel's row is its place in ``pixels``."""
     volume, consts = _volume_and_constants()
     geometry = grid_geometry(volume)
-    settings = MarchSettings(backend="jax", chunk=256)
+    settings = MarchSettings(execution=ExecutionSettings(backend="jax", chunk=256))
     _, dirs = _random_rays(30, seed=2)
     pixels = np.array([4, 0, 9, 17, 3])
     observer = np.array([0.0, 0.0, 6_371_008.8 + 20.0])
@@ -207,7 +208,7 @@ def test_camera_table_is_kept_for_the_same_arrays_only():
 def test_table_rows_are_checked():
     origins, dirs = _random_rays(8)
     sun = enu_from_azimuth_zenith(135.0, 40.0)
-    settings = MarchSettings(backend="jax", chunk=256)
+    settings = MarchSettings(execution=ExecutionSettings(backend="jax", chunk=256))
     volume, consts = _volume_and_constants()
     table = ray_table.build_ray_table(origins, dirs, grid_geometry(volume), consts, settings)
     aerosol = AerosolBackground()
@@ -217,7 +218,8 @@ def test_table_rows_are_checked():
     with pytest.raises(SwimInputError, match="non-empty"):
         ray_table.trace_table_rows(table, np.array([], int), consts, phase, settings)
     with pytest.raises(SwimInputError, match="JAX kernel"):
-        ray_table.trace_table_rows(table, [0], consts, phase, MarchSettings(backend="numba"))
+        ray_table.trace_table_rows(table, [0], consts, phase,
+                                   MarchSettings(execution=ExecutionSettings(backend="numba")))
     for bad in (0, 3):
         with pytest.raises(SwimInputError, match=r"padding_from must be in \[1, 2\]"):
             ray_table.trace_table_rows(table, [0, 1], consts, phase, settings, padding_from=bad)
@@ -226,7 +228,7 @@ def test_table_rows_are_checked():
     with pytest.raises(SwimInputError, match="directions must be a finite"):
         ray_table.build_ray_table(origins, dirs * np.nan, grid_geometry(volume), consts, settings)
     with pytest.raises(SwimInputError, match="ray_table must be True, False or None"):
-        MarchSettings(ray_table="yes")
+        MarchSettings(execution=ExecutionSettings(ray_table="yes"))
 
 
 def test_ray_table_default_is_on_only_for_the_jax_kernel_on_an_accelerator(monkeypatch):
@@ -234,18 +236,18 @@ def test_ray_table_default_is_on_only_for_the_jax_kernel_on_an_accelerator(monke
     never uses it, even when asked."""
     import jax
 
-    assert MarchSettings().ray_table is None
-    assert MarchSettings(backend="numba", ray_table=True).resolved_ray_table() is False
-    assert MarchSettings(backend="jax", ray_table=True).resolved_ray_table() is True
-    assert MarchSettings(backend="jax", ray_table=False).resolved_ray_table() is False
+    assert MarchSettings().execution.ray_table is None
+    assert MarchSettings(execution=ExecutionSettings(backend="numba", ray_table=True)).resolved_ray_table() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=True)).resolved_ray_table() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=False)).resolved_ray_table() is False
     on_gpu = jax.default_backend() != "cpu"
-    assert MarchSettings(backend="jax").resolved_ray_table() is on_gpu
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_ray_table() is on_gpu
     from swim.rt import precompile
 
     monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)  # JAX is asked only where it may see one
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert MarchSettings(backend="jax").resolved_ray_table() is True
-    assert MarchSettings(backend="jax", ray_table=False).resolved_ray_table() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_ray_table() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=False)).resolved_ray_table() is False
 
 
 def test_step1a_and_sampler_on_the_device_by_default_only_on_an_accelerator(monkeypatch):
@@ -255,29 +257,37 @@ def test_step1a_and_sampler_on_the_device_by_default_only_on_an_accelerator(monk
     import jax
 
     settings = MarchSettings()
-    assert settings.step1a_on_device is None and settings.device_sampling is None
+    assert settings.execution.step1a_on_device is None and settings.execution.device_sampling is None
     for name in ("step1a_on_device", "device_sampling"):
         with pytest.raises(SwimInputError, match=f"{name} must be True, False or None"):
-            MarchSettings(**{name: "yes"})
+            ExecutionSettings(**{name: "yes"})
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
-    assert MarchSettings(backend="jax").resolved_step1a_on_device() is False
-    assert MarchSettings(backend="jax").resolved_device_sampling() is False
-    assert MarchSettings(backend="jax", step1a_on_device=True).resolved_step1a_on_device() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_step1a_on_device() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_device_sampling() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                     step1a_on_device=True)).resolved_step1a_on_device() is True
     # the sampler on the device only beside the ray table
-    assert MarchSettings(backend="jax", device_sampling=True).resolved_device_sampling() is False
-    assert MarchSettings(backend="jax", ray_table=True).resolved_device_sampling() is True
-    assert MarchSettings(backend="jax", ray_table=True, device_sampling=False).resolved_device_sampling() is False
-    assert MarchSettings(backend="numba", step1a_on_device=True).resolved_step1a_on_device() is False
-    assert MarchSettings(backend="numba", ray_table=True, device_sampling=True).resolved_device_sampling() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                     device_sampling=True)).resolved_device_sampling() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=True)).resolved_device_sampling() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=True,
+                                                     device_sampling=False)).resolved_device_sampling() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="numba",
+                                                     step1a_on_device=True)).resolved_step1a_on_device() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="numba", ray_table=True,
+                                                     device_sampling=True)).resolved_device_sampling() is False
     from swim.rt import precompile
 
     monkeypatch.setattr(precompile, "jax_may_see_a_gpu", lambda: True)  # JAX is asked only where it may see one
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert MarchSettings(backend="jax").resolved_step1a_on_device() is True
-    assert MarchSettings(backend="jax").resolved_device_sampling() is True
-    assert MarchSettings(backend="jax", step1a_on_device=False).resolved_step1a_on_device() is False
-    assert MarchSettings(backend="jax", ray_table=False).resolved_device_sampling() is False
-    assert MarchSettings(backend="jax", device_sampling=False).resolved_device_sampling() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_step1a_on_device() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax")).resolved_device_sampling() is True
+    assert MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                     step1a_on_device=False)).resolved_step1a_on_device() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                     ray_table=False)).resolved_device_sampling() is False
+    assert MarchSettings(execution=ExecutionSettings(backend="jax",
+                                                     device_sampling=False)).resolved_device_sampling() is False
 
 
 @pytest.mark.parametrize("sampling", [None, AdaptiveSampling()], ids=["every pixel", "adaptive"])
@@ -294,7 +304,8 @@ def test_render_with_the_table_gives_the_same_image(sampling):
                 scene, camera="allsky", camera_options={"size": 48}, sun_zenith=sun_zenith, sun_azimuth=120.0,
                 # the host's sampler beside the table (with the table, device_sampling None means on; the sampler on
                 # the device is held to the host's in test_rt_image_sampling_device.py)
-                settings=MarchSettings(backend="jax", chunk=1024, ray_table=kept, device_sampling=False),
+                settings=MarchSettings(execution=ExecutionSettings(backend="jax", chunk=1024, ray_table=kept,
+                                                                   device_sampling=False)),
                 sampling=sampling)
             if kept:
                 entry = ray_table._LAST_TABLE["entry"]
@@ -329,7 +340,7 @@ def test_render_with_the_table_gives_the_same_image(sampling):
 def test_camera_table_is_rebuilt_for_another_observer():
     scene = swim.default_scene()
     ray_table.forget_ray_tables()
-    settings = MarchSettings(backend="jax", chunk=1024, ray_table=True)
+    settings = MarchSettings(execution=ExecutionSettings(backend="jax", chunk=1024, ray_table=True))
     swim.render(scene, camera="allsky", camera_options={"size": 16}, sun_zenith=40.0, sun_azimuth=120.0,
                 settings=settings)
     first = ray_table._LAST_TABLE["entry"][2]
@@ -341,7 +352,7 @@ def test_camera_table_is_rebuilt_for_another_observer():
 
 
 def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
-    """``swim render --ray-table`` / ``--no-ray-table`` set MarchSettings.ray_table; without either it stays None
+    """``swim render --ray-table`` / ``--no-ray-table`` set ExecutionSettings.ray_table; without either it stays None
     (the device decides: MarchSettings.resolved_ray_table); ``--step1a-on-device/--no-step1a-on-device`` and
     ``--device-sampling/--no-device-sampling`` and ``--device-image/--no-device-image`` likewise, None without
     them."""
@@ -354,8 +365,9 @@ def test_cli_passes_the_ray_table_to_the_render(tmp_path, monkeypatch):
     real = swim.pipeline.render
 
     def spy(*args, **kwargs):
-        seen.append((kwargs["settings"].ray_table, kwargs["settings"].step1a_on_device,
-                     kwargs["settings"].device_sampling, kwargs["settings"].device_image))
+        execution = kwargs["settings"].execution
+        seen.append((execution.ray_table, execution.step1a_on_device, execution.device_sampling,
+                     execution.device_image))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(swim.pipeline, "render", spy)

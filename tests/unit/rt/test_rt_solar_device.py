@@ -13,7 +13,7 @@ from swim.io.scene import scene_from_arrays
 from swim.optics.volume import build_optical_volume
 from swim.rt import device_copies, march_jax, solar_device
 from swim.rt.march_inputs import KERNEL_STEP1A_VARIABLES, pack_volume, packed_species, share_packed_channels
-from swim.rt.march_settings import MarchSettings as _MarchSettings
+from swim.rt.march_settings import ExecutionSettings, MarchSettings as _MarchSettings
 from swim.rt.solar import solar_transmittance, step1a_levels
 
 from test_rt_solar import RADIUS, _full_and_empty_scenes
@@ -101,10 +101,10 @@ def test_the_kernel_is_compiled_once_whatever_the_switches_it_does_not_read():
     def programs():
         return len(march_jax._trace_chunk._calls) + march_jax._trace_chunk.jitted._cache_size()
 
-    swim.render(scene, settings=MarchSettings(backend="jax"), **kwargs)
+    swim.render(scene, settings=MarchSettings(execution=ExecutionSettings(backend="jax")), **kwargs)
     before = programs()
-    for settings in (MarchSettings(backend="jax", ray_table=False),
-                     MarchSettings(backend="jax", ray_table=False, step1a_on_device=True)):
+    for settings in (MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=False)),
+                     MarchSettings(execution=ExecutionSettings(backend="jax", ray_table=False, step1a_on_device=True))):
         swim.render(scene, settings=settings, **kwargs)
     assert programs() == before
 
@@ -120,7 +120,7 @@ def test_refill_checks_its_inputs():
         solar_device.refill_step1a_channels(jnp.asarray(packed[..., 1:]), volume, sun, len(species) - 1, True,
                                             levels)
     with pytest.raises(SwimInputError, match="step1a_on_device must be True, False or None"):
-        MarchSettings(step1a_on_device="yes")
+        MarchSettings(execution=ExecutionSettings(step1a_on_device="yes"))
 
 
 @pytest.mark.full
@@ -135,22 +135,22 @@ def test_a_new_sun_in_a_render_refills_the_device_copy(monkeypatch):
                         lambda *args: calls.append(1) or real(*args))
     images = {}
     for on_device in (False, True):
-        pipeline._STAGE_CACHE.clear()
-        settings = MarchSettings(backend="jax", step1a_on_device=on_device)
+        pipeline.STATE.stages.clear()
+        settings = MarchSettings(execution=ExecutionSettings(backend="jax", step1a_on_device=on_device))
         kwargs = dict(camera_options={"size": 40}, settings=settings, sun_azimuth=200.0)
         swim.render(scene, sun_zenith=30.0, **kwargs)
         assert calls == []  # the first sun: no device copy to refill
         images[on_device] = swim.render(scene, sun_zenith=55.0, **kwargs)["radiance"].values
         assert len(calls) == (1 if on_device else 0)
-        packed = pipeline._STAGE_CACHE._entries["grid constants"][1]["volume"]
+        packed = pipeline.STATE.stages._entries["grid constants"][1]["volume"]
         # the step classes of this sun (march_inputs.step_classes), written over the last sun's in place
-        classes = pipeline._STAGE_CACHE._entries["grid constants"][1]["occupancy"]
-        assert classes is pipeline._STAGE_CACHE._entries["step classes"][1]
+        classes = pipeline.STATE.stages._entries["grid constants"][1]["occupancy"]
+        assert classes is pipeline.STATE.stages._entries["step classes"][1]
         copies = device_copies.kept_device_copies({"volume": packed, "occupancy": classes})
         assert copies is not None, "the kernel's device copy of this sun's volume"
         np.testing.assert_array_equal(np.asarray(copies["volume"]), packed)
         # the kernel's constants take that copy: nothing is sent again
-        assert march_jax._device_constants(pipeline._STAGE_CACHE._entries["grid constants"][1])["volume"] is \
+        assert march_jax._device_constants(pipeline.STATE.stages._entries["grid constants"][1])["volume"] is \
             copies["volume"]
     np.testing.assert_allclose(images[True], images[False], rtol=1e-4, atol=1e-6)
 
@@ -161,14 +161,14 @@ def test_a_render_alone_after_one_beside_others_reuses_its_step_classes(monkeypa
     device copies the render beside others made still match them (kept_device_copies)."""
     scene = swim.default_scene()
     kwargs = dict(camera_options={"size": 24}, sun_azimuth=140.0, settings=MarchSettings())
-    pipeline._STAGE_CACHE.clear()
+    pipeline.STATE.stages.clear()
     swim.render(scene, sun_zenith=30.0, **kwargs)
-    first = pipeline._STAGE_CACHE._entries["step classes"][1]
-    monkeypatch.setattr(pipeline, "_rendering_alone", lambda: False)
+    first = pipeline.STATE.stages._entries["step classes"][1]
+    monkeypatch.setattr(pipeline.STATE, "rendering_alone", lambda: False)
     swim.render(scene, sun_zenith=40.0, **kwargs)
-    beside = pipeline._STAGE_CACHE._entries["grid constants"][1]
+    beside = pipeline.STATE.stages._entries["grid constants"][1]
     assert beside["occupancy"] is not first
     monkeypatch.undo()
     swim.render(scene, sun_zenith=50.0, **kwargs)
-    alone = pipeline._STAGE_CACHE._entries["grid constants"][1]
+    alone = pipeline.STATE.stages._entries["grid constants"][1]
     assert alone["volume"] is beside["volume"] and alone["occupancy"] is beside["occupancy"]
