@@ -320,6 +320,138 @@ def default_surface_albedo(land_mask):
     return land * np.array(DEFAULT_LAND_ALBEDO)[:, None, None] + (1 - land) * np.array(DEFAULT_WATER_ALBEDO)[:, None, None]
 
 
+def _grid_maps(scene: xr.Dataset, lat0, lon0):
+    """The columns' orthographic (x, y) [m] (y, x) and the attributes of their affine fit and cubic index map."""
+    gx, gy = orthographic_xy(scene["lat"].values, scene["lon"].values, lat0, lon0)
+    origin, matrix, residual = fit_grid_affine(gx, gy)
+    spacing = float(np.sqrt(abs(np.linalg.det(matrix))))
+    centre, scale, coefficients, index_residual = fit_grid_index_map(gx, gy)
+    index_bounds = np.array([(gx.min() - centre[0]) / scale, (gx.max() - centre[0]) / scale,
+                             (gy.min() - centre[1]) / scale, (gy.max() - centre[1]) / scale])
+    log.info("grid: affine fit within %.0f m, cubic index map within %.3f cells (spacing %.0f m)",
+             residual, index_residual, spacing)
+    if index_residual > 0.25:
+        log.warning("grid columns deviate up to %.2f cells from a smooth map; cloud positions are approximate",
+                    index_residual)
+    return gx, gy, {
+        "affine_origin": origin,
+        "affine_matrix": matrix.ravel(),
+        "affine_max_residual_m": residual,
+        "index_map_centre": centre,
+        "index_map_scale": scale,
+        "index_map_coefficients": coefficients.ravel(),
+        "index_map_bounds": index_bounds,
+        "index_map_max_residual_cells": index_residual,
+    }
+
+
+def _resampled_extinction(scene: xr.Dataset, height, terrain, levels):
+    """Hydrometeor (species, level, y, x) and 3-D aerosol (level, y, x) extinction [m-1] on the regular levels.
+
+    Also returns, per species, the (sum of beta r_eff, sum of beta) of each block of rows, for the
+    extinction-weighted mean effective radius.
+
+    Raises
+    ------
+    SwimInputError
+        If a ``<species>_content`` is negative or not finite.
+    """
+    nz, ny, nx = height.shape
+    nk = levels.size
+    extinction = np.zeros((len(SPECIES), nk, ny, nx), dtype=np.float32)
+    interpolation = ColumnInterpolation(height, terrain, levels)
+    # Eq. 7 and the resampling in blocks of rows: the float64 temporaries of a species (content, radius,
+    # extinction, masks) then take ~16 MB each instead of a whole field each (~77 MB each for 400 x 400 x 60),
+    # which set the peak memory of a render of a big grid (docs/performance.md, "Memory"). The blocks run on every
+    # core (NumPy releases the GIL), each thread's blocks that much smaller, so the temporaries stay ~16 MB each.
+    workers = threads()
+    rows = max(1, min(ny, _BLOCK_BYTES // (8 * nz * nx * workers)))
+    flat = extinction.reshape(len(SPECIES), nk, ny * nx)
+    blocks = [(j0, min(j0 + rows, ny)) for j0 in range(0, ny, rows)]
+    # the extinction-weighted mean effective radius of each species [m] (its phase function's, in the 3-D cloud
+    # scattering: swim.optics.cloud_phase), from sums per block of rows
+    radius_sums = {species: [] for species in SPECIES}
+    for n, species in enumerate(SPECIES):
+        if f"{species}_content" in scene:
+            _species_extinction(scene, n, species, interpolation, flat[n], blocks, workers, radius_sums[species])
+
+    if "aerosol_extinction" in scene:
+        aerosol = np.empty((nk, ny * nx), np.float32)
+        values = scene["aerosol_extinction"].values
+
+        def aerosol_block(block):
+            j0, j1 = block
+            aerosol[:, j0 * nx:j1 * nx] = interpolation.columns(values[:, j0:j1], j0 * nx, j1 * nx)
+
+        parallel_map(aerosol_block, blocks, workers)
+        aerosol = aerosol.reshape(nk, ny, nx)
+    else:
+        # no 3-D aerosol: a read-only broadcast of zero, which takes no memory (100 MB at 400 x 400 x 160)
+        aerosol = np.broadcast_to(np.float32(0.0), (nk, ny, nx))
+    return extinction, aerosol, radius_sums
+
+
+def _species_extinction(scene: xr.Dataset, n, species, interpolation: ColumnInterpolation, flat, blocks, workers,
+                        radius_sums):
+    """Eq. 7 for one species, block of rows by block, resampled in place into ``flat`` (level, y * x).
+
+    Appends each block's (sum of beta r_eff, sum of beta) to ``radius_sums``.
+
+    Raises
+    ------
+    SwimInputError
+        If the species' content is negative or not finite.
+    """
+    nz, _, nx = scene["height"].shape
+    name = f"{species}_content"
+    content_all = scene[name].values  # each block checks its content and skips itself where it has none
+    radius_name = f"{species}_effective_radius"
+    radius_all = scene[radius_name].values if radius_name in scene else None
+
+    def eq7_block(block):
+        from .columns_cpu import gather_cells, scan_content
+
+        j0, j1 = block
+        content = content_all[:, j0:j1]  # a view: the compiled scan reads it in place
+        cells = nz * (j1 - j0) * nx
+        where, values = np.empty(cells, np.int64), np.empty(cells, np.float64)
+        # one pass: the check of the values and the cloudy cells (1-10 % of a model's cells), where Eq. 7 is
+        # computed: elsewhere beta is 0 (docs/decisions/0007-scene-set-up.md)
+        bad, present = scan_content(content, where, values)
+        if bad:
+            content = np.asarray(content, dtype=float)
+            wrong = ~np.isfinite(content) | (content < 0)
+            raise SwimInputError(f"{name} must be finite and >= 0 [kg m-3]; got {int(wrong.sum())} values such as "
+                                 f"{content[wrong].flat[0]!r}")
+        if present == 0:
+            return  # the block's extinction stays 0
+        where, values = where[:present], values[:present]
+        given = None
+        if radius_all is not None:
+            given = np.empty(present, np.float64)
+            gather_cells(radius_all[:, j0:j1], where, given)
+        radius = effective_radius(species, values, given)
+        beta = extinction_coefficient_stephens1978(values, radius, HYDROMETEOR_DENSITY[species]).astype(np.float32)
+        radius_sums.append((float(np.dot(beta, radius)), float(beta.sum(dtype=np.float64))))
+        interpolation.cells(where, beta, nz, j0 * nx, j1 * nx, out=flat[:, j0 * nx:j1 * nx])  # in place
+
+    parallel_map(eq7_block, blocks, workers)  # an error in a block (bad values) is raised here
+
+
+def _surface_fields(scene: xr.Dataset, terrain):
+    """Land fraction, surface albedo (wavelength, y, x), snow cover and 10 m wind speed [m s-1] of the scene."""
+    ny, nx = terrain.shape
+    land = scene["land_mask"].values.astype(float) if "land_mask" in scene else (terrain > 0.5).astype(float)
+    if "surface_albedo" in scene:
+        albedo = scene["surface_albedo"].transpose("wavelength", "y", "x").values.astype(float)
+    else:
+        albedo = default_surface_albedo(land)
+    snow = scene["snow_cover"].values.astype(float) if "snow_cover" in scene else np.zeros((ny, nx))
+    wind = (scene["wind_speed_10m"].values.astype(float) if "wind_speed_10m" in scene
+            else np.full((ny, nx), DEFAULT_WIND_SPEED_M_S))
+    return land, albedo, snow, wind
+
+
 def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels: int = 160) -> xr.Dataset:
     """Optical properties of a canonical scene on a regular height grid.
 
@@ -366,95 +498,14 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
     height = np.asarray(scene["height"].values, dtype=float)  # no copy of a validated scene's float64
     terrain = np.asarray(scene["terrain_height"].values, dtype=float)
 
-    gx, gy = orthographic_xy(scene["lat"].values, scene["lon"].values, lat0, lon0)
-    origin, matrix, residual = fit_grid_affine(gx, gy)
-    spacing = float(np.sqrt(abs(np.linalg.det(matrix))))
-    centre, scale, coefficients, index_residual = fit_grid_index_map(gx, gy)
-    index_bounds = np.array([(gx.min() - centre[0]) / scale, (gx.max() - centre[0]) / scale,
-                             (gy.min() - centre[1]) / scale, (gy.max() - centre[1]) / scale])
-    log.info("grid: affine fit within %.0f m, cubic index map within %.3f cells (spacing %.0f m)",
-             residual, index_residual, spacing)
-    if index_residual > 0.25:
-        log.warning("grid columns deviate up to %.2f cells from a smooth map; cloud positions are approximate",
-                    index_residual)
+    gx, gy, grid_attrs = _grid_maps(scene, lat0, lon0)
 
     bottom, dz, nk = _regular_levels(height, terrain, dz, max_levels)
     levels = bottom + dz * np.arange(nk)
     log.info("optical volume: %d x %d columns, %d regular levels of %.1f m from %.0f m", nx, ny, nk, dz, bottom)
 
-    extinction = np.zeros((len(SPECIES), nk, ny, nx), dtype=np.float32)
-    interpolation = ColumnInterpolation(height, terrain, levels)
-    # Eq. 7 and the resampling in blocks of rows: the float64 temporaries of a species (content, radius,
-    # extinction, masks) then take ~16 MB each instead of a whole field each (~77 MB each for 400 x 400 x 60),
-    # which set the peak memory of a render of a big grid (docs/performance.md, "Memory"). The blocks run on every
-    # core (NumPy releases the GIL), each thread's blocks that much smaller, so the temporaries stay ~16 MB each.
-    workers = threads()
-    rows = max(1, min(ny, _BLOCK_BYTES // (8 * nz * nx * workers)))
-    flat = extinction.reshape(len(SPECIES), nk, ny * nx)
-    blocks = [(j0, min(j0 + rows, ny)) for j0 in range(0, ny, rows)]
-    # the extinction-weighted mean effective radius of each species [m] (its phase function's, in the 3-D cloud
-    # scattering: swim.optics.cloud_phase), from sums per block of rows
-    radius_sums = {species: [] for species in SPECIES}
-    for n, species in enumerate(SPECIES):
-        name = f"{species}_content"
-        if name not in scene:
-            continue
-        content_all = scene[name].values  # each block checks its content and skips itself where it has none
-        radius_name = f"{species}_effective_radius"
-        radius_all = scene[radius_name].values if radius_name in scene else None
-
-        def eq7_block(block, n=n, name=name, species=species, content_all=content_all, radius_all=radius_all):
-            from .columns_cpu import gather_cells, scan_content
-
-            j0, j1 = block
-            content = content_all[:, j0:j1]  # a view: the compiled scan reads it in place
-            cells = nz * (j1 - j0) * nx
-            where, values = np.empty(cells, np.int64), np.empty(cells, np.float64)
-            # one pass: the check of the values and the cloudy cells (1-10 % of a model's cells), where Eq. 7 is
-            # computed: elsewhere beta is 0 (docs/decisions/0007-scene-set-up.md)
-            bad, present = scan_content(content, where, values)
-            if bad:
-                content = np.asarray(content, dtype=float)
-                wrong = ~np.isfinite(content) | (content < 0)
-                raise SwimInputError(f"{name} must be finite and >= 0 [kg m-3]; got {int(wrong.sum())} values such as "
-                                     f"{content[wrong].flat[0]!r}")
-            if present == 0:
-                return  # the block's extinction stays 0
-            where, values = where[:present], values[:present]
-            given = None
-            if radius_all is not None:
-                given = np.empty(present, np.float64)
-                gather_cells(radius_all[:, j0:j1], where, given)
-            radius = effective_radius(species, values, given)
-            beta = extinction_coefficient_stephens1978(values, radius, HYDROMETEOR_DENSITY[species]).astype(np.float32)
-            radius_sums[species].append((float(np.dot(beta, radius)), float(beta.sum(dtype=np.float64))))
-            interpolation.cells(where, beta, nz, j0 * nx, j1 * nx, out=flat[n, :, j0 * nx:j1 * nx])  # in place
-
-        parallel_map(eq7_block, blocks, workers)  # an error in a block (bad values) is raised here
-
-    if "aerosol_extinction" in scene:
-        aerosol = np.empty((nk, ny * nx), np.float32)
-        values = scene["aerosol_extinction"].values
-
-        def aerosol_block(block):
-            j0, j1 = block
-            aerosol[:, j0 * nx:j1 * nx] = interpolation.columns(values[:, j0:j1], j0 * nx, j1 * nx)
-
-        parallel_map(aerosol_block, blocks, workers)
-        aerosol = aerosol.reshape(nk, ny, nx)
-    else:
-        # no 3-D aerosol: a read-only broadcast of zero, which takes no memory (100 MB at 400 x 400 x 160)
-        aerosol = np.broadcast_to(np.float32(0.0), (nk, ny, nx))
-    del interpolation
-
-    land = scene["land_mask"].values.astype(float) if "land_mask" in scene else (terrain > 0.5).astype(float)
-    if "surface_albedo" in scene:
-        albedo = scene["surface_albedo"].transpose("wavelength", "y", "x").values.astype(float)
-    else:
-        albedo = default_surface_albedo(land)
-    snow = scene["snow_cover"].values.astype(float) if "snow_cover" in scene else np.zeros((ny, nx))
-    wind = (scene["wind_speed_10m"].values.astype(float) if "wind_speed_10m" in scene
-            else np.full((ny, nx), DEFAULT_WIND_SPEED_M_S))
+    extinction, aerosol, radius_sums = _resampled_extinction(scene, height, terrain, levels)
+    land, albedo, snow, wind = _surface_fields(scene, terrain)
 
     return xr.Dataset(
         {
@@ -476,14 +527,7 @@ def build_optical_volume(scene: xr.Dataset, dz: float | None = None, max_levels:
             "reference_lon": lon0,
             "z_bottom": bottom,
             "dz": dz,
-            "affine_origin": origin,
-            "affine_matrix": matrix.ravel(),
-            "affine_max_residual_m": residual,
-            "index_map_centre": centre,
-            "index_map_scale": scale,
-            "index_map_coefficients": coefficients.ravel(),
-            "index_map_bounds": index_bounds,
-            "index_map_max_residual_cells": index_residual,
+            **grid_attrs,
             "mean_effective_radius_m": np.array([
                 sum(a for a, _ in radius_sums[sp]) / max(sum(b for _, b in radius_sums[sp]), 1e-30)
                 if radius_sums[sp] else np.nan for sp in SPECIES]),

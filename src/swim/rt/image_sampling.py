@@ -142,6 +142,66 @@ def _lattice(n, spacing):
     return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
 
 
+class _Batches:
+    """The image's outputs as batches of pixels are traced into it, and the progress reported.
+
+    ``traced`` and ``filled`` (ny * nx,) bool: the pixels traced, and those that the fill will interpolate (only kept
+    with ``progress``); ``values``: the outputs by key, (ny * nx, ...), made at the first batch that returns them.
+    """
+
+    def __init__(self, trace, valid_flat, progress, max_threads, outside):
+        self.trace, self.valid_flat, self.progress = trace, valid_flat, progress
+        self.max_threads, self.outside = max_threads, outside
+        self.traced = np.zeros(valid_flat.size, bool)
+        self.filled = np.zeros(valid_flat.size, bool)
+        self.values: dict[str, np.ndarray] = {}
+        self.total = int(valid_flat.sum())
+
+    def report(self):
+        """Call ``progress`` with the valid pixels traced or to be interpolated."""
+        if self.progress is not None and self.total:
+            self.progress(int(np.count_nonzero((self.traced | self.filled) & self.valid_flat)), self.total)
+
+    def run(self, wanted):
+        """Trace the valid pixels not yet traced among those ``wanted`` (a mask over the image) into the image."""
+        values, n = self.values, self.valid_flat.size
+        # the new valid pixels among those ``wanted`` (a mask over the image), in increasing order: not np.unique's
+        # sort of a list with duplicates, which took 135-154 ms of the synthetic 1024^2 all-sky's three batches
+        # (131 000-347 000 pixels) on the main thread while the cores idled
+        # (docs/decisions/0009-work-around-the-march.md)
+        flat = np.flatnonzero(wanted & self.valid_flat & ~self.traced)
+        if flat.size == 0:
+            return
+        pixels, result = _rows_of(self.trace(flat), flat)
+        pixels = np.ascontiguousarray(pixels, dtype=np.int64)
+        result = {key: np.asarray(value) for key, value in result.items()}
+        new = [key for key in result if key not in values]
+        for key in new:  # made in the trace's order; their pages first written (blanked) by the threads below
+            values[key] = _image_array(n, result[key])
+        from .fill_cpu import scatter_rows
+
+        def scatter(key):
+            image = values[key]
+            if key in new:
+                _blank(image, self.outside)
+            scatter_rows(image.reshape(n, -1), pixels,
+                         np.ascontiguousarray(result[key].reshape(len(pixels), -1), dtype=image.dtype))
+
+        parallel_map(scatter, list(result), self.max_threads)
+        self.traced[flat] = True
+        self.report()
+
+
+def _coarse_cells(ny, nx, spacing):
+    """The coarse lattice's rows and columns, and its cells (m, 4) of (y0, y1, x0, x1) with a pixel inside."""
+    rows, cols = _lattice(ny, spacing), _lattice(nx, spacing)
+    y0, x0 = np.meshgrid(rows[:-1], cols[:-1], indexing="ij")
+    y1, x1 = np.meshgrid(rows[1:], cols[1:], indexing="ij")
+    cells = np.stack([y0.ravel(), y1.ravel(), x0.ravel(), x1.ravel()], axis=1)
+    # the cells with a pixel between their corners (one of at most 2 x 2 pixels has only corners)
+    return rows, cols, np.ascontiguousarray(cells[(cells[:, 1] - cells[:, 0] > 1) | (cells[:, 3] - cells[:, 2] > 1)])
+
+
 def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSampling(), progress=None, max_threads=1,
                           outside=0.0):
     """Sample an image by tracing a quadtree of its pixels and interpolating its smooth cells.
@@ -188,41 +248,9 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
         raise SwimInputError(f"valid must be a 2-D boolean pixel mask, got dtype {valid.dtype} and shape {valid.shape}")
     ny, nx = valid.shape
     valid_flat = valid.reshape(-1)
-    traced = np.zeros(ny * nx, bool)
-    filled = np.zeros(ny * nx, bool)
-    values: dict[str, np.ndarray] = {}
-    total = int(valid_flat.sum())
-
-    def report():
-        if progress is not None and total:
-            progress(int(np.count_nonzero((traced | filled) & valid_flat)), total)
-
-    def run(wanted):
-        # the new valid pixels among those ``wanted`` (a mask over the image), in increasing order: not np.unique's
-        # sort of a list with duplicates, which took 135-154 ms of the synthetic 1024^2 all-sky's three batches
-        # (131 000-347 000 pixels) on the main thread while the cores idled
-        # (docs/decisions/0009-work-around-the-march.md)
-        flat = np.flatnonzero(wanted & valid_flat & ~traced)
-        if flat.size == 0:
-            return
-        pixels, result = _rows_of(trace(flat), flat)
-        pixels = np.ascontiguousarray(pixels, dtype=np.int64)
-        result = {key: np.asarray(value) for key, value in result.items()}
-        new = [key for key in result if key not in values]
-        for key in new:  # made in the trace's order; their pages first written (blanked) by the threads below
-            values[key] = _image_array(ny * nx, result[key])
-        from .fill_cpu import scatter_rows
-
-        def scatter(key):
-            image = values[key]
-            if key in new:
-                _blank(image, outside)
-            scatter_rows(image.reshape(ny * nx, -1), pixels,
-                         np.ascontiguousarray(result[key].reshape(len(pixels), -1), dtype=image.dtype))
-
-        parallel_map(scatter, list(result), max_threads)
-        traced[flat] = True
-        report()
+    batches = _Batches(trace, valid_flat, progress, max_threads, outside)
+    traced, filled, values = batches.traced, batches.filled, batches.values
+    run, report = batches.run, batches.report
 
     if sampling.coarse_spacing >= min(ny, nx) or min(ny, nx) < 3:
         run(valid_flat)
@@ -231,12 +259,7 @@ def sample_image_adaptive(trace, valid, sampling: AdaptiveSampling = AdaptiveSam
     from .smooth_cpu import mark_tested, split_cells
 
     size = int(sampling.edge_test_size)
-    rows, cols = _lattice(ny, sampling.coarse_spacing), _lattice(nx, sampling.coarse_spacing)
-    y0, x0 = np.meshgrid(rows[:-1], cols[:-1], indexing="ij")
-    y1, x1 = np.meshgrid(rows[1:], cols[1:], indexing="ij")
-    cells = np.stack([y0.ravel(), y1.ravel(), x0.ravel(), x1.ravel()], axis=1)
-    # the cells with a pixel between their corners (one of at most 2 x 2 pixels has only corners)
-    cells = np.ascontiguousarray(cells[(cells[:, 1] - cells[:, 0] > 1) | (cells[:, 3] - cells[:, 2] > 1)])
+    rows, cols, cells = _coarse_cells(ny, nx, sampling.coarse_spacing)
     # The lattice and its cells' tested pixels in one batch, and below the split cells' edge midpoints with their
     # children's tested pixels (swim.rt.smooth_cpu): each cell's are traced whatever its test finds, so the batches
     # trace what one batch per step traced (the same pixels, tests and image) with fewer waits for a batch's last rays.

@@ -347,6 +347,73 @@ def _finish(values, trace, n, outside):
     return images
 
 
+class _DeviceBatches:
+    """The image's outputs on the device as batches of pixels are traced into it.
+
+    ``traced`` (n,) bool and ``values`` (the outputs by name, (n, C), made at the first batch that returns them)
+    are the device's; ``done`` counts the pixels traced so far (each batch's are new ones, so the host counts them).
+    """
+
+    def __init__(self, trace, valid_dev, total, n, chunk, progress, outside):
+        self.trace, self.valid_dev, self.total, self.n = trace, valid_dev, total, n
+        self.chunk, self.progress, self.outside = chunk, progress, outside
+        self.traced = jnp.zeros(n, bool)
+        self.values: dict[str, jax.Array] = {}
+        self.done = 0
+
+    def run(self, wanted):
+        """Trace the valid pixels not yet traced among those ``wanted`` (a mask over the image) into the image.
+
+        Raises
+        ------
+        SwimInputError
+            If ``trace`` returns no ``radiance``, ``tau_hydrometeor`` or ``surface``, or not a row per pixel.
+        """
+        n, values = self.n, self.values
+        new = np.flatnonzero(np.asarray(wanted & self.valid_dev & ~self.traced))
+        if new.size == 0:
+            return
+        # the last pixel repeated up to the batch's bucket; the repeats' rows are dropped (index n), so that trace may
+        # march them as padding (the pipeline's rays that start stopped) and return anything there
+        pad = bucket_size(new.size, self.chunk) - new.size
+        padded = np.concatenate([new, np.repeat(new[-1:], pad)])
+        result = self.trace(padded)
+        missing = {"radiance", "tau_hydrometeor", "surface"} - set(result)
+        if missing:
+            raise SwimInputError(f"sample_image_adaptive_device: trace returned no {sorted(missing)}")
+        pixels = jnp.asarray(np.concatenate([new, np.full(pad, n)]).astype(np.int32))
+        names, batch = list(result), []
+        for name in names:
+            rows = _as_columns(result[name])
+            if rows.shape[0] != padded.size:
+                raise SwimInputError(f"sample_image_adaptive_device: trace returned {rows.shape[0]} rows of "
+                                     f"{name!r} for {padded.size} pixels")
+            if name not in values:
+                fill = self.outside if jnp.issubdtype(rows.dtype, jnp.floating) else 0
+                values[name] = jnp.full((n, rows.shape[1]), fill, rows.dtype)
+            batch.append(rows)
+        images, self.traced = _scatter(tuple(values[name] for name in names), self.traced, pixels, tuple(batch))
+        values.update(zip(names, images))
+        self.done += new.size
+        if self.progress is not None and self.total:  # counted here, not by the device: no wait for the batch's march
+            self.progress(self.done, self.total)
+
+
+def _smooth_of_level(exists, values, valid_dev, traced, sampling: AdaptiveSampling, *, nx, level_index, levels_key):
+    """The cells of level ``level_index`` that are smooth (the device's :func:`_test_level` over the traced values)."""
+    if not values:  # nothing traced yet (no valid pixel so far): no cell is smooth, all split (as the host's sampler)
+        return jnp.zeros_like(exists)
+    checks = [("radiance", sampling.tolerance, sampling.radiance_floor),
+              ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)]
+    if sampling.clear_tolerance > 0 and "radiance_clear" in values:
+        checks.append(("radiance_clear", sampling.clear_tolerance, sampling.radiance_floor))
+    with jax.enable_x64(True):  # the test in float64, as the host's (_test_level)
+        return _test_level(exists, tuple(values[name] for name, _, _ in checks), valid_dev, traced,
+                           values["surface"][:, 0], nx=nx, edge_test_size=int(sampling.edge_test_size),
+                           level_index=level_index, levels_key=levels_key,
+                           checks=tuple((float(t), float(f)) for _, t, f in checks))
+
+
 def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = AdaptiveSampling(), progress=None,
                                  outside=0.0, chunk=None):
     """Sample an image as :func:`swim.rt.image_sampling.sample_image_adaptive` does, with the image on the device.
@@ -401,68 +468,27 @@ def sample_image_adaptive_device(trace, valid, sampling: AdaptiveSampling = Adap
         from .march_settings import GPU_CHUNK as chunk
     valid_flat = valid.reshape(-1)
     valid_dev = jnp.asarray(valid_flat)
-    traced = jnp.zeros(n, bool)
-    values: dict[str, jax.Array] = {}
-    total = int(valid_flat.sum())
-
-    done = 0  # pixels traced so far: each batch's are new ones (not traced before), so the host counts them
-
-    def run(wanted):
-        nonlocal traced, done
-        new = np.flatnonzero(np.asarray(wanted & valid_dev & ~traced))
-        if new.size == 0:
-            return
-        # the last pixel repeated up to the batch's bucket; the repeats' rows are dropped (index n), so that trace may
-        # march them as padding (the pipeline's rays that start stopped) and return anything there
-        pad = bucket_size(new.size, chunk) - new.size
-        padded = np.concatenate([new, np.repeat(new[-1:], pad)])
-        result = trace(padded)
-        missing = {"radiance", "tau_hydrometeor", "surface"} - set(result)
-        if missing:
-            raise SwimInputError(f"sample_image_adaptive_device: trace returned no {sorted(missing)}")
-        pixels = jnp.asarray(np.concatenate([new, np.full(pad, n)]).astype(np.int32))
-        names, batch = list(result), []
-        for name in names:
-            rows = _as_columns(result[name])
-            if rows.shape[0] != padded.size:
-                raise SwimInputError(f"sample_image_adaptive_device: trace returned {rows.shape[0]} rows of "
-                                     f"{name!r} for {padded.size} pixels")
-            if name not in values:
-                fill = outside if jnp.issubdtype(rows.dtype, jnp.floating) else 0
-                values[name] = jnp.full((n, rows.shape[1]), fill, rows.dtype)
-            batch.append(rows)
-        images, traced = _scatter(tuple(values[name] for name in names), traced, pixels, tuple(batch))
-        values.update(zip(names, images))
-        done += new.size
-        if progress is not None and total:  # counted here, not by the device: no wait for the batch's march
-            progress(done, total)
+    batches = _DeviceBatches(trace, valid_dev, int(valid_flat.sum()), n, chunk, progress, outside)
+    values, run = batches.values, batches.run
 
     if sampling.coarse_spacing >= min(ny, nx):  # no lattice inside the image: every pixel (as the host's sampler)
         run(jnp.ones(n, bool))
-        return _finish(values, trace, n, outside), traced.reshape(ny, nx)
+        return _finish(values, trace, n, outside), batches.traced.reshape(ny, nx)
     key = (ny, nx, int(sampling.coarse_spacing))  # quadtree_levels's arguments: the programs' static one
     levels = quadtree_levels(*key)
     exists, wanted = _first_wanted(nx=nx, edge_test_size=size, levels_key=key)
     run(wanted)
     smooth_levels = []
     for index in range(len(levels)):
-        if values:
-            checks = [("radiance", sampling.tolerance, sampling.radiance_floor),
-                      ("tau_hydrometeor", sampling.tau_tolerance, sampling.tau_floor)]
-            if sampling.clear_tolerance > 0 and "radiance_clear" in values:
-                checks.append(("radiance_clear", sampling.clear_tolerance, sampling.radiance_floor))
-            with jax.enable_x64(True):  # the test in float64, as the host's (_test_level)
-                smooth = _test_level(exists, tuple(values[name] for name, _, _ in checks), valid_dev, traced,
-                                     values["surface"][:, 0], nx=nx, edge_test_size=size, level_index=index,
-                                     levels_key=key, checks=tuple((float(t), float(f)) for _, t, f in checks))
-        else:  # nothing traced yet (no valid pixel so far): no cell is smooth, all split (as the host's sampler)
-            smooth = jnp.zeros_like(exists)
+        smooth = _smooth_of_level(exists, values, valid_dev, batches.traced, sampling, nx=nx, level_index=index,
+                                  levels_key=key)
         smooth_levels.append(smooth)
         if index + 1 == len(levels):
             break
         exists, wanted = _wanted_after_split(exists & ~smooth, nx=nx, edge_test_size=size, level_index=index,
                                              levels_key=key)
         run(wanted)
+    traced = batches.traced
     if not values:  # no valid pixel at all
         return _finish(values, trace, n, outside), traced.reshape(ny, nx)
     names = list(values)

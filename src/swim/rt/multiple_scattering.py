@@ -153,6 +153,69 @@ def _channel_kernels(phase_function, mu_out, phi_out, mu_q, phi_q, w_q, n_c, sym
     return np.broadcast_to(k, (n_c,) + k.shape[-2:]) if k.ndim == 2 else k
 
 
+def _single_scattering_source(d_tau, ssa, fractions, mu0, phase_functions, mu_q, phi_q, w_q):
+    """Direct beam at the layer edges (n_l + 1, n_s, C) and the first order's source (n_l, n_q, n_s, C).
+
+    The beam propagates with mu = -mu0 at azimuth 0; its single-scattering phase is column-normalised over the
+    quadrature.
+    """
+    n_c = d_tau.shape[1]
+    cos_sun = _cos_between(mu_q[:, None], phi_q[:, None], -mu0[None, :], 0.0)  # (n_q, n_s)
+    beam_phase = 0.0
+    for frac, phase in zip(fractions, phase_functions):
+        p = np.asarray(phase(cos_sun), float)
+        p = p[..., None] if p.ndim == 2 else p  # (n_q, n_s, C or 1)
+        p = p / ((w_q[:, None, None] * p).sum(axis=0) / (4 * np.pi))
+        beam_phase = beam_phase + frac[:, None, None, :] * p[None]
+    tau_edges = np.concatenate([np.zeros((1, n_c)), np.cumsum(d_tau, axis=0)])  # (n_l + 1, C)
+    e_edges = np.exp(-tau_edges[:, None, :] / mu0[None, :, None])  # (n_l + 1, n_s, C)
+    safe = np.maximum(d_tau, 1e-12)[:, None, :]
+    e_mean = np.where(d_tau[:, None, :] > 1e-9, mu0[None, :, None] * (e_edges[:-1] - e_edges[1:]) / safe, e_edges[:-1])
+    w_ssa = ssa[:, None, None, :]
+    return e_edges, w_ssa * beam_phase * e_mean[:, None, :, :]
+
+
+def _sweep_order(source, att, mean_fac, flux_w, direct_ground, albedo, n_s):
+    """One order of scattering: radiance at the layer edges (n_l + 1, n_q, n_s, C) and its layer means (n_l, ...).
+
+    The sweep goes down from the top (no diffuse light enters from space), then up from a Lambertian ground,
+    L'_up = 4 a E (E / E_TOA the horizontal irradiance, ``direct_ground`` the direct beam's share of it). The
+    grid lists the downward directions first: slices avoid copies in the sweeps.
+    """
+    n_l, n_q, _, n_c = att.shape
+    down = slice(0, n_q // 2)
+    up = slice(n_q // 2, n_q)
+    edges = np.zeros((n_l + 1, n_q, n_s, n_c))
+    mean = np.zeros((n_l, n_q, n_s, n_c))
+    i_d = np.zeros((n_q // 2, n_s, n_c))
+    for layer in range(n_l):
+        s = source[layer, down]
+        a = att[layer, down]
+        mean[layer, down] = s + (i_d - s) * mean_fac[layer, down]
+        i_d = i_d * a + s * (1 - a)
+        edges[layer + 1, down] = i_d
+    e_ground = np.einsum("q,qsc->sc", flux_w, i_d) + direct_ground
+    i_u = np.broadcast_to(4.0 * albedo * e_ground, (n_q - n_q // 2, n_s, n_c)).copy()
+    edges[n_l, up] = i_u
+    for layer in range(n_l - 1, -1, -1):
+        s = source[layer, up]
+        a = att[layer, up]
+        mean[layer, up] = s + (i_u - s) * mean_fac[layer, up]
+        i_u = i_u * a + s * (1 - a)
+        edges[layer, up] = i_u
+    return edges, mean
+
+
+def _scattered(fractions, kernels, mean):
+    """Light scattered out of the layer-mean radiance ``mean`` (n_l, n_q, n_s, C), before the albedo."""
+    n_c = mean.shape[-1]
+    scattered = 0.0
+    for frac, kern in zip(fractions, kernels):
+        j = np.stack([np.einsum("pq,lqs->lps", kern[c], mean[..., c], optimize=True) for c in range(n_c)], axis=-1)
+        scattered = scattered + frac[:, None, None, :] * j
+    return scattered
+
+
 def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surface_albedo, phase_functions,
                                      n_half=10, n_phi=12, tolerance=1e-5, max_orders=60):
     """Diffuse radiance field of a plane-parallel atmosphere by successive orders of scattering.
@@ -199,25 +262,11 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
     n_q = mu_q.size
     kernels = [_channel_kernels(p, mu_q, phi_q, mu_q, phi_q, w_q, n_c, symmetric=True) for p in phase_functions]
 
-    # Direct beam: propagates with mu = -mu0 at azimuth 0. Column-normalised single-scattering phase.
-    cos_sun = _cos_between(mu_q[:, None], phi_q[:, None], -mu0[None, :], 0.0)  # (n_q, n_s)
-    beam_phase = 0.0
-    for frac, phase in zip(fractions, phase_functions):
-        p = np.asarray(phase(cos_sun), float)
-        p = p[..., None] if p.ndim == 2 else p  # (n_q, n_s, C or 1)
-        p = p / ((w_q[:, None, None] * p).sum(axis=0) / (4 * np.pi))
-        beam_phase = beam_phase + frac[:, None, None, :] * p[None]
-    tau_edges = np.concatenate([np.zeros((1, n_c)), np.cumsum(d_tau, axis=0)])  # (n_l + 1, C)
-    e_edges = np.exp(-tau_edges[:, None, :] / mu0[None, :, None])  # (n_l + 1, n_s, C)
-    safe = np.maximum(d_tau, 1e-12)[:, None, :]
-    e_mean = np.where(d_tau[:, None, :] > 1e-9, mu0[None, :, None] * (e_edges[:-1] - e_edges[1:]) / safe, e_edges[:-1])
+    e_edges, source = _single_scattering_source(d_tau, ssa, fractions, mu0, phase_functions, mu_q, phi_q, w_q)
     w_ssa = ssa[:, None, None, :]
-    source = w_ssa * beam_phase * e_mean[:, None, :, :]  # (n_l, n_q, n_s, C)
 
-    # The grid lists the downward directions first: slices avoid copies in the sweeps.
-    down = slice(0, n_q // 2)
-    up = slice(n_q // 2, n_q)
-    flux_w = (w_q * np.abs(mu_q) / (4 * np.pi))[down]
+    # the downward directions' flux weights (the grid lists them first)
+    flux_w = (w_q * np.abs(mu_q) / (4 * np.pi))[:n_q // 2]
     direct_ground = mu0[:, None] * e_edges[-1]  # (n_s, C) horizontal direct irradiance at the ground
     x = d_tau[:, None, :] / np.abs(mu_q)[None, :, None]  # (n_l, n_q, C)
     att = np.exp(-x)[:, :, None, :]
@@ -227,26 +276,8 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
     order = 0
     previous_ratio = 0.0
     for order in range(1, max_orders + 1):
-        edges = np.zeros_like(total)
-        mean = np.zeros((n_l, n_q, mu0.size, n_c))
-        # Downward sweep from the top (no diffuse light enters from space).
-        i_d = np.zeros((n_q // 2, mu0.size, n_c))
-        for layer in range(n_l):
-            s = source[layer, down]
-            a = att[layer, down]
-            mean[layer, down] = s + (i_d - s) * mean_fac[layer, down]
-            i_d = i_d * a + s * (1 - a)
-            edges[layer + 1, down] = i_d
-        # Lambertian ground: L'_up = 4 a E (E / E_TOA the horizontal irradiance); the direct beam in order 1.
-        e_ground = np.einsum("q,qsc->sc", flux_w, i_d) + (direct_ground if order == 1 else 0.0)
-        i_u = np.broadcast_to(4.0 * albedo * e_ground, (n_q - n_q // 2, mu0.size, n_c)).copy()
-        edges[n_l, up] = i_u
-        for layer in range(n_l - 1, -1, -1):
-            s = source[layer, up]
-            a = att[layer, up]
-            mean[layer, up] = s + (i_u - s) * mean_fac[layer, up]
-            i_u = i_u * a + s * (1 - a)
-            edges[layer, up] = i_u
+        edges, mean = _sweep_order(source, att, mean_fac, flux_w, direct_ground if order == 1 else 0.0, albedo,
+                                   mu0.size)
         total += edges
         added = float(np.abs(edges).max())
         scale = float(np.abs(total).max())
@@ -256,12 +287,7 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
             if 0.0 < ratio < 1.0:
                 total += edges * (ratio / (1.0 - ratio))
             break
-        # Source of the next order from this order's layer-mean radiance.
-        scattered = 0.0
-        for frac, kern in zip(fractions, kernels):
-            j = np.stack([np.einsum("pq,lqs->lps", kern[c], mean[..., c], optimize=True) for c in range(n_c)], axis=-1)
-            scattered = scattered + frac[:, None, None, :] * j
-        source = w_ssa * scattered
+        source = w_ssa * _scattered(fractions, kernels, mean)  # the next order's, from this order's layer means
     else:
         log.warning("successive orders did not converge in %d orders", max_orders)
     return {"mu": mu_q, "phi": phi_q, "weight": w_q, "radiance": total, "orders": order}
