@@ -71,8 +71,8 @@ def main():
         t2 = time.perf_counter()
         occupancy = march_inputs.occupancy_grid(volume)
         t3 = time.perf_counter()
-        # as a render does it: the fields written into the packed channels where this code can (section 70 of
-        # docs/performance.md), else made and then copied there by volume_constants
+        # as a render does it: the fields written into the packed channels where this code can
+        # (docs/decisions/0007-scene-set-up.md), else made and then copied there by volume_constants
         out = march_inputs.step1a_channel_views(packed, species) if hasattr(march_inputs, "step1a_channel_views") else None
         transmittance = solar.solar_transmittance(volume, sun, variables=march_inputs.KERNEL_STEP1A_VARIABLES,
                                                   nonzero_levels=levels, **({"out": out} if out else {}))

@@ -65,6 +65,31 @@ def test_rayleigh_sky_matches_disort():
     assert abs(rel.mean()) < 3 * np.sqrt(np.sum(sigma**2)) / sigma.size + 0.005
 
 
+def test_aerosol_sky_matches_disort():
+    """Cloud-free sky with continental aerosol (AOD 0.2 at 550 nm) from the ground, each wavelength in a pass of its
+    own with the aerosol's phase function at that wavelength: Mitsuba L' = 4 pi I equals DISORT within the MC noise.
+
+    Measured with 20 000 paths per view: largest difference 1.7 % at 1.3 % standard error."""
+    pytest.importorskip("disortpp")
+    m = _mitsuba()
+    from swim.validation.disort import disort_clear_sky_radiance
+
+    aerosol = AerosolBackground(aod_550=0.2)
+    sz, sa = 30.0, 135.0
+    vz = np.array([0.0, 40.0, 60.0, 25.0])
+    va = np.array([0.0, 135.0, 315.0, 150.0])  # the second 10 deg and the last ~8.5 deg from the sun
+    spp = 20000 if _fast(m) else 5000
+    out = m.mitsuba_radiance(None, sz, sa, [0.0, 0.0, 2.0], m.directions_from_angles(vz, va), spp=spp,
+                             aerosol=aerosol, surface_albedo=0.06, seed=11)
+    ref = disort_clear_sky_radiance(sz, vz, va - sa, aerosol=aerosol, surface_albedo=0.06, observer="ground",
+                                    n_streams=32)
+    assert out["spectral"] == "mono"
+    rel = out["radiance"] / ref - 1
+    sigma = out["stderr"] / ref
+    assert np.all(np.abs(rel) < 4 * sigma + 0.01), (rel, sigma)
+    assert out["radiance"][1, 1] > 3 * out["radiance"][0, 1]  # the aerosol's forward peak near the sun
+
+
 def _slab_volume(tau):
     """A horizontally uniform liquid slab (500-1000 m, ramps to 400/1100 m) of optical depth tau, 120 km wide."""
     from swim.io.scene import scene_from_arrays

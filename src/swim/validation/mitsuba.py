@@ -312,7 +312,9 @@ def build_mitsuba_scene(volume, sun_zenith_deg, sun_azimuth_deg, aerosol: Aeroso
     if has_aerosol and channel is None:
         log.warning("aerosol with an RGB pass: the aerosol/Rayleigh phase mixture is taken at 546 nm for all channels")
     p_rayleigh = _tabphase(lambda m: np.asarray(rayleigh_phase_function(m, gas.depolarization), dtype=float), n=401)
-    p_aerosol = _tabphase(lambda m: np.asarray(aerosol.type.phase_function(m), dtype=float)) if has_aerosol else None
+    # the aerosol type's phase function is per wavelength (n, 3): the channel rendered, or 546 nm for an RGB pass
+    p_aerosol = (_tabphase(lambda m: np.asarray(aerosol.type.phase_function(m), dtype=float)[:, wc])
+                 if has_aerosol else None)
     gas_phase = functools.partial(_gas_phase, p_rayleigh, p_aerosol)
     gas_medium = _gas_medium(mi, gas, ssa_a, sel, wc, gas_lo, gas_hi, gas_phase)
     scene_dict = _scene_dict(mi, sun_zenith_deg, sun_azimuth_deg, albedo, off, w)
