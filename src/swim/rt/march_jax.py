@@ -1,10 +1,11 @@
 """The march's JAX kernel: chunks of rays marched in lockstep, jit-compiled once per batch size (GPUs; gradients).
 
 The same steps, sources and composition as the numba kernel (:mod:`swim.rt.march_cpu`, the CPU's default), written
-with ``jax.numpy``: the step placement (:func:`grid_step_edges`, :func:`clear_step_edges`), the segment march
-(:func:`_march_segment`, :func:`_march_grid_refined`), the clouds' and the ground's composition (:func:`_compose`)
-and the chunk's stages (:func:`_trace_chunk`). :func:`swim.rt.march.trace_rays` calls it for
-``MarchSettings(backend="jax")``; only then is JAX imported.
+with ``jax.numpy``: the lookups of the scene's tables, the segment march (:func:`_march_segment`,
+:func:`_march_grid_refined`) and the chunk's stages (:func:`_trace_chunk`) here, the step placement
+(:func:`grid_step_edges`, :func:`clear_step_edges`) in :mod:`swim.rt.march_jax_steps` and the clouds' and the ground's
+composition (:func:`_compose`) in :mod:`swim.rt.march_jax_compose`. :func:`swim.rt.march.trace_rays` calls it for
+``ExecutionSettings(backend="jax")``; only then is JAX imported.
 """
 
 from __future__ import annotations
@@ -12,35 +13,27 @@ from __future__ import annotations
 import functools
 import logging
 from dataclasses import replace
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW
+from ..constants import GAS_COLUMN_ROW
 from ..optics.volume import grid_indices
-from ..optics.phase import (
-    anisotropic_reflectance_factor_kokhanovsky2004,
-    blend_coefficient,
-    delta_scaled_path_factor,
-    diffuse_transmission_factor,
-    effective_phase_function,
-    forward_peak_mixture,
-    phase_thin_mixture,
-)
-from ..surface.lighting import surface_radiance
 from .clouds import CLOUD_HOST_KEYS, CLOUD_KERNEL_KEYS, three_d
 from .clouds_device import cloud_sources, ratio_above_grid
 from ..compilation.jax_export import exported_jit
-from .solar import transmittance_delta_eddington
 from .device_copies import _DEVICE_COPIES, device_copies
-from .march_inputs import HOST_CONSTANTS, _ends_on_surface, packed_aerosol_3d
-from .surface_margin import surface_fade_cells
-from .march_settings import (CELL_SLACK, CLEAR_PROBES, CLEAR_STEP_FLOOR, CLEAR_STEP_POWER, EMPTY_CELLS_PER_STEP,
-                             EMPTY_STEP_WEIGHT, FROM_ABOVE_BLEND, GRID_LOOP_UNROLL_ACCELERATOR, MAX_PROBES,
-                             MarchSettings, N_OCCUPANCY_PROBES, REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS,
-                             REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR, SUNLIT_CELLS_PER_STEP, TERRAIN_BISECTIONS,
-                             TOP_MIN_MU0, TOP_MIN_SELF_TRANSMITTANCE, TOP_REFLECTANCE_MIN_MU0)
+from .march_inputs import HOST_CONSTANTS, packed_aerosol_3d
+# the step placement and the composition, imported back for the march and for the modules and tests that take them
+# from here
+from .march_jax_compose import (_compose, _compose_clouds, _compose_three_d, _ground_radiance,  # noqa: F401
+                                surface_beyond_edge)
+from .march_jax_steps import (adaptive_step_edges, after_step_counts, clear_step_edges,  # noqa: F401
+                              grid_step_edges, probe_counts, probe_counts_and_cells, segment_cells)
+from .march_settings import (GRID_LOOP_UNROLL_ACCELERATOR, MAX_PROBES, MarchSettings, REFINE_BUDGET, REFINE_DEPTH,
+                             REFINE_SLOTS, REFINE_VISIBLE_TAU, SKYLIGHT_SCALAR_FACTOR, TERRAIN_BISECTIONS)
 
 log = logging.getLogger(__name__)
 
@@ -300,240 +293,197 @@ def _profile_at(profile, h, consts):
                                                stride=n * n_u), axis=-1))
 
 
-def _probe_indices(start, direction, s0, length, consts, n_probe, count=None):
-    """Grid indices (k, j, i), each (n_probe, n), of the probes at the middles of equal intervals of each ray's
-    grid segment: ``n_probe`` of them, or the first ``count`` (n,) <= n_probe of each ray's own count (the others
-    then repeat the last)."""
-    m = jnp.arange(n_probe, dtype=jnp.float32)[:, None]
-    count = jnp.float32(n_probe) if count is None else count.astype(jnp.float32)[None, :]
-    f = (jnp.minimum(m, count - 1) + 0.5) / count
-    s = s0[None, :] + f * length[None, :]
-    q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
-    _, _, k, j, i = _point_geometry(q, consts)
-    return tuple(x.reshape(n_probe, -1) for x in (k, j, i))
+class _SegmentInputs(NamedTuple):
+    """What each sample of one segment of :func:`_march_segment` reads besides the state: the rays (rebased ``start``
+    (n, 3) [m], unit ``direction`` (n, 3), their phase functions ``rays``), the kernel constants, the diffuse-source
+    profiles ``ms_profile`` (or None) and ``aerosol_class``, the segment's static switches (``in_grid``: the volume
+    is sampled; ``terminal``: the steps of :func:`_terminal_step`; ``stop_tau``) and ``outside``, the volume's
+    channels beyond it (made once, outside the segment's loop)."""
+
+    start: object
+    direction: object
+    rays: dict
+    consts: dict
+    ms_profile: object
+    aerosol_class: tuple
+    in_grid: bool
+    terminal: bool
+    stop_tau: float
+    outside: object
 
 
-def probe_counts(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBES,
-                 probe_spacing=MarchSettings.probe_spacing):
-    """Occupancy probes per ray (n,) int32 for :func:`adaptive_step_edges`: ``n_probe``, or for a ray whose grid
-    segment crosses more than ``n_probe * probe_spacing`` cells one per ``probe_spacing`` cells, at most
-    :data:`MAX_PROBES`.
-
-    A segment's length in cells is the Chebyshev length of its path in grid indices (:func:`segment_cells`): the
-    number of cells the ray passes along its dominant axis. ``probe_spacing`` 0 gives ``n_probe`` for every ray.
-    """
-    if not probe_spacing:
-        return jnp.full(start.shape[:1], n_probe, jnp.int32)
-    return probe_counts_and_cells(start, direction, s0, length, consts, n_probe, probe_spacing)[0]
-
-
-def probe_counts_and_cells(start, direction, s0, length, consts, n_probe=N_OCCUPANCY_PROBES,
-                           probe_spacing=MarchSettings.probe_spacing):
-    """:func:`probe_counts` (n,) int32 and the grid segments' lengths in cells (n,) [-] that they come from
-    (:func:`segment_cells`; ``probe_spacing`` 0 gives ``n_probe`` probes for every ray)."""
-    cells = segment_cells(start, direction, s0, length, consts)
-    if not probe_spacing:
-        return jnp.full(start.shape[:1], n_probe, jnp.int32), cells
-    # CELL_SLACK: a ray along a grid axis crosses a whole number of cells, which must not round up in float32
-    # here and not in float64 in the numba kernel (or the other way round)
-    need = jnp.ceil(cells / probe_spacing - CELL_SLACK)
-    return jnp.clip(need, n_probe, max(MAX_PROBES, n_probe)).astype(jnp.int32), cells
-
-
-def segment_cells(start, direction, s0, length, consts):
-    """Length in cells (n,) [-] of each ray's grid segment [s0, s0 + length] [m]: the Chebyshev length of its path
-    in grid indices, measured at :data:`CELL_PROBES` points (the middles of equal intervals; the largest index change
-    between neighbouring points, summed and extended by the half intervals at the ends), the cells the ray passes
-    along its dominant axis.
-
-    Measured apart from the occupancy probes, at fewer points: the march probed every ray's occupancy at ``n_probe``
-    points for its length alone before probing it again at the count that length asks for (every ray of a 1024^2
-    all-sky of the 400 x 400 x 60 scene, whose 160 levels make even the zenith's ray cross more than ``n_probe``
-    times ``probe_spacing`` cells): 64 of a ray's ~147 probes there (docs/decisions/0003-cpu-kernel-code.md)."""
-    k, j, i = _probe_indices(start, direction, s0, length, consts, CELL_PROBES)
-    return _segment_cells(k, j, i, CELL_PROBES)
-
-
-def _segment_cells(k, j, i, n_probe):
-    """Length in cells (n,) of each ray's grid segment from the grid indices (n_probe, n) of its equally spaced
-    probes: the largest index change between neighbouring probes, summed and extended by the half intervals at
-    the segment's ends."""
-    step = jnp.maximum(jnp.maximum(jnp.abs(jnp.diff(k, axis=0)), jnp.abs(jnp.diff(j, axis=0))), jnp.abs(jnp.diff(i, axis=0)))
-    return jnp.sum(step, axis=0) * (n_probe / max(n_probe - 1, 1))
-
-
-def adaptive_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCCUPANCY_PROBES,
-                        empty_weight=EMPTY_STEP_WEIGHT, probes=None):
-    """Edges (n_steps + 1, n) [m] of n_steps steps through the grid, concentrated where something happens
-    (:func:`grid_step_edges` without a limit on the steps in empty space: every ray takes n_steps).
-
-    Empty-space skipping for rays marched in lockstep: each ray probes the (dilated) occupancy grid of
-    :func:`occupancy_grid` (hydrometeors, the terrain, gradients of the 3-D aerosol) at ``n_probe`` equal
-    intervals of its grid segment (or at its own count ``probes`` (n,) <= n_probe, from :func:`probe_counts`)
-    and spreads its steps with density 1 in occupied and ``empty_weight`` in empty intervals (inverse of the
-    piecewise-linear cumulative density). Every ray takes the same number of steps, so no ray waits for
-    another, and clear air still gets steps (a cloud missed by the probes is sampled as by a uniform march of
-    n_steps empty_weight / (occupied + empty_weight (n_probe - occupied)) steps per interval).
-    """
-    return grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe, empty_weight, probes)[0]
-
-
-def grid_step_edges(start, direction, s0, length, n_steps, consts, n_probe=N_OCCUPANCY_PROBES,
-                    empty_weight=EMPTY_STEP_WEIGHT, probes=None, cells=None, empty_steps=0, sunlit_steps=0):
-    """Edges (n_steps + 1, n) [m] and counts (n,) int32 of each ray's steps through the grid: dense where something
-    happens, few where nothing does.
-
-    The steps of :func:`adaptive_step_edges` (density 1 in occupied and ``empty_weight`` in empty probe intervals),
-    with the steps in empty space limited (empty-space skipping; docs/decisions/0004-step-placement.md): where the
-    empty intervals would get more than ``max(empty_steps, empty cells / EMPTY_CELLS_PER_STEP)`` steps (the empty
-    cells are the segment's ``cells`` (n,) times its share of empty probes), they get that many, and the ray
-    takes fewer steps in all, ``ceil(occupied steps + that)``, so that its occupied intervals keep their step
-    density. A ray through clear air alone takes ``empty_steps`` equal steps instead of n_steps. A ray's edges
-    beyond its count repeat the segment's end; its march stops there. ``empty_steps`` 0: every ray takes
-    n_steps, as in :func:`adaptive_step_edges`.
-
-    Where ``consts["occupancy"]`` holds the step classes of :func:`step_classes` and ``sunlit_steps`` > 0, the
-    sunlit clear intervals (code :data:`SUNLIT_CLEAR`) are limited in the same way on their own, to
-    ``max(sunlit_steps, sunlit cells / SUNLIT_CELLS_PER_STEP)`` steps, and the weight left to the unoccupied
-    intervals is shared in proportion to the two kinds' limited steps (docs/decisions/0004-step-placement.md); with
-    ``sunlit_steps`` 0 they count as empty.
-
-    ``probes`` (n,): each ray's probe count (:func:`probe_counts`, at most ``n_probe``), or None for ``n_probe``
-    each; ``cells``: the segments' lengths in cells of :func:`segment_cells` (needed with ``probes`` and
-    ``empty_steps``; without ``probes`` they are measured here).
-    """
-    n = start.shape[0]
-    count = jnp.full((n,), n_probe, jnp.int32) if probes is None else jnp.minimum(probes.astype(jnp.int32), n_probe)
-    k, j, i = _probe_indices(start, direction, s0, length, consts, n_probe, None if probes is None else count)
-    occupancy = jnp.asarray(consts["occupancy"])
-    nk, ny, nx = occupancy.shape
-    kk, jj, ii = (jnp.clip(jnp.round(x), 0, size - 1).astype(jnp.int32) for x, size in ((k, nk), (j, ny), (i, nx)))
-    kind = occupancy.reshape(-1)[(kk * ny + jj) * nx + ii].reshape(n_probe, n)
-    occupied = kind > 0
-    own = jnp.arange(n_probe)[:, None] < count[None, :]  # a ray's own probes only
-    sunlit = (kind < 0) & own if sunlit_steps else jnp.zeros_like(own)
-    steps = jnp.full((n,), n_steps, jnp.int32)
-    weight_empty = weight_sunlit = jnp.float32(empty_weight)
-    if empty_steps:
-        if cells is None:
-            if probes is not None:
-                raise ValueError("grid_step_edges: cells are needed with probes (probe_counts_and_cells)")
-            cells = segment_cells(start, direction, s0, length, consts)
-        n_occupied = jnp.sum(occupied & own, axis=0).astype(jnp.float32)
-        n_sunlit = jnp.sum(sunlit, axis=0).astype(jnp.float32)
-        n_empty = count.astype(jnp.float32) - n_occupied - n_sunlit
-        total = n_occupied + empty_weight * (n_empty + n_sunlit)
-        # CELL_SLACK: a ray along a grid axis crosses a whole number of cells, which must not round the step count
-        # up in float32 here and not in float64 in the numba kernel (as in probe_counts_and_cells)
-        steps_empty = n_steps * empty_weight * n_empty / total
-        budget = jnp.maximum(jnp.float32(empty_steps),
-                             cells * n_empty / (count.astype(jnp.float32) * EMPTY_CELLS_PER_STEP) - CELL_SLACK)
-        capped = (n_empty > 0) & (steps_empty > budget)
-        steps_empty = jnp.where(capped, budget, steps_empty)
-        steps_sunlit = n_steps * empty_weight * n_sunlit / total
-        if sunlit_steps:
-            budget = jnp.maximum(jnp.float32(sunlit_steps),
-                                 cells * n_sunlit / (count.astype(jnp.float32) * SUNLIT_CELLS_PER_STEP) - CELL_SLACK)
-            capped_sunlit = (n_sunlit > 0) & (steps_sunlit > budget)
-            steps_sunlit = jnp.where(capped_sunlit, budget, steps_sunlit)
-            capped = capped | capped_sunlit
-        fewer = jnp.minimum(jnp.ceil(n_steps * n_occupied / total + steps_empty + steps_sunlit), n_steps)
-        # the weight left to the unoccupied intervals at the occupied ones' steps per unit weight, n_steps / total,
-        # shared in proportion to their capped steps
-        rest = fewer * total / n_steps - n_occupied
-        share = steps_empty / jnp.maximum(steps_empty + steps_sunlit, jnp.float32(1e-30))
-        weight_empty = jnp.where(capped, rest / jnp.maximum(n_empty, 1.0) * share, weight_empty)[None, :]
-        weight_sunlit = jnp.where(capped, rest / jnp.maximum(n_sunlit, 1.0) * (1.0 - share), weight_sunlit)[None, :]
-        steps = jnp.where(capped, fewer, n_steps).astype(jnp.int32)
-    weight = jnp.where(own, jnp.where(occupied, 1.0, jnp.where(sunlit, weight_sunlit, weight_empty)), 0.0)
-    return _edges_from_density(weight, count, s0, length, n_steps, steps), steps
-
-
-def _edges_from_density(weight, count, s0, length, n_steps, steps=None):
-    """Edges (n_steps + 1, n) [m] that cut the piecewise-constant step density ``weight`` (n_probe, n) over each
-    ray's ``count`` (n,) equal probe intervals of [s0, s0 + length] into n_steps equal parts (the inverse of the
-    piecewise-linear cumulative density), or into ``steps`` (n,) <= n_steps parts each (the edges beyond them
-    repeating the end)."""
-    n = weight.shape[1]
-    cdf = jnp.concatenate([jnp.zeros((1, n), jnp.float32), jnp.cumsum(weight, axis=0)], axis=0)
-    cdf = cdf / cdf[-1:]
-    m = jnp.arange(n_steps + 1, dtype=jnp.float32)
-    if steps is None:
-        targets = jnp.broadcast_to((m / n_steps)[:, None], (n_steps + 1, n))
+def _sample_medium(seg, st, s):
+    """The medium at each ray's sample at ``s`` (n,) [m] of :func:`_sample_step`: the point's geometry, the gas's and
+    the volume's lookups and whether the ray meets the ground in this step (``hit_now``, the crossing's fraction
+    ``frac`` of the step), as a dict of arrays."""
+    consts = seg.consts
+    n_c = consts["volume"].shape[-1]
+    n_sp = consts["species_matrix"].shape[0]  # the packed species (packed_species)
+    aerosol_3d = packed_aerosol_3d(n_c, n_sp)  # packed only where it is not zero
+    q = seg.start + s[:, None] * seg.direction
+    h, mu_s, k, j, i = _point_geometry(q, consts)
+    beta_r, beta_a, beta_s, t_sun, diffuse = _gas_at(h, mu_s, consts)
+    if seg.in_grid:
+        v = trilinear(consts["volume"], k, j, i, seg.outside)
+        beta_sp = v[:, :n_sp]
+        t_cloud = v[:, -2]
+        shadow = v[:, -1]
+        if aerosol_3d:
+            beta_a3 = v[:, n_sp : n_sp + 1] * consts["angstrom"][None, :]
+            # Direct beam through the 3-D aerosol towards the sun (Angstrom-scaled from 550 nm).
+            t_aerosol = jnp.exp(-v[:, n_sp + 1 : n_sp + 2] * consts["angstrom"][None, :])
+        else:
+            beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
+            t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
+        gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
+        hit_now = st["alive"] & (gap < 0) & (not seg.terminal)
+        frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
     else:
-        parts = steps.astype(jnp.float32)[None, :]
-        targets = jnp.minimum(m[:, None], parts) / parts
-    idx = jnp.clip(jax.vmap(lambda c, t: jnp.searchsorted(c, t, side="right") - 1, in_axes=1, out_axes=1)(cdf, targets),
-                   0, count[None, :] - 1)
-    c0 = jnp.take_along_axis(cdf, idx, axis=0)
-    c1 = jnp.take_along_axis(cdf, idx + 1, axis=0)
-    frac = jnp.clip((idx + (targets - c0) / jnp.maximum(c1 - c0, 1e-12)) / count[None, :].astype(jnp.float32),
-                    0.0, 1.0)
-    return s0[None, :] + frac * length[None, :]
+        beta_sp = jnp.zeros((q.shape[0], n_sp), jnp.float32)
+        beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
+        t_cloud = jnp.ones(q.shape[0], jnp.float32)
+        shadow = jnp.ones(q.shape[0], jnp.float32)
+        t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
+        # Beyond the grid the terrain continues at its edge heights (clamped), so that mountains at the
+        # domain's edge do not end in a cliff down to the sea-level sphere and a plateau's horizon is flat.
+        gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
+        hit_now = st["alive"] & (gap < 0)
+        frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
+    return {"h": h, "mu_s": mu_s, "k": k, "j": j, "i": i, "beta_r": beta_r, "beta_a": beta_a, "beta_s": beta_s,
+            "t_sun": t_sun, "diffuse": diffuse, "beta_sp": beta_sp, "t_cloud": t_cloud, "shadow": shadow,
+            "beta_a3": beta_a3, "t_aerosol": t_aerosol, "gap": gap, "hit_now": hit_now, "frac": frac}
 
 
-def clear_step_edges(start, direction, s0, length, n_steps, consts, n_probe=CLEAR_PROBES, steps=None):
-    """Edges (n_steps + 1, n) [m] of n_steps steps through the clear air before or after the grid, dense where
-    the air is.
+def _sample_light(seg, st, at, ds):
+    """The light and extinction of a sample of :func:`_sample_step` from its medium ``at`` (:func:`_sample_medium`):
+    the step's effective length ``ds_eff``, the irradiance that lights the gas and the hydrometeors, the extinctions
+    and, with the 3-D cloud scattering, the hydrometeors' sources (a dict of arrays)."""
+    consts = seg.consts
+    clouds_3d = three_d(consts)  # cloud_scattering="discrete_ordinates" (swim.rt.clouds_device)
+    h, mu_s, k, j, i, t_cloud = at["h"], at["mu_s"], at["k"], at["j"], at["i"], at["t_cloud"]
+    beta_sp, diffuse = at["beta_sp"], at["diffuse"]
+    # the step in which the ray meets the ground adds nothing here: its sample may lie deep inside the
+    # terrain; the terminal step (_terminal_step) covers it up to the refined crossing
+    ds_eff = jnp.where(st["alive"] & ~at["hit_now"], ds, 0.0)
+    # direct beam / E_TOA, lights the gas and aerosol (Eq. 3): gas, hydrometeors (T), 3-D aerosol
+    irradiance = at["t_sun"] * (t_cloud * at["shadow"])[:, None] * at["t_aerosol"]
+    if seg.in_grid:
+        # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a); with
+        # aerosol column classes, that of the ray's class.
+        if consts["class_aod"].shape[0] > 1:
+            diffuse = diffuse_at(h, mu_s, seg.aerosol_class, consts)
+        skylight = SKYLIGHT_SCALAR_FACTOR * diffuse * t_cloud[:, None]
+    # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors.
+    irradiance_h = irradiance + skylight if seg.in_grid else irradiance
+    beta_clear = at["beta_r"] + at["beta_a"] + at["beta_a3"] + at["beta_s"]
+    beta_h = beta_sp.sum(axis=1)
+    # the extinction that dims the light on its way to the observer: with the 3-D cloud scattering the
+    # hydrometeors' delta-M scaled one (the forward peak's light stays in the view), whose sources are
+    # integrated along the ray; the diffuse solution's ratio to the clear sky dims the air's diffuse source
+    beta_view, dims_diffuse, cloud_source = beta_h, t_cloud[:, None], None
+    if clouds_3d and seg.in_grid:
+        dims_diffuse, cloud_source, beta_view = cloud_sources(beta_sp, k, j, i, t_cloud, irradiance, seg.rays, consts)
+    elif clouds_3d:
+        dims_diffuse = ratio_above_grid(h, k, j, i, consts, consts["volume"].shape[:3])
+    return {"ds_eff": ds_eff, "irradiance": irradiance, "irradiance_h": irradiance_h, "beta_clear": beta_clear,
+            "beta_h": beta_h, "beta_view": beta_view, "dims_diffuse": dims_diffuse, "cloud_source": cloud_source}
 
-    The steps integrate the clear-sky source of Step 2 (single scattering and the diffuse source, Albers et al.
-    2020, Eq. 3, doi:10.5194/amt-13-3235-2020) by the midpoint rule, whose error over a step of length ds is
-    ~ f'' ds^3 / 24; for an integrand that falls exponentially with height (f'' ~ f / H^2) the error is spread
-    evenly by a step density ~ f^(1/3) (the placement is ours, not the paper's: it marches Step 2 separately,
-    Sect. 3.3). Each ray
-    probes the extinction at 546 nm (Rayleigh, background and stratospheric aerosol: the clear-sky source's
-    coefficients) at ``n_probe`` equal intervals and spreads its steps with density extinction^(1/3) plus
-    :data:`CLEAR_STEP_FLOOR` times its largest value (so that the thin air far up still gets steps). Against a
-    march of 384 + 256 equal steps, the default 24 steps after and 12 before the grid so placed are as accurate
-    as the 48 and 32 equal steps they replace, or more (median error of ground views 0.013 % against 0.022 %, of
-    a view from 800 km 0.25 % against 0.26 %; docs/decisions/0004-step-placement.md). A ray that rises out of
-    the grid takes fewer steps after it where little of its air lies there (:func:`after_step_counts`,
-    docs/decisions/0004-step-placement.md).
 
-    Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3), the segment's start ``s0``
-    and ``length`` (n,) [m]; ``steps`` (n,) <= n_steps: each ray's own step count (:func:`after_step_counts`), the
-    edges beyond it repeating the segment's end (None: n_steps each).
-    """
-    n = start.shape[0]
-    f = (jnp.arange(n_probe, dtype=jnp.float32)[:, None] + 0.5) / n_probe
-    s = s0[None, :] + f * length[None, :]
-    q = (start[None] + s[..., None] * direction[None]).reshape(-1, 3)
-    h, mu_s, *_ = _point_geometry(q, consts)
-    beta_r, beta_a, beta_s, _, _ = _gas_at(h, mu_s, consts)  # (the sky lookup unused: XLA drops it)
-    beta = beta_r[:, 1] + beta_a[:, 1] + beta_s[:, 1]
-    density = jnp.maximum(beta, 0.0).reshape(n_probe, n) ** CLEAR_STEP_POWER
-    density = density + CLEAR_STEP_FLOOR * jnp.max(density, axis=0, keepdims=True) + 1e-30
-    return _edges_from_density(density, jnp.full((n,), n_probe, jnp.int32), s0, length, n_steps, steps)
+def _sample_clear_sky(seg, st, at, light):
+    """The clear sky's radiance ``l_clear`` (n, 3) after a sample of :func:`_sample_step` (Eq. 3: single scattering
+    and, with ``ms_profile``, the diffuse source), the step's mean attenuation ``step_mean`` and the transmittance
+    ``t_obs`` to the observer."""
+    consts, rays = seg.consts, seg.rays
+    clouds_3d = three_d(consts)
+    beta_r, beta_a, beta_s, beta_a3 = at["beta_r"], at["beta_a"], at["beta_s"], at["beta_a3"]
+    ds_eff = light["ds_eff"]
+    x = (light["beta_clear"] + light["beta_view"][:, None]) * ds_eff[:, None]
+    # (1 - e^-x) / x, also for the terminal step's negative x (a step back)
+    big = jnp.abs(x) > 1e-4
+    step_mean = jnp.where(big, -jnp.expm1(-x) / jnp.where(big, x, 1.0), 1.0 - 0.5 * x)
+    t_obs = jnp.exp(-(st["tau_clear"] + (st["tau_view"] if clouds_3d else st["tau_h"])[:, None]))
+    scat_a = (beta_a + beta_a3) * consts["aerosol_ssa"]
+    scat_s = beta_s * consts["stratospheric_ssa"]
+    source = (beta_r * rays["p_rayleigh"][:, None] + scat_a * rays["p_aerosol"]
+              + scat_s * rays["p_stratospheric"]) * light["irradiance"]
+    if seg.ms_profile is not None:
+        # Orders >= 2: the diffuse source of the successive-orders table (molecules, aerosol,
+        # stratospheric aerosol), dimmed under clouds by their transmittance like the skylight.
+        j = _profile_at(seg.ms_profile, at["h"], consts)
+        source = source + (beta_r * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * light["dims_diffuse"]
+    l_clear = st["l_clear"] + t_obs * source * (ds_eff[:, None] * step_mean)
+    return l_clear, step_mean, t_obs
 
 
-def after_step_counts(start, direction, bounds, n_after, consts):
-    """Clear-air steps (n,) of each ray's segment after the grid: ``n_after`` times the square root of the fraction
-    q of the vertical optical depth above the ray's lowest point (up to its grid exit) that lies above its exit, at
-    least :data:`swim.constants.AFTER_MIN_STEPS`; ``n_after`` for a ray that descends where it leaves the grid (its
-    segment may end on the ground beyond the domain).
+def _sample_hydrometeors(seg, st, at, light, step_mean, t_obs):
+    """The hydrometeors' sums after a sample of :func:`_sample_step`: their optical depth ``t1`` (n,) and Eq. 12's
+    integrands over their first two optical depths (``i_nogas``, ``i_gas``, ``i_cloud_t``), or with the 3-D cloud
+    scattering their radiance integrated along the ray (``extra``: ``tau_view``, ``l_cloud``)."""
+    ds_eff, t_cloud = light["ds_eff"], at["t_cloud"]
+    # Eq. 12 integrand over the first two optical depths of hydrometeors.
+    t0 = st["tau_h"]
+    t1 = t0 + light["beta_h"] * ds_eff
+    if three_d(seg.consts):  # the clouds' light is integrated along the ray (swim.rt.clouds), not composed by Eq. 12
+        i_nogas, i_gas, i_cloud_t = st["i_nogas"], st["i_gas"], st["i_cloud_t"]
+        extra = {"tau_view": st["tau_view"] + light["beta_view"] * ds_eff, "l_cloud": st["l_cloud"]}
+        if seg.in_grid:
+            extra["l_cloud"] = st["l_cloud"] + t_obs * light["cloud_source"] * (ds_eff[:, None] * step_mean)
+    else:
+        irradiance_h = light["irradiance_h"]
+        weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
+        weight = jnp.where(t1 >= t0, jnp.maximum(weight, 0.0), weight)  # negative for a step back
+        i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
+        i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
+        i_cloud_t = st["i_cloud_t"] + t_cloud * at["shadow"] * weight
+        extra = {}
+    return t1, i_nogas, i_gas, i_cloud_t, extra
 
-    Why: the midpoint rule's error over a segment placed by :func:`clear_step_edges` falls as 1 / n² of the segment's
-    own clear-sky radiance, roughly q times the ray's (the air above a 20 km grid top holds ~4 % of the vertical optical
-    depth at 546 nm, above a 2 km LES top ~60 %). With n ∝ √q the error relative to the ray's
-    clear sky is the same for every ray: that of ``n_after`` steps through the whole column
-    (docs/decisions/0004-step-placement.md; our choice, not the paper's, which marches Step 2 separately).
 
-    Inputs per ray (n = rays): rebased ``start`` (n, 3) [m], unit ``direction`` (n, 3) and ``bounds`` (n, 3) [m] of
-    :func:`ray_segments`; ``consts`` with the column row :data:`swim.constants.GAS_COLUMN_ROW` of ``beta_gas``
-    (:func:`gas_column_above`). :func:`swim.rt.march_cpu._after_steps` is the same per ray.
-    """
-    radius = consts["radius"]
-    s_exit = bounds[:, 1]
-    exit_point = start + s_exit[:, None] * direction
-    rising = (exit_point[:, 0] * direction[:, 0] + exit_point[:, 1] * direction[:, 1]
-              + (exit_point[:, 2] + radius) * direction[:, 2]) >= 0
-    low_point = lowest_point(start, direction, bounds, consts, end=s_exit)  # the height is convex along a ray
-    column = consts["beta_gas"][GAS_COLUMN_ROW:GAS_COLUMN_ROW + 1]
-    above_exit = _lerp_table(column, _point_geometry(exit_point, consts)[0] / consts["dh"])[:, 0]
-    above_low = _lerp_table(column, _point_geometry(low_point, consts)[0] / consts["dh"])[:, 0]
-    q = jnp.clip(above_exit / jnp.maximum(above_low, 1e-30), 0.0, 1.0)
-    steps = jnp.clip(jnp.ceil(n_after * jnp.sqrt(q)), min(AFTER_MIN_STEPS, n_after), n_after).astype(jnp.int32)
-    return jnp.where(rising, steps, n_after)
+def _sample_step(seg, st, s_lo, ds):
+    """:func:`_march_segment`'s sample: the state after a step of length ``ds`` (n,) from ``s_lo`` (n,) [m] of the
+    segment ``seg`` (:class:`_SegmentInputs`), and the step's hydrometeor extinction (n,) [1/m]."""
+    s = s_lo + 0.5 * ds
+    if seg.terminal:  # the step back takes back what the step before added: at that step's sample
+        s = jnp.where(ds < 0, st["hit_lo"], s)
+    at = _sample_medium(seg, st, s)
+    light = _sample_light(seg, st, at, ds)
+    l_clear, step_mean, t_obs = _sample_clear_sky(seg, st, at, light)
+    t1, i_nogas, i_gas, i_cloud_t, extra = _sample_hydrometeors(seg, st, at, light, step_mean, t_obs)
+    hit_now, frac, ds_eff, stop_tau = at["hit_now"], at["frac"], light["ds_eff"], seg.stop_tau
+    hit_s = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
+    # bracket of the crossing for the bisection after the march: the previous sample (above) and this one
+    hit_lo = jnp.where(hit_now, st["s_last"], st["hit_lo"])
+    hit_hi = jnp.where(hit_now, s, st["hit_hi"])
+    hit_from = jnp.where(hit_now, s_lo, st["hit_from"])
+    tau_species = st["tau_species"] + at["beta_sp"] * ds_eff[:, None]
+    alive = st["alive"] & ~hit_now
+    if seg.in_grid and stop_tau > 0:
+        # opaque (MarchSettings.stop_tau): the ray stops at stop_tau, its species in the proportions they had
+        # there; past REFINE_VISIBLE_TAU before the step, so that no roll-back can undo it
+        t0 = st["tau_h"]
+        stopped = alive & (t1 > stop_tau) & (t0 >= REFINE_VISIBLE_TAU) & (seg.direction[:, 2] >= 0)
+        tau_species = jnp.where(stopped[:, None], tau_species * (stop_tau / jnp.maximum(t1, stop_tau))[:, None],
+                                tau_species)
+        t1 = jnp.where(stopped, jnp.asarray(stop_tau, t1.dtype), t1)
+        alive = alive & ~stopped
+    return {
+        "tau_clear": st["tau_clear"] + light["beta_clear"] * ds_eff[:, None],
+        "tau_h": t1,
+        "tau_species": tau_species,
+        "l_clear": l_clear,
+        "i_nogas": i_nogas,
+        "i_gas": i_gas,
+        "i_cloud_t": i_cloud_t,
+        "alive": alive,
+        "hit": st["hit"] | hit_now,
+        "hit_s": hit_s,
+        "hit_lo": hit_lo,
+        "hit_hi": hit_hi,
+        "hit_from": hit_from,
+        "gap": at["gap"],
+        "s_last": s,
+        **extra,
+    }, light["beta_h"]
 
 
 def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, consts, ms_profile, aerosol_class,
@@ -547,133 +497,14 @@ def _march_segment(state, start, direction, edges, n_steps, in_grid, rays, const
     ``ms_profile`` is :func:`diffuse_source_profiles` of the rays, or None for single scattering only;
     ``aerosol_class`` that of :func:`aerosol_class_weights` (the skylight of the hydrometeors).
     """
-    multiple_scattering = ms_profile is not None
-    clouds_3d = three_d(consts)  # cloud_scattering="discrete_ordinates" (swim.rt.clouds_device)
     n_c = consts["volume"].shape[-1]
-    n_sp = consts["species_matrix"].shape[0]  # the packed species (packed_species)
-    aerosol_3d = packed_aerosol_3d(n_c, n_sp)  # packed only where it is not zero
     outside = jnp.concatenate([jnp.zeros(n_c - 2), jnp.ones(2)]).astype(jnp.float32)
+    seg = _SegmentInputs(start, direction, rays, consts, ms_profile, aerosol_class, in_grid, terminal, stop_tau,
+                         outside)
 
     def sample(st, s_lo, ds):
         """The state after a step of length ``ds`` from ``s_lo`` [m], and the step's hydrometeor extinction."""
-        s = s_lo + 0.5 * ds
-        if terminal:  # the step back takes back what the step before added: at that step's sample
-            s = jnp.where(ds < 0, st["hit_lo"], s)
-        q = start + s[:, None] * direction
-        h, mu_s, k, j, i = _point_geometry(q, consts)
-        beta_r, beta_a, beta_s, t_sun, diffuse = _gas_at(h, mu_s, consts)
-        if in_grid:
-            v = trilinear(consts["volume"], k, j, i, outside)
-            beta_sp = v[:, :n_sp]
-            t_cloud = v[:, -2]
-            shadow = v[:, -1]
-            if aerosol_3d:
-                beta_a3 = v[:, n_sp : n_sp + 1] * consts["angstrom"][None, :]
-                # Direct beam through the 3-D aerosol towards the sun (Angstrom-scaled from 550 nm).
-                t_aerosol = jnp.exp(-v[:, n_sp + 1 : n_sp + 2] * consts["angstrom"][None, :])
-            else:
-                beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
-                t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
-            gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
-            hit_now = st["alive"] & (gap < 0) & (not terminal)
-            frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
-        else:
-            beta_sp = jnp.zeros((q.shape[0], n_sp), jnp.float32)
-            beta_a3 = jnp.zeros((q.shape[0], 3), jnp.float32)
-            t_cloud = jnp.ones(q.shape[0], jnp.float32)
-            shadow = jnp.ones(q.shape[0], jnp.float32)
-            t_aerosol = jnp.ones((q.shape[0], 3), jnp.float32)
-            # Beyond the grid the terrain continues at its edge heights (clamped), so that mountains at the
-            # domain's edge do not end in a cliff down to the sea-level sphere and a plateau's horizon is flat.
-            gap = h - bilinear_clamped(consts["terrain"], j, i)[:, 0]
-            hit_now = st["alive"] & (gap < 0)
-            frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
-        # the step in which the ray meets the ground adds nothing here: its sample may lie deep inside the
-        # terrain; the terminal step (_terminal_step) covers it up to the refined crossing
-        ds_eff = jnp.where(st["alive"] & ~hit_now, ds, 0.0)
-        # direct beam / E_TOA, lights the gas and aerosol (Eq. 3): gas, hydrometeors (T), 3-D aerosol
-        irradiance = t_sun * (t_cloud * shadow)[:, None] * t_aerosol
-        if in_grid:
-            # Clear-sky diffuse scalar irradiance / E_TOA, through the clouds above (T of Step 1a); with
-            # aerosol column classes, that of the ray's class.
-            if consts["class_aod"].shape[0] > 1:
-                diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
-            skylight = SKYLIGHT_SCALAR_FACTOR * diffuse * t_cloud[:, None]
-        # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors.
-        irradiance_h = irradiance + skylight if in_grid else irradiance
-        beta_clear = beta_r + beta_a + beta_a3 + beta_s
-        beta_h = beta_sp.sum(axis=1)
-        # the extinction that dims the light on its way to the observer: with the 3-D cloud scattering the
-        # hydrometeors' delta-M scaled one (the forward peak's light stays in the view), whose sources are
-        # integrated along the ray; the diffuse solution's ratio to the clear sky dims the air's diffuse source
-        beta_view, dims_diffuse = beta_h, t_cloud[:, None]
-        if clouds_3d and in_grid:
-            dims_diffuse, cloud_source, beta_view = cloud_sources(beta_sp, k, j, i, t_cloud, irradiance, rays, consts)
-        elif clouds_3d:
-            dims_diffuse = ratio_above_grid(h, k, j, i, consts, consts["volume"].shape[:3])
-        x = (beta_clear + beta_view[:, None]) * ds_eff[:, None]
-        # (1 - e^-x) / x, also for the terminal step's negative x (a step back)
-        big = jnp.abs(x) > 1e-4
-        step_mean = jnp.where(big, -jnp.expm1(-x) / jnp.where(big, x, 1.0), 1.0 - 0.5 * x)
-        t_obs = jnp.exp(-(st["tau_clear"] + (st["tau_view"] if clouds_3d else st["tau_h"])[:, None]))
-        scat_a = (beta_a + beta_a3) * consts["aerosol_ssa"]
-        scat_s = beta_s * consts["stratospheric_ssa"]
-        source = (beta_r * rays["p_rayleigh"][:, None] + scat_a * rays["p_aerosol"]
-                  + scat_s * rays["p_stratospheric"]) * irradiance
-        if multiple_scattering:
-            # Orders >= 2: the diffuse source of the successive-orders table (molecules, aerosol,
-            # stratospheric aerosol), dimmed under clouds by their transmittance like the skylight.
-            j = _profile_at(ms_profile, h, consts)
-            source = source + (beta_r * j[:, :3] + scat_a * j[:, 3:6] + scat_s * j[:, 6:]) * dims_diffuse
-        l_clear = st["l_clear"] + t_obs * source * (ds_eff[:, None] * step_mean)
-        # Eq. 12 integrand over the first two optical depths of hydrometeors.
-        t0 = st["tau_h"]
-        t1 = t0 + beta_h * ds_eff
-        if clouds_3d:  # the clouds' light is integrated along the ray (swim.rt.clouds), not composed by Eq. 12
-            i_nogas, i_gas, i_cloud_t = st["i_nogas"], st["i_gas"], st["i_cloud_t"]
-            extra = {"tau_view": st["tau_view"] + beta_view * ds_eff, "l_cloud": st["l_cloud"]}
-            if in_grid:
-                extra["l_cloud"] = st["l_cloud"] + t_obs * cloud_source * (ds_eff[:, None] * step_mean)
-        else:
-            weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
-            weight = jnp.where(t1 >= t0, jnp.maximum(weight, 0.0), weight)  # negative for a step back
-            i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
-            i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
-            i_cloud_t = st["i_cloud_t"] + t_cloud * shadow * weight
-            extra = {}
-        hit_s = jnp.where(hit_now, s - 0.5 * ds + frac * ds, st["hit_s"])
-        # bracket of the crossing for the bisection after the march: the previous sample (above) and this one
-        hit_lo = jnp.where(hit_now, st["s_last"], st["hit_lo"])
-        hit_hi = jnp.where(hit_now, s, st["hit_hi"])
-        hit_from = jnp.where(hit_now, s_lo, st["hit_from"])
-        tau_species = st["tau_species"] + beta_sp * ds_eff[:, None]
-        alive = st["alive"] & ~hit_now
-        if in_grid and stop_tau > 0:
-            # opaque (MarchSettings.stop_tau): the ray stops at stop_tau, its species in the proportions they had
-            # there; past REFINE_VISIBLE_TAU before the step, so that no roll-back can undo it
-            stopped = alive & (t1 > stop_tau) & (t0 >= REFINE_VISIBLE_TAU) & (direction[:, 2] >= 0)
-            tau_species = jnp.where(stopped[:, None], tau_species * (stop_tau / jnp.maximum(t1, stop_tau))[:, None],
-                                    tau_species)
-            t1 = jnp.where(stopped, jnp.asarray(stop_tau, t1.dtype), t1)
-            alive = alive & ~stopped
-        return {
-            "tau_clear": st["tau_clear"] + beta_clear * ds_eff[:, None],
-            "tau_h": t1,
-            "tau_species": tau_species,
-            "l_clear": l_clear,
-            "i_nogas": i_nogas,
-            "i_gas": i_gas,
-            "i_cloud_t": i_cloud_t,
-            "alive": alive,
-            "hit": st["hit"] | hit_now,
-            "hit_s": hit_s,
-            "hit_lo": hit_lo,
-            "hit_hi": hit_hi,
-            "hit_from": hit_from,
-            "gap": gap,
-            "s_last": s,
-            **extra,
-        }, beta_h
+        return _sample_step(seg, st, s_lo, ds)
 
     def body(m, st):
         s_lo = jax.lax.dynamic_index_in_dim(edges, m, keepdims=False)
@@ -709,6 +540,100 @@ def _predicted_halving(adjacent, prev_beta, ds, depth, tau_h, pending, slots, ta
     :func:`swim.rt.march_cpu._predicted_halving` is the numba kernel's)."""
     return (adjacent & (depth < REFINE_DEPTH) & (tau_h < REFINE_VISIBLE_TAU) & (pending + 2 <= slots)
             & (prev_beta * ds > tau_refine))
+
+
+def _rows(mask, value):
+    """A per-ray ``mask`` (n,) shaped to select rows of ``value`` (n, ...)."""
+    return mask.reshape(mask.shape[:1] + (1,) * (value.ndim - 1))
+
+
+def _next_interval(carry, edges, last, col, tau_refine):
+    """The interval that each ray of :func:`_march_grid_refined` takes next: the last pending one, or its next step,
+    halved before it is sampled where the interval before it predicts it too thick (:func:`_predicted_halving`: its
+    second half pushed, pending). Returns (lo, hi, ds, depth, base, adjacent, done, stacked) and the pending stack
+    and budget after the halving."""
+    st, m, pending, stack_lo, stack_hi, stack_depth, budget, _, prev = carry
+    slots = stack_lo.shape[1]
+    stacked = pending > 0
+    top = jnp.maximum(pending - 1, 0)[:, None]
+    next_step = jnp.minimum(m, last - 1)[None, :]
+    done = (~stacked & (m >= last)) | ~st["alive"]
+    lo = jnp.where(stacked, jnp.take_along_axis(stack_lo, top, 1)[:, 0], jnp.take_along_axis(edges, next_step, 0)[0])
+    hi = jnp.where(stacked, jnp.take_along_axis(stack_hi, top, 1)[:, 0],
+                   jnp.take_along_axis(edges, next_step + 1, 0)[0])
+    depth = jnp.where(stacked, jnp.take_along_axis(stack_depth, top, 1)[:, 0], 0)
+    ds = jnp.where(done, 0.0, hi - lo)
+    base = pending - stacked
+    adjacent = prev["valid"] & (prev["hi"] == lo)
+    # an interval that the one before it predicts too thick: its second half pending, its first half sampled
+    halve = (~done & (budget > 0) & st["alive"]
+             & _predicted_halving(adjacent, prev["beta_h"], ds, depth, st["tau_h"], base, slots, tau_refine))
+    half = lo + 0.5 * ds
+    at = halve[:, None] & (col == base[:, None])
+    stack_lo = jnp.where(at, half[:, None], stack_lo)
+    stack_hi = jnp.where(at, hi[:, None], stack_hi)
+    stack_depth = jnp.where(at, depth[:, None] + 1, stack_depth)
+    hi = jnp.where(halve, half, hi)
+    depth = depth + halve
+    ds = jnp.where(halve, hi - lo, ds)
+    base = base + halve
+    budget = budget - halve
+    return (lo, hi, ds, depth, base, adjacent, done, stacked), (stack_lo, stack_hi, stack_depth, budget)
+
+
+def _push_pending(stacks, col, interval, prev, refine, rollback):
+    """The pending stacks (lo, hi, depth; each (n, slots)) of :func:`_march_grid_refined` after a ray's interval
+    (lo, hi, ds, depth, base) was split (``refine``) or rolled back (``rollback``)."""
+    stack_lo, stack_hi, stack_depth = stacks
+    lo, hi, ds, depth, base = interval
+    mid = (lo + 0.5 * ds)[:, None]
+    prev_mid = (prev["lo"] + 0.5 * (prev["hi"] - prev["lo"]))[:, None]
+    b = base[:, None]
+    # split: the second half below the first, which is taken next; rollback: this interval, then the
+    # previous one's second half, then its first half on top
+    first, second = refine[:, None] & (col == b), refine[:, None] & (col == b + 1)
+    again, p_second, p_first = (rollback[:, None] & (col == b + i) for i in range(3))
+    stack_lo = jnp.where(first | p_second, jnp.where(first, mid, prev_mid),
+                         jnp.where(second | again, lo[:, None], jnp.where(p_first, prev["lo"][:, None], stack_lo)))
+    stack_hi = jnp.where(first | again, hi[:, None],
+                         jnp.where(second, mid, jnp.where(p_second, prev["hi"][:, None],
+                                                          jnp.where(p_first, prev_mid, stack_hi))))
+    stack_depth = jnp.where(first | second, depth[:, None] + 1,
+                            jnp.where(again, depth[:, None],
+                                      jnp.where(p_second | p_first, prev["depth"][:, None] + 1, stack_depth)))
+    return stack_lo, stack_hi, stack_depth
+
+
+def _refined_iteration(carry, sample, edges, last, col, tau_refine):
+    """One iteration of :func:`_march_grid_refined` for every ray: take the next interval, sample it and accumulate
+    it, push its halves or roll back. ``carry``: (state, steps taken, pending count, the pending stack's lo, hi and
+    depth, refinement budget, the state's snapshot, the accumulated interval before)."""
+    st, m, pending, stack_lo, stack_hi, stack_depth, budget, saved, prev = carry
+    slots = stack_lo.shape[1]
+    interval, stacks = _next_interval(carry, edges, last, col, tau_refine)
+    lo, hi, ds, depth, base, adjacent, done, stacked = interval
+    stack_lo, stack_hi, stack_depth, budget = stacks
+    new, beta_h = sample(st, lo, ds)
+    live = ~done & (budget > 0) & st["alive"]
+    change = jnp.where(adjacent, jnp.abs(beta_h - prev["beta_h"]), 0.0)
+    rollback = (live & adjacent & (prev["depth"] < REFINE_DEPTH) & (change * (prev["hi"] - prev["lo"]) > tau_refine)
+                & (base + 3 <= slots) & (saved["tau_h"] < REFINE_VISIBLE_TAU))
+    refine = (live & ~rollback & (depth < REFINE_DEPTH) & (st["tau_h"] < REFINE_VISIBLE_TAU) & (base + 2 <= slots)
+              & (jnp.maximum(beta_h, change) * ds > tau_refine))
+    keep = ~done & ~refine & ~rollback
+    save = keep & live
+    saved = {key: jnp.where(_rows(save, value), st[key], value) for key, value in saved.items()}
+    # a rolled-back ray's snapshot is not overwritten above (save needs keep)
+    st = {key: jnp.where(_rows(keep, value), value, jnp.where(_rows(rollback, value), saved[key], st[key]))
+          for key, value in new.items()}
+    stack_lo, stack_hi, stack_depth = _push_pending((stack_lo, stack_hi, stack_depth), col,
+                                                    (lo, hi, ds, depth, base), prev, refine, rollback)
+    prev = {"valid": jnp.where(save, True, prev["valid"] & ~rollback), "lo": jnp.where(save, lo, prev["lo"]),
+            "hi": jnp.where(save, hi, prev["hi"]), "beta_h": jnp.where(save, beta_h, prev["beta_h"]),
+            "depth": jnp.where(save, depth, prev["depth"])}
+    pending = base + 2 * refine + 3 * rollback
+    return (st, m + (~stacked & ~done), pending, stack_lo, stack_hi, stack_depth, budget - refine - rollback,
+            saved, prev)
 
 
 def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, unroll=None):
@@ -753,68 +678,8 @@ def _march_grid_refined(state, sample, edges, n_steps, tau_refine, steps=None, u
         st, m, pending, *_ = carry
         return ((pending == 0) & (m >= last)) | ~st["alive"]
 
-    def rows(mask, value):
-        return mask.reshape((n,) + (1,) * (value.ndim - 1))
-
     def body(carry):
-        st, m, pending, stack_lo, stack_hi, stack_depth, budget, saved, prev = carry
-        stacked = pending > 0
-        top = jnp.maximum(pending - 1, 0)[:, None]
-        next_step = jnp.minimum(m, last - 1)[None, :]
-        done = (~stacked & (m >= last)) | ~st["alive"]
-        lo = jnp.where(stacked, jnp.take_along_axis(stack_lo, top, 1)[:, 0], jnp.take_along_axis(edges, next_step, 0)[0])
-        hi = jnp.where(stacked, jnp.take_along_axis(stack_hi, top, 1)[:, 0], jnp.take_along_axis(edges, next_step + 1, 0)[0])
-        depth = jnp.where(stacked, jnp.take_along_axis(stack_depth, top, 1)[:, 0], 0)
-        ds = jnp.where(done, 0.0, hi - lo)
-        base = pending - stacked
-        adjacent = prev["valid"] & (prev["hi"] == lo)
-        # an interval that the one before it predicts too thick: its second half pending, its first half sampled
-        halve = (~done & (budget > 0) & st["alive"]
-                 & _predicted_halving(adjacent, prev["beta_h"], ds, depth, st["tau_h"], base, slots, tau_refine))
-        half = lo + 0.5 * ds
-        at = halve[:, None] & (col == base[:, None])
-        stack_lo = jnp.where(at, half[:, None], stack_lo)
-        stack_hi = jnp.where(at, hi[:, None], stack_hi)
-        stack_depth = jnp.where(at, depth[:, None] + 1, stack_depth)
-        hi = jnp.where(halve, half, hi)
-        depth = depth + halve
-        ds = jnp.where(halve, hi - lo, ds)
-        base = base + halve
-        budget = budget - halve
-        new, beta_h = sample(st, lo, ds)
-        live = ~done & (budget > 0) & st["alive"]
-        change = jnp.where(adjacent, jnp.abs(beta_h - prev["beta_h"]), 0.0)
-        rollback = (live & adjacent & (prev["depth"] < REFINE_DEPTH) & (change * (prev["hi"] - prev["lo"]) > tau_refine)
-                    & (base + 3 <= slots) & (saved["tau_h"] < REFINE_VISIBLE_TAU))
-        refine = (live & ~rollback & (depth < REFINE_DEPTH) & (st["tau_h"] < REFINE_VISIBLE_TAU) & (base + 2 <= slots)
-                  & (jnp.maximum(beta_h, change) * ds > tau_refine))
-        keep = ~done & ~refine & ~rollback
-        save = keep & live
-        saved = {key: jnp.where(rows(save, value), st[key], value) for key, value in saved.items()}
-        # a rolled-back ray's snapshot is not overwritten above (save needs keep)
-        st = {key: jnp.where(rows(keep, value), value, jnp.where(rows(rollback, value), saved[key], st[key]))
-              for key, value in new.items()}
-        mid = (lo + 0.5 * ds)[:, None]
-        prev_mid = (prev["lo"] + 0.5 * (prev["hi"] - prev["lo"]))[:, None]
-        b = base[:, None]
-        # split: the second half below the first, which is taken next; rollback: this interval, then the
-        # previous one's second half, then its first half on top
-        first, second = refine[:, None] & (col == b), refine[:, None] & (col == b + 1)
-        again, p_second, p_first = (rollback[:, None] & (col == b + i) for i in range(3))
-        stack_lo = jnp.where(first | p_second, jnp.where(first, mid, prev_mid),
-                             jnp.where(second | again, lo[:, None], jnp.where(p_first, prev["lo"][:, None], stack_lo)))
-        stack_hi = jnp.where(first | again, hi[:, None],
-                             jnp.where(second, mid, jnp.where(p_second, prev["hi"][:, None],
-                                                              jnp.where(p_first, prev_mid, stack_hi))))
-        stack_depth = jnp.where(first | second, depth[:, None] + 1,
-                                jnp.where(again, depth[:, None],
-                                          jnp.where(p_second | p_first, prev["depth"][:, None] + 1, stack_depth)))
-        prev = {"valid": jnp.where(save, True, prev["valid"] & ~rollback), "lo": jnp.where(save, lo, prev["lo"]),
-                "hi": jnp.where(save, hi, prev["hi"]), "beta_h": jnp.where(save, beta_h, prev["beta_h"]),
-                "depth": jnp.where(save, depth, prev["depth"])}
-        pending = base + 2 * refine + 3 * rollback
-        return (st, m + (~stacked & ~done), pending, stack_lo, stack_hi, stack_depth, budget - refine - rollback,
-                saved, prev)
+        return _refined_iteration(carry, sample, edges, last, col, tau_refine)
 
     zero = jnp.zeros(n, jnp.float32)
     prev = {"valid": jnp.zeros(n, bool), "lo": zero, "hi": zero, "beta_h": zero, "depth": jnp.zeros(n, jnp.int32)}
@@ -955,8 +820,9 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     interpret = jax.default_backend() == "cpu"
     # the fused kernel's register cap, loads and fused multiply-adds: settings, so that programs built with other
     # ones are kept apart
-    fused_options = {"max_registers": settings.fused_max_registers, "vector_loads": settings.fused_vector_loads,
-                     "fma": settings.fused_fma}
+    fused_options = {"max_registers": settings.execution.fused_max_registers,
+                     "vector_loads": settings.execution.fused_vector_loads,
+                     "fma": settings.execution.fused_fma}
     if fused and kernel == "fused-march":
         state = march_segments_fused(state, start, direction, tuple(segments), rays, consts, ms, aerosol_class,
                                      tau_refine, stop_tau, interpret=interpret, **fused_options)
@@ -974,157 +840,6 @@ def _march_rays(start, direction, bounds, valid, rays, consts, settings: MarchSe
     state = _terminal_step(state, start, direction, *args)
     state["tau_species"] = state["tau_species"] @ consts["species_matrix"]  # all of SPECIES, 0 where not packed
     return state
-
-
-def _compose(start, direction, bounds, ends_on_ground, valid, rays, consts, settings: MarchSettings, state,
-             aerosol_class, ground=True):
-    """The pixel radiance from the march's state: ground (Eq. 35), clouds (Eqs. 12-26), clear sky.
-
-    ``ground`` (static): False where no ray of the batch ends on the ground, whose term is then 0 without being
-    evaluated (as it is for such rays anyway). The chunks of an all-sky camera on the ground and the upper rows of a
-    panorama see no ground, and the ground's BRDF is about half of the composition's cost
-    (docs/decisions/0009-work-around-the-march.md)."""
-    surface = _ends_on_surface(state, ends_on_ground)
-    s_hit = state["s_hit"]
-    if ground:
-        l_surface = _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit)
-    else:
-        l_surface = jnp.zeros_like(state["l_clear"])
-    if three_d(consts):
-        return _compose_three_d(consts, state, valid, surface, s_hit, l_surface)
-    return _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface)
-
-
-def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_class, surface, s_hit):
-    """The ground's part of the pixel radiance (n, 3), 0 where a ray does not end on the ground (``surface``):
-    Eq. 35 on the terrain facet at ``s_hit`` [m], direct (BRDF) + diffuse (ARF = 1), seen through the clear sky and
-    the hydrometeors on the way. The numba kernel's twin: :func:`swim.rt.ground_cpu.ground_radiance`."""
-    q = start + s_hit[:, None] * direction
-    h, mu_s, k, j, i = _point_geometry(q, consts)
-    _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
-    if consts["class_aod"].shape[0] > 1:
-        diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
-    # albedo (3), land, snow, wind, slope (2), and Step 1a at the ground: cloud T, terrain shadow, 3-D aerosol
-    # tau to the sun (2-D fields, so a steep slope does not sample its neighbours' underground values);
-    # beyond the grid they continue over a margin (swim.rt.march_inputs.extended_surface), and beyond that they fade
-    # from its edge to the far ground, flat and unshaded
-    jm, im = j + consts["surface_margin"], i + consts["surface_margin"]
-    fields = surface_beyond_edge(bilinear_clamped(consts["surface"], jm, im), consts["surface_outside"],
-                                 *consts["surface"].shape[1:], jm, im)
-    slope = fields[:, 6:8]
-    t_cloud = fields[:, 8]
-    shadow = fields[:, 9]
-    t_aerosol = jnp.exp(-fields[:, 10:11] * consts["angstrom"][None, :])
-    # with the 3-D cloud scattering the diffuse light at the ground is the diffuse solution's (its ratio to the
-    # clear sky's, channels 11-13), which includes the light between the ground and the cloud base
-    clouds_3d = three_d(consts)
-    diffuse = diffuse * (fields[:, 11:14] if clouds_3d else t_cloud[:, None])
-    up = q + jnp.array([0.0, 0.0, 1.0], jnp.float32) * consts["radius"]
-    up = up / jnp.linalg.norm(up, axis=1, keepdims=True)
-    l_ground = surface_radiance(up, -direction, consts["sun"], slope, fields[:, :3], fields[:, 3], fields[:, 4],
-                                fields[:, 5], t_sun * t_aerosol * (t_cloud * shadow)[:, None], diffuse,
-                                model=settings.surface)
-    if clouds_3d:  # seen through the delta-M scaled optical depth: the forward peak's light stays in the view
-        t_hydro = jnp.exp(-(state["tau_species"] @ consts["backscatter_scaled"]))
-        return jnp.where(surface[:, None], l_ground * (jnp.exp(-state["tau_clear"]) * t_hydro[:, None]), 0.0)
-    # Seen from above, the ground under a cloud layer shines through the layer's total (direct + diffuse)
-    # transmittance at the view angle (reciprocity), the same delta-Eddington T as in Step 1a; rays that do
-    # not look down (blend as for the clouds) keep the direct e^{-tau} (docs/rendering.md, "Overcast accuracy").
-    mu_down_ground = -rays["cos_view_zenith"]
-    w_above_ground = jnp.clip(mu_down_ground / FROM_ABOVE_BLEND, 0.0, 1.0)
-    tau_hydro = state["tau_h"]
-    t_hydro = (1 - w_above_ground) * jnp.exp(-tau_hydro) + w_above_ground * transmittance_delta_eddington(
-        tau_hydro, state["tau_species"] @ consts["backscatter"], jnp.maximum(mu_down_ground, FROM_ABOVE_BLEND))
-    transmit = jnp.exp(-state["tau_clear"]) * t_hydro[:, None]
-    return jnp.where(surface[:, None], l_ground * transmit, 0.0)
-
-
-def _compose_three_d(consts, state, valid, surface, s_hit, l_surface):
-    """The outputs of :func:`_compose` with the 3-D cloud scattering, whose hydrometeors' radiance was integrated
-    along the rays (:mod:`swim.rt.clouds_device`), given the ground's part ``l_surface`` (n, 3); ``tau_narrow``
-    (n,) is the optical depth that dims the beam but for the forward peak's narrow part (the circumsolar aureole,
-    :func:`swim.optics.cloud_phase.split_phase_function`). The numba kernel's twin: :func:`_compose_numba`."""
-    aureole = consts["species_matrix"].T @ consts["hydro_aureole"].astype(jnp.float32)  # (SPECIES,)
-    radiance = jnp.where(valid[:, None], state["l_clear"] + state["l_cloud"] + l_surface, 0.0)
-    return {
-        "radiance": radiance,
-        "radiance_clear": state["l_clear"],
-        "radiance_cloud": state["l_cloud"],
-        "radiance_surface": l_surface,
-        "tau_hydrometeor": state["tau_h"],
-        "tau_clear": state["tau_clear"],
-        "surface": surface,
-        "distance": jnp.where(surface, s_hit, jnp.nan),
-        "tau_narrow": state["tau_species"] @ aureole,
-    }
-
-
-def _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface):
-    """The clouds' part of the pixel radiance (Eq. 12 with the effective phase function of Eq. 13, seen from below,
-    blended with the cloud-top reflection of Eqs. 24-26 seen from above; Albers et al. 2020,
-    doi:10.5194/amt-13-3235-2020) and the outputs of :func:`_compose`, given the ground's part ``l_surface``
-    (n, 3)."""
-    # ---- clouds: Eq. 12 with the effective phase function of Eq. 13, blended with Eqs. 24-26 ----
-    tau = state["tau_h"]
-    norm = -jnp.expm1(-jnp.minimum(tau, 2.0))
-    safe = jnp.maximum(norm, 1e-12)
-    e_mean = state["i_nogas"] / safe[:, None]
-    # How directly the visible cloud is lit, for c1 and c3 (Eqs. 14, 22): the cloud transmittance T of
-    # Step 1a, not E/E_TOA with the gas extinction (docs/rendering.md).
-    t_mean = jnp.clip(state["i_cloud_t"] / safe, 0.0, 1.0)
-    weights = state["tau_species"] / jnp.maximum(tau, 1e-12)[:, None]
-    cos_theta = rays["cos_theta"]
-    cos_view_zenith = rays["cos_view_zenith"]
-    mu_view_down = -cos_view_zenith
-    mu0 = consts["mu0"]
-    w_above = jnp.clip(mu_view_down / FROM_ABOVE_BLEND, 0.0, 1.0)[:, None]
-    # Seen from below, the indirectly lit (c4) term of Eq. 21 is the diffusely transmitted light: 4 x the
-    # transmitted flux mu0 T x the escape function, i.e. the factor (9/7) mu0 (docs/rendering.md, "Overcast
-    # accuracy"); rays looking down keep Eq. 21 as printed.
-    low_factor = (1 - w_above) * diffuse_transmission_factor(mu0) + w_above
-    phase = effective_phase_function(cos_theta[:, None], cos_view_zenith[:, None], tau[:, None], t_mean[:, None],
-                                     weights[:, None, :], consts["g_liquid"][None, :], low_factor)
-    eq12 = (-jnp.expm1(-tau) / safe)[:, None] * state["i_gas"]
-    # Thin-cloud term (c1 P_thin) with the forward (diffraction) peak kept in the beam: Eq. 12's 1 - e^{-tau}
-    # delta-scaled to (1 - e^{-(1 - f) tau}) / (1 - f) (docs/rendering.md, "Overcast accuracy").
-    eq12_thin = (delta_scaled_path_factor(tau) / safe)[:, None] * state["i_gas"]
-    c1 = blend_coefficient(tau, t_mean)
-    p_thin = phase_thin_mixture(cos_theta[:, None], tau[:, None], weights[:, None, :], consts["g_liquid"][None, :])
-    p_rest = p_thin - forward_peak_mixture(cos_theta[:, None], tau[:, None], weights[:, None, :], consts["g_liquid"][None, :])
-    l_12 = phase * eq12 + c1[:, None] * p_rest * (eq12_thin - eq12)
-    # Seen from above (docs/rendering.md, "Overcast accuracy"): the thin part of Eq. 13 (c1 P_thin, Eq. 12)
-    # plus, in place of its thick part (Eqs. 19-21, cloud sides and bases), the cloud-top reflection of
-    # Eqs. 24-26, (1 - c1) a 4 mu0 ARF E_top: the albedo a = 1 - T of the layer seen (delta-Eddington, as in
-    # Step 1a, along the sun path tau_s = tau mu_view / mu0) and the irradiance incident on the cloud top,
-    # E_top = E / T_self (Eq. 12's mean E over the top two optical depths already carries the cloud's own
-    # extinction, which the reflection function ARF includes).
-    b_eff = weights @ consts["backscatter"]
-    mu_down = jnp.maximum(mu_view_down, FROM_ABOVE_BLEND)
-    mu0_top = jnp.maximum(mu0, TOP_MIN_MU0)
-    tau_s = tau * mu_down / mu0_top
-    albedo_cloud = 1.0 - transmittance_delta_eddington(tau_s, b_eff * tau_s, mu0_top)
-    lim = jnp.minimum(tau, 2.0)
-    depth = (1.0 - (1.0 + lim) * jnp.exp(-lim)) / safe  # Eq. 12's e^{-tau_o}-weighted mean tau_o
-    depth_s = depth * mu_down / mu0_top
-    t_self = jnp.maximum(transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top), TOP_MIN_SELF_TRANSMITTANCE)
-    arf = anisotropic_reflectance_factor_kokhanovsky2004(mu_down, jnp.maximum(mu0, TOP_REFLECTANCE_MIN_MU0), cos_theta)
-    gas_to_cloud = state["i_gas"] / jnp.maximum(state["i_nogas"], 1e-30)
-    l_top = 4.0 * jnp.maximum(mu0, 0.0) * arf[:, None] * (e_mean / t_self[:, None]) * gas_to_cloud
-    l_above = c1[:, None] * p_thin * eq12 + ((1 - c1) * albedo_cloud)[:, None] * l_top
-    l_cloud = jnp.where(tau[:, None] > 1e-6, (1 - w_above) * l_12 + w_above * l_above, 0.0)
-
-    radiance = state["l_clear"] + l_cloud + l_surface
-    radiance = jnp.where(valid[:, None], radiance, 0.0)
-    return {
-        "radiance": radiance,
-        "radiance_clear": state["l_clear"],
-        "radiance_cloud": l_cloud,
-        "radiance_surface": l_surface,
-        "tau_hydrometeor": tau,
-        "tau_clear": state["tau_clear"],
-        "surface": surface,
-        "distance": jnp.where(surface, s_hit, jnp.nan),
-    }
 
 
 @exported_jit(static_argnames=("settings",))  # a new process reads the traced program (~1.1 s on a CPU)
@@ -1165,20 +880,6 @@ def with_probes_for(settings: MarchSettings, most: int) -> MarchSettings:
 
 
 _compose_chunk = exported_jit(_compose, static_argnames=("settings", "ground"))
-
-
-def surface_beyond_edge(clamped, outside, ny, nx, j, i):
-    """The ground's fields at indices (j, i) (n,) of the extended fields (the grid with its margin,
-    :func:`swim.rt.march_inputs.extended_surface`, ny x nx), anywhere: inside them ``clamped`` (n, C), their bilinear
-    lookup; beyond them a fade, with the distance d [cells] from their edge, from the nearest edge cell's values
-    (``clamped``, the lookup at the clamped indices) to ``outside`` (C,) (:func:`surface_fields_outside`), weight
-    e^(-d / L) with L of :func:`surface_fade_cells`. The margin has already faded most of the way to ``outside``
-    (smoothed along the grid's edge, so that no edge feature runs on as a streak); the fade keeps the ground
-    continuous at the margin's edge."""
-    dj = jnp.maximum(jnp.maximum(-j, j - (ny - 1)), 0.0)
-    di = jnp.maximum(jnp.maximum(-i, i - (nx - 1)), 0.0)
-    w = jnp.exp(-jnp.sqrt(dj * dj + di * di)[:, None] / surface_fade_cells(clamped.shape[-1])[None, :])
-    return outside[None, :] + (clamped - outside[None, :]) * w
 
 
 def _jax_cloud_constants(consts):
