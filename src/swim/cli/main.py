@@ -181,10 +181,11 @@ class _RenderOptions:
     Typer reads it, and is declared here so that the command's signature stays short."""
 
     scene = typer.Argument(None, help="Scene file (WRF wrfout netCDF, WPS geo_em/met_em netCDF, canonical "
-                           "netCDF, SHDOM LES .txt); "
+                           "netCDF, SHDOM LES .txt, NCEP GFS GRIB: the region around --lat/--lon); "
                            "default: the built-in scene.")
     time = typer.Option(None, help="UTC time, ISO 8601 (default: the scene's time).")
-    lat = typer.Option(None, help="Observer latitude [deg] (default: domain centre).")
+    lat = typer.Option(None, help="Observer latitude [deg] (default: domain centre; a GRIB scene's region is cut "
+                       "around --lat/--lon).")
     lon = typer.Option(None, help="Observer longitude [deg] (default: domain centre).")
     height = typer.Option(2.0, help="Observer height above the ground [m].")
     site = typer.Option(False, "--site", help="No scene file: a cloud-free site at --lat/--lon (flat ground at "
@@ -245,6 +246,9 @@ class _RenderOptions:
                                "Henyey-Greenstein per phase, e.g. 'liquid=0.85,ice=0.75'.")
     scene_lat = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg].")
     scene_lon = typer.Option(None, help="Place an LES scene: centre longitude [deg].")
+    region_radius = typer.Option(None, "--region-radius", help="GRIB scenes: great-circle radius [deg] of the region "
+                                 "cut around --lat/--lon (default 15, at most 30: swim.io.grib.DEFAULT_RADIUS_DEG, "
+                                 "MAX_RADIUS_DEG).")
     out = typer.Option(None, help="Image output path, PNG, JPEG or TIFF by its suffix (default swim.png); with --end "
                        "a pattern such as "
                        "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height).")
@@ -367,6 +371,7 @@ def render(
     albedo_image_scale: float = _RenderOptions.albedo_image_scale, surface: str = _RenderOptions.surface,
     cloud_scattering: str = _RenderOptions.cloud_scattering, cloud_phase: Optional[str] = _RenderOptions.cloud_phase,
     scene_lat: Optional[float] = _RenderOptions.scene_lat, scene_lon: Optional[float] = _RenderOptions.scene_lon,
+    region_radius: Optional[float] = _RenderOptions.region_radius,
     out: Optional[Path] = _RenderOptions.out, netcdf: Optional[Path] = _RenderOptions.netcdf,
     end: Optional[str] = _RenderOptions.end, every: float = _RenderOptions.every,
     freeze_fields: bool = _RenderOptions.freeze_fields, workers: int = _RenderOptions.workers,
@@ -394,7 +399,7 @@ def render(
     try:
         if end is None and not workers and not scheduler:  # a series checks each frame's files (render_series)
             _check_outputs(out, netcdf)
-        place = _les_placement(scene, scene_lat, scene_lon)
+        place = {**_les_placement(scene, scene_lat, scene_lon), **_grib_region(scene, lat, lon, region_radius)}
         if lazy and scene is None:
             raise SwimInputError("--lazy needs a scene file (a canonical scene netCDF file)")
         level_of_detail = _level_of_detail(coarsen)  # checked before the scene is opened
@@ -468,6 +473,17 @@ def _les_placement(scene, scene_lat, scene_lon):
     if scene is None or scene.suffix.lower() not in (".txt", ".lwc", ".dat"):
         raise SwimInputError("--scene-lat/--scene-lon place LES text scenes only; other scenes carry coordinates")
     return {"reference_lat": scene_lat or 0.0, "reference_lon": scene_lon or 0.0}
+
+
+def _grib_region(scene, lat, lon, region_radius):
+    """The reader options of a GRIB scene: its region is cut around --lat/--lon, of radius --region-radius."""
+    from ..io.grib import is_grib_file
+
+    if scene is None or not is_grib_file(scene):
+        if region_radius is not None:
+            raise SwimInputError("--region-radius cuts the region of a GRIB scene only")
+        return {}
+    return {"lat": lat, "lon": lon, **_given(radius_deg=region_radius)}
 
 
 def _level_of_detail(coarsen):

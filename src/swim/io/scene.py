@@ -574,8 +574,10 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     :func:`swim.io.wrf.read_wrf`; a WPS ``geo_em``/``met_em`` file (``HGT_M``, ``XLAT_M``, ``XLONG_M``) to
     :func:`swim.io.wps.read_wps_geogrid` (a clear-sky scene); a netCDF file that already holds ``height``/``lat``/``lon`` is validated with
     :func:`validate_scene`; a ``.txt`` (or ``.lwc``, ``.dat``) SHDOM-style LES file goes to
-    :func:`swim.io.les.read_shdom_les`. A file without a suffix (e.g. ``wrfout_d01_2005-08-28_00:00:00``), and
-    a name containing "wrf" or starting with "geo_em"/"met_em", is tried as netCDF.
+    :func:`swim.io.les.read_shdom_les`; a GRIB file (one that starts with the bytes ``GRIB``, whatever its suffix,
+    or named ``.grib``, ``.grib2``, ``.grb``, ``.grb2``) goes to :func:`swim.io.grib.read_gfs_grib` (NCEP GFS
+    output). A file without a suffix (e.g. ``wrfout_d01_2005-08-28_00:00:00``), and a name containing "wrf" or
+    starting with "geo_em"/"met_em", is tried as netCDF.
 
     Parameters
     ----------
@@ -585,10 +587,12 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
         Canonical scene files only: open the fields as dask arrays and return the scene unvalidated, so that
         :func:`swim.render` crops it to what the camera can see before anything is read in full (the way to
         render CONUS-size grids in a few GB; docs/rendering.md, "Cropping big grids"). Only the names, the
-        dimensions and the time are checked here; :func:`swim.render` validates the cropped scene.
+        dimensions and the time are checked here; :func:`swim.render` validates the cropped scene. A GRIB
+        file's region is small and is read at once, lazy or not.
     **kwargs
         Passed to the reader (``time=`` for WRF; ``time=``, ``month=``, ``albedo_band=``, ``snow_above_m=`` for
-        WPS files; ``reference_lat=``, ``reference_lon=``, ``time=`` for LES).
+        WPS files; ``reference_lat=``, ``reference_lon=``, ``time=`` for LES; ``lat=``, ``lon=`` (the camera's
+        place, needed for a global file), ``radius_deg=``, ``time=`` for GRIB).
         A canonical netCDF scene takes ``time=`` only to check it against the file's time (1.5 h tolerance).
 
     Returns
@@ -604,9 +608,16 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     p = Path(path)
     if not p.is_file():
         raise SwimInputError(f"scene file not found: {p}")
+    from .grib import is_grib_file
+
+    if is_grib_file(p):
+        from .grib import read_gfs_grib
+
+        _reader_options(read_gfs_grib, "a GRIB file", kwargs)
+        return read_gfs_grib(p, **kwargs)
+    suffix = p.suffix.lower()
     if lazy:
         return _open_scene_lazily(p, **kwargs)
-    suffix = p.suffix.lower()
     if suffix in _LES_SUFFIXES:
         from .les import read_shdom_les
 
@@ -615,8 +626,8 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     wrf_like = "wrf" in p.name.lower() or p.name.lower().startswith(("geo_em", "met_em"))
     if suffix and suffix not in _NETCDF_SUFFIXES and not suffix[1:].isdigit() and not wrf_like:
         raise SwimInputError(
-            f"scene file {p.name}: unknown kind '{suffix}'; expected netCDF (.nc: WRF output or a canonical scene) or "
-            "an SHDOM-style LES text file (.txt)"
+            f"scene file {p.name}: unknown kind '{suffix}'; expected netCDF (.nc: WRF or WPS output or a canonical "
+            "scene), GRIB (.grib2, .grb: NCEP GFS output) or an SHDOM-style LES text file (.txt)"
         )
     from .files import open_netcdf
 
