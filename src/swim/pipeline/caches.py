@@ -230,7 +230,7 @@ def lazy_fingerprint(scene: xr.Dataset) -> str:
     arrays by the same token and relies on it for its own caching. What it does not see: a file replaced by one
     with the same name and modification time (``cp -p``, ``rsync -t``), a file rewritten while a dataset opened
     from it is still in use (its token was made when it was opened; open it again), and a numpy array wrapped by
-    ``dask.array.from_array`` and changed in place afterwards (wrap it again). ``swim.pipeline._STAGE_CACHE.clear()``
+    ``dask.array.from_array`` and changed in place afterwards (wrap it again). ``swim.pipeline.STATE.forget()``
     forgets every cached stage."""
     import dask.base
 

@@ -131,7 +131,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     The renders of a process share the last scene's stages: the optical volume, the packed grid and Step 1a. A
     render of the same scene and sun reuses them; a new sun (a time series' frame) redoes Step 1a only, into the
     same packed grid where no other render is running, else into a new one. Renders may run on several threads
-    at once (a dask worker's); docs/decisions/0006-gpu-kernels.md Where the march runs on a GPU, a scene whose arrays
+    at once (a dask worker's; docs/decisions/0006-gpu-kernels.md). Where the march runs on a GPU, a scene whose arrays
     were rendered before is recognised by them and hashed while the device marches; if their values were changed in
     place since, the render finds it before it returns and renders the scene again (a warning says so, and
     ``progress`` counts the rays twice; docs/decisions/0006-gpu-kernels.md).
