@@ -142,6 +142,25 @@ def _transmittance_delta_eddington(tau_s, b_tau_s, mu0, k):
     return (kk + (1.0 - kk) * math.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
 
 
+@helper_jit(inline="always")
+def _ray_terms(tau, i_cloud_t, cos_theta, cos_view_zenith, from_above, low_sun):
+    """A cloudy ray's scalars of :func:`compose_clouds`: Eq. 12's normalisation 1 - e^-min(tau, 2) (kept from 0),
+    the scattering angle's cosine, the view's downward cosine, the weight of the view from above, the indirectly lit
+    term's factor (``low_sun``: diffuse_transmission_factor's, for the view from below), the multiple-scattering
+    order tau' of the lobes' g^tau', and the blend coefficient c1 (Eqs. 14, 22: c1 = c3) with the mean cloud
+    transmittance T along the ray (``i_cloud_t``: Eq. 12's integral of T)."""
+    norm = -math.expm1(-min(tau, 2.0))
+    safe = max(norm, 1e-12)
+    t_mean = min(max(i_cloud_t / safe, 0.0), 1.0)
+    mu = cos_theta
+    mu_view_down = -cos_view_zenith
+    w_above = min(max(mu_view_down / from_above, 0.0), 1.0)
+    low_factor = (1.0 - w_above) * low_sun + w_above
+    tp = max(tau, 1.0)  # the multiple-scattering order tau' of the lobes' g^tau'
+    c1 = math.exp(-((tau / 10.0) ** 2)) * t_mean  # blend_coefficient (Eqs. 14, 22): c1 = c3
+    return safe, mu, mu_view_down, w_above, low_factor, tp, c1
+
+
 @njit(**JIT_KERNEL, nogil=True)
 def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clear, l_surface, valid, cos_theta,
                    cos_view_zenith, mu0, g_liquid, backscatter, coefficients, lobes, radiance_out, cloud_out):
@@ -192,15 +211,8 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
         for c in range(3):
             cloud_out[r, c] = 0.0
         if tau > 1e-6:
-            norm = -math.expm1(-min(tau, 2.0))
-            safe = max(norm, 1e-12)
-            t_mean = min(max(i_cloud_t[r] / safe, 0.0), 1.0)
-            mu = cos_theta[r]
-            mu_view_down = -cos_view_zenith[r]
-            w_above = min(max(mu_view_down / from_above, 0.0), 1.0)
-            low_factor = (1.0 - w_above) * low_sun + w_above
-            tp = max(tau, 1.0)  # the multiple-scattering order tau' of the lobes' g^tau'
-            c1 = math.exp(-((tau / 10.0) ** 2)) * t_mean  # blend_coefficient (Eqs. 14, 22): c1 = c3
+            safe, mu, mu_view_down, w_above, low_factor, tp, c1 = _ray_terms(tau, i_cloud_t[r], cos_theta[r],
+                                                                            cos_view_zenith[r], from_above, low_sun)
             # phase_thick (Eqs. 19-21) with the indirectly lit term's low_factor
             thick = (2.0 * c1 * _phase_thick_high(mu, k)
                      + 4.0 * (1.0 - c1) * low_factor * (1.0 + 2.0 * max(cos_view_zenith[r], 0.0)) / 3.0)

@@ -262,6 +262,53 @@ def surface_radiance(up, view, sun, slope_x, slope_y, albedo, land_fraction, sno
                         + a_diffuse * _diffuse_on_facet(sky_view, mu_s, albedo, direct, diffuse, c))
 
 
+@helper_jit(inline="always")
+def _sky_coordinates(h, mu_s, top):
+    """The sky table's coordinates at a point of height ``h`` [m] and local solar-zenith cosine ``mu_s``:
+    sqrt(h / top) and (mu_s + 1) / 2, each in [0, 1] (``_gas_at``)."""
+    return math.sqrt(_clip(h / top, 0.0, 1.0)), (mu_s + 1.0) * 0.5
+
+
+@helper_jit(inline="always")
+def _class_corners(fu, fm, c0, n_rows, nu_class, nmu_class):
+    """The corners and weights of the skylight of the aerosol column class ``c0`` and of the next one
+    (``diffuse_at``), in the classes' table of ``n_rows`` rows (``nu_class`` per class) and ``nmu_class`` columns,
+    at the sky table's coordinates (fu, fm)."""
+    fcu = _clip(fu * (nu_class - 1), 0.0, nu_class - 1.001)
+    cu0, cv0, ca, cb = _bilinear_index(n_rows, nmu_class, c0 * nu_class + fcu, fm * (nmu_class - 1))
+    cu1, cv1, ca1, cb1 = _bilinear_index(n_rows, nmu_class, (c0 + 1) * nu_class + fcu, fm * (nmu_class - 1))
+    return cu0, cv0, ca, cb, cu1, cv1, ca1, cb1
+
+
+@helper_jit(inline="always")
+def _field_corner(j, i, margin, ny, nx):
+    """The corner and weights of a clamped bilinear lookup of the ground's fields (ny, nx), which extend ``margin``
+    cells beyond the grid, at the grid indices (j, i), and the distance [cells] of (j, i) beyond the fields' edge."""
+    j += margin
+    i += margin
+    dj = max(max(-j, j - (ny - 1)), 0.0)
+    di = max(max(-i, i - (nx - 1)), 0.0)
+    d = math.sqrt(dj * dj + di * di)
+    fj0, fi0, fa, fb = _bilinear_index(ny, nx, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+    return fj0, fi0, fa, fb, d
+
+
+@helper_jit(inline="always")
+def _local_vertical(q0, q1, q2, radius):
+    """The unit vector of the local vertical at the point q (scene frame, rebased; the earth's centre at
+    (0, 0, -radius))."""
+    pz = q2 + radius
+    norm = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
+    return q0 / norm, q1 / norm, pz / norm
+
+
+@helper_jit(inline="always")
+def _view_from_above(cos_view_zenith, from_above):
+    """The view's downward cosine and the weight of the view from above (``FROM_ABOVE_BLEND``: ``from_above``)."""
+    mu_down = -cos_view_zenith
+    return mu_down, _clip(mu_down / from_above, 0.0, 1.0)
+
+
 @njit(**JIT_KERNEL, nogil=True)
 def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, tau_clear, tau_packed, species,
                     class_lower, class_weight, p, coef, sky, diffuse_classes, n_class, fields, fields_outside,
@@ -308,23 +355,15 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
     out : numpy.ndarray
         Shape (n, 3), written: L' of the ground seen by the observer [-].
     """
-    n = start.shape[0]
-    radius = p[_P_RADIUS]
-    top = p[_P_TOP]
-    nu_sky, nmu_sky = sky.shape[1], sky.shape[2]
-    n_rows, nmu_class = diffuse_classes.shape[1], diffuse_classes.shape[2]
+    radius, top, margin = p[_P_RADIUS], p[_P_TOP], p[_P_SURFACE_MARGIN]
+    nu_sky, nmu_sky, n_rows, nmu_class = sky.shape[1], sky.shape[2], diffuse_classes.shape[1], diffuse_classes.shape[2]
     nu_class = n_rows // n_class
     n_fields, ny, nx = fields.shape
-    margin = p[_P_SURFACE_MARGIN]
     sun = p[_P_SUN:_P_SUN + 3]
-    up = np.empty(3)
-    view = np.empty(3)
-    albedo = np.empty(3)
-    direct = np.empty(3)
-    diffuse = np.empty(3)
+    up, view, albedo, direct, diffuse, radiance = (np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3),
+                                                   np.empty(3))
     value = np.empty(n_fields)
-    radiance = np.empty(3)
-    for r in range(n):
+    for r in range(start.shape[0]):
         if not surface[r]:
             for c in range(3):
                 out[r, c] = 0.0
@@ -334,28 +373,20 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
         q2 = start[r, 2] + s_hit[r] * direction[r, 2]
         h, mu_s, _, j, i = _point_geometry(q0, q1, q2, p, coef)
         # _gas_at's sun transmittance and diffuse irradiance, or diffuse_at's of the ray's aerosol class
-        fu = math.sqrt(_clip(h / top, 0.0, 1.0))
-        fm = (mu_s + 1.0) * 0.5
+        fu, fm = _sky_coordinates(h, mu_s, top)
         su0, sv0, sa, sb = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
         for c in range(3):
             direct[c] = _bilinear_at(sky, c, su0, sv0, sa, sb)
             diffuse[c] = _bilinear_at(sky, 3 + c, su0, sv0, sa, sb)
         if n_class > 1:
-            fcu = _clip(fu * (nu_class - 1), 0.0, nu_class - 1.001)
-            c0, wc = class_lower[r], class_weight[r]
-            cu0, cv0, ca, cb = _bilinear_index(n_rows, nmu_class, c0 * nu_class + fcu, fm * (nmu_class - 1))
-            cu1, cv1, ca1, cb1 = _bilinear_index(n_rows, nmu_class, (c0 + 1) * nu_class + fcu, fm * (nmu_class - 1))
+            wc = class_weight[r]
+            cu0, cv0, ca, cb, cu1, cv1, ca1, cb1 = _class_corners(fu, fm, class_lower[r], n_rows, nu_class, nmu_class)
             for c in range(3):
                 diffuse[c] = (_bilinear_at(diffuse_classes, c, cu0, cv0, ca, cb) * (1 - wc)
                               + _bilinear_at(diffuse_classes, c, cu1, cv1, ca1, cb1) * wc)
-        # the ground's fields (surface_beyond_edge of bilinear_clamped) in the extended fields' indices: beyond their
-        # margin a fade from the margin's edge to the far ground
-        j += margin
-        i += margin
-        dj = max(max(-j, j - (ny - 1)), 0.0)
-        di = max(max(-i, i - (nx - 1)), 0.0)
-        d = math.sqrt(dj * dj + di * di)
-        fj0, fi0, fa, fb = _bilinear_index(ny, nx, _clip(j, 0.0, ny - 1.0), _clip(i, 0.0, nx - 1.0))
+        # the ground's fields (surface_beyond_edge of bilinear_clamped): beyond their margin a fade from the margin's
+        # edge to the far ground
+        fj0, fi0, fa, fb, d = _field_corner(j, i, margin, ny, nx)
         for c in range(n_fields):
             w = math.exp(-d / fade_cells[c])
             value[c] = fields_outside[c] + (_bilinear_at(fields, c, fj0, fi0, fa, fb) - fields_outside[c]) * w
@@ -364,23 +395,18 @@ def ground_radiance(start, direction, s_hit, surface, cos_view_zenith, tau_h, ta
             albedo[c] = value[c]
             direct[c] *= math.exp(-value[10] * angstrom[c]) * (t_cloud * shadow)
             diffuse[c] *= value[11 + c] if cloud_mode else t_cloud
-        pz = q2 + radius
-        norm = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
-        up[0], up[1], up[2] = q0 / norm, q1 / norm, pz / norm
+        up[0], up[1], up[2] = _local_vertical(q0, q1, q2, radius)
         view[0], view[1], view[2] = -direction[r, 0], -direction[r, 1], -direction[r, 2]
         surface_radiance(up, view, sun, value[6], value[7], albedo, value[3], value[4], value[5], direct, diffuse,
                          lambertian, k, rpv_q, snow_table, snow_albedo, subsurface, radiance)
         # seen from above, the ground under a cloud layer shines through the layer's total (direct + diffuse)
         # transmittance at the view angle; rays that do not look down keep the direct e^-tau
-        mu_down = -cos_view_zenith[r]
-        w_above = _clip(mu_down / k[_G_FROM_ABOVE], 0.0, 1.0)
+        mu_down, w_above = _view_from_above(cos_view_zenith[r], k[_G_FROM_ABOVE])
         b_tau = 0.0
         for m in range(species.shape[0]):
             b_tau += tau_packed[r, m] * backscatter[species[m]]
-        if cloud_mode:  # through the delta-M scaled optical depth: the forward peak stays in the view
-            t_hydro = math.exp(-b_tau)
-        else:
-            t_hydro = ((1.0 - w_above) * math.exp(-tau_h[r]) + w_above * _transmittance_delta_eddington(
-                tau_h[r], b_tau, max(mu_down, k[_G_FROM_ABOVE]), compose_coefficients))
+        # cloud_mode: through the delta-M scaled optical depth, so that the forward peak stays in the view
+        t_hydro = math.exp(-b_tau) if cloud_mode else ((1.0 - w_above) * math.exp(-tau_h[r]) + w_above * (
+            _transmittance_delta_eddington(tau_h[r], b_tau, max(mu_down, k[_G_FROM_ABOVE]), compose_coefficients)))
         for c in range(3):
             out[r, c] = radiance[c] * math.exp(-tau_clear[r, c]) * t_hydro

@@ -11,7 +11,10 @@ JAX march remains the kernel on GPUs and for gradients. ``tests/unit/rt/test_rt_
 float64 reference and to each other.
 
 The loop allocates nothing (its work arrays come from :func:`work_arrays`, once per call) and uses scalar ``math``
-functions, so that LLVM keeps a ray's state in registers.
+functions, so that LLVM keeps a ray's state in registers. The geometry and table lookups it shares with the
+ground's term are :mod:`swim.rt.march_geometry_cpu`'s, and the step's arithmetic per wavelength (the sky table's
+lanes, the accumulators, the hydrometeors' sources) :mod:`swim.rt.march_lanes_cpu`'s; their names are importable
+from this module too.
 
 Each function mirrors its JAX counterpart in :mod:`swim.rt.march_jax` (named in its docstring) and follows
 the same equations (Albers et al. 2020, doi:10.5194/amt-13-3235-2020: Eq. 3 for the clear-sky source,
@@ -24,27 +27,22 @@ import math
 
 import numpy as np
 
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import njit
 
-from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW
 from ..compilation.numba_jit import JIT_KERNEL, helper_jit, vectorising
-
-
-#: Layout of the float64 parameter vector of :func:`march_rays` (see :func:`pack_parameters`).
-_P_RADIUS, _P_SUN, _P_ZBOTTOM, _P_DZ, _P_CENTRE, _P_SCALE, _P_BOUNDS, _P_DH, _P_TOP = 0, 1, 4, 5, 6, 8, 9, 13, 14
-_P_TERRAIN_TOP = 15
-_P_SURFACE_MARGIN = 16
-_N_PARAMETERS = 17
-#: Height above the terrain's highest point [m] from which the step loop looks the terrain up no more: a bilinear
-#: lookup of the terrain (a weighted mean of four of its heights) never exceeds that point, so a sample higher up
-#: is above the ground (:func:`pack_parameters`); the metre covers the lookup's round-off many times over.
-TERRAIN_TOP_MARGIN = 1.0
-#: Occupancy probes, or steps, whose geometry is computed together in one vectorised loop (:func:`_probe_indices`,
-#: :func:`_step_geometry`): four vectors of float64 with AVX-512, eight without; a GPU thread's local array of 6 x this.
-PROBE_BLOCK = 32
+from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW
+# the kernel's helpers, also importable from here (ground_cpu, compose_cpu, the tests and the benchmarks take them
+# from this module)
+from .march_geometry_cpu import (  # noqa: F401
+    _N_PARAMETERS, _P_BOUNDS, _P_CENTRE, _P_DH, _P_DZ, _P_RADIUS, _P_SCALE, _P_SUN, _P_SURFACE_MARGIN, _P_TERRAIN_TOP,
+    _P_TOP, _P_ZBOTTOM, PROBE_BLOCK, ROUNDING_LIMIT, ROUNDING_SHIFT, TERRAIN_TOP_MARGIN, _bilinear, _bilinear_at,
+    _bilinear_clamped, _bilinear_index, _clip, _gap_along, _geometry_constants, _height_and_indices, _index_map, _ix,
+    _lerp_index, _lower_corner, _point_geometry, _prefetch, _prefetch_corners, _probe_indices, _radius_and_height,
+    _round_half_even, _step_geometry, _terrain_crossing, _terrain_gap)
+from .march_lanes_cpu import (  # noqa: F401
+    LANES, SKY_LANE_COLUMNS, _accumulate_cloud, _accumulate_lanes, _cloud_sources, _corner_lane, _corner_lanes,
+    _field_at, _mean_transmittance, _profile_lanes, _ratio_above)
+from .march_lanes_cpu import sky_lanes as sky_lanes
 
 
 def pack_parameters(consts):
@@ -77,275 +75,6 @@ def pack_parameters(consts):
 
 
 @helper_jit()
-def _index_map(u, v, du, dv, c, o):
-    """One index of :func:`swim.optics.volume.grid_indices`: the cubic of :func:`swim.optics.volume._cubic` (its
-    coefficients c[o:o + 10]) at the point (u, v), clipped to the fit's box, plus its tangent plane over the distance
-    (du, dv) beyond the box. One function rather than three (the cubic and its two derivatives): each compiled
-    function costs numba ~0.05 s on an empty cache, four times over for the literal offsets and types of ``c``."""
-    cubic = (c[o] + u * (c[o + 1] + u * (c[o + 3] + u * c[o + 6]) + v * (c[o + 4] + v * c[o + 8]))
-             + v * (c[o + 2] + v * (c[o + 5] + v * c[o + 9])) + u * u * v * c[o + 7])
-    cubic_du = c[o + 1] + u * (2 * c[o + 3] + 3 * c[o + 6] * u + 2 * c[o + 7] * v) + v * (c[o + 4] + c[o + 8] * v)
-    cubic_dv = c[o + 2] + v * (2 * c[o + 5] + 3 * c[o + 9] * v + 2 * c[o + 8] * u) + u * (c[o + 4] + c[o + 7] * u)
-    return cubic + cubic_du * du + cubic_dv * dv
-
-
-@intrinsic
-def _prefetch(typingctx, array, k, j, i):
-    """Ask the CPU to bring the cell ``array[k, j, i]`` (its first channel; integer indices, in range) into its
-    caches ahead of a read (LLVM's ``llvm.prefetch``: a hint, which never faults and changes no result)."""
-    sig = types.void(array, k, j, i)
-
-    def codegen(context, builder, signature, args):
-        array_type = signature.args[0]
-        data = context.make_array(array_type)(context, builder, args[0])
-        intp = context.get_value_type(types.intp)
-        index = [context.cast(builder, value, kind, types.intp) for value, kind in zip(args[1:], signature.args[1:])]
-        index += [ir.Constant(intp, 0)] * (array_type.ndim - 3)
-        pointer = cgutils.get_item_pointer(context, builder, array_type, data, index, wraparound=False)
-        byte_pointer = ir.IntType(8).as_pointer()
-        i32 = ir.IntType(32)
-        signature_ir = ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
-        hint = cgutils.get_or_insert_function(builder.module, signature_ir, "llvm.prefetch.p0")
-        # a read (0), to be kept in every cache level (locality 3), of data (1)
-        builder.call(hint, [builder.bitcast(pointer, byte_pointer), ir.Constant(i32, 0), ir.Constant(i32, 3),
-                            ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-#: 1.5 * 2^52: added to a float64 of magnitude below :data:`ROUNDING_LIMIT`, it leaves no fraction bits, so the sum is
-#: that number rounded to the nearest whole one, halves to the even one (IEEE 754's default rounding); subtracting it
-#: again is exact (:func:`_round_half_even`).
-ROUNDING_SHIFT = 6755399441055744.0
-#: 2^51: the magnitude below which :data:`ROUNDING_SHIFT` rounds; from 2^52 on, every float64 is a whole number.
-ROUNDING_LIMIT = 2251799813685248.0
-
-
-@helper_jit(fastmath=False)  # fast-math's reassociation would fold (x + shift) - shift into x
-def _round_half_even(x):
-    """``jnp.round``: to the nearest integer, halves to the even one (a probe on a grid-aligned ray lands on
-    exact halves, and rounding them otherwise would place the steps differently from the JAX kernel).
-
-    By adding and subtracting :data:`ROUNDING_SHIFT`: float arithmetic alone, which LLVM vectorises in
-    :func:`_probe_indices`' loop. ``math.floor`` returns an integer in numba, and without AVX-512 (the kernels'
-    target on Intel CPUs, :mod:`swim.compilation.numba_target`) x86 has no vector conversion of float64 to int64: a round's
-    two floors became four scalar conversions, and the probes' loop took 8.2 % of the march's time instead of 4.0 %
-    (docs/decisions/0003-cpu-kernel-code.md). Magnitudes from 2^51 on (whole numbers from 2^52 on; a probe far beyond
-    the grid, clipped to it after) and NaN are returned as they are."""
-    if not abs(x) < ROUNDING_LIMIT:
-        return x
-    return (x + ROUNDING_SHIFT) - ROUNDING_SHIFT
-
-
-@helper_jit(inline="always")
-def _ix(i):
-    """An array index that is never negative, as an unsigned integer: numba then emits no wraparound of negative
-    indices for it (a compare, a select and often a reload of the axis' length per index). The step loop's lookups
-    take their computed indices through this: 7.6 % fewer instructions, 3-6 % faster
-    (docs/decisions/0003-cpu-kernel-code.md). Like any index here (bounds are not checked), it must lie within the
-    axis."""
-    return np.uint64(i)
-
-
-@helper_jit()
-def _clip(x, lo, hi):
-    return min(max(x, lo), hi)
-
-
-@helper_jit(inline="always")
-def _radius_and_height(q0, q1, q2, radius):
-    """Distance from the Earth's centre [m] and height [m] of the point q (scene frame, rebased): for the callers
-    that need the height alone (the clear-air steps), without the grid indices of :func:`_point_geometry`, which
-    numba would inline and type for nothing (~0.5 s of a new installation's compilation)."""
-    pz = q2 + radius
-    r = math.sqrt(q0 * q0 + q1 * q1 + pz * pz)
-    return r, (q0 * q0 + q1 * q1 + q2 * q2 + 2 * radius * q2) / (r + radius)
-
-
-@helper_jit(inline="always")
-def _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c):
-    """Distance from the Earth's centre [m], height [m] and grid indices (k, j, i) of the point q (scene frame,
-    rebased) with the index map's cubic coefficients ``c`` (an array, or a tuple where a loop over points keeps them
-    in registers): :func:`swim.rt.march_jax._point_geometry` without the sun."""
-    r, h = _radius_and_height(q0, q1, q2, radius)
-    # swim.optics.volume.grid_indices: the cubic inside the box, its tangent plane beyond
-    u = (radius * q0 / r - centre_u) / scale
-    v = (radius * q1 / r - centre_v) / scale
-    uc = _clip(u, u_lo, u_hi)
-    vc = _clip(v, v_lo, v_hi)
-    du, dv = u - uc, v - vc
-    i = _index_map(uc, vc, du, dv, c, 0)
-    j = _index_map(uc, vc, du, dv, c, 10)
-    return r, h, (h - z_bottom) / dz, j, i
-
-
-# numba-level inlining: LLVM left this call in the step loop (docs/decisions/0003-cpu-kernel-code.md)
-@helper_jit(inline="always")
-def _point_geometry(q0, q1, q2, p, coef):
-    """:func:`swim.rt.march_jax._point_geometry`: height [m], local solar-zenith cosine, grid indices (k, j, i)."""
-    radius = p[_P_RADIUS]
-    r, h, k, j, i = _height_and_indices(q0, q1, q2, radius, p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE], p[_P_BOUNDS],
-                                        p[_P_BOUNDS + 1], p[_P_BOUNDS + 2], p[_P_BOUNDS + 3], p[_P_ZBOTTOM], p[_P_DZ],
-                                        coef)
-    mu_s = (q0 * p[_P_SUN] + q1 * p[_P_SUN + 1] + (q2 + radius) * p[_P_SUN + 2]) / r
-    return h, mu_s, k, j, i
-
-
-@helper_jit(inline="always")
-def _geometry_constants(p, coef):
-    """The scalars that :func:`_height_and_indices` takes after the point (from :func:`pack_parameters`'s ``p``) and
-    the index map's 20 cubic coefficients as a tuple: a loop over points then keeps them in registers, sees no table
-    reads to order against its stores, and LLVM vectorises it (:func:`_probe_indices`, :func:`_step_geometry`)."""
-    scalars = (p[_P_RADIUS], p[_P_CENTRE], p[_P_CENTRE + 1], p[_P_SCALE], p[_P_BOUNDS], p[_P_BOUNDS + 1],
-               p[_P_BOUNDS + 2], p[_P_BOUNDS + 3], p[_P_ZBOTTOM], p[_P_DZ])
-    c = (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7], coef[8], coef[9], coef[10], coef[11],
-         coef[12], coef[13], coef[14], coef[15], coef[16], coef[17], coef[18], coef[19])
-    return scalars, c
-
-
-@helper_jit()
-def _probe_indices(st0, st1, st2, d0, d1, d2, s0, length, n_probe, first, count, p, coef, shape, probe_at):
-    """Grid indices of probes ``first`` ... ``first + count - 1`` of ``n_probe`` at the middles of equal intervals
-    of the segment [s0, s0 + length] [m] of a ray, into ``probe_at[0:3, :count]`` (k, j, i), and the nearest
-    cell's within the grid of ``shape`` (nk, ny, nx) into ``probe_at[3:6, :count]`` (as floats).
-
-    The geometry of :func:`_point_geometry` in a loop of its own, without table reads or branches and with the
-    constants in registers, which LLVM vectorises: ~5 ns per probe instead of ~23 ns inside the loop of lookups
-    (docs/decisions/0003-cpu-kernel-code.md)."""
-    (radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz), c = _geometry_constants(p, coef)
-    for b in range(count):
-        s = s0 + (first + b + 0.5) / n_probe * length
-        _, _, k, j, i = _height_and_indices(st0 + s * d0, st1 + s * d1, st2 + s * d2, radius, centre_u, centre_v,
-                                            scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz, c)
-        probe_at[0, b] = k
-        probe_at[1, b] = j
-        probe_at[2, b] = i
-        probe_at[3, b] = _clip(_round_half_even(k), 0.0, shape[0] - 1.0)
-        probe_at[4, b] = _clip(_round_half_even(j), 0.0, shape[1] - 1.0)
-        probe_at[5, b] = _clip(_round_half_even(i), 0.0, shape[2] - 1.0)
-
-
-@helper_jit()
-def _bilinear(table, c, fu, fv):
-    """One channel c of :func:`swim.rt.march_jax._bilinear_table` on a (C, nu, nv) table, clamped."""
-    u0, v0, a, b = _bilinear_index(table.shape[1], table.shape[2], fu, fv)
-    return _bilinear_at(table, c, u0, v0, a, b)
-
-
-@helper_jit()
-def _bilinear_index(nu, nv, fu, fv):
-    """Corner (u0, v0) and weights (a, b) of a clamped bilinear lookup, shared by all channels of a table."""
-    u0, a = _lerp_index(fu, nu)
-    v0, b = _lerp_index(fv, nv)
-    return u0, v0, a, b
-
-
-@helper_jit()
-def _lerp_index(f, n):
-    """Lower index and weight of a clamped linear lookup at fractional index f in a table axis of n entries."""
-    f = _clip(f, 0.0, n - 1.001)
-    i0 = int(f)  # f >= 0: truncation is the floor, without math.floor's rounding first
-    return i0, f - i0
-
-
-@helper_jit()
-def _bilinear_at(table, c, u0, v0, a, b):
-    return ((table[_ix(c), _ix(u0), _ix(v0)] * (1 - b) + table[_ix(c), _ix(u0), _ix(v0 + 1)] * b) * (1 - a)
-            + (table[_ix(c), _ix(u0 + 1), _ix(v0)] * (1 - b) + table[_ix(c), _ix(u0 + 1), _ix(v0 + 1)] * b) * a)
-
-
-@helper_jit()
-def _bilinear_clamped(field, j, i):
-    """:func:`swim.rt.march_jax.bilinear_clamped` of the first channel of a (C, ny, nx) field at grid indices (j, i),
-    clamped to its edges."""
-    return _bilinear(field, 0, _clip(j, 0.0, field.shape[1] - 1.0), _clip(i, 0.0, field.shape[2] - 1.0))
-
-
-@helper_jit()
-def _terrain_gap(h, j, i, terrain):
-    """Height above the terrain (the (1, ny, nx) field, :func:`_bilinear_clamped`) [m]."""
-    return h - _bilinear_clamped(terrain, j, i)
-
-
-@helper_jit()
-def _gap_along(s, st0, st1, st2, d0, d1, d2, p, coef, terrain):
-    """Height above the terrain [m] at distance s [m] along a ray (``gap`` of
-    :func:`swim.rt.march_jax.refine_terrain_hit`)."""
-    h, _, _, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
-    return _terrain_gap(h, j, i, terrain)
-
-
-@helper_jit()
-def _terrain_crossing(hit_s, lo, hi, n_bisections, st0, st1, st2, d0, d1, d2, p, coef, terrain):
-    """:func:`swim.rt.march_jax.refine_terrain_hit`: the ground's crossing [m] by bisection between the samples ``lo``
-    (above the ground) and ``hi`` (below it) that bracket it; ``hit_s`` where they do not."""
-    if (_gap_along(lo, st0, st1, st2, d0, d1, d2, p, coef, terrain) >= 0
-            and _gap_along(hi, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0):
-        for _ in range(n_bisections):
-            mid = 0.5 * (lo + hi)
-            if _gap_along(mid, st0, st1, st2, d0, d1, d2, p, coef, terrain) < 0:
-                hi = mid
-            else:
-                lo = mid
-        return 0.5 * (lo + hi)
-    return hit_s
-
-
-@helper_jit()
-def _step_geometry(st0, st1, st2, d0, d1, d2, edges, first, count, p, coef, step_at):
-    """:func:`_point_geometry` at the middles of steps ``first`` ... ``first + count - 1`` of a ray (between its
-    ``edges`` [m]) into ``step_at[0:6, :count]`` (height [m], local solar-zenith cosine, k, j, i, and the sky
-    table's height coordinate sqrt(height / top)): a loop that LLVM vectorises, as :func:`_probe_indices`
-    (docs/decisions/0003-cpu-kernel-code.md)."""
-    (radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi, z_bottom, dz), c = _geometry_constants(p, coef)
-    sun0, sun1, sun2 = p[_P_SUN], p[_P_SUN + 1], p[_P_SUN + 2]
-    top = p[_P_TOP]
-    for b in range(count):
-        s_lo = edges[first + b]
-        s = s_lo + 0.5 * (edges[first + b + 1] - s_lo)  # as the step loop computes it
-        q0, q1, q2 = st0 + s * d0, st1 + s * d1, st2 + s * d2
-        r, h, k, j, i = _height_and_indices(q0, q1, q2, radius, centre_u, centre_v, scale, u_lo, u_hi, v_lo, v_hi,
-                                            z_bottom, dz, c)
-        step_at[0, b] = h
-        step_at[1, b] = (q0 * sun0 + q1 * sun1 + (q2 + radius) * sun2) / r
-        step_at[2, b] = k
-        step_at[3, b] = j
-        step_at[4, b] = i
-        step_at[5, b] = math.sqrt(_clip(h / top, 0.0, 1.0))  # the sky table's height coordinate
-
-
-@helper_jit(inline="always")
-def _lower_corner(k, j, i, nk, ny, nx):
-    """Whether the fractional grid indices (k, j, i) lie within a grid of nk x ny x nx cells, and if so the lower
-    corner (k0, j0, i0) of the cell whose eight corners a trilinear sample there reads (clamped so that k0 + 1 etc.
-    are cells too): the step loop's volume sample and :func:`_prefetch_corners`."""
-    if 0 <= k <= nk - 1 and 0 <= j <= ny - 1 and 0 <= i <= nx - 1:
-        # >= 0 here, so truncation is the floor: numba's math.floor returns an integer, which the clip turned back
-        # into a float and int() into an integer again (docs/decisions/0003-cpu-kernel-code.md)
-        return True, int(min(k, nk - 2.0)), int(min(j, ny - 2.0)), int(min(i, nx - 2.0))
-    return False, 0, 0, 0
-
-
-@helper_jit()
-def _prefetch_corners(volume, count, step_at):
-    """Prefetch the eight corner cells of the trilinear volume samples of steps 0 ... count - 1 of a block (their
-    grid indices (k, j, i) in ``step_at[2:5]``, from :func:`_step_geometry`), before the step loop reads them.
-
-    The corners' reads waited on memory for ~30 % of the kernel's time where rays fan out from an observer through a
-    volume bigger than the caches (docs/decisions/0003-cpu-kernel-code.md); a block of 32 steps' corners (at most 256
-    cells of 36 bytes or fewer) fits in the first-level cache."""
-    nk, ny, nx, _ = volume.shape
-    for b in range(count):
-        inside, k0, j0, i0 = _lower_corner(step_at[2, b], step_at[3, b], step_at[4, b], nk, ny, nx)
-        if inside:
-            for dk in range(2):
-                for dj in range(2):
-                    _prefetch(volume, k0 + dk, j0 + dj, i0)
-                    _prefetch(volume, k0 + dk, j0 + dj, i0 + 1)  # the cell after, often on the next cache line
-
-
-@helper_jit()
 def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_at):
     """:func:`swim.rt.march_jax.segment_cells` for one ray: the length in cells of the grid segment [s0, s0 + length]
     [m], from the grid indices of :data:`swim.constants.CELL_PROBES` points (one block of :func:`_probe_indices`)."""
@@ -360,10 +89,10 @@ def _segment_cells(st0, st1, st2, d0, d1, d2, s0, length, p, coef, shape, probe_
 
 @helper_jit()
 def _probe_occupancy(st0, st1, st2, d0, d1, d2, s0, length, p, coef, occupancy, n_probe, cdf, probe_at):
-    """Probe the step classes of :func:`swim.rt.march_inputs.step_classes` (or an occupancy grid: 1 occupied, 0 empty) at
-    n_probe equal intervals of a grid segment: each interval's class into ``cdf[1:n_probe + 1]`` (1.0 occupied, 0.0
-    empty, -1.0 sunlit clear air); returns the numbers of occupied and of sunlit probes. The probes' indices are
-    computed in blocks of ``probe_at.shape[1]`` (:func:`_probe_indices`), then looked up one by one."""
+    """Probe the step classes of :func:`swim.rt.march_inputs.step_classes` (or an occupancy grid: 1 occupied, 0
+    empty) at n_probe equal intervals of a grid segment: each interval's class into ``cdf[1:n_probe + 1]`` (1.0
+    occupied, 0.0 empty, -1.0 sunlit clear air); returns the numbers of occupied and of sunlit probes. The probes'
+    indices are computed in blocks of ``probe_at.shape[1]`` (:func:`_probe_indices`), then looked up one by one."""
     nk, ny, nx = occupancy.shape
     cdf[0] = 0.0
     occupied = 0
@@ -535,243 +264,6 @@ def _invert_cdf(s0, length, n_steps, n_probe, cdf, edges):
 #: Depth [m] under the terrain below which a ray's end on the sea-level sphere takes the zero-length end step
 #: (:func:`_march_ray_range`): far above float64 round-off at the earth's radius, far below any height that matters.
 END_STEP_GAP = 1e-3
-#: Lanes of the step's wavelength arithmetic: the three wavelengths and one lane of padding, whose values are
-#: computed and never read. Four lanes of float64 fill a 256-bit vector register
-#: (docs/decisions/0003-cpu-kernel-code.md).
-LANES = 4
-#: Columns of :func:`sky_lanes`' rows: the direct-sun lanes, then the skylight lanes.
-SKY_LANE_COLUMNS = 2 * LANES
-
-
-def sky_lanes(sky):
-    """The sky table (6, nu, nmu) of :func:`swim.rt.march_inputs.atmosphere_constants` (the sun's transmittance at 3
-    wavelengths, then the diffuse irradiance at 3) as the step loop reads it: (nu, nmu, 8) float64, the wavelengths
-    innermost, each group of three padded with a zero lane, so that one corner's lanes are one contiguous load.
-
-    Parameters
-    ----------
-    sky : array_like
-        Shape (6, nu, nmu) [-].
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape (nu, nmu, 8) float64 [-], C-contiguous: ``[..., c]`` the sun's transmittance and ``[..., 4 + c]`` the
-        diffuse irradiance at wavelength c; columns 3 and 7 are 0.
-
-    Raises
-    ------
-    ValueError
-        If ``sky`` does not have 6 channels.
-    """
-    sky = np.asarray(sky)
-    if sky.ndim != 3 or sky.shape[0] != 6:
-        raise ValueError(f"sky table: expected shape (6, nu, nmu), got {sky.shape}")
-    lanes = np.zeros(sky.shape[1:] + (SKY_LANE_COLUMNS,))
-    lanes[..., 0:3] = np.moveaxis(sky[0:3], 0, -1)
-    lanes[..., LANES:LANES + 3] = np.moveaxis(sky[3:6], 0, -1)
-    return lanes
-
-
-@helper_jit(inline="always")
-def _corner_lane(lanes, u0, v0, u1, v1, o, a, b):
-    """Lane o of a bilinear lookup between the four corner rows (u0, v0) ... (u1, v1) of a lane table
-    (:func:`sky_lanes`): ``(r00 (1 - b) + r01 b) (1 - a) + (r10 (1 - b) + r11 b) a``, as :func:`_bilinear_at`."""
-    return ((lanes[u0, v0, o] * (1 - b) + lanes[u0, v1, o] * b) * (1 - a)
-            + (lanes[u1, v0, o] * (1 - b) + lanes[u1, v1, o] * b) * a)
-
-
-@helper_jit(inline="always")
-def _corner_lanes(lanes, u0, v0, u1, v1, o, a, b):
-    """Lanes o ... o + 3 of :func:`_corner_lane`. The table is indexed element by element: a row taken as a view
-    (``lanes[u0, v0]``) is a new array whose reference count numba raises and lowers with atomic instructions,
-    which took ~1/4 of the march's cycles over all its views (docs/decisions/0003-cpu-kernel-code.md)."""
-    return (_corner_lane(lanes, u0, v0, u1, v1, o, a, b), _corner_lane(lanes, u0, v0, u1, v1, o + 1, a, b),
-            _corner_lane(lanes, u0, v0, u1, v1, o + 2, a, b), _corner_lane(lanes, u0, v0, u1, v1, o + 3, a, b))
-
-
-@helper_jit(inline="always")
-def _profile_lanes(lanes, u0, u1, o, w):
-    """Lanes o ... o + 3 of the multiple-scattering profiles between two heights (rows u0, u1 of the ray's
-    ``ms_lanes``): ``m0 (1 - w) + m1 w``, element by element (no row views: :func:`_corner_lanes`)."""
-    return (lanes[u0, o] * (1 - w) + lanes[u1, o] * w, lanes[u0, o + 1] * (1 - w) + lanes[u1, o + 1] * w,
-            lanes[u0, o + 2] * (1 - w) + lanes[u1, o + 2] * w, lanes[u0, o + 3] * (1 - w) + lanes[u1, o + 3] * w)
-
-
-@helper_jit(inline="always")
-def _mean_transmittance(x):
-    """The step's mean transmittance (1 - e^-x) / x and e^-x - 1 (which carries e^-tau to the observer to the next
-    step), per lane of optical depths x: for |x| < 0.1 in every lane (a step in clear air has x ~ 1e-3; x < 0 for the
-    terminal step back over the ground) one Taylor polynomial (relative error < 1e-11) without a division, else one
-    expm1 per lane. One test for all lanes keeps the lanes' arithmetic in one block, where LLVM vectorises it."""
-    x0, x1, x2, x3 = x
-    if max(max(abs(x0), abs(x1)), max(abs(x2), abs(x3))) < 0.1:
-        m0 = 1.0 - x0 * (0.5 - x0 * (1.0 / 6 - x0 * (1.0 / 24 - x0 * (1.0 / 120 - x0 * (1.0 / 720 - x0 / 5040)))))
-        m1 = 1.0 - x1 * (0.5 - x1 * (1.0 / 6 - x1 * (1.0 / 24 - x1 * (1.0 / 120 - x1 * (1.0 / 720 - x1 / 5040)))))
-        m2 = 1.0 - x2 * (0.5 - x2 * (1.0 / 6 - x2 * (1.0 / 24 - x2 * (1.0 / 120 - x2 * (1.0 / 720 - x2 / 5040)))))
-        m3 = 1.0 - x3 * (0.5 - x3 * (1.0 / 6 - x3 * (1.0 / 24 - x3 * (1.0 / 120 - x3 * (1.0 / 720 - x3 / 5040)))))
-        return (m0, m1, m2, m3), (-x0 * m0, -x1 * m1, -x2 * m2, -x3 * m3)
-    e0, e1, e2, e3 = math.expm1(-x0), math.expm1(-x1), math.expm1(-x2), math.expm1(-x3)
-    return ((-e0 / x0 if x0 != 0.0 else 1.0, -e1 / x1 if x1 != 0.0 else 1.0, -e2 / x2 if x2 != 0.0 else 1.0,
-             -e3 / x3 if x3 != 0.0 else 1.0), (e0, e1, e2, e3))
-
-
-@helper_jit(inline="always")  # numba-level inlining, so that the accumulators stay scalars in registers
-def _accumulate_lanes(tau_clear, t_obs, l_clear, i_nogas, i_gas, beta_clear, source, irradiance_h, beta_h, ds_eff,
-                      weight, gas_ratio):
-    """Each lane's (wavelength's) accumulators after a step of length ``ds_eff`` [m]: the clear-sky optical depth,
-    the transmittance to the observer, the clear-sky radiance (Eq. 3: the source times the step's mean transmittance)
-    and the Eq. 12 integrals with and without the gas (``weight``: the step's e^-min(t0, 2) - e^-min(t1, 2);
-    ``gas_ratio``: e^t0, so that ``t_obs * gas_ratio`` is the clear sky's e^-tau_clear without an exp: t_obs =
-    e^-(tau_clear + t0), and t0 < 2 wherever the weight is > 0). A negative weight is a terminal step back
-    (:func:`swim.rt.march_jax._terminal_step`), where t0 may exceed 2: it takes e^-tau_clear itself. Every argument but
-    the last four is a tuple of :data:`LANES` scalars, and so is each result."""
-    tc0, tc1, tc2, tc3 = tau_clear
-    to0, to1, to2, to3 = t_obs
-    lc0, lc1, lc2, lc3 = l_clear
-    in0, in1, in2, in3 = i_nogas
-    ig0, ig1, ig2, ig3 = i_gas
-    b0, b1, b2, b3 = beta_clear
-    s0, s1, s2, s3 = source
-    e0, e1, e2, e3 = irradiance_h
-    (m0, m1, m2, m3), (x0, x1, x2, x3) = _mean_transmittance(((b0 + beta_h) * ds_eff, (b1 + beta_h) * ds_eff,
-                                                               (b2 + beta_h) * ds_eff, (b3 + beta_h) * ds_eff))
-    if weight > 0.0:
-        in0, in1, in2, in3 = in0 + e0 * weight, in1 + e1 * weight, in2 + e2 * weight, in3 + e3 * weight
-        g = gas_ratio * weight
-        ig0, ig1, ig2, ig3 = ig0 + e0 * to0 * g, ig1 + e1 * to1 * g, ig2 + e2 * to2 * g, ig3 + e3 * to3 * g
-    elif weight < 0.0:
-        in0, in1, in2, in3 = in0 + e0 * weight, in1 + e1 * weight, in2 + e2 * weight, in3 + e3 * weight
-        ig0 += e0 * math.exp(-tc0) * weight
-        ig1 += e1 * math.exp(-tc1) * weight
-        ig2 += e2 * math.exp(-tc2) * weight
-        ig3 += e3 * math.exp(-tc3) * weight
-    return ((tc0 + b0 * ds_eff, tc1 + b1 * ds_eff, tc2 + b2 * ds_eff, tc3 + b3 * ds_eff),
-            (to0 * (1.0 + x0), to1 * (1.0 + x1), to2 * (1.0 + x2), to3 * (1.0 + x3)),
-            (lc0 + to0 * s0 * (ds_eff * m0), lc1 + to1 * s1 * (ds_eff * m1), lc2 + to2 * s2 * (ds_eff * m2),
-             lc3 + to3 * s3 * (ds_eff * m3)),
-            (in0, in1, in2, in3), (ig0, ig1, ig2, ig3))
-
-
-@helper_jit()
-def _cloud_sources(row, k, j, i, nk, vol, n_species, p_hydro, ray_ms, hydro_scale, hydro_narrow, ms_field, ms_coarsen,
-                   beta_h, t_cloud, e0, e1, e2):
-    """The hydrometeors' sources at a step of ``cloud_scattering="discrete_ordinates"``, per wavelength [m-1]:
-
-    * single scattering of the direct beam with the species' phase functions split in two
-      (:func:`swim.optics.cloud_phase.split_phase_function`), ``p_hydro[row]`` (n_sp, 6): the first three
-      columns scatter the beam with its delta-M scaled transmittance ``t_cloud`` (in ``e0..e2``, Nakajima and Tanaka
-      1988's TMS), the last three the beam dimmed by all but the narrow forward peak, t_cloud^x with
-      x = sum_s beta_s (f_s - f_a,s) / sum_s beta_s (1 - f_s) (``hydro_narrow``: f - f_a; exact for one species);
-    * the diffuse solution's source sum_s beta_s sum_lm (chi_s,l - f_s) Y_lm(-d) L'_lm(x): the ray's weights
-      ``ray_ms[row]`` (n_sp, 3 nm), (chi_s,l - f_s) Y_lm(-d) per wavelength and moment, on the moments ``ms_field``
-      (nk, ny_c, nx_c, 3 + 3 nm) interpolated trilinearly at the step's level ``k`` and columns
-      ((j, i) + 1/2) / ``ms_coarsen`` - 1/2 (the species' weights summed first, then one interpolation per moment);
-
-    and the ratio of the diffuse radiance to the clear sky's (channels 0-2), which scales the air's diffuse source,
-    and the hydrometeors' scaled extinction sum_s (1 - f_s) beta_s (``hydro_scale``: 1 - f)."""
-    nyc, nxc = ms_field.shape[1], ms_field.shape[2]
-    nm3 = ray_ms.shape[2]
-    nm = nm3 // 3
-    inv = 1.0 / ms_coarsen
-    fk = _clip(k, 0.0, nk - 1.0)
-    fj = _clip((j + 0.5) * inv - 0.5, 0.0, nyc - 1.0)
-    fi = _clip((i + 0.5) * inv - 0.5, 0.0, nxc - 1.0)
-    k0 = min(int(fk), nk - 2) if nk > 1 else 0
-    j0 = min(int(fj), nyc - 2) if nyc > 1 else 0
-    i0 = min(int(fi), nxc - 2) if nxc > 1 else 0
-    k1, j1, i1 = min(k0 + 1, nk - 1), min(j0 + 1, nyc - 1), min(i0 + 1, nxc - 1)
-    ak, aj, ai = fk - k0, fj - j0, fi - i0
-    d0 = _field_at(ms_field, 0, k0, k1, j0, j1, i0, i1, ak, aj, ai)
-    d1 = _field_at(ms_field, 1, k0, k1, j0, j1, i0, i1, ak, aj, ai)
-    d2 = _field_at(ms_field, 2, k0, k1, j0, j1, i0, i1, ak, aj, ai)
-    if beta_h <= 0.0:
-        return d0, d1, d2, 0.0, 0.0, 0.0, 0.0
-    beta_eff = 0.0
-    gap = 0.0
-    ss0 = ss1 = ss2 = 0.0
-    su0 = su1 = su2 = 0.0
-    for s in range(n_species):
-        b = vol[s]
-        beta_eff += hydro_scale[s] * b
-        gap += hydro_narrow[s] * b
-        ss0 += b * p_hydro[row, s, 0]
-        ss1 += b * p_hydro[row, s, 1]
-        ss2 += b * p_hydro[row, s, 2]
-        su0 += b * p_hydro[row, s, 3]
-        su1 += b * p_hydro[row, s, 4]
-        su2 += b * p_hydro[row, s, 5]
-    # the beam without the broad part of the forward peak: t_cloud^(gap / beta_eff) times t_cloud's e0..e2
-    extra = math.exp(math.log(t_cloud) * (gap / beta_eff)) if t_cloud > 0.0 and beta_eff > 0.0 else 0.0
-    ss0 += su0 * extra
-    ss1 += su1 * extra
-    ss2 += su2 * extra
-    # sum_s beta_s sum_m w_s,m F_m(x) as sum_m (sum_s beta_s w_s,m) F_m(x): the species' weights combined before the
-    # trilinear interpolation, which is then done once per moment (most cloudy cells hold two species or more)
-    ms0 = ms1 = ms2 = 0.0
-    for m in range(3 * nm):
-        r = 0.0
-        for s in range(n_species):
-            r += vol[s] * ray_ms[row, s, m]
-        if r == 0.0:
-            continue
-        f = _field_at(ms_field, 3 + m, k0, k1, j0, j1, i0, i1, ak, aj, ai)
-        if m < nm:
-            ms0 += r * f
-        elif m < 2 * nm:
-            ms1 += r * f
-        else:
-            ms2 += r * f
-    return d0, d1, d2, ss0 * e0 + ms0, ss1 * e1 + ms1, ss2 * e2 + ms2, beta_eff
-
-
-@helper_jit(inline="always")
-def _field_at(field, c, k0, k1, j0, j1, i0, i1, ak, aj, ai):
-    """Channel ``c`` of ``field`` (nk, ny, nx, C) interpolated trilinearly between the corners (k0|k1, j0|j1,
-    i0|i1) with the upper corners' weights ``ak``, ``aj``, ``ai``."""
-    lo = ((1 - aj) * ((1 - ai) * field[k0, j0, i0, c] + ai * field[k0, j0, i1, c])
-          + aj * ((1 - ai) * field[k0, j1, i0, c] + ai * field[k0, j1, i1, c]))
-    hi = ((1 - aj) * ((1 - ai) * field[k1, j0, i0, c] + ai * field[k1, j0, i1, c])
-          + aj * ((1 - ai) * field[k1, j1, i0, c] + ai * field[k1, j1, i1, c]))
-    return (1 - ak) * lo + ak * hi
-
-
-@helper_jit()
-def _ratio_above(h, j, i, above, heights, coarsen):
-    """The diffuse radiance's ratio to the clear sky's (3 wavelengths) at height ``h`` [m] over the grid's column
-    (``j``, ``i``): ``above`` (n, ny_c, nx_c, 3) at ``heights`` (n,) [m], the grid's top level first, linear in
-    height, bilinear across the coarsened columns (:class:`swim.rt.diffuse_field.DiffuseField`); 1 above the
-    highest."""
-    n, nyc, nxc = above.shape[0], above.shape[1], above.shape[2]
-    if h >= heights[n - 1]:
-        return 1.0, 1.0, 1.0
-    a = 0
-    while a < n - 2 and h > heights[a + 1]:
-        a += 1
-    w = _clip((h - heights[a]) / (heights[a + 1] - heights[a]), 0.0, 1.0)
-    inv = 1.0 / coarsen
-    fj = _clip((j + 0.5) * inv - 0.5, 0.0, nyc - 1.0)
-    fi = _clip((i + 0.5) * inv - 0.5, 0.0, nxc - 1.0)
-    j0 = min(int(fj), nyc - 2) if nyc > 1 else 0
-    i0 = min(int(fi), nxc - 2) if nxc > 1 else 0
-    j1, i1 = min(j0 + 1, nyc - 1), min(i0 + 1, nxc - 1)
-    return (_field_at(above, 0, a, a + 1, j0, j1, i0, i1, w, fj - j0, fi - i0),
-            _field_at(above, 1, a, a + 1, j0, j1, i0, i1, w, fj - j0, fi - i0),
-            _field_at(above, 2, a, a + 1, j0, j1, i0, i1, w, fj - j0, fi - i0))
-
-
-@helper_jit(inline="always")
-def _accumulate_cloud(l_cloud, t_obs, source, beta_clear, beta_h, ds_eff):
-    """The hydrometeors' radiance lanes after a step: ``source`` (3 lanes) times the step's mean transmittance
-    (its extinction: the clear air's ``beta_clear`` lanes and the scaled hydrometeors' ``beta_h``) and the
-    transmittance ``t_obs`` to the observer at its start."""
-    l0, l1, l2, l3 = l_cloud
-    s0, s1, s2 = source
-    b0, b1, b2 = beta_clear
-    (m0, m1, m2, _), _ = _mean_transmittance(((b0 + beta_h) * ds_eff, (b1 + beta_h) * ds_eff,
-                                              (b2 + beta_h) * ds_eff, 0.0))
-    return (l0 + t_obs[0] * s0 * (ds_eff * m0), l1 + t_obs[1] * s1 * (ds_eff * m1),
-            l2 + t_obs[2] * s2 * (ds_eff * m2), l3)
 
 
 @vectorising
@@ -1216,6 +708,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
         hit_out[r] = hit
         s_hit_out[r] = s_hit
         samples_out[r] = samples
+
 
 
 @njit(**JIT_KERNEL, nogil=True)
