@@ -65,8 +65,21 @@ import bench_suite  # noqa: E402  (benchmarks/ on the path first)
 #: The suite's all-sky case of each scene (its view and sun).
 SCENE_CASES = {"synthetic": "synthetic_allsky", "rico": "rico_allsky", "katrina": "katrina_allsky",
                "conus": "conus_allsky", "mc": "mc_ratio"}
-#: march_rays' outputs: its last arguments (written in place).
-N_OUTPUTS = 11
+#: march_rays' outputs (written in place), by name: the per-ray results, then the 3-D clouds' radiance (its last
+#: argument, after the clouds' inputs).
+OUTPUTS = ("tau_clear", "tau_h", "tau_species", "l_clear", "i_nogas", "i_gas", "i_cloud_t", "alive_out", "hit_out",
+           "s_hit_out", "samples_out", "l_cloud")
+
+
+def output_positions():
+    """The positions of :data:`OUTPUTS` among march_rays' arguments (those of the kernel under test: older ones had
+    fewer outputs, all last)."""
+    import inspect
+
+    from swim.rt import march_cpu
+
+    names = list(inspect.signature(march_cpu.march_rays).parameters)
+    return [names.index(name) for name in OUTPUTS if name in names]
 
 
 def capture(scene_name, size, data):
@@ -121,10 +134,10 @@ def load_variant(path):
 
 def with_fresh_outputs(calls):
     """Copies of the calls' argument lists with new zeroed outputs (the inputs shared)."""
-    fresh = []
+    fresh, positions = [], output_positions()
     for args in calls:
         args = list(args)
-        for q in range(len(args) - N_OUTPUTS, len(args)):
+        for q in positions:
             args[q] = np.zeros_like(args[q])
         fresh.append(args)
     return fresh
@@ -219,9 +232,9 @@ def replay_interleaved(runs, repeats):
 
 def max_difference(a_calls, b_calls):
     """Largest absolute difference between the outputs of two replays of the same inputs."""
-    worst = 0.0
+    worst, positions = 0.0, output_positions()
     for a, b in zip(a_calls, b_calls):
-        for q in range(len(a) - N_OUTPUTS, len(a)):
+        for q in positions:
             worst = max(worst, float(np.max(np.abs(np.asarray(a[q], float) - np.asarray(b[q], float)), initial=0.0)))
     return worst
 
