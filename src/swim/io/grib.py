@@ -450,7 +450,8 @@ def _scene_attrs(grid: xr.Dataset, path: Path, reference, radius_deg, whole: boo
 
 
 def read_gfs_grib(path, lat=None, lon=None, radius_deg=DEFAULT_RADIUS_DEG, time=None) -> xr.Dataset:
-    """Read NCEP GFS pressure-level output (GRIB1 or GRIB2, regular lat-lon grid) into the canonical scene.
+    """Read NCEP GFS pressure-level output (GRIB2 on a regular lat-lon grid; GRIB1 goes through the same ecCodes
+    decoding, untested) into the canonical scene.
 
     Parameters
     ----------
