@@ -69,10 +69,11 @@ def check_exposure(white_level, exposure) -> bool:
 
 
 def checked_arguments(scene, request):
-    """:func:`render`'s arguments (``request``, a :class:`swim.pipeline.chain.RenderRequest`) checked before the scene is read (a whole CONUS grid: ~40 s and ~11 GB): the scene's
-    type, the exposure, the camera's kind and options (a perspective camera's view is filled in from the grid later,
-    :func:`default_perspective_view`), the image's memory, the observer and the coarsening. Returns the observer's
-    height [m above the ground] as a float and whether the exposure is automatic.
+    """:func:`render`'s arguments (``request``, a :class:`swim.pipeline.chain.RenderRequest`) checked before the
+    scene is read (a whole CONUS grid: ~40 s and ~11 GB): the scene's type, the exposure, the camera's kind and
+    options (a perspective camera's view is filled in from the grid later,
+    :func:`swim.pipeline.scene_stage.default_perspective_view`), the image's memory, the observer and the
+    coarsening. Returns the observer's height [m above the ground] as a float and whether the exposure is automatic.
 
     Raises
     ------

@@ -43,14 +43,16 @@ def test_the_host_backend_scatters_what_the_dispatcher_marches(monkeypatch):
     dirs = rays.directions[rays.valid_pixels]
     direct = trace_rays(np.broadcast_to(rays.observer, dirs.shape), dirs, tables.constants, tables.geometry,
                         tables.phase, settings)
-    ny, nx = rays.shape
     radiance = marched.planes["radiance"].reshape(3, -1)
     np.testing.assert_array_equal(radiance[:, rays.valid_pixels], direct["radiance"].T)
     assert np.isnan(radiance[:, ~rays.valid.reshape(-1)]).all()
     assert marched.traced.sum() == rays.valid.sum() and marched.samples == int(direct["steps"].sum())
     assert marched.rgb is None and {"tau_clear", "surface", "steps"} <= set(marched.sun)
-    # the render's radiance is the march's, but where the sun's disk was added
-    assert np.nanmax(np.abs(image["radiance"].values - marched.planes["radiance"])) >= 0
+    # the render's radiance is the march's, but at the few pixels of the sun's disk, which it adds
+    rendered = image["radiance"].values.reshape(3, -1)
+    changed = np.any(rendered[:, rays.valid_pixels] != radiance[:, rays.valid_pixels], axis=0)
+    assert 1 <= np.count_nonzero(changed) <= 9
+    assert np.all(rendered[:, rays.valid_pixels][:, changed] > radiance[:, rays.valid_pixels][:, changed])
 
 
 @pytest.mark.full  # the JAX kernel's programs compile for tens of seconds on an empty cache: the full tier
@@ -72,5 +74,6 @@ def test_the_pipeline_calls_no_kernel_but_through_march():
     for path in pipeline.glob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.level:
-                imported.add("swim." + (node.module or "") if node.level == 2 else "swim.pipeline." + (node.module or ""))
+                package = "swim." if node.level == 2 else "swim.pipeline."
+                imported.add(package + (node.module or ""))
     assert "swim.rt.backends" in imported and not imported & kernels, imported & kernels
