@@ -175,6 +175,16 @@ def liquid_fraction(temperature):
     ``alpha = ((T - T_ice) / (T_0 - T_ice))^2`` for T_ice = 250.16 K < T < T_0 = 273.16 K, 1 above T_0 and 0
     below T_ice.
 
+    Parameters
+    ----------
+    temperature : array_like
+        Any shape [K].
+
+    Returns
+    -------
+    numpy.ndarray
+        Same shape [-], in [0, 1].
+
     References
     ----------
     ECMWF (2021), IFS Documentation Cy47r3, Part IV: Physical processes, Chap. 7 (Clouds and large-scale
@@ -198,7 +208,12 @@ def split_condensate(total, temperature):
     Returns
     -------
     tuple of numpy.ndarray
-        ``(liquid, ice)`` in the unit of ``total``; ``liquid + ice == total``.
+        ``(liquid, ice)``, the broadcast shape, in the unit of ``total``; ``liquid + ice == total``.
+
+    References
+    ----------
+    As :func:`liquid_fraction`: ECMWF IFS Documentation Cy47r3, Part IV, Chap. 7 (the mixed-phase partition);
+    docs/decisions/0015-gfs-condensate-split.md.
     """
     total = np.asarray(total, dtype=float)
     liquid = total * liquid_fraction(temperature)
