@@ -28,6 +28,7 @@ import xarray as xr
 from ..constants import EARTH_RADIUS_M, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import scene_to_geodetic
+from .quantities import dequantified
 from .scene_checks import (
     _2D,
     _3D,
@@ -565,6 +566,47 @@ def _open_scene_lazily(p, **kwargs):
         raise SwimInputError(f"scene file {p.name}: dimensions {missing} missing; a scene has (z, y, x) "
                              "(docs/scene-format.md)")
     return _canonical_scene(ds, p, time)
+
+
+def as_scene(ds: xr.Dataset, time=None) -> xr.Dataset:
+    """A dataset in any layout swim reads, as a scene :func:`swim.render` takes: raw WRF output (``PH``, ``PHB``,
+    ``Times``) or WRF output post-processed by xwrf (:mod:`swim.io.wrf_postprocessed`) through
+    :func:`swim.io.wrf.read_wrf` at ``time``, WPS ``geo_em``/``met_em`` output through
+    :func:`swim.io.wps.read_wps_geogrid`; a canonical scene is returned as it is (the render validates it), with
+    unit-aware (pint, MetPy) values converted to the canonical units first (:mod:`swim.io.quantities`).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The dataset.
+    time : None, str, datetime or numpy.datetime64, optional
+        The time to read from a WRF or WPS dataset with several (their readers' rule); ignored for a scene.
+
+    Returns
+    -------
+    xarray.Dataset
+        A canonical scene (validated, for WRF and WPS input) or the scene given.
+
+    Raises
+    ------
+    SwimInputError
+        When ``ds`` is not a Dataset, or its readers reject it.
+    """
+    if not isinstance(ds, xr.Dataset):
+        raise SwimInputError(f"scene must be an xarray.Dataset; got {type(ds).__name__}")
+    if {"height", "lat", "lon"} <= set(ds.variables):
+        return dequantified(ds, _UNITS, "scene")
+    from .wrf_postprocessed import is_xwrf_dataset
+
+    if _is_wrf(ds) or is_xwrf_dataset(ds):
+        from .wrf import read_wrf
+
+        return read_wrf(ds, time=time)
+    if _is_wps(ds):
+        from .wps import read_wps_geogrid
+
+        return read_wps_geogrid(ds, time=time)
+    return ds  # not a known layout: validate_scene names what is missing
 
 
 def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:

@@ -17,6 +17,7 @@ from ..constants import DEFAULT_EFFECTIVE_RADIUS, SPECIES, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import orthographic_xy
 from ..workers import in_blocks
+from .quantities import dequantified
 
 # The checks run as part of validate_scene: they log under its module's name, where users look for them.
 logger = logging.getLogger("swim.io.scene")
@@ -263,6 +264,7 @@ def _check_dataset(ds) -> xr.Dataset:
     variables that will be dropped."""
     if not isinstance(ds, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(ds).__name__}")
+    ds = dequantified(ds, _UNITS, "scene")
     if "time" in ds.dims and ds.sizes["time"] == 1:
         ds = ds.squeeze("time")
     missing = [name for name in ("height", "lat", "lon", "terrain_height") if name not in ds.variables]

@@ -33,7 +33,9 @@ from ..constants import (
 )
 from ..errors import SwimInputError
 from .files import open_netcdf
+from .quantities import dequantified
 from .scene import RADIUS_RANGE_M, domain_centre, require_real_numbers, to_utc_datetime64, validate_scene
+from .wrf_postprocessed import WRF_UNITS, is_xwrf_dataset, raw_wrf_layout
 
 logger = logging.getLogger(__name__)
 
@@ -317,9 +319,11 @@ def read_wrf(path_or_dataset, time=None, albedo_band: str = "shortwave") -> xr.D
     (:data:`swim.constants.DEFAULT_EFFECTIVE_RADIUS`) is used and logged.
     """
     if isinstance(path_or_dataset, xr.Dataset):
-        ds = path_or_dataset
         label = "the WRF dataset"
-        source = str(ds.encoding.get("source", "xarray.Dataset"))
+        ds = dequantified(path_or_dataset, WRF_UNITS, label)
+        if is_xwrf_dataset(ds):
+            ds = raw_wrf_layout(ds)
+        source = str(ds.encoding.get("source", path_or_dataset.encoding.get("source", "xarray.Dataset")))
         return _read_wrf_dataset(ds, time, label, source, albedo_band)
     p = Path(path_or_dataset)
     with open_netcdf(p, "WRF file") as ds:

@@ -10,6 +10,7 @@ import numpy as np
 import xarray as xr
 
 from ..color.display import auto_white_level, exposure_white_level
+from ..io.scene import as_scene
 from ..memory import release_compiled_programs, release_free_memory
 from ..rt import precompile
 from ..rt.backends import march
@@ -49,7 +50,9 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     Parameters
     ----------
     scene : xarray.Dataset
-        Canonical scene (docs/scene-format.md), e.g. from :func:`swim.open_scene`.
+        Canonical scene (docs/scene-format.md), e.g. from :func:`swim.open_scene`; or WRF output as a dataset,
+        raw or post-processed by xwrf, or WPS output, read at ``time`` (:func:`swim.io.scene.as_scene`). Values may
+        be pint quantities (MetPy's or pint-xarray's ``quantify()``): they are converted to the canonical units.
     time : str, datetime or pandas.Timestamp, optional
         UTC time; default: the scene's ``time`` coordinate. Not needed with ``sun_zenith``/``sun_azimuth``.
     lat, lon : float, optional
@@ -136,6 +139,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     place since, the render finds it before it returns and renders the scene again (a warning says so, and
     ``progress`` counts the rays twice; docs/decisions/0006-gpu-kernels.md).
     """
+    scene = as_scene(scene, time)  # WRF (raw or xwrf) and WPS datasets read here; pint quantities made plain
     request = RenderRequest(time=time, lat=lat, lon=lon, height=height, camera=camera, camera_options=camera_options,
                             sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=look_at, aerosol=aerosol,
                             settings=settings if execution is None else replace(settings, execution=execution),
