@@ -1,9 +1,16 @@
 """Shared fixtures: the real-data folder ../shared/data resolved from this file; JAX's compiled programs dropped
 when a worker nears its limit of memory mappings."""
 
+from importlib.util import find_spec
 from pathlib import Path
 
 import pytest
+
+if find_spec("pyproj") is not None:
+    # PROJ's libraries must load before ecCodes' (eccodeslib wheels): the other way round pyproj finds no database
+    # and the process aborts at exit. A worker may open a GRIB file (xarray loads cfgrib, hence ecCodes, whenever
+    # it guesses an engine) before a test imports xwrf, which imports pyproj.
+    import pyproj  # noqa: F401
 
 SHARED_DATA = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data").resolve()
 

@@ -18,6 +18,7 @@ Decisions (see ``docs/scene-format.md``):
 
 from __future__ import annotations
 
+import inspect
 import logging
 from pathlib import Path
 
@@ -28,6 +29,8 @@ import xarray as xr
 from ..constants import EARTH_RADIUS_M, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import scene_to_geodetic
+from .formats import LES_SUFFIXES as _LES_SUFFIXES
+from .formats import _is_wps, _is_wrf, file_kind, netcdf_format, unsupported_message
 from .quantities import dequantified
 from .scene_checks import (
     _2D,
@@ -497,18 +500,6 @@ graupel_effective_radius : array_like, optional
 # ---------------------------------------------------------------------------------------------------------------
 # files
 
-_NETCDF_SUFFIXES = {".nc", ".nc4", ".netcdf", ".cdf", ".h5", ".hdf5"}
-_LES_SUFFIXES = {".txt", ".lwc", ".dat"}
-
-
-def _is_wrf(ds: xr.Dataset) -> bool:
-    title = str(ds.attrs.get("TITLE", ""))
-    return ("WRF" in title.upper() and "PH" in ds.variables) or {"PH", "PHB", "Times"} <= set(ds.variables)
-
-
-def _is_wps(ds: xr.Dataset) -> bool:
-    """WPS geogrid (``geo_em``) or metgrid (``met_em``) output: terrain and lat/lon on the mass grid."""
-    return {"HGT_M", "XLAT_M", "XLONG_M"} <= set(ds.variables)
 
 
 def _canonical_time(kwargs):
@@ -523,8 +514,6 @@ def _canonical_time(kwargs):
 def _reader_options(reader, kind, kwargs, internal=("source",)):
     """Refuse ``open_scene`` options that ``reader`` (the reader of a file of ``kind``) does not take, naming them
     and the ones it takes: a misspelt option (``tme=``) would otherwise end in a TypeError from deep inside."""
-    import inspect
-
     params = list(inspect.signature(reader).parameters.items())[1:]  # after the path or dataset
     names = [name for name, par in params if par.kind in (par.POSITIONAL_OR_KEYWORD, par.KEYWORD_ONLY)
              and name not in internal]
@@ -650,46 +639,34 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     p = Path(path)
     if not p.is_file():
         raise SwimInputError(f"scene file not found: {p}")
-    from .grib import is_grib_file
-
-    if is_grib_file(p):
+    kind = file_kind(p)
+    if kind == "grib":
         from .grib import read_gfs_grib
 
         _reader_options(read_gfs_grib, "a GRIB file", kwargs)
         return read_gfs_grib(p, **kwargs)
-    suffix = p.suffix.lower()
     if lazy:
         return _open_scene_lazily(p, **kwargs)
-    if suffix in _LES_SUFFIXES:
+    if kind == "les":
         from .les import read_shdom_les
 
         _reader_options(read_shdom_les, "an SHDOM-style LES file", kwargs)
         return read_shdom_les(p, **kwargs)
-    wrf_like = "wrf" in p.name.lower() or p.name.lower().startswith(("geo_em", "met_em"))
-    if suffix and suffix not in _NETCDF_SUFFIXES and not suffix[1:].isdigit() and not wrf_like:
-        raise SwimInputError(
-            f"scene file {p.name}: unknown kind '{suffix}'; expected netCDF (.nc: WRF or WPS output or a canonical "
-            "scene), GRIB (.grib2, .grb: NCEP GFS output) or an SHDOM-style LES text file (.txt)"
-        )
+    if kind == "unknown":
+        raise SwimInputError(unsupported_message(p.name, "neither GRIB, netCDF nor an SHDOM-style LES text file"))
     from .files import open_netcdf
 
     with open_netcdf(p, "scene file") as ds:
-        if _is_wrf(ds):
-            from .wrf import read_wrf
-
-            _reader_options(read_wrf, "a WRF file", kwargs)
-            ds.load()
-            return read_wrf(ds, **kwargs)
-        if _is_wps(ds) and not {"height", "lat", "lon"} <= set(ds.variables):
-            from .wps import read_wps_geogrid
-
-            _reader_options(read_wps_geogrid, "a WPS file", kwargs)
-            ds.load()
-            return read_wps_geogrid(ds, source=str(p), **kwargs)
-        if {"height", "lat", "lon"} <= set(ds.variables):
-            time = _canonical_time(kwargs)
-            return _canonical_scene(validate_scene(ds.load()), p, time)
-    raise SwimInputError(
-        f"scene file {p.name} is netCDF but neither WRF output (PH, PHB, Times), WPS geo_em/met_em output (HGT_M, "
-        "XLAT_M, XLONG_M) nor a canonical scene (height, lat, lon)"
-    )
+        fmt = netcdf_format(ds)
+        if fmt is None:
+            raise SwimInputError(unsupported_message(p.name, "a netCDF file of no layout swim knows"))
+        reader = fmt.load_reader()
+        if fmt.reader.endswith(":validate_scene"):
+            return _canonical_scene(validate_scene(ds.load()), p, _canonical_time(kwargs))
+        _reader_options(reader, f"a {fmt.name} file", kwargs)
+        if fmt.takes_path:
+            return reader(p, **kwargs)
+        ds.load()
+        if "source" in inspect.signature(reader).parameters:
+            kwargs = {"source": str(p), **kwargs}
+        return reader(ds, **kwargs)

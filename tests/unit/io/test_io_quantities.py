@@ -1,5 +1,6 @@
-"""Datasets from the xarray ecosystem accepted directly: unit-aware (pint) values from MetPy and pint-xarray, and WRF
-output post-processed by xwrf. Each is compared with the plain reading of the same real file."""
+"""Datasets from the xarray ecosystem accepted directly: unit-aware (pint) values, as pint-xarray's and MetPy's
+``quantify()`` make them (both hold pint quantities), and WRF output post-processed by xwrf. Each is compared with the
+plain reading of the same real file."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from swim.io.quantities import dequantified, has_quantities
 from swim.io.scene import as_scene, scene_from_arrays
 from swim.io.wrf_postprocessed import is_xwrf_dataset, raw_wrf_layout
 
-pytest.importorskip("metpy.xarray")  # registers the .metpy accessor (its registry reads CF unit strings)
+pytest.importorskip("pint_xarray")  # registers the .pint accessor
 TIME = "2005-08-28T18:00"
 
 
@@ -29,6 +30,17 @@ def katrina(shared_data):
 @pytest.fixture(scope="module")
 def katrina_scene(katrina):
     return read_wrf(katrina, time=TIME)
+
+
+def _quantified(ds, names):
+    """``ds`` with ``names`` as pint quantities in their canonical units (pint spells them its own way)."""
+    from swim.io.quantities import PINT_SPELLING
+
+    units = {n: PINT_SPELLING.get(ds[n].attrs["units"], ds[n].attrs["units"]) for n in names}
+    plain = ds.copy()
+    for n in plain.variables:
+        plain[n].attrs.pop("units", None)
+    return plain.pint.quantify(units)
 
 
 def _small_scene():
@@ -47,10 +59,10 @@ def test_plain_dataset_is_returned_as_it_is():
 
 def test_quantified_scene_in_other_units_is_converted_to_si():
     scene = _small_scene()
-    q = scene.metpy.quantify()
+    q = _quantified(scene, ["cloud_liquid_content", "height", "lat"])
     assert has_quantities(q)
-    q["cloud_liquid_content"] = q["cloud_liquid_content"].metpy.convert_units("g / m**3")  # 0.4 g m-3
-    q["height"] = q["height"].metpy.convert_units("km")
+    q["cloud_liquid_content"] = q["cloud_liquid_content"].pint.to("g / m**3")  # 0.4 g m-3
+    q["height"] = q["height"].pint.to("km")
     out = validate_scene(q)
     assert not has_quantities(out)
     assert out["cloud_liquid_content"].attrs["units"] == "kg m-3"
@@ -59,15 +71,15 @@ def test_quantified_scene_in_other_units_is_converted_to_si():
 
 
 def test_quantity_of_the_wrong_dimension_is_refused_by_name():
-    q = _small_scene().metpy.quantify()
+    q = _quantified(_small_scene(), ["cloud_liquid_content", "height"])
     q["cloud_liquid_content"] = q["cloud_liquid_content"] * q["height"]
     with pytest.raises(SwimInputError, match="cloud_liquid_content.*expected kg m-3"):
         validate_scene(q)
 
 
-def test_metpy_quantified_wrf_reads_like_the_file(katrina, katrina_scene):
-    q = katrina.metpy.quantify()
-    q["P"] = q["P"].metpy.convert_units("hPa")  # perturbation pressure in hPa: converted back, not misread
+def test_quantified_wrf_reads_like_the_file(katrina, katrina_scene):
+    q = _quantified(katrina, ["P", "PB", "PH", "PHB", "T", "QCLOUD", "QVAPOR", "HGT"])
+    q["P"] = q["P"].pint.to("hPa")  # perturbation pressure in hPa: converted back, not misread
     out = read_wrf(q, time=TIME)
     for name in katrina_scene.data_vars:
         np.testing.assert_allclose(out[name].values, katrina_scene[name].values, rtol=1e-6, atol=1e-15)  # float32 hPa

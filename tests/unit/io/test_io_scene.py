@@ -415,7 +415,7 @@ def test_open_scene_errors(tmp_path):
         open_scene(tmp_path / "nope.nc")
     bad = tmp_path / "image.png"
     bad.write_bytes(b"\x89PNG")
-    with pytest.raises(SwimInputError, match="unknown kind"):
+    with pytest.raises(SwimInputError, match="neither GRIB, netCDF nor an SHDOM-style LES.*scene_from_arrays"):
         open_scene(bad)
     junk = tmp_path / "junk.nc"
     junk.write_text("this is not netcdf")
@@ -423,7 +423,7 @@ def test_open_scene_errors(tmp_path):
         open_scene(junk)
     other = tmp_path / "other.nc"
     xr.Dataset({"foo": ("a", [1.0, 2.0])}).to_netcdf(other)
-    with pytest.raises(SwimInputError, match="neither WRF"):
+    with pytest.raises(SwimInputError, match="a netCDF file of no layout swim knows.*WRF wrfout.*canonical scene"):
         open_scene(other)
 
 
