@@ -19,6 +19,7 @@ from ..geometry.cameras import check_camera_options
 from ..geometry.level_of_detail import check_coarsening
 from ..geometry.sun import SunPosition, sun_from_angles, sun_position
 from ..rt.clouds import MIN_SUN_COSINE
+from ..optics.aerosol_types import AerosolType
 from ..rt.gas import AerosolBackground
 from ..rt.march_settings import MarchSettings
 
@@ -93,9 +94,9 @@ def checked_arguments(scene, request):
     height_m = None
     if isinstance(height, (int, float, np.integer, np.floating)) and not isinstance(height, (bool, np.bool_)):
         height_m = float(height)
-    if not (aerosol is None or isinstance(aerosol, (str, AerosolBackground))):
-        raise SwimInputError(f"aerosol must be None (the default background), an aerosol type name or an "
-                             f"AerosolBackground; got {aerosol!r} ({type(aerosol).__name__})")
+    if not (aerosol is None or isinstance(aerosol, (str, AerosolBackground, AerosolType))):
+        raise SwimInputError(f"aerosol must be None (the default background), an aerosol type name, an AerosolType "
+                             f"or an AerosolBackground; got {aerosol!r} ({type(aerosol).__name__})")
     filled_later = ()
     if "view_azimuth_deg" not in (camera_options or {}):  # default_perspective_view: the view, and from space its
         # field of view where no look_at is given (the ground's height, at most 9 km, not yet known)
@@ -131,13 +132,18 @@ def resolve_sun(time, scene, sun_zenith=None, sun_azimuth=None) -> SunPosition:
 def background_aerosol(aerosol, scene_vars) -> AerosolBackground:
     """The render's background aerosol (:func:`render`'s ``aerosol``): None gives the default background, or none
     where the scene has a 3-D ``aerosol_extinction`` (``scene_vars``: the scene's variable names); ``"none"`` no
-    background (a scene's 3-D aerosol stays); a type name that type with the default profile."""
+    background (a scene's 3-D aerosol stays); a type name, or an :class:`~swim.optics.aerosol_types.AerosolType`
+    (e.g. a model aerosol's effective type, :mod:`swim.optics.model_aerosol`), that type with the default profile,
+    or for the scene's 3-D aerosol alone where it has one."""
+    scene_aerosol = "aerosol_extinction" in scene_vars
     if aerosol is None:
-        return AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene_vars else AerosolBackground()
+        return AerosolBackground(aod_550=0.0) if scene_aerosol else AerosolBackground()
     if isinstance(aerosol, str) and aerosol.strip().lower() == "none":
         return AerosolBackground(aod_550=0.0)
     if isinstance(aerosol, str):
         return AerosolBackground(type_name=aerosol)
+    if isinstance(aerosol, AerosolType):
+        return AerosolBackground(aod_550=0.0, optics=aerosol) if scene_aerosol else AerosolBackground(optics=aerosol)
     return aerosol
 
 

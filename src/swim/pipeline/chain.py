@@ -14,6 +14,7 @@ from ..io.scene import as_scene
 from ..memory import release_compiled_programs, release_free_memory
 from ..rt import precompile
 from ..rt.backends import march
+from ..optics.aerosol_types import AerosolType
 from ..rt.gas import AerosolBackground
 from ..rt.image_sampling import AdaptiveSampling
 from ..rt.march_settings import ExecutionSettings, MarchSettings
@@ -41,7 +42,7 @@ TRIM_MIN_PIXELS = 1 << 16
 
 def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, camera="allsky",
            camera_options=None, sun_zenith=None, sun_azimuth=None, look_at=None,
-           aerosol: AerosolBackground | None = None, settings: MarchSettings = MarchSettings(),
+           aerosol: AerosolBackground | AerosolType | str | None = None, settings: MarchSettings = MarchSettings(),
            white_level=None, exposure: float = 0.0, progress=None, crop: bool = True,
            sampling: AdaptiveSampling | None = None, coarsen=None, check_memory: bool = True,
            execution: ExecutionSettings | None = None) -> xr.Dataset:
@@ -68,10 +69,11 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
         (lat [deg], lon [deg], height [m above sea level]) for a perspective camera. Without it (and
         without view angles) a camera above 100 km looks straight down and fits the domain in its field
         of view, and a lower one looks at the horizon towards the north.
-    aerosol : AerosolBackground or str, optional
-        Background 1-D aerosol and the type of all aerosol (a type name alone keeps the default profile,
-        docs/aerosols.md); ``"none"``: no background aerosol; default: type "continental", AOD 0.05 at 550 nm,
-        or no background where the scene has a 3-D ``aerosol_extinction`` (which a scene's 3-D aerosol keeps).
+    aerosol : AerosolBackground, AerosolType or str, optional
+        Background 1-D aerosol and the type of all aerosol (a type name or an ``AerosolType`` alone keeps the default
+        profile, or none where the scene has a 3-D ``aerosol_extinction``; docs/aerosols.md); ``"none"``: no
+        background aerosol; default: type "continental", AOD 0.05 at 550 nm, or no background where the scene has
+        a 3-D ``aerosol_extinction`` (which a scene's 3-D aerosol keeps).
     settings : MarchSettings
         What the march computes and how accurately: its step counts, the scattering and the ground.
     white_level : float or "auto", optional
