@@ -8,6 +8,13 @@ Public API: :func:`open_scene`, :func:`default_scene`, :func:`scene_from_arrays`
 """
 
 import logging
+from importlib.util import find_spec
+
+if find_spec("pyproj") is not None:
+    # PROJ's bundled libraries must load before ecCodes' (eccodeslib wheels), which xarray loads whenever it guesses
+    # a file's engine (cfgrib's backend): the other way round pyproj finds no database and the process aborts at exit.
+    # xwrf imports pyproj, so a WRF dataset post-processed by xwrf after any file was opened would crash (~80 ms).
+    import pyproj  # noqa: F401
 
 __version__ = "0.1.0"
 
@@ -19,6 +26,8 @@ _API = {
     "validate_scene": "swim.io.scene",
     "default_scene": "swim.io.default_scene",
     "read_wrf": "swim.io.wrf",
+    "as_scene": "swim.io.scene",
+    "read_ecmwf": "swim.io.ecmwf",
     "read_shdom_les": "swim.io.les",
     "render": "swim.pipeline",
     "write_image": "swim.io.outputs",

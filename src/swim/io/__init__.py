@@ -1,21 +1,27 @@
 """swim.io: scene input.
 
-The canonical scene format (``docs/scene-format.md``), its validation, readers for WRF output, WPS
-``geo_em``/``met_em`` files (clear-sky scenes), NCEP GFS GRIB output and SHDOM-style LES text files,
+The canonical scene format (``docs/scene-format.md``), its validation, readers for WRF output (raw or through
+xwrf), WPS ``geo_em``/``met_em`` files (clear-sky scenes), NCEP GFS GRIB output, ECMWF ERA5/IFS output on pressure
+and model levels and SHDOM-style LES text files,
 SURFRAD/BSRN/MIDC radiation observations, a numpy-array helper and the built-in default scene.
 """
 
 from .default_scene import default_scene
+from .ecmwf import read_ecmwf, read_era5_pressure_levels, read_ifs_model_levels
 from .grib import read_gfs_grib
 from .les import read_shdom_les
 from .observations import read_observations
-from .scene import layer_thickness, open_scene, scene_from_arrays, validate_scene
+from .scene import as_scene, layer_thickness, open_scene, scene_from_arrays, validate_scene
 from .surfrad import read_surfrad
 from .wps import read_wps_geogrid
 from .wrf import read_wrf
 
 __all__ = [
+    "as_scene",
     "default_scene",
+    "read_ecmwf",
+    "read_era5_pressure_levels",
+    "read_ifs_model_levels",
     "read_gfs_grib",
     "layer_thickness",
     "open_scene",

@@ -64,10 +64,23 @@ def _is_wps(ds: xr.Dataset) -> bool:
     return {"HGT_M", "XLAT_M", "XLONG_M"} <= set(ds.variables) and not {"height", "lat", "lon"} <= set(ds.variables)
 
 
+def _ecmwf(kind: str) -> Callable[[xr.Dataset], bool]:
+    def detect(ds: xr.Dataset) -> bool:
+        from .ecmwf import ecmwf_kind
+
+        return ecmwf_kind(ds) == kind
+
+    return detect
+
+
 #: The netCDF layouts, tried in order (the canonical scene last: another model's file may hold a ``height``).
 NETCDF_FORMATS: list[SceneFormat] = [
     SceneFormat("WRF wrfout", "swim.io.wrf:read_wrf", "PH, PHB, Times (or a WRF TITLE)", _is_wrf),
     SceneFormat("WPS geo_em/met_em", "swim.io.wps:read_wps_geogrid", "HGT_M, XLAT_M, XLONG_M", _is_wps),
+    SceneFormat("ECMWF pressure levels (ERA5)", "swim.io.ecmwf:read_era5_pressure_levels",
+                "t, q, clwc/ciwc/crwc/cswc on level/pressure_level [hPa]", _ecmwf("era5_pressure_levels")),
+    SceneFormat("ECMWF model levels (IFS L137, NWP SAF profiles)", "swim.io.ecmwf:read_ifs_model_levels",
+                "t, q, clwc.. with lnsp/sp and z; or temp, hum, paph, psurf on point", _ecmwf("ifs_model_levels")),
     SceneFormat("canonical scene", "swim.io.scene:validate_scene", "height, lat, lon, terrain_height (z, y, x)",
                 _has("height", "lat", "lon")),
 ]

@@ -40,7 +40,7 @@ def test_an_aerosol_that_is_not_a_type_or_background_is_refused(scene, aerosol):
 
 
 def test_a_misspelt_reader_option_is_named(shared_data):
-    with pytest.raises(SwimInputError, match="unknown option.*'tme'.*WRF file.*time"):
+    with pytest.raises(SwimInputError, match="unknown option.*'tme'.*WRF wrfout file.*time"):
         swim.open_scene(shared_data / "wrf_katrina" / "ci_test_file.nc", tme="2005-08-28T18:00")
     with pytest.raises(SwimInputError, match="unknown option.*'lat'.*LES file.*reference_lat"):
         swim.open_scene(shared_data / "les" / "rico122x106x39.txt", lat=10.0)
