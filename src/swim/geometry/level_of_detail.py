@@ -63,7 +63,8 @@ __all__ = ["coarsen_scene", "coarsening_factor", "check_coarsening", "resolve_co
 #: The ways :func:`coarsen_scene` makes a block's column (see the module's docstring).
 METHODS = ("sample", "effective_thickness", "mean")
 #: Variables averaged over a block as they are.
-_MEANS = ("height", "terrain_height", "aerosol_extinction", "surface_albedo", "snow_cover", "wind_speed_10m")
+_MEANS = ("height", "terrain_height", "aerosol_extinction", "smoke_mass_content", "surface_albedo", "snow_cover",
+          "wind_speed_10m")
 #: Columns of the lat/lon grid read per axis to find the grid's spacing and its nearest point to a camera (every
 #: n-th; the 2-D fields of a CONUS grid are 1.9 million columns).
 _SAMPLE = 256

@@ -47,6 +47,7 @@ from .scene_checks import (
     TERRAIN_RANGE_M as TERRAIN_RANGE_M,
     WIND_SPEED_RANGE_M_S,
     _check_aerosol,
+    _check_smoke,
     _check_contents,
     _check_dataset,
     _check_height,
@@ -249,6 +250,8 @@ def validate_scene(ds: xr.Dataset) -> xr.Dataset:
     out.update(_check_radii(ds, shape, contents))
     if "aerosol_extinction" in ds.variables:
         out["aerosol_extinction"] = _check_aerosol(ds, shape)
+    if "smoke_mass_content" in ds.variables:
+        out["smoke_mass_content"] = _check_smoke(ds, shape)
     variables, coords = _check_surface(ds, shape[1:])
     out.update(variables)
     lat, lon = out["lat"].values, out["lon"].values
@@ -379,7 +382,7 @@ def _volume_fields(shape: tuple[int, int, int], given: dict) -> dict:
     data = {}
     for name, value in given.items():
         if value is not None:
-            if name in CONTENT_VARIABLES + ("aerosol_extinction",) and np.ndim(value) != 3:
+            if name in CONTENT_VARIABLES + ("aerosol_extinction", "smoke_mass_content") and np.ndim(value) != 3:
                 raise SwimInputError(f"{name} must have shape (nz, ny, nx) = {shape}; got {np.shape(value)}")
             data[name] = _array_field(name, value, shape, _3D)
     return data
@@ -414,6 +417,7 @@ def scene_from_arrays(
     snow_effective_radius=None,
     graupel_effective_radius=None,
     aerosol_extinction=None,
+    smoke_mass_content=None,
     surface_albedo=None,
     land_mask=None,
     snow_cover=None,
@@ -443,6 +447,9 @@ graupel_effective_radius : array_like, optional
         Shape (nz, ny, nx) or scalar [m].
     aerosol_extinction : array_like, optional
         Shape (nz, ny, nx) [m-1 at 550 nm].
+    smoke_mass_content : array_like, optional
+        (z, y, x) smoke mass concentration [kg m-3]; the renderer adds its extinction to the aerosol's (4.5 m2 g-1 at
+        550 nm, :func:`swim.optics.model_aerosol.smoke_extinction`).
     surface_albedo : array_like, optional
         Shape (3, ny, nx) for [615, 546, 450] nm, (ny, nx), (3,) or scalar [-], broadcast to (3, ny, nx):
         the snow-free albedo.
@@ -485,6 +492,7 @@ graupel_effective_radius : array_like, optional
         "cloud_ice_effective_radius": cloud_ice_effective_radius, "rain_effective_radius": rain_effective_radius,
         "snow_effective_radius": snow_effective_radius, "graupel_effective_radius": graupel_effective_radius,
         "aerosol_extinction": aerosol_extinction,
+        "smoke_mass_content": smoke_mass_content,
     }))
     if surface_albedo is not None:
         data["surface_albedo"], coords["wavelength"] = _albedo_field(surface_albedo, ny, nx)

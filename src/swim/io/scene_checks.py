@@ -32,6 +32,8 @@ MAX_CONTENT_KG_M3 = 0.05
 NEGATIVE_NOISE_KG_M3 = 1e-12
 #: Plausible range of an effective radius where there is content [m].
 RADIUS_RANGE_M = (1e-7, 0.1)
+#: Largest plausible smoke mass concentration [kg m-3]: 10 000 ug m-3, beyond the densest plumes measured near fires.
+MAX_SMOKE_KG_M3 = 1e-2
 #: Largest plausible aerosol extinction at 550 nm [m-1] (visibility ~ 80 m); larger values mean wrong units.
 MAX_AEROSOL_EXTINCTION_M1 = 0.05
 #: Plausible range of terrain height [m].
@@ -58,6 +60,7 @@ _LONG_NAMES = {
     "snow_effective_radius": "snow effective radius",
     "graupel_effective_radius": "graupel effective radius",
     "aerosol_extinction": "aerosol extinction coefficient at 550 nm",
+    "smoke_mass_content": "smoke (biomass-burning aerosol) mass concentration",
     "surface_albedo": "surface spectral albedo",
     "land_mask": "land mask (1 land, 0 water)",
     "snow_cover": "fraction of the surface covered by snow or ice",
@@ -74,6 +77,7 @@ _UNITS = {
     "lon": "degrees_east",
     "terrain_height": "m",
     "aerosol_extinction": "m-1",
+    "smoke_mass_content": "kg m-3",
     "surface_albedo": "1",
     "land_mask": "1",
     "snow_cover": "1",
@@ -91,7 +95,7 @@ _CANONICAL_VARIABLES = (
     ("height", "lat", "lon", "terrain_height")
     + CONTENT_VARIABLES
     + RADIUS_VARIABLES
-    + ("aerosol_extinction", "surface_albedo", "land_mask", "snow_cover", "wind_speed_10m")
+    + ("aerosol_extinction", "smoke_mass_content", "surface_albedo", "land_mask", "snow_cover", "wind_speed_10m")
 )
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -454,6 +458,21 @@ def _check_aerosol(ds: xr.Dataset, shape: tuple[int, int, int]) -> xr.DataArray:
         raise SwimInputError(
             f"{name}: max {stats['max']:.4g} m-1 exceeds {MAX_AEROSOL_EXTINCTION_M1:g} m-1 (visibility < 80 m); "
             "expected m-1 at 550 nm (km-1 must be multiplied by 1e-3)"
+        )
+    return xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))
+
+
+def _check_smoke(ds: xr.Dataset, shape: tuple[int, int, int]) -> xr.DataArray:
+    """Check ``smoke_mass_content`` [kg m-3]: finite, not negative beyond numerical noise (clipped to 0), at most
+    :data:`MAX_SMOKE_KG_M3`."""
+    name = "smoke_mass_content"
+    da, values, stats = _volume(ds, name, shape)
+    _finite_or_raise(name, values, stats["not finite"])
+    values = _clip_noise(name, values, stats["negative"])
+    if stats["max"] > MAX_SMOKE_KG_M3:
+        raise SwimInputError(
+            f"{name}: max {stats['max']:.4g} kg m-3 exceeds {MAX_SMOKE_KG_M3:g} kg m-3 (10 000 ug m-3); expected kg "
+            "m-3 (ug m-3 must be multiplied by 1e-9)"
         )
     return xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))
 

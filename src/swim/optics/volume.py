@@ -30,6 +30,7 @@ from ..frames import orthographic_xy
 from ..io.scene import DEFAULT_WIND_SPEED_M_S
 from ..workers import in_blocks, parallel_map, threads
 from .hydrometeors import effective_radius, extinction_coefficient_stephens1978
+from .model_aerosol import smoke_extinction
 
 log = logging.getLogger(__name__)
 
@@ -375,9 +376,9 @@ def _resampled_extinction(scene: xr.Dataset, height, terrain, levels):
         if f"{species}_content" in scene:
             _species_extinction(scene, n, species, interpolation, flat[n], blocks, workers, radius_sums[species])
 
-    if "aerosol_extinction" in scene:
+    if "aerosol_extinction" in scene or "smoke_mass_content" in scene:
         aerosol = np.empty((nk, ny * nx), np.float32)
-        values = scene["aerosol_extinction"].values
+        values = _aerosol_extinction_550(scene)
 
         def aerosol_block(block):
             j0, j1 = block
@@ -389,6 +390,16 @@ def _resampled_extinction(scene: xr.Dataset, height, terrain, levels):
         # no 3-D aerosol: a read-only broadcast of zero, which takes no memory (100 MB at 400 x 400 x 160)
         aerosol = np.broadcast_to(np.float32(0.0), (nk, ny, nx))
     return extinction, aerosol, radius_sums
+
+
+def _aerosol_extinction_550(scene: xr.Dataset) -> np.ndarray:
+    """The scene's 3-D aerosol extinction at 550 nm [m-1] (z, y, x): ``aerosol_extinction`` plus the extinction of
+    ``smoke_mass_content`` [kg m-3] through the smoke's mass extinction efficiency
+    (:func:`swim.optics.model_aerosol.smoke_extinction`)."""
+    values = scene["aerosol_extinction"].values if "aerosol_extinction" in scene else 0.0
+    if "smoke_mass_content" in scene:
+        values = values + smoke_extinction(scene["smoke_mass_content"].values)
+    return values
 
 
 def _species_extinction(scene: xr.Dataset, n, species, interpolation: ColumnInterpolation, flat, blocks, workers,

@@ -131,11 +131,14 @@ def resolve_sun(time, scene, sun_zenith=None, sun_azimuth=None) -> SunPosition:
 
 def background_aerosol(aerosol, scene_vars) -> AerosolBackground:
     """The render's background aerosol (:func:`render`'s ``aerosol``): None gives the default background, or none
-    where the scene has a 3-D ``aerosol_extinction`` (``scene_vars``: the scene's variable names); ``"none"`` no
+    where the scene has a 3-D ``aerosol_extinction`` or ``smoke_mass_content`` (of type ``smoke`` where it has only
+    smoke) (``scene_vars``: the scene's variable names); ``"none"`` no
     background (a scene's 3-D aerosol stays); a type name, or an :class:`~swim.optics.aerosol_types.AerosolType`
     (e.g. a model aerosol's effective type, :mod:`swim.optics.model_aerosol`), that type with the default profile,
     or for the scene's 3-D aerosol alone where it has one."""
-    scene_aerosol = "aerosol_extinction" in scene_vars
+    scene_aerosol = "aerosol_extinction" in scene_vars or "smoke_mass_content" in scene_vars
+    if aerosol is None and "aerosol_extinction" not in scene_vars and "smoke_mass_content" in scene_vars:
+        return AerosolBackground(aod_550=0.0, type_name="smoke")  # the scene's aerosol is all smoke
     if aerosol is None:
         return AerosolBackground(aod_550=0.0) if scene_aerosol else AerosolBackground()
     if isinstance(aerosol, str) and aerosol.strip().lower() == "none":

@@ -28,3 +28,10 @@ def test_aerosol_type_applies_to_the_scene_field_alone():
 def test_other_aerosol_arguments_are_refused_by_name():
     with pytest.raises(SwimInputError, match="aerosol must be None.*AerosolType"):
         render(default_scene(), aerosol=0.3, camera_options={"size": 9})
+
+
+def test_a_scene_of_smoke_alone_renders_with_the_smoke_type():
+    got = background_aerosol(None, {"height", "smoke_mass_content"})
+    assert got.type_name == "smoke" and got.aod_550 == 0.0
+    mixed = background_aerosol(None, {"height", "smoke_mass_content", "aerosol_extinction"})
+    assert mixed.type_name == AerosolBackground().type_name and mixed.aod_550 == 0.0
