@@ -3,7 +3,10 @@
 A global file is cut to the region around the camera's place: the smallest box of grid columns that holds every
 column within ``radius_deg`` (great-circle distance) of (lat, lon), taken across the 0/360 deg seam where the box
 crosses it. The scene keeps the 2-D ``lat``/``lon`` of the columns (like a WRF scene, it has no ``x``/``y``
-coordinates); its reference point is (lat, lon).
+coordinates); its reference point is (lat, lon). The file's message headers are indexed once (:func:`grib_index`)
+for all the groups of messages read; a message's values are decoded when the region is taken from them.
+:func:`grib_reader_for` tells a GFS file from NCEP HRRR/RAP output (:mod:`swim.io.grib_ncep`) by its first
+message.
 
 Formulas:
 
@@ -36,6 +39,8 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "read_gfs_grib",
+    "grib_reader_for",
+    "grib_index",
     "is_grib_file",
     "GRIB_SUFFIXES",
     "DEFAULT_RADIUS_DEG",
@@ -88,6 +93,83 @@ def is_grib_file(path) -> bool:
             return f.read(4) == b"GRIB"
     except OSError:
         return False
+
+
+_READERS = ("swim reads GRIB2 of NCEP GFS on a regular latitude-longitude grid (swim.io.read_gfs_grib), of NCEP "
+            "HRRR/RAP on a Lambert conformal or NCEP rotated lat-lon grid (swim.io.grib_ncep.read_ncep_grib) and of "
+            "ECMWF ERA5/IFS (swim.io.read_ecmwf); for other model output build a canonical scene with "
+            "swim.scene_from_arrays (docs/scene-format.md)")
+#: NCEP generating processes (ON388 Table A) read by :func:`swim.io.grib_ncep.read_ncep_grib`: 83 HRRR, 105 RAP.
+NCEP_HRRR_RAP_PROCESSES = {83: "HRRR", 105: "RAP"}
+#: Grids (ecCodes ``gridType``) of the NCEP regional models: HRRR/RAP Lambert conformal, RAP's rotated lat-lon.
+NCEP_REGIONAL_GRIDS = {"lambert", "ncep_32769"}
+
+
+def _first_message(path: Path, label: str) -> dict:
+    """Centre, generating process, grid type and edition of the first GRIB message of ``path``."""
+    try:
+        import eccodes
+    except ImportError as exc:
+        raise SwimInputError(f"{label}: reading GRIB needs cfgrib and ecCodes: "
+                             "pip install 'swim-imagery[grib]'") from exc
+    try:
+        with open(path, "rb") as f:
+            h = eccodes.codes_grib_new_from_file(f, headers_only=True)
+            if h is None:
+                raise SwimInputError(f"{label}: holds no GRIB message; {_READERS}")
+            try:
+                keys = ("centre", "generatingProcessIdentifier", "gridType", "edition")
+                return {k: eccodes.codes_get(h, k) if eccodes.codes_is_defined(h, k) else None for k in keys}
+            finally:
+                eccodes.codes_release(h)
+    except (eccodes.GribInternalError, OSError) as exc:
+        raise SwimInputError(f"{label}: not readable as GRIB ({exc}); {_READERS}") from exc
+
+
+def grib_reader_for(path):
+    """The reader of a GRIB file, chosen from its first message.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A GRIB file.
+
+    Returns
+    -------
+    callable
+        :func:`swim.io.grib_ncep.read_ncep_grib` for NCEP HRRR or RAP output (centre ``kwbc`` with generating
+        process 83 or 105, or on a Lambert conformal or NCEP rotated lat-lon grid); :func:`swim.io.ecmwf.read_ecmwf`
+        for ECMWF output (centre ``ecmf``: ERA5, IFS); :func:`read_gfs_grib` for another regular
+        latitude-longitude or Gaussian grid (NCEP GFS). All take ``(path, lat=, lon=, radius_deg=, time=)``.
+
+    Raises
+    ------
+    SwimInputError
+        If the file is missing or not readable as GRIB, or its first message is on a grid neither reader handles
+        (the message names the centre, process and grid found, and what is expected).
+    """
+    p = Path(path)
+    label = f"GRIB file {p.name}"
+    if not p.is_file():
+        raise SwimInputError(f"GRIB file not found: {p}")
+    first = _first_message(p, label)
+    process = first["generatingProcessIdentifier"]
+    if first["centre"] == "kwbc" and (process in NCEP_HRRR_RAP_PROCESSES or first["gridType"] in NCEP_REGIONAL_GRIDS):
+        from .grib_ncep import read_ncep_grib
+
+        return read_ncep_grib
+    if first["centre"] == "ecmf":
+        try:
+            from .ecmwf import read_ecmwf
+        except ImportError:
+            pass
+        else:
+            return read_ecmwf
+    if first["gridType"] in ("regular_ll", "regular_gg"):
+        return read_gfs_grib
+    raise SwimInputError(
+        f"{label}: centre {first['centre']}, generating process {process}, grid {first['gridType']!r} (GRIB"
+        f"{first['edition']}): no reader of swim handles it; {_READERS}")
 
 
 def geometric_height(geopotential_height):
@@ -268,20 +350,67 @@ def region_columns(lat, lon, lat0, lon0, radius_deg, wrap=True):
     return rows, cols, lon0 + offset[cols]
 
 
-def _open_messages(path: Path, type_of_level: str, short_names, label: str, **keys) -> xr.Dataset:
-    """The messages of ``path`` on ``type_of_level`` with these short names (and other GRIB ``keys``), as cfgrib
-    reads them; no index file is written next to the data."""
+def _cfgrib(label: str):
     try:
-        import cfgrib  # noqa: F401  (the xarray engine)
+        import cfgrib
     except ImportError as exc:
         raise SwimInputError(f"{label}: reading GRIB needs cfgrib and ecCodes: "
                              "pip install 'swim-imagery[grib]'") from exc
+    return cfgrib
+
+
+def grib_index(path: Path, label: str):
+    """One cfgrib index of the headers of every message of ``path``, read once and shared by all the groups of
+    messages a reader opens (:func:`_open_messages`); no index file is written. None where this cfgrib's
+    internals differ from 0.9.x: each group then indexes the file itself (the same result, slower)."""
+    _cfgrib(label)
+    try:
+        from cfgrib import dataset as cfdataset
+        from cfgrib import messages as cfmessages
+
+        keys = cfdataset.compute_index_keys(filter_by_keys=dict.fromkeys(("typeOfLevel", "shortName", "level")))
+        stream = cfmessages.FileStream(str(path))
+        return cfmessages.FileIndex.from_fieldset(stream, keys, cfdataset.cfmessage.COMPUTED_KEYS)
+    except (ImportError, AttributeError, TypeError) as exc:
+        logger.debug("cfgrib's index API differs (%s): each group of messages indexes %s", exc, label)
+        return None
+    except (EOFError, OSError, ValueError, RuntimeError, KeyError) as exc:
+        raise SwimInputError(f"{label}: not readable as GRIB ({exc}); {_HOW_TO}") from exc
+
+
+def _from_index(index, filter_by_keys) -> xr.Dataset:
+    """The lazily decoded dataset of the messages of ``index`` that match ``filter_by_keys``, as
+    ``xarray.open_dataset(engine="cfgrib")`` builds it (cfgrib 0.9.x: ``open_from_index``, CF decoding)."""
+    from cfgrib import dataset as cfdataset
+    from cfgrib.xarray_plugin import ECCODES_LOCK, CfGribDataStore
+    from xarray.backends.locks import ensure_lock
+
+    class _IndexStore(CfGribDataStore):
+        def __init__(self, ds):  # noqa: D401 (the store of an opened cfgrib dataset)
+            self.lock, self.ds = ensure_lock(ECCODES_LOCK), ds
+
+    store = _IndexStore(cfdataset.open_from_index(index.subindex(filter_by_keys)))
+    variables, attributes = store.load()
+    variables, attributes, coord_names = xr.conventions.decode_cf_variables(variables, attributes)
+    return xr.Dataset(variables, attrs=attributes).set_coords(coord_names.intersection(variables))
+
+
+def _open_messages(path: Path, type_of_level: str, short_names, label: str, index=None, **keys) -> xr.Dataset:
+    """The messages of ``path`` on ``type_of_level`` with these short names (and other GRIB ``keys``), as cfgrib
+    reads them, lazily: a message's values are decoded when the region is taken from them. With ``index``
+    (:func:`grib_index`) the file's headers are not read again; no index file is written next to the data."""
+    _cfgrib(label)
     filter_by_keys = {"typeOfLevel": type_of_level, **keys}
     if short_names is not None:
         filter_by_keys["shortName"] = list(short_names)
     try:
+        if index is not None:
+            try:
+                return _from_index(index, filter_by_keys)
+            except (ImportError, AttributeError, TypeError) as exc:
+                logger.debug("cfgrib's index API differs (%s): opening %s by its name", exc, label)
         return xr.open_dataset(path, engine="cfgrib",
-                               backend_kwargs={"filter_by_keys": filter_by_keys, "indexpath": ""}).load()
+                               backend_kwargs={"filter_by_keys": filter_by_keys, "indexpath": ""})
     except (EOFError, OSError, ValueError, RuntimeError) as exc:
         raise SwimInputError(f"{label}: not readable as GRIB ({exc}); {_HOW_TO}") from exc
 
@@ -326,12 +455,12 @@ _GROUPS = {
 }
 
 
-def _read_messages(path: Path, time, label: str, groups) -> dict[str, xr.Dataset]:
-    """The datasets of the :data:`_GROUPS` named in ``groups``, each at one valid time."""
+def _read_messages(path: Path, time, label: str, groups, index=None) -> dict[str, xr.Dataset]:
+    """The datasets of the :data:`_GROUPS` named in ``groups``, each at one valid time, lazily decoded."""
     out = {}
     for key in groups:
         level_type, names, keys = _GROUPS[key]
-        ds = _at_time(_open_messages(path, level_type, names, label, **keys), time, label)
+        ds = _at_time(_open_messages(path, level_type, names, label, index=index, **keys), time, label)
         _check_units(ds, label)
         out[key] = ds
     return out
@@ -392,8 +521,8 @@ def _values(ds: xr.Dataset, name: str, rows, cols, levels=None) -> np.ndarray:
     if levels is not None:
         have = np.atleast_1d(da[_ISOBARIC].values).astype(float)
         da = da.isel({_ISOBARIC: [int(np.flatnonzero(np.isclose(have, p))[0]) for p in levels]})
-    values = np.asarray(da.values, dtype=float)
-    values = values[..., rows, :][..., cols]
+    # the region is taken from each message as it is decoded: a level's whole field is never kept
+    values = np.asarray(da.isel({da.dims[-2]: rows, da.dims[-1]: cols}).values, dtype=float)
     if not np.all(np.isfinite(values)):
         raise SwimInputError(f"GRIB variable {name} has {int(np.sum(~np.isfinite(values)))} missing or non-finite "
                              "value(s) in the region")
@@ -526,11 +655,12 @@ def read_gfs_grib(path, lat=None, lon=None, radius_deg=DEFAULT_RADIUS_DEG, time=
         raise SwimInputError(f"radius_deg={radius_deg!r} (--region-radius): expected (0, {MAX_RADIUS_DEG:g}] deg; "
                              "beyond it the orthographic scene frame squeezes the region's edges")
     # the condensate first: its grid tells whether the file is global before the rest is read
-    messages = _read_messages(p, time, label, ("clwmr",))
+    index = grib_index(p, label)
+    messages = _read_messages(p, time, label, ("clwmr",), index)
     if "clwmr" not in messages["clwmr"].data_vars:
         raise SwimInputError(f"{label} lacks clwmr on {_ISOBARIC}; {_HOW_TO}")
     rows, cols, longitudes, reference = _region(messages, lat, lon, radius_deg, label)
-    messages.update(_read_messages(p, time, label, ("t_gh", "r", "surface", "wind")))
+    messages.update(_read_messages(p, time, label, ("t_gh", "r", "surface", "wind"), index))
     levels = _require(messages, label)
     lats = messages["clwmr"]["latitude"].values.astype(float)[rows]
     dims3, dims2 = ("z", "y", "x"), ("y", "x")

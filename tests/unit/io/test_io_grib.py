@@ -173,7 +173,8 @@ def test_cli_renders_the_region_around_lat_lon(shared_data, tmp_path):
     assert result.exit_code == 0, result.output
     assert out.is_file() and "sun zenith 66." in result.output  # 45 N, 10 E on 2011-01-15 at 12 UTC
     result = CliRunner().invoke(app, ["render", "--region-radius", "8", "--size", "9", "--out", str(out)])
-    assert result.exit_code == 2 and "GRIB scene only" in result.output
+    assert result.exit_code == 2 and "--region-radius cuts the region of a GRIB" in result.output
+    assert "scene only" in result.output
 
 
 def test_the_cli_help_quotes_the_readers_radii():
@@ -183,4 +184,52 @@ def test_the_cli_help_quotes_the_readers_radii():
 
     command = typer.main.get_command(app).commands["render"]
     text = " ".join(next(p.help for p in command.params if p.name == "region_radius").split())
-    assert f"default {DEFAULT_RADIUS_DEG:g}, at most {MAX_RADIUS_DEG:g}" in text
+    assert f"{DEFAULT_RADIUS_DEG:g} for GFS" in text and f"at most {MAX_RADIUS_DEG:g}" in text
+
+
+# --- choosing the reader of a GRIB file ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name, reader", [(GRIB2, "read_gfs_grib"), (GRB, "read_gfs_grib"),
+                                          ("rap_native/rap.wrfnat.grib2", "read_ncep_grib"),
+                                          ("hrrr_smoke/hrrr.t00z.wrfprsf00-atmo-chem.grib2", "read_ncep_grib")])
+def test_grib_reader_for_the_sample_files(shared_data, name, reader):
+    """GFS (regular lat-lon), RAP (generating process 105, rotated lat-lon 3.32769) and HRRR (process 83,
+    Lambert conformal)."""
+    from swim.io.grib import grib_reader_for
+
+    assert grib_reader_for(_path(shared_data, name)).__name__ == reader
+
+
+def test_grib_reader_for_refuses_other_grids_and_non_grib(shared_data, tmp_path):
+    """A Lambert conformal grid of another centre than NCEP (here the HRRR message relabelled as the Canadian
+    Meteorological Centre's) is no model swim reads; a file named .grib2 that is not GRIB is refused too."""
+    import eccodes
+
+    from swim.io.grib import grib_reader_for
+
+    with open(_path(shared_data, "hrrr_smoke/hrrr.t00z.wrfprsf00-atmo-chem.grib2"), "rb") as f:
+        h = eccodes.codes_grib_new_from_file(f)
+    try:
+        eccodes.codes_set(h, "centre", 54)
+        (tmp_path / "cwao.grib2").write_bytes(eccodes.codes_get_message(h))
+    finally:
+        eccodes.codes_release(h)
+    with pytest.raises(SwimInputError, match="centre cwao, generating process 83, grid 'lambert'.*GRIB2 of NCEP GFS"):
+        grib_reader_for(tmp_path / "cwao.grib2")
+    (tmp_path / "junk.grib2").write_bytes(b"no GRIB here")
+    with pytest.raises(SwimInputError, match="junk.grib2: not readable as GRIB"):
+        grib_reader_for(tmp_path / "junk.grib2")
+
+
+def test_the_groups_share_one_index_and_decode_lazily(shared_data, monkeypatch):
+    """The file's headers are indexed once for all five groups of messages (cfgrib re-indexing the file per group
+    took 3-4 times longer), and no group is loaded whole before its region is cut."""
+    from swim.io import grib
+
+    calls, groups = [], []
+    index, open_messages = grib.grib_index, grib._open_messages
+    monkeypatch.setattr(grib, "grib_index", lambda *a: calls.append(a) or index(*a))
+    monkeypatch.setattr(grib, "_open_messages", lambda *a, **k: groups.append(open_messages(*a, **k)) or groups[-1])
+    scene = grib.read_gfs_grib(_path(shared_data, GRIB2), lat=45.0, lon=10.0, radius_deg=5.0)
+    assert len(calls) == 1 and len(groups) == 5 and scene.sizes["z"] == 21
+    assert not any(ds[name].variable._in_memory for ds in groups for name in ds.data_vars)
