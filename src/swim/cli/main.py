@@ -180,12 +180,13 @@ class _RenderOptions:
     """The argument and options of :func:`render`: each is the default of the parameter of the same name, where
     Typer reads it, and is declared here so that the command's signature stays short."""
 
-    scene = typer.Argument(None, help="Scene file (WRF wrfout netCDF, WPS geo_em/met_em netCDF, canonical "
-                           "netCDF, SHDOM LES .txt, NCEP GFS GRIB: the region around --lat/--lon); "
-                           "default: the built-in scene.")
+    scene = typer.Argument(None, help="Scene file, recognised by its content: WRF wrfout, WPS geo_em/met_em, "
+                           "canonical scene netCDF, SHDOM LES text; and, cut to the region around --lat/--lon: GRIB "
+                           "(NCEP GFS, HRRR, RAP; ECMWF), ERA5/IFS netCDF, ICON and MPAS netCDF "
+                           "(docs/scene-format.md); default: the built-in scene.")
     time = typer.Option(None, help="UTC time, ISO 8601 (default: the scene's time).")
-    lat = typer.Option(None, help="Observer latitude [deg] (default: domain centre; a GRIB scene's region is cut "
-                       "around --lat/--lon).")
+    lat = typer.Option(None, help="Observer latitude [deg] (default: domain centre; a GRIB, ERA5/IFS, ICON or "
+                       "MPAS scene's region is cut around --lat/--lon).")
     lon = typer.Option(None, help="Observer longitude [deg] (default: domain centre).")
     height = typer.Option(2.0, help="Observer height above the ground [m].")
     site = typer.Option(False, "--site", help="No scene file: a cloud-free site at --lat/--lon (flat ground at "
@@ -246,9 +247,9 @@ class _RenderOptions:
                                "Henyey-Greenstein per phase, e.g. 'liquid=0.85,ice=0.75'.")
     scene_lat = typer.Option(None, help="Place an LES scene (no coordinates of its own): centre latitude [deg].")
     scene_lon = typer.Option(None, help="Place an LES scene: centre longitude [deg].")
-    region_radius = typer.Option(None, "--region-radius", help="GRIB scenes: great-circle radius [deg] of the region "
-                                 "cut around --lat/--lon (default 15, at most 30: swim.io.grib.DEFAULT_RADIUS_DEG, "
-                                 "MAX_RADIUS_DEG).")
+    region_radius = typer.Option(None, "--region-radius", help="GRIB, ERA5/IFS, ICON and MPAS scenes: great-circle "
+                                 "radius [deg] of the region cut around --lat/--lon (default: the reader's, 15 for "
+                                 "GFS, 4 for HRRR/RAP; at most 30: swim.io.grib.DEFAULT_RADIUS_DEG, MAX_RADIUS_DEG).")
     out = typer.Option(None, help="Image output path, PNG, JPEG or TIFF by its suffix (default swim.png); with --end "
                        "a pattern such as "
                        "'frames/{time:%Y%m%dT%H%M}.png' (fields: index, time, lat, lon, height).")
@@ -476,12 +477,24 @@ def _les_placement(scene, scene_lat, scene_lon):
 
 
 def _grib_region(scene, lat, lon, region_radius):
-    """The reader options of a GRIB scene: its region is cut around --lat/--lon, of radius --region-radius."""
-    from ..io.grib import is_grib_file
+    """The reader options of a scene cut around the camera (GRIB, ERA5/IFS, ICON, MPAS: a reader that takes ``lat``,
+    ``lon`` and ``radius_deg``): its region is cut around --lat/--lon, of radius --region-radius."""
+    import inspect
 
-    if scene is None or not is_grib_file(scene):
+    from ..io.scene import scene_reader
+
+    reader = None
+    if scene is not None and scene.is_file():
+        try:
+            reader, _, dataset = scene_reader(scene)
+        except SwimInputError:
+            reader, dataset = None, None  # open_scene says why
+        if dataset is not None:
+            dataset.close()
+    takes = set(inspect.signature(reader).parameters) if reader is not None else set()
+    if not {"lat", "lon", "radius_deg"} <= takes:
         if region_radius is not None:
-            raise SwimInputError("--region-radius cuts the region of a GRIB scene only")
+            raise SwimInputError("--region-radius cuts the region of a GRIB, ERA5/IFS, ICON or MPAS scene only")
         return {}
     return {"lat": lat, "lon": lon, **_given(radius_deg=region_radius)}
 

@@ -73,6 +73,19 @@ def _ecmwf(kind: str) -> Callable[[xr.Dataset], bool]:
     return detect
 
 
+def _mesh(kind: str) -> Callable[[xr.Dataset], bool]:
+    def detect(ds: xr.Dataset) -> bool:
+        if kind == "icon":
+            from .icon import is_icon
+
+            return is_icon(ds)
+        from .unstructured import is_mpas
+
+        return is_mpas(ds)
+
+    return detect
+
+
 #: The netCDF layouts, tried in order (the canonical scene last: another model's file may hold a ``height``).
 NETCDF_FORMATS: list[SceneFormat] = [
     SceneFormat("WRF wrfout", "swim.io.wrf:read_wrf", "PH, PHB, Times (or a WRF TITLE)", _is_wrf),
@@ -81,6 +94,9 @@ NETCDF_FORMATS: list[SceneFormat] = [
                 "t, q, clwc/ciwc/crwc/cswc on level/pressure_level [hPa]", _ecmwf("era5_pressure_levels")),
     SceneFormat("ECMWF model levels (IFS L137, NWP SAF profiles)", "swim.io.ecmwf:read_ifs_model_levels",
                 "t, q, clwc.. with lnsp/sp and z; or temp, hum, paph, psurf on point", _ecmwf("ifs_model_levels")),
+    SceneFormat("ICON (triangular mesh or lat-lon)", "swim.io.icon:read_icon",
+                "clon, clat (or lat, lon) with z_mc/z_ifc and clw/cli/qc/qi/qr/qs/qg", _mesh("icon")),
+    SceneFormat("MPAS (Voronoi mesh)", "swim.io.unstructured:read_mpas", "latCell, lonCell, zgrid", _mesh("mpas")),
     SceneFormat("canonical scene", "swim.io.scene:validate_scene", "height, lat, lon, terrain_height (z, y, x)",
                 _has("height", "lat", "lon")),
 ]
@@ -115,6 +131,6 @@ def unsupported_message(name: str, what: str) -> str:
     """The message for a file no reader takes: what it is, the formats and their variables, and how to build a
     canonical scene instead."""
     formats = "; ".join(f"{f.name} ({f.expects})" for f in NETCDF_FORMATS)
-    return (f"scene file {name}: {what}. swim reads GRIB (NCEP GFS/HRRR/RAP, ECMWF), SHDOM-style LES text and these "
-            f"netCDF layouts: {formats}. For other model output build a canonical scene with "
+    return (f"scene file {name}: {what}. swim reads GRIB (NCEP GFS, HRRR, RAP; ECMWF), SHDOM-style LES "
+            f"text and these netCDF layouts: {formats}. For other model output build a canonical scene with "
             "swim.scene_from_arrays (docs/scene-format.md)")

@@ -29,7 +29,7 @@ import xarray as xr
 from ..constants import EARTH_RADIUS_M, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import scene_to_geodetic
-from .formats import LES_SUFFIXES as _LES_SUFFIXES
+from .formats import LES_SUFFIXES as _LES_SUFFIXES  # noqa: F401 (swim.series reads it here)
 from .formats import _is_wps, _is_wrf, file_kind, netcdf_format, unsupported_message
 from .quantities import dequantified
 from .scene_checks import (
@@ -609,14 +609,12 @@ def as_scene(ds: xr.Dataset, time=None) -> xr.Dataset:
 def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     """Open a scene file of any supported kind and return the validated canonical scene.
 
-    Dispatch: a netCDF file with WRF variables/attributes (``PH``, ``PHB``, ``Times`` or a WRF ``TITLE``) goes to
-    :func:`swim.io.wrf.read_wrf`; a WPS ``geo_em``/``met_em`` file (``HGT_M``, ``XLAT_M``, ``XLONG_M``) to
-    :func:`swim.io.wps.read_wps_geogrid` (a clear-sky scene); a netCDF file that already holds ``height``/``lat``/``lon`` is validated with
-    :func:`validate_scene`; a ``.txt`` (or ``.lwc``, ``.dat``) SHDOM-style LES file goes to
-    :func:`swim.io.les.read_shdom_les`; a GRIB file (one that starts with the bytes ``GRIB``, whatever its suffix,
-    or named ``.grib``, ``.grib2``, ``.grb``, ``.grb2``) goes to :func:`swim.io.grib.read_gfs_grib` (NCEP GFS
-    output). A file without a suffix (e.g. ``wrfout_d01_2005-08-28_00:00:00``), and a name containing "wrf" or
-    starting with "geo_em"/"met_em", is tried as netCDF.
+    Dispatch is on content (:mod:`swim.io.formats`, :func:`scene_reader`): a file that starts with ``GRIB`` goes to
+    :func:`swim.io.grib.grib_reader_for`'s reader (NCEP GFS, HRRR/RAP, ECMWF); a netCDF/HDF5 file to the first
+    layout of :data:`swim.io.formats.NETCDF_FORMATS` it matches (WRF, WPS ``geo_em``/``met_em``, ERA5 pressure
+    levels, IFS model levels, ICON, MPAS, the canonical scene); a text file whose header parses as an SHDOM-style LES
+    header (or named ``.txt``, ``.lwc``, ``.dat``) to :func:`swim.io.les.read_shdom_les`. Names and suffixes do not
+    matter otherwise.
 
     Parameters
     ----------
@@ -631,7 +629,8 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     **kwargs
         Passed to the reader (``time=`` for WRF; ``time=``, ``month=``, ``albedo_band=``, ``snow_above_m=`` for
         WPS files; ``reference_lat=``, ``reference_lon=``, ``time=`` for LES; ``lat=``, ``lon=`` (the camera's
-        place, needed for a global file), ``radius_deg=``, ``time=`` for GRIB).
+        place, needed for a global file), ``radius_deg=``, ``time=`` for GRIB, ERA5/IFS, ICON and MPAS files, and
+        each reader's own options, e.g. ``cloud_fraction=`` for ECMWF files; see their docstrings).
         A canonical netCDF scene takes ``time=`` only to check it against the file's time (1.5 h tolerance).
 
     Returns
@@ -647,34 +646,64 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     p = Path(path)
     if not p.is_file():
         raise SwimInputError(f"scene file not found: {p}")
-    kind = file_kind(p)
-    if kind == "grib":
-        from .grib import read_gfs_grib
-
-        _reader_options(read_gfs_grib, "a GRIB file", kwargs)
-        return read_gfs_grib(p, **kwargs)
-    if lazy:
+    if lazy and file_kind(p) != "grib":
         return _open_scene_lazily(p, **kwargs)
+    reader, kind, dataset = scene_reader(p)
+    if reader is validate_scene:
+        with dataset:
+            return _canonical_scene(validate_scene(dataset.load()), p, _canonical_time(kwargs))
+    _reader_options(reader, kind, kwargs)
+    if dataset is None:
+        return reader(p, **kwargs)
+    with dataset:
+        dataset.load()
+        if "source" in inspect.signature(reader).parameters:
+            kwargs = {"source": str(p), **kwargs}
+        return reader(dataset, **kwargs)
+
+
+def scene_reader(path):
+    """The reader of a scene file, from its content (:mod:`swim.io.formats`), without reading its fields.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        An existing file.
+
+    Returns
+    -------
+    reader : callable
+        The reader; :func:`validate_scene` for a canonical scene file.
+    kind : str
+        What the file is ("a WRF wrfout file"), for messages.
+    dataset : xarray.Dataset or None
+        The netCDF file opened (not loaded) where the reader takes a dataset; the caller closes it. None where the
+        reader takes the path (GRIB, LES text).
+
+    Raises
+    ------
+    SwimInputError
+        For a file no reader takes: the message lists the formats and how to build a canonical scene.
+    """
+    kind = file_kind(path)
+    if kind == "grib":
+        from .grib import grib_reader_for
+
+        return grib_reader_for(path), "a GRIB file", None
     if kind == "les":
         from .les import read_shdom_les
 
-        _reader_options(read_shdom_les, "an SHDOM-style LES file", kwargs)
-        return read_shdom_les(p, **kwargs)
+        return read_shdom_les, "an SHDOM-style LES file", None
     if kind == "unknown":
-        raise SwimInputError(unsupported_message(p.name, "neither GRIB, netCDF nor an SHDOM-style LES text file"))
+        raise SwimInputError(unsupported_message(path.name, "neither GRIB, netCDF nor an SHDOM-style LES text file"))
     from .files import open_netcdf
 
-    with open_netcdf(p, "scene file") as ds:
-        fmt = netcdf_format(ds)
-        if fmt is None:
-            raise SwimInputError(unsupported_message(p.name, "a netCDF file of no layout swim knows"))
-        reader = fmt.load_reader()
-        if fmt.reader.endswith(":validate_scene"):
-            return _canonical_scene(validate_scene(ds.load()), p, _canonical_time(kwargs))
-        _reader_options(reader, f"a {fmt.name} file", kwargs)
-        if fmt.takes_path:
-            return reader(p, **kwargs)
-        ds.load()
-        if "source" in inspect.signature(reader).parameters:
-            kwargs = {"source": str(p), **kwargs}
-        return reader(ds, **kwargs)
+    ds = open_netcdf(path, "scene file")
+    fmt = netcdf_format(ds)
+    if fmt is None:
+        ds.close()
+        raise SwimInputError(unsupported_message(path.name, "a netCDF file of no layout swim knows"))
+    if fmt.takes_path:
+        ds.close()
+        return fmt.load_reader(), f"a {fmt.name} file", None
+    return fmt.load_reader(), f"a {fmt.name} file", ds
