@@ -6,9 +6,10 @@ Usage::
     python scripts/make_validation_table.py [--out docs/validation.md] [--camera-size 121] [--no-stratus]
         [--no-3d]
 
-Sections: the clear sky against DISORT (Rayleigh, aerosol, a stratospheric layer), a uniform stratus deck
-against DISORT (GHI, zenith radiance, sky dome, top of the atmosphere), and the RICO LES cumulus field against
-the Mitsuba 3 Monte Carlo references cached in tests/data/validation. Every number is computed here (swim
+Sections: the clear sky against DISORT (Rayleigh, aerosol, a stratospheric layer, 3-D aerosol fields, a CAMS/IFS
+model-aerosol column), a uniform stratus deck against DISORT (GHI, zenith radiance, sky dome, top of the
+atmosphere), and the RICO LES cumulus field against the Mitsuba 3 Monte Carlo references cached in
+tests/data/validation. Every number is computed here (swim
 renders + ``swim.validation``); the page is generated, not edited by hand. Takes ~10 minutes on 2 cores.
 """
 
@@ -119,6 +120,102 @@ def aerosol3d_section(rows):
                        f"{_pct(sp['max_abs'][i])} |")
     out.append("")
     return out
+
+
+def run_cams(n_streams=32, camera_size=121):
+    """The CAMS/IFS model-aerosol column against DISORT (`swim.validation.cams`); (None, reason) without the data."""
+    from swim.validation.cams import compare_cams_column
+
+    data = ROOT.parent / "shared" / "data"
+    if not (data / "ecrad" / "ecrad_meridian.nc").is_file():
+        return None, f"ecRad's ecrad_meridian.nc and aerosol_ifs_49R1.nc not found under {data / 'ecrad'}"
+    r = compare_cams_column(data, camera_size=camera_size, n_streams=n_streams)
+    for key in CAMS_COMPARISONS:
+        s = r[key]
+        print(f"CAMS | {key:<22} | median {np.round(100 * s['median_abs'], 2)} | max {np.round(100 * s['max_abs'], 1)}"
+              f" | GHI {np.round(100 * s['ghi'], 2)}", flush=True)
+    return r, ""
+
+
+#: The CAMS section's comparisons: key of `compare_cams_column`, label.
+CAMS_COMPARISONS = {"swim_vs_mixture": "swim vs DISORT per-layer mixture",
+                    "swim_vs_effective": "swim vs DISORT effective type (the renderer)",
+                    "effective_vs_mixture": "DISORT effective type vs per-layer (the one-type approximation)"}
+
+
+def _span(values):
+    lo, hi = float(np.min(values)), float(np.max(values))
+    return f"{lo:.0f}" if round(lo) == round(hi) else f"{lo:.0f}–{hi:.0f}"
+
+
+def cams_near_sun_sentence(r):
+    """Where the one-type approximation errs (DISORT effective type vs per-layer mixture), and the goal."""
+    rel, scat = 100 * r["effective_vs_mixture"]["rel"], r["scattering_angle"]
+    near, mid, far = scat < 10.0, (scat >= 15.0) & (scat <= 40.0), scat > 90.0
+    angles = ", ".join(f"{a:.0f}°" for a in np.unique(np.round(scat[near])))
+    n = int(near.sum())
+    where = "the one sky-dome pixel" if n == 1 else f"the {n} sky-dome pixels"
+    at_max = all(scat[int(np.argmax(np.abs(r["swim_vs_mixture"]["rel"][:, i])))] < 10.0 for i in range(3))
+    head = "The maxima are at" if at_max else "Closest to the sun, at"
+    out = []
+    if n:
+        side = "fainter" if np.all(rel[near] < 0) else "brighter" if np.all(rel[near] > 0) else "off"
+        shape = " than the mixture's sharper forward peak (coarse sea salt)" if side == "fainter" else ""
+        out.append(f"{head} {where} {angles} from the sun: one mean-g HG lobe is {_span(np.abs(rel[near]))} % "
+                   f"{side} there{shape}")
+    if mid.any():
+        m = rel[mid]
+        word = ("brighter", m) if np.all(m > 0) else ("fainter", -m) if np.all(m < 0) else ("different", np.abs(m))
+        out.append(f"at 15–40° it is {_span(word[1])} % {word[0]}")
+    if far.any():
+        out.append(f"beyond 90° exact to < {max(1, int(np.ceil(np.max(np.abs(rel[far])))))} %")
+    med = float(np.max(r["swim_vs_mixture"]["median_abs"]))
+    goal = f"Goal median ≤ 5 %: **{'met' if med <= 0.05 else 'not met'}** ({100 * med:.2f} %)."
+    return ("; ".join(out) + ". " + goal).lstrip(". ")
+
+
+def cams_section(r):
+    """docs/validation.md's CAMS section from :func:`swim.validation.cams.compare_cams_column`'s result."""
+    from swim.validation.cams import SCENE_DZ_M, SCENE_LEVELS, SUN_AZIMUTH_DEG, SURFACE_ALBEDO, species_shares
+
+    col, eff = r["column"], r["effective"]
+    species = ", ".join(name for name, _ in species_shares(col))
+    top_km = SCENE_DZ_M * (SCENE_LEVELS - 1) / 1e3
+    trio = "/".join
+    out = ["### Results: CAMS/IFS model aerosol (`tests/validation/test_cams_disort.py`)", "",
+           f"The IFS column of ecRad's `ecrad_meridian.nc` with the largest AOD equatorward of 35° ({col['lat']:.1f}° "
+           f"N, 135° E: {species}; AOD {col['aod_550']:.3f} at 550 nm), its own sun (zenith {r['sun_zenith']:.1f}°, "
+           f"azimuth set to {SUN_AZIMUTH_DEG:.0f}°), sea albedo {SURFACE_ALBEDO:g}. The 12 CAMS mixing ratios become "
+           "per-species extinction, ω and g with the IFS aerosol optics table "
+           "(`swim.optics.model_aerosol.cams_aerosol_optics`, docs/aerosols.md §10) on levels every "
+           f"{SCENE_DZ_M:.0f} m to {top_km:.1f} km (AOD above: {col['aod_550_above_scene']:.3f}, left out of both). "
+           "swim renders a horizontally uniform scene of the column's `aerosol_extinction` with the mixture's "
+           f"effective type (`effective_aerosol_type`: ω {trio(f'{v:.3f}' for v in eff.ssa)}, HG g "
+           f"{trio(f'{v:.3f}' for v in eff.asymmetry_parameter())}, α {eff.angstrom_exponent:.2f}) through "
+           f"`compare_ground_sky` ({r['camera_size']}² all-sky, {r['n_views']} sky-dome pixels > 5° from the sun); "
+           f"DISORT (`disort_layers_radiance`, {r['n_streams']} streams, {r['n_layers']} layers: the clear-sky edges "
+           "plus the aerosol levels) gets either the per-layer mixture (each layer its own spectral extinction, ω "
+           "and Legendre moments Σ_s β_s ω_s g_s^l / Σ_s β_s ω_s, one HG per species) or the effective type. The "
+           "computation is `swim.validation.cams.compare_cams_column`.", "",
+           "| comparison | λ [nm] | median abs. [%] | p90 [%] | median error (bias) [%] | max [%] | "
+           "max > 10° from the sun [%] | GHI error [%] | Pearson r |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    for key, label in CAMS_COMPARISONS.items():
+        s = r[key]
+        for i, wl in enumerate(WL):
+            out.append(f"| {label} | {wl} | {100 * s['median_abs'][i]:.2f} | {_pct(s['p90_abs'][i])} | "
+                       f"{100 * s['bias'][i]:+.1f} | {_pct(s['max_abs'][i])} | {_pct(s['max_far'][i])} | "
+                       f"{100 * s['ghi'][i]:+.2f} | {s['pearson_r'][i]:.3f} |")
+    out += ["", cams_near_sun_sentence(r), ""]
+    return out
+
+
+def cams_summary_line(r):
+    """The summary table's CAMS row: worst median |error| of swim against the per-layer mixture."""
+    med = float(np.max(r["swim_vs_mixture"]["median_abs"]))
+    return (f"| CAMS model aerosol (IFS column, AOD {r['column']['aod_550']:.3f}, one effective type) against DISORT "
+            f"with the per-layer mixture: median abs. radiance error ≤ 5 % per wavelength | {100 * med:.2f} % | "
+            f"{'yes' if med <= 0.05 else 'no'} | – |")
 
 
 def space_section(space):
@@ -331,7 +428,7 @@ def _worst(values):
     return max(values, key=abs) if values else float("nan")
 
 
-def summary_lines(rows, stratus, rico):
+def summary_lines(rows, stratus, rico, cams=None):
     """The accuracy goals with what swim reaches (worst case over cases and wavelengths)."""
     out = ["| goal | measured (worst case) | met | paper (Table 4) |", "|---|---|---|---|"]
     default = [r for r in rows if r[0] == "default"]
@@ -341,6 +438,8 @@ def summary_lines(rows, stratus, rico):
     ghi = _worst([float(x) for r in default for x in (r[4]["ghi_swim"] / r[4]["ghi_disort"] - 1)])
     out.append(f"| clear sky: GHI within 3 % | {100 * ghi:+.2f} % | {'yes' if abs(ghi) <= 0.03 else 'no'} | "
                f"{PAPER_CLEAR.split(';')[0]} |")
+    if cams:
+        out.append(cams_summary_line(cams))
     if stratus:
         thick = [r for r in stratus if 4.5 <= r["tau"] <= 55.0]  # nominal tau 5-50 (swim's tau is within 1 %)
         green = [r for r in thick if abs(r["wavelength_nm"] - 546.0) < 1]
@@ -363,7 +462,7 @@ def summary_lines(rows, stratus, rico):
 
 
 def markdown(rows, conv, camera_size, n_streams, elapsed, stratus=(), rico=(), rico_note="", space=(), aerosol3d=(),
-             clouds=(), clouds3d=(), clouds3d_note=""):
+             clouds=(), clouds3d=(), clouds3d_note="", cams=None):
     variants = list(dict.fromkeys(r[0] for r in rows))
     lay0 = clear_sky_layers(AerosolBackground(aod_550=0.0))
     ms_field = len(variants) > 1
@@ -378,7 +477,7 @@ def markdown(rows, conv, camera_size, n_streams, elapsed, stratus=(), rico=(), r
     w("")
     w("## Summary")
     w("")
-    lines.extend(summary_lines(rows, list(stratus), list(rico)))
+    lines.extend(summary_lines(rows, list(stratus), list(rico), cams))
     lines.extend(cloud_goal_lines(list(clouds), list(clouds3d)))
     w("")
     w("The paper's figures compare SWIm with measurements (pyranometer, all-sky camera), ours compare swim with "
@@ -476,6 +575,8 @@ def markdown(rows, conv, camera_size, n_streams, elapsed, stratus=(), rico=(), r
     w("")
     if aerosol3d:
         lines.extend(aerosol3d_section(list(aerosol3d)))
+    if cams:
+        lines.extend(cams_section(cams))
     if stratus:
         lines.extend(stratus_section(list(stratus)))
     if clouds:
@@ -588,13 +689,16 @@ def main():
     rows = run(args.camera_size, args.streams)
     space = run_space(args.streams)
     aerosol3d = run_aerosol3d(args.streams)
+    cams, cams_note = run_cams(args.streams, args.camera_size)
+    if cams is None:
+        print(f"CAMS section skipped: {cams_note}", flush=True)
     conv = convergence()
     stratus = [] if args.no_stratus else stratus_rows(args.streams)
     rico, note = ([], "") if args.no_3d else rico_rows()
     clouds = [] if args.no_stratus else cloud_rows(args.streams)
     clouds3d, note3d = ([], "skipped (--no-3d)") if args.no_3d else clouds3d_rows()
     text = markdown(rows, conv, args.camera_size, args.streams, time.time() - t0, stratus, rico, note, space,
-                    aerosol3d, clouds, clouds3d, note3d)
+                    aerosol3d, clouds, clouds3d, note3d, cams)
     out = Path(args.out)
     tmp = out.with_suffix(".md.tmp")
     tmp.write_text(text, encoding="utf-8")

@@ -6,7 +6,8 @@ its own sun (zenith 59°), over a sea surface (albedo 0.06). Its 12 CAMS mass mi
 extinction, ω and g with :func:`swim.optics.model_aerosol.cams_aerosol_optics`, on regular levels every 125 m up
 to 19.875 km (the scene's levels; the column's AOD above holds 0.4 % of it and is left out of both).
 
-Three DISORT runs and one render (docs/aerosols.md §10, docs/validation.md):
+Three DISORT runs and one render (docs/aerosols.md §10, docs/validation.md; the column, the layers and the scene
+come from :mod:`swim.validation.cams`, which scripts/make_validation_table.py uses for the page's section):
 
 * **DISORT, true mixture**: every layer its own ω and phase function, the scattering-weighted mixture of one
   Henyey-Greenstein function per species (the table gives each species' g only), and its own spectral extinction.
@@ -19,28 +20,23 @@ Three DISORT runs and one render (docs/aerosols.md §10, docs/validation.md):
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pytest
-import xarray as xr
 
 pytest.importorskip("disortpp")
 
-from swim.frames import enu_from_azimuth_zenith  # noqa: E402
-from swim.io.grib import moist_air_density  # noqa: E402
-from swim.io.scene import scene_from_arrays  # noqa: E402
-from swim.optics.legendre import phase_function_legendre_moments  # noqa: E402
-from swim.optics.model_aerosol import (  # noqa: E402
-    cams_aerosol_optics,
-    effective_aerosol_type,
-    read_ifs_aerosol_optics,
-    relative_humidity_liquid,
-)
 from swim.rt.gas import AerosolBackground  # noqa: E402
+from swim.validation.cams import (  # noqa: E402
+    SCENE_DZ_M,
+    SUN_AZIMUTH_DEG,
+    SURFACE_ALBEDO,
+    cams_column_scene,
+    cams_effective_type,
+    cams_layer_sets,
+    cams_validation_column,
+    scattering_angle,
+)
 from swim.validation.disort import (  # noqa: E402
-    _layer_edges,
-    clear_sky_layers,
     compare_ground_sky,
     disort_layers_irradiance,
     disort_layers_radiance,
@@ -48,97 +44,6 @@ from swim.validation.disort import (  # noqa: E402
 )
 
 pytestmark = pytest.mark.validation
-
-G = 9.80665
-SCENE_DZ_M = 125.0
-SCENE_LEVELS = 160
-SURFACE_ALBEDO = 0.06
-SUN_AZIMUTH_DEG = 135.0
-N_MOMENTS = 256
-
-
-@functools.lru_cache(maxsize=1)
-def _column(data_dir):
-    """The chosen column's per-species optics on the scene's regular levels."""
-    table = read_ifs_aerosol_optics(f"{data_dir}/ecrad/aerosol_ifs_49R1.nc")
-    with xr.open_dataset(f"{data_dir}/ecrad/ecrad_meridian.nc") as ds:
-        ph, th, q = ds["pressure_hl"].values, ds["temperature_hl"].values, ds["q"].values
-        mmr, lat, mu0 = ds["aerosol_mmr"].values, ds["lat"].values, ds["cos_solar_zenith_angle"].values
-    p, t = 0.5 * (ph[:, 1:] + ph[:, :-1]), 0.5 * (th[:, 1:] + th[:, :-1])
-    rh = relative_humidity_liquid(q, t, p)
-    rho = moist_air_density(p, t, rh)
-    optics = cams_aerosol_optics(mmr, rh, rho, table, species_axis=1, return_species=True)
-    dz = np.diff(ph, axis=1) / (G * rho)  # hydrostatic layer thickness [m]
-    aod = (optics["extinction"][..., 3] * dz).sum(axis=1)
-    i = int(np.argmax(np.where(np.abs(lat) < 35.0, aod, -1.0)))
-    z_hl = np.concatenate([np.cumsum(dz[i, ::-1])[::-1], [0.0]])  # half levels, top to bottom
-    z_full = 0.5 * (z_hl[1:] + z_hl[:-1])[::-1]  # increasing
-    beta = optics["species_extinction"][:, i, ::-1]  # (species, level, 4), increasing height
-    sca = beta * optics["species_ssa"][:, i, ::-1]
-    gsca = sca * optics["species_g"][:, i, ::-1]
-    nodes = SCENE_DZ_M * np.arange(SCENE_LEVELS)
-
-    def on_nodes(v):  # (species, level, 4) -> (species, node, 4): linear in height, constant below the lowest level
-        return np.stack([np.stack([np.interp(nodes, z_full, v[s, :, c]) for c in range(4)], axis=-1)
-                         for s in range(v.shape[0])])
-
-    return {"lat": float(lat[i]), "sun_zenith": float(np.degrees(np.arccos(mu0[i]))), "aod_550": float(aod[i]),
-            "aod_550_above_scene": float((optics["extinction"][i, :, 3] * dz[i])[z_hl[1:] >= nodes[-1]].sum()),
-            "nodes": nodes, "beta": on_nodes(beta), "sca": on_nodes(sca), "gsca": on_nodes(gsca)}
-
-
-def _effective(col):
-    beta = col["beta"].sum(axis=0)
-    sca = col["sca"].sum(axis=0)
-    return effective_aerosol_type(beta, sca / beta, col["gsca"].sum(axis=0) / sca, name="cams")
-
-
-def _layers(col, effective=None):
-    """DISORT layers: swim's clear atmosphere (Rayleigh) plus the column's aerosol, per species (true mixture) or
-    with the ``effective`` type; the aerosol is piecewise linear between the nodes, which are layer edges."""
-    nodes = col["nodes"]
-    edges = np.union1d(_layer_edges(60), nodes)[::-1]
-    layers = clear_sky_layers(AerosolBackground(aod_550=0.0), n_moments=N_MOMENTS, edges_m=edges)
-    top, bottom = edges[:-1], edges[1:]
-    mid, thick = 0.5 * (top + bottom), (top - bottom)
-    inside = (mid < nodes[-1])[:, None]
-
-    def layer(v):  # (species, nodes, 3) -> (species, layers, 3) optical depth of each layer
-        return np.stack([np.stack([np.interp(mid, nodes, v[s, :, c]) for c in range(3)], -1)
-                         for s in range(v.shape[0])]) * thick[None, :, None] * inside[None]
-
-    l_mom = np.arange(N_MOMENTS + 1)[None, :, None]
-    if effective is None:
-        dtau_s, sca_s, gsca_s = layer(col["beta"]), layer(col["sca"]), layer(col["gsca"])
-        g_s = np.where(sca_s > 0, gsca_s / np.where(sca_s > 0, sca_s, 1.0), 0.0)
-        dtau_a, sca_a = dtau_s.sum(0), sca_s.sum(0)
-        chi_sca = np.einsum("skc,sklc->klc", sca_s, g_s[:, :, None, :] ** l_mom[None])  # sum_s sca_s g_s^l
-    else:
-        tau550 = layer(col["beta"][:, :, 3:4].repeat(3, axis=-1)).sum(0)
-        dtau_a = tau550 * effective.extinction_factor(np.array([615.0, 546.0, 450.0]))[None, :]
-        sca_a = dtau_a * np.asarray(effective.ssa)[None, :]
-        chi_e = phase_function_legendre_moments(lambda x: np.asarray(effective.phase_function(x)), N_MOMENTS)
-        chi_sca = sca_a[:, None, :] * chi_e[None]
-    sca_r = layers["dtau"]  # Rayleigh: omega = 1
-    dtau, sca = layers["dtau"] + dtau_a, sca_r + sca_a
-    moments = (sca_r[:, None, :] * layers["moments"] + chi_sca) / sca[:, None, :]
-    layers.update(dtau=dtau, ssa=np.clip(sca / dtau, 0.0, 1.0 - 1e-9), moments=moments, tau_aerosol=dtau_a.sum(0))
-    return layers
-
-
-@functools.lru_cache(maxsize=1)
-def _layer_sets(data_dir):
-    """(per-layer mixture, effective type) DISORT layers of the column."""
-    col = _column(data_dir)
-    return _layers(col), _layers(col, _effective(col))
-
-
-def _scene(col):
-    x = np.linspace(-300e3, 300e3, 7)
-    beta = np.broadcast_to(col["beta"][:, :, 3].sum(0)[:, None, None], (col["nodes"].size, 7, 7)).copy()
-    return scene_from_arrays(x=x, y=x, z=col["nodes"], reference_lat=col["lat"], reference_lon=135.0,
-                             cloud_liquid_content=np.zeros_like(beta), aerosol_extinction=beta,
-                             surface_albedo=SURFACE_ALBEDO, land_mask=0.0, title="CAMS column (DISORT validation)")
 
 
 def _stats(a, b):
@@ -149,8 +54,8 @@ def _stats(a, b):
 def test_column_and_effective_type(shared_data):
     """The chosen column: AOD 550 of a CAMS mixture in the range of AERONET's subtropical sites (0.1-0.5), an
     effective ω and g of a mostly scattering fine/coarse mixture, α between sea salt's (0.4) and sulfate's (~2)."""
-    col = _column(str(shared_data))
-    t = _effective(col)
+    col = cams_validation_column(str(shared_data))
+    t = cams_effective_type(col)
     tau = col["beta"].sum(0)[:, :3].sum(0) * SCENE_DZ_M
     print(f"\nCAMS column at {col['lat']:.1f} N: AOD 550 {col['aod_550']:.3f} (above the scene "
           f"{col['aod_550_above_scene']:.4f}); tau 615/546/450 {np.round(tau, 3)}; omega {t.ssa}, "
@@ -162,24 +67,19 @@ def test_column_and_effective_type(shared_data):
     assert 0.4 < t.angstrom_exponent < 2.0
 
 
-def _scattering_angle(view_zenith, relative_azimuth, sun_zenith):
-    look = enu_from_azimuth_zenith(np.asarray(relative_azimuth, float), np.asarray(view_zenith, float))
-    return np.degrees(np.arccos(np.clip(look @ enu_from_azimuth_zenith(0.0, sun_zenith), -1.0, 1.0)))
-
-
 @pytest.mark.full  # 4 DISORT solves of 216 layers at 32 streams: ~8 s
 def test_one_type_per_scene_against_per_layer_optics(shared_data):
     """DISORT with the effective type against DISORT with the per-layer mixture, over the sky dome: the error of
     rendering a CAMS mixture with one type. Measured (615/546/450 nm): median |diff| 0.8/0.7/0.5 %; beyond 10°
     from the sun max 6.3/5.1/6.1 %; within 10° of the sun the one HG lobe is 12-19 % too dark (the coarse sea
     salt's sharper forward peak is averaged into one g); GHI within 0.3 %."""
-    col = _column(str(shared_data))
+    col = cams_validation_column(str(shared_data))
     zen, az = sky_dome_directions(10.0, 15.0, 85.0)
-    true_layers, eff_layers = _layer_sets(str(shared_data))
+    true_layers, eff_layers = cams_layer_sets(str(shared_data))
     true = disort_layers_radiance(true_layers, col["sun_zenith"], zen, az, SURFACE_ALBEDO, n_streams=32)
     eff = disort_layers_radiance(eff_layers, col["sun_zenith"], zen, az, SURFACE_ALBEDO, n_streams=32)
     rel = eff / true - 1
-    near = _scattering_angle(zen, az, col["sun_zenith"]) < 10.0
+    near = scattering_angle(zen, az, col["sun_zenith"]) < 10.0
     med, mx = np.median(np.abs(rel), axis=0), np.max(np.abs(rel[~near]), axis=0)
     f_true = disort_layers_irradiance(true_layers, col["sun_zenith"], SURFACE_ALBEDO, n_streams=32)
     f_eff = disort_layers_irradiance(eff_layers, col["sun_zenith"], SURFACE_ALBEDO, n_streams=32)
@@ -200,13 +100,13 @@ def test_swim_against_disort_per_layer_mixture(shared_data):
     renderer alone). Measured (615/546/450 nm, 215 sky directions, 5-85° zenith, > 5° from the sun): per-layer
     median 1.05/0.82/0.79 %, max 15.7/14.3/12.4 % (in the aureole, the one-type approximation); effective type
     median 0.33/0.34/0.28 %, max 3.4/3.1/2.3 %; GHI -0.2 %."""
-    col = _column(str(shared_data))
-    t = _effective(col)
+    col = cams_validation_column(str(shared_data))
+    t = cams_effective_type(col)
     r = compare_ground_sky(col["sun_zenith"], AerosolBackground(aod_550=0.0), surface_albedo=SURFACE_ALBEDO,
-                           sun_azimuth_deg=SUN_AZIMUTH_DEG, scene=_scene(col),
+                           sun_azimuth_deg=SUN_AZIMUTH_DEG, scene=cams_column_scene(col),
                            render_aerosol=AerosolBackground(aod_550=0.0, optics=t), n_streams=8)
     ra = r["view_azimuth"] - r["sun_azimuth"]
-    true_layers, eff_layers = _layer_sets(str(shared_data))
+    true_layers, eff_layers = cams_layer_sets(str(shared_data))
     true = disort_layers_radiance(true_layers, r["sun_zenith"], r["view_zenith"], ra, SURFACE_ALBEDO, n_streams=32)
     eff = disort_layers_radiance(eff_layers, r["sun_zenith"], r["view_zenith"], ra, SURFACE_ALBEDO, n_streams=32)
     med_t, _ = _stats(r["swim"], true)

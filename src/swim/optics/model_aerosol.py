@@ -16,8 +16,10 @@ Two sources of a scene's 3-D aerosol:
 The renderer uses one aerosol type per render (docs/aerosols.md §9): a scene carries ``aerosol_extinction``
 [m-1 at 550 nm] (z, y, x), and the spectral ω, g and Ångström exponent of the mixture enter as one
 :class:`swim.optics.aerosol_types.AerosolType` (:func:`effective_aerosol_type`), passed to the render as
-``aerosol=AerosolBackground(aod_550=0.0, optics=aerosol_type)``. docs/aerosols.md §10 quantifies the error of
-that approximation against DISORT with the per-layer optics.
+``aerosol=aerosol_type`` (the same as ``aerosol=AerosolBackground(aod_550=0.0, optics=aerosol_type)``).
+docs/aerosols.md §10 quantifies the error of that approximation against DISORT with the per-layer optics
+(:mod:`swim.validation.cams`). CAMS datasets as downloaded (ADS model or pressure levels, ecRad's layout) go onto
+a scene's grid with :func:`swim.optics.model_aerosol_fields.add_cams_aerosol`.
 """
 
 from __future__ import annotations
