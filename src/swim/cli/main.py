@@ -203,9 +203,15 @@ class _RenderOptions:
     look_at = typer.Option(None, help="Perspective target 'lat,lon,height_m_asl'.")
     sun_zenith = typer.Option(None, help="Override the sun zenith angle [deg].")
     sun_azimuth = typer.Option(None, help="Override the sun azimuth [deg].")
-    aerosol = typer.Option("continental", help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
-                                               "sea_salt, stratospheric_sulfate (docs/aerosols.md); none: no "
-                                               "background aerosol.")
+    aerosol = typer.Option(None, help="Aerosol type: colorado_dust, saudi_mixed, smoke, continental, "
+                                      "sea_salt, stratospheric_sulfate (docs/aerosols.md); none: no background "
+                                      "aerosol. Default: continental; smoke for a scene whose only aerosol is its "
+                                      "smoke_mass_content; the mixture's own type with --aerosol-file.")
+    aerosol_file = typer.Option(None, "--aerosol-file", help="CAMS aerosol mass mixing ratios (ADS netCDF on model "
+                                "or pressure levels, or ecRad's layout) to put on the scene as its 3-D aerosol, "
+                                "through --aerosol-table (docs/aerosols.md, CAMS).")
+    aerosol_table = typer.Option(None, "--aerosol-table", help="The IFS aerosol optics table (ecRad's "
+                                 "aerosol_ifs_*.nc) that --aerosol-file's species go through.")
     aod = typer.Option(None, help="Background aerosol optical depth at 550 nm (default 0.05; 0 "
                                   "where the scene has a 3-D aerosol field).")
     aerosol_ssa = typer.Option(None, "--aerosol-ssa", help="The aerosol's own single-scattering "
@@ -360,7 +366,9 @@ def render(
     view_azimuth: Optional[float] = _RenderOptions.view_azimuth,
     view_zenith: Optional[float] = _RenderOptions.view_zenith, look_at: Optional[str] = _RenderOptions.look_at,
     sun_zenith: Optional[float] = _RenderOptions.sun_zenith, sun_azimuth: Optional[float] = _RenderOptions.sun_azimuth,
-    aerosol: str = _RenderOptions.aerosol, aod: Optional[float] = _RenderOptions.aod,
+    aerosol: Optional[str] = _RenderOptions.aerosol, aod: Optional[float] = _RenderOptions.aod,
+    aerosol_file: Optional[Path] = _RenderOptions.aerosol_file,
+    aerosol_table: Optional[Path] = _RenderOptions.aerosol_table,
     aerosol_ssa: Optional[str] = _RenderOptions.aerosol_ssa, aerosol_g: Optional[str] = _RenderOptions.aerosol_g,
     aerosol_angstrom: Optional[float] = _RenderOptions.aerosol_angstrom,
     aerosol_phase: Optional[Path] = _RenderOptions.aerosol_phase,
@@ -411,6 +419,7 @@ def render(
         if albedo_image is not None:
             ds = _with_albedo_image(ds, albedo_image, albedo_image_bounds, albedo_image_scale)
         options = _camera_options(camera, size, width, image_height, fov, view_azimuth, view_zenith, look_at)
+        ds, aerosol = _model_aerosol(ds, aerosol, aerosol_file, aerosol_table, time)
         background = _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, aerosol_ssa, aerosol_g,
                                          aerosol_angstrom, aerosol_phase, aerosol_scale_height)
         sampling = _adaptive_sampling(tolerance, tau_tolerance, clear_tolerance) if adaptive else None
@@ -429,7 +438,7 @@ def render(
                 raise SwimInputError("--sun-zenith/--sun-azimuth fix the sun: every frame of a series from --time to "
                                      "--end would be the same")
             # a cluster's workers open a plain scene file themselves (no scene sent through the scheduler)
-            source = None if scene is None or albedo_image is not None else (
+            source = None if scene is None or albedo_image is not None or aerosol_file is not None else (
                 scene, {**_given(time=time), **place}, lazy)
             _render_series(ds, source, time, end, every, workers, scheduler, out, netcdf, common, freeze_fields)
             return
@@ -552,10 +561,40 @@ def _camera_options(camera, size, width, image_height, fov, view_azimuth, view_z
     return options
 
 
+def _model_aerosol(ds, aerosol, aerosol_file, aerosol_table, time):
+    """The scene with --aerosol-file's CAMS aerosol through --aerosol-table (swim.optics.model_aerosol_fields), and
+    the aerosol type: --aerosol, else the mixture's effective type (an AerosolType), else the default."""
+    if aerosol_file is None:
+        if aerosol_table is not None:
+            raise SwimInputError("--aerosol-table is the optics table of --aerosol-file, which is not given")
+        return ds, aerosol
+    if aerosol_table is None:
+        raise SwimInputError("--aerosol-file needs --aerosol-table, the IFS aerosol optics table (ecRad's "
+                             "aerosol_ifs_*.nc) its species go through")
+    from ..io.files import open_netcdf
+    from ..optics.model_aerosol_fields import add_cams_aerosol
+
+    with open_netcdf(aerosol_file, "aerosol file") as cams:
+        ds, mixture = add_cams_aerosol(ds, cams.load(), aerosol_table, time=time)
+    return ds, mixture if aerosol is None else aerosol
+
+
 def _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, ssa, g, angstrom, phase, scale_height_km):
-    """The :class:`swim.rt.gas.AerosolBackground` of the --aerosol, --aod and --strat-* options."""
+    """The :class:`swim.rt.gas.AerosolBackground` of the --aerosol, --aod and --strat-* options. ``aerosol``: a type
+    name, an AerosolType (--aerosol-file's mixture) or None (continental; smoke for a scene of smoke alone)."""
+    from ..optics.aerosol_types import AerosolType
     from ..rt.gas import AerosolBackground
 
+    if isinstance(aerosol, AerosolType):
+        if any(v is not None for v in (ssa, g, angstrom, phase)):
+            raise SwimInputError("--aerosol-ssa/-g/-angstrom/-phase change a named type; --aerosol-file's mixture "
+                                 "has its own (give --aerosol to use a named type instead)")
+        strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height,
+                 **_aerosol_optics("continental", None, None, None, None, scale_height_km), "optics": aerosol}
+        return AerosolBackground(aod_550=0.0 if aod is None else aod, **strat)
+    if aerosol is None:
+        smoke_only = "smoke_mass_content" in ds and "aerosol_extinction" not in ds
+        aerosol = "smoke" if smoke_only else "continental"
     strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height,
              **_aerosol_optics(aerosol, ssa, g, angstrom, phase, scale_height_km)}
     if aerosol.strip().lower() == "none":  # no background aerosol (a scene's 3-D aerosol field stays)
@@ -564,7 +603,7 @@ def _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, ssa, g, angst
         aerosol, aod = "continental", 0.0
     if aod is not None:
         return AerosolBackground(aod_550=aod, type_name=aerosol, **strat)
-    if "aerosol_extinction" in ds:
+    if "aerosol_extinction" in ds or "smoke_mass_content" in ds:
         return AerosolBackground(aod_550=0.0, type_name=aerosol, **strat)
     return AerosolBackground(type_name=aerosol, **strat)
 

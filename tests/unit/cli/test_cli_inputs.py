@@ -119,3 +119,23 @@ def test_a_clear_site_from_the_command_line(tmp_path):
         result = CliRunner().invoke(app, ["render", "--site", *args, "--size", "9", "--out", str(tmp_path / "x.png")])
         assert result.exit_code == 2 and message in result.output, result.output
         assert len(result.output.strip().splitlines()) == 1
+
+
+def test_model_aerosol_options_go_together(tmp_path):
+    out = tmp_path / "x.png"
+    for args, message in ((["--aerosol-file", str(tmp_path / "cams.nc")], "needs --aerosol-table"),
+                          (["--aerosol-table", str(tmp_path / "t.nc")], "--aerosol-file, which is not given")):
+        result = CliRunner().invoke(app, ["render", "--size", "9", "--out", str(out), *args])
+        assert result.exit_code == 2 and message in result.output and "Traceback" not in result.output
+    assert not out.exists()
+
+
+def test_default_aerosol_type_follows_the_scene():
+    from swim.cli.main import _aerosol_background
+
+    smoke = {"smoke_mass_content": None}
+    assert _aerosol_background(smoke, None, None, 0.0, 20.0, None, None, None, None, None).type_name == "smoke"
+    assert _aerosol_background(smoke, None, None, 0.0, 20.0, None, None, None, None, None).aod_550 == 0.0
+    assert _aerosol_background({}, None, None, 0.0, 20.0, None, None, None, None, None).type_name == "continental"
+    named = _aerosol_background(smoke, "sea_salt", None, 0.0, 20.0, None, None, None, None, None)
+    assert named.type_name == "sea_salt"
