@@ -295,6 +295,12 @@ class _RenderOptions:
                             help="Hydrometeor optical depth at which rays that do not look down "
                                  "stop: opaque, the radiance unchanged (default: "
                                  "MarchSettings().stop_tau, 50; 0 marches every ray to its end).")
+    globe = typer.Option(False, "--globe", help="Whole-earth view of a global GRIB file (NCEP GFS): its columns on "
+                         "an orthographic grid about --lat/--lon (default: the sub-solar point at the file's time), "
+                         "seen from the sun-earth L1 point (1.5 million km; --height above 100 km sets another) "
+                         "with a perspective camera of --size pixels that fits the disc (docs/decisions/"
+                         "0019-whole-earth-views.md).")
+    globe_grid = typer.Option(256, "--globe-grid", help="--globe: columns per side of the orthographic grid.")
     lazy = typer.Option(False, "--lazy", help="Open a canonical scene file lazily (dask) and read only the "
                                               "columns the camera can see (big grids; docs/rendering.md).")
     coarsen = typer.Option(None, help="Keep one column of each block of N x N of the grid's columns, "
@@ -388,6 +394,7 @@ def render(
     empty_steps: Optional[int] = _RenderOptions.empty_steps, probes: Optional[int] = _RenderOptions.probes,
     probe_spacing: Optional[float] = _RenderOptions.probe_spacing,
     tau_refine: Optional[float] = _RenderOptions.tau_refine, stop_tau: Optional[float] = _RenderOptions.stop_tau,
+    globe: bool = _RenderOptions.globe, globe_grid: int = _RenderOptions.globe_grid,
     lazy: bool = _RenderOptions.lazy, coarsen: Optional[str] = _RenderOptions.coarsen,
     adaptive: bool = _RenderOptions.adaptive, tolerance: Optional[float] = _RenderOptions.tolerance,
     tau_tolerance: Optional[float] = _RenderOptions.tau_tolerance,
@@ -408,12 +415,18 @@ def render(
     try:
         if end is None and not workers and not scheduler:  # a series checks each frame's files (render_series)
             _check_outputs(out, netcdf)
-        place = {**_les_placement(scene, scene_lat, scene_lon), **_grib_region(scene, lat, lon, region_radius)}
+        place = {} if globe else {**_les_placement(scene, scene_lat, scene_lon),
+                                  **_grib_region(scene, lat, lon, region_radius)}
         if lazy and scene is None:
             raise SwimInputError("--lazy needs a scene file (a canonical scene netCDF file)")
         level_of_detail = _level_of_detail(coarsen)  # checked before the scene is opened
         if site:
             ds = _site_scene(scene, lat, lon, elevation, site_albedo, time, sun_zenith)
+        elif globe:
+            ds, lat, lon, height = _globe_scene(scene, lat, lon, time, height, globe_grid)
+            camera, width, image_height = CameraKind.perspective, size, size
+            if fov is None and view_azimuth is None and look_at is None:
+                fov, view_azimuth, view_zenith = _globe_camera(lat, lon, height)
         else:
             ds = _scene_file(scene, lazy, time, place)
         if albedo_image is not None:
@@ -520,6 +533,37 @@ def _level_of_detail(coarsen):
             raise SwimInputError(f"--coarsen must be 'auto' or an integer >= 1, got {coarsen!r}") from None
     check_coarsening(level_of_detail)
     return level_of_detail
+
+
+def _globe_scene(scene, lat, lon, time, height, grid):
+    """--globe: the scene (a global GRIB file's columns on an orthographic grid about --lat/--lon, by default the
+    sub-solar point at the file's time), the sub-observer point and the observer's height (L1's, unless --height
+    is above 100 km)."""
+    from ..constants import EARTH_RADIUS_M
+    from ..io.globe import L1_DISTANCE_M, hemisphere_scene, read_gfs_global_columns, sub_solar_point
+
+    if scene is None:
+        raise SwimInputError("--globe needs a global GRIB file (NCEP GFS) as the scene")
+    if (lat is None) != (lon is None):
+        raise SwimInputError("--globe: give both --lat and --lon (the sub-observer point), or neither (the sub-solar "
+                             "point)")
+    columns = read_gfs_global_columns(scene, time)
+    if lat is None:
+        if time is None and "time" not in columns.coords:
+            raise SwimInputError("--globe: the file has no time; give --time or --lat/--lon")
+        lat, lon = sub_solar_point(time if time is not None else columns["time"].values)
+    if height < 1e5:
+        height = L1_DISTANCE_M - EARTH_RADIUS_M
+    return hemisphere_scene(columns, lat, lon, size=grid), lat, lon, height
+
+
+def _globe_camera(lat, lon, height):
+    """--globe's perspective camera without --fov/--view-*: straight down at the earth's centre, the disc fitted."""
+    from ..constants import EARTH_RADIUS_M
+    from ..io.globe import l1_view
+
+    options = l1_view(lat, lon, distance_m=height + EARTH_RADIUS_M)["camera_options"]
+    return options["fov_deg"], options["view_azimuth_deg"], options["view_zenith_deg"]
 
 
 def _scene_file(scene, lazy, time, place):

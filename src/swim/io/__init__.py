@@ -8,6 +8,7 @@ files, SURFRAD/BSRN/MIDC radiation observations, a numpy-array helper and the bu
 
 from .default_scene import default_scene
 from .ecmwf import read_ecmwf, read_era5_pressure_levels, read_ifs_model_levels
+from .globe import hemisphere_scene, l1_view, read_gfs_global_columns, sub_solar_point
 from .grib import grib_reader_for, read_gfs_grib
 from .grib_ncep import read_ncep_grib
 from .icon import read_icon
@@ -26,6 +27,10 @@ __all__ = [
     "read_era5_pressure_levels",
     "read_ifs_model_levels",
     "grib_reader_for",
+    "hemisphere_scene",
+    "l1_view",
+    "read_gfs_global_columns",
+    "sub_solar_point",
     "read_gfs_grib",
     "read_ncep_grib",
     "read_icon",

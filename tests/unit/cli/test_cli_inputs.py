@@ -139,3 +139,13 @@ def test_default_aerosol_type_follows_the_scene():
     assert _aerosol_background({}, None, None, 0.0, 20.0, None, None, None, None, None).type_name == "continental"
     named = _aerosol_background(smoke, "sea_salt", None, 0.0, 20.0, None, None, None, None, None)
     assert named.type_name == "sea_salt"
+
+
+def test_globe_options_are_checked_before_reading(tmp_path, shared_data):
+    out = tmp_path / "x.png"
+    gfs = str(shared_data / "gfs" / "gfs.t12z.pgrbf120.2p5deg.grib2")
+    for args, message in ((["--globe"], "--globe needs a global GRIB file"),
+                          ([gfs, "--globe", "--lat", "10"], "give both --lat and --lon")):
+        result = CliRunner().invoke(app, ["render", "--size", "9", "--out", str(out), *args])
+        assert result.exit_code == 2 and message in result.output and "Traceback" not in result.output
+    assert not out.exists()
