@@ -31,6 +31,11 @@ AFTER_MIN_STEPS = 4
 CELL_PROBES = 16
 #: Total solar irradiance at 1 AU [W m-2] (paper, Sect. 3.1).
 SOLAR_CONSTANT_W_M2 = 1362.0
+#: Extraterrestrial solar spectral irradiance E_TOA [W m-2 nm-1] at 1 AU at :data:`WAVELENGTHS_NM` (615, 546, 450 nm):
+#: the ASTM G173-03 spectrum scaled to :data:`SOLAR_CONSTANT_W_M2`
+#: (:func:`swim.diagnostics.broadband.channel_solar_irradiance`, which a test holds these to). Absolute radiance
+#: L = L' E_TOA / (4 pi r^2) [W m-2 sr-1 nm-1], r the earth-sun distance [AU].
+SOLAR_SPECTRAL_IRRADIANCE_W_M2_NM = np.array([1.6995, 1.8518, 1.9846])
 #: Angular radius of the solar disk seen from 1 AU [rad].
 SUN_ANGULAR_RADIUS_RAD = np.deg2rad(0.2665)
 #: Standard gravity [m s-2].

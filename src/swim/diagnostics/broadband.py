@@ -80,6 +80,7 @@ __all__ = [
     "ASTM_G173_TSI_W_M2",
     "spectrl2_wavelengths",
     "reference_spectrum",
+    "channel_solar_irradiance",
     "bin_spectrum",
     "gas_transmittance",
     "rayleigh_optical_depth",
@@ -284,6 +285,46 @@ def reference_spectrum() -> ReferenceSpectrum:
                              tsi_w_m2=ASTM_G173_TSI_W_M2,
                              source="ASTM G173-03 extraterrestrial spectrum (NREL), cell means on the SPCTRL2 grid",
                              edges_nm=np.concatenate([table[:, 1], table[-1:, 2]]))
+
+
+def channel_solar_irradiance(wavelengths_nm=WAVELENGTHS_NM, earth_sun_distance_au=1.0,
+                             solar_constant_w_m2=SOLAR_CONSTANT_W_M2) -> np.ndarray:
+    """Extraterrestrial solar spectral irradiance E_TOA at the channels' wavelengths: what converts the
+    solar-relative radiance L' = 4 pi L / E_TOA (Albers et al. 2020, Eq. 2) to absolute radiance, L = L' E_TOA / 4 pi.
+
+    Parameters
+    ----------
+    wavelengths_nm : array_like
+        Shape (C,) [nm], in 280-4000 nm; default the renderer's 615, 546, 450 nm.
+    earth_sun_distance_au : float
+        Earth-sun distance [AU], > 0 (``E ~ 1 / r^2``).
+    solar_constant_w_m2 : float
+        Total solar irradiance at 1 AU [W m-2] the spectrum is scaled to (default the paper's 1362).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (C,) [W m-2 nm-1]: the ASTM G173-03 extraterrestrial spectrum's cell means on the SPCTRL2 grid,
+        log-linearly interpolated at the wavelengths (1.70, 1.85, 1.98 W m-2 nm-1 at 615, 546, 450 nm and 1 AU).
+
+    Raises
+    ------
+    SwimInputError
+        For wavelengths outside 280-4000 nm or a distance that is not positive.
+
+    References
+    ----------
+    ASTM G173-03 (2012), Standard Tables for Reference Solar Spectral Irradiances; Gueymard, C. A. (2004), Solar
+    Energy 76, 423-453, doi:10.1016/j.solener.2003.08.039.
+    """
+    wl = np.atleast_1d(np.asarray(wavelengths_nm, dtype=float))
+    if not np.all((wl >= BAND_NM[0]) & (wl <= BAND_NM[1])):
+        raise SwimInputError(f"wavelengths_nm must lie in {BAND_NM[0]:g}-{BAND_NM[1]:g} nm; got {wl}")
+    if not (np.isfinite(earth_sun_distance_au) and earth_sun_distance_au > 0):
+        raise SwimInputError(f"earth_sun_distance_au must be > 0 [AU]; got {earth_sun_distance_au!r}")
+    spec = reference_spectrum()
+    e0 = spec.scaled(solar_constant_w_m2, earth_sun_distance_au).reshape(-1, 1)
+    return _channel_values(e0, spec.wavelength_nm, wl)[:, 0]
 
 
 def relative_airmass(sun_zenith_deg):

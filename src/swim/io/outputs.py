@@ -108,6 +108,20 @@ def write_netcdf(image: xr.Dataset, path) -> Path:
 
 
 
+def with_absolute_radiance(image: xr.Dataset) -> xr.Dataset:
+    """The image with ``radiance_absolute`` [W m-2 sr-1 nm-1] = L' E / (4 pi), E its ``toa_spectral_irradiance``
+    attribute (the light's spectral irradiance at the top of the atmosphere [W m-2 nm-1] at each wavelength); the
+    image as it is where it has no such attribute or already has the variable."""
+    e = image.attrs.get("toa_spectral_irradiance")
+    if e is None or "radiance_absolute" in image or "radiance" not in image:
+        return image
+    e = xr.DataArray(np.asarray(e, dtype=np.float64).reshape(-1), dims="wavelength")
+    absolute = (image["radiance"] * (e / (4.0 * np.pi))).astype(np.float32)
+    absolute.attrs = {"units": "W m-2 sr-1 nm-1", "long_name": "spectral radiance L = L' E_TOA / (4 pi)",
+                      "comment": "E_TOA: the toa_spectral_irradiance attribute (W m-2 nm-1 at each wavelength)"}
+    return image.assign(radiance_absolute=absolute)
+
+
 def cf_dataset(image: xr.Dataset) -> xr.Dataset:
     """A rendered image as written to netCDF (CF-1.8): the ``channel`` labels as a character variable
     ``channel_name`` (CF 6.1.1 labels; CF 2.2 allows no variable-length strings) instead of a string coordinate."""
@@ -120,7 +134,7 @@ def cf_dataset(image: xr.Dataset) -> xr.Dataset:
 
 
 def _netcdf_to(image, tmp):
-    image = cf_dataset(image)
+    image = cf_dataset(with_absolute_radiance(image))
     encoding = {name: {"zlib": True, "complevel": 4} for name in image.data_vars}
     if "channel_name" in image.coords:
         encoding["channel_name"] = {"dtype": "S1"}

@@ -12,7 +12,7 @@ import xarray as xr
 
 from .. import __version__
 from ..color import solar_relative_to_srgb8
-from ..constants import WAVELENGTHS_NM
+from ..constants import SOLAR_SPECTRAL_IRRADIANCE_W_M2_NM, WAVELENGTHS_NM
 from ..frames import azimuth_zenith_from_enu
 from ..io.scene import to_utc_datetime64
 from ..rt.march_settings import EXECUTION_FIELDS, MarchSettings
@@ -121,6 +121,8 @@ def image_dataset(radiance, rgb, planes, cam, *, camera, settings, sampling, sun
         "sun_azimuth_reference_deg": float(sun.azimuth_deg),
         "sun_source": sun.source,
         "earth_sun_distance_au": float(sun.earth_sun_distance_au),
+        # E_TOA [W m-2 nm-1] at the three wavelengths: absolute radiance L = L' E_TOA / (4 pi) (write_netcdf writes it)
+        "toa_spectral_irradiance": SOLAR_SPECTRAL_IRRADIANCE_W_M2_NM / float(sun.earth_sun_distance_au) ** 2,
         "direct_transmittance": np.asarray(t_direct, dtype=float),
         "circumsolar_transmittance": np.asarray(t_aureole, dtype=float),
         "cloud_scattering": settings.cloud_scattering.method,
