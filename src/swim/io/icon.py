@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from ..constants import DEFAULT_EFFECTIVE_RADIUS, EPSILON_WATER_VAPOUR, HYDROMETEOR_DENSITY, R_DRY_AIR
+from ..constants import DEFAULT_EFFECTIVE_RADIUS, EPSILON_WATER_VAPOUR, HYDROMETEOR_DENSITY, R_DRY_AIR, SPECIES
 from ..errors import SwimInputError
 from .scene import domain_centre, to_utc_datetime64, validate_scene
 from .unstructured import (
@@ -56,7 +56,7 @@ _NAMES = {
     "v10": ("v_10m",),
     "droplet_number": ("qnc",),
 }
-_SPECIES = ("cloud_liquid", "cloud_ice", "rain", "snow", "graupel")
+_SPECIES = SPECIES  # the canonical species, in their order
 #: Accepted spellings of the units of a specific content.
 _SPECIFIC_UNITS = {"kg kg-1", "kg/kg", "kg kg**-1", "kg kg^-1", "1", "", "-"}
 #: Martin et al. (1994) ratio (r_v / r_e)^3 of continental clouds.

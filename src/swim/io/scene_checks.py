@@ -13,7 +13,7 @@ import logging
 import numpy as np
 import xarray as xr
 
-from ..constants import DEFAULT_EFFECTIVE_RADIUS, SPECIES, WAVELENGTHS_NM
+from ..constants import DEFAULT_EFFECTIVE_RADIUS, EARTH_RADIUS_M, SPECIES, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import orthographic_xy
 from ..workers import in_blocks
@@ -450,30 +450,25 @@ def _check_radii(ds: xr.Dataset, shape: tuple[int, int, int], contents: dict) ->
 def _check_aerosol(ds: xr.Dataset, shape: tuple[int, int, int]) -> xr.DataArray:
     """Check ``aerosol_extinction`` [m-1 at 550 nm]: finite, not negative beyond numerical noise (clipped to 0), at
     most :data:`MAX_AEROSOL_EXTINCTION_M1`."""
-    name = "aerosol_extinction"
-    da, values, stats = _volume(ds, name, shape)
-    _finite_or_raise(name, values, stats["not finite"])
-    values = _clip_noise(name, values, stats["negative"])
-    if stats["max"] > MAX_AEROSOL_EXTINCTION_M1:
-        raise SwimInputError(
-            f"{name}: max {stats['max']:.4g} m-1 exceeds {MAX_AEROSOL_EXTINCTION_M1:g} m-1 (visibility < 80 m); "
-            "expected m-1 at 550 nm (km-1 must be multiplied by 1e-3)"
-        )
-    return xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))
+    return _bounded_volume(ds, "aerosol_extinction", shape, MAX_AEROSOL_EXTINCTION_M1, "m-1",
+                           "(visibility < 80 m); expected m-1 at 550 nm (km-1 must be multiplied by 1e-3)")
 
 
 def _check_smoke(ds: xr.Dataset, shape: tuple[int, int, int]) -> xr.DataArray:
     """Check ``smoke_mass_content`` [kg m-3]: finite, not negative beyond numerical noise (clipped to 0), at most
     :data:`MAX_SMOKE_KG_M3`."""
-    name = "smoke_mass_content"
+    return _bounded_volume(ds, "smoke_mass_content", shape, MAX_SMOKE_KG_M3, "kg m-3",
+                           "(10 000 ug m-3); expected kg m-3 (ug m-3 must be multiplied by 1e-9)")
+
+
+def _bounded_volume(ds, name, shape, maximum, units, why) -> xr.DataArray:
+    """The canonical (z, y, x) variable ``name``: finite, noise below 0 clipped, at most ``maximum`` [``units``]
+    (else an error that says ``why``)."""
     da, values, stats = _volume(ds, name, shape)
     _finite_or_raise(name, values, stats["not finite"])
     values = _clip_noise(name, values, stats["negative"])
-    if stats["max"] > MAX_SMOKE_KG_M3:
-        raise SwimInputError(
-            f"{name}: max {stats['max']:.4g} kg m-3 exceeds {MAX_SMOKE_KG_M3:g} kg m-3 (10 000 ug m-3); expected kg "
-            "m-3 (ug m-3 must be multiplied by 1e-9)"
-        )
+    if stats["max"] > maximum:
+        raise SwimInputError(f"{name}: max {stats['max']:.4g} {units} exceeds {maximum:g} {units} {why}")
     return xr.DataArray(values, dims=_3D, attrs=_new_attrs(name, da.attrs))
 
 
@@ -540,13 +535,25 @@ def _check_xy(ds: xr.Dataset, lat: np.ndarray, lon: np.ndarray, reference_lat: f
     """Check the optional 1-D coordinates ``x``, ``y`` [m] against the orthographic projection of ``lat``/``lon``
     about the reference point; a coordinate on other dims is dropped (logged).
 
+    Where both are present, the columns with ``x^2 + y^2 >= R^2`` (beyond the limb of the sea-level sphere seen from
+    above the reference point, :func:`_beyond_limb`) have no orthographic lat/lon: they are not compared (their
+    ``lat``/``lon`` are whatever the scene's maker put there), and ``x`` and ``y`` must then increase strictly (their
+    positions rest on them alone). Every other column is compared.
+
     Returns
     -------
     dict of xarray.DataArray
         The canonical ``x`` and ``y`` that ``ds`` has.
+
+    Raises
+    ------
+    SwimInputError
+        Where a column on or inside the limb is further than max(1 m, 1 % of the spacing) from
+        ``orthographic_xy(lat, lon)``, or where columns beyond the limb come with ``x`` or ``y`` not strictly
+        increasing.
     """
     coords: dict[str, xr.DataArray] = {}
-    gx = gy = None
+    given = {}
     for axis in ("x", "y"):
         if axis in ds.coords:
             c = ds.coords[axis]
@@ -555,22 +562,52 @@ def _check_xy(ds: xr.Dataset, lat: np.ndarray, lon: np.ndarray, reference_lat: f
                                axis)
                 continue
             _check_units(axis, c)
-            if gx is None:
-                gx, gy = orthographic_xy(lat, lon, reference_lat, reference_lon)
-            values = np.array(c.values, dtype=float)
-            spacing = float(np.median(np.abs(np.diff(values)))) if values.size > 1 else 1000.0
-            tol = max(1.0, 0.01 * spacing)
-            grid = gx if axis == "x" else gy
-            along = values[None, :] if axis == "x" else values[:, None]
-            err = float(np.max(np.abs(grid - along)))
-            if err > tol:
-                raise SwimInputError(
-                    f"coordinate '{axis}' [m] disagrees with lat/lon by up to {err:.4g} m (orthographic projection "
-                    f"about reference_lat/lon = {reference_lat:.4f}, {reference_lon:.4f}); expected "
-                    f"{axis} = orthographic_xy(lat, lon) within {tol:.3g} m"
-                )
-            coords[axis] = xr.DataArray(values, dims=(axis,), attrs=_new_attrs(axis, c.attrs))
+            given[axis] = (np.array(c.values, dtype=float), c.attrs)
+    if not given:
+        return coords
+    beyond = _beyond_limb(given, lat.shape)
+    gx, gy = orthographic_xy(lat, lon, reference_lat, reference_lon)
+    for axis, (values, attrs) in given.items():
+        spacing = float(np.median(np.abs(np.diff(values)))) if values.size > 1 else 1000.0
+        tol = max(1.0, 0.01 * spacing)
+        grid = gx if axis == "x" else gy
+        along = values[None, :] if axis == "x" else values[:, None]
+        diff = np.abs(grid - along)
+        err = float(np.max(diff, initial=0.0, where=~beyond))
+        if err > tol:
+            raise SwimInputError(
+                f"coordinate '{axis}' [m] disagrees with lat/lon by up to {err:.4g} m (orthographic projection "
+                f"about reference_lat/lon = {reference_lat:.4f}, {reference_lon:.4f}); expected "
+                f"{axis} = orthographic_xy(lat, lon) within {tol:.3g} m"
+            )
+        coords[axis] = xr.DataArray(values, dims=(axis,), attrs=_new_attrs(axis, attrs))
     return coords
+
+
+def _beyond_limb(given: dict, shape: tuple) -> np.ndarray:
+    """Mask (y, x) of the columns with ``x^2 + y^2 >= R^2`` (none unless both ``x`` and ``y`` are given).
+
+    Raises
+    ------
+    SwimInputError
+        Where there are such columns and ``x`` or ``y`` does not increase strictly.
+    """
+    if set(given) != {"x", "y"}:
+        return np.zeros(shape, dtype=bool)
+    x, y = given["x"][0], given["y"][0]
+    if (y.size, x.size) != tuple(shape) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        return np.zeros(shape, dtype=bool)  # the comparison reports it
+    beyond = x[None, :] ** 2 + y[:, None] ** 2 >= EARTH_RADIUS_M**2
+    if beyond.any():
+        for axis, values in (("x", x), ("y", y)):
+            if np.any(np.diff(values) <= 0):
+                raise SwimInputError(
+                    f"coordinate '{axis}' [m] must increase strictly where the grid reaches beyond the limb "
+                    f"(x^2 + y^2 >= R^2, {int(beyond.sum())} columns): their positions rest on x and y alone"
+                )
+        logger.debug("validate_scene: %d columns beyond the limb (x^2 + y^2 >= R^2): x/y not compared with lat/lon",
+                     int(beyond.sum()))
+    return beyond
 
 
 def _validate_albedo(da: xr.DataArray, ds: xr.Dataset, ny: int, nx: int):

@@ -89,7 +89,6 @@ _CANDIDATES = 8
 _OUTSIDE_DISTANCE = 1.0
 #: Points looked up at once against the cell polygons (bounds the memory of the corner arrays).
 _BLOCK = 65536
-_SPECIES = ("cloud_liquid", "cloud_ice", "rain", "snow", "graupel")
 
 
 # ---------------------------------------------------------------------------------------------------------------
