@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import swim
+from swim.io import globe
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,6 +28,18 @@ COLORADO_PEAK_LAT, COLORADO_PEAK_LON = 39.7045, -107.3050
 # 18 UTC sun ~90 km south of the centre (the specular point, found by root finding on the sphere).
 KATRINA_CENTRE = (24.49, -90.35, 0.0)
 KATRINA_GLINT_OBSERVER = (25.29, -90.26, 800e3)
+# The valid time of the GFS file of the whole-earth views (12 UTC run + 120 h).
+GFS_GLOBE_TIME = "2011-01-15T12:00"
+
+
+def globe_view(gfs: Path, lat: float, lon: float, caption: str) -> dict:
+    """A whole-earth view (docs/decisions/0019-whole-earth-views.md): the GFS globe from L1 above (lat, lon), 512 x 512
+    pixels, the model's columns on a 256 x 256 orthographic grid holding the disc of 87 deg about (lat, lon)."""
+    view = globe.l1_view(lat, lon)
+    view["camera_options"].update(width=512, height=512)
+    return dict(scene=lambda: globe.hemisphere_scene(globe.read_gfs_global_columns(gfs, GFS_GLOBE_TIME), lat, lon,
+                                                     size=256),
+                time=GFS_GLOBE_TIME, caption=caption, **view)
 
 
 def views(data: Path):
@@ -35,6 +48,8 @@ def views(data: Path):
     met_em = data / "wrf_geo" / "met_em.d01.2005-08-28_12_00_00.nc"
     stcu = data / "les" / "les_stcu.txt"
     paper = swim.MarchSettings(cloud_scattering="albers2020")
+    gfs = data / "gfs" / "gfs.t12z.pgrbf120.2p5deg.grib2"
+    sun_lat, sun_lon = globe.sub_solar_point(GFS_GLOBE_TIME)
     return {
         "default_allsky": dict(scene=lambda: swim.default_scene(), camera="allsky", camera_options={"size": 511},
                                caption="Built-in default scene: all-sky view from the ground (cumulus, cirrus deck, hill)."),
@@ -120,6 +135,21 @@ def views(data: Path):
                     "soft sun glint (Cox-Munk) below the image centre. The scene's 10 m wind is replaced by the "
                     "renderer's default 5 m/s: with the hurricane's 8-43 m/s winds the glint spreads into a "
                     "faint haze. The hurricane's clouds (top right) end at the domain's north and east edges."),
+        "gfs_globe_l1": globe_view(
+            gfs, sun_lat, sun_lon,
+            "The whole earth from the sun-earth L1 point (1.5 million km), as DSCOVR EPIC sees it: GFS 2.5 deg "
+            "(valid 2011-01-15 12 UTC) on a 256 x 256 orthographic grid about the sub-solar point (21.1 S, 2.3 E) "
+            "that holds the disc to 87 deg from it (`swim.io.globe`, docs/decisions/0019-whole-earth-views.md). "
+            "Africa and Madagascar upper right, the east coast of South America under cloud at the left limb, "
+            "Antarctica at the bottom; the clouds reach the limb. Each 2.5 deg cloudy cell shows as a soft "
+            "square."),
+        "gfs_globe_terminator": globe_view(
+            gfs, 0.0, sun_lon - 90.0,
+            "The same GFS globe from L1 above (0 N, 87.7 W), 90 deg west of the sub-solar point: the terminator "
+            "runs down the middle of the disc (its place checked against the solar ephemeris in "
+            "tests/system/test_whole_earth.py), South America on the lit side. Each column takes its own sun and "
+            "each ray's clouds are lit at its own vertical (docs/decisions/0020-per-column-sun.md): white towards "
+            "the sunlit limb, fading and reddening towards the terminator."),
     }
 
 

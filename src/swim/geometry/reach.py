@@ -4,7 +4,8 @@ A ray from the observer can only meet the model grid inside the shell between th
 :data:`swim.constants.EARTH_RADIUS_M`) and the grid's top (the highest model level, R + top). For every pixel
 of the camera (and the ray towards the sun that gives the sun's disk) :func:`reachable_index_window` clips the
 ray to that shell, samples the clipped segment, maps the samples to fractional grid indices with the columns'
-own positions (``lat``/``lon``) and takes the bounding box over all rays, widened by
+own positions (``lat``/``lon``; the 1-D ``x``/``y`` of a grid that reaches beyond the limb, as the optical volume
+does) and takes the bounding box over all rays, widened by
 
 * a margin of cells for the samples, the bilinear lookups and the terrain slope's central differences, and
   the bilinear spread of the Step 1a sweep (one cell per block of levels, :mod:`swim.rt.solar`);
@@ -14,8 +15,8 @@ own positions (``lat``/``lon``) and takes the bounding box over all rays, widene
 
 :func:`crop_scene_to_view` applies the window with ``scene.isel`` (lazy for dask-backed or lazily opened
 netCDF scenes) after fixing the reference point of the scene frame to that of the whole grid. Before the crop
-it reads only ``lat``, ``lon``, the two highest levels of ``height``, the edges of ``terrain_height`` and a
-few of its cells under the observer. See ``docs/rendering.md``, "Cropping big grids".
+it reads only ``lat``, ``lon`` (and ``x``, ``y``), the two highest levels of ``height``, the edges of
+``terrain_height`` and a few of its cells under the observer. See ``docs/rendering.md``, "Cropping big grids".
 
 The reach of a camera's rays (most of the window's time) is remembered for the next window with the same camera,
 observer and grid, so that a repeated render or a fixed camera's time series redoes only the ray towards the sun
@@ -150,6 +151,24 @@ def _lat_lon(scene: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
     return lat, lon
 
 
+def _xy_axes(scene: xr.Dataset, shape: tuple):
+    """The scene's 1-D coordinates ``x`` (nx,) and ``y`` (ny,) [m] where its grid reaches beyond the limb (some column
+    with ``x^2 + y^2 >= R^2``, whose lat/lon cannot give its place), else None (the columns are then placed by their
+    lat/lon): the columns' positions of the optical volume (``swim.optics.volume``)."""
+    axes = []
+    for axis, n in (("x", shape[1]), ("y", shape[0])):
+        if axis not in scene.coords:  # (coords.get would give a bare dimension's 0, 1, 2, ...)
+            return None
+        c = scene.coords[axis]
+        if c.dims != (axis,) or c.size != n:
+            return None
+        axes.append(_finite(axis, np.asarray(c.values, dtype=float)))
+    x, y = axes
+    if not np.any(x[None, :] ** 2 + y[:, None] ** 2 >= EARTH_RADIUS_M**2):
+        return None
+    return x, y
+
+
 def _given_reference(scene: xr.Dataset):
     """(lat0, lon0) [deg] from the scene's attributes, or None where they are absent.
 
@@ -214,14 +233,17 @@ class _Columns:
             raise SwimInputError(f"scene must be an xarray.Dataset; got {type(scene).__name__}")
         lat, lon = _lat_lon(scene)
         ref = _given_reference(scene)
-        key = (array_digest(lat), array_digest(lon), ref)
+        axes = _xy_axes(scene, lat.shape)
+        key = (array_digest(lat), array_digest(lon), ref) + tuple(array_digest(a) for a in axes or ())
         cached = _COLUMN_GEOMETRY.get(key)
         if cached is None:
             if np.abs(lat).max() > 90.0:
                 raise SwimInputError(f"lat: range [{lat.min():.4g}, {lat.max():.4g}] is outside [-90, 90] degrees_north")
             self.lat0, self.lon0 = ref if ref is not None else domain_centre(lat, lon)
             self.shape = lat.shape
-            self.gx, self.gy = orthographic_xy(lat, lon, self.lat0, self.lon0)
+            # as the optical volume places them (swim.optics.volume): a grid beyond the limb by its own x, y (those
+            # columns have no lat/lon of their own), any other by its lat/lon
+            self.gx, self.gy = np.meshgrid(*axes) if axes else orthographic_xy(lat, lon, self.lat0, self.lon0)
             self._fit_affine()
             for a in (self.gx, self.gy):
                 a.flags.writeable = False  # shared by the later _Columns of this grid

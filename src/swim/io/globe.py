@@ -2,18 +2,21 @@
 sub-observer point, and the place and camera of an observer at the sun-earth L1 point (DSCOVR EPIC).
 
 The scene frame of :mod:`swim.frames` is the orthographic projection about the scene's reference point. A grid that
-is regular in that plane (1-D ``x``, ``y`` coordinates, ``docs/scene-format.md``) is mapped exactly by the renderer's
-index map (a cubic that is affine here), however far it reaches from the reference point. Every column must lie on
-the sphere, ``x^2 + y^2 < R^2``, so a square grid reaches ``R sin(corner_radius_deg)`` at its corners and only
-``R sin(corner_radius_deg) / sqrt(2)`` along its axes: at most 45 deg of great circle from the sub-observer point
-along the axes for corners just inside the limb (docs/decisions/0019-whole-earth-views.md). Beyond the grid the
-renderer continues with its clear atmosphere over the ground of the grid's edge (docs/rendering.md, "Beyond the
-domain").
+is regular in that plane (1-D ``x``, ``y`` coordinates, ``docs/scene-format.md``) is placed by those coordinates
+(the renderer's index map and its crop, an affine map here), however far it reaches from the reference point,
+beyond the limb included. The square grid of :func:`hemisphere_scene` holds the disc of ``disc_radius_deg`` of great
+circle about the sub-observer point (half-width ``R sin(disc_radius_deg)``); its corners lie beyond the limb
+(``x^2 + y^2 >= R^2``), where no point of the sphere is, and no ray looks them up (the renderer finds the column of a
+point by its radial projection onto the sphere, ``x^2 + y^2 <= R^2``). They and the columns between the disc and the
+limb carry the ground of the nearest point of the disc's rim and no condensate
+(docs/decisions/0019-whole-earth-views.md).
 
 Formulas:
 
 * the columns of the grid: the sea-level points ``(x, y, sqrt(R^2 - x^2 - y^2))`` of the scene frame
-  (:func:`swim.frames.scene_to_geodetic`, the inverse of :func:`swim.frames.orthographic_xy`);
+  (:func:`swim.frames.scene_to_geodetic`, the inverse of :func:`swim.frames.orthographic_xy`); a column beyond the
+  disc, ``r = sqrt(x^2 + y^2) > R sin(disc_radius_deg)``, takes its values at ``(x, y) R sin(disc_radius_deg) / r``
+  (the nearest point of the disc), and, beyond the limb, that point's lat/lon too;
 * values at a column: bilinear interpolation on the regular latitude-longitude grid, periodic in longitude, of every
   field, the heights of the levels included (a weighted mean of strictly increasing columns with weights >= 0 is
   strictly increasing);
@@ -44,19 +47,20 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "L1_DISTANCE_M",
-    "DEFAULT_CORNER_RADIUS_DEG",
+    "DEFAULT_DISC_RADIUS_DEG",
     "read_gfs_global_columns",
     "interpolate_lat_lon",
     "hemisphere_scene",
-    "axis_radius_deg",
     "sub_solar_point",
     "l1_view",
 ]
 
 #: Distance [m] of the sun-earth L1 point from the earth's centre (DSCOVR orbits it at ~1.5e9 m).
 L1_DISTANCE_M = 1.5e9
-#: Default great-circle distance [deg] of the grid's corners from the sub-observer point.
-DEFAULT_CORNER_RADIUS_DEG = 88.0
+#: Default great-circle radius [deg] about the sub-observer point of the disc that :func:`hemisphere_scene` fills
+#: with the model's fields (its grid's half-width is ``R sin`` of it). From L1 the 87-90 deg ring beyond it is the
+#: outer 0.14 % of the disc's radius in the image, a sixth of a pixel at 255 x 255.
+DEFAULT_DISC_RADIUS_DEG = 87.0
 #: Height [m] above sea level that the default field of view of :func:`l1_view` keeps in the picture.
 LIMB_HEIGHT_M = 100_000.0
 #: Global fields read from the columns dataset, with their dims.
@@ -175,33 +179,41 @@ def interpolate_lat_lon(values, lat_axis, lon_axis, lat, lon):
             + wj * ((1 - wi) * v[..., j1, i0] + wi * v[..., j1, i1]))
 
 
-def axis_radius_deg(corner_radius_deg: float) -> float:
-    """Great-circle distance [deg] from the sub-observer point of the middle of a grid edge of
-    :func:`hemisphere_scene`: ``asin(sin(corner_radius_deg) / sqrt(2))`` (45 deg for corners on the limb)."""
-    return float(np.rad2deg(np.arcsin(np.sin(np.deg2rad(corner_radius_deg)) / np.sqrt(2.0))))
-
-
-def _hemisphere_grid(sub_lat, sub_lon, size, corner_radius_deg):
-    """Grid axes x, y (size,) [m] and the columns' lat, lon (size, size) [deg] of :func:`hemisphere_scene`."""
+def _hemisphere_grid(sub_lat, sub_lon, size, disc_radius_deg):
+    """The grid of :func:`hemisphere_scene`: axes x, y (size,) [m]; lat, lon (size, size) [deg] of the columns (of
+    the nearest point of the disc's rim beyond the limb); lat, lon (size, size) [deg] where the fields are taken (the
+    nearest point of the disc); mask (size, size) of the columns beyond the disc."""
     if not (np.isfinite(sub_lat) and -90.0 <= sub_lat <= 90.0 and np.isfinite(sub_lon)):
         raise SwimInputError(f"sub_lat={sub_lat!r}, sub_lon={sub_lon!r}: expected a latitude in [-90, 90] and a "
                              "finite longitude [deg]")
-    if not 0.0 < corner_radius_deg < 90.0:
-        raise SwimInputError(f"corner_radius_deg={corner_radius_deg!r}: expected (0, 90) deg of great circle (the "
-                             "grid's corners must lie on the visible hemisphere)")
+    if not 0.0 < disc_radius_deg <= 90.0:
+        raise SwimInputError(f"disc_radius_deg={disc_radius_deg!r}: expected (0, 90] deg of great circle (the disc "
+                             "must lie on the visible hemisphere)")
     if int(size) != size or size < 2:
         raise SwimInputError(f"size={size!r}: expected an integer >= 2 [columns along each axis]")
-    half = EARTH_RADIUS_M * np.sin(np.deg2rad(corner_radius_deg)) / np.sqrt(2.0)
-    axis = np.linspace(-half, half, int(size))
+    rim = EARTH_RADIUS_M * np.sin(np.deg2rad(disc_radius_deg))
+    axis = np.linspace(-rim, rim, int(size))
     gx, gy = np.meshgrid(axis, axis)
-    p = np.stack([gx, gy, np.sqrt(EARTH_RADIUS_M**2 - gx**2 - gy**2)], axis=-1)
-    lat, lon, _ = scene_to_geodetic(p, sub_lat, sub_lon)
-    return axis, axis.copy(), lat, lon
+    r = np.hypot(gx, gy)
+    beyond = r > rim
+    shrink = np.where(beyond, rim / np.maximum(r, 1.0), 1.0)
+    fx, fy = gx * shrink, gy * shrink  # the nearest point of the disc
+
+    def geodetic(x, y):
+        p = np.stack([x, y, np.sqrt(np.maximum(EARTH_RADIUS_M**2 - x**2 - y**2, 0.0))], axis=-1)
+        lat, lon, _ = scene_to_geodetic(p, sub_lat, sub_lon)
+        return lat, lon
+
+    field_lat, field_lon = geodetic(fx, fy)
+    on_sphere = r < EARTH_RADIUS_M
+    own_lat, own_lon = geodetic(np.where(on_sphere, gx, fx), np.where(on_sphere, gy, fy))
+    return axis, axis.copy(), own_lat, own_lon, field_lat, field_lon, beyond
 
 
 def hemisphere_scene(columns: xr.Dataset, sub_lat: float, sub_lon: float, size: int = 256,
-                     corner_radius_deg: float = DEFAULT_CORNER_RADIUS_DEG) -> xr.Dataset:
-    """Resample global lat-lon columns onto a regular grid in the orthographic plane about the sub-observer point.
+                     disc_radius_deg: float = DEFAULT_DISC_RADIUS_DEG) -> xr.Dataset:
+    """Resample global lat-lon columns onto a regular grid in the orthographic plane about the sub-observer point
+    that holds the disc of ``disc_radius_deg`` about it.
 
     Parameters
     ----------
@@ -213,18 +225,20 @@ def hemisphere_scene(columns: xr.Dataset, sub_lat: float, sub_lon: float, size: 
     sub_lat, sub_lon : float
         The sub-observer point [deg]: the scene's reference point and the centre of the grid.
     size : int
-        Columns along each axis, >= 2 (the spacing is ``2 R sin(corner_radius_deg) / sqrt(2) / (size - 1)``).
-    corner_radius_deg : float
-        Great-circle distance [deg] of the grid's corners from the sub-observer point, in (0, 90); the middle of
-        each edge lies :func:`axis_radius_deg` away (at most 45 deg).
+        Columns along each axis, >= 2 (the spacing is ``2 R sin(disc_radius_deg) / (size - 1)``).
+    disc_radius_deg : float
+        Great-circle radius [deg] of the disc about the sub-observer point that holds the model's fields, in
+        (0, 90]: the middles of the grid's edges lie on its rim (:data:`DEFAULT_DISC_RADIUS_DEG`).
 
     Returns
     -------
     xarray.Dataset
         The validated canonical scene (``docs/scene-format.md``) with 1-D ``x``, ``y`` [m] (the orthographic
         coordinates of the columns), ``lat``/``lon`` of the columns, the interpolated fields (a land mask is
-        rounded to 0/1) and the attributes ``reference_lat``/``reference_lon`` (the sub-observer point),
-        ``globe_corner_radius_deg`` and ``globe_axis_radius_deg``.
+        rounded to 0/1) and the attributes ``reference_lat``/``reference_lon`` (the sub-observer point) and
+        ``globe_disc_radius_deg``. A column beyond the disc (``x^2 + y^2 > R^2 sin^2(disc_radius_deg)``) holds the
+        fields of the nearest point of the disc's rim without condensate; beyond the limb (``x^2 + y^2 >= R^2``,
+        the grid's corners) its ``lat``/``lon`` are that point's too.
 
     Raises
     ------
@@ -234,8 +248,11 @@ def hemisphere_scene(columns: xr.Dataset, sub_lat: float, sub_lon: float, size: 
 
     Notes
     -----
-    Beyond the grid (the disc's four segments between the square and the limb) the renderer shows clear air over
-    the grid's edge ground. Its clouds are lit with the sun of the sub-observer point (module docstring).
+    No ray of the renderer looks up a column beyond the limb (it finds a point's column by the point's radial
+    projection onto the sphere); their values only keep the grid's interpolation free of anything odd next to the
+    limb. The ring between the disc and the limb is clear air over the rim's ground (so are the grid's corners for a
+    disc well inside the limb: the model's fields fill the disc, a circle, not the square). The clouds are lit with
+    the sun of the sub-observer point (module docstring).
 
     References
     ----------
@@ -246,21 +263,23 @@ def hemisphere_scene(columns: xr.Dataset, sub_lat: float, sub_lon: float, size: 
     if missing:
         raise SwimInputError(f"hemisphere_scene: the columns lack {', '.join(missing)} (dims z, lat, lon; "
                              "swim.io.globe.read_gfs_global_columns)")
-    x, y, lat, lon = _hemisphere_grid(float(sub_lat), float(sub_lon), size, float(corner_radius_deg))
+    x, y, lat, lon, field_lat, field_lon, beyond = _hemisphere_grid(float(sub_lat), float(sub_lon), size,
+                                                                     float(disc_radius_deg))
     lat_axis, lon_axis = columns["lat"].values, columns["lon"].values
     data = {"lat": (("y", "x"), lat, {"units": "degrees_north"}), "lon": (("y", "x"), lon, {"units": "degrees_east"})}
     for name in _FIELDS_3D + _FIELDS_2D:
         if name not in columns.data_vars:
             continue
         da = columns[name].transpose(..., "lat", "lon")
-        values = interpolate_lat_lon(da.values, lat_axis, lon_axis, lat, lon)
+        values = interpolate_lat_lon(da.values, lat_axis, lon_axis, field_lat, field_lon)
         if name == "land_mask":
             values = (values > 0.5).astype(np.int8)
         data[name] = (("z", "y", "x") if name in _FIELDS_3D else ("y", "x"), values)
     if "terrain_height" not in data:
         data["terrain_height"] = (("y", "x"), np.zeros_like(lat))
-    # a level that interpolation puts under the interpolated ground holds its neighbours' cloud: hidden, dropped
-    underground = data["height"][1] < data["terrain_height"][1][None]
+    # a level that interpolation puts under the interpolated ground holds its neighbours' cloud: hidden, dropped;
+    # beyond the disc there is none
+    underground = (data["height"][1] < data["terrain_height"][1][None]) | beyond[None]
     for name in _FIELDS_3D[1:]:
         if name in data:
             data[name] = (data[name][0], np.where(underground, 0.0, data[name][1]))
@@ -271,10 +290,9 @@ def hemisphere_scene(columns: xr.Dataset, sub_lat: float, sub_lon: float, size: 
              "title": f"{columns.attrs.get('title', 'global columns')} seen from above ({float(sub_lat):.2f}, "
                       f"{float(sub_lon):.2f})",
              "source": f"{columns.attrs.get('source', 'unknown')}; swim.io.globe.hemisphere_scene",
-             "globe_corner_radius_deg": float(corner_radius_deg),
-             "globe_axis_radius_deg": axis_radius_deg(corner_radius_deg)}
-    logger.info("hemisphere_scene: %d x %d columns about (%.2f, %.2f), spacing %.0f m, corners at %.1f deg",
-                size, size, sub_lat, sub_lon, x[1] - x[0], corner_radius_deg)
+             "globe_disc_radius_deg": float(disc_radius_deg)}
+    logger.info("hemisphere_scene: %d x %d columns about (%.2f, %.2f), spacing %.0f m, the disc of %.1f deg filled "
+                "(%d columns beyond it)", size, size, sub_lat, sub_lon, x[1] - x[0], disc_radius_deg, beyond.sum())
     return validate_scene(xr.Dataset(data, coords=coords, attrs=attrs))
 
 

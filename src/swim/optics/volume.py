@@ -11,8 +11,9 @@ tracer wants a volume it can index in O(1): this stage
    value is kept (fog reaches the ground), below the terrain and above the top it is zero, and so is a
    regular level between model levels that are zero throughout a block of columns (not interpolated),
 3. fits the affine map between grid indices (i, j) and grid horizontal coordinates (x, y) (the
-   orthographic projection about the scene's reference point, :func:`swim.frames.orthographic_xy`), and
-   records how far the real column positions deviate from it.
+   orthographic projection about the scene's reference point, :func:`swim.frames.orthographic_xy`; the scene's
+   own 1-D ``x``, ``y`` coordinates where its grid reaches beyond the limb), and records how far the real column
+   positions deviate from it.
 
 The result is an :class:`xarray.Dataset`; see :func:`build_optical_volume`.
 """
@@ -24,7 +25,7 @@ import logging
 import numpy as np
 import xarray as xr
 
-from ..constants import HYDROMETEOR_DENSITY, SPECIES, WAVELENGTHS_NM
+from ..constants import EARTH_RADIUS_M, HYDROMETEOR_DENSITY, SPECIES, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import orthographic_xy
 from ..io.scene import DEFAULT_WIND_SPEED_M_S
@@ -321,9 +322,23 @@ def default_surface_albedo(land_mask):
     return land * np.array(DEFAULT_LAND_ALBEDO)[:, None, None] + (1 - land) * np.array(DEFAULT_WATER_ALBEDO)[:, None, None]
 
 
+def _column_xy(scene: xr.Dataset, lat0, lon0):
+    """The columns' orthographic (x, y) [m], each (y, x): ``orthographic_xy(lat, lon)``; of a grid with 1-D ``x`` and
+    ``y`` coordinates that reaches beyond the limb (some column with ``x^2 + y^2 >= R^2``, whose lat/lon cannot give
+    its place: ``swim.io.globe.hemisphere_scene``) ``np.meshgrid(x, y)``, which places a regular grid exactly however
+    far it reaches. (Inside the limb the two agree to ~1e-9 m, and an index map fitted to either is the same to
+    1e-14 of a cell; the columns' lat/lon keep the renders of such grids as they were, bit for bit.)"""
+    if all(axis in scene.coords and scene[axis].dims == (axis,) for axis in ("x", "y")):
+        gx, gy = np.meshgrid(np.asarray(scene["x"].values, dtype=float), np.asarray(scene["y"].values, dtype=float))
+        if np.any(gx**2 + gy**2 >= EARTH_RADIUS_M**2):
+            return gx, gy
+    return orthographic_xy(scene["lat"].values, scene["lon"].values, lat0, lon0)
+
+
 def _grid_maps(scene: xr.Dataset, lat0, lon0):
-    """The columns' orthographic (x, y) [m] (y, x) and the attributes of their affine fit and cubic index map."""
-    gx, gy = orthographic_xy(scene["lat"].values, scene["lon"].values, lat0, lon0)
+    """The columns' orthographic (x, y) [m] (y, x) (:func:`_column_xy`) and the attributes of their affine fit and
+    cubic index map."""
+    gx, gy = _column_xy(scene, lat0, lon0)
     origin, matrix, residual = fit_grid_affine(gx, gy)
     spacing = float(np.sqrt(abs(np.linalg.det(matrix))))
     centre, scale, coefficients, index_residual = fit_grid_index_map(gx, gy)

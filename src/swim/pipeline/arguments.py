@@ -22,6 +22,7 @@ from ..rt.clouds import MIN_SUN_COSINE
 from ..optics.aerosol_types import AerosolType
 from ..rt.gas import AerosolBackground
 from ..rt.march_settings import MarchSettings
+from ..rt.solar import PER_COLUMN_SUN_TILT_DEG, column_tilt_deg, per_column_sun
 
 log = logging.getLogger(__name__)
 
@@ -151,11 +152,35 @@ def background_aerosol(aerosol, scene_vars) -> AerosolBackground:
 
 
 
-def settings_for_sun(settings: MarchSettings, sun: SunPosition, sun_scene) -> MarchSettings:
-    """``settings``, with the 3-D cloud scattering replaced by the paper's method where the sun (``sun_scene``, its
-    unit direction in the scene frame) is too low for the 3-D diffuse solution: twilight and night skies, lit by the
-    clear sky's tables (the image's ``cloud_scattering`` attribute says which ran)."""
+#: Tilt [deg] between the verticals of a grid's columns (:func:`swim.rt.solar.column_tilt_deg`) above which the
+#: clouds are scattered by the paper's method, composed at each ray's own vertical, instead of the 3-D diffuse
+#: solution: whole-earth and hemispheric grids. Regional grids below it (a GFS region of 15 deg: 21.7 deg) keep the
+#: 3-D solution, right near the reference point where a ground camera looks, and Step 1a's per-column sun
+#: (docs/decisions/0020-per-column-sun.md).
+WHOLE_EARTH_TILT_DEG = 30.0
+
+
+def settings_for_sun(settings: MarchSettings, sun: SunPosition, sun_scene, volume: xr.Dataset | None = None
+                     ) -> MarchSettings:
+    """``settings``, with the 3-D cloud scattering replaced by the paper's method (the image's ``cloud_scattering``
+    attribute says which ran) where the sun (``sun_scene``, its unit direction in the scene frame) is too low for the
+    3-D diffuse solution (twilight and night skies, lit by the clear sky's tables), and on a grid whose columns tilt
+    by more than :data:`WHOLE_EARTH_TILT_DEG` (``volume``, the optical volume: a whole-earth view), which the 3-D
+    diffuse solution, solved for one sun in a flat frame, cannot light: there the paper's method composes each ray's
+    clouds at its own vertical (docs/decisions/0020-per-column-sun.md). On such a grid the JAX kernel's
+    composition keeps the reference point's vertical: a warning says that its cloud lighting far from the reference
+    point is approximate."""
     clouds = settings.cloud_scattering
+    per_column = volume is not None and per_column_sun(volume)
+    whole_earth = per_column and column_tilt_deg(volume) > WHOLE_EARTH_TILT_DEG
+    if per_column and settings.resolved_backend() == "jax":
+        log.warning("the JAX kernel composes the clouds at the reference point's vertical: on this grid (its columns "
+                    "tilt above %.0f deg) cloud lighting far from the reference point is approximate (backend "
+                    "'numba' takes each ray's own vertical)", PER_COLUMN_SUN_TILT_DEG)
+    if whole_earth and clouds.three_d:
+        log.info("clouds scattered by the albers2020 method: the grid's columns tilt by more than %.0f deg, their suns "
+                 "too far apart for the 3-D diffuse solution (one sun, a flat frame)", WHOLE_EARTH_TILT_DEG)
+        return dataclasses.replace(settings, cloud_scattering=dataclasses.replace(clouds, method="albers2020"))
     if not (clouds.three_d and sun_scene[2] <= MIN_SUN_COSINE):
         return settings
     log.info("sun elevation %.2f deg: clouds scattered by the albers2020 method (the 3-D diffuse solution needs "

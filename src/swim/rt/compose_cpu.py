@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from ..constants import BACKSCATTER_FRACTION, SPECIES
 from ..optics.phase import (
@@ -41,13 +42,19 @@ from ..optics.phase import (
 )
 from .march_settings import FROM_ABOVE_BLEND, TOP_MIN_MU0, TOP_MIN_SELF_TRANSMITTANCE, TOP_REFLECTANCE_MIN_MU0
 from ..compilation.numba_jit import JIT_KERNEL, helper_jit
-from .march_cpu import _P_SUN
+from .march_cpu import _P_RADIUS, _P_SUN
 from .solar import ONE_MINUS_G_PER_BACKSCATTER
 
 #: Index of cloud liquid in :data:`swim.constants.SPECIES`: its forward lobe depends on the wavelength.
 _LIQUID = SPECIES.index("cloud_liquid")
 #: Where :func:`swim.rt.march_cpu.pack_parameters` keeps mu0, the sun direction's vertical component [-].
 P_MU0 = _P_SUN + 2
+#: Where it keeps the sun's unit direction (3,) in the scene frame and the Earth's radius [m].
+P_SUN, P_RADIUS = _P_SUN, _P_RADIUS
+#: Height [m] of the sphere on which :func:`local_view_geometry` takes a ray's local vertical: about the middle of
+#: the cloud layers seen from space. A cloud 6 km above or below it, seen 80 deg from its zenith, lies 34 km (0.3 deg
+#: of great circle) from that point.
+CLOUD_VERTICAL_HEIGHT_M = 4000.0
 
 # The coefficients reach the compiled functions as arguments, not as globals: numba bakes globals into its cached
 # machine code and checks only this file's time stamp, so a coefficient changed in swim.optics.phase would not reach
@@ -91,6 +98,59 @@ LOBES = lobes()
 G_LIQUID_ARRAY = np.array(G_LIQUID, dtype=np.float64)
 BACKSCATTER_ARRAY = np.array([BACKSCATTER_FRACTION[s] for s in SPECIES], dtype=np.float64)
 _LN10 = math.log(10.0)
+
+
+def local_view_geometry(start, direction, radius, sun, height=CLOUD_VERTICAL_HEIGHT_M):
+    """The cosines of the view zenith angle and of the solar zenith angle of each ray at its own vertical: where the
+    ray meets the sphere ``height`` above the surface (first from outside it; from inside, where it leaves it; a ray
+    that passes above it, at its closest approach), for :func:`compose_clouds` on a grid that spans a noticeable
+    part of the sphere (docs/decisions/0020-per-column-sun.md).
+
+    Parameters
+    ----------
+    start, direction : numpy.ndarray
+        Shape (n, 3): the rays' rebased start [m] (scene frame, z less ``radius``, as the march takes them) and unit
+        direction.
+    radius : float
+        The Earth's radius [m] of the scene frame.
+    sun : numpy.ndarray
+        Shape (3,): the unit direction towards the sun in the scene frame.
+    height : float
+        Height [m] of the sphere on which the vertical is taken.
+
+    Returns
+    -------
+    cos_view_zenith : numpy.ndarray
+        Shape (n,) float32: the ray's direction dotted with the local vertical [-] (negative looking down).
+    mu0 : numpy.ndarray
+        Shape (n,) float64: the sun's direction dotted with the local vertical [-].
+    """
+    centre = np.array(start, dtype=float)  # from the Earth's centre
+    centre[:, 2] += radius
+    direction = np.asarray(direction, dtype=float)
+    b = np.einsum("ij,ij->i", centre, direction)
+    c = np.einsum("ij,ij->i", centre, centre) - (radius + height) ** 2
+    root = np.sqrt(np.maximum(b * b - c, 0.0))  # 0 where the ray misses the sphere: its closest approach
+    s = np.where(c > 0.0, -b - root, -b + root)  # outside: the first crossing; inside: where it leaves
+    point = centre + np.maximum(s, 0.0)[:, None] * direction
+    up = point / np.linalg.norm(point, axis=1)[:, None]
+    return (np.einsum("ij,ij->i", up, direction).astype(np.float32),
+            up @ np.asarray(sun, dtype=float))
+
+
+def ray_value(value, r):
+    """``value`` for ray ``r``: the number itself, or entry ``r`` of an array of one value per ray. In compiled code
+    each kind of ``value`` gets its own machine code (:func:`_ray_value_overload`): the number's is that of a scalar
+    read, so a kernel that takes either compiles the scalar case as if it took only the number."""
+    return value[r] if np.ndim(value) else value
+
+
+@overload(ray_value, inline="always")
+def _ray_value_overload(value, r):
+    """numba's implementation of :func:`ray_value`, chosen by the type of ``value``."""
+    if isinstance(value, types.Array):
+        return lambda value, r: value[r]
+    return lambda value, r: value
 
 
 @helper_jit(inline="always")
@@ -183,9 +243,13 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
     valid : numpy.ndarray
         Shape (n,) bool: rays of the camera's pixels (the others get radiance 0).
     cos_theta, cos_view_zenith : numpy.ndarray
-        Shape (n,): cosines of the scattering angle and of the view zenith angle at the observer [-].
-    mu0 : float
-        Cosine of the solar zenith angle [-].
+        Shape (n,): cosines of the scattering angle and of the view zenith angle [-]: the ray's direction dotted
+        with the vertical at the reference point, or on a grid whose columns take their own sun with the local
+        vertical where the ray meets the clouds (:func:`local_view_geometry`).
+    mu0 : float or numpy.ndarray
+        Cosine of the solar zenith angle [-]: at the reference point, or (shape (n,)) of each ray's local vertical.
+        Each kind compiles to its own machine code (:func:`ray_value`); the same value for every ray gives the
+        scalar's result bit for bit.
     g_liquid : numpy.ndarray
         Shape (3,): cloud liquid's forward-peak asymmetry parameter per wavelength (paper Eq. 16).
     backscatter : numpy.ndarray
@@ -199,8 +263,6 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
     k = coefficients
     n = tau_h.shape[0]
     n_species = species.shape[0]
-    low_sun = (9.0 / 7.0) * max(mu0, k[_K_MIN_MU0])  # diffuse_transmission_factor (Eq. 21's c4)
-    mu0_top = max(mu0, k[_K_TOP_MIN_MU0])
     one_f = 1.0 - k[_K_FORWARD]
     from_above = k[_K_FROM_ABOVE]
     ln_g_liquid = np.empty(3)
@@ -211,6 +273,9 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
         for c in range(3):
             cloud_out[r, c] = 0.0
         if tau > 1e-6:
+            mu0_ray = ray_value(mu0, r)
+            low_sun = (9.0 / 7.0) * max(mu0_ray, k[_K_MIN_MU0])  # diffuse_transmission_factor (Eq. 21's c4)
+            mu0_top = max(mu0_ray, k[_K_TOP_MIN_MU0])
             safe, mu, mu_view_down, w_above, low_factor, tp, c1 = _ray_terms(tau, i_cloud_t[r], cos_theta[r],
                                                                             cos_view_zenith[r], from_above, low_sun)
             # phase_thick (Eqs. 19-21) with the indirectly lit term's low_factor
@@ -246,7 +311,8 @@ def compose_clouds(tau_h, tau_packed, species, i_nogas, i_gas, i_cloud_t, l_clea
             lim = min(tau, 2.0)
             depth_s = (1.0 - (1.0 + lim) * math.exp(-lim)) / safe * mu_down / mu0_top
             t_self = max(_transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top, k), k[_K_TOP_MIN_T_SELF])
-            top = 4.0 * max(mu0, 0.0) * _reflectance_factor(mu_down, max(mu0, k[_K_TOP_ARF_MIN_MU0]), mu, k) / t_self
+            top = (4.0 * max(mu0_ray, 0.0) * _reflectance_factor(mu_down, max(mu0_ray, k[_K_TOP_ARF_MIN_MU0]), mu, k)
+                   / t_self)
             for c in range(3):
                 p_thin = rest + peak + w_liquid * f1 * _henyey_greenstein(mu, math.exp(tp * ln_g_liquid[c]))
                 phase = c1 * p_thin + (1.0 - c1) * thick  # effective_phase_function (Eq. 13)

@@ -53,6 +53,7 @@ from .march_inputs import GridGeometry, _ends_on_surface
 from .march_settings import (CELL_SLACK, CLEAR_PROBES, CLEAR_STEP_FLOOR, CLEAR_STEP_POWER, EMPTY_CELLS_PER_STEP,
                              EMPTY_STEP_WEIGHT, MAX_PROBES, MarchSettings, REFINE_BUDGET, REFINE_DEPTH, REFINE_SLOTS,
                              REFINE_VISIBLE_TAU, SUNLIT_CELLS_PER_STEP, TERRAIN_BISECTIONS)
+from .solar import PER_COLUMN_SUN_TILT_DEG
 
 log = logging.getLogger(__name__)
 
@@ -130,6 +131,19 @@ def _lateral_margin(geometry: GridGeometry, radius):
     the height-dependent scale of (x, y)."""
     _, ny, nx = geometry.shape
     return 1.0 + geometry.top / radius * max(nx, ny) + geometry.affine_residual_cells
+
+
+def grid_tilt_deg(geometry: GridGeometry, radius=EARTH_RADIUS_M) -> float:
+    """The largest angle [deg] between the vertical at a corner column of the grid's affine frame and the vertical at
+    the scene's reference point: :func:`swim.rt.solar.column_tilt_deg` from the affine fit (exact for a grid regular
+    in orthographic (x, y), such as :func:`swim.io.globe.hemisphere_scene`'s; within the fit's residual, 0.02 deg for
+    the WRF Katrina grid, for others), which is what the march has of the volume. Above
+    :data:`swim.rt.solar.PER_COLUMN_SUN_TILT_DEG` the numba march composes each ray's clouds at its own vertical
+    (:func:`swim.rt.compose_cpu.local_view_geometry`)."""
+    _, ny, nx = geometry.shape
+    corners = np.array([[0.0, 0.0], [nx - 1.0, 0.0], [0.0, ny - 1.0], [nx - 1.0, ny - 1.0]])
+    xy = np.asarray(geometry.origin, dtype=float)[None] + corners @ np.asarray(geometry.matrix, dtype=float).T
+    return float(np.degrees(np.arcsin(min(float(np.max(np.hypot(xy[:, 0], xy[:, 1]))) / radius, 1.0))))
 
 
 def ray_segments_compiled(origins, directions, geometry: GridGeometry, top=100_000.0, radius=EARTH_RADIUS_M):
@@ -309,7 +323,7 @@ def trace_rays(origins, directions, consts, geometry: GridGeometry, ray_phase, s
         # chunks that shrink towards the batch's end, so that all cores finish together (chunk_spans)
         cores = threads()
         spans = chunk_spans(n, chunk, cores)
-        tables = _numba_tables(consts)
+        tables = {**_numba_tables(consts), "local_vertical": grid_tilt_deg(geometry) > PER_COLUMN_SUN_TILT_DEG}
     else:
         spans = [(lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
         from . import march_jax  # JAX is imported only for its kernel
@@ -524,6 +538,12 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
 
     st = {key: value[:n] for key, value in state.items()}  # the real rays' float64 rows (views)
     surface = _ends_on_surface(st, ends_on_ground[:n])
+    # the view's and the sun's zenith cosines: at the reference point, or on a grid whose columns take their own sun
+    # at each ray's local vertical (docs/decisions/0020-per-column-sun.md)
+    view_sun = (rays["cos_view_zenith"][:n], tables["p"][compose_cpu.P_MU0])
+    if tables.get("local_vertical", False):
+        view_sun = compose_cpu.local_view_geometry(exact[0][:n], exact[1][:n], tables["p"][compose_cpu.P_RADIUS],
+                                                   tables["p"][compose_cpu.P_SUN:compose_cpu.P_SUN + 3])
     l_surface = np.zeros((n, 3), np.float32)
     if np.any(surface):
         from . import ground_cpu
@@ -531,7 +551,7 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
         g = ground_cpu.ground_tables()
         cloud_mode = bool(tables["cloud_mode"])
         ground_cpu.ground_radiance(
-            exact[0][:n], exact[1][:n], st["s_hit"], surface, rays["cos_view_zenith"][:n], st["tau_h"],
+            exact[0][:n], exact[1][:n], st["s_hit"], surface, view_sun[0], st["tau_h"],
             st["tau_clear"], st["tau_species"], tables["species_index"], *ray_class, tables["p"], tables["coef"],
             tables["sky"],
             tables["diffuse_classes"], tables["n_class"], tables["surface"], tables["surface_outside"],
@@ -553,7 +573,7 @@ def _compose_numba(exact, ends_on_ground, valid, rays, settings, tables, state, 
     radiance, l_cloud = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
     compose_cpu.compose_clouds(st["tau_h"], st["tau_species"], tables["species_index"], st["i_nogas"], st["i_gas"],
                                st["i_cloud_t"], st["l_clear"], l_surface, np.array(valid[:n]), rays["cos_theta"][:n],
-                               rays["cos_view_zenith"][:n], tables["p"][compose_cpu.P_MU0], compose_cpu.G_LIQUID_ARRAY,
+                               *view_sun, compose_cpu.G_LIQUID_ARRAY,
                                compose_cpu.BACKSCATTER_ARRAY, compose_cpu.COEFFICIENTS, compose_cpu.LOBES, radiance,
                                l_cloud)
     return {"radiance": radiance, "radiance_clear": st["l_clear"].astype(np.float32), "radiance_cloud": l_cloud,

@@ -7,6 +7,10 @@ the integral of the extinction over the slanted segment in between. The segment 
 no longer than one grid cell horizontally, so clouds are not skipped under a low sun. Outside the domain
 the air is taken as free of clouds (only the gas, handled in Step 2, attenuates there).
 
+On a grid that spans a noticeable part of the sphere (its columns' verticals tilt by more than
+:data:`PER_COLUMN_SUN_TILT_DEG` from the reference point's) each column takes the sun in its own local frame: its
+own shift per level, path per level and mu0 (:func:`column_sweep_geometry`, docs/decisions/0020-per-column-sun.md).
+
 Four fields are swept together: the hydrometeor extinction, the extinction weighted by each species'
 backscatter fraction b (so that ``b tau_s = sum_s b_s tau_s`` in Eqs. 4-5), an opaque terrain occupancy
 field, which makes mountains cast shadows, and the 3-D aerosol extinction (its own optical depth towards the
@@ -183,7 +187,8 @@ def step1a_levels(volume: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
 STEP1A_ATTRS = {"tau_sun": {"units": "1", "long_name": "optical depth towards the sun (Step 1a)"},
                 "b_tau_sun": {"units": "1"},
                 "terrain_shadow": {"units": "1"},
-                "aerosol_tau_sun": {"units": "1", "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
+                "aerosol_tau_sun": {"units": "1",
+                                    "long_name": "optical depth of the 3-D aerosol towards the sun at 550 nm"},
                 "cloud_transmittance": {"units": "1", "long_name": "cloud transmittance T (Step 1a)"},
                 "transmittance": {"units": "1", "long_name": "cloud transmittance T times terrain shadow"}}
 #: :data:`OUT_VARIABLES` above the swept levels, where nothing casts a shadow: T and the terrain's shadow 1, the 3-D
@@ -236,6 +241,118 @@ def sweep_geometry(volume: xr.Dataset, sun, caller: str):
     return float(di), float(dj), n_sub, dz / sin_elev, max(max(float(sun[2]), 0.0), MIN_SUN_ELEVATION_SINE)
 
 
+#: Largest tilt [deg] between a column's vertical and the reference point's up to which Step 1a sweeps one sun
+#: direction through the grid as if it were flat (:func:`sweep_geometry`); beyond it each column takes its own sun
+#: (:func:`column_sweep_geometry`). Measured on a uniform layer (tau_v = 5), the flat sweep's slant optical depth at
+#: the grid's rim errs by about tilt x tan(z0), its T by less: at 3 deg 2.5 % and 1.1 % (z0 = 30 deg), 7.3 % and
+#: 3.2 % (60 deg); at 15 deg (a GFS region of +- 15 deg) 14 % and 6.7 %, 38 % and 20 %
+#: (docs/decisions/0020-per-column-sun.md). The WRF Katrina grid tilts by 2.74 deg.
+PER_COLUMN_SUN_TILT_DEG = 3.0
+
+
+def column_tilt_deg(volume: xr.Dataset) -> float:
+    """The largest angle [deg] between a column's vertical and the vertical at the scene's reference point.
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        Optical volume with ``grid_x``, ``grid_y`` (y, x) [m] (orthographic coordinates about the reference point,
+        :func:`swim.frames.orthographic_xy`; a volume without them is taken as flat: 0).
+
+    Returns
+    -------
+    float
+        arcsin(max_columns sqrt(x^2 + y^2) / R) [deg], R = :data:`swim.constants.EARTH_RADIUS_M`.
+    """
+    from ..constants import EARTH_RADIUS_M
+
+    if "grid_x" not in volume or "grid_y" not in volume:
+        return 0.0
+    rho = float(np.sqrt(np.max(volume["grid_x"].values ** 2 + volume["grid_y"].values ** 2))) / EARTH_RADIUS_M
+    return float(np.degrees(np.arcsin(min(rho, 1.0))))
+
+
+def per_column_sun(volume: xr.Dataset) -> bool:
+    """Whether Step 1a takes each column's own sun (:func:`column_sweep_geometry`): the grid's
+    :func:`column_tilt_deg` is above :data:`PER_COLUMN_SUN_TILT_DEG`."""
+    return column_tilt_deg(volume) > PER_COLUMN_SUN_TILT_DEG
+
+
+def column_sweep_geometry(volume: xr.Dataset, sun, caller: str):
+    """The sun's path through an optical volume's levels column by column: :func:`sweep_geometry` with each column's
+    own sun, for a grid that spans a noticeable part of the sphere.
+
+    A column at orthographic coordinates (x, y) stands on the sphere's point p = (x, y, sqrt(R^2 - x^2 - y^2)) of the
+    scene frame (docs/frames.md), its vertical u = p / R. The sun (a direction, the same for all columns) is at
+    mu0 = s . u there; climbing one level dz along the sun moves the ray by (s - mu0 u) dz / mu0 in the column's
+    tangent plane, whose scene x and y are the grid coordinates' change (a radial step leaves them as they are). The
+    grid's local Jacobian d(x, y) / d(i, j) (centred differences of ``grid_x``, ``grid_y``) turns it into grid
+    indices, so a latitude-longitude grid's varying spacing is followed too. At the reference point this is
+    :func:`sweep_geometry`'s shift.
+
+    Where the local sun is below :data:`MIN_SUN_ELEVATION_SINE` the column is treated as the flat sweep treats a
+    grazing sun (the elevation's sine taken as that limit); where it is at or below the horizon (mu0 <= 0) the column
+    gets no direct sun (``lit`` False: :func:`solar_transmittance` sets its terrain shadow, which cuts the direct beam,
+    to 0). Twilight through the limb (the sun seen over the horizon through the atmosphere) is not modelled.
+
+    Parameters
+    ----------
+    volume : xarray.Dataset
+        Optical volume: ``grid_x``, ``grid_y`` (y, x) [m] and the attribute ``dz`` [m].
+    sun : numpy.ndarray
+        Shape (3,): unit vector towards the sun in the scene frame.
+    caller : str
+        Named in the error.
+
+    Returns
+    -------
+    di, dj : numpy.ndarray
+        Shape (y, x) float64: each column's sun-ray shift [grid indices] per level climbed.
+    n_sub : int
+        Sub-steps per level: none longer than one grid cell horizontally in any column (at most 256).
+    path_per_level : numpy.ndarray
+        Shape (y, x) float64: path length [m] along the sun per level.
+    mu0 : numpy.ndarray
+        Shape (y, x) float32: the cosine of the local solar zenith angle [-] that T takes, at least
+        :data:`MIN_SUN_ELEVATION_SINE`.
+    lit : numpy.ndarray
+        Shape (y, x) bool: the local sun is above the horizon.
+
+    Raises
+    ------
+    SwimInputError
+        If a shift is not finite (a degenerate grid: two columns at one place).
+
+    References
+    ----------
+    Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sect. 3.4 (Step 1a's rays towards the sun);
+    docs/decisions/0020-per-column-sun.md.
+    """
+    from ..constants import EARTH_RADIUS_M
+
+    sun = np.asarray(sun, dtype=float)
+    dz = float(volume.attrs["dz"])
+    gx, gy = (np.asarray(volume[name].values, dtype=float) for name in ("grid_x", "grid_y"))
+    ux, uy = gx / EARTH_RADIUS_M, gy / EARTH_RADIUS_M
+    uz = np.sqrt(np.clip(1.0 - ux * ux - uy * uy, 0.0, 1.0))
+    mu = sun[0] * ux + sun[1] * uy + sun[2] * uz
+    sin_elev = np.maximum(mu, MIN_SUN_ELEVATION_SINE)
+    step_x = (sun[0] - mu * ux) / sin_elev * dz  # [m] per level, grid x and y
+    step_y = (sun[1] - mu * uy) / sin_elev * dz
+    # the local Jacobian: columns of d(x, y)/di and d(x, y)/dj (y, x, 2, 2), inverted per column
+    x_j, x_i = np.gradient(gx)
+    y_j, y_i = np.gradient(gy)
+    det = x_i * y_j - x_j * y_i
+    with np.errstate(divide="ignore", invalid="ignore"):
+        di = (y_j * step_x - x_j * step_y) / det
+        dj = (x_i * step_y - y_i * step_x) / det
+    if not (np.all(np.isfinite(di)) and np.all(np.isfinite(dj))):
+        raise SwimInputError(f"{caller}: the sun's shift per level is not finite in some columns; check the sun "
+                             f"direction {sun.tolist()} and the volume's grid_x, grid_y (two columns at one place?)")
+    n_sub = int(np.clip(np.ceil(max(float(np.abs(di).max()), float(np.abs(dj).max()), 1.0)), 1, 256))
+    return di, dj, n_sub, dz / sin_elev, sin_elev.astype(np.float32), mu > 0.0
+
+
 def swept_levels(top) -> int:
     """Levels [-] a field is swept on: up to its highest level ``top`` (level,) bool marks (which must mark one), and
     the clear level above it, at least 2 and at most all; above them its optical depth towards the sun is 0."""
@@ -244,8 +361,8 @@ def swept_levels(top) -> int:
 
 def backscatter_weights(volume: xr.Dataset) -> np.ndarray:
     """The backscatter fraction b [-] (species,) float32 of each species of an optical volume's ``species``
-    coordinate (after :func:`swim.rt.march_inputs.share_packed_channels` it names only the packed species): the weights of
-    the swept ``b tau_s`` (Sect. 3.4 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020)."""
+    coordinate (after :func:`swim.rt.march_inputs.share_packed_channels` it names only the packed species): the
+    weights of the swept ``b tau_s`` (Sect. 3.4 of Albers et al. 2020, doi:10.5194/amt-13-3235-2020)."""
     return np.array([BACKSCATTER_FRACTION[str(name)] for name in volume["species"].values], np.float32)
 
 
@@ -258,15 +375,19 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     volume : xarray.Dataset
         Optical volume from :func:`swim.optics.volume.build_optical_volume`.
     sun_direction_scene : array_like
-        Shape (3,): unit vector towards the sun in the scene frame (ENU at the reference point).
+        Shape (3,): unit vector towards the sun in the scene frame (ENU at the reference point). On a grid whose
+        columns' verticals tilt by more than :data:`PER_COLUMN_SUN_TILT_DEG` from the reference point's
+        (:func:`per_column_sun`), each column takes this sun in its own local frame (:func:`column_sweep_geometry`:
+        its own mu0, shifts and path; no direct sun, a terrain shadow of 0, where the sun is below its horizon).
     variables : sequence of str, optional
         Only these of the variables below (a render needs ``cloud_transmittance``, ``terrain_shadow`` and
         ``aerosol_tau_sun``; each is a float32 field of the volume's size); default: all of them.
     backend : {"auto", "jax", "numba"}
-        The sweep's code: JAX (:func:`swim.rt.solar_device._sweep`, any device) or numba (:func:`swim.rt.solar_cpu.sweep`: the sweep
-        ~5x, Step 1a as a whole ~3x faster on a CPU); "auto" takes numba when JAX's default device is the CPU and
-        numba is installed, as :meth:`swim.rt.march_settings.MarchSettings.resolved_backend` does. Both give the same optical depths to float32
-        round-off.
+        The sweep's code: JAX (:func:`swim.rt.solar_device._sweep`, any device) or numba
+        (:func:`swim.rt.solar_cpu.sweep`: the sweep ~5x, Step 1a as a whole ~3x faster on a CPU); "auto" takes numba
+        when JAX's default device is the CPU and numba is installed, as
+        :meth:`swim.rt.march_settings.MarchSettings.resolved_backend` does. Both give the same optical depths to
+        float32 round-off.
     nonzero_levels : tuple of numpy.ndarray, optional
         The volume's :func:`step1a_levels`, if the caller kept them from an earlier sun; default: scanned here.
     out : dict of str to numpy.ndarray, optional
@@ -290,9 +411,9 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
         e^{-tau}, and is not part of T); ``terrain_shadow`` (level, y, x)
         [-]: transmittance of the terrain (0 in a mountain's shadow); ``cloud_transmittance`` (level, y, x)
         [-]: T alone (it dims the skylight; the terrain shadow cuts only the direct beam);
-        ``transmittance`` (level, y, x) [-]: T (:func:`transmittance_delta_eddington`, in place of Eq. 6) times the terrain shadow, i.e.
-        E / (e^{-tau_R} E_TOA) of Eq. 8. All are float32; a field that nothing makes (no cloud, terrain or
-        3-D aerosol) is a read-only broadcast of its constant value.
+        ``transmittance`` (level, y, x) [-]: T (:func:`transmittance_delta_eddington`, in place of Eq. 6) times the
+        terrain shadow, i.e. E / (e^{-tau_R} E_TOA) of Eq. 8. All are float32; a field that nothing makes (no cloud,
+        terrain or 3-D aerosol) is a read-only broadcast of its constant value.
 
     Raises
     ------
@@ -313,7 +434,14 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     # "numba" without numba raises there
     backend = MarchSettings(execution=ExecutionSettings(backend=backend)).resolved_backend()
     sun = np.asarray(sun_direction_scene, dtype=float)
-    di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "solar_transmittance")
+    lit = None
+    if per_column_sun(volume):  # a grid over a noticeable part of the sphere: each column's own sun
+        di, dj, n_sub, path_per_level, mu0, lit = column_sweep_geometry(volume, sun, "solar_transmittance")
+        log.info("Step 1a: each column's own sun (the grid's verticals tilt up to %.1f deg; local sun cosine %.3f to "
+                 "%.3f, %d columns without direct sun)", column_tilt_deg(volume), float(mu0.min()),
+                 float(mu0.max()), int(lit.size - lit.sum()))
+    else:
+        di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "solar_transmittance")
     dz = float(volume.attrs["dz"])
 
     beta = volume["extinction"].values
@@ -341,7 +469,7 @@ def solar_transmittance(volume: xr.Dataset, sun_direction_scene, variables=None,
     taus = _swept_depths((beta, aerosol, levels, terrain, dz), tops, b, backend, (di, dj, n_sub, path_per_level))
     log.info("Step 1a sweep (%s): %d sub-steps per level, max tau_sun %.1f", backend, n_sub,
              float(taus[0].max()) if 0 in taus else 0.0)
-    return _step1a_dataset(volume, names, out, taus, mu0, direct_beam)
+    return _step1a_dataset(volume, names, out, taus, mu0, direct_beam, lit)
 
 
 def _checked_request(volume: xr.Dataset, variables, backend, out):
@@ -399,7 +527,7 @@ def _swept_depths(arrays, tops, b, backend, geometry):
     ``arrays``: the volume's extinction (species, level, y, x) and aerosol extinction (level, y, x) [m-1], levels
     and terrain height [m] and dz [m]; ``tops`` (level,) bool per field marks its non-zero levels (a field with none
     is not swept); ``b`` (species,) the weights of field 1; ``geometry``: :func:`sweep_geometry`'s (di, dj, n_sub,
-    path_per_level).
+    path_per_level), or :func:`column_sweep_geometry`'s with (y, x) arrays of di, dj and path_per_level.
     """
     from ..workers import in_blocks
     from .solar_cpu import species_sums
@@ -447,6 +575,8 @@ def _swept_depths(arrays, tops, b, backend, geometry):
 
             device = jnp.asarray(fields)
             del padded, fields  # the host copy goes before the sweep's output is made
+            if np.ndim(di):  # each column's own sun: (ny, nx) shifts and paths, which the sweep broadcasts
+                di, dj, path_per_level = (jnp.asarray(a, jnp.float32) for a in (di, dj, path_per_level))
             depths = np.asarray(_sweep(device, di, dj, path_per_level, n_sub))
             del device
         taus.update({c: depths[:, row] for row, c in enumerate(group)})
@@ -470,10 +600,13 @@ def _full_field(taus, nk, shape, c, transform=None, above=0.0):
     return a
 
 
-def _step1a_dataset(volume: xr.Dataset, names, out, taus, mu0, direct_beam):
-    """:func:`solar_transmittance`'s variables ``names`` from the swept optical depths ``taus`` (by field)."""
+def _step1a_dataset(volume: xr.Dataset, names, out, taus, mu0, direct_beam, lit=None):
+    """:func:`solar_transmittance`'s variables ``names`` from the swept optical depths ``taus`` (by field). ``mu0``:
+    one, or each column's (y, x) with ``lit`` (y, x) bool, False where the column gets no direct sun (its terrain
+    shadow 0: :func:`column_sweep_geometry`)."""
     nk = volume["level"].size
     shape = tuple(volume["extinction"].shape[2:])  # (ny, nx)
+    dark = None if lit is None or lit.all() else ~np.asarray(lit, bool)
 
     def cloud_t(k0, k1):
         if direct_beam:
@@ -493,24 +626,31 @@ def _step1a_dataset(volume: xr.Dataset, names, out, taus, mu0, direct_beam):
                "cloud_transmittance": (0, cloud_t, ABOVE_SWEPT["cloud_transmittance"])}
     data = {}
     if out:
-        _write_step1a_channels(out, taus, mu0, shape, direct_beam)
+        _write_step1a_channels(out, taus, mu0, shape, direct_beam, dark)
         data = {name: (dims, out[name], attrs[name]) for name in out}
+
+    def made(name):  # a column without direct sun: no terrain shadow's light either
+        value = _full_field(taus, nk, shape, *recipes[name])
+        return value if dark is None or name != "terrain_shadow" else np.where(dark, np.float32(0.0), value)
+
     for name in names:  # one field at a time, so only the requested ones are ever held
         if name in data:
             continue
         if name == "transmittance":  # T times the terrain shadow, each made once if it is asked for too
-            parts = [data[part][1] if part in data else _full_field(taus, nk, shape, *recipes[part])
-                     for part in ("cloud_transmittance", "terrain_shadow")]
+            parts = [data[part][1] if part in data else made(part) for part in ("cloud_transmittance",
+                                                                                "terrain_shadow")]
             value = parts[0] * parts[1]
         else:
-            value = _full_field(taus, nk, shape, *recipes[name])
+            value = made(name)
         data[name] = (dims, value, attrs[name])
     return xr.Dataset({name: data[name] for name in names}, coords={"level": volume["level"]})
 
 
-def _write_step1a_channels(out, taus, mu0, shape, direct_beam=False):
+def _write_step1a_channels(out, taus, mu0, shape, direct_beam=False, dark=None):
     """:data:`OUT_VARIABLES` of :func:`solar_transmittance` into the arrays ``out`` from the swept optical depths
-    ``taus`` (by swept field), level blocks on every core (:func:`swim.rt.solar_cpu.step1a_channels`)."""
+    ``taus`` (by swept field), level blocks on every core (:func:`swim.rt.solar_cpu.step1a_channels`). With each
+    column's own ``mu0`` (y, x), T is written by :func:`transmittance_delta_eddington` here, and the terrain shadow
+    is 0 in the columns ``dark`` (y, x) bool (or None)."""
     from ..workers import in_blocks
     from .solar_cpu import step1a_channels
 
@@ -522,9 +662,23 @@ def _write_step1a_channels(out, taus, mu0, shape, direct_beam=False):
                                                                    "aerosol_tau_sun")]
     nk = next(iter(out.values())).shape[0]
 
+    columns = np.ndim(mu0) > 0
+    # one sun: T in the compiled pass; each column's own: T with its mu0 below
+    scalar_mu0 = np.float32(MIN_SUN_ELEVATION_SINE) if columns else np.float32(mu0)
+    write_cloud = targets[0][0] and not (columns and not direct_beam)
+
     def write(k0, k1):
-        step1a_channels(k0, k1, np.float32(mu0), swept[0][0], swept[0][1], swept[1][1], swept[2][0], swept[2][1],
-                        swept[3][0], swept[3][1], targets[0][1], targets[1][1], targets[2][1], targets[0][0],
+        step1a_channels(k0, k1, scalar_mu0, swept[0][0], swept[0][1], swept[1][1], swept[2][0], swept[2][1],
+                        swept[3][0], swept[3][1], targets[0][1], targets[1][1], targets[2][1], write_cloud,
                         targets[1][0], targets[2][0], direct_beam)
+        if targets[0][0] and not write_cloud:
+            n_hydro, tau, b_tau = swept[0][0], swept[0][1], swept[1][1]
+            swept_to = min(k1, n_hydro)
+            if swept_to > k0:
+                targets[0][1][k0:swept_to] = transmittance_delta_eddington(tau[k0:swept_to], b_tau[k0:swept_to], mu0)
+            if k1 > max(k0, n_hydro):
+                targets[0][1][max(k0, n_hydro):k1] = ABOVE_SWEPT["cloud_transmittance"]
+        if targets[1][0] and dark is not None:
+            targets[1][1][k0:k1, dark] = 0.0
 
     in_blocks(write, nk)

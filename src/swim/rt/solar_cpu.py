@@ -119,6 +119,85 @@ def _add_above(taus, ny, nx, di, dj, block, ch_first, ch_end):
                     out[i] += (a0[i] * (1 - fi) + a1[i] * fi) * (1 - fj) + (b0[i] * (1 - fi) + b1[i] * fi) * fj
 
 
+@helper_jit()
+def _bilinear(field, a, b, ny, nx, jj, ii):
+    """Bilinear sample of ``field[a, b]`` (a 4-D array whose last two axes are ny + 1, nx + 1 with a zero last row and
+    column) at the fractional (jj, ii); zero outside the grid's (ny, nx) points. Scalar reads only (no views, so no
+    reference counts inside the callers' loops)."""
+    if jj < 0 or jj > ny - 1 or ii < 0 or ii > nx - 1:
+        return np.float32(0.0)
+    j0 = int(math.floor(jj))
+    i0 = int(math.floor(ii))
+    fj = np.float32(jj - j0)
+    fi = np.float32(ii - i0)
+    one = np.float32(1.0)
+    return ((field[a, b, j0, i0] * (one - fi) + field[a, b, j0, i0 + 1] * fi) * (one - fj)
+            + (field[a, b, j0 + 1, i0] * (one - fi) + field[a, b, j0 + 1, i0 + 1] * fi) * fj)
+
+
+@njit(**JIT_KERNEL, nogil=True)
+def _direct_columns(fields, taus, ny, nx, di, dj, scale, n_sub, block, midpoints, row_first, row_end):
+    """:func:`_direct_rows` with each column's own shift ``di``, ``dj`` (ny, nx) [grid indices per level] and scale
+    ``scale`` (ny, nx) [m per point]: the sun ray of a grid that spans a noticeable part of the sphere
+    (:func:`swim.rt.solar.column_sweep_geometry`). One column at a time, scalar reads, the bilinear weights of a point
+    shared by the fields (the stencil's weights differ from column to column, so the rows are no longer a vectorised
+    stencil): slower than :func:`_direct_rows`, and taken only for such grids."""
+    c, nk = fields.shape[0], fields.shape[1]
+    acc = np.zeros(c, np.float32)  # made once, outside the loops
+    one = np.float32(1.0)
+    for k in range(nk - 1):
+        for j in range(row_first, row_end):
+            for i in range(nx):
+                sdi = di[j, i]
+                sdj = dj[j, i]
+                for ch in range(c):
+                    acc[ch] = 0.0
+                for m in range(block):
+                    if k + m + 1 > nk - 1:
+                        break
+                    for q in range(n_sub):
+                        t = (q + 0.5) / n_sub
+                        jj = j + (m + t) * sdj
+                        ii = i + (m + t) * sdi
+                        if jj < 0 or jj > ny - 1 or ii < 0 or ii > nx - 1:
+                            continue  # zero outside the grid
+                        j0 = int(math.floor(jj))
+                        i0 = int(math.floor(ii))
+                        fj = np.float32(jj - j0)
+                        fi = np.float32(ii - i0)
+                        w00, w01, w10, w11 = (one - fj) * (one - fi), (one - fj) * fi, fj * (one - fi), fj * fi
+                        t32 = np.float32(t)
+                        for ch in range(c):
+                            low = (w00 * fields[ch, k + m, j0, i0] + w01 * fields[ch, k + m, j0, i0 + 1]
+                                   + w10 * fields[ch, k + m, j0 + 1, i0] + w11 * fields[ch, k + m, j0 + 1, i0 + 1])
+                            if midpoints:
+                                acc[ch] += low
+                            else:
+                                up = (w00 * fields[ch, k + m + 1, j0, i0] + w01 * fields[ch, k + m + 1, j0, i0 + 1]
+                                      + w10 * fields[ch, k + m + 1, j0 + 1, i0]
+                                      + w11 * fields[ch, k + m + 1, j0 + 1, i0 + 1])
+                                acc[ch] += low + t32 * (up - low)
+                s32 = np.float32(scale[j, i])
+                for ch in range(c):
+                    taus[k, ch, j, i] = acc[ch] * s32
+
+
+@njit(**JIT_KERNEL, nogil=True)
+def _add_above_columns(taus, ny, nx, di, dj, block, ch_first, ch_end):
+    """:func:`_add_above` with each column's own shift ``di``, ``dj`` (ny, nx) [grid indices per level]."""
+    nk = taus.shape[0]
+    for n in range(nk - 1):
+        k = nk - 2 - n
+        top = min(k + block, nk - 1)
+        levels = top - k
+        for j in range(ny):
+            for i in range(nx):
+                jj = j + levels * dj[j, i]
+                ii = i + levels * di[j, i]
+                for ch in range(ch_first, ch_end):
+                    taus[k, ch, j, i] += _bilinear(taus, top, ch, ny, nx, jj, ii)
+
+
 @njit(**JIT_EXACT)
 def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no cover - compiled
     """The sweep's first two fields for levels ``k0:k1``, in one pass over the species: ``total`` = the sum over the
@@ -126,8 +205,8 @@ def species_sums(extinction, weights, k0, k1, total, weighted):  # pragma: no co
     (species,) float32 (the backscatter fractions), each (k1 - k0, y, x) float32 (any strides), in float32.
 
     Where the species are channels of the packed volume (adjacent in memory,
-    :func:`swim.rt.march_inputs.share_packed_channels`), each cell's species are one cache line's read for both sums: two
-    sums over the species (one a weighted sum) would read the volume twice (the fill of a new sun's Step 1a for the
+    :func:`swim.rt.march_inputs.share_packed_channels`), each cell's species are one cache line's read for both sums:
+    two sums over the species (one a weighted sum) would read the volume twice (the fill of a new sun's Step 1a for the
     400 x 400 x 60 scene 0.12-0.14 s against 0.17-0.18 s; docs/decisions/0007-scene-set-up.md)."""
     n, _, ny, nx = extinction.shape
     for k in range(k0, k1):
@@ -205,10 +284,11 @@ def sweep(fields, di, dj, path_per_level, n_sub, block):
         Shape (C, nk, ny + 1, nx + 1), float32: the extinctions [m-1] of the grid's (ny, nx) columns with a zero
         last row and column (so that a lookup on the grid's far edge reads a zero weight's neighbour in bounds).
         Overwritten with one point per level (``n_sub`` 1).
-    di, dj : float
-        Shift [grid indices] of the sun ray per level climbed.
-    path_per_level : float
-        Path length [m] along the sun ray per level.
+    di, dj : float or numpy.ndarray
+        Shift [grid indices] of the sun ray per level climbed: one for the grid, or (ny, nx) arrays, each column's
+        own (:func:`swim.rt.solar.column_sweep_geometry`; :func:`_direct_columns`, :func:`_add_above_columns`).
+    path_per_level : float or numpy.ndarray
+        Path length [m] along the sun ray per level: one, or (ny, nx) with the per-column shifts.
     n_sub : int
         Points per level of the direct integral.
     block : int
@@ -222,7 +302,7 @@ def sweep(fields, di, dj, path_per_level, n_sub, block):
     c, nk, ny1, nx1 = fields.shape
     ny, nx = ny1 - 1, nx1 - 1
     taus = np.zeros((nk, c, ny1, nx1), np.float32)
-    scale = float(path_per_level) / n_sub
+    scale = float(path_per_level) / n_sub if np.ndim(path_per_level) == 0 else None
     midpoints = int(n_sub) == 1
     if midpoints:
         # One point per level, half-way between two levels: the mean of the two levels is taken once per level
@@ -235,6 +315,13 @@ def sweep(fields, di, dj, path_per_level, n_sub, block):
                 fields[:, k, j0:j1] *= np.float32(0.5)
 
         in_blocks(mean_of_levels, ny1)
+    if np.ndim(di) or np.ndim(dj) or np.ndim(path_per_level):  # each column's own sun
+        di, dj = (np.ascontiguousarray(np.broadcast_to(a, (ny, nx)), np.float64) for a in (di, dj))
+        scale = np.ascontiguousarray(np.broadcast_to(np.asarray(path_per_level, np.float64) / n_sub, (ny, nx)))
+        args = (fields, taus, ny, nx, di, dj, scale, int(n_sub), int(block), midpoints)
+        in_blocks(lambda j0, j1: _direct_columns(*args, j0, j1), ny)
+        in_blocks(lambda c0, c1: _add_above_columns(taus, ny, nx, di, dj, int(block), c0, c1), c)
+        return taus
     args = (fields, taus, ny, nx, float(di), float(dj), scale, int(n_sub), int(block), midpoints)
     in_blocks(lambda j0, j1: _direct_rows(*args, j0, j1), ny)  # blocks of rows on every core
     # the fields one per thread (levels must be added from the top down, one after the other)

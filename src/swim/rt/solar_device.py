@@ -24,6 +24,7 @@ doi:10.1175/1520-0469(1976)033<2452:TDEAFR>2.0.CO;2 (T, :func:`swim.rt.solar.tra
 from __future__ import annotations
 
 import functools
+import logging
 
 import jax
 import jax.numpy as jnp
@@ -33,7 +34,10 @@ from ..errors import SwimInputError
 from ..compilation.jax_export import exported_jit
 from .march_inputs import KERNEL_STEP1A_VARIABLES, packed_aerosol_3d, step1a_channel_names, step1a_channel_views
 from .solar import (ABOVE_SWEPT, DIRECT_LEVELS, STEP1A_ATTRS, TERRAIN_OPACITY_PER_CELL, backscatter_weights,
-                    sweep_geometry, swept_levels, transmittance_delta_eddington)
+                    column_sweep_geometry, per_column_sun, sweep_geometry, swept_levels,
+                    transmittance_delta_eddington)
+
+log = logging.getLogger(__name__)
 
 
 def _bilinear_zero_outside(field, jj, ii):
@@ -91,13 +95,21 @@ def _sweep(fields, di, dj, path_per_level, n_sub, block=DIRECT_LEVELS):
 
 
 def _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species, aerosol_3d,
-                    n_levels, n_sub):
+                    n_levels, n_sub, lit=None):
     """Step 1a's channels (levels, y, x, 2 or 3: [the 3-D aerosol's optical depth,] T, the terrain's shadow) of the
     device's packed volume (level, y, x, channel), all levels: swept up to ``n_levels``, above it T = 1, shadow 1 and
-    the aerosol's optical depth 0 (what the sweep gives where every field is zero above)."""
+    the aerosol's optical depth 0 (what the sweep gives where every field is zero above). With each column's own sun
+    (``di``, ``dj``, ``path_per_level``, ``mu0`` (y, x)), ``lit`` (y, x) float32 is 0 where a column gets no direct
+    sun: its terrain shadow is 0 there (:func:`swim.rt.solar.column_sweep_geometry`)."""
     nk, ny, nx, _ = packed.shape
     names = step1a_channel_names(aerosol_3d)
     above = jnp.asarray([ABOVE_SWEPT[name] for name in names], jnp.float32)
+    if lit is not None:  # the terrain shadow's channel (the last) times lit, on every level
+        unlit = jnp.ones(above.shape, jnp.float32).at[-1].set(0.0)
+        darken = unlit + (1.0 - unlit) * lit[..., None]  # (y, x, channels)
+        values = _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species,
+                                 aerosol_3d, n_levels, n_sub)
+        return values * darken
     if n_levels == 0:  # nothing to sweep (no cloud, no terrain above the lowest level, no 3-D aerosol)
         return jnp.broadcast_to(above, (nk, ny, nx, above.size))
     grid = packed[:n_levels]
@@ -122,9 +134,9 @@ def _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level
 
 
 def _refill(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species, aerosol_3d, n_levels,
-            n_sub):
+            n_sub, lit=None):
     values = _channel_values(packed, weights, terrain, levels, dz, di, dj, path_per_level, mu0, n_species,
-                             aerosol_3d, n_levels, n_sub)
+                             aerosol_3d, n_levels, n_sub, lit)
     first = packed.shape[-1] - values.shape[-1]
     return packed.at[..., first:].set(values), values[:n_levels]
 
@@ -144,15 +156,16 @@ def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species
     ----------
     device_packed : jax.Array
         Shape (level, y, x, channel) float32: the device's copy of the packed volume
-        (:func:`swim.rt.march_inputs.pack_volume`) with an earlier sun's Step 1a channels; its grid channels (the extinctions
-        of ``n_species`` species, then with a 3-D aerosol its extinction) are read. On a GPU its memory is reused for
-        the result: do not use it afterwards.
+        (:func:`swim.rt.march_inputs.pack_volume`) with an earlier sun's Step 1a channels; its grid channels (the
+        extinctions of ``n_species`` species, then with a 3-D aerosol its extinction) are read. On a GPU its memory is
+        reused for the result: do not use it afterwards.
     volume : xarray.Dataset
         The optical volume (:func:`swim.optics.volume.build_optical_volume`, its extinctions shared with the packed
         volume: :func:`swim.rt.march_inputs.share_packed_channels`): its ``species`` coordinate (the packed species),
         ``level`` [m], ``terrain_height`` (y, x) [m] and the attributes ``dz`` [m] and ``affine_matrix``.
     sun_direction_scene : array_like
-        Shape (3,): unit vector towards the sun in the scene frame.
+        Shape (3,): unit vector towards the sun in the scene frame; on a grid of :func:`swim.rt.solar.per_column_sun`
+        each column takes it in its own local frame, as on the host (:func:`swim.rt.solar.column_sweep_geometry`).
     n_species : int
         Species channels at the front of the packed volume.
     aerosol_3d : bool
@@ -164,8 +177,8 @@ def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species
     Returns
     -------
     device_packed : jax.Array
-        The packed volume with the new sun's Step 1a channels (:data:`swim.rt.march_inputs.KERNEL_STEP1A_VARIABLES`, without
-        the aerosol's where it is not packed).
+        The packed volume with the new sun's Step 1a channels (:data:`swim.rt.march_inputs.KERNEL_STEP1A_VARIABLES`,
+        without the aerosol's where it is not packed).
     swept : jax.Array
         Shape (n_levels, y, x, 2 or 3): those channels on the swept levels (above them T and the shadow are 1 and the
         aerosol's optical depth 0), for the host's copy.
@@ -189,7 +202,14 @@ def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species
     if tuple(device_packed.shape) != (nk,) + shape + (channels,) or device_packed.dtype != jnp.float32:
         raise SwimInputError(f"refill_step1a_channels: the device's packed volume {tuple(device_packed.shape)} "
                              f"{device_packed.dtype} is not float32 of shape {(nk,) + shape + (channels,)}")
-    di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "refill_step1a_channels")
+    lit = None
+    if per_column_sun(volume):  # each column's own sun (a grid over a noticeable part of the sphere), as the host's
+        di, dj, n_sub, path_per_level, mu0, lit = column_sweep_geometry(volume, sun, "refill_step1a_channels")
+        lit = None if lit.all() else jnp.asarray(lit, jnp.float32)
+        log.info("Step 1a on the device: each column's own sun (%d columns without direct sun)",
+                 0 if lit is None else int(lit.size - np.asarray(lit).sum()))
+    else:
+        di, dj, n_sub, path_per_level, mu0 = sweep_geometry(volume, sun, "refill_step1a_channels")
     dz = float(volume.attrs["dz"])
     levels = volume["level"].values
     terrain = volume["terrain_height"].values
@@ -205,7 +225,7 @@ def refill_step1a_channels(device_packed, volume, sun_direction_scene, n_species
     f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
     new, swept = refill(device_packed, f32(weights), f32(terrain), f32(levels), f32(dz), f32(di), f32(dj),
                         f32(path_per_level), f32(mu0), n_species=int(n_species), aerosol_3d=bool(aerosol_3d),
-                        n_levels=int(n_levels), n_sub=n_sub)
+                        n_levels=int(n_levels), n_sub=n_sub, lit=lit)
     return new, swept, n_levels
 
 
@@ -222,13 +242,13 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
     sun_direction_scene : array_like
         Shape (3,): unit vector towards the sun in the scene frame.
     device_packed : jax.Array
-        The device's copy of ``packed`` with an earlier sun's channels (:func:`swim.rt.device_copies.kept_device_copies`);
-        on a GPU its memory is reused: do not use it afterwards.
+        The device's copy of ``packed`` with an earlier sun's channels
+        (:func:`swim.rt.device_copies.kept_device_copies`); on a GPU its memory is reused: do not use it afterwards.
     packed : numpy.ndarray
-        Shape (level, y, x, channel) float32: the host's packed volume (:func:`swim.rt.march_inputs.shared_packed_volume`);
-        its Step 1a channels are overwritten, and its device copies dropped
-        (:func:`swim.rt.march_inputs.step1a_channel_views`), and so is the fused kernel's padded copy of it
-        (:func:`swim.rt.march_pallas.forget_vector_volume`).
+        Shape (level, y, x, channel) float32: the host's packed volume
+        (:func:`swim.rt.march_inputs.shared_packed_volume`); its Step 1a channels are overwritten, and its device
+        copies dropped (:func:`swim.rt.march_inputs.step1a_channel_views`), and so is the fused kernel's padded copy
+        of it (:func:`swim.rt.march_pallas.forget_vector_volume`).
     species : tuple of int
         The species packed (:func:`swim.rt.march_inputs.packed_species`).
     nonzero_levels : tuple of numpy.ndarray
@@ -237,9 +257,9 @@ def solar_transmittance_on_device(volume, sun_direction_scene, device_packed, pa
     Returns
     -------
     transmittance : xarray.Dataset
-        :data:`swim.rt.march_inputs.KERNEL_STEP1A_VARIABLES`, (level, y, x) float32 each: views of ``packed``'s channels, as
-        :func:`swim.rt.march_inputs.volume_constants` takes them (the aerosol's, where it is not packed, a read-only
-        broadcast of 0).
+        :data:`swim.rt.march_inputs.KERNEL_STEP1A_VARIABLES`, (level, y, x) float32 each: views of ``packed``'s
+        channels, as :func:`swim.rt.march_inputs.volume_constants` takes them (the aerosol's, where it is not packed, a
+        read-only broadcast of 0).
     device_packed : jax.Array
         The device's packed volume with the new sun's channels: the same values as the host's.
 

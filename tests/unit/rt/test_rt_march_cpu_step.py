@@ -93,6 +93,7 @@ def test_only_the_kernels_that_python_calls_have_python_wrappers():
     from swim.rt import compose_cpu, ground_cpu, occupancy_cpu, solar_cpu
 
     kernels = {"_march_ray_range", "prepare_rays", "compose_clouds", "ground_radiance", "_direct_rows", "_add_above",
+               "_direct_columns", "_add_above_columns",
                "species_sums", "step1a_channels", "column_weights", "scan_content", "gather_cells", "resample_cells",
                "occupied_cells", "unlit_nodes", "classify_cells", "dilate_levels_across", "dilate_levels_along"}
     seen = set()
