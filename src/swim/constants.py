@@ -18,9 +18,13 @@ EARTH_RADIUS_M = 6_371_000.0
 #: Top of the model atmosphere for the clear-sky step (Step 2) [m] (paper, Sect. 3.3).
 ATMOSPHERE_TOP_M = 100_000.0
 #: Row of the kernels' clear-air height table (``beta_gas``: the Rayleigh, background and stratospheric aerosol
-#: profiles in rows 0-2) that holds the fraction of the vertical optical depth at 546 nm above each height
+#: profiles in rows 0-2) that holds ozone's absorption profile (a pure absorber: extinction, no scattering;
+#: :mod:`swim.optics.ozone`).
+GAS_OZONE_ROW = 3
+#: Row of the kernels' clear-air height table (after its :data:`GAS_OZONE_ROW` + 1 extinction profiles) that holds
+#: the fraction of the vertical optical depth at 546 nm of the scattering components (rows 0-2) above each height
 #: (:func:`swim.rt.march_inputs.gas_column_above`).
-GAS_COLUMN_ROW = 3
+GAS_COLUMN_ROW = 4
 #: Least clear-air steps after the grid of a ray that rises out of it (:func:`swim.rt.march_jax.after_step_counts`).
 AFTER_MIN_STEPS = 4
 #: Points per ray [-] at which a grid segment's length in cells is measured (:func:`swim.rt.march_jax.segment_cells`):

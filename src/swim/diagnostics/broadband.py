@@ -440,7 +440,7 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
                          earth_sun_distance_au=1.0, surface_albedo=0.2, aerosol_ssa_400nm=0.945,
                          aerosol_asymmetry=0.65, clear_sky_aod_550=0.05, latitude_deg=45.0, elevation_m=0.0,
                          solar_constant_w_m2=SOLAR_CONSTANT_W_M2, spectrum: ReferenceSpectrum | None = None,
-                         band_nm=None, return_spectra=False) -> dict:
+                         band_nm=None, return_spectra=False, direct_includes_ozone=False) -> dict:
     """Broadband DNI, DHI and GHI [W m-2] from swim's three-wavelength irradiances (module docstring).
 
     Parameters
@@ -461,6 +461,12 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
         Shape () or (N,): precipitable water [cm], 0-10.
     ozone_atm_cm : array_like
         Shape () or (N,): total ozone [atm-cm] (0.3 = 300 DU), 0-1.
+    direct_includes_ozone : bool
+        Whether ``dni_relative`` already holds the ozone's absorption (swim's renders with ozone:
+        :func:`broadband_from_sky` sets it and ``ozone_atm_cm`` from the render's ``ozone_column_du``): the ozone
+        transmittance of ``ozone_atm_cm`` at the channels (the renderer's cross sections) is divided out of the
+        direct and the diffuse light before the fits, which SPCTRL2's gas transmittance then replaces over the whole
+        band, so the ozone is neither taken for aerosol nor counted twice.
     earth_sun_distance_au : array_like
         Shape () or (N,): r [AU]; E0 scales with 1 / r^2.
     surface_albedo : array_like
@@ -515,6 +521,9 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
                                                                  elevation_m)
 
     # Step 2: direct beam.
+    if direct_includes_ozone:  # SPCTRL2 applies its gas transmittance to the diffuse light too (Bird & Riordan)
+        t_o3 = _channel_ozone_transmittance(zs, o3, channels)
+        t_dir, d_rel = t_dir / t_o3, d_rel / t_o3
     t_model, beta, alpha, hidden = _direct_beam(t_dir, zen, channels, wl, tau_r_grid, tau_r_chan)
     dni_spectral = e0 * t_model * t_gas
 
@@ -609,6 +618,19 @@ def _a_priori_atmosphere(zen, p, pw, o3, wl, channels, latitude_deg, elevation_m
     tau_r_chan = rayleigh_optical_depth(channels, p, latitude_deg, elevation_m) * am[None, :]  # (C, N)
     t_gas = gas_transmittance(zs, p, pw, o3)  # (n_wl, N)
     return zs, am, tau_r_grid, tau_r_chan, t_gas
+
+
+def _channel_ozone_transmittance(zs, o3, channels):
+    """The renderer's ozone transmittance of the direct beam at the channels (N, C) [-]: its cross sections
+    (:func:`swim.optics.ozone.ozone_cross_section`) times the column ``o3`` [atm-cm] along the ozone layer's air
+    mass (a layer at 22 km, Bird & Riordan 1986, Eq. 2-10), so that dividing it out leaves the render's direct and
+    diffuse light free of ozone."""
+    from ..optics.ozone import DOBSON_UNIT_M2, ozone_cross_section
+
+    zr = np.radians(np.minimum(np.asarray(zs, dtype=float), MAX_SHAPE_ZENITH_DEG))
+    airmass = (1.0 + 22.0 / 6370.0) / np.sqrt(np.cos(zr) ** 2 + 2.0 * 22.0 / 6370.0)
+    tau = 1000.0 * np.asarray(o3, dtype=float)[:, None] * DOBSON_UNIT_M2 * ozone_cross_section(channels)[None, :]
+    return np.exp(-tau * airmass[:, None])
 
 
 def _direct_beam(t_dir, zen, channels, wl, tau_r_grid, tau_r_chan):
@@ -728,6 +750,9 @@ def broadband_from_sky(relative: xr.Dataset, **kwargs) -> xr.Dataset:
     except KeyError as err:
         raise SwimInputError(f"relative irradiance lacks {err.args[0]!r} (use swim.diagnostics.sky_irradiance)") from None
     kwargs.setdefault("earth_sun_distance_au", float(relative.attrs.get("earth_sun_distance_au", 1.0)))
+    if float(relative.attrs.get("ozone_column_du", 0.0)) > 0:  # the render's ozone, which its direct beam holds
+        kwargs.setdefault("ozone_atm_cm", float(relative.attrs["ozone_column_du"]) / 1000.0)
+        kwargs.setdefault("direct_includes_ozone", True)
     res = broadband_irradiance(dni_rel, dhi_rel, zen, wavelengths_nm=wl, **kwargs)
     names = {"ghi": "global horizontal irradiance", "dni": "direct normal irradiance",
              "dhi": "diffuse horizontal irradiance", "direct_horizontal": "direct horizontal irradiance"}

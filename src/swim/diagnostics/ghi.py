@@ -32,6 +32,8 @@ Holmgren, W. F., Hansen, C. W. and Mikofski, M. A. (2018), JOSS 3, 884, doi:10.2
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import math
 
@@ -243,8 +245,11 @@ def _simulate(scene, lat, lon, suns, *, height, size, aerosol, precipitable_wate
         if sun.get("skip"):
             zen[k], azi[k], dist[k] = sun["zenith"], sun["azimuth"], sun["distance"]
             continue
+        # the render's ozone is the conversion's: its direct beam holds that ozone's absorption, which the
+        # conversion divides out at the channels before its aerosol fit (direct_includes_ozone)
         image = render(scene, lat=lat, lon=lon, height=height, camera="allsky", camera_options={"size": int(size)},
-                       aerosol=aerosol, settings=settings, **sun["render"])
+                       aerosol=dataclasses.replace(aerosol, ozone_du=1000.0 * float(ozone[k])), settings=settings,
+                       **sun["render"])
         sky = sky_irradiance(image)
         for key in rel:
             rel[key][k] = sky[key].values
@@ -271,7 +276,7 @@ def _simulate(scene, lat, lon, suns, *, height, size, aerosol, precipitable_wate
                                    ozone_atm_cm=ozone[rendered], earth_sun_distance_au=dist[rendered],
                                    surface_albedo=albedo, aerosol_ssa_400nm=ssa400, aerosol_asymmetry=asym,
                                    clear_sky_aod_550=min(max(aod_site, 0.0), 5.0), latitude_deg=float(lat),
-                                   elevation_m=height_asl, band_nm=band_nm)
+                                   elevation_m=height_asl, band_nm=band_nm, direct_includes_ozone=True)
         for key in bb:
             bb[key][rendered] = res[key]
     e_toa = SOLAR_CONSTANT_W_M2 / dist**2

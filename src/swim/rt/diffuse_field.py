@@ -277,10 +277,12 @@ def solver_levels(levels, scaled_tau_interval, settings: DiffuseSettings, top_m)
 
 
 def _gas_profiles(gas, z):
-    """Extinction [m-1] of molecules, background and stratospheric aerosol at heights ``z`` (n,), each (n, 3)."""
+    """Extinction [m-1] of molecules, background and stratospheric aerosol and ozone's absorption coefficient at
+    heights ``z`` (n,), each (n, 3)."""
     h = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
+    ozone = np.zeros_like(gas.beta_rayleigh) if gas.beta_ozone is None else gas.beta_ozone
     out = []
-    for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric):
+    for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric, ozone):
         b = np.asarray(b, float)
         out.append(np.stack([np.interp(z, h, b[:, c]) for c in range(3)], axis=-1))
     return out
@@ -301,10 +303,11 @@ def _sun_transmittance(gas, z, mu0):
 
 def _air_optics(gas, z, max_degree):
     """Scaled extinction (n, 3) and scattering moments beta* omega* chi*_l (n, 3, L + 1) of the clear air at heights
-    ``z`` (molecules, background and stratospheric aerosol; delta-M with f = chi_{L+1} for the aerosols)."""
+    ``z`` (molecules, background and stratospheric aerosol; delta-M with f = chi_{L+1} for the aerosols; ozone
+    absorbs: extinction, no moments)."""
     from ..optics.legendre import phase_function_legendre_moments, rayleigh_legendre_moments
 
-    b_r, b_a, b_s = _gas_profiles(gas, z)
+    b_r, b_a, b_s, b_o = _gas_profiles(gas, z)
     n_l = max_degree + 1
     chi_r = rayleigh_legendre_moments(gas.depolarization, n_l)[:n_l]
     beta = b_r.copy()
@@ -320,6 +323,8 @@ def _air_optics(gas, z, max_degree):
         f = chi[n_l]  # delta-M (3,)
         beta = beta + b * (1.0 - ssa * f)[None, :]
         sigma = sigma + (b * ssa[None, :])[..., None] * (chi[:n_l].T - f[:, None])[None, :, :]
+    if np.any(b_o > 0):
+        beta = beta + b_o
     return beta, sigma
 
 

@@ -12,6 +12,8 @@ Table layout (all float32 for the kernels):
 
 * ``beta_rayleigh``, ``beta_aerosol``, ``beta_stratospheric`` (n_h, 3) [m-1] on uniform heights
   ``0 .. 100 km`` (step ``dh``): molecules, the background aerosol and the stratospheric aerosol layer;
+* ``beta_ozone`` (n_h, 3) [m-1]: ozone's absorption (:mod:`swim.optics.ozone`, ``AerosolBackground.ozone_du``), in
+  the sun's transmittance and the diffuse tables (docs/decisions/0023-ozone-and-twilight.md);
 * ``sun_transmittance`` (n_u, n_mu, 3) [-] on ``u = sqrt(h / H_top)`` (finer near the ground) and ``mu``
   uniform in [-1, 1];
 * ``diffuse_horizontal`` (n_u, n_mu, 3) [-]: diffuse sky irradiance on a horizontal surface relative to
@@ -40,7 +42,9 @@ from ..optics.aerosol import exponential_aerosol_extinction
 from ..errors import SwimInputError
 from ..optics.aerosol_types import AerosolType, aerosol_type
 from ..optics.atmosphere import us_standard_atmosphere_1976
-from ..optics.rayleigh import rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio, rayleigh_phase_function
+from ..optics.ozone import US_STANDARD_OZONE_DU, ozone_absorption_coefficient
+from ..optics.rayleigh import (rayleigh_cross_section_bodhaine1999, rayleigh_depolarization_ratio,
+                              rayleigh_phase_function)
 from ..compilation.disk_cache import disk_cached, package_sources
 from .multiple_scattering import DiffuseSourceTable, diffuse_source_table
 
@@ -70,11 +74,17 @@ class AerosolBackground:
     optics : AerosolType, optional
         The aerosol's own optics (:func:`swim.optics.aerosol_types.custom_aerosol_type`) in place of the named
         type's; ``type_name`` becomes its name.
+    ozone_du : float
+        Ozone column of the clear atmosphere [DU], 0-1000 (default 345.5, the US standard profile's,
+        :data:`swim.optics.ozone.US_STANDARD_OZONE_DU`; 0 leaves ozone out): the US standard ozone profile
+        scaled to this column absorbs in the Chappuis band (:mod:`swim.optics.ozone`, docs/rendering.md,
+        "Ozone and twilight").
 
     Raises
     ------
     SwimInputError
-        Negative AOD, non-positive scale height, a stratospheric layer out of range or an unknown type.
+        Negative AOD, non-positive scale height, a stratospheric layer out of range, an unknown type or an
+        ozone column outside 0-1000 DU.
     """
 
     aod_550: float = DEFAULT_AEROSOL["aod_550"]
@@ -85,18 +95,24 @@ class AerosolBackground:
     stratospheric_width_m: float = 3_000.0
     stratospheric_type: str = "stratospheric_sulfate"
     optics: AerosolType | None = None
+    ozone_du: float = US_STANDARD_OZONE_DU
 
     def __post_init__(self):
+        if not (np.isfinite(self.ozone_du) and 0.0 <= self.ozone_du <= 1000.0):
+            raise SwimInputError(f"ozone column ozone_du must be 0-1000 DU (Dobson units), got {self.ozone_du}")
         if not (np.isfinite(self.aod_550) and self.aod_550 >= 0):
             raise SwimInputError(f"aerosol optical depth at 550 nm must be >= 0, got {self.aod_550}")
         if not (np.isfinite(self.scale_height_m) and self.scale_height_m > 0):
             raise SwimInputError(f"aerosol scale height must be > 0 m, got {self.scale_height_m}")
         if not (np.isfinite(self.stratospheric_aod_550) and self.stratospheric_aod_550 >= 0):
-            raise SwimInputError(f"stratospheric aerosol optical depth at 550 nm must be >= 0, got {self.stratospheric_aod_550}")
+            raise SwimInputError("stratospheric aerosol optical depth at 550 nm must be >= 0, "
+                                 f"got {self.stratospheric_aod_550}")
         if not (10_000.0 <= self.stratospheric_height_m <= 50_000.0):
-            raise SwimInputError(f"stratospheric aerosol peak height must be 10000-50000 m, got {self.stratospheric_height_m}")
+            raise SwimInputError("stratospheric aerosol peak height must be 10000-50000 m, "
+                                 f"got {self.stratospheric_height_m}")
         if not (500.0 <= self.stratospheric_width_m <= 15_000.0):
-            raise SwimInputError(f"stratospheric aerosol layer width must be 500-15000 m, got {self.stratospheric_width_m}")
+            raise SwimInputError("stratospheric aerosol layer width must be 500-15000 m, "
+                                 f"got {self.stratospheric_width_m}")
         if self.optics is not None:
             if not isinstance(self.optics, AerosolType):
                 raise SwimInputError(f"aerosol optics must be an AerosolType (swim.optics.aerosol_types."
@@ -145,7 +161,8 @@ class AerosolBackground:
         h = np.asarray(heights_m, dtype=float)
         shape = np.exp(-0.5 * ((h - self.stratospheric_height_m) / self.stratospheric_width_m) ** 2)
         fine = np.linspace(0.0, ATMOSPHERE_TOP_M, 20001)
-        norm = np.trapezoid(np.exp(-0.5 * ((fine - self.stratospheric_height_m) / self.stratospheric_width_m) ** 2), fine)
+        norm = np.trapezoid(np.exp(-0.5 * ((fine - self.stratospheric_height_m) / self.stratospheric_width_m) ** 2),
+                            fine)
         factor = np.asarray(self.stratospheric.extinction_factor(np.asarray(wavelengths_nm, float)), dtype=float)
         return (self.stratospheric_aod_550 * shape / norm)[:, None] * factor[None, :]
 
@@ -175,6 +192,9 @@ class GasTables:
     diffuse_sources: tuple = ()
     #: ``diffuse_horizontal`` of each class, (n_class, n_u, n_mu, 3) [-].
     diffuse_horizontal_classes: np.ndarray | None = None
+    #: Ozone absorption coefficient (n_h, 3) [m-1] on the heights of ``beta_rayleigh`` (:mod:`swim.optics.ozone`):
+    #: in ``sun_transmittance`` and the diffuse tables; a pure absorber (no scattering).
+    beta_ozone: np.ndarray | None = None
 
 
 def _slant_optical_depth(h, mu, heights, beta, top, radius, n_steps=400):
@@ -359,7 +379,8 @@ def build_gas_tables(aerosol: AerosolBackground = AerosolBackground(), wavelengt
     if aerosol_class_aod is not None:
         classes = tuple(float(f"{float(c):.3g}") for c in np.atleast_1d(aerosol_class_aod))
         if len(classes) < 2 or np.any(np.diff(classes) <= 0) or classes[0] < 0:
-            raise SwimInputError(f"aerosol_class_aod must hold >= 2 increasing column optical depths >= 0; got {classes}")
+            raise SwimInputError("aerosol_class_aod must hold >= 2 increasing column optical depths >= 0; "
+                                 f"got {classes}")
         if profile is None:
             raise SwimInputError("aerosol_class_aod needs scene_aerosol_profile (the 3-D field's mean profile)")
     return _build_gas_tables_cached(aerosol, wl, float(dh), int(n_u), int(n_mu), float(radius),
@@ -396,9 +417,12 @@ def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_al
     sigma = np.asarray(rayleigh_cross_section_bodhaine1999(wl))
     beta_r = number_density[:, None] * sigma[None, :]
     factor = np.asarray(aerosol.type.extinction_factor(wl), dtype=float)
-    beta_a = np.asarray(exponential_aerosol_extinction(heights, aerosol.aod_550, aerosol.scale_height_m))[:, None] * factor[None, :]
+    beta_a = (np.asarray(exponential_aerosol_extinction(heights, aerosol.aod_550, aerosol.scale_height_m))[:, None]
+              * factor[None, :])
     beta_s = aerosol.stratospheric_extinction(heights, wl)
-    beta = beta_r + beta_a + beta_s
+    beta_o = (ozone_absorption_coefficient(heights, wl, aerosol.ozone_du) if aerosol.ozone_du > 0
+              else np.zeros_like(beta_r))
+    beta = beta_r + beta_a + beta_s + beta_o
 
     u = np.linspace(0.0, 1.0, n_u)
     hu = ATMOSPHERE_TOP_M * u**2
@@ -427,7 +451,7 @@ def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_al
             [lambda c: rayleigh_phase_function(np.asarray(c, np.float32), depolarization),
              lambda c: aerosol.type.phase_function(np.asarray(c, np.float32)),
              lambda c: aerosol.stratospheric.phase_function(np.asarray(c, np.float32))],
-            surface_albedo, ATMOSPHERE_TOP_M))
+            surface_albedo, ATMOSPHERE_TOP_M, absorption=beta_o))
     # Their downward diffuse irradiance on the transmittance grid (bilinear in u and sqrt(mu_s); 0 below the horizon).
     fu = np.interp(u, sources[0].u, np.arange(sources[0].u.size))
     fs = np.interp(np.sqrt(np.clip(mu, 0.0, 1.0)), sources[0].t_s, np.arange(sources[0].t_s.size))
@@ -452,6 +476,7 @@ def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_al
         aerosol_class_aod=class_aod,
         diffuse_sources=tuple(sources),
         diffuse_horizontal_classes=diffuse,
+        beta_ozone=beta_o.astype(np.float32),
     )
 
 

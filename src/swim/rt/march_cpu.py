@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from ..compilation.numba_jit import JIT_KERNEL, helper_jit, vectorising
-from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW
+from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW, GAS_OZONE_ROW
 # the kernel's helpers, also importable from here (ground_cpu, compose_cpu, the tests and the benchmarks take them
 # from this module)
 from .march_geometry_cpu import (  # noqa: F401
@@ -194,7 +194,9 @@ def _clear_edges(st0, st1, st2, d0, d1, d2, s0, length, n_steps, p, beta_gas, sp
         _, h = _radius_and_height(st0 + s * d0, st1 + s * d1, st2 + s * d2, p[_P_RADIUS])
         g0, w = _lerp_index(h / p[_P_DH], n_gas)
         beta = 0.0
-        for q in range(3):
+        # the scattering components' (the clear-sky source's) extinction at 546 nm: not ozone's, which scatters
+        # nothing (with it the steps crowd into the ozone layer, away from the source: from space 0.1-0.2 % worse)
+        for q in range(GAS_OZONE_ROW):
             beta += (beta_gas[q, g0] * (1 - w) + beta_gas[q, g0 + 1] * w) * spectra[q, 1]
         cdf[m + 1] = max(beta, 0.0) ** power
         largest = max(largest, cdf[m + 1])
@@ -312,6 +314,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
     spec_r = (float(spectra[0, 0]), float(spectra[0, 1]), float(spectra[0, 2]), pad)
     spec_a = (float(spectra[1, 0]), float(spectra[1, 1]), float(spectra[1, 2]), pad)
     spec_s = (float(spectra[2, 0]), float(spectra[2, 1]), float(spectra[2, 2]), pad)
+    spec_o = (float(spectra[3, 0]), float(spectra[3, 1]), float(spectra[3, 2]), pad)
     ang = (float(angstrom[0]), float(angstrom[1]), float(angstrom[2]), pad)
     ssa_a = (float(aerosol_ssa[0]), float(aerosol_ssa[1]), float(aerosol_ssa[2]), pad)
     ssa_s = (float(stratospheric_ssa[0]), float(stratospheric_ssa[1]), float(stratospheric_ssa[2]), pad)
@@ -464,11 +467,13 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     h, mu_s, k, j, i = _point_geometry(st0 + s * d0, st1 + s * d1, st2 + s * d2, p, coef)
                     fu = math.sqrt(_clip(h / top, 0.0, 1.0))
                 samples += 1
-                # clear atmosphere (_gas_at): three height profiles times their spectra, and the sky table
+                # clear atmosphere (_gas_at): four height profiles times their spectra (ozone's, row GAS_OZONE_ROW,
+                # absorbs only), and the sky table
                 g0, w = _lerp_index(h / dh, n_gas)
                 prof_r = beta_gas[0, _ix(g0)] * (1 - w) + beta_gas[0, _ix(g0 + 1)] * w
                 prof_a = beta_gas[1, _ix(g0)] * (1 - w) + beta_gas[1, _ix(g0 + 1)] * w
                 prof_s = beta_gas[2, _ix(g0)] * (1 - w) + beta_gas[2, _ix(g0 + 1)] * w
+                prof_o = beta_gas[3, _ix(g0)] * (1 - w) + beta_gas[3, _ix(g0 + 1)] * w
                 fm = (mu_s + 1.0) * 0.5
                 su0, sv0, sa, sb = _bilinear_index(nu_sky, nmu_sky, fu * (nu_sky - 1), fm * (nmu_sky - 1))
                 # the terrain looked up only below its highest point (pack_parameters): ~4 % of the march's time
@@ -620,6 +625,7 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                 ba0, ba1 = prof_a * spec_a[0] + beta_a3 * ang[0], prof_a * spec_a[1] + beta_a3 * ang[1]
                 ba2, ba3 = prof_a * spec_a[2] + beta_a3 * ang[2], prof_a * spec_a[3] + beta_a3 * ang[3]
                 bs0, bs1, bs2, bs3 = prof_s * spec_s[0], prof_s * spec_s[1], prof_s * spec_s[2], prof_s * spec_s[3]
+                bo0, bo1, bo2, bo3 = prof_o * spec_o[0], prof_o * spec_o[1], prof_o * spec_o[2], prof_o * spec_o[3]
                 sa0, sa1, sa2, sa3 = ba0 * ssa_a[0], ba1 * ssa_a[1], ba2 * ssa_a[2], ba3 * ssa_a[3]
                 ss0, ss1, ss2, ss3 = bs0 * ssa_s[0], bs1 * ssa_s[1], bs2 * ssa_s[2], bs3 * ssa_s[3]
                 # the clear-sky source: single scattering (Eq. 3) and, where use_ms, the diffuse source's profiles
@@ -662,12 +668,14 @@ def _march_ray_range(first, stop, stride, start, direction, bounds, valid, p_ray
                     irr = (e0 + 2.0 * df0 * t_cloud, e1 + 2.0 * df1 * t_cloud, e2 + 2.0 * df2 * t_cloud,
                            e3 + 2.0 * df3 * t_cloud)
                 if cloud_mode and beta_h > 0.0:
-                    lcl = _accumulate_cloud(lcl, to, (cs0, cs1, cs2), (br0 + ba0 + bs0, br1 + ba1 + bs1,
-                                                                       br2 + ba2 + bs2), beta_eff, ds_eff)
+                    lcl = _accumulate_cloud(lcl, to, (cs0, cs1, cs2), (br0 + ba0 + bs0 + bo0, br1 + ba1 + bs1 + bo1,
+                                                                       br2 + ba2 + bs2 + bo2), beta_eff, ds_eff)
+                # the clear air's extinction: its scattering components' and ozone's absorption
                 tc, to, lc, i_ng, i_g = _accumulate_lanes(tc, to, lc, i_ng, i_g,
-                                                          (br0 + ba0 + bs0, br1 + ba1 + bs1, br2 + ba2 + bs2,
-                                                           br3 + ba3 + bs3), (src0, src1, src2, src3), irr, beta_eff,
-                                                          ds_eff, weight, gas_ratio)
+                                                          (br0 + ba0 + bs0 + bo0, br1 + ba1 + bs1 + bo1,
+                                                           br2 + ba2 + bs2 + bo2, br3 + ba3 + bs3 + bo3),
+                                                          (src0, src1, src2, src3), irr, beta_eff, ds_eff, weight,
+                                                          gas_ratio)
                 ict += sun * weight
                 th = t1
                 e_th = e_t1

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, SPECIES
+from ..constants import BACKSCATTER_FRACTION, EARTH_RADIUS_M, GAS_OZONE_ROW, SPECIES
 from ..optics.phase import G_LIQUID
 from ..workers import in_blocks
 from .device_copies import _buffer_identity, _owner, forget_device_copies_of
@@ -68,10 +68,10 @@ def gas_column_above(profiles, spectra, dh):
 
     Parameters
     ----------
-    profiles : array_like, shape (3, n_gas)
-        Extinction [m-1] of molecules (Rayleigh), background and stratospheric aerosol at the first wavelength, at
-        heights ``dh * arange(n_gas)`` [m].
-    spectra : array_like, shape (3, 3)
+    profiles : array_like, shape (n_comp, n_gas)
+        Extinction [m-1] of the components (molecules (Rayleigh), background and stratospheric aerosol) at the first
+        wavelength, at heights ``dh * arange(n_gas)`` [m].
+    spectra : array_like, shape (n_comp, 3)
         Each component's extinction at the three wavelengths relative to the first.
     dh : float
         Height step [m] of the grid.
@@ -568,15 +568,21 @@ def share_packed_channels(volume, packed, species=None):
 
 def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIUS_M):
     """The kernel constants of the clear atmosphere (:mod:`swim.rt.gas` tables), the sun and the hydrometeor
-    optics: small device arrays and scalars. ``beta_gas`` (4, n_gas) is the clear air's height table: the
-    extinction profiles [m-1] of molecules, background and stratospheric aerosol at the first wavelength (their
-    spectra in ``beta_gas_spectra``), then the fraction of the vertical optical depth above each height
-    (:func:`gas_column_above`, row :data:`swim.constants.GAS_COLUMN_ROW`)."""
+    optics: small device arrays and scalars. ``beta_gas`` (5, n_gas) is the clear air's height table: the
+    extinction profiles [m-1] of molecules, background and stratospheric aerosol and ozone's absorption
+    (row :data:`swim.constants.GAS_OZONE_ROW`, zero without ozone) at the first wavelength (their spectra in
+    ``beta_gas_spectra`` (4, 3)), then the fraction of the scattering components' vertical optical depth above each
+    height (:func:`gas_column_above`, row :data:`swim.constants.GAS_COLUMN_ROW`).
+
+    Ozone adds to the extinction along every line of sight but to no scattering source (docs/rendering.md, "Ozone
+    and twilight"); with ``ozone_du=0`` its row is zero and the kernels add exact zeros."""
     classes = np.asarray(gas.diffuse_horizontal_classes)  # (n_class, nu, nmu, 3)
-    # Molecules, background and stratospheric aerosol: each a height profile times a spectrum, so the kernel
-    # looks up 3 profiles instead of 9 columns; the spectra relative to the first wavelength.
-    components = [np.asarray(b, dtype=float) for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric)]
-    spectra = np.ones((3, 3))
+    # Molecules, background and stratospheric aerosol and ozone: each a height profile times a spectrum, so the
+    # kernel looks up 4 profiles instead of 12 columns; the spectra relative to the first wavelength.
+    ozone = np.zeros_like(gas.beta_rayleigh) if gas.beta_ozone is None else gas.beta_ozone
+    components = [np.asarray(b, dtype=float)
+                  for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric, ozone)]
+    spectra = np.ones((len(components), 3))
     for c, b in enumerate(components):
         if b[:, 0].sum() > 0:
             spectra[c] = b.sum(axis=0) / b[:, 0].sum()
@@ -584,8 +590,10 @@ def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIU
                 raise ValueError("clear-atmosphere extinction must be a height profile times a spectrum")
     sun = np.asarray(sun_direction_scene, dtype=float)
     profiles = np.stack([b[:, 0] for b in components])
-    # the rows of the height table: the three profiles, then the column above each height (GAS_COLUMN_ROW)
-    height_table = np.concatenate([profiles, gas_column_above(profiles, spectra, gas.dh)[None]])
+    # the rows of the height table: the four profiles, then the column of the three scattering ones above each height
+    # (GAS_COLUMN_ROW: the step counts after the grid follow the clear-sky source, which ozone does not scatter)
+    height_table = np.concatenate([profiles, gas_column_above(profiles[:GAS_OZONE_ROW], spectra[:GAS_OZONE_ROW],
+                                                              gas.dh)[None]])
     f32 = _constant
     return {
         "radius": f32(radius),

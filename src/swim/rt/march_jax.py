@@ -180,19 +180,20 @@ def _point_geometry(q, consts):
 def _gas_at(h, mu_s, consts):
     """Clear-atmosphere quantities at heights h [m] and local solar-zenith cosines mu_s.
 
-    Returns the Rayleigh, background-aerosol and stratospheric-aerosol extinction (n, 3) [m-1] (one
-    lookup in a joint height table of their profiles, times their spectral factors: each is a height profile
-    times a spectrum), and the sun transmittance and horizontal diffuse irradiance / E_TOA (n, 3) each (one
-    bilinear lookup in the joint (height, mu_s) table).
+    Returns the Rayleigh, background-aerosol and stratospheric-aerosol extinction and ozone's absorption
+    coefficient (n, 3) [m-1] (one lookup in a joint height table of their profiles, times their spectral factors:
+    each is a height profile times a spectrum; ozone absorbs only, :mod:`swim.optics.ozone`), and the sun
+    transmittance and horizontal diffuse irradiance / E_TOA (n, 3) each (one bilinear lookup in the joint
+    (height, mu_s) table).
     """
     profile = _lerp_table(consts["beta_gas"][:GAS_COLUMN_ROW], h / consts["dh"])
-    spectra = consts["beta_gas_spectra"]  # (3 components, 3 wavelengths)
-    beta = jnp.concatenate([profile[:, c : c + 1] * spectra[c][None, :] for c in range(3)], axis=-1)
+    spectra = consts["beta_gas_spectra"]  # (4 components, 3 wavelengths)
+    beta = jnp.concatenate([profile[:, c : c + 1] * spectra[c][None, :] for c in range(GAS_COLUMN_ROW)], axis=-1)
     nu, nmu = consts["sky"].shape[1:]
     fu = jnp.sqrt(jnp.clip(h / consts["top"], 0.0, 1.0)) * (nu - 1)
     fm = (mu_s + 1.0) * 0.5 * (nmu - 1)
     sky = _bilinear_table(consts["sky"], fu, fm)
-    return beta[:, :3], beta[:, 3:6], beta[:, 6:], sky[:, :3], sky[:, 3:]
+    return beta[:, :3], beta[:, 3:6], beta[:, 6:9], beta[:, 9:], sky[:, :3], sky[:, 3:]
 
 
 def lowest_point(start, direction, bounds, consts, end=None):
@@ -322,7 +323,7 @@ def _sample_medium(seg, st, s):
     aerosol_3d = packed_aerosol_3d(n_c, n_sp)  # packed only where it is not zero
     q = seg.start + s[:, None] * seg.direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
-    beta_r, beta_a, beta_s, t_sun, diffuse = _gas_at(h, mu_s, consts)
+    beta_r, beta_a, beta_s, beta_o, t_sun, diffuse = _gas_at(h, mu_s, consts)
     if seg.in_grid:
         v = trilinear(consts["volume"], k, j, i, seg.outside)
         beta_sp = v[:, :n_sp]
@@ -350,8 +351,8 @@ def _sample_medium(seg, st, s):
         hit_now = st["alive"] & (gap < 0)
         frac = jnp.where(hit_now, jnp.clip(st["gap"] / jnp.maximum(st["gap"] - gap, 1e-6), 0.0, 1.0), 1.0)
     return {"h": h, "mu_s": mu_s, "k": k, "j": j, "i": i, "beta_r": beta_r, "beta_a": beta_a, "beta_s": beta_s,
-            "t_sun": t_sun, "diffuse": diffuse, "beta_sp": beta_sp, "t_cloud": t_cloud, "shadow": shadow,
-            "beta_a3": beta_a3, "t_aerosol": t_aerosol, "gap": gap, "hit_now": hit_now, "frac": frac}
+            "beta_o": beta_o, "t_sun": t_sun, "diffuse": diffuse, "beta_sp": beta_sp, "t_cloud": t_cloud,
+            "shadow": shadow, "beta_a3": beta_a3, "t_aerosol": t_aerosol, "gap": gap, "hit_now": hit_now, "frac": frac}
 
 
 def _sample_light(seg, st, at, ds):
@@ -375,7 +376,8 @@ def _sample_light(seg, st, at, ds):
         skylight = SKYLIGHT_SCALAR_FACTOR * diffuse * t_cloud[:, None]
     # Scalar irradiance of Eq. 8 ("direct + scattered") lighting the hydrometeors.
     irradiance_h = irradiance + skylight if seg.in_grid else irradiance
-    beta_clear = at["beta_r"] + at["beta_a"] + at["beta_a3"] + at["beta_s"]
+    # the clear air's extinction: its scattering components' and ozone's absorption (which adds no source)
+    beta_clear = at["beta_r"] + at["beta_a"] + at["beta_a3"] + at["beta_s"] + at["beta_o"]
     beta_h = beta_sp.sum(axis=1)
     # the extinction that dims the light on its way to the observer: with the 3-D cloud scattering the
     # hydrometeors' delta-M scaled one (the forward peak's light stays in the view), whose sources are

@@ -56,7 +56,7 @@ def _ground_radiance(start, direction, rays, consts, settings, state, aerosol_cl
 
     q = start + s_hit[:, None] * direction
     h, mu_s, k, j, i = _point_geometry(q, consts)
-    _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
+    _, _, _, _, t_sun, diffuse = _gas_at(h, mu_s, consts)
     if consts["class_aod"].shape[0] > 1:
         diffuse = diffuse_at(h, mu_s, aerosol_class, consts)
     # albedo (3), land, snow, wind, slope (2), and Step 1a at the ground: cloud T, terrain shadow, 3-D aerosol

@@ -618,7 +618,7 @@ def _read_constants(p_ref, position, has_bounds):
     cx, cy, scale = scalar("centre", 0), scalar("centre", 1), scalar("scale")
     coef = [[scalar("coef", 10 * a + b) for b in range(10)] for a in range(2)]
     bounds = [scalar("bounds", b) for b in range(4)] if has_bounds else None
-    spectra = [[scalar("spectra", 3 * a + b) for b in range(3)] for a in range(3)]
+    spectra = [[scalar("spectra", 3 * a + b) for b in range(3)] for a in range(GAS_COLUMN_ROW)]
     angstrom = [scalar("angstrom", c) for c in range(3)]
     aerosol_ssa = [scalar("aerosol_ssa", c) for c in range(3)]
     strat_ssa = [scalar("stratospheric_ssa", c) for c in range(3)]
@@ -667,10 +667,12 @@ def _block_lookups(blk, h, mu_s, k, j, i, in_grid):
     vector, n_sp = lay.vector, lay.n_sp
     n_sky, nu_sky, nmu_sky = lay.sky_shape
     nk, ny, nx = lay.volume_shape
-    # _gas_at: the three extinction profiles, then sky's sun transmittance and diffuse irradiance
-    profile = (_lerp_vec4(t["gas"], lay.n_gas, lay.channels.get("gas"), 3, h / c["dh"]) if vector
-               else lerp_gathers(t["gas"], 3, lay.n_gas, h / c["dh"]))
-    beta_r, beta_a, beta_s = ([profile[a] * c["spectra"][a][b] for b in range(3)] for a in range(3))
+    # _gas_at: the four extinction profiles (ozone's absorbs only), then sky's sun transmittance and diffuse
+    # irradiance
+    profile = (_lerp_vec4(t["gas"], lay.n_gas, lay.channels.get("gas"), GAS_COLUMN_ROW, h / c["dh"]) if vector
+               else lerp_gathers(t["gas"], GAS_COLUMN_ROW, lay.n_gas, h / c["dh"]))
+    beta_r, beta_a, beta_s, beta_o = ([profile[a] * c["spectra"][a][b] for b in range(3)]
+                                      for a in range(GAS_COLUMN_ROW))
     height_u = jnp.sqrt(jnp.clip(h / c["top"], 0.0, 1.0))
     fm = (mu_s + 1.0) * 0.5 * (nmu_sky - 1)
     sky = (_bilinear_vec4(t["sky"], nu_sky, nmu_sky, lay.channels.get("sky"), n_sky, height_u * (nu_sky - 1), fm)
@@ -690,9 +692,9 @@ def _block_lookups(blk, h, mu_s, k, j, i, in_grid):
         beta_a3 = [jnp.zeros_like(h)] * 3
         t_aerosol = [jnp.ones_like(h)] * 3
     ground = bilinear_gathers(t["terrain"], (1, ny, nx), jnp.clip(j, 0, ny - 1), jnp.clip(i, 0, nx - 1))[0]
-    return {"beta_r": beta_r, "beta_a": beta_a, "beta_s": beta_s, "height_u": height_u, "t_sun": t_sun,
-            "diffuse": diffuse, "beta_sp": beta_sp, "t_cloud": t_cloud, "shadow": shadow, "beta_a3": beta_a3,
-            "t_aerosol": t_aerosol, "ground": ground}
+    return {"beta_r": beta_r, "beta_a": beta_a, "beta_s": beta_s, "beta_o": beta_o, "height_u": height_u,
+            "t_sun": t_sun, "diffuse": diffuse, "beta_sp": beta_sp, "t_cloud": t_cloud, "shadow": shadow,
+            "beta_a3": beta_a3, "t_aerosol": t_aerosol, "ground": ground}
 
 
 def _block_diffuse_classes(blk, height_u, mu_s):
@@ -761,7 +763,9 @@ def _block_sample(blk, st, s_lo, ds, in_grid):
         diffuse = _block_diffuse_classes(blk, height_u, mu_s)
     irradiance_h = ([irradiance[b] + SKYLIGHT_SCALAR_FACTOR * diffuse[b] * t_cloud for b in range(3)] if in_grid
                     else irradiance)
-    beta_clear = [at["beta_r"][b] + at["beta_a"][b] + at["beta_a3"][b] + at["beta_s"][b] for b in range(3)]
+    # the clear air's extinction: its scattering components' and ozone's absorption (which adds no source)
+    beta_clear = [at["beta_r"][b] + at["beta_a"][b] + at["beta_a3"][b] + at["beta_s"][b] + at["beta_o"][b]
+                  for b in range(3)]
     beta_h = functools.reduce(lambda a, b: a + b, beta_sp) if beta_sp else jnp.zeros_like(h)
     j9 = None
     if lay.multiple_scattering:  # _profile_at: the ray's own profile

@@ -294,7 +294,7 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
 
 
 def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_albedo, top_m, n_u=41, n_s=12,
-                         n_v=33, n_phi=13, n_half=10, n_phi_quad=12):
+                         n_v=33, n_phi=13, n_half=10, n_phi_quad=12, absorption=None):
     """Build the :class:`DiffuseSourceTable` of a clear atmosphere.
 
     Parameters
@@ -315,6 +315,10 @@ def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_
         Table sizes in sqrt-height, sqrt(mu_s), view cosine and relative azimuth.
     n_half, n_phi_quad : int
         Direction quadrature of the SOS solution.
+    absorption : numpy.ndarray, optional
+        Shape (n_h, C): absorption coefficient of pure absorbers (ozone, :mod:`swim.optics.ozone`) [m-1] on
+        ``heights_m``; it adds to each layer's optical depth and lowers its single-scattering albedo, with no
+        source channel of its own.
 
     Returns
     -------
@@ -340,6 +344,8 @@ def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_
     taus = np.stack([layer_tau(extinctions[k]) for k in active])  # (K', n_l, C)
     scats = taus * np.stack([np.broadcast_to(np.asarray(ssas[k], float), (n_c,)) for k in active])[:, None, :]
     d_tau = taus.sum(axis=0)
+    if absorption is not None and np.any(np.asarray(absorption) > 0):
+        d_tau = d_tau + layer_tau(np.asarray(absorption, float))
     scat = scats.sum(axis=0)
     ssa = np.where(d_tau > 0, scat / np.maximum(d_tau, 1e-300), 1.0)
     fractions = np.where(scat > 0, scats / np.maximum(scat, 1e-300), 1.0 / len(active))

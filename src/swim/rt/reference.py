@@ -143,13 +143,14 @@ def _ray_points(s, o, d, volume, geo, sun, radius):
 
 
 def _gas_at(h, mu_s, gas, samplers, diffuse_interp):
-    """Rayleigh, aerosol and stratospheric extinction (n, 3), sun transmittance and diffuse irradiance at heights h."""
+    """Rayleigh, aerosol and stratospheric extinction and ozone's absorption coefficient (n, 3) [m-1], sun
+    transmittance and diffuse irradiance at heights h."""
     hh = np.clip(h, 0, gas.top_m)
-    br = np.stack([np.interp(hh, samplers.heights, gas.beta_rayleigh[:, c]) for c in range(3)], axis=-1)
-    ba = np.stack([np.interp(hh, samplers.heights, gas.beta_aerosol[:, c]) for c in range(3)], axis=-1)
-    bs = np.stack([np.interp(hh, samplers.heights, gas.beta_stratospheric[:, c]) for c in range(3)], axis=-1)
+    ozone = np.zeros_like(gas.beta_rayleigh) if gas.beta_ozone is None else gas.beta_ozone
+    br, ba, bs, bo = (np.stack([np.interp(hh, samplers.heights, b[:, c]) for c in range(3)], axis=-1)
+                      for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric, ozone))
     point = np.stack([np.sqrt(hh / gas.top_m), np.clip(mu_s, -1, 1)], axis=-1)
-    return br, ba, bs, samplers.t_sun(point), diffuse_interp(point)
+    return br, ba, bs, bo, samplers.t_sun(point), diffuse_interp(point)
 
 
 def _terrain_cut(h, j, i, s, ds, s1, sea, samplers):
@@ -188,13 +189,13 @@ def _march_clear(o, d, s0, s1, sea, step_m, sun, gas, samplers, diffuse_interp, 
     points = np.stack([k, j, i], axis=-1)
     beta = np.stack([g(points) for g in samplers.ext], axis=-1)
     beta_sp = beta[:, :-1]
-    br, ba, bs, t_sun, diffuse_sky = _gas_at(h, mu_s, gas, samplers, diffuse_interp)
+    br, ba, bs, bo, t_sun, diffuse_sky = _gas_at(h, mu_s, gas, samplers, diffuse_interp)
     beta_a3 = beta[:, -1:] * gas.angstrom_factor[None, :]
     t_aer = np.exp(-samplers.tau_aer(points)[:, None] * gas.angstrom_factor[None, :])
     e = t_sun * t_aer * samplers.t(points)[:, None]
     in_grid = ((k >= 0) & (k <= nk - 1) & inside)[:, None]
     e_h = np.where(in_grid, e + SKYLIGHT_SCALAR_FACTOR * diffuse_sky * samplers.tc(points)[:, None], e)
-    beta_clear = br + ba + beta_a3 + bs
+    beta_clear = br + ba + beta_a3 + bs + bo  # ozone absorbs: extinction, no source
     beta_h = beta_sp.sum(axis=1)
     x = (beta_clear + beta_h[:, None]) * step[:, None]
     mean = np.where(x > 1e-8, -np.expm1(-x) / np.maximum(x, 1e-300), 1.0)
@@ -224,7 +225,7 @@ def _surface_radiance(o, d, s_end, sun, gas, samplers, diffuse_interp, volume, r
                       surface_model):
     """Radiance (3,) of the ground where the ray ends, through the gas and the hydrometeors in front of it."""
     h, mu_s, k, j, i = _ray_points(s_end, o, d, volume, samplers.geo, sun, radius)
-    _, _, _, t_sun, diffuse = _gas_at(h, mu_s, gas, samplers, diffuse_interp)
+    _, _, _, _, t_sun, diffuse = _gas_at(h, mu_s, gas, samplers, diffuse_interp)
     # beyond the grid and its margin: from the margin's nearest edge cell's fields to the far ground,
     # e^(-distance / fade)
     jm, im = j[0] + samplers.margin, i[0] + samplers.margin

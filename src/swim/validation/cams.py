@@ -161,7 +161,7 @@ def cams_disort_layers(col, effective=None):
         sca_a = dtau_a * np.asarray(effective.ssa)[None, :]
         chi_e = phase_function_legendre_moments(lambda x: np.asarray(effective.phase_function(x)), N_MOMENTS)
         chi_sca = sca_a[:, None, :] * chi_e[None]
-    sca_r = layers["dtau"]  # Rayleigh: omega = 1
+    sca_r = layers["dtau"] * layers["ssa"]  # Rayleigh (omega = 1) beside ozone's absorption
     dtau, sca = layers["dtau"] + dtau_a, sca_r + sca_a
     moments = (sca_r[:, None, :] * layers["moments"] + chi_sca) / sca[:, None, :]
     layers.update(dtau=dtau, ssa=np.clip(sca / dtau, 0.0, 1.0 - 1e-9), moments=moments, tau_aerosol=dtau_a.sum(0))

@@ -140,7 +140,7 @@ def render_case(scene, view, sun_zenith, settings=None):
 
     x = np.asarray(scene["x"].values, float)
     half = 0.5 * float(np.ptp(x))
-    aerosol = AerosolBackground(aod_550=0.0)
+    aerosol = AerosolBackground(aod_550=0.0, ozone_du=0.0)
     if view == "ground":
         camera, options, height, look_at = "allsky", {"size": SIZE}, 2.0, None
     elif view == "nadir":
@@ -240,7 +240,7 @@ def make_case_reference(case, shared_data, spp=None, seed=1, out_dir=None, varia
 
     g = dict(HYDROMETEOR_ASYMMETRY, cloud_liquid=float(PHASE["liquid"][1]), rain=float(PHASE["liquid"][1]))
     out = mitsuba_radiance(volume, spec["sun_zenith"], SUN_AZIMUTH, sv["observer"], sv["directions"], spp=int(spp),
-                           aerosol=AerosolBackground(aod_550=0.0), surface_albedo=SEA_ALBEDO, seed=seed,
+                           aerosol=AerosolBackground(aod_550=0.0, ozone_du=0.0), surface_albedo=SEA_ALBEDO, seed=seed,
                            variant=variant, asymmetry=g)
     ref = np.full(sv["image"].shape, np.nan)
     err = np.full(sv["image"].shape, np.nan)

@@ -4,7 +4,8 @@ An independent multiple-scattering solution for the same clear atmosphere that s
 Albers et al. 2020, Eq. 3): the Rayleigh and background-aerosol extinction profiles of
 :func:`swim.rt.gas.build_gas_tables`, the depolarised Rayleigh phase function of
 :func:`swim.optics.rayleigh.rayleigh_phase_function` and the aerosol type's Eq. 28 phase function and
-single-scattering albedo, over a Lambertian surface. DISORT (Stamnes et al. 1988, Appl. Opt. 27, 2502,
+single-scattering albedo, and the ozone absorption of :mod:`swim.optics.ozone` (the aerosol's ``ozone_du``),
+over a Lambertian surface. DISORT (Stamnes et al. 1988, Appl. Opt. 27, 2502,
 doi:10.1364/AO.27.002502) solves the radiative transfer equation in a plane-parallel atmosphere with all
 orders of scattering; swim's atmosphere is spherical, which matters only near the horizon (view zenith
 angles above ~85°) and for low suns (sun zenith above ~75°).
@@ -82,8 +83,9 @@ def clear_sky_layers(aerosol: AerosolBackground = AerosolBackground(), n_layers=
     -------
     dict
         ``edges_m`` (n_layers + 1,), ``dtau`` (n_layers, 3), ``ssa`` (n_layers, 3), ``moments``
-        (n_layers, n_moments + 1, 3), ``tau_rayleigh``, ``tau_aerosol``, ``tau_stratospheric`` (3,) columns
-        and ``depolarization``.
+        (n_layers, n_moments + 1, 3), ``tau_rayleigh``, ``tau_aerosol``, ``tau_stratospheric``, ``tau_ozone``
+        (3,) columns (ozone absorbs only: the aerosol's ``ozone_du``, :mod:`swim.optics.ozone`) and
+        ``depolarization``.
     """
     gas = build_gas_tables(aerosol, wavelengths_nm)
     beta_r = np.asarray(gas.beta_rayleigh, dtype=float) * tau_scale
@@ -97,14 +99,17 @@ def clear_sky_layers(aerosol: AerosolBackground = AerosolBackground(), n_layers=
         return np.stack([np.interp(edges, h, cum[:, c]) for c in range(beta.shape[1])], axis=-1)
 
     beta_s = np.asarray(gas.beta_stratospheric, dtype=float) * tau_scale
+    # ozone (the aerosol's ozone_du, swim.optics.ozone): a pure absorber, in the layers' optical depth only
+    beta_o = (np.zeros_like(beta_r) if gas.beta_ozone is None else np.asarray(gas.beta_ozone, dtype=float) * tau_scale)
     col_r, col_a, col_s = column_above(beta_r), column_above(beta_a), column_above(beta_s)
+    col_o = column_above(beta_o)
     dtau_r = np.diff(col_r, axis=0)  # edges go downwards, so tau increases
     dtau_a = np.diff(col_a, axis=0)
     dtau_s = np.diff(col_s, axis=0)
     ssa_a = np.asarray(aerosol.ssa, dtype=float)
     ssa_s = np.asarray(aerosol.stratospheric.ssa, dtype=float)
     sca_r, sca_a, sca_s = dtau_r, dtau_a * ssa_a, dtau_s * ssa_s
-    dtau = dtau_r + dtau_a + dtau_s
+    dtau = dtau_r + dtau_a + dtau_s + np.maximum(np.diff(col_o, axis=0), 0.0)
     sca = sca_r + sca_a + sca_s
     ssa = np.where(dtau > 0, sca / np.where(dtau > 0, dtau, 1.0), 1.0)
     chi_r = rayleigh_legendre_moments(gas.depolarization, n_moments)
@@ -114,7 +119,8 @@ def clear_sky_layers(aerosol: AerosolBackground = AerosolBackground(), n_layers=
     frac_s = np.where(sca > 0, sca_s / safe, 0.0)
     moments = (1.0 - frac_a - frac_s)[:, None, :] * chi_r[None, :, None] + frac_a[:, None, :] * chi_a[None, :, :]
     if np.any(frac_s > 0):
-        chi_s = phase_function_legendre_moments(lambda x: np.asarray(aerosol.stratospheric.phase_function(x)), n_moments)
+        chi_s = phase_function_legendre_moments(lambda x: np.asarray(aerosol.stratospheric.phase_function(x)),
+                                                n_moments)
         moments = moments + frac_s[:, None, :] * chi_s[None, :, :]
     return {
         "edges_m": edges,
@@ -124,6 +130,7 @@ def clear_sky_layers(aerosol: AerosolBackground = AerosolBackground(), n_layers=
         "tau_rayleigh": col_r[-1],
         "tau_aerosol": col_a[-1],
         "tau_stratospheric": col_s[-1],
+        "tau_ozone": col_o[-1],
         "depolarization": gas.depolarization,
     }
 
@@ -315,7 +322,8 @@ def aerosol_plume_scene(aerosol: AerosolBackground, edge_x_m=200e3, spacing_m=50
     return scene_from_arrays(x=x, y=x, z=z, reference_lat=40.0, reference_lon=-105.0,
                              cloud_liquid_content=np.zeros_like(field), aerosol_extinction=field,
                              surface_albedo=surface_albedo, land_mask=0.0,
-                             title=f"{aerosol.type_name} plume, AOD {aerosol.aod_550}, edge at x = {edge_x_m / 1e3:g} km")
+                             title=(f"{aerosol.type_name} plume, AOD {aerosol.aod_550}, "
+                                   f"edge at x = {edge_x_m / 1e3:g} km"))
 
 
 def reference_settings(settings=None):

@@ -163,7 +163,7 @@ def test_clear_sky_matches_plane_parallel_single_scattering(sun_zenith, n_grid):
     sun = enu_from_azimuth_zenith(180.0, sun_zenith)
     view = np.array([[0.0, 0.0, 1.0], enu_from_azimuth_zenith(0.0, 20.0)])
     origins = np.array([[1500.0, -1500.0, EARTH_RADIUS_M + 1.0]] * 2)  # 1 m above sea level, away from the hill
-    out, (_, _, gas, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(aod_550=0.0),
+    out, (_, _, gas, phase) = _trace(scene, origins, view, sun, aerosol=AerosolBackground(aod_550=0.0, ozone_du=0.0),
                                      settings=MarchSettings(n_grid=n_grid, n_after=200, multiple_scattering=False))
     tau = np.trapezoid(gas.beta_rayleigh, dx=gas.dh, axis=0)  # column optical depth per wavelength
     for n in range(2):
