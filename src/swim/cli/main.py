@@ -228,6 +228,9 @@ class _RenderOptions:
     strat_aod = typer.Option(0.0, "--strat-aod", help="Optical depth at 550 nm of a stratospheric "
                                                       "(volcanic sulfate) aerosol layer at 20 km.")
     strat_height = typer.Option(20.0, "--strat-height", help="Peak height of the stratospheric layer [km].")
+    ozone = typer.Option(None, "--ozone", help="Ozone column [DU] of the clear atmosphere (default 345.5, the US "
+                         "standard profile's; 0: none): the Chappuis absorption that keeps a twilight zenith blue "
+                         "(docs/rendering.md, 'Ozone and twilight').")
     white_level = typer.Option(None, help="Exposure: the L' mapped to display white before the "
                                "highlights roll off (default 1.5, 4 above 100 km), or 'auto' (from "
                                "the image's luminance).")
@@ -322,6 +325,8 @@ class _RenderOptions:
                                         "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested).")
     memory_check = typer.Option(True, "--memory-check/--no-memory-check",
                                 help="Refuse an image too big for the memory available (before any work).")
+    light = typer.Option("sun", help="What lights the scene: sun, or moon (its place, phase and irradiance at --time; "
+                         "docs/rendering.md, 'Moonlight').")
     backend = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax or numba "
                            "(docs/performance.md).")
     grid_kernel = typer.Option("auto", "--grid-kernel", hidden=True, help="The JAX kernel's march of the grid: auto "
@@ -380,6 +385,7 @@ def render(
     aerosol_phase: Optional[Path] = _RenderOptions.aerosol_phase,
     aerosol_scale_height: Optional[float] = _RenderOptions.aerosol_scale_height,
     strat_aod: float = _RenderOptions.strat_aod, strat_height: float = _RenderOptions.strat_height,
+    ozone: Optional[float] = _RenderOptions.ozone,
     white_level: Optional[str] = _RenderOptions.white_level, exposure: float = _RenderOptions.exposure,
     albedo_image: Optional[Path] = _RenderOptions.albedo_image,
     albedo_image_bounds: str = _RenderOptions.albedo_image_bounds,
@@ -399,6 +405,7 @@ def render(
     adaptive: bool = _RenderOptions.adaptive, tolerance: Optional[float] = _RenderOptions.tolerance,
     tau_tolerance: Optional[float] = _RenderOptions.tau_tolerance,
     clear_tolerance: Optional[float] = _RenderOptions.clear_tolerance, memory_check: bool = _RenderOptions.memory_check,
+    light: str = _RenderOptions.light,
     backend: str = _RenderOptions.backend, grid_kernel: str = _RenderOptions.grid_kernel,
     ray_table: Optional[bool] = _RenderOptions.ray_table,
     step1a_on_device: Optional[bool] = _RenderOptions.step1a_on_device,
@@ -434,7 +441,7 @@ def render(
         options = _camera_options(camera, size, width, image_height, fov, view_azimuth, view_zenith, look_at)
         ds, aerosol = _model_aerosol(ds, aerosol, aerosol_file, aerosol_table, time)
         background = _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, aerosol_ssa, aerosol_g,
-                                         aerosol_angstrom, aerosol_phase, aerosol_scale_height)
+                                         aerosol_angstrom, aerosol_phase, aerosol_scale_height, ozone)
         sampling = _adaptive_sampling(tolerance, tau_tolerance, clear_tolerance) if adaptive else None
         target = None if look_at is None else _look_at_target(look_at)
         settings = _march_settings(surface, cloud_scattering, cloud_phase, backend, grid_kernel, ray_table,
@@ -445,13 +452,13 @@ def render(
                       sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=target, aerosol=background,
                       settings=settings, white_level=_white_level(white_level), exposure=exposure,
                       sampling=sampling, coarsen=level_of_detail,
-                      check_memory=memory_check)
+                      check_memory=memory_check, **({} if light == "sun" else {"light": light}))
         if end is not None or workers or scheduler:
             if sun_zenith is not None or sun_azimuth is not None:
                 raise SwimInputError("--sun-zenith/--sun-azimuth fix the sun: every frame of a series from --time to "
                                      "--end would be the same")
             # a cluster's workers open a plain scene file themselves (no scene sent through the scheduler)
-            source = None if scene is None or albedo_image is not None or aerosol_file is not None else (
+            source = None if scene is None or globe or albedo_image is not None or aerosol_file is not None else (
                 scene, {**_given(time=time), **place}, lazy)
             _render_series(ds, source, time, end, every, workers, scheduler, out, netcdf, common, freeze_fields)
             return
@@ -460,8 +467,13 @@ def render(
     except SwimInputError as exc:
         console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # one line, however long
         raise typer.Exit(code=2) from None
-    _report(f"wrote {out}" + (f" and {netcdf}" if netcdf else "")
-                  + f" (sun zenith {image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
+    _report(_wrote(out, netcdf, image))
+
+
+def _wrote(out, netcdf, image):
+    """The closing line of a render: the files written and where the light stood."""
+    return (f"wrote {out}" + (f" and {netcdf}" if netcdf else "") + f" ({image.attrs.get('light', 'sun')} zenith "
+            f"{image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
 
 
 def _load_render_modules():
@@ -623,7 +635,8 @@ def _model_aerosol(ds, aerosol, aerosol_file, aerosol_table, time):
     return ds, mixture if aerosol is None else aerosol
 
 
-def _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, ssa, g, angstrom, phase, scale_height_km):
+def _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, ssa, g, angstrom, phase, scale_height_km,
+                        ozone=None):
     """The :class:`swim.rt.gas.AerosolBackground` of the --aerosol, --aod and --strat-* options. ``aerosol``: a type
     name, an AerosolType (--aerosol-file's mixture) or None (continental; smoke for a scene of smoke alone)."""
     from ..optics.aerosol_types import AerosolType
@@ -634,13 +647,14 @@ def _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, ssa, g, angst
             raise SwimInputError("--aerosol-ssa/-g/-angstrom/-phase change a named type; --aerosol-file's mixture "
                                  "has its own (give --aerosol to use a named type instead)")
         strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height,
-                 **_aerosol_optics("continental", None, None, None, None, scale_height_km), "optics": aerosol}
+                 **_aerosol_optics("continental", None, None, None, None, scale_height_km), "optics": aerosol,
+                 **_given(ozone_du=ozone)}
         return AerosolBackground(aod_550=0.0 if aod is None else aod, **strat)
     if aerosol is None:
         smoke_only = "smoke_mass_content" in ds and "aerosol_extinction" not in ds
         aerosol = "smoke" if smoke_only else "continental"
     strat = {"stratospheric_aod_550": strat_aod, "stratospheric_height_m": 1000.0 * strat_height,
-             **_aerosol_optics(aerosol, ssa, g, angstrom, phase, scale_height_km)}
+             **_aerosol_optics(aerosol, ssa, g, angstrom, phase, scale_height_km), **_given(ozone_du=ozone)}
     if aerosol.strip().lower() == "none":  # no background aerosol (a scene's 3-D aerosol field stays)
         if aod is not None and aod != 0:
             raise SwimInputError(f"--aerosol none has no optical depth; got --aod {aod}")

@@ -134,6 +134,8 @@ def sky_irradiance(image: xr.Dataset, sun_exclusion_deg=None) -> xr.Dataset:
     try:
         sun_zenith = float(image.attrs["sun_zenith_deg"])
         t_direct = np.broadcast_to(np.asarray(image.attrs["direct_transmittance"], dtype=float), (3,))
+        # a moonlit image's radiance is relative to the sun's E_TOA: so is its direct beam, the moon's irradiance
+        t_direct = t_direct * np.asarray(image.attrs.get("moon_irradiance_ratio", 1.0), dtype=float)
     except KeyError as err:
         raise SwimInputError(f"image lacks the attribute {err.args[0]!r} (render it with swim.render)") from None
     projected = cam.pixel_solid_angles(cosine_weighted=True)  # int cos(zenith) dOmega per pixel [sr]
@@ -161,7 +163,9 @@ def sky_irradiance(image: xr.Dataset, sun_exclusion_deg=None) -> xr.Dataset:
         },
         coords=coords,
         attrs={"sun_zenith_deg": sun_zenith,
-               "earth_sun_distance_au": float(image.attrs.get("earth_sun_distance_au", 1.0))},
+               "earth_sun_distance_au": float(image.attrs.get("earth_sun_distance_au", 1.0)),
+               # the render's ozone column, whose absorption its direct beam holds (0 for images without it)
+               "ozone_column_du": float(image.attrs.get("ozone_column_du", 0.0))},
     )
 
 

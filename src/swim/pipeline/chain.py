@@ -18,11 +18,12 @@ from ..optics.aerosol_types import AerosolType
 from ..rt.gas import AerosolBackground
 from ..rt.image_sampling import AdaptiveSampling
 from ..rt.march_settings import ExecutionSettings, MarchSettings
-from .arguments import background_aerosol, checked_arguments, fixed_white_level, resolve_sun, settings_for_sun
+from .arguments import background_aerosol, checked_arguments, settings_for_sun
 from .caches import STATE, DigestGuess, StaleDigest
 from .image import colour_stage, image_dataset
+from .moonlight import check_light, display_white_level, is_moon, light_attributes, resolve_light, with_the_light
+from .night_sky import add_night_sky, with_night_sky_record
 from .scene_stage import camera_view, optical_volume, prepared_scene, scene_fingerprint
-from .sun_disk import with_the_sun
 from .tables import kernel_tables
 
 log = logging.getLogger(__name__)
@@ -45,7 +46,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
            aerosol: AerosolBackground | AerosolType | str | None = None, settings: MarchSettings = MarchSettings(),
            white_level=None, exposure: float = 0.0, progress=None, crop: bool = True,
            sampling: AdaptiveSampling | None = None, coarsen=None, check_memory: bool = True,
-           execution: ExecutionSettings | None = None) -> xr.Dataset:
+           execution: ExecutionSettings | None = None, light="sun") -> xr.Dataset:
     """Render what a camera at a vantage point sees in a scene.
 
     Parameters
@@ -110,6 +111,12 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     execution : ExecutionSettings, optional
         How and where the march runs (the kernel, its chunks, the device's switches); default:
         ``settings.execution``. They change the speed, not the image (to float32 rounding).
+    light : {"sun", "moon"} or swim.geometry.moon.MoonPosition
+        What lights the scene: the sun, or the moon at the time (its phase, distance and irradiance, with the night
+        sky but no twilight; docs/rendering.md, "Moonlight"), or a moon given as a ``MoonPosition``
+        (:func:`swim.geometry.moon.moon_from_angles`). The radiance stays solar-relative (L' = 4 pi L / E_TOA, about
+        1e-6 in moonlight) and the image's attributes ``light``, ``moon_*`` say so; the default exposure is then the
+        full moon's (``white_level='auto'`` meters each image).
 
     Returns
     -------
@@ -146,7 +153,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
                             sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=look_at, aerosol=aerosol,
                             settings=settings if execution is None else replace(settings, execution=execution),
                             white_level=white_level, exposure=exposure, progress=progress, crop=crop,
-                            sampling=sampling, coarsen=coarsen, check_memory=check_memory)
+                            sampling=sampling, coarsen=coarsen, check_memory=check_memory, light=check_light(light))
     with STATE.rendering():
         guess = DigestGuess()
         try:
@@ -189,6 +196,7 @@ class RenderRequest:
     sampling: AdaptiveSampling | None
     coarsen: object
     check_memory: bool
+    light: object = "sun"
 
 
 def _render(scene, request: RenderRequest, guess: DigestGuess | None) -> xr.Dataset:
@@ -199,27 +207,29 @@ def _render(scene, request: RenderRequest, guess: DigestGuess | None) -> xr.Data
     precompile.start(request.settings.resolved_backend())  # on a cold numba cache the march compiles meanwhile
     fingerprint = scene_fingerprint(scene, request.settings, guess)
     volume, scene, scene_vars = optical_volume(scene, fingerprint, guess)
-    sun = resolve_sun(request.time, scene, request.sun_zenith, request.sun_azimuth)
-    if sun.zenith_deg > 90:
-        log.warning("sun is %.1f deg below the horizon: twilight/night sky (no moon, stars or city lights)",
-                    sun.zenith_deg - 90)
+    sun = resolve_light(request, scene)  # the sun, or the moon in its place (swim.pipeline.moonlight)
+    if sun.zenith_deg > 90 and not is_moon(request.light):
+        log.warning("sun is %.1f deg below the horizon: twilight/night sky with stars and airglow (light='moon' for "
+                    "moonlight; no city lights)", sun.zenith_deg - 90)
     sun_scene = np.asarray(sun.direction_enu, dtype=float)
     view = camera_view(volume, scene, request, height, sun_scene)
     aerosol = background_aerosol(request.aerosol, scene_vars)
-    settings = settings_for_sun(request.settings, sun, sun_scene)
+    settings = settings_for_sun(request.settings, sun, sun_scene, volume)
     resolved = settings.resolved()  # the hardware asked once
     tables = kernel_tables(volume, fingerprint, aerosol, resolved, sun_scene)
-    white_level = None if auto_exposure else fixed_white_level(request.white_level, request.exposure,
-                                                               view.height_asl)
-    marched = march(view.rays, tables, resolved, progress=request.progress, white_level=white_level)
+    white_level = None if auto_exposure else display_white_level(request, view.height_asl)
+    marched = march(view.rays, tables, resolved, progress=request.progress,
+                    white_level=None if is_moon(request.light) else white_level)  # moonlight: scaled, then coloured
     ny, nx = view.rays.shape
     # not where the march ran on a GPU, whose host has the memory to spare (docs/decisions/0006-gpu-kernels.md)
     trim = ny * nx >= TRIM_MIN_PIXELS and not resolved.on_accelerator()
     if trim:
         release_free_memory()  # the march's freed chunks, before the image is assembled
-    radiance, recoloured, t_direct, t_aureole = with_the_sun(marched.planes, marched.sun, view.camera,
-                                                             view.directions_enu, view.rays.valid, view.sun_enu,
-                                                             aureole=tables.cloud_optics is not None)
+    radiance, recoloured, t_direct, t_aureole = with_the_light(sun, marched.planes, marched.sun, view.camera,
+                                                               view.directions_enu, view.rays.valid, view.sun_enu,
+                                                               aureole=tables.cloud_optics is not None)
+    radiance, recoloured, night = add_night_sky(radiance, recoloured, marched.planes, view, sun, aerosol, scene,
+                                                night=is_moon(request.light))
     if auto_exposure:
         white_level = exposure_white_level(auto_white_level(radiance), request.exposure)
     rgb = colour_stage(radiance, white_level, marched.rgb, recoloured)
@@ -230,6 +240,8 @@ def _render(scene, request: RenderRequest, guess: DigestGuess | None) -> xr.Data
         exposure=(white_level, auto_exposure, request.exposure), aerosol=aerosol,
         march=(marched.samples + int(marched.sun["steps"]), int(np.count_nonzero(marched.traced)), coarsened_by),
         transmittances=(t_direct, t_aureole))
+    image.attrs.update(light_attributes(sun))
+    image = with_night_sky_record(image, night)
     del radiance, rgb, marched
     if trim:
         release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays

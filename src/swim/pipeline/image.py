@@ -142,6 +142,7 @@ def image_dataset(radiance, rgb, planes, cam, *, camera, settings, sampling, sun
         "aerosol_single_scattering_albedo": np.asarray(aerosol.type.ssa, dtype=float),
         "aerosol_asymmetry_parameter": np.asarray(aerosol.type.asymmetry_parameter(), dtype=float),
         "aerosol_angstrom_exponent": float(aerosol.type.angstrom_exponent),
+        "ozone_column_du": float(aerosol.ozone_du),
         "camera": camera,
         "march_samples": march_samples,
         "traced_pixels": traced_pixels,
