@@ -440,7 +440,7 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
                          earth_sun_distance_au=1.0, surface_albedo=0.2, aerosol_ssa_400nm=0.945,
                          aerosol_asymmetry=0.65, clear_sky_aod_550=0.05, latitude_deg=45.0, elevation_m=0.0,
                          solar_constant_w_m2=SOLAR_CONSTANT_W_M2, spectrum: ReferenceSpectrum | None = None,
-                         band_nm=None, return_spectra=False, direct_includes_ozone=False) -> dict:
+                         band_nm=None, return_spectra=False, rendered_ozone_atm_cm=None) -> dict:
     """Broadband DNI, DHI and GHI [W m-2] from swim's three-wavelength irradiances (module docstring).
 
     Parameters
@@ -461,12 +461,12 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
         Shape () or (N,): precipitable water [cm], 0-10.
     ozone_atm_cm : array_like
         Shape () or (N,): total ozone [atm-cm] (0.3 = 300 DU), 0-1.
-    direct_includes_ozone : bool
-        Whether ``dni_relative`` already holds the ozone's absorption (swim's renders with ozone:
-        :func:`broadband_from_sky` sets it and ``ozone_atm_cm`` from the render's ``ozone_column_du``): the ozone
-        transmittance of ``ozone_atm_cm`` at the channels (the renderer's cross sections) is divided out of the
-        direct and the diffuse light before the fits, which SPCTRL2's gas transmittance then replaces over the whole
-        band, so the ozone is neither taken for aerosol nor counted twice.
+    rendered_ozone_atm_cm : array_like, optional
+        Shape () or (N,): the ozone column [atm-cm] whose absorption ``dni_relative`` and ``dhi_relative`` already
+        hold (swim's renders: :func:`broadband_from_sky` takes it from the render's ``ozone_column_du``); None: they
+        hold none. Its transmittance at the channels (the renderer's cross sections) is divided out of the direct
+        and the diffuse light before the fits, and SPCTRL2's gas transmittance of ``ozone_atm_cm`` then applies over
+        the whole band, so the ozone is neither taken for aerosol nor counted twice.
     earth_sun_distance_au : array_like
         Shape () or (N,): r [AU]; E0 scales with 1 / r^2.
     surface_albedo : array_like
@@ -521,8 +521,9 @@ def broadband_irradiance(dni_relative, dhi_relative, sun_zenith_deg, *, waveleng
                                                                  elevation_m)
 
     # Step 2: direct beam.
-    if direct_includes_ozone:  # SPCTRL2 applies its gas transmittance to the diffuse light too (Bird & Riordan)
-        t_o3 = _channel_ozone_transmittance(zs, o3, channels)
+    if rendered_ozone_atm_cm is not None:  # SPCTRL2 applies its gas transmittance to the diffuse light too
+        rendered = np.broadcast_to(np.asarray(rendered_ozone_atm_cm, dtype=float), (n,))
+        t_o3 = _channel_ozone_transmittance(zs, rendered, channels)
         t_dir, d_rel = t_dir / t_o3, d_rel / t_o3
     t_model, beta, alpha, hidden = _direct_beam(t_dir, zen, channels, wl, tau_r_grid, tau_r_chan)
     dni_spectral = e0 * t_model * t_gas
@@ -750,9 +751,10 @@ def broadband_from_sky(relative: xr.Dataset, **kwargs) -> xr.Dataset:
     except KeyError as err:
         raise SwimInputError(f"relative irradiance lacks {err.args[0]!r} (use swim.diagnostics.sky_irradiance)") from None
     kwargs.setdefault("earth_sun_distance_au", float(relative.attrs.get("earth_sun_distance_au", 1.0)))
-    if float(relative.attrs.get("ozone_column_du", 0.0)) > 0:  # the render's ozone, which its direct beam holds
-        kwargs.setdefault("ozone_atm_cm", float(relative.attrs["ozone_column_du"]) / 1000.0)
-        kwargs.setdefault("direct_includes_ozone", True)
+    if float(relative.attrs.get("ozone_column_du", 0.0)) > 0:  # the render's ozone, which its light holds
+        rendered = float(relative.attrs["ozone_column_du"]) / 1000.0
+        kwargs.setdefault("rendered_ozone_atm_cm", rendered)
+        kwargs.setdefault("ozone_atm_cm", rendered)
     res = broadband_irradiance(dni_rel, dhi_rel, zen, wavelengths_nm=wl, **kwargs)
     names = {"ghi": "global horizontal irradiance", "dni": "direct normal irradiance",
              "dhi": "diffuse horizontal irradiance", "direct_horizontal": "direct horizontal irradiance"}

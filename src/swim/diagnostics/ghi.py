@@ -213,17 +213,14 @@ def _simulate(scene, lat, lon, suns, *, height, size, aerosol, precipitable_wate
     from ..io.scene import validate_scene
     from ..optics.atmosphere import us_standard_atmosphere_1976
     from ..pipeline import render
-    from ..rt.gas import AerosolBackground
+    from ..pipeline.arguments import background_aerosol
     from ..rt.march_settings import MarchSettings
     from .irradiance import sky_irradiance
 
     if not (isinstance(size, (int, np.integer)) and 9 <= size <= 2049):
         raise SwimInputError(f"size must be an integer number of pixels in [9, 2049]; got {size!r}")
     scene = validate_scene(scene)
-    if aerosol is None:
-        aerosol = AerosolBackground(aod_550=0.0) if "aerosol_extinction" in scene else AerosolBackground()
-    elif isinstance(aerosol, str):
-        aerosol = AerosolBackground(type_name=aerosol)
+    aerosol = background_aerosol(aerosol, set(scene.variables))  # as swim.render takes it
     settings = MarchSettings() if settings is None else settings
     albedo = _scene_albedo(scene) if surface_albedo is None else float(surface_albedo)
     ssa400, asym = _aerosol_shape_parameters(aerosol)
@@ -245,8 +242,8 @@ def _simulate(scene, lat, lon, suns, *, height, size, aerosol, precipitable_wate
         if sun.get("skip"):
             zen[k], azi[k], dist[k] = sun["zenith"], sun["azimuth"], sun["distance"]
             continue
-        # the render's ozone is the conversion's: its direct beam holds that ozone's absorption, which the
-        # conversion divides out at the channels before its aerosol fit (direct_includes_ozone)
+        # the render's ozone is the conversion's: its light holds that ozone's absorption, which the conversion
+        # divides out at the channels before its fits (rendered_ozone_atm_cm)
         image = render(scene, lat=lat, lon=lon, height=height, camera="allsky", camera_options={"size": int(size)},
                        aerosol=dataclasses.replace(aerosol, ozone_du=1000.0 * float(ozone[k])), settings=settings,
                        **sun["render"])
@@ -276,7 +273,7 @@ def _simulate(scene, lat, lon, suns, *, height, size, aerosol, precipitable_wate
                                    ozone_atm_cm=ozone[rendered], earth_sun_distance_au=dist[rendered],
                                    surface_albedo=albedo, aerosol_ssa_400nm=ssa400, aerosol_asymmetry=asym,
                                    clear_sky_aod_550=min(max(aod_site, 0.0), 5.0), latitude_deg=float(lat),
-                                   elevation_m=height_asl, band_nm=band_nm, direct_includes_ozone=True)
+                                   elevation_m=height_asl, band_nm=band_nm, rendered_ozone_atm_cm=ozone[rendered])
         for key in bb:
             bb[key][rendered] = res[key]
     e_toa = SOLAR_CONSTANT_W_M2 / dist**2

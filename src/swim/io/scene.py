@@ -30,8 +30,9 @@ from ..constants import EARTH_RADIUS_M, WAVELENGTHS_NM
 from ..errors import SwimInputError
 from ..frames import scene_to_geodetic
 from .formats import LES_SUFFIXES as _LES_SUFFIXES  # noqa: F401 (swim.series reads it here)
-from .formats import _is_wps, _is_wrf, file_kind, netcdf_format, unsupported_message
-from .quantities import dequantified
+from .formats import _is_wrf  # noqa: F401 (swim.series reads it here)
+from .formats import file_kind, netcdf_format, unsupported_message
+from .quantities import dequantified, is_quantity
 from .scene_checks import (
     _2D,
     _3D,
@@ -565,19 +566,22 @@ def _open_scene_lazily(p, **kwargs):
     return _canonical_scene(ds, p, time)
 
 
-def as_scene(ds: xr.Dataset, time=None) -> xr.Dataset:
-    """A dataset in any layout swim reads, as a scene :func:`swim.render` takes: raw WRF output (``PH``, ``PHB``,
-    ``Times``) or WRF output post-processed by xwrf (:mod:`swim.io.wrf_postprocessed`) through
-    :func:`swim.io.wrf.read_wrf` at ``time``, WPS ``geo_em``/``met_em`` output through
-    :func:`swim.io.wps.read_wps_geogrid`; a canonical scene is returned as it is (the render validates it), with
-    unit-aware (pint, MetPy) values converted to the canonical units first (:mod:`swim.io.quantities`).
+def as_scene(ds: xr.Dataset, time=None, lat=None, lon=None) -> xr.Dataset:
+    """A dataset in any layout swim reads, as a scene :func:`swim.render` takes: the first layout of
+    :data:`swim.io.formats.NETCDF_FORMATS` it matches (WRF raw or post-processed by xwrf,
+    :mod:`swim.io.wrf_postprocessed`; WPS; ERA5/IFS; ICON; MPAS) through its reader at ``time`` (and, for readers
+    that cut a region, about ``lat``/``lon``); a canonical scene is returned as it is (the render validates it), with
+    unit-aware (pint, MetPy) values converted to the canonical units first (:mod:`swim.io.quantities`). WRF
+    datasets take quantities too; the other layouts refuse them by name.
 
     Parameters
     ----------
     ds : xarray.Dataset
         The dataset.
     time : None, str, datetime or numpy.datetime64, optional
-        The time to read from a WRF or WPS dataset with several (their readers' rule); ignored for a scene.
+        The time to read from a dataset with several (its reader's rule); ignored for a scene.
+    lat, lon : float, optional
+        The camera's place [deg], passed to readers that cut a region around it (ERA5/IFS, ICON, MPAS).
 
     Returns
     -------
@@ -591,19 +595,26 @@ def as_scene(ds: xr.Dataset, time=None) -> xr.Dataset:
     """
     if not isinstance(ds, xr.Dataset):
         raise SwimInputError(f"scene must be an xarray.Dataset; got {type(ds).__name__}")
-    if {"height", "lat", "lon"} <= set(ds.variables):
-        return dequantified(ds, _UNITS, "scene")
     from .wrf_postprocessed import is_xwrf_dataset
 
-    if _is_wrf(ds) or is_xwrf_dataset(ds):
-        from .wrf import read_wrf
+    fmt = None if is_xwrf_dataset(ds) else netcdf_format(ds)
+    if fmt is None and not is_xwrf_dataset(ds):
+        return ds  # not a known layout: validate_scene names what is missing
+    if fmt is not None and fmt.reader.endswith(":validate_scene"):
+        return dequantified(ds, _UNITS, "scene")
+    reader = fmt.load_reader() if fmt is not None else _read_wrf()
+    if any(is_quantity(v.data) for v in ds.variables.values()) and reader is not _read_wrf():
+        raise SwimInputError(f"a {fmt.name} dataset of pint quantities: call .pint.dequantify() (or "
+                             ".metpy.dequantify()) first; WRF datasets and canonical scenes take quantities")
+    params = inspect.signature(reader).parameters
+    place = {k: v for k, v in (("lat", lat), ("lon", lon)) if v is not None and k in params}
+    return reader(ds, time=time, **place)
 
-        return read_wrf(ds, time=time)
-    if _is_wps(ds):
-        from .wps import read_wps_geogrid
 
-        return read_wps_geogrid(ds, time=time)
-    return ds  # not a known layout: validate_scene names what is missing
+def _read_wrf():
+    from .wrf import read_wrf
+
+    return read_wrf
 
 
 def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
@@ -649,13 +660,13 @@ def open_scene(path, lazy: bool = False, **kwargs) -> xr.Dataset:
     if lazy and file_kind(p) != "grib":
         return _open_scene_lazily(p, **kwargs)
     reader, kind, dataset = scene_reader(p)
-    if reader is validate_scene:
-        with dataset:
-            return _canonical_scene(validate_scene(dataset.load()), p, _canonical_time(kwargs))
-    _reader_options(reader, kind, kwargs)
     if dataset is None:
+        _reader_options(reader, kind, kwargs)
         return reader(p, **kwargs)
-    with dataset:
+    with dataset:  # closed whatever the reader raises
+        if reader is validate_scene:
+            return _canonical_scene(validate_scene(dataset.load()), p, _canonical_time(kwargs))
+        _reader_options(reader, kind, kwargs)
         dataset.load()
         if "source" in inspect.signature(reader).parameters:
             kwargs = {"source": str(p), **kwargs}
@@ -699,11 +710,15 @@ def scene_reader(path):
     from .files import open_netcdf
 
     ds = open_netcdf(path, "scene file")
-    fmt = netcdf_format(ds)
-    if fmt is None:
+    try:
+        fmt = netcdf_format(ds)
+        if fmt is None:
+            raise SwimInputError(unsupported_message(path.name, "a netCDF file of no layout swim knows"))
+        reader = fmt.load_reader()
+    except BaseException:
         ds.close()
-        raise SwimInputError(unsupported_message(path.name, "a netCDF file of no layout swim knows"))
-    if fmt.takes_path:
+        raise
+    if fmt.takes_path:  # the reader opens the file itself and reads only what it needs
         ds.close()
-        return fmt.load_reader(), f"a {fmt.name} file", None
-    return fmt.load_reader(), f"a {fmt.name} file", ds
+        return reader, f"a {fmt.name} file", None
+    return reader, f"a {fmt.name} file", ds

@@ -33,7 +33,7 @@ NEGATIVE_NOISE_KG_M3 = 1e-12
 #: Plausible range of an effective radius where there is content [m].
 RADIUS_RANGE_M = (1e-7, 0.1)
 #: Largest plausible smoke mass concentration [kg m-3]: 10 000 ug m-3, beyond the densest plumes measured near fires.
-MAX_SMOKE_KG_M3 = 1e-2
+MAX_SMOKE_KG_M3 = 1e-5
 #: Largest plausible aerosol extinction at 550 nm [m-1] (visibility ~ 80 m); larger values mean wrong units.
 MAX_AEROSOL_EXTINCTION_M1 = 0.05
 #: Plausible range of terrain height [m].

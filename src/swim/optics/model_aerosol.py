@@ -567,7 +567,8 @@ def add_smoke_aerosol(scene: xr.Dataset, mass_extinction_efficiency=SMOKE_MASS_E
     Returns
     -------
     scene : xarray.Dataset
-        With ``aerosol_extinction`` [m-1 at 550 nm] = k_e c, added to any the scene already has.
+        With ``aerosol_extinction`` [m-1 at 550 nm] = k_e c, added to any the scene already has, and without
+        ``variable`` (whose extinction the renderer would otherwise add again).
     aerosol_type : AerosolType
         The ``smoke`` type; render with ``aerosol=AerosolBackground(aod_550=0.0, type_name="smoke")``.
 
@@ -580,4 +581,6 @@ def add_smoke_aerosol(scene: xr.Dataset, mass_extinction_efficiency=SMOKE_MASS_E
         raise SwimInputError(f"the scene has no {variable!r} [kg m-3] (z, y, x)")
     beta = smoke_extinction(scene[variable].transpose("z", "y", "x").values, mass_extinction_efficiency)
     src = f"smoke: {variable} x {mass_extinction_efficiency:g} m2 kg-1 (Reid et al. 2005)"
-    return scene_with_aerosol_extinction(scene, beta, source=src, add=True), aerosol_type("smoke")
+    # the smoke is now in aerosol_extinction: the renderer would add smoke_mass_content's extinction a second time
+    out = scene_with_aerosol_extinction(scene, beta, source=src, add=True).drop_vars(variable)
+    return out, aerosol_type("smoke")

@@ -148,7 +148,7 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     place since, the render finds it before it returns and renders the scene again (a warning says so, and
     ``progress`` counts the rays twice; docs/decisions/0006-gpu-kernels.md).
     """
-    scene = as_scene(scene, time)  # WRF (raw or xwrf) and WPS datasets read here; pint quantities made plain
+    scene = as_scene(scene, time, lat, lon)  # model datasets read here (swim.io.formats); pint quantities made plain
     request = RenderRequest(time=time, lat=lat, lon=lon, height=height, camera=camera, camera_options=camera_options,
                             sun_zenith=sun_zenith, sun_azimuth=sun_azimuth, look_at=look_at, aerosol=aerosol,
                             settings=settings if execution is None else replace(settings, execution=execution),

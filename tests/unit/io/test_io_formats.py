@@ -58,3 +58,36 @@ def test_files_no_reader_takes_are_named(shared_data, tmp_path):
 def test_the_canonical_scene_is_the_last_layout_tried():
     assert NETCDF_FORMATS[-1].name == "canonical scene"
     assert len({f.name for f in NETCDF_FORMATS}) == len(NETCDF_FORMATS)
+
+
+def test_datasets_in_memory_go_through_the_same_table(shared_data):
+    import xarray as xr
+
+    from swim.io.scene import as_scene
+
+    path = shared_data / "era5_columns" / "era5_reanalysis-2018-08-20T11_00_00.nc"
+    with xr.open_dataset(path) as ds:
+        from_memory = as_scene(ds.load())
+    from_file = open_scene(path)
+    xr.testing.assert_allclose(from_memory.drop_attrs(), from_file.drop_attrs())
+    assert as_scene(from_file) is from_file  # a canonical scene is returned as it is
+
+
+def test_an_open_file_is_closed_when_an_option_is_refused(shared_data, tmp_path):
+    import gc
+    import os
+    import shutil
+
+    fd_dir = "/proc/self/fd"
+    if not os.path.isdir(fd_dir):
+        pytest.skip("needs /proc/self/fd to list the open files")
+    path = tmp_path / "era5.nc"
+    shutil.copyfile(shared_data / "era5_columns" / "era5_reanalysis-2018-08-20T11_00_00.nc", path)
+
+    def held():
+        gc.collect()
+        return [f for f in os.listdir(fd_dir) if os.path.realpath(os.path.join(fd_dir, f)) == str(path.resolve())]
+
+    with pytest.raises(SwimInputError, match="unknown option"):
+        open_scene(path, tme="2018-08-20T11:00")
+    assert held() == []

@@ -249,5 +249,6 @@ def test_add_smoke_aerosol_adds_to_existing_field():
     out, typ = add_smoke_aerosol(scene)
     np.testing.assert_allclose(out["aerosol_extinction"].values, 1e-5 + 4.5e3 * 20e-9)
     assert typ.name == "smoke"
+    assert "smoke_mass_content" not in out  # else the optical volume would add its extinction a second time
     with pytest.raises(SwimInputError, match="smoke_mass_content"):
         add_smoke_aerosol(_scene())
