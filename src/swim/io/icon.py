@@ -20,8 +20,9 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from ..constants import DEFAULT_EFFECTIVE_RADIUS, EPSILON_WATER_VAPOUR, HYDROMETEOR_DENSITY, R_DRY_AIR, SPECIES
+from ..constants import DEFAULT_EFFECTIVE_RADIUS, HYDROMETEOR_DENSITY, SPECIES
 from ..errors import SwimInputError
+from .ecmwf_levels import air_density
 from .scene import domain_centre, to_utc_datetime64, validate_scene
 from .unstructured import (
     _check_range,
@@ -96,12 +97,11 @@ def icon_air_density(pressure, temperature, humidity=None, condensate=None):
 
     References
     ----------
-    Zaengl et al. (2015), doi:10.1002/qj.2378, Sect. 2.
+    Zaengl et al. (2015), doi:10.1002/qj.2378, Sect. 2; the density temperature of
+    :func:`swim.io.ecmwf_levels.air_density`, the same equation of state.
     """
-    qv = 0.0 if humidity is None else np.asarray(humidity, dtype=float)
-    qc = 0.0 if condensate is None else np.asarray(condensate, dtype=float)
-    tv = np.asarray(temperature, dtype=float) * (1.0 + (1.0 / EPSILON_WATER_VAPOUR - 1.0) * qv - qc)
-    return np.asarray(pressure, dtype=float) / (R_DRY_AIR * tv)
+    return air_density(pressure, temperature, 0.0 if humidity is None else humidity,
+                       0.0 if condensate is None else condensate)
 
 
 def droplet_effective_radius(liquid_content, droplet_concentration):
