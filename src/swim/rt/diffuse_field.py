@@ -280,7 +280,7 @@ def _gas_profiles(gas, z):
     """Extinction [m-1] of molecules, background and stratospheric aerosol and ozone's absorption coefficient at
     heights ``z`` (n,), each (n, 3)."""
     h = np.arange(gas.beta_rayleigh.shape[0]) * gas.dh
-    ozone = np.zeros_like(gas.beta_rayleigh) if gas.beta_ozone is None else gas.beta_ozone
+    ozone = gas.ozone_extinction
     out = []
     for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric, ozone):
         b = np.asarray(b, float)

@@ -196,6 +196,11 @@ class GasTables:
     #: in ``sun_transmittance`` and the diffuse tables; a pure absorber (no scattering).
     beta_ozone: np.ndarray | None = None
 
+    @property
+    def ozone_extinction(self) -> np.ndarray:
+        """``beta_ozone`` (n_h, 3) [m-1], zeros of ``beta_rayleigh``'s shape and type where there is none."""
+        return np.zeros_like(self.beta_rayleigh) if self.beta_ozone is None else self.beta_ozone
+
 
 def _slant_optical_depth(h, mu, heights, beta, top, radius, n_steps=400):
     """Optical depth [-] from height h [m] towards direction cosine mu to the top ``top`` [m] (inf where the earth

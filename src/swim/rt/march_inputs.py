@@ -579,7 +579,7 @@ def atmosphere_constants(gas: GasTables, sun_direction_scene, radius=EARTH_RADIU
     classes = np.asarray(gas.diffuse_horizontal_classes)  # (n_class, nu, nmu, 3)
     # Molecules, background and stratospheric aerosol and ozone: each a height profile times a spectrum, so the
     # kernel looks up 4 profiles instead of 12 columns; the spectra relative to the first wavelength.
-    ozone = np.zeros_like(gas.beta_rayleigh) if gas.beta_ozone is None else gas.beta_ozone
+    ozone = gas.ozone_extinction
     components = [np.asarray(b, dtype=float)
                   for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric, ozone)]
     spectra = np.ones((len(components), 3))

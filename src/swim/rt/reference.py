@@ -146,7 +146,7 @@ def _gas_at(h, mu_s, gas, samplers, diffuse_interp):
     """Rayleigh, aerosol and stratospheric extinction and ozone's absorption coefficient (n, 3) [m-1], sun
     transmittance and diffuse irradiance at heights h."""
     hh = np.clip(h, 0, gas.top_m)
-    ozone = np.zeros_like(gas.beta_rayleigh) if gas.beta_ozone is None else gas.beta_ozone
+    ozone = gas.ozone_extinction
     br, ba, bs, bo = (np.stack([np.interp(hh, samplers.heights, b[:, c]) for c in range(3)], axis=-1)
                       for b in (gas.beta_rayleigh, gas.beta_aerosol, gas.beta_stratospheric, ozone))
     point = np.stack([np.sqrt(hh / gas.top_m), np.clip(mu_s, -1, 1)], axis=-1)

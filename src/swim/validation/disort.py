@@ -100,7 +100,7 @@ def clear_sky_layers(aerosol: AerosolBackground = AerosolBackground(), n_layers=
 
     beta_s = np.asarray(gas.beta_stratospheric, dtype=float) * tau_scale
     # ozone (the aerosol's ozone_du, swim.optics.ozone): a pure absorber, in the layers' optical depth only
-    beta_o = (np.zeros_like(beta_r) if gas.beta_ozone is None else np.asarray(gas.beta_ozone, dtype=float) * tau_scale)
+    beta_o = np.asarray(gas.ozone_extinction, dtype=float) * tau_scale
     col_r, col_a, col_s = column_above(beta_r), column_above(beta_a), column_above(beta_s)
     col_o = column_above(beta_o)
     dtau_r = np.diff(col_r, axis=0)  # edges go downwards, so tau increases

@@ -379,7 +379,7 @@ def _gas_medium(mi, gas, ssa_a, sel, wc, gas_lo, gas_hi, gas_phase):
     beta_r = np.asarray(gas.beta_rayleigh, dtype=float)
     beta_a = np.asarray(gas.beta_aerosol, dtype=float)
     # ozone absorbs only (swim.optics.ozone): extinction without scattering
-    sig_t = beta_r + beta_a + (0.0 if gas.beta_ozone is None else np.asarray(gas.beta_ozone, dtype=float))
+    sig_t = beta_r + beta_a + np.asarray(gas.ozone_extinction, dtype=float)
     sca_r, sca_a = beta_r, beta_a * ssa_a
     gas_ssa = np.clip(_safe_ratio(sca_r + sca_a, sig_t), 0.0, 1.0)
     gas_waer = _safe_ratio(sca_a, sca_r + sca_a)  # (nh, 3)
