@@ -25,6 +25,10 @@ GAS_OZONE_ROW = 3
 #: the fraction of the vertical optical depth at 546 nm of the scattering components (rows 0-2) above each height
 #: (:func:`swim.rt.march_inputs.gas_column_above`).
 GAS_COLUMN_ROW = 4
+#: First node of the sun axis of the clear-sky diffuse-source tables (:mod:`swim.rt.multiple_scattering`), in the
+#: coordinate t = sign(mu_s) sqrt(|mu_s|) [-]: -7/11, the sun 23.9 deg below the horizon, past the end of astronomical
+#: twilight (18 deg). With the default 19 nodes up to t = 1 the spacing is 1/11 and one node lies on the horizon.
+DIFFUSE_SUN_T_MIN = -7.0 / 11.0
 #: Least clear-air steps after the grid of a ray that rises out of it (:func:`swim.rt.march_jax.after_step_counts`).
 AFTER_MIN_STEPS = 4
 #: Points per ray [-] at which a grid segment's length in cells is measured (:func:`swim.rt.march_jax.segment_cells`):

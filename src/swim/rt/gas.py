@@ -436,7 +436,8 @@ def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_al
     tau = _slant_optical_depth(H, M, heights, beta, ATMOSPHERE_TOP_M, radius)
     transmittance = np.exp(-tau)
 
-    # Multiple scattering: successive orders in the plane-parallel equivalent of this atmosphere.
+    # Multiple scattering: successive orders in the plane-parallel equivalent of this atmosphere, lit by the sun's
+    # pseudo-spherical beam (down to the sun 24 deg below the horizon; swim.rt.multiple_scattering).
     depolarization = float(np.mean(rayleigh_depolarization_ratio(wl)))
     # The 3-D aerosol of the scene: its mean profile, or that profile scaled to each column class.
     profiles_3d, class_aod, column = [np.zeros_like(heights)], np.zeros(1), 0.0
@@ -450,16 +451,23 @@ def _build_gas_tables(aerosol, wavelengths_nm, dh, n_u, n_mu, radius, surface_al
             class_aod = np.asarray(classes, dtype=float)
     sources = []
     for beta_3d in profiles_3d:
+        beta_class = beta + beta_3d[:, None] * factor[None, :]
+
+        def beam(h, mu_s, beta_class=beta_class):
+            """The sun's transmittance (n_h, n_mu, C) through the spherical shell: the tables' pseudo-spherical beam."""
+            hh, mm = np.meshgrid(np.minimum(h, ATMOSPHERE_TOP_M), mu_s, indexing="ij")
+            return np.exp(-_slant_optical_depth(hh, mm, heights, beta_class, ATMOSPHERE_TOP_M, radius))
+
         sources.append(diffuse_source_table(
             heights, [beta_r, beta_a + beta_3d[:, None] * factor[None, :], beta_s],
             [np.ones(3), aerosol.ssa, np.asarray(aerosol.stratospheric.ssa, float)],
             [lambda c: rayleigh_phase_function(np.asarray(c, np.float32), depolarization),
              lambda c: aerosol.type.phase_function(np.asarray(c, np.float32)),
              lambda c: aerosol.stratospheric.phase_function(np.asarray(c, np.float32))],
-            surface_albedo, ATMOSPHERE_TOP_M, absorption=beta_o))
-    # Their downward diffuse irradiance on the transmittance grid (bilinear in u and sqrt(mu_s); 0 below the horizon).
+            surface_albedo, ATMOSPHERE_TOP_M, absorption=beta_o, beam_transmittance=beam))
+    # Their downward diffuse irradiance on the transmittance grid (bilinear in u and the tables' sun coordinate).
     fu = np.interp(u, sources[0].u, np.arange(sources[0].u.size))
-    fs = np.interp(np.sqrt(np.clip(mu, 0.0, 1.0)), sources[0].t_s, np.arange(sources[0].t_s.size))
+    fs = np.interp(np.sign(mu) * np.sqrt(np.abs(mu)), sources[0].t_s, np.arange(sources[0].t_s.size))
     diffuse = np.stack([np.stack([_bilinear(src.diffuse_down[..., c], fu, fs) for c in range(3)], axis=-1)
                         for src in sources]).astype(np.float32)
     nearest = int(np.argmin(np.abs(class_aod - column)))

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from ..compilation.numba_jit import JIT_KERNEL, helper_jit, vectorising
-from ..constants import AFTER_MIN_STEPS, CELL_PROBES, GAS_COLUMN_ROW, GAS_OZONE_ROW
+from ..constants import AFTER_MIN_STEPS, CELL_PROBES, DIFFUSE_SUN_T_MIN, GAS_COLUMN_ROW, GAS_OZONE_ROW
 # the kernel's helpers, also importable from here (ground_cpu, compose_cpu, the tests and the benchmarks take them
 # from this module)
 from .march_geometry_cpu import (  # noqa: F401
@@ -777,7 +777,8 @@ def prepare_rays(start, direction, bounds, p, coef, aerosol_column, class_aod, m
         mu_s = up0 * sun0 + up1 * sun1 + up2 * sun2
         cos_phi = ((d0 * sun0 + d1 * sun1 + d2 * sun2 - mu_v * mu_s)
                    / math.sqrt(max((1 - mu_v * mu_v) * (1 - mu_s * mu_s), 1e-12)))
-        fs = _clip(math.sqrt(_clip(mu_s, 0.0, 1.0)) * (n_s - 1), 0.0, n_s - 1.001)
+        t_s = math.copysign(math.sqrt(min(abs(mu_s), 1.0)), mu_s)  # the table's sun axis, down to the night
+        fs = _clip((t_s - DIFFUSE_SUN_T_MIN) / (1.0 - DIFFUSE_SUN_T_MIN) * (n_s - 1), 0.0, n_s - 1.001)
         fv = _clip((mu_v + 1.0) * 0.5 * (n_v - 1), 0.0, n_v - 1.001)
         fp = _clip(math.acos(_clip(cos_phi, -1.0, 1.0)) / math.pi * (n_phi - 1), 0.0, n_phi - 1.001)
         s0, v0, p0 = int(math.floor(fs)), int(math.floor(fv)), int(math.floor(fp))

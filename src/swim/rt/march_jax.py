@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..constants import GAS_COLUMN_ROW
+from ..constants import DIFFUSE_SUN_T_MIN, GAS_COLUMN_ROW
 from ..optics.volume import grid_indices
 from .clouds import CLOUD_HOST_KEYS, CLOUD_KERNEL_KEYS, three_d
 from .clouds_device import cloud_sources, ratio_above_grid
@@ -269,7 +269,8 @@ def diffuse_source_profiles(point, direction, aerosol_class, consts):
     cos_phi = (direction @ sun - mu_v * mu_s) / jnp.sqrt(jnp.maximum((1 - mu_v**2) * (1 - mu_s**2), 1e-12))
     table = consts["ms_source"]  # (n_class, n_s, n_v, n_phi, n_u, 9)
     n_s, n_v, n_phi = table.shape[1:4]
-    fs = jnp.clip(jnp.sqrt(jnp.clip(mu_s, 0.0, 1.0)) * (n_s - 1), 0.0, n_s - 1.001)
+    t_s = jnp.sign(mu_s) * jnp.sqrt(jnp.clip(jnp.abs(mu_s), 0.0, 1.0))  # the table's sun axis, down to the night
+    fs = jnp.clip((t_s - DIFFUSE_SUN_T_MIN) / (1.0 - DIFFUSE_SUN_T_MIN) * (n_s - 1), 0.0, n_s - 1.001)
     fv = jnp.clip((mu_v + 1.0) * 0.5 * (n_v - 1), 0.0, n_v - 1.001)
     fp = jnp.clip(jnp.arccos(jnp.clip(cos_phi, -1.0, 1.0)) / jnp.pi * (n_phi - 1), 0.0, n_phi - 1.001)
     s0, v0, p0 = (jnp.floor(f).astype(jnp.int32) for f in (fs, fv, fp))

@@ -26,9 +26,18 @@ The diffuse field is computed by successive orders of scattering (SOS; e.g. Leno
 
 Conventions: ``mu_v`` is the cosine of the *view* zenith angle (positive looking up) and ``phi`` the view
 azimuth minus the sun azimuth (0 = looking towards the sun's azimuth), as in :mod:`swim.frames`; the
-radiance seen travels the opposite way. Spherical-shell effects (horizon and twilight) are left to the
-single-scattering part, which the renderer integrates in a spherical atmosphere; for ``mu_s <= 0`` the
-plane-parallel diffuse source is zero.
+radiance seen travels the opposite way.
+
+The sun below the horizon (twilight). The table's sun axis runs from 23.9 deg below the horizon to the zenith
+(:data:`swim.constants.DIFFUSE_SUN_T_MIN`). Its direct beam is pseudo-spherical: each level is lit by the
+sun's transmittance along the slant path through the spherical shell (``beam_transmittance``; zero in the
+earth's shadow), travelling in the level's local sun direction, upwards for a sun below the horizon, while
+the diffuse light is spread through plane-parallel layers (Dahlback and Stamnes 1991, Planet. Space Sci. 39,
+671, doi:10.1016/0032-0633(91)90061-E, for the sun above the horizon; the same construction with the beam of
+the shell's sunlit upper levels below it). At twilight that is the light of the sunlit upper air scattered
+once more into the shadowed air below, which fills the earth's shadow and adds ~20 % to the twilight zenith
+(docs/decisions/0023-ozone-and-twilight.md). Without ``beam_transmittance`` the beam is plane-parallel and
+rows of a sun at or below the horizon hold zero.
 """
 
 from __future__ import annotations
@@ -37,6 +46,8 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..constants import DIFFUSE_SUN_T_MIN
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +63,8 @@ class DiffuseSourceTable:
     u : numpy.ndarray
         Shape (n_u,): height coordinate u = sqrt(h / H_top) [-] of the levels.
     t_s : numpy.ndarray
-        Shape (n_s,): sun coordinate t = sqrt(mu_s) [-], uniform in [0, 1].
+        Shape (n_s,): sun coordinate t = sign(mu_s) sqrt(|mu_s|) [-], uniform from
+        :data:`swim.constants.DIFFUSE_SUN_T_MIN` (a sun 23.9 deg below the horizon) to 1.
     mu_v : numpy.ndarray
         Shape (n_v,): cosine of the view zenith angle [-], uniform in [-1, 1].
     phi_deg : numpy.ndarray
@@ -153,11 +165,21 @@ def _channel_kernels(phase_function, mu_out, phi_out, mu_q, phi_q, w_q, n_c, sym
     return np.broadcast_to(k, (n_c,) + k.shape[-2:]) if k.ndim == 2 else k
 
 
-def _single_scattering_source(d_tau, ssa, fractions, mu0, phase_functions, mu_q, phi_q, w_q):
+def _log_mean(a, b):
+    """Layer mean of a beam falling exponentially from ``a`` to ``b`` across the layer, (a - b) / ln(a / b): the exact
+    mean of exp(-tau / mu0) in a homogeneous layer; the linear mean where an edge is dark (the shadow's edge)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        la, lb = np.log(a), np.log(b)
+        mean = np.where(np.abs(la - lb) > 1e-9, (a - b) / (la - lb), 0.5 * (a + b))
+    return np.where((a > 0) & (b > 0), mean, 0.5 * (a + b))
+
+
+def _single_scattering_source(d_tau, ssa, fractions, mu0, phase_functions, mu_q, phi_q, w_q, beam_edges=None):
     """Direct beam at the layer edges (n_l + 1, n_s, C) and the first order's source (n_l, n_q, n_s, C).
 
-    The beam propagates with mu = -mu0 at azimuth 0; its single-scattering phase is column-normalised over the
-    quadrature.
+    The beam propagates with mu = -mu0 at azimuth 0 (upward for a sun below the horizon, mu0 < 0); its
+    single-scattering phase is column-normalised over the quadrature. ``beam_edges`` (n_l + 1, n_s, C), when
+    given, is the beam at the edges (the pseudo-spherical transmittance); else exp(-tau / mu0).
     """
     n_c = d_tau.shape[1]
     cos_sun = _cos_between(mu_q[:, None], phi_q[:, None], -mu0[None, :], 0.0)  # (n_q, n_s)
@@ -167,11 +189,14 @@ def _single_scattering_source(d_tau, ssa, fractions, mu0, phase_functions, mu_q,
         p = p[..., None] if p.ndim == 2 else p  # (n_q, n_s, C or 1)
         p = p / ((w_q[:, None, None] * p).sum(axis=0) / (4 * np.pi))
         beam_phase = beam_phase + frac[:, None, None, :] * p[None]
+    w_ssa = ssa[:, None, None, :]
+    if beam_edges is not None:
+        e_edges = np.asarray(beam_edges, float)
+        return e_edges, w_ssa * beam_phase * _log_mean(e_edges[:-1], e_edges[1:])[:, None, :, :]
     tau_edges = np.concatenate([np.zeros((1, n_c)), np.cumsum(d_tau, axis=0)])  # (n_l + 1, C)
     e_edges = np.exp(-tau_edges[:, None, :] / mu0[None, :, None])  # (n_l + 1, n_s, C)
     safe = np.maximum(d_tau, 1e-12)[:, None, :]
     e_mean = np.where(d_tau[:, None, :] > 1e-9, mu0[None, :, None] * (e_edges[:-1] - e_edges[1:]) / safe, e_edges[:-1])
-    w_ssa = ssa[:, None, None, :]
     return e_edges, w_ssa * beam_phase * e_mean[:, None, :, :]
 
 
@@ -217,7 +242,7 @@ def _scattered(fractions, kernels, mean):
 
 
 def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surface_albedo, phase_functions,
-                                     n_half=10, n_phi=12, tolerance=1e-5, max_orders=60):
+                                     n_half=10, n_phi=12, tolerance=1e-5, max_orders=60, beam_edges=None):
     """Diffuse radiance field of a plane-parallel atmosphere by successive orders of scattering.
 
     Parameters
@@ -230,7 +255,7 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
         Shape (K, n_layers, C): share of the layer's scattering done by each of K components (molecules,
         aerosol, ...) [-], summing to 1 over K.
     mu0 : numpy.ndarray
-        Shape (n_s,): cosines of the solar zenith angle [-], all > 0.
+        Shape (n_s,): cosines of the solar zenith angle [-], nonzero; > 0 without ``beam_edges``.
     surface_albedo : array_like
         Shape (C,): Lambertian surface albedo [-].
     phase_functions : sequence of callable
@@ -240,6 +265,10 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
     tolerance : float
         Stop when the newest order adds less than this fraction of the accumulated field.
     max_orders : int
+    beam_edges : numpy.ndarray, optional
+        Shape (n_layers + 1, n_s, C): the direct beam at the layer edges relative to E_TOA [-], for a
+        pseudo-spherical beam (the sun's transmittance through the spherical shell); default exp(-tau / mu0).
+        A sun below the horizon (mu0 < 0) lights the levels where it is nonzero, its beam travelling upward.
 
     Returns
     -------
@@ -262,12 +291,15 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
     n_q = mu_q.size
     kernels = [_channel_kernels(p, mu_q, phi_q, mu_q, phi_q, w_q, n_c, symmetric=True) for p in phase_functions]
 
-    e_edges, source = _single_scattering_source(d_tau, ssa, fractions, mu0, phase_functions, mu_q, phi_q, w_q)
+    if beam_edges is None and np.any(mu0 <= 0):
+        raise ValueError("a plane-parallel beam needs mu0 > 0; a sun at or below the horizon needs beam_edges")
+    e_edges, source = _single_scattering_source(d_tau, ssa, fractions, mu0, phase_functions, mu_q, phi_q, w_q,
+                                                beam_edges)
     w_ssa = ssa[:, None, None, :]
 
     # the downward directions' flux weights (the grid lists them first)
     flux_w = (w_q * np.abs(mu_q) / (4 * np.pi))[:n_q // 2]
-    direct_ground = mu0[:, None] * e_edges[-1]  # (n_s, C) horizontal direct irradiance at the ground
+    direct_ground = np.maximum(mu0, 0.0)[:, None] * e_edges[-1]  # (n_s, C) horizontal direct irradiance at the ground
     x = d_tau[:, None, :] / np.abs(mu_q)[None, :, None]  # (n_l, n_q, C)
     att = np.exp(-x)[:, :, None, :]
     mean_fac = np.where(x > 1e-9, -np.expm1(-x) / np.maximum(x, 1e-300), 1.0)[:, :, None, :]
@@ -293,8 +325,8 @@ def successive_orders_plane_parallel(d_tau, ssa, scattering_fractions, mu0, surf
     return {"mu": mu_q, "phi": phi_q, "weight": w_q, "radiance": total, "orders": order}
 
 
-def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_albedo, top_m, n_u=41, n_s=12,
-                         n_v=33, n_phi=13, n_half=10, n_phi_quad=12, absorption=None):
+def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_albedo, top_m, n_u=41, n_s=19,
+                         n_v=33, n_phi=13, n_half=10, n_phi_quad=12, absorption=None, beam_transmittance=None):
     """Build the :class:`DiffuseSourceTable` of a clear atmosphere.
 
     Parameters
@@ -312,13 +344,19 @@ def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_
     top_m : float
         Top of the atmosphere [m].
     n_u, n_s, n_v, n_phi : int
-        Table sizes in sqrt-height, sqrt(mu_s), view cosine and relative azimuth.
+        Table sizes in sqrt-height, the sun coordinate t = sign(mu_s) sqrt(|mu_s|) from
+        :data:`swim.constants.DIFFUSE_SUN_T_MIN` to 1, view cosine and relative azimuth.
     n_half, n_phi_quad : int
         Direction quadrature of the SOS solution.
     absorption : numpy.ndarray, optional
         Shape (n_h, C): absorption coefficient of pure absorbers (ozone, :mod:`swim.optics.ozone`) [m-1] on
         ``heights_m``; it adds to each layer's optical depth and lowers its single-scattering albedo, with no
         source channel of its own.
+    beam_transmittance : callable, optional
+        ``(heights [m] (n,), mu_s [-] (m,)) -> (n, m, C)``: the sun's transmittance from each height towards a sun
+        of each cosine, through the spherical shell (zero in the earth's shadow). Given, the beam is
+        pseudo-spherical and the rows of a sun at or below the horizon are solved too (module docstring); else
+        the beam is plane-parallel and those rows hold zero.
 
     Returns
     -------
@@ -350,11 +388,20 @@ def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_
     ssa = np.where(d_tau > 0, scat / np.maximum(d_tau, 1e-300), 1.0)
     fractions = np.where(scat > 0, scats / np.maximum(scat, 1e-300), 1.0 / len(active))
 
-    t_s = np.linspace(0.0, 1.0, n_s)
-    mu0 = t_s[1:] ** 2  # mu_s = 0: no plane-parallel diffuse light
+    t_s = np.linspace(DIFFUSE_SUN_T_MIN, 1.0, n_s)
+    mu_all = np.sign(t_s) * t_s**2
+    beam = None
+    if beam_transmittance is None:
+        lit = mu_all > 0  # a plane-parallel sun at or below the horizon lights nothing
+    else:
+        beam = np.asarray(beam_transmittance(edges_h, mu_all), float)  # (n_edges, n_s, C), top first
+        lit = np.any(beam > 0, axis=(0, 2))  # rows of a sun so low that the whole shell is in shadow stay zero
+        beam = beam[:, lit]
+    mu0 = mu_all[lit]
     sol = successive_orders_plane_parallel(d_tau, ssa, fractions, mu0, surface_albedo,
-                                           [phase_functions[k] for k in active], n_half=n_half, n_phi=n_phi_quad)
-    rad = sol["radiance"][::-1]  # (n_u, n_q, n_s - 1, C), ground first like u
+                                           [phase_functions[k] for k in active], n_half=n_half, n_phi=n_phi_quad,
+                                           beam_edges=beam)
+    rad = sol["radiance"][::-1]  # (n_u, n_q, n_lit, C), ground first like u
     mu_q, w_q = sol["mu"], sol["weight"]
 
     # Source for view directions: the light seen travels along -view, i.e. propagation mu = -mu_v.
@@ -365,15 +412,15 @@ def diffuse_source_table(heights_m, extinctions, ssas, phase_functions, surface_
     source = np.zeros((n_s, n_v * n_phi, n_u, n_k * n_c))
     for k in active:
         kern = _channel_kernels(phase_functions[k], -MV.ravel(), PH.ravel(), mu_q, sol["phi"], w_q, n_c)
-        source[1:, ..., k * n_c:(k + 1) * n_c] = np.stack(
+        source[lit, ..., k * n_c:(k + 1) * n_c] = np.stack(
             [np.einsum("oq,uqs->sou", kern[c], rad[..., c], optimize=True) for c in range(n_c)], axis=-1)
     source = source.reshape(n_s, n_v, n_phi, n_u, n_k * n_c)
 
     down = mu_q < 0
     diffuse_down = np.zeros((n_u, n_s, n_c))
-    diffuse_down[:, 1:] = np.einsum("q,uqsc->usc", (w_q * np.abs(mu_q) / (4 * np.pi))[down], rad[:, down])
+    diffuse_down[:, lit] = np.einsum("q,uqsc->usc", (w_q * np.abs(mu_q) / (4 * np.pi))[down], rad[:, down])
     scalar = np.zeros((n_u, n_s, n_c))
-    scalar[:, 1:] = np.einsum("q,uqsc->usc", w_q / (4 * np.pi), rad)
+    scalar[:, lit] = np.einsum("q,uqsc->usc", w_q / (4 * np.pi), rad)
     log.debug("diffuse source table: %d orders, tau = %s", sol["orders"], d_tau.sum(axis=0))
     return DiffuseSourceTable(u=u, t_s=t_s, mu_v=mu_v, phi_deg=phi_deg, source=source.astype(np.float32),
                               diffuse_down=diffuse_down, scalar_diffuse=scalar, orders=sol["orders"])

@@ -70,7 +70,8 @@ def _diffuse_source(o, d, s0, s1, heights, gas, sun, classes):
     for c, w in classes:
         table = gas.diffuse_sources[c]
         axes = (table.t_s, table.mu_v, table.phi_deg, table.u)
-        points = np.stack(np.broadcast_arrays(np.sqrt(np.clip(mu_s, 0, 1)), mu_v, phi, u), axis=-1)
+        t_s = np.clip(np.sign(mu_s) * np.sqrt(min(abs(mu_s), 1.0)), table.t_s[0], 1.0)  # the table's sun axis
+        points = np.stack(np.broadcast_arrays(t_s, mu_v, phi, u), axis=-1)
         out = out + w * np.stack([RegularGridInterpolator(axes, table.source[..., k].astype(float))(points)
                                   for k in range(table.source.shape[-1])], axis=-1)
     return out

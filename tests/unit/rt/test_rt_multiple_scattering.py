@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from swim.constants import DIFFUSE_SUN_T_MIN
 from swim.errors import SwimInputError
 from swim.rt.gas import aerosol_column_classes
 from swim.rt.multiple_scattering import (
@@ -118,6 +119,38 @@ def test_thin_layer_matches_single_scattering_formula(mu_view):
     np.testing.assert_allclose(rad[-1, q, 0, 0], expected, rtol=3e-3)
 
 
+def test_pseudo_spherical_beam_of_the_plane_parallel_transmittance_is_the_plane_parallel_solution():
+    """Given the beam exp(-tau / mu0) at the layer edges, the pseudo-spherical path (layer means of the edges'
+    exponential) reproduces the plane-parallel solution."""
+    n_l, mu0 = 12, np.array([0.2, 0.7])
+    d_tau = np.full((n_l, 1), 0.05)
+    tau_edges = np.concatenate([[0.0], np.cumsum(d_tau[:, 0])])
+    beam = np.exp(-tau_edges[:, None, None] / mu0[None, :, None])
+    args = (d_tau, np.full((n_l, 1), 0.95), np.ones((1, n_l, 1)), mu0, [0.2], [henyey_greenstein(0.6)])
+    plane = successive_orders_plane_parallel(*args)["radiance"]
+    pseudo = successive_orders_plane_parallel(*args, beam_edges=beam)["radiance"]
+    np.testing.assert_allclose(pseudo, plane, rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("mu_view", [0.3, 0.6, 1.0])
+def test_upward_beam_of_a_sun_below_the_horizon_in_a_thin_layer(mu_view):
+    """A sun 17.5 deg below the horizon (mu0 = -0.3) lighting a thin layer from below its horizontal: the light
+    scattered down is single scattering, L' = omega P(theta) tau / mu (the thin limit of paper Eq. 3 in a slab),
+    with theta the angle between the upward beam and the downward light."""
+    tau, mu0, n_l = 1e-3, -0.3, 4
+    beam = np.ones((n_l + 1, 1, 1))  # thin: the beam crosses the layer undimmed
+    sol = successive_orders_plane_parallel(np.full((n_l, 1), tau / n_l), np.ones((n_l, 1)), np.ones((1, n_l, 1)),
+                                           np.array([mu0]), [0.0], [rayleigh], beam_edges=beam)
+    mu, phi, rad = sol["mu"], sol["phi"], sol["radiance"]
+    down = np.flatnonzero(mu < 0)
+    q = down[np.argmin(np.abs(-mu[down] - mu_view))]
+    cos_theta = mu[q] * -mu0 + np.sqrt(1 - mu[q] ** 2) * np.sqrt(1 - mu0**2) * np.cos(phi[q])
+    np.testing.assert_allclose(rad[-1, q, 0, 0], rayleigh(cos_theta) * tau / -mu[q], rtol=3e-3)
+    with pytest.raises(ValueError, match="beam_edges"):
+        successive_orders_plane_parallel(np.full((n_l, 1), tau / n_l), np.ones((n_l, 1)), np.ones((1, n_l, 1)),
+                                         np.array([mu0]), [0.0], [rayleigh])
+
+
 def test_tabulated_phase_function_is_accurate():
     hg = henyey_greenstein(0.9)
     tab = tabulated_phase_function(lambda c: hg(c))
@@ -133,8 +166,12 @@ def test_diffuse_source_table_shapes_and_limits():
                                [rayleigh, lambda c: henyey_greenstein(0.7)(c)[..., None] * np.ones(3)], [0.1] * 3,
                                100e3, n_u=11, n_s=5, n_v=9, n_phi=7, n_half=6, n_phi_quad=8)
     assert tab.source.shape == (5, 9, 7, 11, 6)
-    assert np.all(tab.source[0] == 0)  # sun on the horizon: no plane-parallel diffuse light
-    assert np.all(tab.source[1:, ..., :3] > 0)
+    # the sun axis t = sign(mu_s) sqrt(|mu_s|) from DIFFUSE_SUN_T_MIN to 1; a plane-parallel sun at or below the
+    # horizon lights nothing
+    np.testing.assert_allclose(tab.t_s, np.linspace(DIFFUSE_SUN_T_MIN, 1.0, 5))
+    below = tab.t_s <= 0
+    assert below.sum() == 2 and np.all(tab.source[below] == 0)
+    assert np.all(tab.source[~below][..., :3] > 0)
     assert np.all(tab.source[..., 3:] == 0)  # no aerosol extinction: that component is skipped
     # more Rayleigh scattering at shorter wavelengths: bluer diffuse light at the ground
     d = tab.diffuse_down[0, -1]
@@ -187,3 +224,23 @@ def test_aerosol_column_classes(shape):
     assert aerosol_column_classes(np.zeros(shape)) is None
     with pytest.raises(SwimInputError, match="column aerosol optical depth"):
         aerosol_column_classes(-column)
+
+
+def test_twilight_rows_of_the_gas_tables_fill_the_earths_shadow():
+    """The pseudo-spherical beam lights the upper air of a sun below the horizon: the ground's zenith diffuse source
+    is nonzero down to civil twilight's end, falls steadily as the sun sinks, and passes the horizon continuously."""
+    from swim.rt.gas import build_gas_tables
+
+    tab = build_gas_tables().diffuse_source
+    mu_s = np.sign(tab.t_s) * tab.t_s**2
+    zenith = tab.source[:, np.argmin(np.abs(tab.mu_v - 1.0)), 0, 0, 1]  # molecules, 546 nm, at the ground
+    twilight = (mu_s > np.sin(np.radians(-7.0))) & (mu_s < 0.1)
+    assert np.all(zenith[twilight] > 0)
+    lit = zenith > 0
+    assert np.all(np.diff(zenith[lit]) > 0) and np.all(mu_s[lit] > np.sin(np.radians(-18.0)))
+    horizon = int(np.argmin(np.abs(mu_s)))
+    # on the horizon the source lies between its neighbours' and near their mean (no step at mu_s = 0)
+    assert zenith[horizon - 1] < zenith[horizon] < zenith[horizon + 1]
+    assert zenith[horizon] == pytest.approx(0.5 * (zenith[horizon - 1] + zenith[horizon + 1]), rel=0.3)
+    # the ground's diffuse irradiance at twilight: lit, and far below the day's
+    assert 0 < tab.diffuse_down[0, horizon - 1, 1] < 0.1 * tab.diffuse_down[0, -1, 1]
