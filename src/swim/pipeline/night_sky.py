@@ -20,10 +20,13 @@ import pandas as pd
 import xarray as xr
 
 from ..constants import EARTH_RADIUS_M
-from ..geometry.stars import star_catalogue, star_directions_enu
+from ..geometry.planets import planet_sky
+from ..geometry.stars import galactic_coordinates, star_catalogue, star_directions_enu
 from ..optics.ozone import US_STANDARD_OZONE_DU
-from ..rt.night_sky import (AIRGLOW, STARLIGHT_BACKGROUND_S10, ZODIACAL_LIGHT_S10, background_radiance,
-                            kasten_young_airmass, solar_relative, star_irradiance, vertical_optical_depth)
+from ..rt.night_sky import (AIRGLOW, MILKY_WAY_ANTICENTRE_S10, MILKY_WAY_CENTRE_S10, MILKY_WAY_HALF_WIDTH_DEG,
+                            MILKY_WAY_POLE_S10, STARLIGHT_BACKGROUND_S10, ZODIACAL_LIGHT_S10, background_radiance,
+                            integrated_starlight_s10, kasten_young_airmass, solar_relative, star_irradiance,
+                            vertical_optical_depth)
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +94,7 @@ def star_radiance(camera, shape, time, observer, tau_vertical, tau_hydrometeor, 
     (:func:`swim.geometry.stars.star_directions_enu`) puts its spectral irradiance
     (:func:`swim.rt.night_sky.star_irradiance`), attenuated by exp(-tau_v X(z)) and the hydrometeor optical depth
     of its pixel's line of sight, into the pixel that the camera images it in, as radiance E / Omega_pixel
-    (:func:`pixel_solid_angle_at`).
+    (:func:`point_source_radiance`).
 
     Parameters
     ----------
@@ -110,13 +113,44 @@ def star_radiance(camera, shape, time, observer, tau_vertical, tau_hydrometeor, 
     catalogue : swim.geometry.stars.StarCatalogue, optional
         Default: :func:`swim.geometry.stars.star_catalogue` (None: no stars drawn).
     """
-    out = np.zeros((3,) + tuple(shape))
     catalogue = star_catalogue() if catalogue is None else catalogue
     if catalogue is None:
-        return out, 0
+        return np.zeros((3,) + tuple(shape)), 0
     stars = catalogue.brighter_than(STAR_LIMIT_V)
     lat, lon, height_asl = observer
     dirs, altitude = star_directions_enu(stars, time, lat, lon, height_asl)
+    return point_source_radiance(camera, shape, dirs, altitude, stars.v_mag, stars.b_minus_v, tau_vertical,
+                                 tau_hydrometeor, hidden, earth_sun_distance_au)
+
+
+
+def planet_radiance(camera, shape, time, observer, tau_vertical, tau_hydrometeor, hidden,
+                    earth_sun_distance_au=1.0):
+    """Mercury, Venus, Mars, Jupiter and Saturn as point sources (:func:`swim.geometry.planets.planet_sky`: DE421
+    places, Mallama & Hilton 2018 magnitudes, Harris 1961 colours), drawn as the stars are
+    (:func:`point_source_radiance`): solar-relative radiance (3, ny, nx) [-] and the names of those drawn.
+    Arguments as :func:`star_radiance`."""
+    lat, lon, height_asl = observer
+    planets = planet_sky(time, lat, lon, height_asl)
+    out, n, drawn = point_source_radiance(camera, shape, planets.directions, planets.altitude_deg, planets.v_mag,
+                                          planets.b_minus_v, tau_vertical, tau_hydrometeor, hidden,
+                                          earth_sun_distance_au, return_index=True)
+    return out, tuple(planets.names[i] for i in drawn)
+
+
+
+def point_source_radiance(camera, shape, dirs, altitude_deg, v_mag, b_minus_v, tau_vertical, tau_hydrometeor, hidden,
+                          earth_sun_distance_au=1.0, return_index=False):
+    """Point sources (stars, planets) put into the pixels that image them: solar-relative radiance (3, ny, nx) [-]
+    and the number drawn (with ``return_index`` also the indices (k,) of those drawn).
+
+    Each source's spectral irradiance above the atmosphere (:func:`swim.rt.night_sky.star_irradiance` of V and
+    B-V), attenuated by exp(-tau_v X(z)) (X: :func:`swim.rt.night_sky.kasten_young_airmass` at its apparent
+    altitude) and by the hydrometeor optical depth of its pixel's line of sight, is spread over its pixel as the
+    radiance E / Omega_pixel (:func:`pixel_solid_angle_at`). ``dirs`` (n, 3) ENU unit vectors, ``altitude_deg``,
+    ``v_mag``, ``b_minus_v`` (n,); the other arguments as :func:`star_radiance`.
+    """
+    out = np.zeros((3,) + tuple(shape))
     row, col = camera.pixel_of_direction(dirs)
     seen = np.isfinite(row) & np.isfinite(col)
     r = np.rint(np.where(seen, row, 0)).astype(np.int64)
@@ -130,15 +164,27 @@ def star_radiance(camera, shape, time, observer, tau_vertical, tau_hydrometeor, 
     ok = np.isfinite(omega) & (omega > 0)
     r, c, index, omega = r[ok], c[ok], index[ok], omega[ok]
     tau_h = np.nan_to_num(np.asarray(tau_hydrometeor, dtype=float)[r, c], nan=0.0)
-    airmass = kasten_young_airmass(90.0 - altitude[index])
-    e = star_irradiance(stars.v_mag[index], stars.b_minus_v[index])  # (k, 3)
+    airmass = kasten_young_airmass(90.0 - np.asarray(altitude_deg, dtype=float)[index])
+    e = star_irradiance(np.asarray(v_mag, dtype=float)[index], np.asarray(b_minus_v, dtype=float)[index])  # (k, 3)
     e = e * np.exp(-np.asarray(tau_vertical)[None, :] * airmass[:, None] - tau_h[:, None])
     l_prime = solar_relative(e.T / omega[None, :], earth_sun_distance_au)  # (3, k)
     flat = out.reshape(3, -1)
     pixels = r * shape[1] + c
     for ch in range(3):
         np.add.at(flat[ch], pixels, l_prime[ch])
-    return out, int(index.size)
+    return (out, int(index.size), index) if return_index else (out, int(index.size))
+
+
+
+def milky_way_s10(camera, time, observer):
+    """The Milky Way's integrated starlight [S10] (ny, nx) towards each pixel
+    (:func:`swim.rt.night_sky.integrated_starlight_s10` at the pixel's galactic coordinates,
+    :func:`swim.geometry.stars.galactic_coordinates`); NaN outside the field of view.
+    ``observer``: (lat [deg], lon [deg], height above sea level [m])."""
+    lat, lon, height_asl = observer
+    dirs = camera.cached_directions()[0]
+    b, lon_gal = galactic_coordinates(dirs, time, lat, lon, height_asl)
+    return np.where(np.isfinite(b), integrated_starlight_s10(b, lon_gal), np.nan)
 
 
 
@@ -153,7 +199,10 @@ class NightSky:
 
 def night_sky_radiance(camera, view_zenith_deg, tau_hydrometeor, observer, time, aerosol=(0.05, 1500.0, 1.3, 345.5),
                        earth_sun_distance_au=1.0, catalogue=None):
-    """The night sky's solar-relative radiance (3, ny, nx) [-] seen by a camera, and the number of stars drawn.
+    """The night sky's solar-relative radiance (3, ny, nx) [-] seen by a camera, the number of stars drawn and the
+    planets drawn. With a time the faint stars' light is the Milky Way's (:func:`milky_way_s10`) and the bright stars
+    and the planets are drawn as points; without one it is the uniform
+    :data:`swim.rt.night_sky.STARLIGHT_BACKGROUND_S10`.
 
     Parameters
     ----------
@@ -180,13 +229,19 @@ def night_sky_radiance(camera, view_zenith_deg, tau_hydrometeor, observer, time,
     n_stars : int
     tau_vertical : numpy.ndarray
         Shape (3,): the clear atmosphere's vertical optical depth above the observer [-].
+    planets : tuple of str
+        The planets drawn (above the horizon and in the field of view).
     """
     lat, lon, height_asl, height_above_ground = observer
     tau_v = vertical_optical_depth(height_asl, *aerosol)
     zenith = np.asarray(view_zenith_deg, dtype=float)
     hidden = _below_horizon(zenith, height_above_ground)
     tau_h = np.nan_to_num(np.asarray(tau_hydrometeor, dtype=float), nan=0.0)
-    background = background_radiance(np.where(hidden, 0.0, zenith), tau_v, height_asl)
+    starlight = STARLIGHT_BACKGROUND_S10
+    if time is not None:
+        starlight = np.nan_to_num(milky_way_s10(camera, pd.Timestamp(time), (lat, lon, height_asl)),
+                                  nan=STARLIGHT_BACKGROUND_S10)
+    background = background_radiance(np.where(hidden, 0.0, zenith), tau_v, height_asl, starlight_s10=starlight)
     direct = np.exp(-tau_h)
     # a cloud on the line of sight passes the background behind it (exp(-tau)) and transmits, diffusely, the light
     # that the whole night sky sheds on it: that of the cosine-weighted median zenith angle, 45 deg
@@ -195,12 +250,14 @@ def night_sky_radiance(camera, view_zenith_deg, tau_hydrometeor, observer, time,
     night = solar_relative(background * direct[None] + hemisphere.reshape(3, 1, 1) * diffuse[None],
                            earth_sun_distance_au)
     night[:, hidden] = 0.0
-    n_stars = 0
+    n_stars, planets = 0, ()
     if time is not None:
         stars, n_stars = star_radiance(camera, zenith.shape, pd.Timestamp(time), (lat, lon, height_asl), tau_v,
                                        tau_h, hidden, earth_sun_distance_au, catalogue)
-        night += stars
-    return night, n_stars, tau_v
+        wanderers, planets = planet_radiance(camera, zenith.shape, pd.Timestamp(time), (lat, lon, height_asl),
+                                             tau_v, tau_h, hidden, earth_sun_distance_au)
+        night += stars + wanderers
+    return night, n_stars, tau_v, planets
 
 
 
@@ -246,7 +303,7 @@ def add_night_sky(radiance, recoloured, planes, view, sun, aerosol, scene, night
     if time is None:
         log.info("night sky without stars: neither the sun nor the scene has a time")
     zenith = view.camera.cached_view_angles()[1]
-    night_radiance, n_stars, tau_v = night_sky_radiance(
+    night_radiance, n_stars, tau_v, planets = night_sky_radiance(
         view.camera, zenith, planes["tau_hydrometeor"][0], (view.lat, view.lon, view.height_asl, view.height), time,
         (float(aerosol.aod_550), float(aerosol.scale_height_m), float(aerosol.type.angstrom_exponent),
          float(getattr(aerosol, "ozone_du", US_STANDARD_OZONE_DU))),
@@ -254,16 +311,24 @@ def add_night_sky(radiance, recoloured, planes, view, sun, aerosol, scene, night
     night_radiance = night_radiance.astype(np.float32)
     radiance = (radiance + night_radiance).astype(np.float32, copy=False)
     attrs = {
-        "night_sky_components": "airglow (van Rhijn layers), zodiacal light, faint starlight"
-                                + (", bright stars (BSC5)" if n_stars else ""),
+        "night_sky_components": "airglow (van Rhijn layers), zodiacal light, "
+                                + ("the Milky Way (faint starlight by galactic latitude and longitude)"
+                                   if time is not None else "faint starlight")
+                                + (", bright stars (BSC5)" if n_stars else "")
+                                + (", planets (DE421)" if planets else ""),
         "night_sky_stars": n_stars,
+        "night_sky_planets": ", ".join(planets),
         "night_sky_star_limit_v": STAR_LIMIT_V,
         "night_sky_zodiacal_s10": ZODIACAL_LIGHT_S10,
         "night_sky_starlight_s10": STARLIGHT_BACKGROUND_S10,
         "night_sky_airglow": "; ".join(f"{e.name} {e.zenith_rayleigh:g} R at {e.height_m / 1e3:g} km" for e in AIRGLOW),
         "night_sky_vertical_optical_depth": np.asarray(tau_v, dtype=float),
     }
-    log.info("night sky added: %d stars, airglow, zodiacal light and faint starlight", n_stars)
+    if time is not None:
+        attrs["night_sky_milky_way_s10"] = np.array([MILKY_WAY_POLE_S10, MILKY_WAY_CENTRE_S10, MILKY_WAY_ANTICENTRE_S10,
+                                                     MILKY_WAY_HALF_WIDTH_DEG])
+    log.info("night sky added: %d stars, planets (%s), airglow, zodiacal light and the faint stars' light", n_stars,
+             ", ".join(planets) or "none")
     return radiance, np.arange(radiance[0].size), NightSky(night_radiance, attrs)
 
 
@@ -271,12 +336,15 @@ def add_night_sky(radiance, recoloured, planes, view, sun, aerosol, scene, night
 def with_night_sky_record(image: xr.Dataset, night: NightSky | None) -> xr.Dataset:
     """The image with :func:`add_night_sky`'s record: the plane ``radiance_night_sky`` (wavelength, y, x) [1] (so
     that ``radiance`` stays the sum of its parts) and the attributes ``night_sky_components``, ``night_sky_stars``
-    (the number drawn), ``night_sky_star_limit_v``, ``night_sky_zodiacal_s10``, ``night_sky_starlight_s10``,
+    (the number drawn), ``night_sky_planets`` (those drawn), ``night_sky_star_limit_v``, ``night_sky_zodiacal_s10``,
+    ``night_sky_starlight_s10`` (the uniform faint starlight without a time), ``night_sky_milky_way_s10`` (the Milky
+    Way's pole, centre and anticentre [S10] and half-width [deg]; absent without a time),
     ``night_sky_airglow`` (the layers' zenith intensities and heights) and ``night_sky_vertical_optical_depth``
     (3,); unchanged where ``night`` is None."""
     if night is None:
         return image
     image["radiance_night_sky"] = (("wavelength", "y", "x"), night.radiance, {
-        "units": "1", "long_name": "night sky's part of L': airglow, zodiacal light, starlight (stars as points)"})
+        "units": "1",
+        "long_name": "night sky's part of L': airglow, zodiacal light, the Milky Way, stars and planets as points"})
     image.attrs.update(night.attrs)
     return image

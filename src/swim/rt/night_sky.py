@@ -74,6 +74,16 @@ ZODIACAL_LIGHT_S10 = 100.0
 #: [S10], a mean away from the Milky Way (Leinert et al. 1998, Sect. 6, Tables 35-36: 20-60 S10 at galactic
 #: latitudes above 30 deg, the stars brighter than V = 6 a small part); with the solar spectrum.
 STARLIGHT_BACKGROUND_S10 = 30.0
+#: The Milky Way (:func:`integrated_starlight_s10`): the light of the stars fainter than the drawn ones and the
+#: diffuse galactic light [S10] at the galactic poles, in the galactic plane towards the centre (the Sagittarius star
+#: clouds) and towards the anticentre, and the band's Gaussian 1/e half-width in galactic latitude [deg]. A schematic
+#: model, not a table: its high latitudes keep the 20-60 S10 above |b| = 30 deg of Leinert et al. (1998), Sect. 10;
+#: its plane (V = 20.6 mag arcsec-2 towards the centre, 22.4 towards the anticentre) is a chosen round figure for
+#: the band seen by eye at a dark site (docs/decisions/0022-night-sky.md).
+MILKY_WAY_POLE_S10 = 25.0
+MILKY_WAY_CENTRE_S10 = 700.0
+MILKY_WAY_ANTICENTRE_S10 = 120.0
+MILKY_WAY_HALF_WIDTH_DEG = 15.0
 #: Height [m] of the layer whose van Rhijn factor is the air mass of the zodiacal light and starlight
 #: (:func:`background_radiance`): Krisciunas & Schaefer's (1991) X = (1 - 0.96 sin^2 z)^-1/2.
 DIFFUSE_AIRMASS_HEIGHT_M = 131_000.0
@@ -249,6 +259,28 @@ def emission_channel_radiance(emission: AirglowEmission) -> np.ndarray:
 
 
 
+def integrated_starlight_s10(galactic_latitude_deg, galactic_longitude_deg):
+    """The Milky Way: the integrated light of the faint stars and the diffuse galactic light [S10] towards galactic
+    latitude b and longitude l [deg] (any shapes that broadcast; NaN gives :data:`STARLIGHT_BACKGROUND_S10`).
+
+    S(l, b) = S_pole + S_plane(l) exp(-(b / w)^2), S_plane(l) = S_anti + (S_centre - S_anti) ((1 + cos l) / 2)^2,
+    with S_pole, S_centre, S_anti and w the constants :data:`MILKY_WAY_POLE_S10`, :data:`MILKY_WAY_CENTRE_S10`,
+    :data:`MILKY_WAY_ANTICENTRE_S10` and :data:`MILKY_WAY_HALF_WIDTH_DEG`: the band brightest towards the galactic
+    centre (l = 0) and faintest towards the anticentre (l = 180 deg), 25-30 S10 at high galactic latitudes.
+
+    References
+    ----------
+    Leinert, Ch. et al. (1998), A&AS 127, 1-99, Sect. 10, doi:10.1051/aas:1998105 (the high latitudes).
+    """
+    b = np.radians(np.asarray(galactic_latitude_deg, dtype=float))
+    lon = np.radians(np.asarray(galactic_longitude_deg, dtype=float))
+    towards_centre = (0.5 * (1.0 + np.cos(lon))) ** 2
+    plane = MILKY_WAY_ANTICENTRE_S10 + (MILKY_WAY_CENTRE_S10 - MILKY_WAY_ANTICENTRE_S10) * towards_centre
+    s10 = MILKY_WAY_POLE_S10 + plane * np.exp(-(b / np.radians(MILKY_WAY_HALF_WIDTH_DEG)) ** 2)
+    return np.where(np.isfinite(s10), s10, STARLIGHT_BACKGROUND_S10)
+
+
+
 def background_radiance(zenith_deg, tau_vertical, observer_height_m=0.0, emissions=AIRGLOW,
                         zodiacal_s10=ZODIACAL_LIGHT_S10, starlight_s10=STARLIGHT_BACKGROUND_S10):
     """The night sky's smooth background at the ground (3, ...) [W m-2 sr-1 nm-1]: airglow (each layer brightened by
@@ -270,8 +302,9 @@ def background_radiance(zenith_deg, tau_vertical, observer_height_m=0.0, emissio
     observer_height_m : float
         Observer's height above sea level [m].
     emissions : sequence of AirglowEmission
-    zodiacal_s10, starlight_s10 : float
-        Zodiacal light and the faint stars' light [S10], with the solar spectrum.
+    zodiacal_s10, starlight_s10 : float or array_like
+        Zodiacal light and the faint stars' light [S10], with the solar spectrum; arrays broadcast to
+        ``zenith_deg``'s shape (the Milky Way of :func:`integrated_starlight_s10`).
 
     Returns
     -------
@@ -283,7 +316,8 @@ def background_radiance(zenith_deg, tau_vertical, observer_height_m=0.0, emissio
     sun = solar_irradiance_channels()
     solar_shape = sun / np.interp(V_WAVELENGTH_NM, SPECTRAL_GRID_NM, solar_irradiance_on_grid())
     x = van_rhijn(z, DIFFUSE_AIRMASS_HEIGHT_M, min(observer_height_m, DIFFUSE_AIRMASS_HEIGHT_M - 1.0))
-    total = ((zodiacal_s10 + starlight_s10) * S10_RADIANCE * solar_shape).reshape(tau.shape) * np.exp(-tau * x)
+    s10 = np.broadcast_to(np.asarray(zodiacal_s10, dtype=float) + np.asarray(starlight_s10, dtype=float), z.shape)
+    total = (S10_RADIANCE * solar_shape).reshape(tau.shape) * s10[None] * np.exp(-tau * x)
     for emission in emissions:
         x = van_rhijn(z, emission.height_m, observer_height_m)
         total = total + emission_channel_radiance(emission).reshape(tau.shape) * x * np.exp(-tau * x)
