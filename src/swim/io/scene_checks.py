@@ -65,6 +65,7 @@ _LONG_NAMES = {
     "land_mask": "land mask (1 land, 0 water)",
     "snow_cover": "fraction of the surface covered by snow or ice",
     "wind_speed_10m": "wind speed at 10 m above the surface",
+    "upward_light_emission": "upward luminous exitance of the artificial light (city lights)",
     "x": "grid x (east) of the column in the scene frame",
     "y": "grid y (north) of the column in the scene frame",
     "wavelength": "wavelength",
@@ -82,6 +83,7 @@ _UNITS = {
     "land_mask": "1",
     "snow_cover": "1",
     "wind_speed_10m": "m s-1",
+    "upward_light_emission": "lm m-2",
     "x": "m",
     "y": "m",
     "wavelength": "nm",
@@ -95,7 +97,8 @@ _CANONICAL_VARIABLES = (
     ("height", "lat", "lon", "terrain_height")
     + CONTENT_VARIABLES
     + RADIUS_VARIABLES
-    + ("aerosol_extinction", "smoke_mass_content", "surface_albedo", "land_mask", "snow_cover", "wind_speed_10m")
+    + ("aerosol_extinction", "smoke_mass_content", "surface_albedo", "land_mask", "snow_cover", "wind_speed_10m",
+       "upward_light_emission")
 )
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -121,6 +124,7 @@ _ACCEPTED_UNITS = {
     "1": {"1", "", "-", "fraction", "dimensionless", "none", "0-1"},
     "nm": {"nm", "nanometer", "nanometers", "nanometre", "nanometres"},
     "m s-1": {"ms-1", "m/s", "mps"},
+    "lm m-2": {"lmm-2", "lm/m2", "lux", "lx"},
 }
 
 _UNIT_HINTS = {
@@ -489,7 +493,7 @@ def _check_surface(ds: xr.Dataset, shape: tuple[int, int]) -> tuple[dict, dict]:
             _as_dataarray("surface_albedo", ds), ds, *shape
         )
     for name, check in (("land_mask", _check_land_mask), ("snow_cover", _check_snow_cover),
-                        ("wind_speed_10m", _check_wind_speed)):
+                        ("wind_speed_10m", _check_wind_speed), ("upward_light_emission", _check_light_emission)):
         if name in ds.variables:
             variables[name] = check(*_horizontal(ds, name, shape))
     return variables, coords
@@ -513,6 +517,14 @@ def _check_snow_cover(da: xr.DataArray, values: np.ndarray) -> xr.DataArray:
             f"of the surface covered by snow or ice (units 1){hint}"
         )
     return xr.DataArray(values, dims=_2D, attrs=_new_attrs("snow_cover", da.attrs))
+
+
+def _check_light_emission(da: xr.DataArray, values: np.ndarray) -> xr.DataArray:
+    """Check ``upward_light_emission`` [lm m-2]: >= 0 and plausible (:func:`swim.surface.city_lights.check_emission`);
+    its ``lamp_spectrum`` attribute is kept."""
+    from ..surface.city_lights import check_emission
+
+    return xr.DataArray(check_emission(values), dims=_2D, attrs=_new_attrs("upward_light_emission", da.attrs))
 
 
 def _check_wind_speed(da: xr.DataArray, values: np.ndarray) -> xr.DataArray:
