@@ -1,9 +1,23 @@
 """The package's layers (pyproject.toml, ``[tool.importlinter]``; docs/architecture.md): each module imports only from
 layers below its own, function-level imports included, so that there are no import cycles between packages."""
 
+import logging
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(autouse=True)
+def _loggers_kept():
+    """import-linter configures logging with ``disable_existing_loggers``: the loggers that were enabled are enabled
+    again afterwards, so that later tests in the process still capture what the library logs."""
+    enabled = [lg for lg in logging.root.manager.loggerDict.values()
+               if isinstance(lg, logging.Logger) and not lg.disabled]
+    yield
+    for lg in enabled:
+        lg.disabled = False
 
 
 def test_the_layers_hold(monkeypatch):
