@@ -164,7 +164,10 @@ def _compose_clouds(rays, consts, state, valid, surface, s_hit, l_surface):
     depth_s = depth * mu_down / mu0_top
     t_self = jnp.maximum(transmittance_delta_eddington(depth_s, b_eff * depth_s, mu0_top), TOP_MIN_SELF_TRANSMITTANCE)
     arf = anisotropic_reflectance_factor_kokhanovsky2004(mu_down, jnp.maximum(mu0, TOP_REFLECTANCE_MIN_MU0), cos_theta)
-    gas_to_cloud = state["i_gas"] / jnp.maximum(state["i_nogas"], 1e-30)
+    # guarded on both branches (the same values): a finite derivative where i_nogas = 0
+    # (docs/decisions/0025-differentiable-forward-operator.md)
+    lit = state["i_nogas"] > 1e-30
+    gas_to_cloud = jnp.where(lit, state["i_gas"] / jnp.where(lit, state["i_nogas"], 1.0), state["i_gas"] / 1e-30)
     l_top = 4.0 * jnp.maximum(mu0, 0.0) * arf[:, None] * (e_mean / t_self[:, None]) * gas_to_cloud
     l_above = c1[:, None] * p_thin * eq12 + ((1 - c1) * albedo_cloud)[:, None] * l_top
     l_cloud = jnp.where(tau[:, None] > 1e-6, (1 - w_above) * l_12 + w_above * l_above, 0.0)

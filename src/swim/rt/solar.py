@@ -134,7 +134,11 @@ def transmittance_delta_eddington(tau_s, b_tau_s, mu0):
     xp = array_namespace(tau_s, b_tau_s, mu0)
     tau_s = xp.asarray(tau_s)
     x = ONE_MINUS_G_PER_BACKSCATTER * xp.asarray(b_tau_s)  # (1 - g) tau_s
-    one_minus_g = xp.clip(x / xp.maximum(tau_s, 1e-30), 0.0, 1.0)
+    # guarded on both branches: the same values, and a derivative that is finite at tau_s = 0 (that of
+    # x / maximum(tau_s, 1e-30) is -x / 1e-60 there, 0 / 0 in float32;
+    # docs/decisions/0025-differentiable-forward-operator.md)
+    thick = tau_s > 1e-30
+    one_minus_g = xp.clip(xp.where(thick, x / xp.where(thick, tau_s, 1.0), x / 1e-30), 0.0, 1.0)
     tau_prime = x * (2.0 - one_minus_g)  # (1 - g^2) tau_s = (1 - g)(1 + g) tau_s
     k = 0.5 + 0.75 * mu0
     return (k + (1.0 - k) * xp.exp(-tau_prime)) / (1.0 + 0.75 * mu0 * x)
