@@ -325,8 +325,13 @@ class _RenderOptions:
                                         "AdaptiveSampling().clear_tolerance, 0.05; 0: not tested).")
     memory_check = typer.Option(True, "--memory-check/--no-memory-check",
                                 help="Refuse an image too big for the memory available (before any work).")
-    light = typer.Option("sun", help="What lights the scene: sun, or moon (its place, phase and irradiance at --time; "
-                         "docs/rendering.md, 'Moonlight').")
+    town = typer.Option(None, "--town", help="City lights: a town of POPULATION at LAT,LON as 'LAT,LON,POPULATION' "
+                        "(repeatable), its lamps' light sent up by Garstang's law (docs/rendering.md, 'City lights').")
+    lamps = typer.Option("sodium", "--lamps", help="The towns' lamp spectrum: sodium (high-pressure sodium, orange) "
+                         "or led (4000 K white).")
+    light = typer.Option("sun", help="What lights the scene: sun, moon (its place, phase and irradiance at --time; "
+                         "docs/rendering.md, 'Moonlight'), or sun+moon (both, each where it shows: one setting "
+                         "for a series from day into a moonlit night, with --white-level auto).")
     backend = typer.Option("auto", help="Ray-march kernel: auto (numba on a CPU, JAX on a GPU), jax or numba "
                            "(docs/performance.md).")
     grid_kernel = typer.Option("auto", "--grid-kernel", hidden=True, help="The JAX kernel's march of the grid: auto "
@@ -405,8 +410,9 @@ def render(
     adaptive: bool = _RenderOptions.adaptive, tolerance: Optional[float] = _RenderOptions.tolerance,
     tau_tolerance: Optional[float] = _RenderOptions.tau_tolerance,
     clear_tolerance: Optional[float] = _RenderOptions.clear_tolerance, memory_check: bool = _RenderOptions.memory_check,
-    light: str = _RenderOptions.light,
-    backend: str = _RenderOptions.backend, grid_kernel: str = _RenderOptions.grid_kernel,
+    light: str = _RenderOptions.light, town: Optional[list[str]] = _RenderOptions.town,
+    lamps: str = _RenderOptions.lamps, backend: str = _RenderOptions.backend,
+    grid_kernel: str = _RenderOptions.grid_kernel,
     ray_table: Optional[bool] = _RenderOptions.ray_table,
     step1a_on_device: Optional[bool] = _RenderOptions.step1a_on_device,
     device_sampling: Optional[bool] = _RenderOptions.device_sampling,
@@ -436,8 +442,7 @@ def render(
                 fov, view_azimuth, view_zenith = _globe_camera(lat, lon, height)
         else:
             ds = _scene_file(scene, lazy, time, place)
-        if albedo_image is not None:
-            ds = _with_albedo_image(ds, albedo_image, albedo_image_bounds, albedo_image_scale)
+        ds = _with_towns(_with_albedo_image(ds, albedo_image, albedo_image_bounds, albedo_image_scale), town, lamps)
         options = _camera_options(camera, size, width, image_height, fov, view_azimuth, view_zenith, look_at)
         ds, aerosol = _model_aerosol(ds, aerosol, aerosol_file, aerosol_table, time)
         background = _aerosol_background(ds, aerosol, aod, strat_aod, strat_height, aerosol_ssa, aerosol_g,
@@ -472,8 +477,11 @@ def render(
 
 def _wrote(out, netcdf, image):
     """The closing line of a render: the files written and where the light stood."""
-    return (f"wrote {out}" + (f" and {netcdf}" if netcdf else "") + f" ({image.attrs.get('light', 'sun')} zenith "
-            f"{image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg)")
+    light = image.attrs.get("light", "sun")
+    lights = f"; lights marched: {image.attrs.get('lights') or 'none'}" if light == "sun+moon" else ""
+    name = "sun" if light == "sun+moon" else light
+    return (f"wrote {out}" + (f" and {netcdf}" if netcdf else "") + f" ({name} zenith "
+            f"{image.attrs['sun_zenith_deg']:.1f} deg, azimuth {image.attrs['sun_azimuth_deg']:.1f} deg{lights})")
 
 
 def _load_render_modules():
@@ -588,9 +596,11 @@ def _scene_file(scene, lazy, time, place):
 
 
 def _with_albedo_image(ds, albedo_image, bounds_text, scale):
-    """The scene with the land albedo of --albedo-image over --albedo-image-bounds."""
+    """The scene with the land albedo of --albedo-image over --albedo-image-bounds (unchanged without one)."""
     from ..surface.albedo import scene_with_albedo_from_image
 
+    if albedo_image is None:
+        return ds
     try:
         bounds = tuple(float(v) for v in bounds_text.split(","))
         assert len(bounds) == 4
@@ -598,6 +608,27 @@ def _with_albedo_image(ds, albedo_image, bounds_text, scale):
         raise SwimInputError("--albedo-image-bounds must be 'west,east,south,north' [deg], got "
                              f"{bounds_text!r}") from None
     return scene_with_albedo_from_image(ds, albedo_image, bounds=bounds, scale=scale)
+
+
+def _with_towns(ds, towns, lamps):
+    """The scene with the city lights of each --town 'LAT,LON,POPULATION' added to its ``upward_light_emission``
+    (:func:`swim.surface.city_lights.town_light_emission`), their lamps --lamps; unchanged without towns."""
+    from ..rt.city_lights import LAMP_SPECTRA
+    from ..surface.city_lights import town_light_emission
+
+    if not towns:
+        return ds
+    if lamps not in LAMP_SPECTRA:
+        raise SwimInputError(f"--lamps must be one of {sorted(LAMP_SPECTRA)}, got {lamps!r}")
+    emission = ds["upward_light_emission"].values if "upward_light_emission" in ds else 0.0
+    for text in towns:
+        if len(text.split(",")) != 3:
+            raise SwimInputError(f"--town must be 'LAT,LON,POPULATION', got {text!r}")
+        lat, lon, population = _numbers(text, "--town")
+        emission = emission + town_light_emission(ds["lat"].values, ds["lon"].values, lat, lon, population)
+    out = ds.assign(upward_light_emission=(("y", "x"), emission, {"units": "lm m-2"}))
+    out["upward_light_emission"].attrs["lamp_spectrum"] = lamps
+    return out
 
 
 def _camera_options(camera, size, width, image_height, fov, view_azimuth, view_zenith, look_at):

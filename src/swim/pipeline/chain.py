@@ -21,7 +21,9 @@ from ..rt.march_settings import ExecutionSettings, MarchSettings
 from .arguments import background_aerosol, checked_arguments, settings_for_sun
 from .caches import STATE, DigestGuess, StaleDigest
 from .image import colour_stage, image_dataset
-from .moonlight import check_light, display_white_level, is_moon, light_attributes, resolve_light, with_the_light
+from .moonlight import (LitImage, check_light, display_white_level, is_moon, light_direction_at_observer,
+                        lights_attributes, progress_of, resolve_lights, sum_lit, with_the_light)
+from .city_lights import add_city_lights, city_light_emission, with_city_lights_record
 from .night_sky import add_night_sky, with_night_sky_record
 from .scene_stage import camera_view, optical_volume, prepared_scene, scene_fingerprint
 from .tables import kernel_tables
@@ -111,12 +113,16 @@ def render(scene: xr.Dataset, *, time=None, lat=None, lon=None, height=2.0, came
     execution : ExecutionSettings, optional
         How and where the march runs (the kernel, its chunks, the device's switches); default:
         ``settings.execution``. They change the speed, not the image (to float32 rounding).
-    light : {"sun", "moon"} or swim.geometry.moon.MoonPosition
+    light : {"sun", "moon", "sun+moon"} or swim.geometry.moon.MoonPosition
         What lights the scene: the sun, or the moon at the time (its phase, distance and irradiance, with the night
         sky but no twilight; docs/rendering.md, "Moonlight"), or a moon given as a ``MoonPosition``
         (:func:`swim.geometry.moon.moon_from_angles`). The radiance stays solar-relative (L' = 4 pi L / E_TOA, about
         1e-6 in moonlight) and the image's attributes ``light``, ``moon_*`` say so; the default exposure is then the
-        full moon's (``white_level='auto'`` meters each image).
+        full moon's (``white_level='auto'`` meters each image). ``"sun+moon"``: both at the time, their radiances
+        summed (the night sky added once, where the sun is below the horizon), each marched only where it shows
+        (the sun above -18 deg, the moon above -8 deg; attribute ``lights``), so that one setting serves a time series
+        from day into a moonlit night (with ``white_level='auto'``; the default fixed exposure is the sun's while it
+        is marched, the full moon's after). Not with ``sun_zenith``/``sun_azimuth``.
 
     Returns
     -------
@@ -204,48 +210,76 @@ def _render(scene, request: RenderRequest, guess: DigestGuess | None) -> xr.Data
     (:func:`swim.pipeline.caches.fingerprint_by_identity`; None: hashed first)."""
     height, auto_exposure = checked_arguments(scene, request)
     scene, coarsened_by = prepared_scene(scene, request, height)
+    city = city_light_emission(scene)  # the scene's 2-D emission, before the volume's stage drops its values
     precompile.start(request.settings.resolved_backend())  # on a cold numba cache the march compiles meanwhile
     fingerprint = scene_fingerprint(scene, request.settings, guess)
     volume, scene, scene_vars = optical_volume(scene, fingerprint, guess)
-    sun = resolve_light(request, scene)  # the sun, or the moon in its place (swim.pipeline.moonlight)
-    if sun.zenith_deg > 90 and not is_moon(request.light):
-        log.warning("sun is %.1f deg below the horizon: twilight/night sky with stars and airglow (light='moon' for "
-                    "moonlight; no city lights)", sun.zenith_deg - 90)
-    sun_scene = np.asarray(sun.direction_enu, dtype=float)
-    view = camera_view(volume, scene, request, height, sun_scene)
+    lights = resolve_lights(request, scene)  # the sun, the moon in its place, or both (swim.pipeline.moonlight)
+    sun = lights.sun
+    if sun.zenith_deg > 90 and request.light == "sun":
+        log.warning("sun is %.1f deg below the horizon: twilight/night sky with stars and airglow (light='moon' or "
+                    "'sun+moon' for moonlight)", sun.zenith_deg - 90)
+    view = camera_view(volume, scene, request, height, np.asarray(sun.direction_enu, dtype=float))
     aerosol = background_aerosol(request.aerosol, scene_vars)
-    settings = settings_for_sun(request.settings, sun, sun_scene, volume)
-    resolved = settings.resolved()  # the hardware asked once
-    tables = kernel_tables(volume, fingerprint, aerosol, resolved, sun_scene)
-    white_level = None if auto_exposure else display_white_level(request, view.height_asl)
-    marched = march(view.rays, tables, resolved, progress=request.progress,
-                    white_level=None if is_moon(request.light) else white_level)  # moonlight: scaled, then coloured
-    ny, nx = view.rays.shape
-    # not where the march ran on a GPU, whose host has the memory to spare (docs/decisions/0006-gpu-kernels.md)
-    trim = ny * nx >= TRIM_MIN_PIXELS and not resolved.on_accelerator()
-    if trim:
-        release_free_memory()  # the march's freed chunks, before the image is assembled
-    radiance, recoloured, t_direct, t_aureole = with_the_light(sun, marched.planes, marched.sun, view.camera,
-                                                               view.directions_enu, view.rays.valid, view.sun_enu,
-                                                               aureole=tables.cloud_optics is not None)
-    radiance, recoloured, night = add_night_sky(radiance, recoloured, marched.planes, view, sun, aerosol, scene,
+    white_level = None if auto_exposure else display_white_level(request, view.height_asl, lights)
+    # the march colours the image only where the sun alone lights it: moonlight is scaled, two lights summed, first
+    lit = sum_lit([_march_light(light, lights, volume, fingerprint, aerosol, request, view,
+                                white_level if lights.sun_alone else None,
+                                progress_of(request.progress, index, len(lights.marched)))
+                   for index, light in enumerate(lights.marched)])
+    radiance, recoloured, night = add_night_sky(lit.radiance, lit.recoloured, lit.planes, view, sun, aerosol, scene,
                                                 night=is_moon(request.light))
+    radiance, recoloured, city = add_city_lights(radiance, recoloured, lit.planes, view, sun, aerosol, volume, city,
+                                                 night=is_moon(request.light))
     if auto_exposure:
         white_level = exposure_white_level(auto_white_level(radiance), request.exposure)
-    rgb = colour_stage(radiance, white_level, marched.rgb, recoloured)
+    rgb = colour_stage(radiance, white_level, lit.rgb, recoloured)
     image = image_dataset(
-        radiance, rgb, marched.planes, view.camera, camera=request.camera, settings=settings,
+        radiance, rgb, lit.planes, view.camera, camera=request.camera, settings=lit.settings,
         sampling=request.sampling, sun=sun, sun_enu_observer=view.sun_enu, scene=scene,
         observer=(view.lat, view.lon, view.height, view.height_asl), reference=view.reference,
         exposure=(white_level, auto_exposure, request.exposure), aerosol=aerosol,
-        march=(marched.samples + int(marched.sun["steps"]), int(np.count_nonzero(marched.traced)), coarsened_by),
-        transmittances=(t_direct, t_aureole))
-    image.attrs.update(light_attributes(sun))
+        march=(lit.samples, int(np.count_nonzero(lit.traced)), coarsened_by),
+        transmittances=lit.transmittances("moon" if is_moon(sun) else "sun"))
+    image.attrs.update(lights_attributes(lights, lit))
     image = with_night_sky_record(image, night)
-    del radiance, rgb, marched
+    image = with_city_lights_record(image, city)
+    trim = _trims(view, lit.on_accelerator)
+    del radiance, rgb, lit
     if trim:
         release_free_memory()  # what the image's assembly freed, so the next render starts from the live arrays
     # A long-lived process that renders many grids keeps every program JAX compiled; near the process's limit of
     # memory mappings XLA's next executable would fail to map and leave the process to crash (swim.memory).
     release_compiled_programs(min_interval_s=COMPILED_PROGRAMS_CHECK_S)
     return image
+
+
+def _trims(view, on_accelerator) -> bool:
+    """Whether the render trims the C heap after a march and at its end: images of at least
+    :data:`TRIM_MIN_PIXELS` pixels, not where the march ran on a GPU, whose host has the memory to spare
+    (docs/decisions/0006-gpu-kernels.md)."""
+    ny, nx = view.rays.shape
+    return ny * nx >= TRIM_MIN_PIXELS and not on_accelerator
+
+
+def _march_light(light, lights, volume, fingerprint, aerosol, request, view, white_level, progress) -> LitImage:
+    """One light's stages: its march settings (:func:`swim.pipeline.arguments.settings_for_sun`), kernel tables and
+    march, and its disk, scaled for the moon (:func:`swim.pipeline.moonlight.with_the_light`). ``light``: one of
+    ``lights.marched`` (:class:`swim.pipeline.moonlight.Lights`); ``white_level``: where the march may colour the
+    image, else None. The tables are let go before the next light's are made, which refill the shared packed
+    volume with that light's Step 1a (:func:`swim.pipeline.tables.grid_constants`)."""
+    light_scene = np.asarray(light.direction_enu, dtype=float)
+    settings = settings_for_sun(request.settings, light, light_scene, volume)
+    resolved = settings.resolved()  # the hardware asked once
+    tables = kernel_tables(volume, fingerprint, aerosol, resolved, light_scene)
+    marched = march(view.rays, tables, resolved, progress=progress, white_level=white_level)
+    aureole = tables.cloud_optics is not None
+    del tables
+    if _trims(view, resolved.on_accelerator()):
+        release_free_memory()  # the march's freed chunks, before the image is assembled
+    radiance, recoloured, t_direct, t_aureole = with_the_light(
+        light, marched.planes, marched.sun, view.camera, view.directions_enu, view.rays.valid,
+        light_direction_at_observer(light, lights, view), aureole=aureole)
+    return LitImage(radiance, recoloured, marched.planes, {"moon" if is_moon(light) else "sun": (t_direct, t_aureole)},
+                    settings, marched.samples + int(marched.sun["steps"]), marched.traced, marched.rgb,
+                    resolved.on_accelerator())

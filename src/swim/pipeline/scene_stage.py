@@ -23,7 +23,7 @@ from ..rt.march_inputs import grid_geometry
 from .arguments import SPACE_VIEW_HEIGHT_M
 from .caches import (STATE, StaleDigest, fingerprint_by_identity, is_lazy, lazy_fingerprint,
                      speculate_digest)
-from .moonlight import resolve_light
+from .moonlight import crop_light_direction
 
 
 def terrain_at(volume, lat, lon, geometry=None):
@@ -127,7 +127,7 @@ def prepared_scene(scene, request, height):
     coarsened_by = int(scene.attrs.get("coarsened_by", 1))
     if request.crop:
         try:
-            sun = resolve_light(request, scene).direction_enu  # the sun's, or the moon's for a moonlit render
+            sun = crop_light_direction(request, scene)  # the light marched; None (every side) for two
         except (SwimInputError, TypeError, ValueError, KeyError):
             sun = None  # unknown here: a margin on every side; a real error is raised later
         scene = crop_scene_to_view(scene, request.camera, camera_options=request.camera_options, lat=request.lat,

@@ -149,3 +149,26 @@ def test_globe_options_are_checked_before_reading(tmp_path, shared_data):
         result = CliRunner().invoke(app, ["render", "--size", "9", "--out", str(out), *args])
         assert result.exit_code == 2 and message in result.output and "Traceback" not in result.output
     assert not out.exists()
+
+
+def test_towns_add_their_city_lights_to_the_scene():
+    """--town 'LAT,LON,POPULATION' adds a town's upward light to the scene's emission (the town's flux:
+    population x 1000 lm x the upward share, Garstang 1986) with the --lamps spectrum; bad towns and lamps are refused."""
+    import pytest
+
+    from swim.cli.main import _with_towns
+    from swim.errors import SwimInputError
+    from swim.io.default_scene import default_scene
+    from swim.surface.city_lights import LUMENS_PER_PERSON, cell_areas, upward_fraction
+
+    scene = default_scene()
+    assert _with_towns(scene, None, "sodium") is scene
+    lat, lon = float(scene["lat"].values.mean()), float(scene["lon"].values.mean())
+    lit = _with_towns(scene, [f"{lat},{lon},20000", f"{lat + 0.1},{lon},5000"], "led")
+    emission = lit["upward_light_emission"]
+    assert emission.attrs["lamp_spectrum"] == "led" and emission.dims == ("y", "x")
+    flux = float((emission.values * cell_areas(scene["lat"].values, scene["lon"].values)).sum())
+    assert flux == pytest.approx(25000 * LUMENS_PER_PERSON * upward_fraction(), rel=1e-6)
+    for towns, lamps in ((["24.7,-88.6"], "sodium"), (["a,b,c"], "sodium"), ([f"{lat},{lon},100"], "neon")):
+        with pytest.raises(SwimInputError, match="--town|--lamps"):
+            _with_towns(scene, towns, lamps)
