@@ -333,6 +333,31 @@ def cloud_optics(phase_function="physical", max_degree=2, effective_radius_m=Non
                        narrow=np.array([c for _, _, c in parts]))
 
 
+def _aureole_split(excess, p, inner, theta, mu, f):
+    """Pi (n_angles,) of :func:`split_phase_function` for one channel: ``excess`` (the forward excess up to its first
+    zero) times s beyond the aureole (``inner``: within it), P - c within it, c = P - s E at the aureole's edge, with
+    s such that Pi's energy is f (a few fixed-point steps: c depends on s only through the excess at the edge); a
+    peak holding more than f within the aureole is scaled as a whole."""
+    def energy(values):
+        return 0.5 * np.trapezoid(values[::-1], mu[::-1])
+
+    e_outer = energy(np.where(inner, 0.0, excess))
+    p_edge, e_edge = (np.interp(AUREOLE_HALF_ANGLE_RAD, theta, v) for v in (p, excess))
+    if e_outer <= 0:
+        return f * excess / max(energy(excess), 1e-30)
+    s = 1.0
+    for _ in range(20):
+        inside = np.where(inner, np.clip(p - (p_edge - s * e_edge), 0.0, p), 0.0)
+        e_inner = energy(inside)
+        if e_inner > f:  # a peak holding more than f: scaled as a whole
+            return f * excess / max(energy(excess), 1e-30)
+        s_next = (f - e_inner) / e_outer
+        if abs(s_next - s) < 1e-9:
+            break
+        s = s_next
+    return np.where(inner, inside, excess * s)
+
+
 def split_phase_function(p, moments, f):
     """The single scattering's split of a phase function for the delta-M scaled march.
 
@@ -343,9 +368,11 @@ def split_phase_function(p, moments, f):
     part as if it had been scattered once (a glow 10-40 deg from the sun up to 3x too bright under HG g = 0.85,
     +12-38 % in the GHI of an all-sky image; docs/decisions/0001-cloud-diffuse-solution.md). Here P is split:
 
-    * the forward excess E(theta) = P - (1 - f) P* up to its first zero (theta_c, 38-44 deg for droplets), all of it
-      within the aureole and beyond it scaled so that the whole has the energy f (Pi): the light the delta stands
-      for;
+    * the forward excess E(theta) = P - (1 - f) P* up to its first zero (theta_c, 38-44 deg for droplets), beyond the
+      aureole scaled by s, within it P less the value c = P - s E that P - Pi takes at the aureole's edge (so that
+      P - Pi is continuous there and flat inside: no peak narrower than a pixel, and no hole about the sun where a
+      thick cloud dims the aureole's own light), s such that the whole has the energy f (Pi): the light the delta
+      stands for;
     * its part within the aureole (:data:`AUREOLE_HALF_ANGLE_RAD`, above its value there): the narrow peak, energy
       f_a, delivered as the circumsolar aureole (swim.pipeline);
     * the rest of Pi scatters the beam dimmed by all but the narrow peak, e^{-(1 - f_a) tau_s} (a sharp
@@ -384,14 +411,7 @@ def split_phase_function(p, moments, f):
         negative = np.flatnonzero(excess[:, c] <= 0)
         cone = negative[0] if negative.size else theta.size
         pi = np.where(np.arange(theta.size) < cone, np.maximum(excess[:, c], 0.0), 0.0)
-        # all of the excess within the aureole (so that P - Pi has no peak narrower than a pixel), the rest of f
-        # from the excess beyond it
-        e_inner = 0.5 * np.trapezoid(np.where(inner, pi, 0.0)[::-1], mu[::-1])
-        e_outer = 0.5 * np.trapezoid(np.where(inner, 0.0, pi)[::-1], mu[::-1])
-        if e_inner <= f and e_outer > 0:
-            pi = np.where(inner, pi, pi * (f - e_inner) / e_outer)
-        else:  # a peak holding more than f: scaled as a whole
-            pi = f * pi / max(e_inner + e_outer, 1e-30)
+        pi = _aureole_split(pi, p[:, c], inner, theta, mu, f)
         scaled_beam[:, c] = np.maximum(p[:, c] - pi, 0.0)
         edge = np.interp(AUREOLE_HALF_ANGLE_RAD, theta, pi)
         outside = np.where(theta < AUREOLE_HALF_ANGLE_RAD, np.minimum(pi, edge), pi)

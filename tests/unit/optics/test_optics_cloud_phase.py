@@ -79,6 +79,25 @@ def test_split_parts_add_up_and_carry_the_truncated_share(spec):
         np.testing.assert_allclose(_mean(b)[1] + narrow, removed[1], rtol=1e-6)
 
 
+def test_the_scaled_beams_phase_function_is_continuous_at_the_aureoles_edge():
+    """P - Pi (the part that scatters the scaled beam) has no step at the aureole's edge and is flat inside it: a step
+    there drew a dark disc with a bright rim about the sun behind thick cloud, whose aureole light is dimmed away
+    (e^-(1 - f_a) tau). Pi keeps the energy f."""
+    from swim.optics.cloud_phase import AUREOLE_HALF_ANGLE_RAD
+
+    optics = cloud_optics("physical", 2)
+    theta = np.radians(angles_deg())
+    edge = int(np.searchsorted(theta, AUREOLE_HALF_ANGLE_RAD))
+    for n in range(len(SPECIES)):
+        p, f = optics.phase[n], optics.truncation[n]
+        a, _, _ = split_phase_function(p, optics.moments[n, :3], f)
+        inside, outside = a[edge - 1], a[edge]
+        # at 546 nm, one angle step apart on the steep peak (the ice models' blue channel is noisy from step to step)
+        np.testing.assert_allclose(inside[1], outside[1], rtol=0.08)
+        np.testing.assert_allclose(a[: edge - 1], np.broadcast_to(inside, a[: edge - 1].shape), rtol=1e-6)
+        np.testing.assert_allclose(_mean(p - a), f, rtol=1e-3)
+
+
 def test_optics_truncation_and_scaled_moments():
     optics = cloud_optics("physical", 2)
     f = optics.truncation
