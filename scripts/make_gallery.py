@@ -16,6 +16,7 @@ import numpy as np
 
 import swim
 from swim.io import globe
+from swim.series import series_times
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,6 +31,10 @@ KATRINA_CENTRE = (24.49, -90.35, 0.0)
 KATRINA_GLINT_OBSERVER = (25.29, -90.26, 800e3)
 # The valid time of the GFS file of the whole-earth views (12 UTC run + 120 h).
 GFS_GLOBE_TIME = "2011-01-15T12:00"
+# The time series through twilight: Katrina's 12 UTC fields from night to sunrise (every frame within the reader's
+# 90 min of 12 UTC), and the built-in scene's fields frozen through sunset at its site (40 N, 105.3 W).
+KATRINA_DAWN = ("2005-08-28T10:30", "2005-08-28T13:00", 15)
+DEFAULT_DUSK = ("2023-06-22T02:00", "2023-06-22T04:30", 15)
 
 
 def globe_view(gfs: Path, lat: float, lon: float, caption: str) -> dict:
@@ -40,6 +45,39 @@ def globe_view(gfs: Path, lat: float, lon: float, caption: str) -> dict:
     return dict(scene=lambda: globe.hemisphere_scene(globe.read_gfs_global_columns(gfs, GFS_GLOBE_TIME), lat, lon,
                                                      size=256),
                 time=GFS_GLOBE_TIME, caption=caption, **view)
+
+
+def twilight_series(scene, times, caption, columns=4, size=255, **kwargs) -> dict:
+    """A time series through twilight: all-sky frames from ``times`` (start, end, every minutes) lit by the sun and the
+    moon together, each with its own automatic exposure (a camera at night), tiled into one image with their times."""
+    frames = list(series_times(*times))
+    return dict(scene=scene, frames=frames, columns=columns, caption=caption, camera="allsky",
+                camera_options={"size": size}, light="sun+moon", white_level="auto", **kwargs)
+
+
+def render_montage(scene, view, path: Path):
+    """Render a :func:`twilight_series` view's frames and tile them, each labelled with its UTC time, the sun's
+    elevation and the exposure (log2 of the white level: EV below daylight's 1.5); returns the last frame's image."""
+    from PIL import Image, ImageDraw
+
+    kwargs = {k: v for k, v in view.items() if k not in ("scene", "caption", "frames", "columns")}
+    tiles, image = [], None
+    for t in view["frames"]:
+        image = swim.render(scene, time=t.isoformat(), **kwargs)
+        tile = Image.fromarray(np.ascontiguousarray(image["rgb"].values))
+        ev = np.log2(float(image.attrs["white_level"]) / 1.5)
+        draw = ImageDraw.Draw(tile)
+        label = f"{t:%H:%M} UTC  sun {90 - image.attrs['sun_zenith_deg']:+.1f}°  {ev:+.1f} EV"
+        draw.rectangle(draw.textbbox((4, 2), label), fill=(0, 0, 0))  # legible on a white sky too
+        draw.text((4, 2), label, fill=(255, 255, 160))
+        tiles.append(tile)
+    cols = view["columns"]
+    w, h = tiles[0].size
+    sheet = Image.new("RGB", (w * cols, h * -(-len(tiles) // cols)))
+    for i, tile in enumerate(tiles):
+        sheet.paste(tile, ((i % cols) * w, (i // cols) * h))
+    sheet.save(path)
+    return image
 
 
 def views(data: Path):
@@ -111,6 +149,24 @@ def views(data: Path):
         "clear_sky_sunset": dict(scene=lambda: swim.default_scene(), camera="panorama",
                                  camera_options={"width": 1024, "height": 512}, sun_zenith=86.0, sun_azimuth=270.0,
                                  caption="The same sunset without the stratospheric layer, for comparison."),
+        "katrina_dawn_series": twilight_series(
+            lambda: swim.open_scene(katrina, time="2005-08-28T12:00"), KATRINA_DAWN, lat=26.0, lon=-90.66, height=2.0,
+            caption="Katrina (WRF 12 UTC fields) from the sea surface at the cloud-free spot north-west of the "
+                    "hurricane (26.0 N, 90.66 W), from night to sunrise (10:30-13:00 UTC, every 15 min), lit by the "
+                    "sun and the waning moon together, each frame with its own automatic exposure; north up, east "
+                    "left. Each label gives the time, the sun's elevation and the exposure in EV against the "
+                    "daylight default. Stars, the Milky Way and the moon's hazy glow at night; the dawn glow low "
+                    "in the east with the hurricane's clouds in silhouette on that horizon; a deep blue sky "
+                    "through nautical and civil twilight; the sun rising into a hazy eastern sky."),
+        "default_dusk_series": twilight_series(
+            lambda: swim.default_scene(), DEFAULT_DUSK,
+            caption="The built-in scene's clouds frozen from sunset into the night at its site (40 N, 105.3 W; "
+                    "2023-06-22 02:00-04:30 UTC, every 15 min), lit by the sun and the young moon together, each "
+                    "frame with its own automatic exposure; north up, east left. The cirrus turns gold and pink at "
+                    "sunset while the cumulus below it is in shadow; the zenith stays blue through civil twilight "
+                    "and the stars come out; past nautical twilight the night sky's airglow, exposed up by ~23 EV, "
+                    "gives the brownish cast of a long exposure. The twilight fades by the sun ~13 deg below the "
+                    "horizon (docs/rendering.md, 'Ozone and twilight')."),
         "colorado_peak_panorama": dict(
             scene=lambda: swim.open_scene(met_em), time="2005-08-28T15:00",
             lat=COLORADO_PEAK_LAT, lon=COLORADO_PEAK_LON, height=5.0, camera="panorama",
@@ -168,9 +224,12 @@ def main(argv=None):
         kwargs = {k: v for k, v in view.items() if k not in ("scene", "caption")}
         scene = view["scene"]()
         start = time.perf_counter()
-        image = swim.render(scene, **kwargs)
+        if "frames" in view:
+            image = render_montage(scene, view, args.out / f"{name}.png")
+        else:
+            image = swim.render(scene, **kwargs)
+            swim.write_png(image, args.out / f"{name}.png")
         elapsed = time.perf_counter() - start
-        swim.write_png(image, args.out / f"{name}.png")
         radiance = image["radiance"].values
         rows.append((name, view["caption"], image.attrs, elapsed, np.nanmedian(radiance, axis=(1, 2))))
         logging.info("%s: %.1f s", name, elapsed)
