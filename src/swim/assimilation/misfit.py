@@ -48,8 +48,10 @@ def _pooled(images, reference, masks):
         ys.append(y.reshape(y.shape[0], -1))
         ws.append(w.reshape(-1))
     w = jnp.concatenate(ws)
-    if _concrete(w) and not float(np.sum(np.asarray(w))) > 0:
-        raise SwimInputError("misfit: the masks leave no pixel (weights must be >= 0, some > 0)")
+    if _concrete(w):
+        values = np.asarray(w)
+        if not (np.all(np.isfinite(values)) and values.min() >= 0 and values.sum() > 0):
+            raise SwimInputError("misfit: the masks leave no pixel, or have weights that are not finite and >= 0")
     return jnp.concatenate(xs, axis=1), jnp.concatenate(ys, axis=1), w
 
 

@@ -99,10 +99,12 @@ class ForwardOperator:
 
     @property
     def reference_state(self) -> np.ndarray:
+        """The scene's cloud liquid water content (z, y, x) [kg m-3]: the state the fixed set-up was built from."""
         return self.setup.reference_state
 
     @property
     def masks(self) -> list:
+        """One (ny, nx) bool array per observer: the pixels that have a ray."""
         return self.setup.masks
 
     def _checked(self, name, state):
@@ -126,6 +128,9 @@ class ForwardOperator:
 
     def _ray_cotangent(self, dimages):
         """The rays' cotangent (n_rays, 3) of the images' (the adjoint of :meth:`_images`)."""
+        if len(dimages) != len(self.setup.shapes):
+            raise SwimInputError(f"forward_operator: one cotangent image per observer is needed, "
+                                 f"{len(self.setup.shapes)}; got {len(dimages)}")
         rows = []
         for shape, flat, image in zip(self.setup.shapes, self.setup.pixels, dimages):
             image = jnp.asarray(image, self.dtype)

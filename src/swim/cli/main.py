@@ -327,8 +327,8 @@ class _RenderOptions:
                                 help="Refuse an image too big for the memory available (before any work).")
     town = typer.Option(None, "--town", help="City lights: a town of POPULATION at LAT,LON as 'LAT,LON,POPULATION' "
                         "(repeatable), its lamps' light sent up by Garstang's law (docs/rendering.md, 'City lights').")
-    lamps = typer.Option("sodium", "--lamps", help="The towns' lamp spectrum: sodium (high-pressure sodium, orange) "
-                         "or led (4000 K white).")
+    lamps = typer.Option(None, "--lamps", help="The city lights' lamp spectrum: sodium (high-pressure sodium, orange; "
+                         "the default) or led (4000 K white), for --town and a scene's upward_light_emission.")
     light = typer.Option("sun", help="What lights the scene: sun, moon (its place, phase and irradiance at --time; "
                          "docs/rendering.md, 'Moonlight'), or sun+moon (both, each where it shows: one setting "
                          "for a series from day into a moonlit night, with --white-level auto).")
@@ -411,7 +411,7 @@ def render(
     tau_tolerance: Optional[float] = _RenderOptions.tau_tolerance,
     clear_tolerance: Optional[float] = _RenderOptions.clear_tolerance, memory_check: bool = _RenderOptions.memory_check,
     light: str = _RenderOptions.light, town: Optional[list[str]] = _RenderOptions.town,
-    lamps: str = _RenderOptions.lamps, backend: str = _RenderOptions.backend,
+    lamps: Optional[str] = _RenderOptions.lamps, backend: str = _RenderOptions.backend,
     grid_kernel: str = _RenderOptions.grid_kernel,
     ray_table: Optional[bool] = _RenderOptions.ray_table,
     step1a_on_device: Optional[bool] = _RenderOptions.step1a_on_device,
@@ -612,15 +612,23 @@ def _with_albedo_image(ds, albedo_image, bounds_text, scale):
 
 def _with_towns(ds, towns, lamps):
     """The scene with the city lights of each --town 'LAT,LON,POPULATION' added to its ``upward_light_emission``
-    (:func:`swim.surface.city_lights.town_light_emission`), their lamps --lamps; unchanged without towns."""
-    from ..rt.city_lights import LAMP_SPECTRA
+    (:func:`swim.surface.city_lights.town_light_emission`), and the lamps of --lamps (default: the scene's, else
+    sodium); unchanged without towns or lamps."""
+    from ..rt.city_lights import DEFAULT_LAMP, LAMP_SPECTRA
     from ..surface.city_lights import town_light_emission
 
-    if not towns:
-        return ds
-    if lamps not in LAMP_SPECTRA:
+    if lamps is not None and lamps not in LAMP_SPECTRA:
         raise SwimInputError(f"--lamps must be one of {sorted(LAMP_SPECTRA)}, got {lamps!r}")
-    emission = ds["upward_light_emission"].values if "upward_light_emission" in ds else 0.0
+    has = "upward_light_emission" in ds
+    if not towns:
+        if lamps is None or not has:
+            return ds
+        out = ds.copy()
+        out["upward_light_emission"] = out["upward_light_emission"].copy()
+        out["upward_light_emission"].attrs["lamp_spectrum"] = lamps
+        return out
+    lamps = lamps or (ds["upward_light_emission"].attrs.get("lamp_spectrum", DEFAULT_LAMP) if has else DEFAULT_LAMP)
+    emission = ds["upward_light_emission"].values if has else 0.0
     for text in towns:
         if len(text.split(",")) != 3:
             raise SwimInputError(f"--town must be 'LAT,LON,POPULATION', got {text!r}")

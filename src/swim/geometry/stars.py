@@ -269,8 +269,19 @@ def apparent_altaz(ra_deg, dec_deg, time, lat, lon, height_m=0.0):
 
 
 def star_directions_enu(catalogue: StarCatalogue, time, lat, lon, height_m=0.0, temperature_c=None):
-    """Unit vectors (n, 3) in the observer's ENU frame towards the stars' apparent, refracted places, and their
-    apparent altitudes (n,) [deg]: :func:`refracted_directions` of their airless places (:func:`apparent_altaz`)."""
+    """Unit vectors (n, 3) in the observer's ENU frame towards the stars' apparent, refracted places.
+
+    The airless places of :func:`apparent_altaz` lifted by :func:`refracted_directions`: the refraction of the air
+    at the observer's height in the US Standard Atmosphere 1976 (its pressure and, unless ``temperature_c`` [degC]
+    is given, its temperature); above 85 km (no air) none.
+
+    Returns
+    -------
+    directions : numpy.ndarray
+        Shape (n, 3): east, north, up.
+    altitude_deg : numpy.ndarray
+        Shape (n,): the apparent (refracted) altitude [deg].
+    """
     alt, az = apparent_altaz(catalogue.ra_deg, catalogue.dec_deg, time, lat, lon, height_m)
     return refracted_directions(alt, az, height_m, temperature_c)
 

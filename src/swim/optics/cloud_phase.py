@@ -355,6 +355,7 @@ def _aureole_split(excess, p, inner, theta, mu, f):
         if abs(s_next - s) < 1e-9:
             break
         s = s_next
+    inside = np.where(inner, np.clip(p - (p_edge - s * e_edge), 0.0, p), 0.0)  # with the s returned
     return np.where(inner, inside, excess * s)
 
 

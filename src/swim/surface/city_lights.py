@@ -59,6 +59,7 @@ def upward_fraction(direct_fraction=DIRECT_UPWARD_FRACTION, ground_reflectance=G
 
 
 def _check_positive(name, value, units):
+    """``value`` as a float, checked finite and >= 0 [``units``]; else :class:`SwimInputError` naming ``name``."""
     v = float(value)
     if not (np.isfinite(v) and v >= 0.0):
         raise SwimInputError(f"{name} must be a finite value >= 0 [{units}]; got {value!r}")
@@ -138,9 +139,16 @@ def town_light_emission(lat, lon, town_lat, town_lon, population, radius_m=None,
     Raises
     ------
     SwimInputError
-        A negative population, density or lumens, a non-positive radius, a bad grid.
+        A population that is not > 0, a negative density or lumens, a non-positive radius, a town's latitude or
+        longitude that is not finite or out of range, a town farther from the grid than its radius and a cell.
     """
     p = _check_positive("population", population, "persons")
+    if p <= 0:
+        raise SwimInputError(f"population must be > 0 [persons]; got {population!r}")
+    t_lat, t_lon = float(town_lat), float(town_lon)
+    if not (np.isfinite(t_lat) and np.isfinite(t_lon) and abs(t_lat) <= 90.0 and abs(t_lon) <= 360.0):
+        raise SwimInputError(f"a town's latitude must be in [-90, 90] and its longitude in [-360, 360] [deg]; got "
+                             f"({town_lat!r}, {town_lon!r})")
     density = _check_positive("population_density_km2", population_density_km2, "km-2")
     if radius_m is None:
         radius_m = np.sqrt(p / (np.pi * max(density, 1e-9))) * 1e3
@@ -150,11 +158,15 @@ def town_light_emission(lat, lon, town_lat, town_lon, population, radius_m=None,
         direct_fraction, ground_reflectance)
     area = cell_areas(lat, lon)
     la, lo = np.radians(np.asarray(lat, dtype=float)), np.radians(np.asarray(lon, dtype=float))
-    t_la, t_lo = np.radians(float(town_lat)), np.radians(float(town_lon))
+    t_la, t_lo = np.radians(t_lat), np.radians(t_lon)
     cos_c = np.sin(la) * np.sin(t_la) + np.cos(la) * np.cos(t_la) * np.cos(lo - t_lo)
     distance = EARTH_RADIUS_M * np.arccos(np.clip(cos_c, -1.0, 1.0))
     inside = distance <= radius_m
     if not inside.any():
+        cell = float(np.sqrt(np.median(area)))
+        if distance.min() > radius_m + 2.0 * cell:
+            raise SwimInputError(f"the town at ({t_lat:g}, {t_lon:g}) lies {distance.min() / 1e3:.1f} km from the "
+                                 "nearest column of the scene: outside its grid")
         inside = distance == distance.min()
     out = np.zeros(area.shape)
     out[inside] = flux / area[inside].sum()

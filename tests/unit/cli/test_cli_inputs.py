@@ -153,7 +153,8 @@ def test_globe_options_are_checked_before_reading(tmp_path, shared_data):
 
 def test_towns_add_their_city_lights_to_the_scene():
     """--town 'LAT,LON,POPULATION' adds a town's upward light to the scene's emission (the town's flux:
-    population x 1000 lm x the upward share, Garstang 1986) with the --lamps spectrum; bad towns and lamps are refused."""
+    population x 1000 lm x the upward share, Garstang 1986) with the --lamps spectrum; bad towns and lamps are
+    refused."""
     import pytest
 
     from swim.cli.main import _with_towns
@@ -169,6 +170,13 @@ def test_towns_add_their_city_lights_to_the_scene():
     assert emission.attrs["lamp_spectrum"] == "led" and emission.dims == ("y", "x")
     flux = float((emission.values * cell_areas(scene["lat"].values, scene["lon"].values)).sum())
     assert flux == pytest.approx(25000 * LUMENS_PER_PERSON * upward_fraction(), rel=1e-6)
+    # --lamps alone relabels the scene's own emission; without it a new town keeps the scene's lamps
+    assert _with_towns(lit, None, "sodium")["upward_light_emission"].attrs["lamp_spectrum"] == "sodium"
+    assert _with_towns(lit, [f"{lat},{lon},100"], None)["upward_light_emission"].attrs["lamp_spectrum"] == "led"
     for towns, lamps in ((["24.7,-88.6"], "sodium"), (["a,b,c"], "sodium"), ([f"{lat},{lon},100"], "neon")):
         with pytest.raises(SwimInputError, match="--town|--lamps"):
             _with_towns(scene, towns, lamps)
+    for bad, message in (("nan,-105.3,1000", "latitude"), (f"{lat},{lon},0", "population"),
+                         ("24.7,-88.6,1000", "outside its grid")):
+        with pytest.raises(SwimInputError, match=message):
+            _with_towns(scene, [bad], None)
