@@ -81,6 +81,7 @@ def test_the_state_maps_derivative_matches_finite_differences():
         jax.config.update("jax_enable_x64", old)
 
 
+@pytest.mark.full  # the map's derivative is checked in the quick tier; its transpose with the operator's, here
 def test_the_state_maps_adjoint_is_its_transpose():
     """<J dx, dy> = <dx, J^T dy> to float32 rounding for the map to the packed volume and the ground's fields
     (Eq. 7, the resampling, Step 1a's sweep and T)."""

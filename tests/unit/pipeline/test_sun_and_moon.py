@@ -67,7 +67,7 @@ def test_the_times_put_the_lights_where_the_tests_need_them():
     assert sun > 20 and moon < MOON_MARCH_MIN_ELEVATION_DEG
 
 
-@pytest.mark.parametrize("time", [DAY_WITH_MOON, TWILIGHT])
+@pytest.mark.parametrize("time", [pytest.param(DAY_WITH_MOON, marks=pytest.mark.full), TWILIGHT])
 def test_sun_and_moon_is_the_sum_of_the_sunlit_and_moonlit_renders(scene, time):
     both = _render(scene, time, "sun+moon", white_level="auto")
     sun = _render(scene, time, "sun", white_level="auto")
