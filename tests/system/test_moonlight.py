@@ -120,15 +120,23 @@ def test_moonlit_sky_against_krisciunas_schaefer(phase, moon_zenith, sky_azimuth
 @pytest.mark.full
 def test_crescent_disk_in_a_perspective_view():
     """A 1-degree view of a crescent (phase angle 120 deg, lit on the right): the lit pixels are a quarter of the
-    disk, on its right, and carry the moon's direct irradiance."""
+    disk, on its right, and carry the moon's direct irradiance; the dark part shows by earthshine, at
+    :func:`swim.pipeline.moonlight.earthshine_ratio` of the lit part's radiance."""
     moon = moon_from_angles(50.0, 240.0, 120.0, bright_limb_angle_deg=90.0)
     image = swim.render(_clear_scene(), light=moon, camera="perspective", white_level="auto",
                         camera_options={"width": 121, "height": 121, "fov_deg": 1.0, "view_azimuth_deg": 240.0,
                                         "view_zenith_deg": 50.0})
+    from swim.pipeline.moonlight import earthshine_ratio
+
     g = moonlight(image)[1]
     sky = float(np.median(g))
-    disk = g > 100 * sky
+    disk = g > 0.1 * g.max()  # the lit part; the earthshine is ~3e-4 of it
     assert disk.sum() == pytest.approx(moon.illuminated_fraction * math.pi * (0.259 * 121) ** 2, rel=0.1)
+    ashen = (g > 3 * sky) & ~disk  # the dark part by earthshine, brighter than the sky about the moon
+    assert ashen.sum() == pytest.approx((1 - moon.illuminated_fraction) * math.pi * (0.259 * 121) ** 2, rel=0.15)
+    ratio = float(np.median(g[ashen]) / np.median(g[disk]))
+    expected = earthshine_ratio(moon.phase_angle_deg, moon.distance_m, moon.illuminated_fraction)[1]
+    assert ratio == pytest.approx(expected, rel=0.3)
     cols = np.nonzero(disk)[1]
     assert cols.mean() > 60 + 0.3 * 0.259 * 121  # right of the centre by more than a third of the radius
     pixel_sr = (math.radians(1.0) / 121) ** 2
