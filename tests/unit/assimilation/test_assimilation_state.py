@@ -44,6 +44,7 @@ def test_transmittance_is_delta_eddingtons_with_a_finite_derivative_above_the_cl
     assert np.all(np.isfinite(np.asarray(slope))) and float(slope[0]) < 0.0
 
 
+@pytest.mark.full  # JAX's compilation of the map: seconds on a cold cache
 def test_the_state_gives_the_renders_extinction_and_step_1a():
     scene = _scene()
     _, sun, volume, _, _, state_map, layout = scene_tables(scene, 50.0, 120.0)
@@ -58,6 +59,7 @@ def test_the_state_gives_the_renders_extinction_and_step_1a():
     np.testing.assert_allclose(t, t_host, atol=2e-5)
 
 
+@pytest.mark.full  # as above; the quick tier keeps the derivatives of its pieces and the misfits'
 def test_the_state_maps_derivative_matches_finite_differences():
     old = jax.config.jax_enable_x64
     jax.config.update("jax_enable_x64", True)
@@ -81,7 +83,7 @@ def test_the_state_maps_derivative_matches_finite_differences():
         jax.config.update("jax_enable_x64", old)
 
 
-@pytest.mark.full  # the map's derivative is checked in the quick tier; its transpose with the operator's, here
+@pytest.mark.full  # with the map's derivative and the operator's adjoint test
 def test_the_state_maps_adjoint_is_its_transpose():
     """<J dx, dy> = <dx, J^T dy> to float32 rounding for the map to the packed volume and the ground's fields
     (Eq. 7, the resampling, Step 1a's sweep and T)."""

@@ -67,7 +67,8 @@ def test_the_times_put_the_lights_where_the_tests_need_them():
     assert sun > 20 and moon < MOON_MARCH_MIN_ELEVATION_DEG
 
 
-@pytest.mark.parametrize("time", [pytest.param(DAY_WITH_MOON, marks=pytest.mark.full), TWILIGHT])
+@pytest.mark.full  # two and three renders each: the quick tier keeps the cheaper checks of the lights marched
+@pytest.mark.parametrize("time", [DAY_WITH_MOON, TWILIGHT])
 def test_sun_and_moon_is_the_sum_of_the_sunlit_and_moonlit_renders(scene, time):
     both = _render(scene, time, "sun+moon", white_level="auto")
     sun = _render(scene, time, "sun", white_level="auto")
@@ -92,6 +93,7 @@ def test_sun_and_moon_is_the_sum_of_the_sunlit_and_moonlit_renders(scene, time):
     assert both.attrs["march_samples"] == sun.attrs["march_samples"] + moon.attrs["march_samples"]
 
 
+@pytest.mark.full
 def test_moonlight_is_a_millionth_of_the_sunlit_day(scene):
     both = _render(scene, DAY_WITH_MOON, "sun+moon", white_level="auto")
     sun = _render(scene, DAY_WITH_MOON, "sun", white_level="auto")
