@@ -102,6 +102,7 @@ def test_moonlight_is_a_millionth_of_the_sunlit_day(scene):
     assert 0 < extra < full_moon_ratio()
 
 
+@pytest.mark.full  # renders by both lights: the quick tier renders them in the series test
 def test_below_astronomical_twilight_only_the_moon_is_marched(scene):
     both = _render(scene, NIGHT, "sun+moon")
     moon = _render(scene, NIGHT, "moon")
@@ -116,6 +117,7 @@ def test_below_astronomical_twilight_only_the_moon_is_marched(scene):
     assert both.attrs["night_sky_stars"] == moon.attrs["night_sky_stars"] > 0
 
 
+@pytest.mark.full  # renders by both lights: the quick tier renders them in the series test
 def test_with_the_moon_down_only_the_sun_is_marched(scene):
     both = _render(scene, MOON_DOWN, "sun+moon")
     sun = _render(scene, MOON_DOWN, "sun")
@@ -168,6 +170,7 @@ def test_progress_counts_both_marches():
     assert progress_of(alone, 0, 1) is alone and progress_of(None, 1, 2) is None
 
 
+@pytest.mark.full  # renders by both lights: the quick tier renders them in the series test
 def test_progress_of_a_render_by_both_lights_reaches_its_total(scene):
     calls = []
     _render(scene, TWILIGHT, "sun+moon", progress=lambda done, total: calls.append((done, total)))
