@@ -434,7 +434,9 @@ def _sample_hydrometeors(seg, st, at, light, step_mean, t_obs):
     else:
         irradiance_h = light["irradiance_h"]
         weight = jnp.exp(-jnp.minimum(t0, 2.0)) - jnp.exp(-jnp.minimum(t1, 2.0))
-        weight = jnp.where(t1 >= t0, jnp.maximum(weight, 0.0), weight)  # negative for a step back
+        # negative for a step back; where(w >= 0), not maximum(w, 0): the same values, and the derivative of w where it
+        # is 0 (a step through no cloud), not half of it
+        weight = jnp.where(t1 >= t0, jnp.where(weight >= 0.0, weight, 0.0), weight)
         i_nogas = st["i_nogas"] + irradiance_h * weight[:, None]
         i_gas = st["i_gas"] + irradiance_h * jnp.exp(-st["tau_clear"]) * weight[:, None]
         i_cloud_t = st["i_cloud_t"] + t_cloud * at["shadow"] * weight
