@@ -107,6 +107,37 @@ class ForwardOperator:
         """One (ny, nx) bool array per observer: the pixels that have a ray."""
         return self.setup.masks
 
+    def sun_angles(self) -> list:
+        """One (ny, nx) array per observer: the angle [deg] between each pixel's line of sight and the direction to
+        the sun (NaN at pixels without a ray)."""
+        cos = np.concatenate([np.asarray(chunk["rays"]["cos_theta"], float) for chunk in self.setup.chunks])
+        out, first = [], 0
+        for shape, flat in zip(self.setup.shapes, self.setup.pixels):
+            angle = np.full(shape[0] * shape[1], np.nan)
+            angle[flat] = np.degrees(np.arccos(np.clip(cos[first:first + flat.size], -1.0, 1.0)))
+            first += flat.size
+            out.append(angle.reshape(shape))
+        return out
+
+    def masks_without_sun(self, radius_deg=5.0) -> list:
+        """One (ny, nx) float mask per observer for the misfits: 1 at the pixels with a ray farther than
+        ``radius_deg`` [deg] from the sun, 0 elsewhere (the paper's exclusion of the sun's glare, Albers et al.
+        2020, Sect. 4.2.3).
+
+        Raises
+        ------
+        SwimInputError
+            If ``radius_deg`` is not a finite number in [0, 180).
+        """
+        try:
+            radius = float(radius_deg)
+        except (TypeError, ValueError):
+            radius = np.nan
+        if not 0.0 <= radius < 180.0:
+            raise SwimInputError(f"ForwardOperator.masks_without_sun: radius_deg must be in [0, 180) [deg], got "
+                                 f"{radius_deg!r}")
+        return [np.where(np.nan_to_num(angle, nan=-1.0) > radius, 1.0, 0.0) for angle in self.sun_angles()]
+
     def _checked(self, name, state):
         shape = self.setup.state_shape
         if tuple(np.shape(state)) != tuple(shape):

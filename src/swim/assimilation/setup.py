@@ -29,8 +29,8 @@ from ..pipeline.tables import atmosphere_inputs
 from ..rt.gas import AerosolBackground, build_gas_tables
 from ..rt.kernel_tables import ray_phase_functions
 from ..rt.march import ray_segments, without_empty_segments
-from ..rt.march_inputs import (KERNEL_STEP1A_VARIABLES, atmosphere_constants, grid_geometry, packed_aerosol_3d,
-                               packed_species, step1a_channel_names, volume_constants)
+from ..rt.march_inputs import (KERNEL_STEP1A_VARIABLES, GridGeometry, atmosphere_constants, grid_geometry,
+                               packed_aerosol_3d, packed_species, step1a_channel_names, volume_constants)
 from ..rt.march_settings import MarchSettings
 from ..rt.solar import (backscatter_weights, column_sweep_geometry, per_column_sun, solar_transmittance,
                         sweep_geometry)
@@ -76,7 +76,8 @@ class Setup:
     """What :func:`build_setup` holds fixed: the state's shape, its map to the march's inputs (``state_map``,
     ``layout``), the march's other constants (``consts``, JAX arrays), its settings, the chunks of rays (each a dict
     of arrays for :func:`swim.assimilation.march.chunk_radiance`) and which segments lie in the grid, the observers'
-    images' shapes, valid pixels (flat indices, in the order of the rays) and masks, and the reference state."""
+    images' shapes, valid pixels (flat indices, in the order of the rays) and masks, the reference state and the
+    optical volume's horizontal and vertical geometry (:class:`swim.rt.march_inputs.GridGeometry`)."""
 
     state_shape: tuple
     state_map: StateMap
@@ -89,6 +90,7 @@ class Setup:
     pixels: list
     masks: list
     reference_state: np.ndarray
+    geometry: GridGeometry
 
 
 def _as_jax(value, dtype):
@@ -275,4 +277,4 @@ def build_setup(scene, observers, sun_zenith, sun_azimuth, aerosol=None, setting
              len(chunks), scene["cloud_liquid_content"].shape)
     reference = np.asarray(scene["cloud_liquid_content"].transpose("z", "y", "x").values, dtype=float)
     return Setup(reference.shape, state_map, layout, consts, settings, chunks, directions.shape[0], shapes, pixels,
-                 masks, reference)
+                 masks, reference, grid_geometry(volume))
