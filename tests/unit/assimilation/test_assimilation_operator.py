@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from swim.assimilation import ForwardOperator, Observer, one_minus_r, rmse
+from swim.assimilation.retrieval import CONTENT_FLOOR
 from swim.errors import SwimInputError
 from swim.rt.march import trace_rays
 from swim.rt.march_settings import MarchSettings
@@ -49,6 +50,17 @@ def operator32():
 
 def _dot(a, b):
     return sum(float(np.vdot(np.asarray(x, np.float64), np.asarray(y, np.float64))) for x, y in zip(a, b))
+
+
+def _tangent_and_difference(op, x, dx, h):
+    """The tangent-linear images at x along dx, and their central difference with step h."""
+    return op.tangent_linear(x, dx), [(p - m) / (2 * h) for p, m in zip(op(x + h * dx), op(x - h * dx))]
+
+
+def _relative_error(images, reference):
+    """||images - reference|| / ||reference|| over all images, pixels and channels."""
+    difference = [a - b for a, b in zip(images, reference)]
+    return np.sqrt(_dot(difference, difference) / _dot(reference, reference))
 
 
 def test_the_operators_radiance_is_the_kernels(operator32):
@@ -102,12 +114,28 @@ def test_the_tangent_linear_operator_matches_finite_differences(case, x64):
     h = 1e-4
     for _ in range(2):
         dx = x * jnp.asarray(rng.standard_normal(x.shape))
-        tangent = op.tangent_linear(x, dx)
-        fd = [(p - m) / (2 * h) for p, m in zip(op(x + h * dx), op(x - h * dx))]
-        error = np.sqrt(_dot([a - b for a, b in zip(fd, tangent)], [a - b for a, b in zip(fd, tangent)])
-                        / _dot(tangent, tangent))
+        tangent, fd = _tangent_and_difference(op, x, dx, h)
         assert _dot(tangent, tangent) > 1e-4, "the images must change with the liquid water"
-        assert error < 0.01
+        assert _relative_error(fd, tangent) < 0.01
+
+
+def test_cloud_grown_on_clear_lines_of_sight_has_the_derivative_of_finite_differences(x64):
+    """Liquid water added in the clear cells around a cloud with sharp edges, at the retrieval's floor of the content
+    (swim.assimilation.retrieval.CONTENT_FLOOR: every line of sight through the grid meets a little cloud, so that
+    Eq. 12's means over the cloud are defined): the tangent-linear operator gives the central finite difference to
+    1 %. At exactly 0 the composition's cloud radiance is switched off and its derivative there is 0."""
+    scene = _scene()
+    liquid = scene["cloud_liquid_content"]
+    scene["cloud_liquid_content"] = liquid.where(liquid > 2e-4, 0.0)
+    op = ForwardOperator(scene, OBSERVERS, sun_zenith=40.0, sun_azimuth=135.0, settings=SETTINGS,
+                         dtype=jnp.float64)
+    clear = op.reference_state == 0.0
+    x = jnp.asarray(np.maximum(op.reference_state, CONTENT_FLOOR))
+    dx = jnp.asarray(np.where(clear, np.random.default_rng(8).uniform(0.0, 1.0, clear.shape), 0.0))
+    tangent, fd = _tangent_and_difference(op, x, dx, 0.5 * CONTENT_FLOOR)
+    assert _dot(fd, fd) > 1e-2, "cloud added on clear lines of sight must change the images"
+    error = _relative_error(tangent, fd)
+    assert error < 0.01, error
 
 
 def test_value_and_grad_of_a_misfit_matches_finite_differences(x64):
