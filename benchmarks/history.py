@@ -236,3 +236,18 @@ def frame_parts_rows(doc):
         yield case, "rest_s", r.get("rest_s"), "s"
         for name, part in (r.get("parts") or {}).items():
             yield case, f"{name} s", part.get("s"), "s"
+
+
+def assimilation_rows(doc):
+    """``bench_assimilation.py``: per scene and case the cold and warm seconds and the peak memory (renders: the
+    render of a new state too); the gradient's ratios to the forward run and the renders."""
+    size = doc.get("size")
+    for scene, result in (doc.get("results") or {}).items():
+        for case, r in (result.get("cases") or {}).items():
+            if r.get("status") != "ok":
+                continue
+            for key, unit in (("cold_s", "s"), ("warm_s", "s"), ("new_state_s", "s"), ("peak_rss_mb", "MB")):
+                yield f"{scene} {size} {case}", key, r.get(key), unit
+        for key, value in (result.get("ratios") or {}).items():
+            if key.startswith("gradient_per_"):
+                yield f"{scene} {size}", key, value, "x"
