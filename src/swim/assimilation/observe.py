@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import SwimInputError
 from ..rt.march import trace_rays
 from ..rt.march_settings import MarchSettings
-from .setup import build_setup
+from .setup import build_setup, ray_images
 
 #: The observations' march: twice the default grid steps, refinement and the stop in opaque cloud as the render has
 #: them, the paper's cloud composition (the operator's).
@@ -74,13 +74,7 @@ def render_observer_images(scene, observers, *, sun_zenith, sun_azimuth, aerosol
         out = trace_rays(origins, np.asarray(chunk["direction"][:n], float), consts, geometry, rays,
                          settings.with_execution(backend="numba"))
         radiance.append(np.asarray(out["radiance"], float))
-    radiance = np.concatenate(radiance)
-    images, first = [], 0
-    for shape, flat in zip(setup.shapes, setup.pixels):
-        image = np.zeros((3, shape[0] * shape[1]))
-        image[:, flat] = radiance[first:first + flat.size].T
-        first += flat.size
-        images.append(image.reshape(3, *shape))
+    images = ray_images(setup, np.concatenate(radiance), 0.0)
     return images, [np.asarray(m, bool) for m in setup.masks]
 
 

@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import SwimInputError
 from ..rt.march_settings import MarchSettings
 from .march import chunk_radiance
-from .setup import DEFAULT_CHUNK, Observer, Setup, build_setup
+from .setup import DEFAULT_CHUNK, Observer, Setup, build_setup, ray_images
 from .state import march_inputs
 
 log = logging.getLogger(__name__)
@@ -111,13 +111,7 @@ class ForwardOperator:
         """One (ny, nx) array per observer: the angle [deg] between each pixel's line of sight and the direction to
         the sun (NaN at pixels without a ray)."""
         cos = np.concatenate([np.asarray(chunk["rays"]["cos_theta"], float) for chunk in self.setup.chunks])
-        out, first = [], 0
-        for shape, flat in zip(self.setup.shapes, self.setup.pixels):
-            angle = np.full(shape[0] * shape[1], np.nan)
-            angle[flat] = np.degrees(np.arccos(np.clip(cos[first:first + flat.size], -1.0, 1.0)))
-            first += flat.size
-            out.append(angle.reshape(shape))
-        return out
+        return ray_images(self.setup, np.degrees(np.arccos(np.clip(cos[:self.setup.n_rays], -1.0, 1.0))), np.nan)
 
     def masks_without_sun(self, radius_deg=5.0) -> list:
         """One (ny, nx) float mask per observer for the misfits: 1 at the pixels with a ray farther than

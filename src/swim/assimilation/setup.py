@@ -93,6 +93,19 @@ class Setup:
     geometry: GridGeometry
 
 
+def ray_images(setup: Setup, values, fill):
+    """Per-ray values (n_rays, ...) (in the rays' order: observer after observer) as one image (..., ny, nx) per
+    observer, ``fill`` at the pixels without a ray (numpy)."""
+    out, first = [], 0
+    for shape, flat in zip(setup.shapes, setup.pixels):
+        rows = np.asarray(values[first:first + flat.size], float)
+        first += flat.size
+        image = np.full(rows.shape[1:] + (shape[0] * shape[1],), fill, dtype=float)
+        image[..., flat] = np.moveaxis(rows, 0, -1)
+        out.append(image.reshape(rows.shape[1:] + tuple(shape)))
+    return out
+
+
 def _as_jax(value, dtype):
     """A kernel constant as a JAX array: floating arrays in ``dtype``, the others as they are (dicts entry by entry)."""
     if isinstance(value, dict):
