@@ -158,17 +158,17 @@ def march_fixed(rays_in, steps, rays, consts, settings: MarchSettings):
 
 
 @functools.partial(jax.jit, static_argnames=("settings",))
-def chunk_radiance(volume, surface, fixed_consts, chunk, settings: MarchSettings):
+def chunk_radiance(inputs, fixed_consts, chunk, settings: MarchSettings):
     """Radiance (n, 3) [-] (solar-relative L' at 615/546/450 nm, Eq. 2; 0 for rays that are not ``valid``) of one
-    chunk of rays through the packed ``volume`` (level, y, x, channel) and the ground's extended ``surface`` fields
-    (channel, y, x) (:func:`swim.rt.march_inputs.volume_constants`), the differentiable inputs; the other kernel
-    constants ``fixed_consts`` and the chunk's rays and placed steps ``chunk`` (a dict of arrays:
-    :func:`swim.assimilation.setup.build_setup`) are held fixed."""
-    consts = {**fixed_consts, "volume": volume, "surface": surface}
+    chunk of rays through the differentiable kernel constants ``inputs`` (a dict: the packed ``volume`` (level, y, x,
+    channel), the ground's extended ``surface`` fields (channel, y, x) and, with a varied 3-D aerosol,
+    ``aerosol_column`` (1, y, x); :func:`swim.assimilation.state.march_inputs`); the other kernel constants
+    ``fixed_consts`` (:func:`swim.rt.march_inputs.volume_constants`) and the chunk's rays and placed steps ``chunk`` (a
+    dict of arrays: :func:`swim.assimilation.setup.build_setup`) are held fixed."""
+    consts = {**fixed_consts, **inputs}
     rays_in = (chunk["start"], chunk["direction"], chunk["bounds"], chunk["valid"])
     steps = (chunk["lo"], chunk["ds"], chunk["taken"])
     state, aerosol_class = march_fixed(rays_in, steps, chunk["rays"], consts, settings)
     out = _compose(chunk["start"], chunk["direction"], chunk["bounds"], chunk["ends_on_ground"], chunk["valid"],
                    chunk["rays"], consts, settings, state, aerosol_class)
     return out["radiance"]
-

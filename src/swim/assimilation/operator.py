@@ -1,12 +1,14 @@
-"""The differentiable forward operator: cloud liquid water content -> the observers' radiance images.
+"""The differentiable forward operator: hydrometeors and aerosol -> the observers' radiance images.
 
 :class:`ForwardOperator` (``swim.forward_operator``) maps a state, the cloud liquid water content on the scene's grid
-[kg m-3], to the images of radiance that the observers' cameras see, through the whole chain (docs/assimilation.md):
-Eq. 7's extinction, the resampling onto the optical volume's levels, Step 1a's transmittance T (the clouds' shadows
-on the air, the clouds and the ground), the march's single-scattering and diffuse sources and the composition of
-Eqs. 12-26 and the ground's Eq. 35. Its tangent-linear and adjoint operators are JAX's ``jax.jvp`` and ``jax.vjp``
-of that chain, taken chunk by chunk of rays so that memory stays bounded. What is held fixed at the reference state
-(the step placement, the scattering tables, the geometry) is built once by :func:`swim.assimilation.setup.build_setup`.
+[kg m-3] or any of the hydrometeors' contents and effective radii and the 3-D aerosol's extinction
+(:mod:`swim.assimilation.state`), to the images of radiance that the observers' cameras see, through the whole chain
+(docs/assimilation.md): Eq. 7's extinction, the resampling onto the optical volume's levels, Step 1a's transmittance
+T (the clouds' shadows on the air, the clouds and the ground), the march's single-scattering and diffuse sources and
+the composition of Eqs. 12-26 and the ground's Eq. 35. Its tangent-linear and adjoint operators are JAX's ``jax.jvp``
+and ``jax.vjp`` of that chain, taken chunk by chunk of rays so that memory stays bounded. What is held fixed at the
+reference state (the step placement, the scattering tables, the geometry) is built once by
+:func:`swim.assimilation.setup.build_setup`.
 
 References
 ----------
@@ -20,46 +22,53 @@ from __future__ import annotations
 import functools
 import logging
 
+from collections.abc import Mapping
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+import xarray as xr
 
 from ..errors import SwimInputError
 from ..rt.march_settings import MarchSettings
 from .march import chunk_radiance
-from .setup import DEFAULT_CHUNK, Observer, Setup, build_setup, ray_images
-from .state import march_inputs
+from .setup import DEFAULT_CHUNK, DEFAULT_VARIABLES, Observer, Setup, build_setup, ray_images
+from .state import RADIUS_VARIABLES, STATE_UNITS, march_inputs
 
 log = logging.getLogger(__name__)
 
 
 @functools.partial(jax.jit, static_argnames=("settings",))
-def _chunk_jvp(volume, surface, d_volume, d_surface, consts, chunk, settings):
-    """The radiance (n, 3) of a chunk of rays and its directional derivative along (d_volume, d_surface)."""
-    return jax.jvp(lambda v, s: chunk_radiance(v, s, consts, chunk, settings), (volume, surface),
-                   (d_volume, d_surface))
+def _chunk_jvp(inputs, d_inputs, consts, chunk, settings):
+    """The radiance (n, 3) of a chunk of rays and its directional derivative along ``d_inputs`` (the march's
+    differentiable inputs: :func:`swim.assimilation.state.march_inputs`)."""
+    return jax.jvp(lambda a: chunk_radiance(a, consts, chunk, settings), (inputs,), (d_inputs,))
 
 
 @functools.partial(jax.jit, static_argnames=("settings",))
-def _chunk_vjp(volume, surface, consts, chunk, cotangent, settings):
-    """The adjoint of a chunk's radiance: the cotangent (n, 3) pulled back onto the packed volume and the ground's
-    fields."""
-    _, pull = jax.vjp(lambda v, s: chunk_radiance(v, s, consts, chunk, settings), volume, surface)
-    return pull(cotangent)
+def _chunk_vjp(inputs, consts, chunk, cotangent, settings):
+    """The adjoint of a chunk's radiance: the cotangent (n, 3) pulled back onto the march's differentiable inputs."""
+    _, pull = jax.vjp(lambda a: chunk_radiance(a, consts, chunk, settings), inputs)
+    return pull(cotangent)[0]
 
 
 class ForwardOperator:
-    """The observers' radiance images as a differentiable function of the cloud liquid water content.
+    """The observers' radiance images as a differentiable function of the state: the hydrometeors' contents and
+    effective radii and the 3-D aerosol's extinction on the scene's grid.
 
     Parameters
     ----------
     scene : xarray.Dataset
-        Canonical scene (docs/scene-format.md) with ``cloud_liquid_content`` [kg m-3], the reference state: the step
-        placement and the other fixed set-up are taken from it.
+        Canonical scene (docs/scene-format.md): its values of the state's variables are the reference state (the
+        step placement and the other fixed set-up are taken from it); what the state does not hold is held fixed.
     observers : sequence of Observer
         The cameras (:class:`swim.assimilation.setup.Observer`).
     sun_zenith, sun_azimuth : float
         The sun's zenith angle and azimuth [deg] at the scene's reference point, fixed.
+    state_variables : sequence of str
+        The state's variables (:data:`swim.assimilation.state.STATE_VARIABLES`): ``<species>_content`` [kg m-3] and
+        ``<species>_effective_radius`` [m] of the species of :data:`swim.constants.SPECIES`, ``aerosol_extinction``
+        [m-1] (550 nm). Default: the cloud liquid water content alone.
     aerosol : AerosolBackground, optional
         The background aerosol (default :class:`swim.rt.gas.AerosolBackground`).
     settings : MarchSettings, optional
@@ -72,35 +81,49 @@ class ForwardOperator:
 
     Attributes
     ----------
-    reference_state : numpy.ndarray
-        (z, y, x) the scene's ``cloud_liquid_content`` [kg m-3].
+    state_variables : tuple of str
+        The state's variables.
+    reference_state : dict or numpy.ndarray
+        The scene's values of the state's variables, (z, y, x) each (a state's radii as Eq. 7 takes them).
     masks : list of numpy.ndarray
         (ny, nx) bool per observer: the pixels that have a ray (the others are 0 in every image).
 
     Raises
     ------
     SwimInputError
-        If the scene has no ``cloud_liquid_content``, the observers are not a non-empty list of ``Observer`` or their
-        cameras have no pixels; a state of the wrong shape or with values that are not finite.
+        If the state's variables are unknown or the scene does not give their reference (a varied species' content;
+        for ``aerosol_extinction`` a 3-D aerosol not zero everywhere), the observers are not a non-empty list of
+        ``Observer`` or their cameras have no pixels; a state that lacks a variable, has one of the wrong shape,
+        values that are not finite, or radii that are not positive.
 
     Notes
     -----
+    A state is an xarray.Dataset or a dict of (z, y, x) arrays by variable name, or for a one-variable state also a
+    bare (z, y, x) array; :meth:`adjoint` and :meth:`value_and_grad` return the gradient in the state's own kind.
     The state is taken as it is: negative contents give a negative extinction (the linear continuation of Eq. 7
     below the Martin et al. radius's floor), which keeps the operator smooth for finite-difference and line-search
     steps; a minimiser keeps its iterates non-negative (e.g. through a change of variables).
     """
 
-    def __init__(self, scene, observers, *, sun_zenith, sun_azimuth, aerosol=None, settings: MarchSettings = None,
-                 chunk=DEFAULT_CHUNK, dtype=jnp.float32):
-        self.setup: Setup = build_setup(scene, observers, sun_zenith, sun_azimuth, aerosol, settings, chunk, dtype)
+    def __init__(self, scene, observers, *, sun_zenith, sun_azimuth, state_variables=DEFAULT_VARIABLES,
+                 aerosol=None, settings: MarchSettings = None, chunk=DEFAULT_CHUNK, dtype=jnp.float32):
+        self.setup: Setup = build_setup(scene, observers, sun_zenith, sun_azimuth, aerosol, settings, chunk, dtype,
+                                        state_variables)
         self.dtype = dtype
         layout = self.setup.layout
-        self._inputs = jax.jit(lambda lwc, state_map: march_inputs(lwc, state_map, layout))
+        self._inputs = jax.jit(lambda state, state_map: march_inputs(state, state_map, layout))
 
     @property
-    def reference_state(self) -> np.ndarray:
-        """The scene's cloud liquid water content (z, y, x) [kg m-3]: the state the fixed set-up was built from."""
-        return self.setup.reference_state
+    def state_variables(self) -> tuple:
+        """The state's variables (names of :data:`swim.assimilation.state.STATE_VARIABLES`)."""
+        return self.setup.layout.variables
+
+    @property
+    def reference_state(self):
+        """The scene's values of the state's variables: the state the fixed set-up was built from, a dict of (z, y, x)
+        arrays (for a one-variable state its array)."""
+        reference = self.setup.reference_state
+        return next(iter(reference.values())) if len(reference) == 1 else dict(reference)
 
     @property
     def masks(self) -> list:
@@ -132,14 +155,25 @@ class ForwardOperator:
                                  f"{radius_deg!r}")
         return [np.where(np.nan_to_num(angle, nan=-1.0) > radius, 1.0, 0.0) for angle in self.sun_angles()]
 
-    def _checked(self, name, state):
-        shape = self.setup.state_shape
-        if tuple(np.shape(state)) != tuple(shape):
-            raise SwimInputError(f"forward_operator: {name} must have the scene's shape (z, y, x) = {shape} "
-                                 f"[kg m-3], got {np.shape(state)}")
-        if not isinstance(state, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(jnp.asarray(state)))):
-            raise SwimInputError(f"forward_operator: {name} must be finite [kg m-3]")
-        return jnp.asarray(state, self.dtype)
+    def _checked(self, name, state, radii=True):
+        """``state`` as a dict of (z, y, x) arrays in the operator's dtype, and its kind (:func:`state_parts`)."""
+        parts, kind = state_parts(state, self.state_variables, name)
+        shape = tuple(self.setup.state_shape)
+        out = {}
+        for variable, value in parts.items():
+            units = STATE_UNITS[variable]
+            if tuple(np.shape(value)) != shape:
+                raise SwimInputError(f"forward_operator: {name}'s {variable} must have the scene's shape (z, y, x) = "
+                                     f"{shape} [{units}], got {np.shape(value)}")
+            value = jnp.asarray(value, self.dtype)
+            if not isinstance(value, jax.core.Tracer):
+                if not bool(jnp.all(jnp.isfinite(value))):
+                    raise SwimInputError(f"forward_operator: {name}'s {variable} must be finite [{units}]")
+                if radii and variable in RADIUS_VARIABLES and not bool(jnp.all(value > 0)):
+                    raise SwimInputError(f"forward_operator: {name}'s {variable} must be > 0 in every cell [m] (Eq. 7 "
+                                         f"divides by it; give any positive radius where there is no content)")
+            out[variable] = value
+        return out, kind
 
     def _images(self, radiance):
         """The observers' images (3, ny, nx) from the rays' radiance (n_rays, 3), 0 where a pixel has no ray."""
@@ -182,45 +216,87 @@ class ForwardOperator:
         return jnp.concatenate(rows)[:self.setup.n_rays]
 
     def march_inputs(self, state):
-        """The packed volume (level, y, x, channel) and the ground's fields (channel, y', x') of a state."""
-        return self._inputs(self._checked("state", state), self.setup.state_map)
+        """The march's differentiable inputs of a state (:func:`swim.assimilation.state.march_inputs`): a dict with the
+        packed volume ``volume`` (level, y, x, channel), the ground's fields ``surface`` (channel, y', x') and, with a
+        varied 3-D aerosol, its column optical depth ``aerosol_column`` (1, y, x)."""
+        return self._inputs(self._checked("state", state)[0], self.setup.state_map)
 
     def __call__(self, state):
         """The observers' radiance images: a list of (3, ny, nx) arrays [-] (solar-relative L' at 615/546/450 nm,
-        Eq. 2) of a state (z, y, x) [kg m-3]."""
-        volume, surface = self.march_inputs(state)
+        Eq. 2) of a state (:class:`ForwardOperator`'s Notes)."""
+        inputs = self.march_inputs(state)
         s = self.setup
-        rows = [chunk_radiance(volume, surface, s.consts, chunk, s.settings) for chunk in s.chunks]
+        rows = [chunk_radiance(inputs, s.consts, chunk, s.settings) for chunk in s.chunks]
         return self._images(self._radiance(rows))
 
     def tangent_linear(self, state, dstate):
-        """The images' directional derivatives (a list of (3, ny, nx)) at ``state`` along ``dstate`` (z, y, x)."""
-        state, dstate = self._checked("state", state), self._checked("dstate", dstate)
-        (volume, surface), (d_volume, d_surface) = jax.jvp(lambda x: self._inputs(x, self.setup.state_map),
-                                                           (state,), (dstate,))
+        """The images' directional derivatives (a list of (3, ny, nx)) at ``state`` along ``dstate`` (a state of the
+        same variables, in their units)."""
+        state, dstate = self._checked("state", state)[0], self._checked("dstate", dstate, radii=False)[0]
+        inputs, d_inputs = jax.jvp(lambda x: self._inputs(x, self.setup.state_map), (state,), (dstate,))
         s = self.setup
-        rows = [_chunk_jvp(volume, surface, d_volume, d_surface, s.consts, chunk, s.settings)[1]
-                for chunk in s.chunks]
+        rows = [_chunk_jvp(inputs, d_inputs, s.consts, chunk, s.settings)[1] for chunk in s.chunks]
         return self._images(self._radiance(rows))
 
     def adjoint(self, state, dimages):
         """The adjoint: the images' cotangents ``dimages`` (a list of (3, ny, nx), one per observer) pulled back to
-        the state, (z, y, x) [per kg m-3 of the images' units]."""
-        state = self._checked("state", state)
-        (volume, surface), pull = jax.vjp(lambda x: self._inputs(x, self.setup.state_map), state)
+        the state: the gradient, in the kind of ``state`` (a Dataset, a dict or the one array; per unit of each
+        variable)."""
+        given = state
+        state, kind = self._checked("state", state)
+        inputs, pull = jax.vjp(lambda x: self._inputs(x, self.setup.state_map), state)
         s = self.setup
-        d_volume, d_surface = jnp.zeros_like(volume), jnp.zeros_like(surface)
+        d_inputs = jax.tree_util.tree_map(jnp.zeros_like, inputs)
         for chunk, cotangent in zip(s.chunks, self._chunk_rows(self._ray_cotangent(dimages))):
-            dv, ds = _chunk_vjp(volume, surface, s.consts, chunk, cotangent, s.settings)
-            d_volume, d_surface = d_volume + dv, d_surface + ds
-        return pull((d_volume, d_surface))[0]
+            d_chunk = _chunk_vjp(inputs, s.consts, chunk, cotangent, s.settings)
+            d_inputs = jax.tree_util.tree_map(jnp.add, d_inputs, d_chunk)
+        return state_like(pull(d_inputs)[0], kind, given)
 
     def value_and_grad(self, loss, state):
         """``loss(images)`` (a JAX-differentiable scalar function of the list of images) and its gradient with
-        respect to the state (z, y, x), through :meth:`adjoint`."""
+        respect to the state (of the state's kind: :meth:`adjoint`)."""
         images = self(state)
         value, pull = jax.vjp(loss, images)
         return value, self.adjoint(state, pull(jnp.ones_like(value))[0])
+
+
+def state_parts(state, variables, name="state"):
+    """A state as a dict of its variables' arrays, and its kind: ``"dataset"`` (an xarray.Dataset, its variables
+    taken as (z, y, x)), ``"dict"`` (a mapping) or ``"array"`` (a bare (z, y, x) array, which stands for the one
+    variable of a one-variable state).
+
+    Raises
+    ------
+    SwimInputError
+        If a bare array is given for a state of several variables, or a mapping lacks one of ``variables`` or holds
+        others.
+    """
+    if isinstance(state, xr.Dataset):
+        parts, kind = {v: state[v].transpose("z", "y", "x").data for v in variables if v in state}, "dataset"
+        extra = set()
+    elif isinstance(state, Mapping):
+        parts, kind = dict(state), "dict"
+        extra = set(parts) - set(variables)
+    else:
+        if len(variables) != 1:
+            raise SwimInputError(f"forward_operator: {name} must be a dict or an xarray.Dataset of {variables} (an "
+                                 f"array stands for a one-variable state only)")
+        return {variables[0]: state}, "array"
+    missing = [v for v in variables if v not in parts]
+    if missing or extra:
+        raise SwimInputError(f"forward_operator: {name} must hold exactly the variables {variables}; missing "
+                             f"{missing}, not of the state {sorted(extra)}")
+    return {v: parts[v] for v in variables}, kind
+
+
+def state_like(parts, kind, given):
+    """``parts`` (a dict of (z, y, x) arrays) in the kind of the state ``given`` (:func:`state_parts`): its one array,
+    a dict, or an xarray.Dataset with ``given``'s coordinates."""
+    if kind == "array":
+        return next(iter(parts.values()))
+    if kind == "dataset":
+        return xr.Dataset({v: given[v].transpose("z", "y", "x").copy(data=np.asarray(a)) for v, a in parts.items()})
+    return parts
 
 
 def forward_operator(scene, observers, **options) -> ForwardOperator:

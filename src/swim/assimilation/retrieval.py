@@ -63,7 +63,9 @@ class RetrievalResult:
 def placement_scene(scene, state, layer_margin=2):
     """The scene whose liquid water places the operator's steps: ``state`` where it is larger, and
     :data:`PLACEMENT_CONTENT` in every cell of the cloud layer (the levels with cloud, > 1e-5 kg m-3, and
-    ``layer_margin`` levels below and above), so that the retrieval can grow cloud anywhere in that layer.
+    ``layer_margin`` levels below and above), so that the retrieval can grow cloud anywhere in that layer. The scene's
+    cloud-liquid effective radius is left out: the droplets' r_e follows the retrieved content (Martin et al. 1994,
+    :func:`swim.assimilation.state.effective_radius_liquid`), not the places of the scene's own clouds.
 
     Parameters
     ----------
@@ -77,7 +79,7 @@ def placement_scene(scene, state, layer_margin=2):
     Returns
     -------
     xarray.Dataset
-        A copy of ``scene`` with that ``cloud_liquid_content``.
+        A copy of ``scene`` with that ``cloud_liquid_content`` and without ``cloud_liquid_effective_radius``.
 
     Raises
     ------
@@ -91,7 +93,7 @@ def placement_scene(scene, state, layer_margin=2):
                              "march's steps; give one (e.g. from colour_ratio_update)")
     layer = np.zeros(state.shape, bool)
     layer[max(levels[0] - layer_margin, 0):levels[-1] + layer_margin + 1] = True
-    out = scene.copy()
+    out = scene.drop_vars("cloud_liquid_effective_radius", errors="ignore")
     out["cloud_liquid_content"] = (("z", "y", "x"), np.maximum(state, np.where(layer, PLACEMENT_CONTENT, 0.0)))
     return out
 

@@ -23,6 +23,8 @@ from ..errors import SwimInputError
 from ..frames import enu_from_azimuth_zenith, enu_to_scene_rotation, geodetic_to_scene
 from ..geometry.cameras import make_camera
 from ..io.scene import as_scene
+from ..optics.hydrometeors import effective_radius
+from ..optics.model_aerosol import smoke_extinction
 from ..optics.volume import ColumnInterpolation, build_optical_volume
 from ..pipeline.scene_stage import terrain_at
 from ..pipeline.tables import atmosphere_inputs
@@ -36,7 +38,7 @@ from ..rt.solar import (backscatter_weights, column_sweep_geometry, per_column_s
                         sweep_geometry)
 from ..rt.surface_margin import LIGHTING_EDGE_FADE_CELLS
 from .march import placed_steps, step_segments
-from .state import StateLayout, StateMap
+from .state import AEROSOL_VARIABLE, RADIUS_VARIABLES, STATE_VARIABLES, StateLayout, StateMap
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +47,8 @@ log = logging.getLogger(__name__)
 DIFFERENTIABLE = {"tau_refine": 0.0, "stop_tau": 0.0, "cloud_scattering": "albers2020"}
 #: Rays per chunk of the march [-]: each chunk's reverse pass holds its rays' states at every step.
 DEFAULT_CHUNK = 4096
+#: The state's variables unless told otherwise: the cloud liquid water content.
+DEFAULT_VARIABLES = ("cloud_liquid_content",)
 
 
 @dataclass(frozen=True)
@@ -76,7 +80,8 @@ class Setup:
     """What :func:`build_setup` holds fixed: the state's shape, its map to the march's inputs (``state_map``,
     ``layout``), the march's other constants (``consts``, JAX arrays), its settings, the chunks of rays (each a dict
     of arrays for :func:`swim.assimilation.march.chunk_radiance`) and which segments lie in the grid, the observers'
-    images' shapes, valid pixels (flat indices, in the order of the rays) and masks, the reference state and the
+    images' shapes, valid pixels (flat indices, in the order of the rays) and masks, the reference state (a dict of
+    (z, y, x) arrays by variable: :func:`reference_values`) and the
     optical volume's horizontal and vertical geometry (:class:`swim.rt.march_inputs.GridGeometry`)."""
 
     state_shape: tuple
@@ -89,7 +94,7 @@ class Setup:
     shapes: list
     pixels: list
     masks: list
-    reference_state: np.ndarray
+    reference_state: dict
     geometry: GridGeometry
 
 
@@ -140,16 +145,87 @@ def _sun_sweep(volume, sun):
     return (di, dj, path, mu0), n_sub
 
 
-def _state_map(scene, volume, consts, species, sun, dtype):
+def state_variables(variables) -> tuple:
+    """The state's variables as a tuple of names of :data:`swim.assimilation.state.STATE_VARIABLES`.
+
+    Raises
+    ------
+    SwimInputError
+        If ``variables`` is empty, repeats a name or names one that a state cannot hold.
+    """
+    names = (variables,) if isinstance(variables, str) else tuple(variables)
+    unknown = [name for name in names if name not in STATE_VARIABLES]
+    if not names or unknown or len(set(names)) != len(names):
+        raise SwimInputError(f"forward_operator: state_variables must be distinct names of {STATE_VARIABLES}; got "
+                             f"{variables!r}")
+    return names
+
+
+def varied_species(variables) -> tuple:
+    """The species (names, in the order of :data:`swim.constants.SPECIES`) whose content or effective radius the
+    state holds."""
+    return tuple(s for s in SPECIES if f"{s}_content" in variables or f"{s}_effective_radius" in variables)
+
+
+def _scene_field(scene, name):
+    return np.asarray(scene[name].transpose("z", "y", "x").values, dtype=float)
+
+
+def check_scene_for_state(scene, variables):
+    """Refuse a scene that does not give what the state's variables need: the contents of the varied species (the
+    reference state; zeros for a clear start) and, for the 3-D aerosol, its ``aerosol_extinction``.
+
+    Raises
+    ------
+    SwimInputError
+        If one is missing.
+    """
+    for species in varied_species(variables):
+        if f"{species}_content" not in scene:
+            raise SwimInputError(f"forward_operator: the scene needs {species}_content [kg m-3] for the state's "
+                                 f"{species} (the reference state; zeros for a clear start)")
+    if AEROSOL_VARIABLE in variables and AEROSOL_VARIABLE not in scene:
+        raise SwimInputError("forward_operator: the scene needs aerosol_extinction [m-1] (the reference 3-D aerosol "
+                             "at 550 nm) for the state's aerosol_extinction")
+
+
+def reference_values(scene, variables) -> dict:
+    """The state's variables in the scene (z, y, x) each, float64: the contents and the 3-D aerosol's extinction as
+    given, the effective radii as the render's Eq. 7 takes them (the scene's where positive, else the default
+    relation: :func:`swim.optics.hydrometeors.effective_radius`)."""
+    out = {}
+    for name in variables:
+        if name in RADIUS_VARIABLES:
+            species = name[:-len("_effective_radius")]
+            given = _scene_field(scene, name) if name in scene else None
+            out[name] = effective_radius(species, _scene_field(scene, f"{species}_content"), given)
+        else:
+            out[name] = _scene_field(scene, name)
+    return out
+
+
+def _fixed_fields(scene, variables, dtype):
+    """What the varied species and aerosol need that the state does not hold (:attr:`StateMap.fixed`)."""
+    fixed = {}
+    for species in varied_species(variables):
+        for name in (f"{species}_content", f"{species}_effective_radius"):
+            if name not in variables and name in scene:
+                fixed[name] = _as_jax(_scene_field(scene, name), dtype)
+    if AEROSOL_VARIABLE in variables and "smoke_mass_content" in scene:
+        fixed["smoke_extinction"] = _as_jax(smoke_extinction(_scene_field(scene, "smoke_mass_content")), dtype)
+    return fixed
+
+
+def _state_map(scene, volume, consts, species, sun, variables, dtype):
     """The fixed parts of the map from the state to the packed volume (:class:`StateMap`, :class:`StateLayout`)."""
     levels = volume["level"].values
     terrain = volume["terrain_height"].values
     interpolation = ColumnInterpolation(scene["height"].values, terrain, levels)
-    radius = (scene["cloud_liquid_effective_radius"].values if "cloud_liquid_effective_radius" in scene else None)
-    if radius is not None and not np.all(radius > 0):
-        radius = None  # where the scene gives no radius everywhere, Martin's relation (as the volume takes it)
     packed = consts["volume"]
     aerosol_3d = packed_aerosol_3d(packed.shape[-1], len(species))
+    if AEROSOL_VARIABLE in variables and not aerosol_3d:
+        raise SwimInputError("forward_operator: the state's aerosol_extinction needs a scene whose 3-D aerosol is not "
+                             "zero everywhere (the reference)")
     names = step1a_channel_names(aerosol_3d)
     t_channel = packed.shape[-1] - len(names) + names.index("cloud_transmittance")
     sweep, n_sub = _sun_sweep(volume, sun)
@@ -162,11 +238,13 @@ def _state_map(scene, volume, consts, species, sun, dtype):
                  np.maximum(np.maximum(margin - ii, ii - (nx - 1 + margin)), 0.0))
     f = _as_jax
     state_map = StateMap(jnp.asarray(interpolation.k0), f(interpolation.w, dtype), jnp.asarray(interpolation.zero),
-                         None if radius is None else f(radius, dtype), f(packed, dtype),
+                         _fixed_fields(scene, variables, dtype), f(packed, dtype),
                          f(backscatter_weights(volume.sel(species=[SPECIES[s] for s in species])), dtype),
                          tuple(f(a, dtype) for a in sweep), jnp.asarray(ground), f(surface, dtype),
-                         f(np.exp(-d / LIGHTING_EDGE_FADE_CELLS), dtype))
-    layout = StateLayout(species.index(SPECIES.index("cloud_liquid")), t_channel, len(species), int(n_sub), margin)
+                         f(np.exp(-d / LIGHTING_EDGE_FADE_CELLS), dtype), f(float(volume.attrs["dz"]), dtype))
+    channels = tuple((name, species.index(SPECIES.index(name))) for name in varied_species(variables))
+    layout = StateLayout(variables, channels, t_channel, len(species) if AEROSOL_VARIABLE in variables else -1,
+                         len(species), int(n_sub), margin)
     return state_map, layout
 
 
@@ -236,58 +314,60 @@ def march_settings(settings: MarchSettings | None) -> MarchSettings:
     return settings.with_execution(backend="jax", grid_kernel="lockstep").kernel_settings()
 
 
-def scene_tables(scene, sun_zenith, sun_azimuth, aerosol=None, dtype=jnp.float32):
+def scene_tables(scene, sun_zenith, sun_azimuth, aerosol=None, dtype=jnp.float32, variables=DEFAULT_VARIABLES):
     """The scene's fixed tables for the reference state: the sun's direction (3,) in the scene frame, the optical
-    volume, the clear air's tables, the kernel constants (numpy, the packed volume with the cloud liquid's channel
-    always), and the map from the state to the march's inputs (:class:`StateMap`, :class:`StateLayout`).
+    volume, the clear air's tables, the kernel constants (numpy, the packed volume with the channels of the varied
+    species always), and the map from the state of ``variables`` to the march's inputs (:class:`StateMap`,
+    :class:`StateLayout`).
 
     Raises
     ------
     SwimInputError
-        If the scene has no ``cloud_liquid_content``.
+        If ``variables`` are not names a state can hold, or the scene does not give what they need
+        (:func:`check_scene_for_state`).
     """
     scene = as_scene(scene)
-    if "cloud_liquid_content" not in scene:
-        raise SwimInputError("forward_operator: the scene needs cloud_liquid_content [kg m-3] (the reference state; "
-                             "zeros for a clear start)")
+    variables = state_variables(variables)
+    check_scene_for_state(scene, variables)
     aerosol = AerosolBackground() if aerosol is None else aerosol
     sun = np.asarray(enu_from_azimuth_zenith(float(sun_azimuth), float(sun_zenith)), dtype=float)
     volume = build_optical_volume(scene)
-    species = tuple(sorted(set(packed_species(volume)) | {SPECIES.index("cloud_liquid")}))
+    species = tuple(sorted(set(packed_species(volume)) | {SPECIES.index(s) for s in varied_species(variables)}))
     transmittance = solar_transmittance(volume, sun, variables=KERNEL_STEP1A_VARIABLES)
     mean_albedo, profile, classes = atmosphere_inputs(volume)
     gas = build_gas_tables(aerosol, surface_albedo=mean_albedo, scene_aerosol_profile=profile,
                            aerosol_class_aod=classes)
     host = {**volume_constants(volume, transmittance, species=species), **atmosphere_constants(gas, sun)}
-    state_map, layout = _state_map(scene, volume, host, species, sun, dtype)
+    state_map, layout = _state_map(scene, volume, host, species, sun, variables, dtype)
     return scene, sun, volume, gas, host, state_map, layout
 
 
 def build_setup(scene, observers, sun_zenith, sun_azimuth, aerosol=None, settings=None, chunk=DEFAULT_CHUNK,
-                dtype=jnp.float32) -> Setup:
-    """The forward operator's fixed set-up (:class:`Setup`) from a canonical ``scene`` whose
-    ``cloud_liquid_content`` is the reference state; the arguments as :class:`swim.assimilation.ForwardOperator`
-    takes them.
+                dtype=jnp.float32, variables=DEFAULT_VARIABLES) -> Setup:
+    """The forward operator's fixed set-up (:class:`Setup`) from a canonical ``scene`` whose values of the state's
+    ``variables`` are the reference state; the arguments as :class:`swim.assimilation.ForwardOperator` takes them.
 
     Raises
     ------
     SwimInputError
-        If the scene has no ``cloud_liquid_content``, or the observers are not a non-empty list of
-        :class:`Observer` or their cameras have no pixels.
+        If the scene does not give what the state's variables need (:func:`scene_tables`), or the observers are not
+        a non-empty list of :class:`Observer` or their cameras have no pixels.
     """
     observers = list(observers)
     if not observers or not all(isinstance(o, Observer) for o in observers):
         raise SwimInputError(f"forward_operator: observers must be a non-empty list of Observer, got {observers!r}")
     aerosol = AerosolBackground() if aerosol is None else aerosol
-    scene, sun, volume, gas, host, state_map, layout = scene_tables(scene, sun_zenith, sun_azimuth, aerosol, dtype)
+    scene, sun, volume, gas, host, state_map, layout = scene_tables(scene, sun_zenith, sun_azimuth, aerosol, dtype,
+                                                                    variables)
     consts = _as_jax(host, dtype)
     seg, directions, phase, shapes, pixels, masks = _rays(volume, observers, sun, gas, aerosol, float(host["top"]))
     bounds = seg["bounds"]
     settings = without_empty_segments(march_settings(settings), [np.any(length > 0) for length in (
         bounds[:, 0], bounds[:, 1] - bounds[:, 0], bounds[:, 2] - bounds[:, 1])])
     chunks = _chunks(seg, directions, phase, consts, settings, int(chunk), dtype)
-    log.info("forward operator: %d observers, %d rays in %d chunks, state %s", len(observers), directions.shape[0],
-             len(chunks), scene["cloud_liquid_content"].shape)
-    reference = np.asarray(scene["cloud_liquid_content"].transpose("z", "y", "x").values, dtype=float)
-    return Setup(reference.shape, state_map, layout, consts, settings, chunks, directions.shape[0], shapes, pixels,
-                 masks, reference, grid_geometry(volume))
+    reference = reference_values(scene, layout.variables)
+    shape = next(iter(reference.values())).shape
+    log.info("forward operator: %d observers, %d rays in %d chunks, state %s on %s", len(observers),
+             directions.shape[0], len(chunks), ", ".join(layout.variables), shape)
+    return Setup(shape, state_map, layout, consts, settings, chunks, directions.shape[0], shapes, pixels, masks,
+                 reference, grid_geometry(volume))

@@ -52,7 +52,7 @@ def test_the_state_gives_the_renders_extinction_and_step_1a():
     beta = np.asarray(liquid_extinction(lwc, state_map))
     expected = volume["extinction"].sel(species="cloud_liquid").values
     np.testing.assert_allclose(beta, expected, rtol=2e-5, atol=1e-9)
-    packed, _ = march_inputs(lwc, state_map, layout)
+    packed = march_inputs({"cloud_liquid_content": lwc}, state_map, layout)["volume"]
     t_host = solar_transmittance(volume, sun, variables=["cloud_transmittance"])["cloud_transmittance"].values
     t = np.asarray(packed[..., layout.t_channel])
     assert t.min() < 0.7, "the cloud must shade the levels below it"
@@ -69,8 +69,8 @@ def test_the_state_maps_derivative_matches_finite_differences():
         direction = lwc * jnp.asarray(np.random.default_rng(0).standard_normal(lwc.shape))
 
         def f(a):
-            packed, surface = march_inputs(a, state_map, layout)
-            return packed[..., layout.t_channel], surface[layout.surface_t_channel]
+            inputs = march_inputs({"cloud_liquid_content": a}, state_map, layout)
+            return inputs["volume"][..., layout.t_channel], inputs["surface"][layout.surface_t_channel]
 
         _, tangent = jax.jvp(f, (lwc,), (direction,))
         h = 1e-4
@@ -92,9 +92,13 @@ def test_the_state_maps_adjoint_is_its_transpose():
     lwc = jnp.asarray(scene["cloud_liquid_content"].values, jnp.float32)
     rng = np.random.default_rng(4)
     dx = jnp.asarray(rng.standard_normal(lwc.shape) * 1e-4, jnp.float32)
-    outputs, tangent = jax.jvp(lambda a: march_inputs(a, state_map, layout), (lwc,), (dx,))
+    def f(a):
+        inputs = march_inputs({"cloud_liquid_content": a}, state_map, layout)
+        return inputs["volume"], inputs["surface"]
+
+    outputs, tangent = jax.jvp(f, (lwc,), (dx,))
     dy = tuple(jnp.asarray(rng.standard_normal(o.shape), jnp.float32) for o in outputs)
-    _, pull = jax.vjp(lambda a: march_inputs(a, state_map, layout), lwc)
+    _, pull = jax.vjp(f, lwc)
     lhs = sum(float(np.vdot(np.asarray(t, np.float64), np.asarray(d, np.float64))) for t, d in zip(tangent, dy))
     rhs = float(np.vdot(np.asarray(dx, np.float64), np.asarray(pull(dy)[0], np.float64)))
     assert abs(lhs) > 1e-3
