@@ -1,21 +1,26 @@
 """A variational retrieval of the cloud liquid water content from images: the forward operator's misfit minimised.
 
-:func:`retrieve_liquid_water` minimises the images' misfit, weighted by the observations' noise,
+:func:`retrieve_liquid_water` minimises the images' misfit, weighted by the observations' noise, and optionally 3D-Var's
+background term J_b,
 
-    J(x) = 1/2 sum_p w_p sum_c ((F_c,p(x) - y_c,p) / sigma_c,p)^2 / sum_p w_p,
+    J(x) = [1/2 sum_p w_p sum_c ((F_c,p(x) - y_c,p) / sigma_c,p)^2
+            + 1/2 sum_k ((x_k - x_b,k) / sigma_b,k)^2] / sum_p w_p,
 
 over the liquid water content x >= :data:`CONTENT_FLOOR` (z, y, x) [kg m-3] by L-BFGS-B (scipy), with the gradient of
 :meth:`ForwardOperator.value_and_grad`; sigma_c,p = sqrt((relative_noise y)^2 + absolute_noise^2) and w the pixels'
-masks. The step placement that the operator holds fixed is renewed in outer loops (as incremental 4D-Var renews
-its linearisation): each outer loop builds a new operator whose steps are placed for the current state and for a thin
-cloud layer around it (:func:`placement_scene`), so that cloud can grow where the first guess had none.
+masks; the second sum (a diagonal background-error covariance with standard deviations sigma_b) is there only where a
+background x_b is given. The step placement that the operator holds fixed is renewed in outer loops (as incremental
+4D-Var renews its linearisation): each outer loop builds a new operator whose steps are placed for the current state
+and for a thin cloud layer around it (:func:`placement_scene`), so that cloud can grow where the first guess had none.
 
 References
 ----------
 Albers et al. (2020), doi:10.5194/amt-13-3235-2020, Sects. 4.2.3 (r, Eq. 37) and 4.3 (variational assimilation of
 camera images); Levis et al. (2015), Airborne three-dimensional cloud tomography, ICCV, doi:10.1109/ICCV.2015.373
-(tomographic retrieval of liquid water from multi-view images); Byrd et al. (1995), A limited memory algorithm for
-bound constrained optimization, SIAM J. Sci. Comput. 16, 1190-1208, doi:10.1137/0916069 (L-BFGS-B).
+(tomographic retrieval of liquid water from multi-view images); Lorenc (1986), Analysis methods for numerical
+weather prediction, Q. J. R. Meteorol. Soc. 112, 1177-1194, doi:10.1002/qj.49711247414 (the background term);
+Byrd et al. (1995), A limited memory algorithm for bound constrained optimization, SIAM J. Sci. Comput. 16,
+1190-1208, doi:10.1137/0916069 (L-BFGS-B).
 """
 
 from __future__ import annotations
@@ -140,6 +145,44 @@ def image_cost(observed, masks, relative_noise=0.01, absolute_noise=1e-3):
     return cost
 
 
+def background_cost(background, background_error, total):
+    """3D-Var's background term J_b (module docstring) with a diagonal covariance, on the scale of
+    :func:`image_cost` (divided by the masks' total weight ``total``): a function of the state (z, y, x) [kg m-3]
+    that returns J_b [-] and its gradient (numpy).
+
+    Parameters
+    ----------
+    background : array_like
+        (z, y, x) the background state x_b [kg m-3].
+    background_error : float or array_like
+        The background's error standard deviations sigma_b [kg m-3], > 0: a number or (z, y, x).
+    total : float
+        The masks' total weight (the images' misfit's divisor), > 0.
+
+    Raises
+    ------
+    SwimInputError
+        If the background is not finite, or the errors are not finite and > 0 or do not broadcast to its shape.
+    """
+    xb = np.asarray(background, float)
+    if not np.all(np.isfinite(xb)):
+        raise SwimInputError("retrieve_liquid_water: background must be finite [kg m-3]")
+    try:
+        sigma = np.broadcast_to(np.asarray(background_error, float), xb.shape)
+    except ValueError:
+        raise SwimInputError(f"retrieve_liquid_water: background_error must be a number or have the background's shape "
+                             f"{xb.shape} [kg m-3], got shape {np.shape(background_error)}") from None
+    if not (np.all(np.isfinite(sigma)) and np.all(sigma > 0)):
+        raise SwimInputError("retrieve_liquid_water: background_error must be finite standard deviations > 0 [kg m-3]")
+    weight = 1.0 / (sigma ** 2 * float(total))
+
+    def cost(x):
+        d = np.asarray(x, float) - xb
+        return 0.5 * float(np.sum(weight * d * d)), weight * d
+
+    return cost
+
+
 def mean_r(images, observed, masks):
     """r-bar (Eq. 37, averaged over the channels) of each observer's image (3, ny, nx) against its observation, with
     its mask (ny, nx): a list of floats [-], one per observer."""
@@ -149,7 +192,8 @@ def mean_r(images, observed, masks):
 
 def retrieve_liquid_water(scene, observers, observed, *, sun_zenith, sun_azimuth, first_guess, sun_radius_deg=5.0,
                           relative_noise=0.01, absolute_noise=1e-3, outer_loops=2, iterations=30,
-                          layer_margin=2, settings=None, chunk=4096) -> RetrievalResult:
+                          layer_margin=2, background=None, background_error=None, settings=None,
+                          chunk=4096) -> RetrievalResult:
     """The liquid water content (z, y, x) [kg m-3] that minimises the images' misfit (module docstring).
 
     Parameters
@@ -172,6 +216,9 @@ def retrieve_liquid_water(scene, observers, observed, *, sun_zenith, sun_azimuth
         Outer loops (new step placements) and L-BFGS-B iterations in each.
     layer_margin : int
         Levels below and above the current cloud in which cloud may grow in an outer loop.
+    background, background_error : array_like, optional
+        The background state x_b (z, y, x) [kg m-3] and its error standard deviations sigma_b [kg m-3] (a number or
+        (z, y, x), > 0) of the background term J_b; None: no background term.
     settings, chunk
         The operator's (:class:`ForwardOperator`).
 
@@ -183,7 +230,8 @@ def retrieve_liquid_water(scene, observers, observed, *, sun_zenith, sun_azimuth
     ------
     SwimInputError
         If the first guess has the wrong shape, negative or non-finite values or no cloud, the observed images do not
-        match the observers, a count is below 1, or the noise levels are out of range.
+        match the observers, a count is below 1, the noise levels are out of range, or a background is given
+        without its errors or with the wrong shape (:func:`background_cost`).
     """
     x = np.asarray(first_guess, float)
     shape = tuple(scene.sizes[d] for d in ("z", "y", "x"))
@@ -195,6 +243,10 @@ def retrieve_liquid_water(scene, observers, observed, *, sun_zenith, sun_azimuth
     if not (outer_loops >= 1 and iterations >= 1):
         raise SwimInputError(f"retrieve_liquid_water: outer_loops and iterations must be >= 1, got {outer_loops} "
                              f"and {iterations}")
+    if (background is None) != (background_error is None) or (background is not None
+                                                                and np.shape(background) != shape):
+        raise SwimInputError(f"retrieve_liquid_water: background (the scene's shape {shape}) and background_error "
+                             f"[kg m-3] go together")
     x = np.maximum(x, CONTENT_FLOOR)
     result = RetrievalResult(x, None)
     for outer in range(int(outer_loops)):
@@ -203,8 +255,10 @@ def retrieve_liquid_water(scene, observers, observed, *, sun_zenith, sun_azimuth
         check_observed(observed, op.setup.shapes, "retrieve_liquid_water")
         masks = op.masks_without_sun(sun_radius_deg)
         cost = image_cost(observed, masks, relative_noise, absolute_noise)
+        prior = None if background is None else background_cost(background, background_error,
+                                                                 sum(float(np.sum(w)) for w in masks))
         record = {"outer": outer, "r_before": mean_r(op(x), observed, masks)}
-        x, record = _minimise(op, cost, x, int(iterations), record)
+        x, record = _minimise(op, cost, x, int(iterations), record, prior)
         record["r_after"] = mean_r(op(x), observed, masks)
         log.info("retrieval, outer loop %d: cost %.4g -> %.4g, r-bar %s -> %s (%d iterations, %.0f s)", outer,
                  record["cost_before"], record["cost_after"], np.round(record["r_before"], 3),
@@ -214,16 +268,22 @@ def retrieve_liquid_water(scene, observers, observed, *, sun_zenith, sun_azimuth
     return result
 
 
-def _minimise(op, cost, x, iterations, record):
-    """L-BFGS-B on x / :data:`X_SCALE` >= :data:`CONTENT_FLOOR` / :data:`X_SCALE` from ``x``: the new state and
-    ``record`` with the cost and counts."""
+def _minimise(op, cost, x, iterations, record, prior=None):
+    """L-BFGS-B on x / :data:`X_SCALE` >= :data:`CONTENT_FLOOR` / :data:`X_SCALE` from ``x``, of the images' misfit
+    ``cost`` plus the background term ``prior`` (:func:`background_cost`, or None): the new state and ``record`` with
+    the cost and counts."""
     shape, n_cells = x.shape, x.size
     evaluations = [0]
 
     def fun(u):
-        value, grad = op.value_and_grad(cost, jnp.asarray(u.reshape(shape) * X_SCALE, op.dtype))
+        state = u.reshape(shape) * X_SCALE
+        value, grad = op.value_and_grad(cost, jnp.asarray(state, op.dtype))
+        value, grad = float(value), np.asarray(grad, float)
+        if prior is not None:
+            value_b, grad_b = prior(state)
+            value, grad = value + value_b, grad + grad_b
         evaluations[0] += 1
-        return float(value), np.asarray(grad, float).ravel() * X_SCALE
+        return value, grad.ravel() * X_SCALE
 
     start = time.perf_counter()
     record["cost_before"] = fun(x.ravel() / X_SCALE)[0]

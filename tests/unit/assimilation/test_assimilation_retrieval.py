@@ -13,7 +13,7 @@ import pytest
 from swim.assimilation import ForwardOperator, Observer
 from swim.assimilation.colour_ratio import _ray_cells, cloudy_pixels, colour_ratio_update
 from swim.assimilation.observe import synthetic_observations
-from swim.assimilation.retrieval import (CONTENT_FLOOR, image_cost, mean_r, placement_scene,
+from swim.assimilation.retrieval import (CONTENT_FLOOR, background_cost, image_cost, mean_r, placement_scene,
                                          retrieve_liquid_water)
 from swim.errors import SwimInputError
 from swim.rt.march_settings import MarchSettings
@@ -47,11 +47,34 @@ def test_the_image_cost_is_the_noise_weighted_mean_square():
     assert float(image_cost(observed, masks)(images)) == pytest.approx(expected, rel=1e-5)
 
 
+def test_the_background_term_is_the_weighted_square_and_its_gradient():
+    """J_b = 1/2 sum ((x - x_b) / sigma_b)^2 / total, its gradient against central differences; bad errors refused."""
+    rng = np.random.default_rng(2)
+    xb = rng.uniform(0, 1e-3, (2, 3, 4))
+    sigma = rng.uniform(1e-4, 2e-4, xb.shape)
+    x = xb + rng.normal(0, 1e-4, xb.shape)
+    value, grad = background_cost(xb, sigma, 7.0)(x)
+    assert value == pytest.approx(0.5 * np.sum(((x - xb) / sigma) ** 2) / 7.0, rel=1e-12)
+    d = rng.normal(0, 1e-5, xb.shape)
+    cost = background_cost(xb, sigma, 7.0)
+    fd = (cost(x + d)[0] - cost(x - d)[0]) / 2
+    assert np.vdot(grad, d) == pytest.approx(fd, rel=1e-9)
+    assert background_cost(xb, 1e-4, 1.0)(xb)[0] == 0.0
+    for bad in (0.0, -1e-4, np.nan, np.ones((2, 2))):
+        with pytest.raises(SwimInputError, match="background_error"):
+            background_cost(xb, bad, 1.0)
+    with pytest.raises(SwimInputError, match="background must be finite"):
+        background_cost(np.full(xb.shape, np.inf), 1e-4, 1.0)
+
+
 def test_bad_retrieval_and_observation_inputs_are_refused():
     scene = _scene()
     with pytest.raises(SwimInputError, match="first_guess"):
         retrieve_liquid_water(scene, OBSERVERS, [], sun_zenith=30.0, sun_azimuth=0.0,
                               first_guess=-np.ones((16, 9, 10)))
+    with pytest.raises(SwimInputError, match="go together"):
+        retrieve_liquid_water(scene, OBSERVERS, [], sun_zenith=30.0, sun_azimuth=0.0,
+                              first_guess=np.zeros((16, 9, 10)), background=np.zeros((16, 9, 10)))
     with pytest.raises(SwimInputError, match="outer_loops"):
         retrieve_liquid_water(scene, OBSERVERS, [], sun_zenith=30.0, sun_azimuth=0.0,
                               first_guess=np.zeros((16, 9, 10)), outer_loops=0)
@@ -139,3 +162,17 @@ def test_the_retrieval_fits_the_images_of_a_thinned_cloud(case):
     with pytest.raises(SwimInputError, match="observed image"):
         retrieve_liquid_water(scene, OBSERVERS, [o[:, :4] for o in observed], sun_zenith=30.0, sun_azimuth=150.0,
                               first_guess=guess, outer_loops=1, iterations=1, settings=SETTINGS)
+
+
+@pytest.mark.full
+def test_a_tight_background_holds_the_retrieval_at_the_background(case):
+    """With background errors 1e-5 of the cloud's largest content, J_b outweighs the images' misfit: the retrieval
+    from the thinned cloud stays at it (the background) instead of thickening towards the observed cloud (with errors
+    of 1e-3 of it, the images move it by 7 %)."""
+    scene, truth, observed, _ = case
+    guess = 0.4 * truth
+    result = retrieve_liquid_water(scene, OBSERVERS, observed, sun_zenith=30.0, sun_azimuth=150.0,
+                                   first_guess=guess, outer_loops=1, iterations=5, settings=SETTINGS,
+                                   background=guess, background_error=1e-5 * truth.max())
+    change = np.linalg.norm(result.state - np.maximum(guess, CONTENT_FLOOR)) / np.linalg.norm(guess)
+    assert change < 0.01, change
