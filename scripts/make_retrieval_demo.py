@@ -2,7 +2,8 @@
 satellite, by the variational retrieval and by the paper's colour-ratio baseline.
 
 Usage: ``python scripts/make_retrieval_demo.py [--data ../shared/data] [--out docs/validation] [--cases tuned held_out]
-[--size 48] [--outer 3] [--iterations 30]``
+[--size 48] [--outer 3] [--iterations 30] [--align-outer 3] [--align-iterations 30] [--rows existing alignment]
+[--truth-radius martin]``
 
 The truth is a 1 x 1 km subvolume of the RICO LES (50 x 50 columns of 20 m, 18 levels of 40 m from 440 m) with two
 cumulus clouds (and 18 fragments). Its images are "observed" by
@@ -13,10 +14,16 @@ place). Three all-sky cameras on the ground (48 x 48) and a satellite 700 km up 
 pixels over 0.085 deg) see it. Each case reports, per observer and on average, the image r-bar (Eq. 37,
 pixels within 5 deg of the sun masked) and the relative L2 error of the 3-D liquid water content of the first guess,
 the colour-ratio baseline (one iteration, Sect. 4.3) and the variational retrieval (from the first guess, and from the
-baseline's result), each state's images made by the observations' model without noise. Two cases: ``tuned`` (the one
-the settings were chosen on: the smaller cloud removed, the larger moved 120 m north and 120 m east, the sun at 30 deg
-zenith in the south-east) and ``held_out`` (the larger removed, the smaller moved 100 m south and 80 m east, the sun at
-40 deg in the south-west), reported apart.
+baseline's result), and the field alignment's pipeline (``--rows alignment``): the first guess's clouds moved and
+scaled as wholes (:func:`swim.assimilation.alignment.align_clouds`), then the baseline, then the variational retrieval
+(``--align-outer`` outer loops of ``--align-iterations``); each state's images made by the observations' model without
+noise. The truth's droplets follow the forward operator's relation of the effective radius to the content (Martin et
+al. 1994, ``--truth-radius martin``, the default: the LES's own radius dropped), because images at visible wavelengths
+measure the extinction, 1.5 LWC / (rho_w r_e), and not the liquid water apart from r_e; ``--truth-radius les`` keeps
+the LES's radii (larger than Martin's), which biases every retrieved content low. Two
+cases: ``tuned`` (the one the settings were chosen on: the smaller cloud removed, the larger moved 120 m north and
+120 m east, the sun at 30 deg zenith in the south-east) and ``held_out`` (the larger removed, the smaller moved 100 m
+south and 80 m east, the sun at 40 deg in the south-west), reported apart.
 
 Writes ``<out>/retrieval_<case>.png`` (rows: observed, first guess, baseline, retrieved; columns: the cameras and the
 satellite; and the liquid water path of each), ``<out>/retrieval.json`` (with the truth's figures:
@@ -37,9 +44,11 @@ from scipy import ndimage
 
 import swim
 from swim.assimilation import ForwardOperator, Observer
+from swim.assimilation.alignment import align_clouds
 from swim.assimilation.colour_ratio import colour_ratio_update
 from swim.assimilation.observe import render_observer_images, synthetic_observations
-from swim.assimilation.retrieval import mean_r, placement_scene, retrieve_liquid_water
+from swim.assimilation.retrieval import image_cost, mean_r, placement_scene, retrieve_liquid_water
+from swim.assimilation.state import effective_radius_liquid
 from swim.geometry.cameras import look_at_angles
 from swim.rt.march_settings import MarchSettings
 
@@ -55,10 +64,14 @@ CAMERAS = ((15, 15), (35, 20), (25, 38))  # the ground cameras' columns (y, x) i
 SATELLITE = dict(height=700e3, off_nadir_deg=25.0, view_azimuth_deg=300.0, fov_deg=0.085)
 
 
-def truth_scene(data: Path):
-    """The RICO subvolume: 50 x 50 columns, the lowest 18 levels, its reference point at its centre."""
+def truth_scene(data: Path, radius="les"):
+    """The RICO subvolume: 50 x 50 columns, the lowest 18 levels, its reference point at its centre; its droplets'
+    effective radius the LES's (``radius="les"``) or, without it, Martin et al.'s of the content (``"martin"``: the
+    forward operator's relation, :func:`swim.assimilation.state.effective_radius_liquid`)."""
     full = swim.read_shdom_les(data / "les" / "rico122x106x39.txt", reference_lat=17.5, reference_lon=-62.0)
     sub = full.isel(y=slice(40, 90), x=slice(8, 58), z=slice(0, 18))
+    if radius == "martin":
+        sub = sub.drop_vars("cloud_liquid_effective_radius")
     return sub.assign_attrs(reference_lat=float(sub.lat.mean()), reference_lon=float(sub.lon.mean()))
 
 
@@ -96,7 +109,8 @@ def truth_figures(truth):
     horizontal optical depths, and the L2 error of its own cloud mask (> 1e-5 kg m-3) filled with each level's median
     content (and of that mask dilated by one cell)."""
     q = truth["cloud_liquid_content"].values
-    r_e = truth["cloud_liquid_effective_radius"].values
+    r_e = (truth["cloud_liquid_effective_radius"].values if "cloud_liquid_effective_radius" in truth
+           else np.asarray(effective_radius_liquid(q)))
     cloud = q > 1e-5
     beta = np.where(q > 0, 1.5 * q / (1000.0 * np.where(r_e > 0, r_e, 1.0)), 0.0)  # Eq. 7 [m-1]
     dz = float(np.median(np.diff(truth["height"].values[:, 0, 0])))
@@ -116,7 +130,8 @@ def l2(x, truth):
     return float(np.linalg.norm(x - truth) / np.linalg.norm(truth))
 
 
-def run_case(name, truth, size, outer, iterations, out: Path):
+def run_case(name, truth, size, outer, iterations, out: Path, rows_wanted=("existing", "alignment"),
+             align_outer=3, align_iterations=30):
     case = CASES[name]
     q = truth["cloud_liquid_content"].values
     guess = first_guess(truth, case["removed"], case["shift"], case["thinning"])
@@ -126,16 +141,21 @@ def run_case(name, truth, size, outer, iterations, out: Path):
     op = ForwardOperator(placement_scene(truth, guess), obs, sun_zenith=zenith, sun_azimuth=azimuth,
                          settings=SETTINGS)
     masks = op.masks_without_sun(5.0)
-    states, rows = {"first guess": guess}, {}
-    start = time.perf_counter()
-    states["colour-ratio baseline"] = colour_ratio_update(op, truth, guess, observed, masks).state
-    seconds = {"colour-ratio baseline": time.perf_counter() - start}
-    for label, x0 in (("variational", guess), ("baseline + variational", states["colour-ratio baseline"])):
+    states, rows, seconds, extra = {"first guess": guess}, {}, {}, {}
+    if "existing" in rows_wanted:
         start = time.perf_counter()
-        result = retrieve_liquid_water(truth, obs, observed, sun_zenith=zenith, sun_azimuth=azimuth, first_guess=x0,
-                                       outer_loops=outer, iterations=iterations, settings=SETTINGS)
-        seconds[label] = time.perf_counter() - start
-        states[label] = result.state
+        states["colour-ratio baseline"] = colour_ratio_update(op, truth, guess, observed, masks).state
+        seconds["colour-ratio baseline"] = time.perf_counter() - start
+        for label, x0 in (("variational", guess), ("baseline + variational", states["colour-ratio baseline"])):
+            start = time.perf_counter()
+            result = retrieve_liquid_water(truth, obs, observed, sun_zenith=zenith, sun_azimuth=azimuth,
+                                           first_guess=x0, outer_loops=outer, iterations=iterations,
+                                           settings=SETTINGS)
+            seconds[label] = time.perf_counter() - start
+            states[label] = result.state
+    if "alignment" in rows_wanted:
+        alignment_rows(truth, obs, observed, op, masks, case, (align_outer, align_iterations), states, seconds,
+                       extra)
     images = {}
     for label, x in states.items():
         # scored by the observations' model (the render's numba kernel, no noise): the same judge for every state,
@@ -144,9 +164,39 @@ def run_case(name, truth, size, outer, iterations, out: Path):
         sim["cloud_liquid_content"] = (("z", "y", "x"), x)
         images[label] = render_observer_images(sim, obs, sun_zenith=zenith, sun_azimuth=azimuth)[0]
         r = mean_r(images[label], observed, masks)
-        rows[label] = {"r_bar": r, "mean_r_bar": float(np.mean(r)), "l2": l2(x, q), "seconds": seconds.get(label)}
+        rows[label] = {"r_bar": r, "mean_r_bar": float(np.mean(r)), "l2": l2(x, q), "seconds": seconds.get(label),
+                       **extra.get(label, {})}
     figure(name, observed, images, states, q, masks, out / f"retrieval_{name}.png")
     return rows
+
+
+def alignment_rows(truth, obs, observed, op, masks, case, loops, states, seconds, extra):
+    """The field alignment's rows: the first guess's clouds moved and scaled
+    (:func:`swim.assimilation.alignment.align_clouds`), then the colour-ratio baseline on the aligned state (its
+    steps placed for it), then the variational retrieval (``loops``: outer loops and iterations) from there; into
+    ``states``, ``seconds`` and ``extra`` (the fitted displacements and amplitudes against the first guess's)."""
+    zenith, azimuth = case["sun"]
+    start = time.perf_counter()
+    aligned = align_clouds(op, image_cost(observed, masks), states["first guess"])
+    seconds["alignment"] = time.perf_counter() - start
+    states["alignment"] = aligned.state
+    extra["alignment"] = {"displacements_cells": aligned.displacements.round(3).tolist(),
+                          "amplitudes": aligned.amplitudes.round(4).tolist(),
+                          "rest_amplitude": round(aligned.rest_amplitude, 4),
+                          "true_displacement_cells": [0.0] + [-float(v) for v in case["shift"]],
+                          "true_amplitude": 1.0 / case["thinning"]}
+    start = time.perf_counter()
+    placed = ForwardOperator(placement_scene(truth, aligned.state), obs, sun_zenith=zenith, sun_azimuth=azimuth,
+                             settings=SETTINGS)
+    states["alignment + baseline"] = colour_ratio_update(placed, truth, aligned.state, observed, masks).state
+    seconds["alignment + baseline"] = seconds["alignment"] + time.perf_counter() - start
+    start = time.perf_counter()
+    result = retrieve_liquid_water(truth, obs, observed, sun_zenith=zenith, sun_azimuth=azimuth,
+                                   first_guess=states["alignment + baseline"], outer_loops=loops[0],
+                                   iterations=loops[1], settings=SETTINGS)
+    label = "alignment + baseline + variational"
+    seconds[label] = seconds["alignment + baseline"] + time.perf_counter() - start
+    states[label] = result.state
 
 
 def figure(name, observed, images, states, truth, masks, path):
@@ -187,10 +237,16 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=48)
     parser.add_argument("--outer", type=int, default=3)
     parser.add_argument("--iterations", type=int, default=30)
+    parser.add_argument("--align-outer", type=int, default=3)
+    parser.add_argument("--align-iterations", type=int, default=30)
+    parser.add_argument("--rows", nargs="+", default=["existing", "alignment"], choices=["existing", "alignment"])
+    parser.add_argument("--truth-radius", default="martin", choices=["les", "martin"])
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    truth = truth_scene(args.data)
-    results = {name: run_case(name, truth, args.size, args.outer, args.iterations, args.out) for name in args.cases}
+    args.out.mkdir(parents=True, exist_ok=True)
+    truth = truth_scene(args.data, args.truth_radius)
+    results = {name: run_case(name, truth, args.size, args.outer, args.iterations, args.out, args.rows,
+                              args.align_outer, args.align_iterations) for name in args.cases}
     results["truth"] = truth_figures(truth)
     (args.out / "retrieval.json").write_text(json.dumps(results, indent=1) + "\n")
     print(json.dumps(results["truth"]))

@@ -6,6 +6,7 @@ JAX is imported with this package: the operator runs the JAX march
 (docs/decisions/0025-differentiable-forward-operator.md).
 """
 
+from .alignment import AlignmentResult, align_clouds
 from .colour_ratio import ColourRatioUpdate, colour_ratio_update
 from .misfit import one_minus_r, rmse
 from .observe import synthetic_observations
@@ -13,5 +14,6 @@ from .operator import ForwardOperator, forward_operator
 from .retrieval import RetrievalResult, retrieve_liquid_water
 from .setup import Observer
 
-__all__ = ["ColourRatioUpdate", "ForwardOperator", "Observer", "RetrievalResult", "colour_ratio_update",
-           "forward_operator", "one_minus_r", "retrieve_liquid_water", "rmse", "synthetic_observations"]
+__all__ = ["AlignmentResult", "ColourRatioUpdate", "ForwardOperator", "Observer", "RetrievalResult", "align_clouds",
+           "colour_ratio_update", "forward_operator", "one_minus_r", "retrieve_liquid_water", "rmse",
+           "synthetic_observations"]
