@@ -7,7 +7,6 @@ The JAX programs of the chain take 20-50 s each to compile on an empty cache (2 
 import sys
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -32,15 +31,6 @@ OBSERVERS = [Observer(height=20.0, camera_options=dict(width=6, height=6, fov_de
                                                          view_zenith_deg=150.0))]
 #: Two scenes: the cloud over a hill under two suns.
 CASES = {"sun in the south-east": (40.0, 135.0), "low sun in the west": (65.0, 250.0)}
-
-
-@pytest.fixture
-def x64():
-    """float64 inside the test only."""
-    old = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", True)
-    yield
-    jax.config.update("jax_enable_x64", old)
 
 
 @pytest.fixture(scope="module")

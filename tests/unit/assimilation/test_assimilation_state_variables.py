@@ -7,29 +7,23 @@ are checked without building an operator (the quick tier)."""
 import sys
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import xarray as xr
 
-from swim.assimilation import ForwardOperator, Observer
+from swim.assimilation import ForwardOperator
 from swim.assimilation.operator import state_like, state_parts
 from swim.assimilation.setup import check_scene_for_state, reference_values, scene_tables, state_variables
 from swim.assimilation.state import march_inputs
 from swim.errors import SwimInputError
 from swim.io.scene import scene_from_arrays
-from swim.rt.march_settings import MarchSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_assimilation_operator import OBSERVERS, SETTINGS  # noqa: E402
 from test_assimilation_state import _scene  # noqa: E402
 
 VARIABLES = ("cloud_liquid_content", "cloud_ice_content", "cloud_liquid_effective_radius", "aerosol_extinction")
-SETTINGS = MarchSettings(n_before=4, n_grid=24, n_after=8)
-OBSERVERS = [Observer(height=20.0, camera_options=dict(width=6, height=6, fov_deg=70.0, view_azimuth_deg=30.0,
-                                                        view_zenith_deg=30.0)),
-             Observer(height=6000.0, camera_options=dict(width=5, height=5, fov_deg=70.0, view_azimuth_deg=200.0,
-                                                         view_zenith_deg=150.0))]
 
 
 def _mixed_scene():
@@ -47,14 +41,6 @@ def _mixed_scene():
                              reference_lon=10.0, terrain_height=base["terrain_height"].values,
                              cloud_liquid_content=liquid, cloud_ice_content=ice,
                              cloud_liquid_effective_radius=radius, aerosol_extinction=aerosol, land_mask=1.0)
-
-
-@pytest.fixture
-def x64():
-    old = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", True)
-    yield
-    jax.config.update("jax_enable_x64", old)
 
 
 def _dot(a, b):
