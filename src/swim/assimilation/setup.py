@@ -81,8 +81,8 @@ class Setup:
     ``layout``), the march's other constants (``consts``, JAX arrays), its settings, the chunks of rays (each a dict
     of arrays for :func:`swim.assimilation.march.chunk_radiance`) and which segments lie in the grid, the observers'
     images' shapes, valid pixels (flat indices, in the order of the rays) and masks, the reference state (a dict of
-    (z, y, x) arrays by variable: :func:`reference_values`) and the
-    optical volume's horizontal and vertical geometry (:class:`swim.rt.march_inputs.GridGeometry`)."""
+    (z, y, x) arrays by variable: :func:`reference_values`) and the optical volume's horizontal and vertical geometry
+    (:class:`swim.rt.march_inputs.GridGeometry`)."""
 
     state_shape: tuple
     state_map: StateMap

@@ -72,6 +72,7 @@ def test_an_integer_displacement_moves_an_object_as_np_roll_and_the_amplitude_sc
     np.testing.assert_allclose(still, 0.5 * state, rtol=1e-5)
 
 
+@pytest.mark.full  # JAX's compilation of the warp's derivative and of L-BFGS-B's loop: ~15 s on a cold cache
 def test_the_warps_derivative_matches_finite_differences():
     state = _blob()
     objects = jnp.asarray(state[None], jnp.float32)
@@ -90,6 +91,7 @@ def test_the_warps_derivative_matches_finite_differences():
         assert grad[m] == pytest.approx(fd, rel=2e-2, abs=1e-3 * float(np.abs(grad).max()))
 
 
+@pytest.mark.full  # as above
 def test_alignment_recovers_a_known_displacement_and_amplitude():
     truth = _blob(centre=(2.5, 11.0, 12.0))
     guess = 0.6 * np.roll(truth, (-5, 4), axis=(1, 2))
