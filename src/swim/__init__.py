@@ -5,7 +5,7 @@ Physics after Albers et al. (2020), Atmos. Meas. Tech. 13, 3235-3261, doi:10.519
 Public API: :func:`open_scene`, :func:`default_scene`, :func:`scene_from_arrays`, :func:`render`,
 :func:`write_image`, :func:`write_png`, :func:`write_netcdf`, :class:`AerosolBackground` (1-D and stratospheric aerosol),
 :class:`MarchSettings` with its :class:`ExecutionSettings`, :func:`sky_irradiance` (GHI/DHI/DNI from an all-sky image),
-:func:`forward_operator` (differentiable images of the cloud water: tangent-linear, adjoint, gradients).
+:func:`forward_operator` (differentiable images of the hydrometeors and aerosol: tangent-linear, adjoint, gradients).
 """
 
 import logging
