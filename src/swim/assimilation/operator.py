@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import functools
 import logging
-
 from collections.abc import Mapping
 
 import jax

@@ -174,12 +174,6 @@ def species_extinction(species, state, state_map: StateMap):
     return resample_levels(beta, state_map)
 
 
-def liquid_extinction(lwc, state_map: StateMap):
-    """Eq. 7 for the cloud liquid water content ``lwc`` (z, y, x) [kg m-3], on the regular levels (level, y, x)
-    [m-1]."""
-    return species_extinction("cloud_liquid", {"cloud_liquid_content": lwc}, state_map)
-
-
 def aerosol_extinction(state, state_map: StateMap):
     """The 3-D aerosol's extinction at 550 nm (level, y, x) [m-1] on the regular levels: the state's
     ``aerosol_extinction`` and the scene's smoke held fixed."""
@@ -200,12 +194,6 @@ def step1a_fields(packed, state_map: StateMap, layout: StateLayout):
     di, dj, path_per_level, mu0 = state_map.sweep
     taus = _sweep(jnp.stack(fields), di, dj, path_per_level, layout.n_sub)  # (level, fields, y, x)
     return transmittance(taus[:, 0], taus[:, 1], mu0), (taus[:, 2] if layout.aerosol_channel >= 0 else None)
-
-
-def cloud_transmittance(packed, state_map: StateMap, layout: StateLayout):
-    """Step 1a's cloud transmittance T (level, y, x) [-] of a packed volume's species (all levels swept; above the
-    clouds T = 1)."""
-    return step1a_fields(packed, state_map, layout._replace(aerosol_channel=-1))[0]
 
 
 def transmittance(tau_s, b_tau_s, mu0):
@@ -231,12 +219,6 @@ def at_ground(field, state_map: StateMap, layout: StateLayout, outside):
     return outside + (extruded - outside) * state_map.fade
 
 
-def ground_transmittance(t, state_map: StateMap, layout: StateLayout):
-    """The ground's T channel (y + 2 m, x + 2 m) from T (level, y, x): T at the first level at or above the terrain,
-    continued beyond the grid by its edge value fading to 1 (the unobstructed sun far away)."""
-    return at_ground(t, state_map, layout, 1.0)
-
-
 def march_inputs(state, state_map: StateMap, layout: StateLayout):
     """The march's differentiable inputs from a state (a dict of (z, y, x) arrays, the variables of
     ``layout.variables``: :data:`STATE_VARIABLES`): a dict with the packed volume ``volume`` (level, y, x, channel)
@@ -256,8 +238,7 @@ def march_inputs(state, state_map: StateMap, layout: StateLayout):
         out["aerosol_column"] = (jnp.sum(aerosol, axis=0) * state_map.dz)[None].astype(dtype)
     t, aerosol_tau = step1a_fields(packed, state_map, layout)
     packed = packed.at[..., layout.t_channel].set(t.astype(dtype))
-    surface = state_map.surface.at[layout.surface_t_channel].set(ground_transmittance(t, state_map, layout)
-                                                                  .astype(dtype))
+    surface = state_map.surface.at[layout.surface_t_channel].set(at_ground(t, state_map, layout, 1.0).astype(dtype))
     if aerosol_tau is not None:
         packed = packed.at[..., layout.aerosol_channel + 1].set(aerosol_tau.astype(dtype))
         surface = surface.at[layout.surface_aerosol_channel].set(at_ground(aerosol_tau, state_map, layout, 0.0)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from swim.assimilation.setup import scene_tables
-from swim.assimilation.state import (MARTIN_LOWER_LWC, effective_radius_liquid, liquid_extinction, march_inputs,
+from swim.assimilation.state import (MARTIN_LOWER_LWC, effective_radius_liquid, march_inputs, species_extinction,
                                      transmittance)
 from swim.io.scene import scene_from_arrays
 from swim.rt.solar import solar_transmittance, transmittance_delta_eddington
@@ -49,7 +49,7 @@ def test_the_state_gives_the_renders_extinction_and_step_1a():
     scene = _scene()
     _, sun, volume, _, _, state_map, layout = scene_tables(scene, 50.0, 120.0)
     lwc = jnp.asarray(scene["cloud_liquid_content"].values, jnp.float32)
-    beta = np.asarray(liquid_extinction(lwc, state_map))
+    beta = np.asarray(species_extinction("cloud_liquid", {"cloud_liquid_content": lwc}, state_map))
     expected = volume["extinction"].sel(species="cloud_liquid").values
     np.testing.assert_allclose(beta, expected, rtol=2e-5, atol=1e-9)
     packed = march_inputs({"cloud_liquid_content": lwc}, state_map, layout)["volume"]
